@@ -1,0 +1,66 @@
+"""The ``cloudsieve`` command line: thin wiring over the library.
+
+Each subcommand lives in its own module of this package and exposes
+``add_parser(subparsers)``, which registers the subcommand and sets
+``func=run``; modules are discovered, so adding a command is adding a file.
+``ORDER`` (an int, lower first) in a module sets its place in ``--help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import pkgutil
+import sys
+
+from ..errors import CloudsieveError
+
+__all__ = ["main", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .. import __version__
+
+    parser = argparse.ArgumentParser(
+        prog="cloudsieve",
+        description=(
+            "Simplify 3D point clouds too large for memory by entropy estimation "
+            "(Mahdaoui et al. 2017), streaming through a zarr point store, on dask."
+        ),
+        epilog="Run 'cloudsieve COMMAND --help' for a command's options.",
+    )
+    parser.add_argument("--version", action="version", version=f"cloudsieve {__version__}")
+    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    modules = []
+    for info in pkgutil.iter_modules(__path__):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{__name__}.{info.name}")
+        if hasattr(module, "add_parser"):
+            modules.append(module)
+    modules.sort(key=lambda m: (getattr(m, "ORDER", 100), m.__name__))
+    for module in modules:
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the CLI; returns the exit code (0 ok, 2 for a cloudsieve error)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = logging.WARNING - 10 * min(args.verbose, 2)
+    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args) or 0)
+    except CloudsieveError as exc:
+        print(f"cloudsieve {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"cloudsieve {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,71 @@
+"""The exceptions cloudsieve raises.
+
+One root, :class:`CloudsieveError`; every subclass also inherits the built-in
+exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
+``except ValueError`` keeps working. Messages name the file and the problem.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "CloudsieveError",
+    "InputNotFoundError",
+    "StoreNotFoundError",
+    "InputFormatError",
+    "UnknownFormatError",
+    "CorruptInputError",
+    "InvalidPointsError",
+    "EmptyInputError",
+    "DestinationExistsError",
+    "SameSourceDestinationError",
+    "DestinationNotWritableError",
+    "PipelineError",
+]
+
+
+class CloudsieveError(Exception):
+    """Root of every error cloudsieve raises on purpose."""
+
+
+class InputNotFoundError(CloudsieveError, FileNotFoundError):
+    """The input file does not exist."""
+
+
+class StoreNotFoundError(CloudsieveError, FileNotFoundError):
+    """The path is not a cloudsieve point store (or does not exist)."""
+
+
+class InputFormatError(CloudsieveError, ValueError):
+    """The input cannot be read as the format it claims (or was given)."""
+
+
+class UnknownFormatError(InputFormatError):
+    """No reader or writer is registered for the file's extension."""
+
+
+class CorruptInputError(InputFormatError):
+    """The file is truncated, corrupt, or its header disagrees with its data."""
+
+
+class InvalidPointsError(InputFormatError):
+    """Coordinates are NaN or infinite (refused unless asked to drop them)."""
+
+
+class EmptyInputError(InputFormatError):
+    """The input holds no points."""
+
+
+class DestinationExistsError(CloudsieveError, FileExistsError):
+    """The destination exists and overwriting was not asked for."""
+
+
+class SameSourceDestinationError(CloudsieveError, ValueError):
+    """The destination is the source: cloudsieve never overwrites its input."""
+
+
+class DestinationNotWritableError(CloudsieveError, PermissionError):
+    """The destination (or its folder) cannot be written."""
+
+
+class PipelineError(CloudsieveError, ValueError):
+    """A pipeline file is malformed."""

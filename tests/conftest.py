@@ -1,0 +1,41 @@
+"""Shared fixtures: the real scans in ../shared/data beside the project root."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_DIR = ROOT.parent / "shared" / "data"
+
+LAS_FILES = [
+    "simple.las",
+    "simple.laz",
+    "simple.copc.laz",
+    "extrabytes.las",
+    "1_4_w_evlr.laz",
+    "append-bug.laz",
+    "vegetation_1_3.las",
+    "autzen_trim.laz",
+    "autzen_trim.las",
+    "autzen_trim_7.las",
+    "Megaplot.laz",
+]
+
+
+def shared_file(name: str) -> Path:
+    """Path of a real scan in ../shared/data; skips the test when the folder is absent."""
+    if not DATA_DIR.is_dir():
+        pytest.skip(f"real scans not available: {DATA_DIR} is absent (a fresh clone without shared/)")
+    path = DATA_DIR / name
+    if not path.is_file():
+        pytest.skip(f"real scan {name} not found in {DATA_DIR}")
+    return path
+
+
+@pytest.fixture
+def data_dir() -> Path:
+    if not DATA_DIR.is_dir():
+        pytest.skip(f"real scans not available: {DATA_DIR} is absent (a fresh clone without shared/)")
+    return DATA_DIR
