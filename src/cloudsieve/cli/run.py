@@ -1,0 +1,58 @@
+"""``cloudsieve run PIPELINE``: run a declarative pipeline file."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+ORDER = 70
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run a pipeline file (readers, filters.entropy, writers, evaluate, compare)",
+        description=(
+            "Run a JSON pipeline: an ordered list of stages like PDAL's pipelines. "
+            "See pipelines/ in the project for examples and cloudsieve.pipeline for the format."
+        ),
+    )
+    p.add_argument("pipeline", metavar="PIPELINE", help="the pipeline's JSON file")
+    p.add_argument(
+        "--set",
+        dest="overrides",
+        action="append",
+        default=[],
+        metavar="STAGE.OPTION=VALUE",
+        help="override an option, e.g. --set readers.las.filename=scan.laz (repeatable; VALUE parsed as JSON when it is)",
+    )
+    p.add_argument("--check", action="store_true", help="validate the pipeline and list its inputs, run nothing")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..pipeline import load_pipeline, run_pipeline
+    from ..progress import bar
+
+    pipeline = load_pipeline(args.pipeline, overrides=args.overrides)
+    if args.check:
+        print(f"{args.pipeline}: valid; {len(pipeline.inputs)} input(s)")
+        for path in pipeline.inputs:
+            print(f"  {path}")
+        print("stages: " + " -> ".join([pipeline.reader["type"], *(s["type"] for s in pipeline.stages)]))
+        return 0
+    with bar("pipeline", None) as progress:
+        results = run_pipeline(pipeline, progress=progress)
+    for entry in results:
+        summary = entry["summary"]
+        line = f"{entry['input']}"
+        if entry["output"]:
+            line += f" -> {entry['output']}"
+        if summary is not None:
+            s = summary if isinstance(summary, dict) else getattr(summary, "__dict__", {})
+            if "points_in" in s and "kept" in s:
+                line += f": kept {s['kept']:,} of {s['points_in']:,} points"
+        print(line)
+        if entry["report"] is not None and not entry["output"]:
+            print(json.dumps(entry["report"].get("table", ""), indent=1)[:2000] if isinstance(entry["report"], dict) else "")
+    return 0

@@ -1,0 +1,302 @@
+"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines.
+
+A pipeline file is JSON::
+
+    {
+      "pipeline": [
+        {"type": "readers.las", "filename": "scans/*.laz"},
+        {"type": "filters.entropy", "method": "fcm", "rule": "iterative", "threshold": 0.001},
+        {"type": "writers.las", "filename": "out/{stem}.laz"},
+        {"type": "evaluate", "report": "out/{stem}-report"}
+      ]
+    }
+
+Stages, in this order:
+
+``readers.*`` (exactly one, first)
+    ``readers.las``, ``readers.copc``, ``readers.ply``, ``readers.e57``,
+    ``readers.text`` or ``readers.store`` (a cloudsieve point store).
+    ``filename`` may be a glob; the pipeline then runs once per matching file.
+    A bare string stands for a reader chosen by extension (as in PDAL).
+``filters.entropy`` (at most one)
+    The simplification; its options are the keyword arguments of
+    :func:`cloudsieve.simplify` (``method``, ``rule``, ``threshold``, ``ratio``,
+    ``count``, ``cluster_size``, ``cell_size``, ``seed``, ...).
+``writers.*`` (one, required after ``filters.entropy``)
+    ``writers.las`` (also LAZ, by extension), ``writers.ply``, ``writers.text``.
+    ``filename`` may use ``{stem}`` (the input's name without extensions) and
+    ``{name}`` (its file name); it must use one of them when the reader's glob
+    matches several files.
+``evaluate`` (optional, after the writer)
+    Evaluates the written cloud against the input; options are the keyword
+    arguments of :func:`cloudsieve.evaluate` (``report``, ``sample``, ...).
+``compare`` (optional, instead of filters/writers)
+    Runs :func:`cloudsieve.compare` on the input: the paper's comparison of KM,
+    FCM and the baselines at equal count.
+
+Top-level keys beside ``"pipeline"``: ``"scheduler"`` and ``"workers"`` apply to
+every stage that runs on dask. Relative paths are resolved against the
+pipeline file's folder; ``$VAR`` and ``${VAR}`` are expanded from the
+environment. Any option can be overridden from the command line with
+``--set STAGE.OPTION=VALUE`` (``--set readers.las.filename=scan.laz``).
+"""
+
+from __future__ import annotations
+
+import copy
+import glob
+import inspect
+import json
+import logging
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .errors import PipelineError
+
+__all__ = ["Pipeline", "load_pipeline", "run_pipeline"]
+
+log = logging.getLogger(__name__)
+
+READERS = {
+    "readers.las": None,
+    "readers.copc": "copc",
+    "readers.ply": "ply",
+    "readers.e57": "e57",
+    "readers.text": "xyz",
+    "readers.store": "store",
+}
+WRITERS = {"writers.las": None, "writers.ply": "ply", "writers.text": "xyz"}
+TOP_LEVEL = {"pipeline", "scheduler", "workers"}
+PATH_OPTIONS = {"filename", "report", "store"}
+
+
+@dataclass
+class Pipeline:
+    """A parsed, validated pipeline.
+
+    Attributes
+    ----------
+    inputs : list of str
+        The input files (the reader's glob expanded, sorted).
+    reader : dict
+        The reader stage (``type``, ``filename`` and options).
+    stages : list of dict
+        The stages after the reader, in order.
+    options : dict
+        Top-level options (``scheduler``, ``workers``).
+    source : str
+        Where the pipeline came from (for messages).
+    """
+
+    inputs: list[str]
+    reader: dict
+    stages: list[dict]
+    options: dict = field(default_factory=dict)
+    source: str = "<pipeline>"
+
+
+def _stage_functions() -> dict[str, Any]:
+    # Imported here: the engine and the evaluation pull in dask, open3d, pymeshlab.
+    from .engine import simplify
+    from .evaluate import compare, evaluate
+
+    return {"filters.entropy": simplify, "evaluate": evaluate, "compare": compare}
+
+
+def _accepted(func: Any, fixed: set[str]) -> set[str]:
+    params = inspect.signature(func).parameters
+    return {
+        name
+        for name, p in params.items()
+        if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and name not in fixed
+    }
+
+
+def _apply_override(doc: dict, item: str, where: str) -> None:
+    key, sep, value = item.partition("=")
+    stage_type, _, option = key.rpartition(".")
+    if not sep or not stage_type or not option:
+        raise PipelineError(f"{where}: --set takes STAGE.OPTION=VALUE, got {item!r}")
+    try:
+        parsed: Any = json.loads(value)
+    except json.JSONDecodeError:
+        parsed = value
+    if stage_type in ("pipeline", ""):
+        doc[option] = parsed
+        return
+    matches = [s for s in doc["pipeline"] if isinstance(s, dict) and s.get("type") == stage_type]
+    if not matches:
+        raise PipelineError(f"{where}: --set {item!r}: the pipeline has no stage of type {stage_type!r}")
+    for stage in matches:
+        stage[option] = parsed
+
+
+def _resolve(value: Any, base: Path) -> Any:
+    if not isinstance(value, str):
+        return value
+    value = os.path.expandvars(value)
+    if "://" in value or os.path.isabs(value):
+        return value
+    return str(base / value)
+
+
+def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tuple = ()) -> Pipeline:
+    """Parse and validate a pipeline file (or an already-loaded mapping).
+
+    Parameters
+    ----------
+    source : path or dict
+        A JSON pipeline file, or its content.
+    overrides : list of str
+        ``STAGE.OPTION=VALUE`` items applied before validation; VALUE is parsed
+        as JSON when it is valid JSON, else taken as a string.
+
+    Raises
+    ------
+    PipelineError
+        Naming the file, the stage (by number and type) and the problem.
+    """
+    if isinstance(source, dict):
+        doc, where, base = copy.deepcopy(source), "<pipeline>", Path.cwd()
+    else:
+        path = Path(source)
+        where, base = str(path), path.resolve().parent
+        try:
+            text = path.read_text()
+        except FileNotFoundError:
+            raise PipelineError(f"{where}: no such pipeline file") from None
+        except IsADirectoryError:
+            raise PipelineError(f"{where}: is a directory, not a pipeline file") from None
+        try:
+            doc = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise PipelineError(f"{where}: not valid JSON: {exc.msg} at line {exc.lineno}, column {exc.colno}") from None
+    if isinstance(doc, list):
+        doc = {"pipeline": doc}
+    if not isinstance(doc, dict) or not isinstance(doc.get("pipeline"), list):
+        raise PipelineError(f"{where}: expected an object with a \"pipeline\" list of stages")
+    unknown = set(doc) - TOP_LEVEL
+    if unknown:
+        raise PipelineError(f"{where}: unknown top-level key(s) {sorted(unknown)}; accepted: {sorted(TOP_LEVEL)}")
+    for item in overrides:
+        _apply_override(doc, item, where)
+    stages: list[dict] = []
+    for i, stage in enumerate(doc["pipeline"], 1):
+        if isinstance(stage, str):
+            stage = {"type": "readers.las" if i == 1 else "writers.las", "filename": stage}
+        if not isinstance(stage, dict) or not isinstance(stage.get("type"), str):
+            raise PipelineError(f"{where}: stage {i} must be an object with a string \"type\", got {stage!r}")
+        stages.append(dict(stage))
+    if not stages:
+        raise PipelineError(f"{where}: the pipeline has no stages")
+
+    reader, rest = stages[0], stages[1:]
+    if reader["type"] not in READERS:
+        raise PipelineError(
+            f"{where}: stage 1 must be a reader ({', '.join(READERS)}), got {reader['type']!r}"
+        )
+    functions = _stage_functions()
+    seen: list[str] = []
+    for i, stage in enumerate(rest, 2):
+        kind = stage["type"]
+        label = f"{where}: stage {i} ({kind})"
+        if kind in READERS:
+            raise PipelineError(f"{label}: only one reader is allowed, and it must come first")
+        if kind in WRITERS:
+            allowed = {"type", "filename", "overwrite"}
+        elif kind in functions:
+            fixed = {"src", "dst", "original", "simplified", "client", "progress"}
+            allowed = {"type"} | _accepted(functions[kind], fixed)
+        else:
+            known = ", ".join([*WRITERS, *functions])
+            raise PipelineError(f"{label}: unknown stage type; known after the reader: {known}")
+        extra = set(stage) - allowed
+        if extra:
+            raise PipelineError(f"{label}: unknown option(s) {sorted(extra)}; accepted: {sorted(allowed - {'type'})}")
+        if kind in WRITERS and "filename" not in stage:
+            raise PipelineError(f"{label}: a writer needs a \"filename\"")
+        family = "writer" if kind in WRITERS else kind
+        if family in seen:
+            raise PipelineError(f"{label}: only one {family} stage is allowed")
+        if kind == "evaluate" and "writer" not in seen:
+            raise PipelineError(f"{label}: evaluate needs a writer before it (it compares the input with the output)")
+        seen.append(family)
+    if "filters.entropy" in seen and "writer" not in seen:
+        raise PipelineError(f"{where}: filters.entropy needs a writers.* stage to write its output")
+    if "compare" in seen and ("filters.entropy" in seen or "writer" in seen):
+        raise PipelineError(f"{where}: compare runs every method itself; use it without filters.entropy and writers")
+    if not seen:
+        raise PipelineError(f"{where}: the pipeline only reads; add filters.entropy and a writer, or compare")
+
+    for stage in stages:
+        for key in PATH_OPTIONS & set(stage):
+            stage[key] = _resolve(stage[key], base)
+    if "filename" not in reader:
+        raise PipelineError(f"{where}: stage 1 ({reader['type']}) needs a \"filename\"")
+    pattern = reader["filename"]
+    inputs = sorted(glob.glob(pattern)) if glob.has_magic(pattern) else [pattern]
+    if not inputs:
+        raise PipelineError(f"{where}: stage 1 ({reader['type']}): no file matches {pattern!r}")
+    if len(inputs) > 1:
+        for stage in rest:
+            for key in PATH_OPTIONS & set(stage):
+                if "{stem}" not in stage[key] and "{name}" not in stage[key]:
+                    raise PipelineError(
+                        f"{where}: stage {stage['type']}: {key} {stage[key]!r} must contain {{stem}} or {{name}} "
+                        f"because the reader matches {len(inputs)} files"
+                    )
+    options = {k: v for k, v in doc.items() if k != "pipeline"}
+    return Pipeline(inputs=inputs, reader=reader, stages=rest, options=options, source=where)
+
+
+def _fill(value: Any, src: str) -> Any:
+    if not isinstance(value, str):
+        return value
+    name = os.path.basename(src.rstrip("/"))
+    stem = name.split(".")[0] if not name.startswith(".") else name
+    return value.replace("{stem}", stem).replace("{name}", name)
+
+
+def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None) -> list[dict]:
+    """Run a pipeline, once per input file.
+
+    Returns
+    -------
+    list of dict
+        One entry per input: ``{"input": path, "output": path or None,
+        "summary": ..., "report": ...}``.
+    """
+    functions = _stage_functions()
+    results = []
+    for src in pipeline.inputs:
+        entry: dict[str, Any] = {"input": src, "output": None, "summary": None, "report": None}
+        filt = next((s for s in pipeline.stages if s["type"] == "filters.entropy"), None)
+        writer = next((s for s in pipeline.stages if s["type"] in WRITERS), None)
+        run_opts = {k: v for k, v in pipeline.options.items() if k in ("scheduler", "workers")}
+        if writer is not None:
+            dst = _fill(writer["filename"], src)
+            Path(dst).parent.mkdir(parents=True, exist_ok=True)
+            params = {k: _fill(v, src) for k, v in (filt or {}).items() if k != "type"}
+            accepted = _accepted(functions["filters.entropy"], set())
+            for key, value in run_opts.items():
+                if key in accepted:
+                    params.setdefault(key, value)
+            if "format" in accepted and WRITERS[writer["type"]] is not None:
+                params.setdefault("format", WRITERS[writer["type"]])
+            if "overwrite" in writer:
+                params["overwrite"] = writer["overwrite"]
+            if filt is None:
+                params["threshold"] = 0.0  # no filter: a plain conversion keeps every point
+            log.info("pipeline %s: simplify %s -> %s", pipeline.source, src, dst)
+            entry["summary"] = functions["filters.entropy"](src, dst, client=client, progress=progress, **params)
+            entry["output"] = dst
+        for stage in pipeline.stages:
+            params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
+            if stage["type"] == "evaluate":
+                entry["report"] = functions["evaluate"](src, entry["output"], **params)
+            elif stage["type"] == "compare":
+                entry["report"] = functions["compare"](src, **params)
+        results.append(entry)
+    return results
