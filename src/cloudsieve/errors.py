@@ -20,6 +20,7 @@ __all__ = [
     "SameSourceDestinationError",
     "DestinationNotWritableError",
     "PipelineError",
+    "InputIsDirectoryError",
 ]
 
 
@@ -69,3 +70,7 @@ class DestinationNotWritableError(CloudsieveError, PermissionError):
 
 class PipelineError(CloudsieveError, ValueError):
     """A pipeline file is malformed."""
+
+
+class InputIsDirectoryError(CloudsieveError, IsADirectoryError):
+    """A directory was given where a file was expected."""
