@@ -21,6 +21,8 @@ __all__ = [
     "DestinationNotWritableError",
     "PipelineError",
     "InputIsDirectoryError",
+    "NotASubsetError",
+    "IncompatibleCloudsError",
 ]
 
 
@@ -74,3 +76,11 @@ class PipelineError(CloudsieveError, ValueError):
 
 class InputIsDirectoryError(CloudsieveError, IsADirectoryError):
     """A directory was given where a file was expected."""
+
+
+class NotASubsetError(CloudsieveError, ValueError):
+    """The simplified cloud was claimed to be a subset of the original but is not."""
+
+
+class IncompatibleCloudsError(CloudsieveError, ValueError):
+    """Two clouds compared with each other differ in CRS or units (scale)."""
