@@ -1,0 +1,146 @@
+"""Where the evaluation reads its points from (private).
+
+The original cloud may be huge: it is only ever *streamed* chunk by chunk, from
+a numpy array, a :class:`cloudsieve.store.PointStore` (or its path) or any file
+the IO layer reads (``open_reader(...).chunks()``). The simplified cloud is
+assumed to fit in memory (it is the smaller one) and is loaded whole by
+:func:`load_points`.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import EmptyInputError, InputFormatError, InputNotFoundError
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["Source", "open_source", "load_points", "is_store_path"]
+
+
+def is_store_path(path: str | os.PathLike) -> bool:
+    """True when *path* is a zarr point store (a folder holding ``zarr.json``)."""
+    p = Path(path)
+    return p.is_dir() and (p / "zarr.json").is_file()
+
+
+class Source:
+    """A cloud read chunk by chunk.
+
+    Attributes
+    ----------
+    name : str
+        File or store path, or ``"<array>"``.
+    count : int or None
+        Number of points (None when unknown without a full scan).
+    header : dict
+        The source header (``{}`` for arrays).
+    format : str
+        ``"array"``, ``"store"`` or the IO layer's format name.
+    """
+
+    def __init__(self, obj: Any, chunk_size: int = 1_000_000):
+        self.chunk_size = int(chunk_size)
+        self._array = None
+        self._store = None
+        self._path = None
+        self.header: dict = {}
+        if isinstance(obj, np.ndarray):
+            arr = np.asarray(obj, dtype=np.float64)
+            if arr.ndim != 2 or arr.shape[1] != 3:
+                raise InputFormatError(f"points must have shape (n, 3), got {arr.shape}")
+            self._array = arr
+            self.name = "<array>"
+            self.format = "array"
+            self.count = len(arr)
+        elif hasattr(obj, "iter_chunks") and hasattr(obj, "count"):
+            self._store = obj
+            self.name = str(getattr(obj, "path", "<store>"))
+            self.format = "store"
+            self.count = int(obj.count)
+            self.header = dict(getattr(obj, "header", {}) or {})
+        else:
+            path = Path(obj)
+            if not path.exists():
+                raise InputNotFoundError(f"input not found: {path}")
+            self.name = str(path)
+            if is_store_path(path):
+                from ..store import PointStore
+
+                self._store = PointStore.open(str(path))
+                self.format = "store"
+                self.count = int(self._store.count)
+                self.header = dict(self._store.header or {})
+            else:
+                from ..io import open_reader
+
+                self._path = str(path)
+                with open_reader(self._path, chunk_size=self.chunk_size) as reader:
+                    self.format = reader.format
+                    self.count = reader.count
+                    self.header = dict(reader.header or {})
+
+    @property
+    def store_path(self) -> str | None:
+        """The store's path when the source is a point store (tasks reopen it)."""
+        return None if self._store is None else str(self._store.path)
+
+    def chunks(self) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(start, xyz)`` with xyz of shape (n, 3) float64, in point order."""
+        if self._array is not None:
+            for start in range(0, len(self._array), self.chunk_size):
+                yield start, self._array[start : start + self.chunk_size]
+        elif self._store is not None:
+            for start, chunk in self._store.iter_chunks(names=["xyz"], chunk_size=self.chunk_size):
+                yield int(start), np.asarray(chunk["xyz"], dtype=np.float64)
+        else:
+            from ..io import open_reader
+
+            start = 0
+            with open_reader(self._path, chunk_size=self.chunk_size) as reader:
+                for chunk in reader.chunks():
+                    xyz = np.asarray(chunk["xyz"], dtype=np.float64)
+                    yield start, xyz
+                    start += len(xyz)
+
+    def count_points(self) -> int:
+        """The point count, scanning the source once when it is unknown (XYZ text)."""
+        if self.count is None:
+            self.count = sum(len(xyz) for _, xyz in self.chunks())
+        return int(self.count)
+
+
+def open_source(obj: Any, chunk_size: int = 1_000_000) -> Source:
+    """Wrap an array, a PointStore, a store path or a file path as a :class:`Source`."""
+    if isinstance(obj, Source):
+        return obj
+    return Source(obj, chunk_size=chunk_size)
+
+
+def load_points(obj: Any, *, what: str = "simplified cloud") -> tuple[np.ndarray, dict, str]:
+    """Load a (small) cloud whole: ``(xyz (n,3) float64, header, name)``.
+
+    Raises
+    ------
+    EmptyInputError
+        When the cloud holds no point.
+    """
+    src = open_source(obj)
+    if src._array is not None:
+        xyz = src._array
+    elif src._store is not None:
+        xyz = np.asarray(src._store.read("xyz"), dtype=np.float64)
+    else:
+        from ..io import read_cloud
+
+        xyz, _ = read_cloud(src._path)
+        xyz = np.asarray(xyz, dtype=np.float64)
+    if len(xyz) == 0:
+        raise EmptyInputError(f"the {what} is empty (0 points): {src.name}")
+    return np.ascontiguousarray(xyz), src.header, src.name

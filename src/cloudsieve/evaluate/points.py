@@ -1,0 +1,576 @@
+"""Point-level errors between an original cloud and its simplification.
+
+Two directions, each a distribution of nearest-neighbour distances:
+
+- **forward** (original -> simplified): for every original point, the distance
+  to the nearest simplified point. This is what simplification costs: zero for
+  the kept points, the gap to the nearest survivor for the dropped ones.
+- **backward** (simplified -> original): for every simplified point, the
+  distance to the nearest original point; zero for any method that keeps a
+  subset of the original points, non-zero for methods that move points
+  (voxel centroids, smoothing).
+
+The symmetric Hausdorff distance is the larger of the two maxima. Every
+figure is given in the cloud's units and as % of the original's bounding-box
+diagonal.
+
+Scale
+-----
+The original is **streamed** chunk by chunk (never loaded whole); the
+simplified cloud is **assumed to fit in memory** (it is the smaller one): a
+k-d tree is built over it once. Each chunk returns a small partial result
+(count, sum, sum of squares, sum of fourth powers, max and where it is, a
+fixed-bin log histogram, the bounding box, which simplified points it holds
+exactly) and the partials are combined afterwards (chunk / combine /
+aggregate, as dask reductions do), in the driver or as dask tasks on a
+``distributed.Client``. Results do not depend on chunk size or scheduler
+(up to floating-point summation order).
+
+Two shortcuts keep it fast without changing any figure: an exact-coordinate
+hash lookup answers the original points that were kept (distance 0) without a
+tree query, and the remaining queries are sorted in Morton order for cache
+locality.
+
+The backward direction needs, for each simplified point, its nearest original
+point. Every simplified point found exactly among the original points during
+the forward pass has distance 0; only the others (none, for a subset) are
+searched again, in a second streamed pass that builds a k-d tree of each
+original chunk in turn and keeps the running minimum (chunks whose bounding
+box is farther than the current best are skipped). For a huge original and a
+simplified cloud whose points all moved, pass ``sample=N`` so that only N
+simplified points are searched.
+
+Sampling
+--------
+With ``sample=N`` a uniform seeded sample of N original points (and of N
+simplified points for the backward direction) is evaluated instead of all of
+them, with 95% confidence intervals for the mean and the RMS (normal
+approximation with finite-population correction; the RMS interval is the
+square root of the interval for the mean of squared distances). The sampled
+maximum is only a lower bound of the true maximum (``max_is_lower_bound``).
+The source is still read once in full (decoding is cheap next to the queries).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import EmptyInputError, NotASubsetError
+from ..progress import callback
+from ._source import Source, open_source
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "HIST_DECADES",
+    "HIST_PER_DECADE",
+    "hist_edges",
+    "Target",
+    "forward_chunk",
+    "combine",
+    "aggregate",
+    "backward_chunk",
+    "point_errors",
+    "morton_order",
+]
+
+#: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
+#: so that partial histograms of any chunk can be summed; zeros counted apart.
+HIST_DECADES = (-12, 12)
+HIST_PER_DECADE = 20
+_NBINS = (HIST_DECADES[1] - HIST_DECADES[0]) * HIST_PER_DECADE
+
+_Z95 = 1.959963984540054
+
+
+def hist_edges() -> np.ndarray:
+    """Edges of the fixed error histogram, shape (481,), from 1e-12 to 1e12."""
+    return np.logspace(HIST_DECADES[0], HIST_DECADES[1], _NBINS + 1)
+
+
+def _histogram(d: np.ndarray) -> tuple[np.ndarray, int]:
+    pos = d[d > 0]
+    if len(pos) == 0:
+        return np.zeros(_NBINS, np.int64), int(len(d))
+    b = np.floor((np.log10(pos) - HIST_DECADES[0]) * HIST_PER_DECADE).astype(np.int64)
+    np.clip(b, 0, _NBINS - 1, out=b)
+    return np.bincount(b, minlength=_NBINS).astype(np.int64), int(len(d) - len(pos))
+
+
+def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
+    """Permutation sorting *points* (n, 3) along a Morton (Z-order) curve.
+
+    Used only to make k-d tree queries cache friendly; any order gives the
+    same distances.
+    """
+    n = len(points)
+    if n < 2:
+        return np.arange(n)
+    lo = points.min(axis=0)
+    span = float((points.max(axis=0) - lo).max()) or 1.0
+    q = ((points - lo) * (((1 << bits) - 1) / span)).astype(np.uint64)
+
+    def spread(v: np.ndarray) -> np.ndarray:
+        v = v & np.uint64(0x3FF)
+        v = (v | (v << np.uint64(16))) & np.uint64(0x30000FF)
+        v = (v | (v << np.uint64(8))) & np.uint64(0x300F00F)
+        v = (v | (v << np.uint64(4))) & np.uint64(0x30C30C3)
+        v = (v | (v << np.uint64(2))) & np.uint64(0x9249249)
+        return v
+
+    code = spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)) | (spread(q[:, 2]) << np.uint64(2))
+    return np.argsort(code, kind="stable")
+
+
+_H1, _H2, _H3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xC2B2AE3D27D4EB4F), np.uint64(0x165667B19E3779F9)
+
+
+def _hash(points: np.ndarray) -> np.ndarray:
+    u = np.ascontiguousarray(points, dtype=np.float64).view(np.uint64).reshape(-1, 3)
+    with np.errstate(over="ignore"):
+        return (u[:, 0] * _H1) ^ (u[:, 1] * _H2) ^ (u[:, 2] * _H3)
+
+
+class _ExactIndex:
+    """Exact-coordinate lookup of points (hash + sorted search + verification)."""
+
+    def __init__(self, points: np.ndarray):
+        self.points = points
+        h = _hash(points)
+        self.order = np.argsort(h, kind="stable")
+        self.keys = h[self.order]
+
+    def lookup(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(hit (m,) bool, index (m,) int64)``: index of an identical point where hit."""
+        if len(self.keys) == 0 or len(q) == 0:
+            return np.zeros(len(q), bool), np.zeros(len(q), np.int64)
+        h = _hash(q)
+        pos = np.searchsorted(self.keys, h)
+        np.minimum(pos, len(self.keys) - 1, out=pos)
+        idx = self.order[pos]
+        hit = self.keys[pos] == h
+        if hit.any():
+            w = np.flatnonzero(hit)
+            hit[w] = np.all(self.points[idx[w]] == q[w], axis=1)
+        return hit, idx
+
+
+class Target:
+    """The in-memory simplified cloud, ready for nearest-neighbour queries.
+
+    Parameters
+    ----------
+    points : ndarray of shape (m, 3), float64
+        The simplified cloud (kept whole in memory).
+
+    Notes
+    -----
+    The k-d tree is built over a Morton-sorted copy; :meth:`query` returns
+    indices into *points* as given. Picklable (sent once to dask workers).
+    """
+
+    def __init__(self, points: np.ndarray):
+        self.points = np.ascontiguousarray(points, dtype=np.float64)
+        self._perm = morton_order(self.points)
+        self._tree = cKDTree(self.points[self._perm], balanced_tree=False, compact_nodes=False)
+        self._exact = _ExactIndex(self.points)
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+    def query(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Nearest simplified point of each row of *q* (m, 3): ``(distance, index)``.
+
+        Exact: identical points are answered by hash lookup, the rest by a k-d
+        tree query (Morton-sorted, all cores).
+        """
+        d = np.zeros(len(q))
+        hit, idx = self._exact.lookup(q)
+        rest = np.flatnonzero(~hit)
+        if len(rest):
+            sub = q[rest]
+            o = morton_order(sub)
+            dd, jj = self._tree.query(sub[o], k=1, workers=-1)
+            d[rest[o]] = dd
+            idx[rest[o]] = self._perm[jj]
+        return d, idx
+
+
+def _empty_partial(m: int) -> dict:
+    return {
+        "count": 0,
+        "sum": 0.0,
+        "sumsq": 0.0,
+        "sum4": 0.0,
+        "max": 0.0,
+        "argmax": None,
+        "zeros": 0,
+        "hist": np.zeros(_NBINS, np.int64),
+        "bbox": None,
+        "matched": np.zeros((m + 7) // 8, np.uint8),
+        "seen": 0,
+    }
+
+
+def _stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
+    p = _empty_partial(m_matched)
+    if len(d):
+        p["count"] = int(len(d))
+        p["sum"] = float(d.sum())
+        d2 = d * d
+        p["sumsq"] = float(d2.sum())
+        p["sum4"] = float((d2 * d2).sum())
+        k = int(np.argmax(d))
+        p["max"] = float(d[k])
+        p["argmax"] = [float(v) for v in where[k]]
+        p["hist"], p["zeros"] = _histogram(d)
+    return p
+
+
+def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None = None,
+                  backward_index: _ExactIndex | None = None, n_backward: int | None = None,
+                  keep: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
+    """Partial forward statistics of one chunk of original points.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (n, 3), float64
+        One chunk of the original cloud.
+    target : Target
+        The simplified cloud.
+    select : ndarray of int, optional
+        Rows of *xyz* to evaluate (a sample); all rows when None.
+    backward_index : optional
+        Exact index of the sampled simplified points (sampled mode); when None
+        the simplified points found here at distance 0 are marked directly.
+    n_backward : int, optional
+        Number of (sampled) simplified points the ``matched`` bitmask covers.
+    keep : ndarray of int, optional
+        Rows of *xyz* whose (xyz, distance) are returned for the error PLY.
+
+    Returns
+    -------
+    partial : dict
+        ``count, sum, sumsq, sum4, max, argmax, zeros, hist, bbox, matched``
+        (packed bitmask over the simplified points found exactly in this chunk)
+        and ``seen`` (points read).
+    ply : (ndarray (k, 3), ndarray (k,)) or None
+        Coordinates and forward errors of the *keep* rows.
+    """
+    m = len(target) if n_backward is None else n_backward
+    q = xyz if select is None else xyz[select]
+    d, idx = target.query(q)
+    p = _stats_partial(d, q, m)
+    p["seen"] = int(len(xyz))
+    if len(xyz):
+        p["bbox"] = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
+    mask = np.zeros(m, bool)
+    if backward_index is None:
+        mask[idx[d == 0]] = True
+    else:
+        hit, bidx = backward_index.lookup(xyz)
+        mask[bidx[hit]] = True
+    p["matched"] = np.packbits(mask)
+    ply = None
+    if keep is not None:
+        if select is None:
+            ply = (xyz[keep], d[keep].astype(np.float32))
+        else:
+            pos = np.searchsorted(select, keep)
+            ply = (xyz[keep], d[pos].astype(np.float32))
+    return p, ply
+
+
+def combine(partials: list[dict]) -> dict:
+    """Merge partial results (any grouping, any order) into one partial."""
+    partials = list(partials)
+    out = dict(partials[0])
+    out["hist"] = out["hist"].copy()
+    out["matched"] = out["matched"].copy()
+    for p in partials[1:]:
+        out["count"] += p["count"]
+        out["sum"] += p["sum"]
+        out["sumsq"] += p["sumsq"]
+        out["sum4"] += p["sum4"]
+        out["zeros"] += p["zeros"]
+        out["seen"] += p["seen"]
+        out["hist"] += p["hist"]
+        np.bitwise_or(out["matched"], p["matched"], out=out["matched"])
+        if p["count"] and (out["argmax"] is None or p["max"] > out["max"]):
+            out["max"], out["argmax"] = p["max"], p["argmax"]
+        if p["bbox"] is not None:
+            if out["bbox"] is None:
+                out["bbox"] = p["bbox"].copy()
+            else:
+                out["bbox"] = np.stack([np.minimum(out["bbox"][0], p["bbox"][0]),
+                                        np.maximum(out["bbox"][1], p["bbox"][1])])
+    return out
+
+
+def aggregate(partial: dict, diagonal: float, population: int | None = None) -> dict:
+    """Final figures from a combined partial.
+
+    Parameters
+    ----------
+    partial : dict
+        Output of :func:`combine`.
+    diagonal : float
+        The original's bounding-box diagonal (for the ``*_pct`` figures).
+    population : int, optional
+        Size of the population when *partial* covers a sample of it: adds
+        95% confidence intervals ``ci["mean"]``, ``ci["rms"]`` (and their
+        ``_pct``) and ``max_is_lower_bound``.
+
+    Returns
+    -------
+    dict
+        ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``
+        and, when sampled, ``ci``, ``population``, ``max_is_lower_bound``.
+    """
+    n = partial["count"]
+    if n == 0:
+        raise EmptyInputError("no point to evaluate (0 distances)")
+    mean = partial["sum"] / n
+    msq = partial["sumsq"] / n
+    rms = math.sqrt(max(msq, 0.0))
+    mx = partial["max"]
+    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
+    out: dict[str, Any] = {
+        "count": int(n),
+        "mean": mean,
+        "rms": rms,
+        "max": mx,
+        "mean_pct": mean * scale,
+        "rms_pct": rms * scale,
+        "max_pct": mx * scale,
+        "zeros": int(partial["zeros"]),
+        "argmax": partial["argmax"],
+    }
+    if population is not None and population > n:
+        fpc = math.sqrt((population - n) / (population - 1)) if population > 1 else 0.0
+        var = max((partial["sumsq"] - n * mean * mean) / max(n - 1, 1), 0.0)
+        var2 = max((partial["sum4"] - n * msq * msq) / max(n - 1, 1), 0.0)
+        h = _Z95 * math.sqrt(var / n) * fpc
+        h2 = _Z95 * math.sqrt(var2 / n) * fpc
+        ci_mean = [max(mean - h, 0.0), mean + h]
+        ci_rms = [math.sqrt(max(msq - h2, 0.0)), math.sqrt(msq + h2)]
+        out["population"] = int(population)
+        out["ci"] = {
+            "level": 0.95,
+            "mean": ci_mean,
+            "rms": ci_rms,
+            "mean_pct": [v * scale for v in ci_mean],
+            "rms_pct": [v * scale for v in ci_rms],
+        }
+        out["max_is_lower_bound"] = True
+    return out
+
+
+def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray) -> np.ndarray:
+    """Distances from *points* (u, 3) to one chunk of original points, where they can beat *best*.
+
+    Returns an array (u,) of distances, ``inf`` where the chunk cannot beat
+    *best* (its bounding box is farther); combine chunks with ``np.minimum``.
+    """
+    out = np.full(len(points), np.inf)
+    if len(xyz) == 0 or len(points) == 0:
+        return out
+    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
+    gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
+    todo = np.flatnonzero(gap < best)
+    if len(todo):
+        tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
+        sub = points[todo]
+        o = morton_order(sub)
+        d, _ = tree.query(sub[o], k=1, workers=-1)
+        out[todo[o]] = d
+    return out
+
+
+def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray | None:
+    if sorted_idx is None:
+        return None
+    a, b = np.searchsorted(sorted_idx, [start, stop])
+    return sorted_idx[a:b] - start
+
+
+def _sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
+    if size >= n:
+        return np.arange(n, dtype=np.int64)
+    return np.sort(rng.choice(n, size=size, replace=False)).astype(np.int64)
+
+
+def _run_tasks(fn, items, client, extra_args=(), extra_kwargs=None, max_inflight=None):
+    """Yield ``fn(*item_args, *extra_args, **kw)`` results in item order, locally or on dask."""
+    extra_kwargs = extra_kwargs or {}
+    if client is None:
+        for args, kw in items:
+            yield fn(*args, *extra_args, **kw, **extra_kwargs)
+        return
+    nworkers = max(len(client.scheduler_info().get("workers", {})), 1)
+    max_inflight = max_inflight or 2 * nworkers
+    extra = [client.scatter(a, broadcast=True) if isinstance(a, (Target, np.ndarray)) else a for a in extra_args]
+    pending = []
+    for args, kw in items:
+        pending.append(client.submit(fn, *args, *extra, **kw, **extra_kwargs, pure=False))
+        while len(pending) >= max_inflight:
+            yield pending.pop(0).result()
+    while pending:
+        yield pending.pop(0).result()
+
+
+def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
+                 chunk_size: int = 1_000_000, subset: bool = False, client: Any = None,
+                 error_points: int = 0, on_error_points=None, progress=None) -> dict:
+    """Point-level errors of *simplified* against *original*, both directions.
+
+    Parameters
+    ----------
+    original : ndarray (n, 3), PointStore, store path, file path or Source
+        Streamed chunk by chunk (never loaded whole).
+    simplified : ndarray of shape (m, 3), float64
+        In memory.
+    sample : int, optional
+        Evaluate a uniform seeded sample of this many original points (and as
+        many simplified points backward) with 95% confidence intervals.
+    seed : int
+        Seed of the samples.
+    chunk_size : int
+        Points per chunk of the original.
+    subset : bool
+        Claim that *simplified* is a subset of *original*; raises
+        :class:`~cloudsieve.errors.NotASubsetError` otherwise (checked on the
+        backward sample when sampled).
+    client : distributed.Client, optional
+        Run the chunk tasks on this dask cluster (the simplified tree is
+        broadcast once); default: in this process, all cores for queries.
+    error_points : int
+        Also return the forward error of a uniform seeded sample of at most
+        this many original points (all when there are fewer) through
+        *on_error_points* ``(xyz (k,3), error (k,) float32)`` chunk by chunk, in
+        point order (used for the coloured error PLY).
+    progress : callable, optional
+        Called with the number of original points read, per chunk.
+
+    Returns
+    -------
+    dict
+        ``forward`` and ``backward`` (see :func:`aggregate`), ``hausdorff``,
+        ``hausdorff_pct``, ``diagonal``, ``bounds`` [[min], [max]],
+        ``original_count``, ``simplified_count``, ``mode`` ("exact" or
+        "sampled"), ``sample``, ``seed``, ``subset`` (every (sampled)
+        simplified point is an original point), ``not_in_original`` (how many
+        are not), ``histogram`` (``forward``/``backward`` counts over the fixed
+        log bins, ``zeros``, ``log10_edges`` range).
+    """
+    src: Source = open_source(original, chunk_size=chunk_size)
+    simplified = np.ascontiguousarray(simplified, dtype=np.float64)
+    if simplified.ndim != 2 or simplified.shape[1] != 3:
+        raise ValueError(f"simplified points must have shape (m, 3), got {simplified.shape}")
+    if len(simplified) == 0:
+        raise EmptyInputError(f"the simplified cloud is empty (0 points); original: {src.name}")
+    tick = callback(progress)
+    rng = np.random.default_rng(seed)
+    sampled = sample is not None
+    n = src.count_points() if sampled or error_points else src.count
+    fwd_idx = bwd_idx = None
+    if sampled:
+        sample = int(sample)
+        if sample <= 0:
+            raise ValueError(f"sample must be a positive number of points, got {sample}")
+        fwd_idx = _sample_indices(n, sample, rng)
+        bwd_idx = _sample_indices(len(simplified), sample, rng)
+        sampled = len(fwd_idx) < n or len(bwd_idx) < len(simplified)
+    if n == 0:
+        raise EmptyInputError(f"the original cloud is empty (0 points): {src.name}")
+    ply_idx = None
+    if error_points:
+        ply_idx = _sample_indices(n, int(error_points), np.random.default_rng([seed, 1]))
+        if fwd_idx is not None:  # errors are known only for the sampled points
+            ply_idx = fwd_idx if len(fwd_idx) <= error_points else np.sort(
+                np.random.default_rng([seed, 1]).choice(fwd_idx, int(error_points), replace=False))
+
+    target = Target(simplified)
+    bpoints = simplified if bwd_idx is None else simplified[bwd_idx]
+    bindex = None if bwd_idx is None else _ExactIndex(bpoints)
+    nb = len(bpoints)
+    logger.info("point errors: %s original points (%s), %d simplified, %s", n, src.name, len(simplified),
+                f"sample {sample}" if sampled else "exact")
+
+    def items():
+        for start, xyz in src.chunks():
+            stop = start + len(xyz)
+            kw = {"select": _select(fwd_idx, start, stop), "keep": _select(ply_idx, start, stop),
+                  "n_backward": nb}
+            yield (xyz,), kw
+
+    partials = []
+    for part, ply in _run_tasks(forward_chunk, items(), client, extra_args=(target,),
+                                extra_kwargs={"backward_index": bindex}):
+        partials.append(part)
+        if len(partials) > 16:
+            partials = [combine(partials)]
+        if ply is not None and on_error_points is not None and len(ply[0]):
+            on_error_points(*ply)
+        tick(part["seen"])
+    total = combine(partials)
+    if total["bbox"] is None:
+        raise EmptyInputError(f"the original cloud is empty (0 points): {src.name}")
+    bounds = total["bbox"]
+    diagonal = float(np.linalg.norm(bounds[1] - bounds[0]))
+    forward = aggregate(total, diagonal, population=n if sampled else None)
+
+    # backward: simplified points found exactly in the original have distance 0
+    matched = np.unpackbits(total["matched"], count=nb).astype(bool)
+    bd = np.zeros(nb)
+    todo = np.flatnonzero(~matched)
+    if len(todo):
+        logger.info("backward: %d of %d simplified points not found exactly; searching the original", len(todo), nb)
+        pts = bpoints[todo]
+        best = np.full(len(todo), np.inf)
+        items2 = (((xyz,), {}) for _, xyz in src.chunks())
+        for d in _run_tasks(backward_chunk, items2, client, extra_args=(pts, best)):
+            np.minimum(best, d, out=best)
+        bd[todo] = best
+    if subset and len(todo):
+        ex = bpoints[todo[0]]
+        raise NotASubsetError(
+            f"{len(todo)} of {nb} {'sampled ' if bwd_idx is not None else ''}simplified points are not points of "
+            f"the original {src.name} (e.g. {ex.tolist()}, {bd[todo[0]]:.6g} away), but a subset was claimed")
+    bpart = _stats_partial(bd, bpoints, 0)
+    backward = aggregate(bpart, diagonal, population=len(simplified) if bwd_idx is not None and nb < len(simplified) else None)
+    haus = max(forward["max"], backward["max"])
+    fh, bh = total["hist"], bpart["hist"]
+    nz = np.flatnonzero((fh + bh) > 0)
+    lo, hi = (int(nz[0]), int(nz[-1]) + 1) if len(nz) else (0, 0)
+    edges = np.log10(hist_edges())
+    return {
+        "mode": "sampled" if sampled else "exact",
+        "sample": int(sample) if sampled else None,
+        "seed": int(seed),
+        "original": src.name,
+        "original_count": int(n),
+        "simplified_count": int(len(simplified)),
+        "bounds": bounds.tolist(),
+        "diagonal": diagonal,
+        "forward": forward,
+        "backward": backward,
+        "hausdorff": haus,
+        "hausdorff_pct": haus * 100.0 / diagonal if diagonal > 0 else float("nan"),
+        "hausdorff_is_lower_bound": bool(sampled),
+        "subset": bool(len(todo) == 0),
+        "not_in_original": int(len(todo)),
+        "histogram": {
+            "log10_edges": [float(edges[lo]), float(edges[hi])] if hi > lo else [],
+            "forward": fh[lo:hi].tolist(),
+            "backward": bh[lo:hi].tolist(),
+            "forward_zeros": int(total["zeros"]),
+            "backward_zeros": int(bpart["zeros"]),
+            "per_decade": HIST_PER_DECADE,
+        },
+    }
