@@ -23,6 +23,7 @@ __all__ = [
     "InputIsDirectoryError",
     "NotASubsetError",
     "IncompatibleCloudsError",
+    "InvalidParameterError",
 ]
 
 
@@ -84,3 +85,7 @@ class NotASubsetError(CloudsieveError, ValueError):
 
 class IncompatibleCloudsError(CloudsieveError, ValueError):
     """Two clouds compared with each other differ in CRS or units (scale)."""
+
+
+class InvalidParameterError(CloudsieveError, ValueError):
+    """A parameter is out of range, or inconsistent with the input (shape, count)."""
