@@ -1,0 +1,378 @@
+"""Surface-level errors, the paper's: meshes, Metro distances, compactness.
+
+On T *tiles* (balls of at most M original points, centred on k-means centres
+of a uniform sample so that they spread over the cloud in proportion to its
+points; one tile holding the whole cloud when it has at most M points) the
+original and the simplified points are each meshed by ball pivoting
+(pymeshlab: normals from 10 neighbours, two passes with radius r and 2r, r
+the median over points of the mean distance to their 6 nearest neighbours,
+computed for each cloud on its own). The two meshes are compared both ways
+with pymeshlab's ``get_hausdorff_distance`` (Metro, Cignoni et al. 1998) with
+face sampling (not only vertices), as many samples as Metro's own default of
+10 x faces (capped, ``samples``) and a MaxDist of ten bounding-box diagonals
+so that no sample is dropped (pymeshlab's default drops samples beyond half
+the diagonal).
+
+Triangle compactness is c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2): 1 for an
+equilateral triangle, 0 for a degenerate one; it equals vcg's mean-ratio
+quality (pymeshlab ``compute_scalar_by_aspect_ratio_per_face(metric="Mean
+ratio")``). A mesh is "compact" when at least 50% of its triangles have
+c >= 0.6 (the paper's criterion).
+
+Tiles are gathered in one streamed pass over the original (memory: at most
+M points per tile plus one chunk); the simplified cloud is in memory.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import CloudsieveError
+from ._source import open_source
+
+logger = logging.getLogger(__name__)
+
+__all__ = [
+    "COMPACT_THRESHOLD",
+    "COMPACT_SHARE",
+    "compactness",
+    "compactness_summary",
+    "point_spacing",
+    "ball_pivoting",
+    "metro",
+    "choose_tiles",
+    "surface_errors",
+]
+
+COMPACT_THRESHOLD = 0.6
+COMPACT_SHARE = 0.5
+HIST_BINS = 50
+
+
+def compactness(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Compactness c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2) of every triangle.
+
+    Parameters
+    ----------
+    vertices : ndarray of shape (v, 3)
+    faces : ndarray of shape (f, 3), int
+
+    Returns
+    -------
+    ndarray of shape (f,), float64
+        In [0, 1]; 1 for equilateral, 0 for degenerate triangles (including
+        triangles whose three corners coincide).
+
+    Examples
+    --------
+    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    >>> round(float(compactness(v, np.array([[0, 1, 2]]))[0]), 6)  # sqrt(3)/2
+    0.866025
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if len(f) == 0:
+        return np.zeros(0)
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    ab, bc, ca = b - a, c - b, a - c
+    area = 0.5 * np.linalg.norm(np.cross(ab, -ca), axis=1)
+    s = (ab * ab).sum(1) + (bc * bc).sum(1) + (ca * ca).sum(1)
+    out = np.zeros(len(f))
+    ok = s > 0
+    out[ok] = 4.0 * math.sqrt(3.0) * area[ok] / s[ok]
+    return np.clip(out, 0.0, 1.0)
+
+
+def compactness_summary(c: np.ndarray) -> dict:
+    """Share of triangles with c >= 0.6, mean, the "compact" verdict, and a histogram (50 bins on [0, 1])."""
+    n = int(len(c))
+    good = int((c >= COMPACT_THRESHOLD).sum())
+    share = good / n if n else float("nan")
+    return {
+        "faces": n,
+        "compact_count": good,
+        "compact_share": share,
+        "compact": bool(n and share >= COMPACT_SHARE),
+        "compactness_mean": float(c.mean()) if n else float("nan"),
+        "compactness_hist": np.histogram(c, bins=HIST_BINS, range=(0.0, 1.0))[0].tolist(),
+    }
+
+
+def point_spacing(points: np.ndarray, k: int = 6) -> float:
+    """Median over points of the mean distance to their *k* nearest neighbours."""
+    n = len(points)
+    if n < 2:
+        return 0.0
+    k = min(k, n - 1)
+    d, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
+    return float(np.median(d[:, 1:].mean(axis=1)))
+
+
+def _pymeshlab():
+    try:
+        import pymeshlab
+    except ImportError as exc:  # pragma: no cover
+        raise CloudsieveError("surface evaluation needs pymeshlab: pip install pymeshlab") from exc
+    return pymeshlab
+
+
+def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals: int = 10) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh *points* (n, 3) by ball pivoting (pymeshlab), radius r then 2r.
+
+    Parameters
+    ----------
+    points : ndarray of shape (n, 3)
+    radius : float, optional
+        Ball radius r; default :func:`point_spacing` of *points*.
+    k_normals : int
+        Neighbours for the normal estimate.
+
+    Returns
+    -------
+    vertices : ndarray of shape (v, 3), float64
+    faces : ndarray of shape (f, 3), int32
+    """
+    pml = _pymeshlab()
+    points = np.ascontiguousarray(points, dtype=np.float64)
+    if len(points) < 3:
+        return points, np.zeros((0, 3), np.int32)
+    r = point_spacing(points) if radius is None else float(radius)
+    ms = pml.MeshSet()
+    ms.add_mesh(pml.Mesh(points))
+    ms.compute_normal_for_point_clouds(k=int(min(k_normals, len(points) - 1)))
+    if r > 0:
+        for mult in (1.0, 2.0):
+            ms.generate_surface_reconstruction_ball_pivoting(ballradius=pml.PureValue(mult * r))
+    m = ms.current_mesh()
+    return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
+
+
+def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float) -> dict:
+    pml = _pymeshlab()
+    r = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=False, sampleedge=False,
+                                  sampleface=True, samplenum=int(samples), maxdist=pml.PureValue(maxdist))
+    return {"mean": float(r["mean"]), "rms": float(r["RMS"]), "max": float(r["max"]),
+            "min": float(r["min"]), "samples": int(r["n_samples"])}
+
+
+def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
+          samples: int | None = None, max_samples: int = 1_000_000) -> dict:
+    """Metro distances between two meshes, both ways (pymeshlab, face sampling).
+
+    Parameters
+    ----------
+    mesh_a, mesh_b : (vertices (v, 3), faces (f, 3))
+        Typically the original's and the simplified cloud's meshes.
+    samples : int, optional
+        Surface samples per direction; default 10 x the sampled mesh's faces
+        (Metro's default), at most *max_samples*.
+
+    Returns
+    -------
+    dict
+        ``forward`` (samples on a, distance to b) and ``backward`` (samples on
+        b, distance to a), each ``mean, rms, max, min, samples`` in the
+        meshes' units.
+    """
+    pml = _pymeshlab()
+    ms = pml.MeshSet()
+    ms.add_mesh(pml.Mesh(mesh_a[0], mesh_a[1]))
+    ms.add_mesh(pml.Mesh(mesh_b[0], mesh_b[1]))
+    allv = np.concatenate([mesh_a[0], mesh_b[0]])
+    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
+    out = {}
+    for name, (s, t, f) in {"forward": (0, 1, len(mesh_a[1])), "backward": (1, 0, len(mesh_b[1]))}.items():
+        n = samples if samples is not None else min(max(10 * f, 1000), max_samples)
+        out[name] = _metro_one(ms, s, t, n, maxdist)
+    return out
+
+
+def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
+    """Pick *tiles* tile centres spread over the cloud and a first radius each.
+
+    Returns a list of ``{"centre": [x, y, z], "radius": r}``; an empty list
+    when the cloud has at most *tile_points* points (then the whole cloud is
+    one tile). Centres are k-means centres (seeded) of a uniform sample of the
+    cloud, snapped to a sample point; the radius holds about *tile_points*
+    points by the sample's density.
+    """
+    from scipy.cluster.vq import kmeans2
+
+    src = open_source(source)
+    n = src.count_points()
+    if n <= tile_points:
+        return []
+    rng = np.random.default_rng(seed)
+    s = min(n, sample_size)
+    idx = np.sort(rng.choice(n, size=s, replace=False))
+    parts = []
+    for start, xyz in src.chunks():
+        a, b = np.searchsorted(idx, [start, start + len(xyz)])
+        parts.append(xyz[idx[a:b] - start])
+    sample = np.concatenate(parts)
+    tiles = int(min(tiles, max(1, n // tile_points)))
+    centres, _ = kmeans2(sample, tiles, seed=rng, minit="++")
+    tree = cKDTree(sample)
+    _, nearest = tree.query(centres)
+    centres = sample[nearest]
+    k = max(8, min(len(sample), int(round(tile_points * len(sample) / n))))
+    d, _ = tree.query(centres, k=k)
+    radii = d[:, -1] if d.ndim == 2 else d
+    return [{"centre": c.tolist(), "radius": float(r)} for c, r in zip(centres, radii)]
+
+
+def _gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
+    """Stream the original, keeping per tile the points within its radius (at most M nearest)."""
+    centres = np.array([t["centre"] for t in tiles])
+    radii = np.array([t["radius"] for t in tiles], dtype=np.float64)
+    kept: list[list[np.ndarray]] = [[] for _ in tiles]
+    dist: list[list[np.ndarray]] = [[] for _ in tiles]
+    counts = np.zeros(len(tiles), np.int64)
+    for _, xyz in src.chunks():
+        for i, c in enumerate(centres):
+            d = np.sqrt(((xyz - c) ** 2).sum(axis=1))
+            w = d <= radii[i]
+            if w.any():
+                kept[i].append(xyz[w])
+                dist[i].append(d[w])
+                counts[i] += int(w.sum())
+            if counts[i] > tile_points:  # keep the M nearest, shrink the radius
+                p, q = np.concatenate(kept[i]), np.concatenate(dist[i])
+                o = np.argsort(q, kind="stable")[:tile_points]
+                radii[i] = q[o[-1]]
+                o = np.flatnonzero(q <= radii[i])
+                kept[i], dist[i], counts[i] = [p[o]], [q[o]], len(o)
+    out = []
+    for i, t in enumerate(tiles):
+        t["radius"] = float(radii[i])
+        out.append(np.concatenate(kept[i]) if kept[i] else np.zeros((0, 3)))
+    return out
+
+
+def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: int | None,
+                  max_samples: int) -> tuple[dict, np.ndarray, np.ndarray]:
+    lo, hi = orig.min(0), orig.max(0)
+    tile_diag = float(np.linalg.norm(hi - lo))
+    rec: dict[str, Any] = {"points_original": int(len(orig)), "points_simplified": int(len(simp)),
+                           "diagonal": tile_diag}
+    mo = ball_pivoting(orig)
+    msimp = ball_pivoting(simp)
+    co, cs = compactness(*mo), compactness(*msimp)
+    rec["original"] = {"vertices": int(len(mo[0])), **compactness_summary(co)}
+    rec["simplified"] = {"vertices": int(len(msimp[0])), **compactness_summary(cs)}
+    if len(mo[1]) == 0 or len(msimp[1]) == 0:
+        rec["error"] = (f"ball pivoting made no triangle ({len(mo[1])} from {len(orig)} original points, "
+                        f"{len(msimp[1])} from {len(simp)} simplified points)")
+        return rec, co, cs
+    m = metro(mo, msimp, samples=samples, max_samples=max_samples)
+    for name in ("forward", "backward"):
+        r = m[name]
+        for key in ("mean", "rms", "max"):
+            r[f"{key}_pct"] = r[key] * 100.0 / diagonal if diagonal > 0 else float("nan")
+            r[f"{key}_pct_tile"] = r[key] * 100.0 / tile_diag if tile_diag > 0 else float("nan")
+        rec[name] = r
+    return rec, co, cs
+
+
+def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
+    rs = [r[name] for r in recs if name in r]
+    if not rs:
+        return None
+    n = np.array([r["samples"] for r in rs], dtype=np.float64)
+    mean = float((n * [r["mean"] for r in rs]).sum() / n.sum())
+    rms = float(math.sqrt((n * np.square([r["rms"] for r in rs])).sum() / n.sum()))
+    mx = float(max(r["max"] for r in rs))
+    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
+    return {"mean": mean, "rms": rms, "max": mx, "mean_pct": mean * scale, "rms_pct": rms * scale,
+            "max_pct": mx * scale, "samples": int(n.sum())}
+
+
+def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, tile_points: int = 200_000,
+                   seed: int = 0, diagonal: float | None = None, samples: int | None = None,
+                   max_samples: int = 1_000_000, progress=None) -> dict:
+    """The paper's surface-level figures on tiles of the cloud.
+
+    Parameters
+    ----------
+    original : ndarray (n, 3), PointStore, store path, file path or Source
+        Streamed (tiles gathered in one pass).
+    simplified : ndarray of shape (m, 3)
+        In memory.
+    tiles : int
+        Number of tiles T (fewer when the cloud has fewer than T*M points).
+    tile_points : int
+        At most M original points per tile; the whole cloud is one tile when
+        it has at most M points.
+    seed : int
+        Seed of the tile choice.
+    diagonal : float, optional
+        The original's bounding-box diagonal for the ``*_pct`` figures
+        (computed when not given).
+    samples, max_samples : int
+        Metro samples per direction (see :func:`metro`).
+    progress : callable, optional
+        Called with 1 per tile done.
+
+    Returns
+    -------
+    dict
+        ``tiles`` (per tile: centre, radius, points, diagonal, ``forward``,
+        ``backward``, ``original``/``simplified`` mesh figures), aggregated
+        ``forward`` and ``backward`` (mean and RMS weighted by samples, max
+        over tiles), ``mean, rms, max`` and their ``_pct`` (the larger of the
+        two directions, Metro's symmetric convention), ``original`` and
+        ``simplified`` mesh totals (``vertices, faces, compact_share,
+        compact, compactness_mean, compactness_hist``), and for the simplified
+        mesh at the top level ``vertices, faces, compact_share, compact``.
+    """
+    src = open_source(original)
+    simplified = np.ascontiguousarray(simplified, dtype=np.float64)
+    tick = progress or (lambda n: None)
+    chosen = choose_tiles(src, tiles, tile_points, seed=seed)
+    if not chosen:
+        origs = [np.concatenate([xyz for _, xyz in src.chunks()])]
+        simps = [simplified]
+        chosen = [{"centre": None, "radius": None, "whole_cloud": True}]
+    else:
+        origs = _gather_tiles(src, chosen, tile_points)
+        stree = cKDTree(simplified)
+        simps = []
+        for t in chosen:
+            ids = np.sort(stree.query_ball_point(t["centre"], t["radius"], workers=-1, return_sorted=False)).astype(np.int64)
+            simps.append(simplified[ids])
+    if diagonal is None:
+        lo = np.full(3, np.inf)
+        hi = np.full(3, -np.inf)
+        for _, xyz in src.chunks():
+            if len(xyz):
+                lo, hi = np.minimum(lo, xyz.min(0)), np.maximum(hi, xyz.max(0))
+        diagonal = float(np.linalg.norm(hi - lo))
+    recs, cos, css = [], [], []
+    for t, o, s in zip(chosen, origs, simps):
+        logger.info("surface tile: %d original, %d simplified points", len(o), len(s))
+        rec, co, cs = _tile_figures(o, s, diagonal, samples, max_samples)
+        recs.append({**t, **rec})
+        cos.append(co)
+        css.append(cs)
+        tick(1)
+    out: dict[str, Any] = {"tiles": recs, "tile_points": int(tile_points), "diagonal": diagonal,
+                           "ball_pivoting": "pymeshlab, radii r and 2r, r = median mean 6-NN distance",
+                           "compact_threshold": COMPACT_THRESHOLD}
+    for name in ("forward", "backward"):
+        out[name] = _combine_dirs(recs, name, diagonal)
+    f, b = out["forward"], out["backward"]
+    for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
+        vals = [d[key] for d in (f, b) if d is not None]
+        out[key] = max(vals) if vals else float("nan")
+    for name, cs_list, recs_key in (("original", cos, "original"), ("simplified", css, "simplified")):
+        allc = np.concatenate(cs_list) if cs_list else np.zeros(0)
+        out[name] = {"vertices": int(sum(r[recs_key]["vertices"] for r in recs)), **compactness_summary(allc)}
+    sm = out["simplified"]
+    out.update({"vertices": sm["vertices"], "faces": sm["faces"], "compact_share": sm["compact_share"],
+                "compact": sm["compact"]})
+    return out
