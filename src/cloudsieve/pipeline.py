@@ -35,9 +35,9 @@ Stages, in this order:
     FCM and the baselines at equal count.
 
 Top-level keys beside ``"pipeline"``: ``"scheduler"`` and ``"workers"`` apply to
-every stage that runs on dask. Relative paths are resolved against the
-pipeline file's folder; ``$VAR`` and ``${VAR}`` are expanded from the
-environment. Any option can be overridden from the command line with
+every stage that runs on dask. Relative paths are relative to the working
+folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
+environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``). Any option can be overridden from the command line with
 ``--set STAGE.OPTION=VALUE`` (``--set readers.las.filename=scan.laz``).
 """
 
@@ -133,13 +133,8 @@ def _apply_override(doc: dict, item: str, where: str) -> None:
         stage[option] = parsed
 
 
-def _resolve(value: Any, base: Path) -> Any:
-    if not isinstance(value, str):
-        return value
-    value = os.path.expandvars(value)
-    if "://" in value or os.path.isabs(value):
-        return value
-    return str(base / value)
+def _expand(value: Any) -> Any:
+    return os.path.expandvars(value) if isinstance(value, str) else value
 
 
 def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tuple = ()) -> Pipeline:
@@ -159,10 +154,10 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
         Naming the file, the stage (by number and type) and the problem.
     """
     if isinstance(source, dict):
-        doc, where, base = copy.deepcopy(source), "<pipeline>", Path.cwd()
+        doc, where = copy.deepcopy(source), "<pipeline>"
     else:
         path = Path(source)
-        where, base = str(path), path.resolve().parent
+        where = str(path)
         try:
             text = path.read_text()
         except FileNotFoundError:
@@ -232,7 +227,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
 
     for stage in stages:
         for key in PATH_OPTIONS & set(stage):
-            stage[key] = _resolve(stage[key], base)
+            stage[key] = _expand(stage[key])
     if "filename" not in reader:
         raise PipelineError(f"{where}: stage 1 ({reader['type']}) needs a \"filename\"")
     pattern = reader["filename"]
