@@ -1,0 +1,306 @@
+"""Files in and out of the point store: :func:`ingest` and :func:`export`.
+
+Both stream chunk by chunk (memory bounded by the chunk size, never by the
+cloud) and are atomic: the store (a folder) or the file is written under a
+temporary name beside the destination and renamed only when complete, so a
+failure leaves nothing under the destination name. (For a remote fsspec
+store URL there is no rename: the store is marked complete only at the end,
+and :meth:`PointStore.open` refuses an incomplete one.)
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from typing import Any
+
+import numpy as np
+import zarr
+
+from . import progress as _progress
+from .errors import (
+    DestinationExistsError,
+    EmptyInputError,
+    InvalidPointsError,
+    SameSourceDestinationError,
+)
+from .io import open_reader, open_writer
+from .io._base import check_destination, make_temp_path, remove, replace
+from .store import PointStore, _exists, local_path
+
+__all__ = ["ingest", "export"]
+
+logger = logging.getLogger(__name__)
+
+
+def _same_path(a: str, b: str) -> bool:
+    la, lb = local_path(a), local_path(b)
+    if la is None or lb is None:
+        return a.rstrip("/") == b.rstrip("/")
+    return os.path.realpath(la) == os.path.realpath(lb)
+
+
+class _StoreFiller:
+    """Writes incoming blocks to the store arrays in whole, aligned chunks."""
+
+    def __init__(self, group: zarr.Group, names: list[str], chunk_size: int, capacity: int) -> None:
+        self.arrays = {n: group[n] for n in names}
+        self.chunk_size = chunk_size
+        self.capacity = capacity
+        self.pending: list[dict[str, np.ndarray]] = []
+        self.pending_n = 0
+        self.written = 0
+
+    def add(self, chunk: dict[str, np.ndarray]) -> None:
+        n = len(chunk["xyz"])
+        if n == 0:
+            return
+        if self.pending_n == 0 and n == self.chunk_size:
+            self._write(chunk, n)
+            return
+        self.pending.append(chunk)
+        self.pending_n += n
+        while self.pending_n >= self.chunk_size:
+            block = self._take(self.chunk_size)
+            self._write(block, self.chunk_size)
+
+    def _take(self, n: int) -> dict[str, np.ndarray]:
+        names = list(self.pending[0])
+        joined = {k: np.concatenate([p[k] for p in self.pending]) for k in names} if len(self.pending) > 1 else self.pending[0]
+        block = {k: v[:n] for k, v in joined.items()}
+        rest = {k: v[n:] for k, v in joined.items()}
+        self.pending_n -= n
+        self.pending = [rest] if self.pending_n else []
+        return block
+
+    def _write(self, block: dict[str, np.ndarray], n: int) -> None:
+        start, stop = self.written, self.written + n
+        if stop > self.capacity:
+            self.capacity = stop
+            for arr in self.arrays.values():
+                arr.resize((stop, *arr.shape[1:]))
+        for name, arr in self.arrays.items():
+            arr[start:stop] = block[name]
+        self.written = stop
+
+    def flush(self) -> None:
+        if self.pending_n:
+            n = self.pending_n
+            self._write(self._take(n), n)
+        if self.capacity != self.written:
+            for arr in self.arrays.values():
+                arr.resize((self.written, *arr.shape[1:]))
+            self.capacity = self.written
+
+
+def ingest(
+    src: str | os.PathLike,
+    store: str | os.PathLike,
+    *,
+    format: str | None = None,
+    chunk_size: int = 1_000_000,
+    drop_invalid: bool = False,
+    overwrite: bool = False,
+    progress: _progress.ProgressCallback | None = None,
+    **reader_options: Any,
+) -> PointStore:
+    """Stream the point cloud file *src* into a new point store *store*.
+
+    Parameters
+    ----------
+    src : str or path-like
+        LAS/LAZ/COPC/PLY/E57/XYZ file.
+    store : str or path-like
+        Store folder or fsspec URL (``file:///...`` works like a path).
+    format : str, optional
+        Overrides the format found from *src*'s extension.
+    chunk_size : int
+        Points per read chunk and per store chunk.
+    drop_invalid : bool
+        Drop points with NaN or infinite coordinates (count logged and kept in
+        the store attribute "dropped_invalid") instead of refusing the input.
+    overwrite : bool
+        Replace an existing store.
+    progress : callable, optional
+        Called with the number of points read after each chunk.
+    **reader_options
+        Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
+
+    Returns
+    -------
+    PointStore
+        The new store, opened read-only.
+
+    Raises
+    ------
+    InputNotFoundError, InputIsDirectoryError, UnknownFormatError,
+    CorruptInputError, InputFormatError, InvalidPointsError, EmptyInputError,
+    SameSourceDestinationError, DestinationExistsError,
+    DestinationNotWritableError
+    """
+    src, store = os.fspath(src), os.fspath(store)
+    if _same_path(src, store):
+        raise SameSourceDestinationError(f"destination {store} is the source {src}: cloudsieve never overwrites its input")
+    chunk_size = int(chunk_size)
+    if chunk_size <= 0:
+        raise ValueError(f"chunk_size must be positive, got {chunk_size}")
+    update = _progress.callback(progress)
+    local = local_path(store)
+    with open_reader(src, format=format, chunk_size=chunk_size, **reader_options) as reader:
+        if local is not None:
+            check_destination(local, overwrite)
+            target = make_temp_path(local, directory=True)
+        else:
+            if _exists(store) and not overwrite:
+                raise DestinationExistsError(f"{store} exists; pass overwrite=True (--overwrite) to replace it")
+            target = store
+        try:
+            group = PointStore._create(target, dtypes=reader.dtypes, chunk_size=chunk_size, count=reader.count or 0)
+            filler = _StoreFiller(group, list(reader.dtypes), chunk_size, reader.count or 0)
+            lo = np.full(3, np.inf)
+            hi = np.full(3, -np.inf)
+            read = invalid = 0
+            first_invalid = None
+            for chunk in reader.chunks():
+                xyz = chunk["xyz"]
+                n = len(xyz)
+                finite = np.isfinite(xyz).all(axis=1)
+                bad = n - int(np.count_nonzero(finite))
+                if bad:
+                    if first_invalid is None:
+                        first_invalid = read + int(np.argmin(finite))
+                    invalid += bad
+                    if drop_invalid:
+                        chunk = {k: v[finite] for k, v in chunk.items()}
+                        xyz = chunk["xyz"]
+                read += n
+                update(n)
+                if invalid and not drop_invalid:
+                    continue  # keep counting, to name how many
+                if len(xyz):
+                    lo = np.minimum(lo, xyz.min(axis=0))
+                    hi = np.maximum(hi, xyz.max(axis=0))
+                    filler.add(chunk)
+            if invalid and not drop_invalid:
+                raise InvalidPointsError(
+                    f"{src}: {invalid} of {read} points have NaN or infinite coordinates (first: point {first_invalid}); "
+                    f"pass drop_invalid=True (--drop-invalid) to drop them"
+                )
+            if read == 0:
+                raise EmptyInputError(f"{src} holds no points")
+            filler.flush()
+            if filler.written == 0:
+                raise EmptyInputError(f"{src} holds no valid points: all {read} have NaN or infinite coordinates")
+            if invalid:
+                logger.warning("%s: dropped %d points with NaN or infinite coordinates", src, invalid)
+            meta = {
+                "count": int(filler.written),
+                "bounds": [lo.tolist(), hi.tolist()],
+                "format": reader.format,
+                "header": reader.header,
+                "dimensions": list(reader.dtypes),
+                "chunk_size": chunk_size,
+                "source": os.path.abspath(src),
+                "dropped_invalid": int(invalid),
+            }
+            PointStore._finish(group, meta)
+        except BaseException:
+            if local is not None:
+                remove(target)
+            raise
+    if local is not None:
+        replace(target, local)
+    logger.info("ingested %d points from %s into %s", meta["count"], src, store)
+    return PointStore.open(store)
+
+
+def _mask_source(store: PointStore, mask: Any):
+    """A callable (start, stop) -> bool array, or None for all points."""
+    if mask is None:
+        return None
+    if isinstance(mask, str):
+        arr = store.array(mask)
+    elif isinstance(mask, zarr.Array):
+        arr = mask
+    else:
+        arr = np.asarray(mask)
+    if arr.ndim != 1 or arr.shape[0] != store.count:
+        raise ValueError(f"mask must be 1-D with {store.count} entries (one per point), got shape {tuple(arr.shape)}")
+    if np.dtype(arr.dtype) != np.bool_:
+        raise ValueError(f"mask must be boolean, got dtype {arr.dtype}")
+    return lambda start, stop: np.asarray(arr[start:stop], dtype=bool)
+
+
+def export(
+    store: PointStore | str | os.PathLike,
+    dst: str | os.PathLike,
+    *,
+    format: str | None = None,
+    mask: Any = None,
+    chunk_size: int = 1_000_000,
+    overwrite: bool = False,
+    progress: _progress.ProgressCallback | None = None,
+) -> str:
+    """Write the points of *store* (all, or those kept by *mask*) to *dst*.
+
+    Points keep their input order, every attribute and the source header
+    (LAS/LAZ counts and bounds updated). The file is written under a
+    temporary name and renamed when complete.
+
+    Parameters
+    ----------
+    store : PointStore or str
+        The store or its path/URL.
+    dst : str or path-like
+        Destination file (.las, .laz, .ply, .xyz/.txt/.csv/.pts).
+    format : str, optional
+        Overrides the format found from *dst*'s extension.
+    mask : None, str, or 1-D bool array-like of length N
+        None keeps every point; a str names a bool array of the store (e.g.
+        "simplify/keep"); numpy and zarr arrays are read chunk by chunk.
+    chunk_size : int
+        Points per chunk.
+    overwrite : bool
+        Replace an existing *dst*.
+    progress : callable, optional
+        Called with the number of points processed after each chunk.
+
+    Returns
+    -------
+    str
+        *dst*.
+
+    Raises
+    ------
+    StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
+    DestinationNotWritableError, UnknownFormatError
+    """
+    dst = os.fspath(dst)
+    if not isinstance(store, PointStore):
+        store = PointStore.open(os.fspath(store))
+    if _same_path(store.path, dst):
+        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    take = _mask_source(store, mask)
+    update = _progress.callback(progress)
+    kept = 0
+    with open_writer(
+        dst,
+        header=store.header,
+        dtypes=store.dtypes,
+        format=format,
+        source_format=store.source_format,
+        overwrite=overwrite,
+        bounds=store.bounds,
+    ) as writer:
+        for start, chunk in store.iter_chunks(chunk_size=chunk_size):
+            n = len(chunk["xyz"])
+            if take is not None:
+                keep = take(start, start + n)
+                chunk = {k: v[keep] for k, v in chunk.items()}
+            writer.write(chunk)
+            kept += len(chunk["xyz"])
+            update(n)
+    if kept == 0:
+        logger.warning("%s: no point kept; wrote an empty cloud", dst)
+    logger.info("exported %d of %d points from %s to %s", kept, store.count, store.path, dst)
+    return dst

@@ -1,0 +1,244 @@
+"""Reader and Writer base classes shared by the format modules.
+
+A :class:`Reader` is a context manager whose :meth:`Reader.chunks` yields
+dicts of numpy arrays ("xyz" (n, 3) float64 plus one array per attribute);
+it never holds the whole file. A :class:`Writer` writes to a temporary file
+in the destination's folder and renames it to the destination only when the
+``with`` block exits cleanly, so a failed write leaves nothing under the
+destination name.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from collections.abc import Iterator
+from typing import Any, BinaryIO
+
+import numpy as np
+
+from ..errors import DestinationExistsError, DestinationNotWritableError
+
+__all__ = ["Reader", "Writer", "check_destination"]
+
+logger = logging.getLogger(__name__)
+
+Dtypes = dict[str, tuple[np.dtype, tuple]]
+
+
+class Reader:
+    """Streaming reader of one point cloud file (base class).
+
+    Attributes
+    ----------
+    path : str
+        The file read.
+    format : str
+        "las", "laz", "copc", "ply", "e57" or "xyz".
+    count : int or None
+        Number of points; None only when unknown without a full scan (XYZ).
+    header : dict
+        JSON-serialisable source header (format-specific).
+    dtypes : dict of str to (numpy.dtype, tuple)
+        Attribute name -> (dtype, per-point shape); always has
+        ``"xyz": (float64, (3,))``.
+    chunk_size : int
+        Points per chunk yielded by :meth:`chunks`.
+    """
+
+    path: str
+    format: str
+    count: int | None
+    header: dict
+    dtypes: Dtypes
+    chunk_size: int
+
+    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+        self.path = path
+        self.format = format
+        self.chunk_size = int(chunk_size)
+        self.options = options
+        self.count = None
+        self.header = {}
+        self.dtypes = {"xyz": (np.dtype(np.float64), (3,))}
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:  # pragma: no cover - abstract
+        """Yield chunks: ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``."""
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the file."""
+
+    def __enter__(self) -> Reader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.path!r}, format={self.format!r}, count={self.count})"
+
+
+def check_destination(path: str, overwrite: bool) -> None:
+    """Refuse a destination that exists (unless *overwrite*) or cannot be written.
+
+    Raises
+    ------
+    DestinationExistsError
+        *path* exists and *overwrite* is False.
+    DestinationNotWritableError
+        *path* is a folder, or its parent folder is missing or not a folder.
+    """
+    if os.path.isdir(path):
+        if not overwrite:
+            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True (--overwrite) to replace it")
+    elif os.path.lexists(path) and not overwrite:
+        raise DestinationExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.exists(parent):
+        raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.path.isdir(parent):
+        raise DestinationNotWritableError(f"cannot write {path}: {parent} is not a folder")
+
+
+def make_temp_path(path: str, *, directory: bool = False) -> str:
+    """Create (and return) a temporary file or folder beside *path*."""
+    parent = os.path.dirname(os.path.abspath(path))
+    prefix = "." + os.path.basename(path) + "."
+    try:
+        if directory:
+            return tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent)
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=parent)
+        os.close(fd)
+        return tmp
+    except OSError as exc:
+        raise DestinationNotWritableError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def replace(tmp: str, path: str) -> None:
+    """Move *tmp* to *path* (replacing a file or a folder there)."""
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            import shutil
+
+            trash = make_temp_path(path, directory=True)
+            os.rmdir(trash)
+            os.replace(path, trash)
+            os.replace(tmp, path)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except OSError as exc:
+        raise DestinationNotWritableError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def remove(path: str) -> None:
+    """Remove a temporary file or folder, ignoring errors."""
+    import shutil
+
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path, ignore_errors=True)
+        elif os.path.lexists(path):
+            os.remove(path)
+    except OSError:  # pragma: no cover - best effort
+        logger.warning("could not remove temporary %s", path)
+
+
+class Writer:
+    """Chunked writer to a temporary file renamed on clean exit (base class).
+
+    Subclasses implement :meth:`_open` (the temporary file is open as
+    ``self.file``), :meth:`_write` and :meth:`_close`.
+
+    Attributes
+    ----------
+    path : str
+        Destination.
+    tmp_path : str
+        Temporary file beside the destination.
+    count : int
+        Points written so far.
+    """
+
+    def __init__(
+        self,
+        path: str,
+        *,
+        header: dict,
+        dtypes: Dtypes,
+        format: str,
+        source_format: str | None = None,
+        overwrite: bool = False,
+        **options: Any,
+    ) -> None:
+        self.path = path
+        self.format = format
+        self.header = header or {}
+        self.dtypes = {k: (np.dtype(v[0]), tuple(v[1])) for k, v in dtypes.items()}
+        self.source_format = source_format
+        self.options = options
+        self.count = 0
+        check_destination(path, overwrite)
+        self.tmp_path = make_temp_path(path)
+        self.file: BinaryIO = open(self.tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
+        self._done = False
+        try:
+            self._open()
+        except BaseException:
+            self._abort()
+            raise
+
+    # subclass hooks ---------------------------------------------------------
+    def _open(self) -> None:
+        pass
+
+    def _write(self, chunk: dict[str, np.ndarray]) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        pass
+
+    # public -----------------------------------------------------------------
+    def write(self, chunk: dict[str, np.ndarray]) -> None:
+        """Append a chunk ``{"xyz": (n, 3), name: (n,) ...}`` of points."""
+        n = len(chunk["xyz"])
+        if n == 0:
+            return
+        self._write(chunk)
+        self.count += n
+
+    def _abort(self) -> None:
+        try:
+            self.file.close()
+        finally:
+            remove(self.tmp_path)
+            self._done = True
+
+    def __enter__(self) -> Writer:
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if self._done:
+            return
+        if exc_type is not None:
+            try:
+                self._abort_hook()
+            except Exception:  # pragma: no cover - cleanup best effort
+                pass
+            self._abort()
+            return
+        try:
+            self._close()
+            if not self.file.closed:
+                self.file.close()
+        except BaseException:
+            self._abort()
+            raise
+        replace(self.tmp_path, self.path)
+        self._done = True
+        logger.info("wrote %d points to %s", self.count, self.path)
+
+    def _abort_hook(self) -> None:
+        """Release format-specific resources after a failure (before the file is removed)."""

@@ -1,0 +1,555 @@
+"""LAS, LAZ and COPC through laspy (lazrs for compression), in chunks.
+
+Reading uses ``laspy.open(...).chunk_iterator`` with lazrs' parallel
+decompression; every dimension comes out under its laspy name with its raw
+value (bit fields unpacked, scaled extra bytes unscaled), plus "xyz" =
+``X * scale + offset`` in float64.
+
+The header becomes a JSON-serialisable dict (:func:`header_to_dict`): version,
+point format (with every extra-bytes definition), scales, offsets, VLRs and
+EVLRs (record data in base64), CRS, and the identification fields. The writer
+rebuilds a ``laspy.LasHeader`` from it (:func:`header_from_dict`) so a LAS
+source comes back with the same header; laspy updates counts and bounds.
+Compression-specific records are not carried: the LASzip VLR is made afresh
+by laspy, and the COPC records (user id "copc": the info VLR and the
+hierarchy EVLR) are dropped with a log message, because they describe the
+octree layout of the source file and would be wrong in any other file.
+
+Non-LAS sources (PLY, E57, XYZ) get a fresh header (:func:`build_header`):
+point format 0-3 by the attributes present, scales fine enough for the
+bounds, offsets at the minimum, LAS-named attributes mapped (colour to
+16 bits) and every other attribute stored as extra bytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import datetime
+import logging
+import math
+import os
+import re
+from collections.abc import Iterator
+from typing import Any
+from uuid import UUID
+
+import laspy
+import numpy as np
+from laspy.point.dims import DimensionInfo, DimensionKind, ScaledArrayView
+from laspy.vlrs.known import vlr_factory
+from laspy.vlrs.vlrlist import VLRList
+
+from ..errors import CorruptInputError, InputFormatError
+from ._base import Reader, Writer
+
+__all__ = ["LasReader", "LasWriter", "header_to_dict", "header_from_dict", "build_header", "COPC_USER_ID"]
+
+logger = logging.getLogger(__name__)
+
+COPC_USER_ID = "copc"
+LASZIP_USER_ID = "laszip encoded"
+_XYZ = ("X", "Y", "Z")
+
+
+def _laz_backend():
+    backends = laspy.LazBackend.detect_available()
+    return backends if backends else None
+
+
+# ---------------------------------------------------------------- header dict
+def _b64(data: bytes) -> str:
+    return base64.b64encode(bytes(data)).decode("ascii")
+
+
+def _vlr_to_dict(vlr: Any) -> dict:
+    try:
+        data = vlr.record_data_bytes()
+    except Exception:  # pragma: no cover - a known VLR that cannot re-serialise
+        data = getattr(vlr, "record_data", b"")
+    return {
+        "user_id": vlr.user_id,
+        "record_id": int(vlr.record_id),
+        "description": vlr.description if isinstance(vlr.description, str) else vlr.description.decode(errors="replace"),
+        "data": _b64(data),
+    }
+
+
+def _vlr_from_dict(d: dict) -> Any:
+    raw = laspy.VLR(d["user_id"], int(d["record_id"]), d.get("description", ""), base64.b64decode(d["data"]))
+    return vlr_factory(raw)
+
+
+def _arr_or_none(a: Any) -> list | None:
+    return None if a is None else np.asarray(a).ravel().tolist()
+
+
+def _crs_of(vlrs: list) -> dict | None:
+    """CRS from the WKT VLR (and EPSG from GeoTIFF keys), without pyproj."""
+    crs: dict[str, Any] = {}
+    for vlr in vlrs:
+        name = type(vlr).__name__
+        if name == "WktCoordinateSystemVlr":
+            wkt = vlr.string
+            crs["wkt"] = wkt.rstrip("\0") if isinstance(wkt, str) else wkt.decode(errors="replace").rstrip("\0")
+        elif name == "GeoKeyDirectoryVlr":
+            for key in vlr.geo_keys:
+                if key.id in (3072, 2048) and key.value_offset not in (0, 32767):  # Projected / Geographic CS
+                    crs.setdefault("epsg", int(key.value_offset))
+    if "wkt" in crs and "epsg" not in crs:
+        m = re.findall(r'AUTHORITY\["EPSG","(\d+)"\]', crs["wkt"])
+        if m:
+            crs["epsg"] = int(m[-1])
+    return crs or None
+
+
+def header_to_dict(header: laspy.LasHeader, evlrs: list | None = None) -> dict:
+    """A JSON-serialisable description of *header*, enough to rebuild it."""
+    pf = header.point_format
+    extra = []
+    for dim in pf.extra_dimensions:
+        extra.append(
+            {
+                "name": dim.name,
+                "kind": int(dim.kind.value),
+                "num_bits": int(dim.num_bits),
+                "num_elements": int(dim.num_elements),
+                "description": dim.description,
+                "offsets": _arr_or_none(dim.offsets),
+                "scales": _arr_or_none(dim.scales),
+                "no_data": _arr_or_none(dim.no_data),
+            }
+        )
+    vlrs = list(header.vlrs)
+    evlrs = list(evlrs or [])
+    date = header.creation_date
+    return {
+        "version": str(header.version),
+        "point_format": int(pf.id),
+        "point_size": int(pf.size),
+        "point_count": int(header.point_count),
+        "scales": [float(s) for s in header.scales],
+        "offsets": [float(o) for o in header.offsets],
+        "mins": [float(v) for v in header.mins],
+        "maxs": [float(v) for v in header.maxs],
+        "number_of_points_by_return": [int(v) for v in header.number_of_points_by_return],
+        "file_source_id": int(header.file_source_id),
+        "global_encoding": int(header.global_encoding.value),
+        "uuid": str(header.uuid),
+        "system_identifier": str(header.system_identifier),
+        "generating_software": str(header.generating_software),
+        "creation_date": date.isoformat() if date is not None else None,
+        "compressed": bool(header.are_points_compressed),
+        "extra_dimensions": extra,
+        "vlrs": [_vlr_to_dict(v) for v in vlrs],
+        "evlrs": [_vlr_to_dict(v) for v in evlrs],
+        "extra_header_bytes": _b64(header.extra_header_bytes or b""),
+        "extra_vlr_bytes": _b64(header.extra_vlr_bytes or b""),
+        "crs": _crs_of(vlrs + evlrs),
+    }
+
+
+def _point_format(d: dict) -> laspy.PointFormat:
+    pf = laspy.PointFormat(int(d["point_format"]))
+    for e in d.get("extra_dimensions", []):
+        opt = {k: (None if e.get(k) is None else np.asarray(e[k])) for k in ("offsets", "scales", "no_data")}
+        pf.dimensions.append(
+            DimensionInfo(
+                name=e["name"],
+                kind=DimensionKind(int(e["kind"])),
+                num_bits=int(e["num_bits"]),
+                num_elements=int(e["num_elements"]),
+                is_standard=False,
+                description=e.get("description", ""),
+                **opt,
+            )
+        )
+    return pf
+
+
+def _is_dropped(v: dict, path: str) -> bool:
+    if v["user_id"] == LASZIP_USER_ID:
+        return True  # laspy writes its own LASzip VLR for LAZ
+    if v["user_id"] == COPC_USER_ID:
+        logger.info(
+            "%s: dropping COPC record (user_id 'copc', record_id %d): it describes the source's octree layout "
+            "and is not valid in a re-ordered or plain LAS/LAZ file",
+            path,
+            v["record_id"],
+        )
+        return True
+    return False
+
+
+def header_from_dict(d: dict, path: str = "") -> tuple[laspy.LasHeader, list]:
+    """Rebuild a ``laspy.LasHeader`` (and the EVLR list) from :func:`header_to_dict`.
+
+    Counts and bounds are reset (the writer fills them); LASzip and COPC
+    records are left out (see the module docstring).
+    """
+    header = laspy.LasHeader(version=d["version"], point_format=_point_format(d))
+    header.scales = np.asarray(d["scales"], dtype=np.float64)
+    header.offsets = np.asarray(d["offsets"], dtype=np.float64)
+    header.file_source_id = int(d.get("file_source_id", 0))
+    header.global_encoding = laspy.header.GlobalEncoding(int(d.get("global_encoding", 0)))
+    header.uuid = UUID(d.get("uuid", str(UUID(int=0))))
+    header.system_identifier = d.get("system_identifier", "OTHER")
+    header.generating_software = d.get("generating_software", "cloudsieve")
+    date = d.get("creation_date")
+    header.creation_date = datetime.date.fromisoformat(date) if date else None
+    header.extra_header_bytes = base64.b64decode(d.get("extra_header_bytes", ""))
+    header.extra_vlr_bytes = base64.b64decode(d.get("extra_vlr_bytes", ""))
+    vlrs = [_vlr_from_dict(v) for v in d.get("vlrs", []) if not _is_dropped(v, path)]
+    if any(type(v).__name__ == "ExtraBytesVlr" for v in vlrs) or not d.get("extra_dimensions"):
+        # keep the source's VLRs verbatim (laspy would regenerate the extra-bytes VLR)
+        header._vlrs = VLRList(vlrs)
+    else:
+        header.vlrs = vlrs  # regenerates the extra-bytes VLR from the point format
+    evlrs = [_vlr_from_dict(v) for v in d.get("evlrs", []) if not _is_dropped(v, path)]
+    return header, evlrs
+
+
+# ------------------------------------------------------- headers for non-LAS
+_COLOR_SOURCES = (("red", "green", "blue"), ("colorRed", "colorGreen", "colorBlue"), ("r", "g", "b"))
+_STANDARD_NAMES = {
+    "intensity",
+    "return_number",
+    "number_of_returns",
+    "classification",
+    "scan_angle_rank",
+    "user_data",
+    "point_source_id",
+    "gps_time",
+}
+
+
+def _color_source(dtypes: dict) -> tuple[str, str, str] | None:
+    for names in _COLOR_SOURCES:
+        if all(n in dtypes and dtypes[n][1] == () for n in names):
+            return names
+    return None
+
+
+def _fits(dtype: np.dtype, target: np.dtype) -> bool:
+    return np.can_cast(dtype, target, casting="safe")
+
+
+def _extra_name(name: str, taken: set) -> str:
+    out = re.sub(r"[^0-9A-Za-z_]", "_", name)[:32] or "extra"
+    while out in taken:
+        out = (out[:28] + "_x")[:32]
+    taken.add(out)
+    return out
+
+
+def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "") -> tuple[dict, dict]:
+    """A LAS header dict for a non-LAS cloud, and the attribute -> LAS name map.
+
+    Point format 0 (1 with gps_time, 2 with colour, 3 with both); scales the
+    finest power of ten that keeps the bounds within int32 (never coarser
+    than needed), offsets at the minimum; attributes with a LAS name and a
+    compatible type go to the standard dimension, colour is scaled to 16 bits,
+    everything else becomes extra bytes (names sanitised to 32 characters).
+
+    Returns
+    -------
+    header : dict
+        As :func:`header_to_dict`.
+    mapping : dict of str to (str, str)
+        Attribute -> (LAS dimension name, conversion "copy" | "color8" | "color16").
+    """
+    color = _color_source(dtypes)
+    has_gps = "gps_time" in dtypes and np.dtype(dtypes["gps_time"][0]).kind == "f"
+    pf_id = (2 if color else 0) + (1 if has_gps else 0)
+    pf_id = 3 if (color and has_gps) else (2 if color else (1 if has_gps else 0))
+    pf = laspy.PointFormat(pf_id)
+    std = {d.name: np.dtype(d.dtype) if d.dtype is not None else np.dtype("u1") for d in pf.dimensions}
+    sub_fields = {
+        "return_number": 3,
+        "number_of_returns": 3,
+        "classification": 5,
+        "scan_direction_flag": 1,
+        "edge_of_flight_line": 1,
+    }
+    mapping: dict[str, tuple[str, str]] = {}
+    taken = set(pf.dimension_names)
+    extra: list[dict] = []
+    for name, (dtype, shape) in dtypes.items():
+        if name == "xyz":
+            continue
+        dtype = np.dtype(dtype)
+        if color and name in color:
+            las_name = ("red", "green", "blue")[color.index(name)]
+            mapping[name] = (las_name, "color8" if dtype.itemsize == 1 else "color16")
+            continue
+        if shape == () and name in _STANDARD_NAMES and name in std and dtype.kind in "uif":
+            target = np.dtype("u1") if name in sub_fields else std[name]
+            if (dtype.kind in "ui" and _fits(dtype, target)) or (dtype.kind == "f" and target.kind == "f"):
+                mapping[name] = (name, "copy")
+                continue
+        if dtype.kind not in "uif" or len(shape) > 1 or (shape and shape[0] > 3):
+            logger.warning("%s: attribute %r (%s, %s) has no LAS representation; not written", path, name, dtype, shape)
+            continue
+        ename = _extra_name(name if name not in taken else name + "_", taken)
+        k = shape[0] if shape else 1
+        params = laspy.ExtraBytesParams(ename, f"{k}{dtype.str.lstrip('<>|=')}" if k > 1 else dtype, description=name[:32])
+        info = DimensionInfo.from_extra_bytes_param(params)
+        extra.append(
+            {
+                "name": info.name,
+                "kind": int(info.kind.value),
+                "num_bits": int(info.num_bits),
+                "num_elements": int(info.num_elements),
+                "description": info.description,
+                "offsets": None,
+                "scales": None,
+                "no_data": None,
+            }
+        )
+        mapping[name] = (ename, "copy")
+    if bounds is None:
+        bounds = np.zeros((2, 3))
+    bounds = np.asarray(bounds, dtype=np.float64)
+    extent = float(np.max(bounds[1] - bounds[0])) if np.all(np.isfinite(bounds)) else 0.0
+    scale = 10.0 ** math.ceil(math.log10(max(extent, 1e-9) / 2e9))
+    scale = float(f"{scale:.0e}")
+    offsets = [float(np.floor(v)) if np.isfinite(v) else 0.0 for v in bounds[0]]
+    header = {
+        "version": "1.2",
+        "point_format": pf_id,
+        "scales": [scale] * 3,
+        "offsets": offsets,
+        "global_encoding": 0,
+        "system_identifier": "cloudsieve",
+        "generating_software": "cloudsieve",
+        "creation_date": datetime.date.today().isoformat(),
+        "extra_dimensions": extra,
+        "vlrs": [],
+        "evlrs": [],
+    }
+    if extra:
+        header["version"] = "1.4"  # extra bytes are standard from LAS 1.4
+    return header, mapping
+
+
+# --------------------------------------------------------------------- reader
+def _raw(values: Any) -> np.ndarray:
+    """Raw numpy values of a laspy dimension view (sub-field or scaled)."""
+    if isinstance(values, ScaledArrayView):
+        values = values.array
+    return np.ascontiguousarray(np.asarray(values))
+
+
+def _las_dtypes(header: laspy.LasHeader) -> dict:
+    rec = laspy.ScaleAwarePointRecord.zeros(1, header=header)
+    dtypes: dict[str, tuple[np.dtype, tuple]] = {"xyz": (np.dtype(np.float64), (3,))}
+    for name in header.point_format.dimension_names:
+        if name in _XYZ:
+            continue
+        v = _raw(rec[name])
+        dtypes[name] = (v.dtype, tuple(v.shape[1:]))
+    return dtypes
+
+
+class LasReader(Reader):
+    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10).
+
+    Options
+    -------
+    laz_backend : laspy.LazBackend, optional
+        Default: lazrs with parallel decompression when available.
+    """
+
+    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+        super().__init__(path, format, chunk_size, **options)
+        backend = options.get("laz_backend", _laz_backend())
+        try:
+            self._las = laspy.open(path, mode="r", laz_backend=backend)
+        except (laspy.LaspyException, OSError, ValueError, EOFError, IndexError) as exc:
+            raise CorruptInputError(f"{path}: not a valid LAS/LAZ file ({exc})") from exc
+        h = self._las.header
+        try:
+            evlrs = list(self._las.evlrs or []) if h.version.minor >= 4 else []
+        except Exception as exc:
+            self._las.close()
+            raise CorruptInputError(f"{path}: cannot read the extended VLRs ({exc}); truncated or corrupt") from exc
+        self.count = int(h.point_count)
+        self.header = header_to_dict(h, evlrs)
+        with open(path, "rb") as fh:  # raw creation day/year: laspy reads an unset (0/0) date as None
+            fh.seek(90)
+            raw = fh.read(4)
+        self.header["creation_day_year"] = [int.from_bytes(raw[:2], "little"), int.from_bytes(raw[2:], "little")]
+        self.dtypes = _las_dtypes(h)
+        self._names = [n for n in self.dtypes if n != "xyz"]
+        self._scales = np.asarray(h.scales, dtype=np.float64)
+        self._offsets = np.asarray(h.offsets, dtype=np.float64)
+        if not h.are_points_compressed:
+            self._check_size(h)
+
+    def _check_size(self, h: laspy.LasHeader) -> None:
+        size = os.path.getsize(self.path)
+        end = size
+        if h.version.minor >= 4 and h.number_of_evlrs > 0 and 0 < h.start_of_first_evlr <= size:
+            end = h.start_of_first_evlr
+        psize = h.point_format.size
+        start = h.offset_to_point_data
+        available = max(end - start, 0) // psize
+        if available < self.count:
+            self.close()
+            raise CorruptInputError(
+                f"{self.path}: header says {self.count} points but the file holds data for only {available} "
+                f"(truncated or corrupt)"
+            )
+        if available > self.count:
+            self.close()
+            raise CorruptInputError(
+                f"{self.path}: header says {self.count} points but the file holds data for {available} "
+                f"(header count disagrees with the data)"
+            )
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield chunks of at most ``chunk_size`` points (see :class:`Reader`)."""
+        done = 0
+        it = self._las.chunk_iterator(self.chunk_size)
+        while True:
+            try:
+                points = next(it)
+            except StopIteration:
+                break
+            except Exception as exc:
+                raise CorruptInputError(
+                    f"{self.path}: cannot decode points after point {done} of {self.count} ({exc}); "
+                    f"truncated or corrupt"
+                ) from exc
+            n = len(points)
+            if n == 0:
+                break
+            array = points.array
+            xyz = np.empty((n, 3), dtype=np.float64)
+            for i, dim in enumerate(_XYZ):
+                np.multiply(array[dim], self._scales[i], out=xyz[:, i])
+                xyz[:, i] += self._offsets[i]
+            chunk = {"xyz": xyz}
+            for name in self._names:
+                if name in array.dtype.names:
+                    chunk[name] = np.ascontiguousarray(array[name])
+                else:
+                    chunk[name] = _raw(points[name])
+            done += n
+            yield chunk
+        if done != self.count:
+            raise CorruptInputError(
+                f"{self.path}: header says {self.count} points but only {done} could be read (truncated or corrupt)"
+            )
+
+    def close(self) -> None:
+        las = getattr(self, "_las", None)
+        if las is not None:
+            las.close()
+            self._las = None
+
+
+# --------------------------------------------------------------------- writer
+class LasWriter(Writer):
+    """Chunked LAS/LAZ writer.
+
+    A LAS-sourced header (``source_format`` in las/laz/copc) is carried over
+    (see :func:`header_from_dict`); other sources get :func:`build_header`
+    (pass ``bounds=`` to choose scales and offsets). laspy updates the point
+    counts, returns histogram and bounds.
+    """
+
+    def _open(self) -> None:
+        las_source = self.source_format in ("las", "laz", "copc") or (
+            self.source_format is None and "point_format" in self.header
+        )
+        if las_source:
+            self._header_dict = self.header
+            self._mapping = {n: (n, "copy") for n in self.dtypes if n != "xyz"}
+        else:
+            self._header_dict, self._mapping = build_header(self.dtypes, self.options.get("bounds"), self.path)
+        header, self._evlrs = header_from_dict(self._header_dict, self.path)
+        if self._evlrs and header.version.minor < 4:  # pragma: no cover - EVLRs imply 1.4
+            self._evlrs = []
+        self._scales = np.asarray(header.scales, dtype=np.float64)
+        self._offsets = np.asarray(header.offsets, dtype=np.float64)
+        compress = self.format == "laz"
+        try:
+            self._writer = laspy.open(
+                self.file,
+                mode="w",
+                header=header,
+                do_compress=compress,
+                laz_backend=_laz_backend() if compress else None,
+                closefd=False,
+            )
+        except laspy.LaspyException as exc:
+            raise InputFormatError(f"cannot write {self.path}: {exc}") from exc
+        self._keep_extra_bytes_vlrs()
+        self._pf = header.point_format
+        self._header = header
+        rec = laspy.ScaleAwarePointRecord.zeros(0, header=header)
+        self._packed = set(rec.array.dtype.names)
+        self._las_names = set(header.point_format.dimension_names)
+
+    def _keep_extra_bytes_vlrs(self) -> None:
+        """Write the source's extra-bytes VLRs verbatim.
+
+        laspy resets and regrows the min/max statistics of the first
+        extra-bytes VLR (and leaves them inverted for some files); the source
+        record is kept instead, so a round trip gives the same VLR bytes.
+        """
+        source = [v for v in self._header_dict.get("vlrs", []) if v["user_id"] == "LASF_Spec" and v["record_id"] == 4]
+        vlrs = self._writer.header.vlrs
+        positions = [i for i, v in enumerate(vlrs) if type(v).__name__ == "ExtraBytesVlr"]
+        if len(source) != len(positions):
+            return
+        for i, d in zip(positions, source):
+            vlr = _vlr_from_dict(d)
+            vlr.grow = lambda points: None  # keep the source statistics
+            vlr.partial_reset = lambda: None
+            vlrs[i] = vlr
+
+    def _write(self, chunk: dict[str, np.ndarray]) -> None:
+        xyz = np.asarray(chunk["xyz"], dtype=np.float64)
+        n = len(xyz)
+        rec = laspy.ScaleAwarePointRecord.zeros(n, header=self._header)
+        for i, dim in enumerate(_XYZ):
+            raw = np.round((xyz[:, i] - self._offsets[i]) / self._scales[i])
+            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+                raise InputFormatError(
+                    f"cannot write {self.path}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
+                    f"LAS int32 with scale {self._scales[i]} and offset {self._offsets[i]}"
+                )
+            rec.array[dim] = raw.astype(np.int32)
+        for name, (las_name, how) in self._mapping.items():
+            if name not in chunk or las_name not in self._las_names:
+                continue
+            values = np.asarray(chunk[name])
+            if how == "color8":
+                values = values.astype(np.uint16) * np.uint16(257)
+            elif how == "color16":
+                values = values.astype(np.uint16)
+            try:
+                if las_name in self._packed:
+                    rec.array[las_name] = values
+                else:
+                    rec[las_name] = values
+            except (ValueError, OverflowError, laspy.LaspyException) as exc:
+                raise InputFormatError(f"cannot write {self.path}: dimension {las_name!r}: {exc}") from exc
+        self._writer.write_points(rec)
+
+    def _close(self) -> None:
+        if self._evlrs:
+            self._writer.write_evlrs(VLRList(self._evlrs))
+        self._writer.close()
+        day_year = self._header_dict.get("creation_day_year")
+        if self._header_dict.get("creation_date") is None and day_year:
+            # laspy writes today's date for an unset one: put the source's raw bytes back
+            self.file.seek(90)
+            self.file.write(int(day_year[0]).to_bytes(2, "little") + int(day_year[1]).to_bytes(2, "little"))
+
+    def _abort_hook(self) -> None:
+        try:
+            self._writer.close()
+        except Exception:
+            pass
