@@ -24,6 +24,7 @@ __all__ = [
     "NotASubsetError",
     "IncompatibleCloudsError",
     "InvalidParameterError",
+    "ResumeMismatchError",
 ]
 
 
@@ -89,3 +90,7 @@ class IncompatibleCloudsError(CloudsieveError, ValueError):
 
 class InvalidParameterError(CloudsieveError, ValueError):
     """A parameter is out of range, or inconsistent with the input (shape, count)."""
+
+
+class ResumeMismatchError(CloudsieveError, ValueError):
+    """A work store holds a run with other parameters or another source (cannot resume it)."""
