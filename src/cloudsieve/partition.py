@@ -1,0 +1,503 @@
+"""Stage 2, partition: coarse spatial K-means cells, bucketed out of core, with halos.
+
+A store of N points is cut into P = ceil(N / cell_size) cells:
+
+1. **sample** -- a uniform sample of S points (indices drawn once from the seed,
+   so the sample does not depend on the store's chunking), read chunk by chunk;
+2. **fit** -- P centres by the core :class:`~cloudsieve.cluster.KMeans` on the
+   sample (coordinates taken relative to the store's lower bound);
+3. **label + bucket** -- one task per input chunk labels its points with the
+   nearest centre (k-d tree over the centres, exact ties to the lower index),
+   sorts them by cell *inside the chunk* (stable) and writes the sorted copy to
+   its own row of ``partition/xyz``. Nothing is written to another task's
+   zarr chunk, nothing is ever sorted globally.
+
+Layout written into the store (all under ``partition/``)::
+
+    centers     float64 (P, 3)          cell centres (absolute coordinates)
+    cell        int32   (N,)            cell of every point, input order
+    counts      int64   (n_chunks, P)   points of input chunk c in cell j
+    xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell
+                                         (stable), R = chunk size rounded up to the
+                                         inner chunk; sharded, one shard per row,
+                                         so a slice reads only the inner chunks it
+                                         touches
+    halo_ptr, halo_src                   CSR: for cell i, the cells that may hold
+                                         points of i's halo
+
+This is a two-level CSR: the points of cell j are, in input order, the runs
+``xyz[c, off[c, j]:off[c, j + 1]]`` for c = 0..n_chunks-1 with
+``off[c] = [0, cumsum(counts[c])]``. It is written in one pass with
+chunk-aligned, conflict-free writes (concurrent tasks never share a zarr chunk),
+and read back with one small sharded slice per (chunk, cell) pair. The order
+of a cell's points is increasing input index, whatever the scheduler.
+
+Halo: a point z of cell j lies in the halo of cell i when its distance to the
+bisector plane of c_i and c_j is at most ``margin``::
+
+    s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i) / |c_j - c_i|  <=  margin
+
+Since the Voronoi region of i lies on c_i's side of that plane, every point
+within ``margin`` of cell i's region passes (the test is a safe superset).
+``margin`` is a few k-NN radii (``HALO_RADII`` times r_k, k the entropy
+neighbourhood size of a cluster of ``cluster_size`` points), r_k estimated on
+the sample and scaled to full density with the sample's intrinsic dimension.
+The label pass records, from each point's ``HALO_NEIGHBOURS`` nearest centres,
+which cells can contribute to which halos (``halo_ptr``/``halo_src``); a cell
+task reads those cells' runs and applies the test itself (see
+:func:`read_halo`). Halo points are density context only, never pruned.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "Partition",
+    "PARTITION_ATTR",
+    "plan_sample",
+    "sample_chunk",
+    "fit_centers",
+    "estimate_margin",
+    "label_chunk",
+    "read_cell",
+    "read_halo",
+    "halo_mask",
+]
+
+logger = logging.getLogger(__name__)
+
+PARTITION_ATTR = "cloudsieve_partition"
+PARTITION_VERSION = 1
+#: halo margin, in k-NN radii of the full-density cloud
+HALO_RADII = 3.0
+#: nearest centres tested per point when listing halo sources
+HALO_NEIGHBOURS = 8
+#: inner chunk of the sharded ``partition/xyz`` rows (points)
+INNER_CHUNK = 16384
+#: points labelled at once inside a chunk task (bounds the k-d tree query arrays)
+_LABEL_BLOCK = 131072
+
+
+def sample_size(n: int, n_cells: int) -> int:
+    """Points in the uniform sample the centres are fitted on."""
+    return int(min(n, max(50_000, 256 * n_cells), 1_000_000))
+
+
+def plan_sample(n: int, n_cells: int, seed: int) -> np.ndarray:
+    """Sorted indices of the uniform sample, drawn from (seed, "partition").
+
+    Returns
+    -------
+    ndarray of shape (S,), int64, sorted
+    """
+    s = sample_size(n, n_cells)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A27]))
+    if s >= n:
+        return np.arange(n, dtype=np.int64)
+    return np.sort(rng.choice(n, size=s, replace=False)).astype(np.int64)
+
+
+def sample_chunk(store_path: str, start: int, stop: int, indices: np.ndarray) -> np.ndarray:
+    """Coordinates of the sample points in ``[start, stop)`` (a task).
+
+    Returns
+    -------
+    ndarray of shape (len(indices), 3), float64
+    """
+    from .store import PointStore
+
+    if len(indices) == 0:
+        return np.empty((0, 3))
+    st = PointStore.open(store_path, "r")
+    xyz = st.read("xyz", start, stop)
+    return xyz[np.asarray(indices) - start]
+
+
+def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray) -> np.ndarray:
+    """P centres by K-means on the sample (relative to *origin*), absolute coordinates.
+
+    Returns
+    -------
+    ndarray of shape (n_cells, 3), float64, sorted lexicographically (x, y, z)
+    so that cell ids do not depend on the K-means initialisation order.
+    """
+    from .cluster import KMeans
+
+    rel = sample - origin
+    if n_cells <= 1:
+        centers = rel.mean(axis=0, keepdims=True) if len(rel) else np.zeros((1, 3))
+    else:
+        km = KMeans(n_clusters=n_cells, seed=int(seed)).fit(rel)
+        centers = np.asarray(km.cluster_centers_, dtype=np.float64)
+    centers = centers + origin
+    order = np.lexsort((centers[:, 2], centers[:, 1], centers[:, 0]))
+    return np.ascontiguousarray(centers[order])
+
+
+def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tuple[float, float, float]:
+    """k-NN radius of the full cloud, estimated on the sample; and the halo margin.
+
+    The median distance to the k-th neighbour is measured at sample sizes S
+    and S/8; their ratio gives the intrinsic dimension d (clipped to [1, 3]),
+    and ``r_full = r_S * (S / N) ** (1 / d)``.
+
+    Returns
+    -------
+    (r_k, dimension, margin) : tuple of float
+    """
+    s = len(sample)
+    if s < 16 * (k + 2):
+        if s < 2:
+            return 0.0, 3.0, 0.0
+        ext = np.ptp(sample, axis=0).max()
+        r = float(ext) * (k / max(n_total, 1)) ** (1 / 3)
+        return r, 3.0, HALO_RADII * r
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x3A21]))
+    perm = rng.permutation(s)
+    rel = sample - sample.mean(axis=0)
+    q = rel[perm[: min(s, 4000)]]
+    sub = rel[perm[: s // 8]]
+    r1 = float(np.median(cKDTree(rel).query(q, k=k + 1)[0][:, k]))
+    r2 = float(np.median(cKDTree(sub).query(q, k=k + 1)[0][:, k]))
+    if r1 > 0 and r2 > r1:
+        d = float(np.clip(math.log(8.0) / math.log(r2 / r1), 1.0, 3.0))
+    else:
+        d = 3.0
+    r = r1 * (s / max(n_total, 1)) ** (1.0 / d)
+    return r, d, HALO_RADII * r
+
+
+def _nearest(tree: cKDTree, xyz: np.ndarray, kq: int) -> tuple[np.ndarray, np.ndarray]:
+    d, nn = tree.query(xyz, k=kq)
+    if kq == 1:
+        return d[:, None], nn[:, None]
+    return d, nn
+
+
+def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTree | None = None):
+    """Cell of each point (nearest centre, ties to the lower index) and halo pairs.
+
+    Returns
+    -------
+    labels : ndarray of shape (n,), int64
+    pairs : ndarray of shape (q, 2), int64
+        Distinct (halo cell i, source cell j) pairs: some point of cell j lies
+        within *margin* of the bisector of c_i and c_j.
+    """
+    p = len(centers)
+    if tree is None:
+        tree = cKDTree(centers)
+    kq = min(p, HALO_NEIGHBOURS + 1)
+    d, nn = _nearest(tree, xyz, kq)
+    labels = nn[:, 0].astype(np.int64)
+    # exact ties: the lower index wins (d is sorted, so tied columns come first)
+    for col in range(1, kq):
+        same = d[:, col] == d[:, 0]
+        if not same.any():
+            break
+        tie = same & (nn[:, col] < labels)
+        labels[tie] = nn[tie, col]
+    keys = []
+    for col in range(kq):
+        other = nn[:, col].astype(np.int64)
+        sel = other != labels
+        if not sel.any():
+            continue
+        s = halo_distance(xyz[sel], centers[other[sel]], centers[labels[sel]])
+        hit = s <= margin
+        if hit.any():
+            keys.append(other[sel][hit] * p + labels[sel][hit])
+    if keys:
+        u = np.unique(np.concatenate(keys))
+        pairs = np.stack([u // p, u % p], axis=1)
+    else:
+        pairs = np.empty((0, 2), dtype=np.int64)
+    return labels, pairs
+
+
+def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
+    """Signed distance of points z of cell j to the bisector plane of c_i and c_j.
+
+    Positive on c_j's side. ``ci``/``cj`` broadcast against ``z`` (n, 3).
+
+    Returns
+    -------
+    ndarray of shape (n,), float64
+    """
+    diff = cj - ci
+    mid = (ci + cj) * 0.5
+    norm = np.sqrt((diff * diff).sum(axis=-1))
+    return ((z - mid) * diff).sum(axis=-1) / norm
+
+
+def label_chunk(
+    store_path: str, chunk: int, start: int, stop: int, centers: np.ndarray, margin: float
+) -> np.ndarray:
+    """Label + bucket task for input chunk *chunk* (points ``[start, stop)``).
+
+    Writes ``partition/cell[start:stop]``, ``partition/counts[chunk]`` and
+    ``partition/xyz[chunk, :stop - start]`` (the chunk sorted by cell, stable).
+
+    Returns
+    -------
+    pairs : ndarray of shape (q, 2), int64
+        Distinct (halo cell, source cell) pairs seen in this chunk (small).
+    """
+    from .store import PointStore
+
+    st = PointStore.open(store_path, "r+")
+    xyz = st.read("xyz", start, stop)
+    n = len(xyz)
+    p = len(centers)
+    tree = cKDTree(centers)
+    labels = np.empty(n, dtype=np.int64)
+    pairs = []
+    for a in range(0, n, _LABEL_BLOCK):
+        lab, pr = label_block(centers, xyz[a : a + _LABEL_BLOCK], margin, tree)
+        labels[a : a + _LABEL_BLOCK] = lab
+        pairs.append(pr)
+    order = np.argsort(labels, kind="stable")
+    g = st.group
+    g["partition/cell"][start:stop] = labels.astype(np.int32)
+    g["partition/counts"][chunk] = np.bincount(labels, minlength=p).astype(np.int64)
+    g["partition/xyz"][chunk, :n] = xyz[order]
+    if pairs:
+        u = np.unique(np.concatenate(pairs, axis=0), axis=0)
+    else:
+        u = np.empty((0, 2), dtype=np.int64)
+    return u
+
+
+@dataclass
+class Partition:
+    """The partition of a store, as read back from ``partition/`` (small arrays only).
+
+    Attributes
+    ----------
+    centers : ndarray of shape (P, 3)
+    counts : ndarray of shape (n_chunks, P), int64
+        Points of input chunk c in cell j.
+    halo_ptr : ndarray of shape (P + 1,), int64
+    halo_src : ndarray of shape (h,), int64
+        Cells that may hold halo points of cell i: ``halo_src[halo_ptr[i]:halo_ptr[i+1]]``.
+    margin : float
+    chunk_size : int
+        Points per input chunk.
+    """
+
+    centers: np.ndarray
+    counts: np.ndarray
+    halo_ptr: np.ndarray
+    halo_src: np.ndarray
+    margin: float
+    chunk_size: int
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.centers)
+
+    @property
+    def n_chunks(self) -> int:
+        return len(self.counts)
+
+    @property
+    def cell_counts(self) -> np.ndarray:
+        """Points per cell, shape (P,)."""
+        return self.counts.sum(axis=0)
+
+    def local_offsets(self) -> np.ndarray:
+        """Start of cell j's run in row c of ``partition/xyz``, shape (n_chunks, P + 1)."""
+        off = np.zeros((self.n_chunks, self.n_cells + 1), dtype=np.int64)
+        np.cumsum(self.counts, axis=1, out=off[:, 1:])
+        return off
+
+    def within_offsets(self) -> np.ndarray:
+        """Position of chunk c's run inside cell j (points of j in chunks < c), shape (n_chunks, P)."""
+        w = np.zeros_like(self.counts)
+        np.cumsum(self.counts[:-1], axis=0, out=w[1:])
+        return w
+
+    def runs(self, cell: int) -> np.ndarray:
+        """The (chunk, start, stop) runs of *cell* in ``partition/xyz``, shape (r, 3)."""
+        off = self.local_offsets()
+        rows = np.nonzero(self.counts[:, cell])[0]
+        return np.stack([rows, off[rows, cell], off[rows, cell + 1]], axis=1).astype(np.int64)
+
+    def halo_sources(self, cell: int) -> np.ndarray:
+        return self.halo_src[self.halo_ptr[cell] : self.halo_ptr[cell + 1]]
+
+    @classmethod
+    def load(cls, store) -> Partition:
+        g = store.group
+        meta = store.attrs[PARTITION_ATTR]
+        return cls(
+            centers=np.asarray(g["partition/centers"][:]),
+            counts=np.asarray(g["partition/counts"][:]),
+            halo_ptr=np.asarray(g["partition/halo_ptr"][:]),
+            halo_src=np.asarray(g["partition/halo_src"][:]),
+            margin=float(meta["margin"]),
+            chunk_size=int(meta["chunk_size"]),
+        )
+
+
+def read_runs(group, runs: np.ndarray) -> np.ndarray:
+    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop)``.
+
+    Returns
+    -------
+    ndarray of shape (sum(stop - start), 3), float64
+    """
+    arr = group["partition/xyz"]
+    parts = [np.asarray(arr[int(c), int(a) : int(b)]) for c, a, b in runs if b > a]
+    if not parts:
+        return np.empty((0, 3))
+    return np.concatenate(parts, axis=0)
+
+
+def read_cell(group, runs: np.ndarray) -> np.ndarray:
+    """Core points of a cell (increasing input index), from its runs.
+
+    Returns
+    -------
+    ndarray of shape (n, 3), float64
+    """
+    return read_runs(group, runs)
+
+
+def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin: float) -> np.ndarray:
+    """Which points z of cell *source* belong to the halo of *cell*.
+
+    Returns
+    -------
+    ndarray of shape (n,), bool
+    """
+    return halo_distance(z, centers[cell], centers[source]) <= margin
+
+
+def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float) -> np.ndarray:
+    """Halo of *cell*: points of its halo source cells within *margin* of its region.
+
+    Parameters
+    ----------
+    part_runs : dict int -> ndarray of shape (r, 3)
+        Runs of each halo source cell (see :meth:`Partition.runs`).
+
+    Returns
+    -------
+    ndarray of shape (h, 3), float64, source cells in increasing id, each in
+    increasing input index.
+    """
+    arr = group["partition/xyz"]
+    out = []
+    for src in sorted(part_runs):
+        for c, a, b in part_runs[src]:
+            if b <= a:
+                continue
+            z = np.asarray(arr[int(c), int(a) : int(b)])
+            m = halo_mask(z, centers, cell, src, margin)
+            if m.any():
+                out.append(z[m])
+    if not out:
+        return np.empty((0, 3))
+    return np.concatenate(out, axis=0)
+
+
+def n_cells_for(n: int, cell_size: int) -> int:
+    """P = ceil(N / cell_size), at least 1."""
+    return max(1, -(-int(n) // int(cell_size)))
+
+
+def row_layout(chunk_size: int) -> tuple[int, int]:
+    """(R, inner): a ``partition/xyz`` row holds R >= chunk_size points in inner chunks."""
+    inner = min(INNER_CHUNK, chunk_size)
+    return -(-chunk_size // inner) * inner, inner
+
+
+def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4) -> Partition:
+    """Partition *store* into cells (stage 2) and record it in the store.
+
+    Parameters
+    ----------
+    store : PointStore
+        Opened writable ("r+").
+    cell_size : int
+        Target points per cell; P = ceil(N / cell_size).
+    cluster_size : int
+        Points per small cluster of the refine stage (sets the halo's k).
+    seed : int
+    run : callable
+        ``run(func, argument_tuples, stage) -> list of results in order``: the
+        engine's task runner (any dask scheduler).
+
+    Returns
+    -------
+    Partition
+    """
+    n = store.count
+    chunk = store.chunk_size
+    p = n_cells_for(n, cell_size)
+    starts = list(range(0, n, chunk))
+    n_chunks = len(starts)
+    path = store.path
+
+    idx = plan_sample(n, p, seed)
+    bounds = np.searchsorted(idx, [min(s + chunk, n) for s in starts])
+    lo = np.concatenate([[0], bounds[:-1]])
+    args = [(path, s, min(s + chunk, n), idx[a:b]) for s, a, b in zip(starts, lo, bounds)]
+    parts = run(sample_chunk, args, "partition: sample")
+    sample = np.concatenate(parts, axis=0) if parts else np.empty((0, 3))
+    origin = np.asarray(store.bounds[0], dtype=np.float64)
+    centers = fit_centers(sample, p, seed, origin)
+    k = max(int(k_min), int(round(k0 * math.sqrt(cluster_size))))
+    r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+    logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)
+
+    g = store.group
+    from .store import compressors
+
+    for name in ("partition/cell", "partition/counts", "partition/xyz", "partition/centers", "partition/halo_ptr", "partition/halo_src"):
+        if name in g:
+            del g[name]
+    g.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), compressors=compressors(), fill_value=-1)
+    g.create_array("partition/counts", shape=(n_chunks, p), dtype="int64", chunks=(1, p), compressors=compressors())
+    r_len, inner = row_layout(chunk)
+    g.create_array(
+        "partition/xyz",
+        shape=(n_chunks, r_len, 3),
+        dtype="float64",
+        chunks=(1, inner, 3),
+        shards=(1, r_len, 3),
+        compressors=compressors(),
+    )
+    args = [(path, c, s, min(s + chunk, n), centers, margin) for c, s in enumerate(starts)]
+    pair_lists = run(label_chunk, args, "partition: label")
+    pairs = np.unique(np.concatenate(pair_lists, axis=0), axis=0) if pair_lists else np.empty((0, 2), np.int64)
+    halo_ptr = np.zeros(p + 1, dtype=np.int64)
+    np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
+    halo_src = pairs[:, 1].astype(np.int64)  # rows sorted by (i, j)
+    g.create_array("partition/centers", data=centers, chunks=centers.shape, compressors=compressors())
+    g.create_array("partition/halo_ptr", data=halo_ptr, chunks=halo_ptr.shape, compressors=compressors())
+    g.create_array("partition/halo_src", data=halo_src, chunks=(max(1, len(halo_src)),), compressors=compressors())
+    meta = {
+        "version": PARTITION_VERSION,
+        "cell_size": int(cell_size),
+        "cluster_size": int(cluster_size),
+        "seed": int(seed),
+        "count": int(n),
+        "chunk_size": int(chunk),
+        "n_cells": int(p),
+        "sample": int(len(sample)),
+        "k": k,
+        "r_k": r_k,
+        "dimension": dim,
+        "margin": margin,
+        "complete": True,
+    }
+    g.attrs.update({PARTITION_ATTR: meta})
+    return Partition.load(store)
