@@ -1,0 +1,393 @@
+"""Pruning rules and the in-memory simplification (DESIGN.md stages 3-5).
+
+Public functions
+----------------
+simplify_points(points, *, method, rule, threshold, ratio, count, cluster_size, seed, ...)
+    Refine into clusters, score, prune: the sorted indices of the kept points.
+refine_labels(points, method="fcm", cluster_size=400, seed=0, ...)
+    Stage 3 alone: cluster labels (n,) of KM or FCM into ceil(n / cluster_size)
+    clusters (the engine calls it per cell).
+prune(points, labels, *, rule, threshold, ratio, count, score, ...)
+    Stages 4-5 for given labels: a keep mask (n,) bool.
+unit_free_scores(points, labels, ...)
+    The unit-free score m*dH of every point (m its cluster's size). dH of a
+    cluster of m points scales as 1/m, so m*dH is comparable across clusters
+    and cells: the engine computes it per cell, picks one global threshold t
+    (a quantile of all the scores for --ratio/--count), then calls
+    ``prune(..., rule="threshold", threshold=t, score="unit_free")`` per cell.
+threshold_for_count(scores, n_drop)
+    The threshold t on given scores such that dropping scores <= t removes
+    n_drop points (ties counted), for one cell or a merged sample.
+
+Rules
+-----
+threshold (the paper)
+    One pass: drop every point with score <= S.
+iterative (default)
+    Rounds. In each, the points with score <= S are candidates, lowest score
+    first (ties: canonical order); a candidate is dropped only if no point
+    already dropped in this round is one of its k nearest neighbours or has it
+    among its own k nearest (so no two points dropped in one round are k-NN
+    neighbours, either way). Remaining points are rescored between rounds
+    (clusters keep their labels; m and k follow the shrinking cluster); stop
+    when no point qualifies. With ``ratio`` or ``count``, every finite score is
+    a candidate, on the unit-free score m*dH, and rounds stop when the target
+    is met (the last round takes only the lowest candidates it needs).
+target
+    One pass on the unit-free score: drop the n - target points of lowest
+    m*dH (ties: canonical order), so the count is exact.
+coverage (cloudsieve's, not the paper's)
+    Like ``iterative`` with a target, but a candidate y is only dropped if a
+    point that stays covers its place: the nearest remaining neighbour of y
+    lies within ``coverage`` times the local spacing r_1 of that neighbour
+    region (see :func:`prune`). Protects isolated points and thin parts.
+
+Scores: ``score="delta_h"`` (dH, the paper's S = 0.001) or ``"unit_free"``
+(m*dH). Duplicates score 0 (dropped by every rule); clusters smaller than
+k + 2 points score +inf (always kept).
+
+Determinism: inputs are put in a canonical order (lexicographic by
+coordinates) first, so the kept set does not depend on input order; it does
+not depend on units either (all scores are unit-free).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+
+from .cluster import FuzzyCMeans, KMeans, _canonical_order
+from .entropy import _check_labels, _check_params, _check_points, score_points
+from .errors import InvalidParameterError
+from .progress import callback
+
+__all__ = ["simplify_points", "refine_labels", "prune", "unit_free_scores", "threshold_for_count", "RULES"]
+
+logger = logging.getLogger(__name__)
+
+RULES = ("iterative", "threshold", "target", "coverage")
+METHODS = ("fcm", "km")
+
+
+def _check_cluster_size(cluster_size, k_min):
+    if int(cluster_size) != cluster_size or cluster_size < k_min + 2:
+        raise InvalidParameterError(
+            f"cluster_size={cluster_size!r} is too small: a cluster needs at least k_min+2={int(k_min) + 2} points")
+
+
+def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: int = 0, *,
+                  k_min: int = 4, n_nearest: int = 8, max_iter: int = 300, init="k-means++") -> np.ndarray:
+    """Cluster labels of KM or FCM into c = ceil(n / cluster_size) clusters.
+
+    Parameters
+    ----------
+    points : array_like of shape (n, p), float
+    method : {"fcm", "km"}
+    cluster_size : int
+        Mean points per cluster, >= k_min + 2.
+    seed : int
+
+    Returns
+    -------
+    ndarray of shape (n,), int64
+        Labels in 0..c-1 (some may be unused when a cluster empties).
+    """
+    pts = _check_points(points)
+    if method not in METHODS:
+        raise InvalidParameterError(f"method must be 'fcm' or 'km', got {method!r}")
+    _check_cluster_size(cluster_size, k_min)
+    n = len(pts)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    c = max(1, math.ceil(n / cluster_size))
+    if method == "km":
+        est = KMeans(c, init=init, max_iter=max_iter, seed=seed)
+    else:
+        est = FuzzyCMeans(c, n_nearest=n_nearest, init=init, max_iter=max_iter, seed=seed)
+    return est.fit(pts).labels_
+
+
+def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
+                     context=None) -> np.ndarray:
+    """m * dH per point (ndarray (n,), float64); +inf in small clusters, 0 for duplicates."""
+    return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context).unit_free
+
+
+def threshold_for_count(scores, n_drop: int) -> float:
+    """Smallest t with at least ``n_drop`` of ``scores`` <= t (-inf for n_drop <= 0)."""
+    s = np.asarray(scores, dtype=np.float64)
+    if n_drop <= 0 or len(s) == 0:
+        return -math.inf
+    n_drop = min(int(n_drop), len(s))
+    return float(np.partition(s, n_drop - 1)[n_drop - 1])
+
+
+def _target_count(n, ratio, count):
+    if ratio is not None and count is not None:
+        raise InvalidParameterError(f"give ratio or count, not both (ratio={ratio!r}, count={count!r})")
+    if ratio is not None:
+        if not (0 <= ratio <= 1):
+            raise InvalidParameterError(f"ratio is the kept fraction, in [0, 1], got {ratio!r}")
+        return int(round(ratio * n))
+    if count is not None:
+        if int(count) != count or count < 0:
+            raise InvalidParameterError(f"count must be an integer >= 0, got {count!r}")
+        return min(int(count), n)
+    return None
+
+
+def _first_independent(cand: np.ndarray, indptr: np.ndarray, indices: np.ndarray, n: int) -> np.ndarray:
+    """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph.
+
+    Returns the selected candidates in priority order: exactly what a sequential
+    pass would keep (take a candidate unless a neighbour was taken before),
+    computed by rounds of local minima of the rank.
+    """
+    if len(cand) == 0:
+        return cand
+    rank = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    rank[cand] = np.arange(len(cand))
+    starts, ends = indptr[cand], indptr[cand + 1]
+    ln = ends - starts
+    src = np.repeat(cand, ln)
+    pos = np.repeat(starts - np.concatenate([[0], np.cumsum(ln)[:-1]]), ln) + np.arange(int(ln.sum()))
+    dst = indices[pos]
+    keep = rank[dst] < np.iinfo(np.int64).max  # both ends candidates
+    u = np.concatenate([src[keep], dst[keep]])
+    v = np.concatenate([dst[keep], src[keep]])
+    undecided = np.zeros(n, dtype=bool)
+    undecided[cand] = True
+    selected = np.zeros(n, dtype=bool)
+    big = np.iinfo(np.int64).max
+    while True:
+        live = undecided[u] & undecided[v]
+        u, v = u[live], v[live]
+        minnb = np.full(n, big, dtype=np.int64)
+        np.minimum.at(minnb, u, rank[v])
+        und = np.flatnonzero(undecided)
+        if len(und) == 0:
+            break
+        win = und[rank[und] < minnb[und]]
+        selected[win] = True
+        undecided[win] = False
+        # neighbours of winners are out
+        out = v[selected[u]]
+        undecided[out] = False
+    sel = np.flatnonzero(selected)
+    return sel[np.argsort(rank[sel], kind="stable")]
+
+
+def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e-3, ratio=None, count=None,
+          score: str = "delta_h", k0: float = 1.0, k_min: int = 4, dim: float = 3, context=None,
+          coverage: float = 1.0, max_rounds: int | None = None, progress=None) -> np.ndarray:
+    """Apply a pruning rule to clustered points: the keep mask.
+
+    Parameters
+    ----------
+    points : array_like of shape (n, p), float
+    labels : array_like of shape (n,), int, optional
+        Clusters (None: one cluster).
+    rule : {"iterative", "threshold", "target", "coverage"}
+    threshold : float
+        S, compared with ``score`` (rules threshold and iterative without a target).
+    ratio, count : float, int, optional
+        Kept fraction or kept count (rule target; iterative/coverage with a target).
+    score : {"delta_h", "unit_free"}
+        Which score S is compared with: dH (the paper) or m*dH.
+    coverage : float
+        Rule coverage: y may go only if its nearest remaining point is within
+        ``coverage`` x (the largest nearest-neighbour spacing among y's k
+        nearest), i.e. no gap wider than the local spacing opens.
+    progress : callable, optional
+        Called with the number of points dropped in each round.
+
+    Returns
+    -------
+    ndarray of shape (n,), bool
+        True for the points kept, in the order of ``points``.
+
+    Notes
+    -----
+    The points are canonically ordered (lexicographic by coordinates) inside,
+    so the mask is the same for any input order.
+    """
+    pts = _check_points(points)
+    n = len(pts)
+    lab = _check_labels(labels, n)
+    _check_params(k0, k_min, dim)
+    if rule not in RULES:
+        raise InvalidParameterError(f"rule must be one of {', '.join(RULES)}, got {rule!r}")
+    if score not in ("delta_h", "unit_free"):
+        raise InvalidParameterError(f"score must be 'delta_h' or 'unit_free', got {score!r}")
+    target = _target_count(n, ratio, count)
+    if rule == "target" and target is None:
+        raise InvalidParameterError("rule='target' needs ratio= (kept fraction) or count= (kept points)")
+    if rule == "threshold" and target is not None:
+        raise InvalidParameterError(
+            f"rule='threshold' takes threshold= only, not ratio={ratio!r}/count={count!r}: use rule='target'")
+    if rule == "coverage" and target is None:
+        raise InvalidParameterError("rule='coverage' needs ratio= (kept fraction) or count= (kept points)")
+    if not np.isfinite(threshold):
+        raise InvalidParameterError(f"threshold must be finite, got {threshold!r}")
+    ctx = None if context is None else _check_points(context, "context")
+    report = callback(progress)
+    keep = np.ones(n, dtype=bool)
+    if n == 0:
+        return keep
+    order = _canonical_order(pts)
+    P = pts[order]
+    L = lab[order]
+    kw = dict(k0=k0, k_min=k_min, dim=dim, context=ctx)
+
+    if rule == "threshold":
+        s = score_points(P, L, **kw)
+        val = s.delta_h if score == "delta_h" else s.unit_free
+        keep_c = ~(val <= threshold)
+        report(int((~keep_c).sum()))
+    elif rule == "target":
+        s = score_points(P, L, **kw)
+        n_drop = n - target
+        cand = _ranked(s.unit_free, np.arange(n))
+        drop = cand[:n_drop]
+        if len(drop) < n_drop:
+            logger.warning("target of %d points unreachable: only %d points have a finite score; kept %d",
+                           target, len(cand), n - len(drop))
+        keep_c = np.ones(n, dtype=bool)
+        keep_c[drop] = False
+        report(len(drop))
+    else:
+        keep_c = _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
+    out = np.empty(n, dtype=bool)
+    out[order] = keep_c
+    return out
+
+
+def _ranked(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """idx of the finite values, lowest value first (ties: lower idx first)."""
+    v = values
+    fin = np.isfinite(v)
+    idx = idx[fin]
+    o = np.lexsort((idx, v[fin]))
+    return idx[o]
+
+
+def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
+    n = len(P)
+    alive = np.arange(n)
+    rnd = 0
+    while True:
+        if target is not None and len(alive) <= target:
+            break
+        if max_rounds is not None and rnd >= max_rounds:
+            break
+        s = score_points(P[alive], L[alive], **kw)
+        if target is None:
+            val = s.delta_h if score == "delta_h" else s.unit_free
+            cand = _ranked(val, np.arange(len(alive)))
+            cand = cand[val[cand] <= threshold]
+        else:
+            cand = _ranked(s.unit_free, np.arange(len(alive)))
+        if rule == "coverage" and len(cand):
+            cand = _covered(P[alive], s, cand, coverage)
+        if len(cand) == 0:
+            break
+        sel = _first_independent(cand, s.indptr, s.indices, len(alive))
+        if target is not None:
+            sel = sel[: len(alive) - target]
+        if len(sel) == 0:
+            break
+        dead = np.zeros(len(alive), dtype=bool)
+        dead[sel] = True
+        alive = alive[~dead]
+        rnd += 1
+        report(len(sel))
+        logger.debug("round %d: dropped %d, %d left", rnd, len(sel), len(alive))
+    keep = np.zeros(n, dtype=bool)
+    keep[alive] = True
+    return keep
+
+
+def _covered(P, s, cand, coverage):
+    """Candidates whose removal leaves no gap wider than the local spacing.
+
+    For a candidate y with k nearest N(y): its nearest neighbour distance
+    r_1(y) must be <= coverage * median over N(y) of their own r_1, so y sits
+    in a region at least as dense as its surroundings (an isolated point,
+    whose nearest neighbour is far compared with its neighbours' spacing,
+    stays).
+    """
+    n = len(P)
+    has = s.indptr[1:] > s.indptr[:-1]
+    first = np.where(has, s.indices[np.minimum(s.indptr[:-1], max(len(s.indices) - 1, 0))], 0)
+    r1 = np.full(n, np.inf)
+    r1[has] = np.sqrt(((P[has] - P[first[has]]) ** 2).sum(axis=1))
+    # median r_1 over each point's k-NN
+    ln = np.diff(s.indptr)
+    owners = np.repeat(np.arange(n), ln)
+    vals = r1[s.indices]
+    o = np.lexsort((vals, owners))
+    vals_sorted = vals[o]
+    mid = s.indptr[:-1] + ln // 2
+    med = np.full(n, np.inf)
+    med[has] = vals_sorted[mid[has]]
+    ok = r1[cand] <= coverage * med[cand]
+    return cand[ok]
+
+
+def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", threshold: float = 1e-3,
+                    ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
+                    k_min: int = 4, context=None, labels=None, score: str = "delta_h",
+                    n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
+                    progress=None) -> np.ndarray:
+    """Simplify a cloud in memory: refine into clusters, score, prune.
+
+    Parameters
+    ----------
+    points : array_like of shape (n, 3), float
+    method : {"fcm", "km"}
+        Refinement into c = ceil(n / cluster_size) clusters (ignored when
+        ``labels`` is given).
+    rule : {"iterative", "threshold", "target", "coverage"}
+        See the module docstring.
+    threshold : float
+        S on dH (0.001, the paper).
+    ratio, count : optional
+        Kept fraction / kept count (rules target, coverage; iterative with a target).
+    cluster_size : int
+        >= k_min + 2.
+    seed : int
+    k0, k_min : float, int
+    context : array_like of shape (q, 3), optional
+        Extra density neighbours, never removed.
+    labels : array_like of shape (n,), int, optional
+        Use these clusters instead of refining.
+
+    Returns
+    -------
+    ndarray of shape (n_kept,), int64
+        Indices of the kept points, ascending.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> pts = np.random.default_rng(0).random((2000, 3))
+    >>> kept = simplify_points(pts, method="km", rule="target", ratio=0.5)
+    >>> len(kept)
+    1000
+    """
+    pts = _check_points(points)
+    if method not in METHODS:
+        raise InvalidParameterError(f"method must be 'fcm' or 'km', got {method!r}")
+    _check_cluster_size(cluster_size, k_min)
+    if labels is None:
+        order = _canonical_order(pts)
+        lab_c = refine_labels(pts[order], method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
+        lab = np.empty(len(pts), dtype=np.int64)
+        lab[order] = lab_c
+    else:
+        lab = labels
+    keep = prune(pts, lab, rule=rule, threshold=threshold, ratio=ratio, count=count, score=score, k0=k0,
+                 k_min=k_min, context=context, coverage=coverage, progress=progress)
+    return np.flatnonzero(keep).astype(np.int64)
