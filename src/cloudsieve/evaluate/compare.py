@@ -1,0 +1,194 @@
+"""``compare``: entropy simplification vs baselines at the same output count.
+
+Runs each method on one cloud **held in memory** (compare is meant for
+choosing a method on a sample, a tile or a model-sized scan, not for a
+billion points), to the same output count, evaluates each one with
+:func:`cloudsieve.evaluate` (point level exact, surface level on tiles, the
+original's meshes built once and shared), and writes one table: method,
+kept, time, point mean/RMS/max (% of the diagonal, original -> simplified),
+Metro mean/max/RMS (% of the diagonal, the larger of both directions),
+compactness >= 0.6 (share of the simplified mesh's triangles).
+
+The count comes from ``count``, or ``ratio`` x n; with ``rule`` other than
+``target`` (the paper's ``threshold``, or ``iterative``) and neither given,
+the first entropy method decides the count and the others follow it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import CloudsieveError, EmptyInputError
+from ._source import load_points
+from .baselines import run_method
+from .evaluation import evaluate
+from .report import fmt, plot_compactness, plot_point_errors, write_json
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["compare", "compare_markdown", "METHODS"]
+
+METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
+
+
+def _row(name: str, report: dict | None, kept: int, seconds: float, error: str | None = None) -> dict:
+    row: dict[str, Any] = {"method": name, "kept": kept, "time": seconds}
+    if error:
+        row["error"] = error
+        return row
+    p, s = report["point"], report.get("surface")
+    row.update({"point_mean_pct": p["forward"]["mean_pct"], "point_rms_pct": p["forward"]["rms_pct"],
+                "point_max_pct": p["forward"]["max_pct"], "hausdorff_pct": p["hausdorff_pct"]})
+    if s:
+        row.update({"metro_mean_pct": s["mean_pct"], "metro_max_pct": s["max_pct"], "metro_rms_pct": s["rms_pct"],
+                    "compact_share": s["compact_share"], "compact": s["compact"], "vertices": s["vertices"],
+                    "faces": s["faces"]})
+    return row
+
+
+def compare_markdown(result: dict) -> str:
+    """The comparison table (Markdown), as in report.md."""
+    n = result["points"]
+    lines = [f"# cloudsieve compare: {os.path.basename(str(result['source']))}", "",
+             f"{fmt(n)} points, bbox diagonal {fmt(result['diagonal'])}; target {fmt(result['count'])} kept "
+             f"({100.0 * result['count'] / n:.1f}%); rule `{result['rule']}`; seed {result['seed']}.", "",
+             "Point errors: original → simplified, exact, % of the bbox diagonal. Metro: ball-pivoting meshes, "
+             "the larger of both directions, % of the diagonal. c ≥ 0.6: share of the simplified mesh's triangles "
+             f"(original mesh: {_share(result.get('original_compact_share'))}).", "",
+             "| method | kept | time (s) | point mean % | point RMS % | point max % | Metro mean % | Metro max % | "
+             "Metro RMS % | c ≥ 0.6 |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for r in result["rows"]:
+        if "error" in r:
+            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | |")
+            continue
+        lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
+                     f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {fmt(r.get('metro_mean_pct'))} | "
+                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {_share(r.get('compact_share'))} |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _share(v: Any) -> str:
+    return "-" if v is None else f"{100.0 * float(v):.2f}%"
+
+
+def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str = "target",
+            ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
+            surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
+            metro_samples: int | None = None, progress=None, **entropy_options) -> dict:
+    """Run *methods* on *source* to the same count, evaluate each, one table.
+
+    Parameters
+    ----------
+    source : path (any format the IO layer reads, or a point store) or ndarray (n, 3)
+        Loaded into memory.
+    methods : sequence of str
+        Among ``km``, ``fcm`` (entropy simplification), ``random``, ``voxel``,
+        ``poisson``, ``fps`` (baselines, :mod:`.baselines`).
+    rule : str
+        Rule of the entropy methods (``target``, ``threshold``, ``iterative``).
+    ratio, count : optional
+        Kept share or kept count (one of them; required with ``rule="target"``
+        unless no entropy method runs).
+    report_dir : path, optional
+        Writes report.md, report.json, compactness.png, point_errors.png and
+        one evaluation report per method in a sub-folder.
+    surface, tiles, tile_points, metro_samples :
+        As in :func:`cloudsieve.evaluate`.
+    seed : int
+        Seeds every method and the evaluation.
+    progress : callable, optional
+        Called with 1 per method done.
+    **entropy_options
+        Passed to :func:`cloudsieve.prune.simplify_points` (``cluster_size``,
+        ``threshold``, ``k0``...).
+
+    Returns
+    -------
+    dict
+        ``source``, ``points``, ``diagonal``, ``count``, ``rule``, ``seed``,
+        ``rows`` (one per method: ``method, kept, time, point_mean_pct,
+        point_rms_pct, point_max_pct, hausdorff_pct, metro_mean_pct,
+        metro_max_pct, metro_rms_pct, compact_share, compact, vertices,
+        faces``, or ``error``), ``original_compact_share``, ``reports`` (the
+        full evaluation report of each method) and ``markdown``.
+    """
+    xyz, _header, name = load_points(source, what="source cloud")
+    n = len(xyz)
+    methods = [m.strip() for m in methods if m.strip()]
+    if ratio is not None and count is not None:
+        raise ValueError("give ratio or count, not both")
+    if ratio is not None:
+        if not 0 < ratio <= 1:
+            raise ValueError(f"ratio must be in (0, 1], got {ratio}")
+        count = max(1, int(round(ratio * n)))
+    if count is not None and not 1 <= count <= n:
+        raise ValueError(f"count must be in [1, {n}], got {count}")
+    if count is None and (rule == "target" or not any(m in ("km", "fcm") for m in methods)):
+        raise ValueError("compare needs --ratio or --count (or an entropy method with rule threshold/iterative)")
+    if rule != "target" and count is None:  # entropy methods first: they set the count
+        methods = sorted(methods, key=lambda m: m not in ("km", "fcm"))
+    tick = progress or (lambda k: None)
+    out_dir = Path(report_dir) if report_dir is not None else None
+    rows, reports, hists, points_h = [], {}, {}, {}
+    cache: dict = {}
+    for m in methods:
+        t = time.perf_counter()
+        try:
+            idx = run_method(m, xyz, count, seed=seed, rule=rule, **(entropy_options if m in ("km", "fcm") else {}))
+        except (CloudsieveError, ValueError, ImportError) as exc:
+            logger.warning("compare: %s failed: %s", m, exc)
+            rows.append(_row(m, None, 0, time.perf_counter() - t, error=str(exc)))
+            tick(1)
+            continue
+        seconds = time.perf_counter() - t
+        if count is None:
+            count = len(idx)
+        if len(idx) == 0:
+            rows.append(_row(m, None, 0, seconds, error="kept no point"))
+            continue
+        rep = evaluate(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points, seed=seed,
+                       metro_samples=metro_samples, report_dir=None if out_dir is None else out_dir / m,
+                       _surface_cache=cache)
+        rep["method"] = {"name": m, "seconds": seconds, "rule": rule if m in ("km", "fcm") else None}
+        if out_dir is not None:  # rewrite with the method's name and time
+            write_json(rep, out_dir / m / "report.json")
+        reports[m] = rep
+        rows.append(_row(m, rep, int(len(idx)), seconds))
+        if rep.get("surface"):
+            hists[m] = rep["surface"]["simplified"]["compactness_hist"]
+            hists.setdefault("original", rep["surface"]["original"]["compactness_hist"])
+        h = rep["point"]["histogram"]
+        points_h[m] = {"log10_edges": h["log10_edges"], "per_decade": h["per_decade"], "counts": h["forward"],
+                       "zeros": h["forward_zeros"]}
+        tick(1)
+    if not reports:
+        raise EmptyInputError(f"every method failed on {name}: " + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
+    any_rep = next(iter(reports.values()))
+    result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": rule,
+              "seed": seed, "ratio": ratio, "rows": rows,
+              "original_compact_share": (any_rep.get("surface") or {}).get("original", {}).get("compact_share"),
+              "reports": reports}
+    result["markdown"] = compare_markdown(result)
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        files = {}
+        if hists:
+            order = {"original": hists.pop("original"), **hists}
+            files["compactness plot"] = plot_compactness(order, out_dir / "compactness.png",
+                                                         title="Triangle compactness by method")
+        if points_h:
+            files["point error plot"] = plot_point_errors(points_h, out_dir / "point_errors.png",
+                                                          title="Point errors (original → simplified) by method")
+        (out_dir / "report.md").write_text(result["markdown"])
+        files["markdown"] = str(out_dir / "report.md")
+        files["json"] = str(out_dir / "report.json")
+        result["files"] = files
+        write_json({k: v for k, v in result.items() if k != "reports"}, out_dir / "report.json")
+    return result

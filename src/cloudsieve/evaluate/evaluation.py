@@ -1,0 +1,217 @@
+"""``evaluate(original, simplified)``: what simplification cost, as one report.
+
+The original is streamed (any size); the simplified cloud is loaded into
+memory (it is the smaller one). See :mod:`.points` for the point level,
+:mod:`.surface` for the paper's surface level and :mod:`.report` for the files.
+
+Report keys (``report.json`` holds the same dict)
+-------------------------------------------------
+``original``, ``simplified``
+    ``name``, ``count``, ``format``, ``crs`` (LAS only).
+``diagonal``
+    The original's bounding-box diagonal (cloud units); every ``*_pct`` is in
+    % of it.
+``point``
+    From :func:`.points.point_errors`: ``point["forward"]`` (original ->
+    simplified) and ``point["backward"]`` (simplified -> original), each with
+    ``mean``, ``rms``, ``max`` (cloud units), ``mean_pct``, ``rms_pct``,
+    ``max_pct``, ``count`` and, when sampled, ``ci`` (95% intervals for mean
+    and RMS, ``*_pct`` too); ``hausdorff``, ``hausdorff_pct``, ``mode``,
+    ``subset``, ``histogram``.
+``surface`` (unless ``surface=False``)
+    From :func:`.surface.surface_errors`: ``mean``, ``rms``, ``max`` and
+    their ``_pct`` (Metro, the larger of both directions), ``forward`` and
+    ``backward`` (each direction), ``compact_share`` (share of the
+    simplified mesh's triangles with c >= 0.6), ``compact``, ``vertices``,
+    ``faces`` (simplified mesh), ``original`` and ``simplified`` (mesh
+    figures), ``tiles`` (per tile).
+``warnings``
+    Messages about suspicious input that was not refused.
+``timing``
+    Seconds spent in each level.
+``parameters``
+    The arguments used.
+``files``
+    Paths written (with ``report_dir``).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+
+from ..errors import IncompatibleCloudsError
+from ._source import load_points, open_source
+from .points import point_errors
+from .report import write_report
+from .surface import surface_errors
+
+logger = logging.getLogger(__name__)
+
+__all__ = ["evaluate", "check_compatible"]
+
+
+def _crs_key(header: dict) -> Any:
+    crs = (header or {}).get("crs")
+    if not crs:
+        return None
+    if crs.get("epsg") is not None:
+        return ("epsg", int(crs["epsg"]))
+    wkt = crs.get("wkt")
+    return ("wkt", " ".join(str(wkt).split())) if wkt else None
+
+
+def check_compatible(original_header: dict, simplified_header: dict, original_bounds: np.ndarray | None,
+                     simplified: np.ndarray, *, names: tuple[str, str] = ("original", "simplified"),
+                     strict: bool = True) -> list[str]:
+    """Flag clouds that cannot be compared: different CRS, or different units/scale.
+
+    Checks
+    ------
+    - both headers carry a CRS (LAS CRS VLRs, as EPSG code or WKT) and they differ;
+    - the simplified points do not lie in the original's bounding box (more
+      than 10% outside it, enlarged by 1% of its diagonal), or the simplified
+      cloud's diagonal is over 3 times the original's: different units
+      (feet vs metres) or offsets.
+
+    Returns the warnings (one header has a CRS, the other none); raises
+    :class:`~cloudsieve.errors.IncompatibleCloudsError` on a mismatch when
+    *strict*, else warns (``UserWarning``) and returns it among the messages.
+    """
+    msgs, problems = [], []
+    a, b = _crs_key(original_header), _crs_key(simplified_header)
+    if a is not None and b is not None and a != b:
+        problems.append(f"different CRS: {names[0]} has {a[0]} {str(a[1])[:80]!r}, {names[1]} has {b[0]} {str(b[1])[:80]!r}")
+    elif (a is None) != (b is None):
+        msgs.append(f"only the {names[0] if a else names[1]} has a CRS; assuming both are in it")
+    if original_bounds is not None and len(simplified):
+        lo, hi = np.asarray(original_bounds[0], float), np.asarray(original_bounds[1], float)
+        diag = float(np.linalg.norm(hi - lo))
+        tol = 0.01 * diag
+        outside = ~np.all((simplified >= lo - tol) & (simplified <= hi + tol), axis=1)
+        share = float(outside.mean())
+        sdiag = float(np.linalg.norm(simplified.max(0) - simplified.min(0)))
+        if share > 0.10 or (diag > 0 and sdiag > 3 * diag):
+            problems.append(
+                f"different units or position: {100 * share:.1f}% of the {names[1]} points lie outside the "
+                f"{names[0]}'s bounding box {lo.tolist()} - {hi.tolist()} (diagonal {diag:.6g}; {names[1]}'s "
+                f"diagonal {sdiag:.6g})")
+    for p in problems:
+        if strict:
+            raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False / --force to compare anyway)")
+        warnings.warn(p, UserWarning, stacklevel=3)
+        msgs.append(p)
+    for m in msgs:
+        logger.warning(m)
+    return msgs
+
+
+def _header_bounds(src) -> np.ndarray | None:
+    h = src.header or {}
+    if src._store is not None:
+        return np.asarray(src._store.bounds, dtype=float)
+    if src._array is not None:
+        a = src._array
+        return np.stack([a.min(0), a.max(0)]) if len(a) else None
+    if "mins" in h and "maxs" in h:
+        return np.array([h["mins"], h["maxs"]], dtype=float)
+    return None
+
+
+def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
+             tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
+             report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = 1_000_000,
+             metro_samples: int | None = None, client: Any = None, progress=None,
+             _surface_cache: dict | None = None) -> dict:
+    """Evaluate a simplified cloud against its original; returns the report dict.
+
+    Parameters
+    ----------
+    original : path (any format the IO layer reads, or a point store), PointStore, or ndarray (n, 3)
+        Streamed chunk by chunk; never loaded whole.
+    simplified : same kinds
+        Loaded into memory (assumed to be the smaller cloud).
+    sample : int, optional
+        Point level on a uniform seeded sample of this many points per
+        direction, with 95% confidence intervals; default every point.
+    surface : bool
+        Also compute the paper's surface level (meshes, Metro, compactness).
+    tiles, tile_points : int
+        T tiles of at most M original points for the surface level (the whole
+        cloud when it has at most M points).
+    seed : int
+        Seeds every sample and the tile choice.
+    subset : bool
+        Claim the simplified cloud is a subset of the original:
+        :class:`~cloudsieve.errors.NotASubsetError` when it is not.
+    strict : bool
+        Different CRS or units raise :class:`~cloudsieve.errors.IncompatibleCloudsError`
+        (else a warning, recorded in ``report["warnings"]``).
+    report_dir : str, optional
+        Write report.json, report.md, plots and errors.ply there.
+    error_points : int
+        At most this many original points in errors.ply (uniform seeded sample).
+    chunk_size : int
+        Points per chunk of the original.
+    metro_samples : int, optional
+        Metro samples per direction and tile (default 10 x faces, at most 1e6).
+    client : distributed.Client, optional
+        Run the point-level chunk tasks on this dask cluster.
+    progress : callable, optional
+        Called with the number of original points done (point level).
+
+    Returns
+    -------
+    dict
+        The report (keys in this module's docstring).
+
+    Raises
+    ------
+    EmptyInputError
+        Either cloud has no point.
+    IncompatibleCloudsError, NotASubsetError
+        See *strict* and *subset*.
+    """
+    t0 = time.perf_counter()
+    src = open_source(original, chunk_size=chunk_size)
+    simp, simp_header, simp_name = load_points(simplified, what="simplified cloud")
+    warn = check_compatible(src.header, simp_header, _header_bounds(src), simp,
+                            names=(str(src.name), str(simp_name)), strict=strict)
+    report: dict[str, Any] = {
+        "cloudsieve_report": 1,
+        "original": {"name": str(src.name), "count": src.count, "format": src.format,
+                     "crs": (src.header or {}).get("crs")},
+        "simplified": {"name": str(simp_name), "count": int(len(simp)), "crs": (simp_header or {}).get("crs")},
+        "parameters": {"sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
+                       "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples},
+        "warnings": list(warn),
+        "timing": {},
+    }
+    ply_parts: list[tuple[np.ndarray, np.ndarray]] = []
+    t = time.perf_counter()
+    p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
+                     error_points=error_points if report_dir else 0,
+                     on_error_points=lambda x, e: ply_parts.append((x, e)), progress=progress)
+    report["timing"]["point"] = time.perf_counter() - t
+    report["point"] = p
+    report["diagonal"] = p["diagonal"]
+    report["original"]["count"] = p["original_count"]
+    if p["subset"] is False and not subset:
+        logger.info("%d simplified points are not original points", p["not_in_original"])
+    if surface:
+        t = time.perf_counter()
+        report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
+                                           diagonal=p["diagonal"], samples=metro_samples,
+                                           cache=_surface_cache)
+        report["timing"]["surface"] = time.perf_counter() - t
+    report["timing"]["total"] = time.perf_counter() - t0
+    if report_dir is not None:
+        pts = None
+        if ply_parts:
+            pts = (np.concatenate([a for a, _ in ply_parts]), np.concatenate([e for _, e in ply_parts]))
+        write_report(report, report_dir, error_points=pts)
+    return report

@@ -1,0 +1,261 @@
+"""Writing an evaluation report: report.json, report.md, PNG plots, error PLY.
+
+``report.json`` holds the report dict of :func:`cloudsieve.evaluate` as is
+(keys documented there). ``report.md`` renders it as tables like the paper's
+Tables 1-4. Plots (matplotlib, Agg backend, no display needed):
+
+- ``compactness.png``: histograms of triangle compactness, original mesh vs
+  simplified mesh (the paper's figures 4-5), with the 0.6 line;
+- ``point_errors.png``: histogram of the point-level errors (log scale),
+  forward and backward.
+
+``errors.ply`` (written by :func:`write_error_ply`): the original points (all
+of them, or a uniform sample of at most ``error_points``) coloured by their
+forward error, red = 0 to blue = max (the paper's figures 6-7, colour map
+``jet`` reversed), with the error as a float vertex property ``error``.
+Binary little-endian PLY, x/y/z as double (survey coordinates keep their
+precision).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["write_report", "write_json", "markdown", "plot_compactness", "plot_point_errors",
+           "write_error_ply", "fmt"]
+
+
+def _clean(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _clean(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, (np.bool_,)):
+        return bool(obj)
+    return obj
+
+
+def write_json(report: dict, path: str | os.PathLike) -> str:
+    """Write *report* as JSON (NaN/inf become null); returns the path."""
+    Path(path).write_text(json.dumps(_clean(report), indent=1, sort_keys=False) + "\n")
+    return str(path)
+
+
+def fmt(v: Any, digits: int = 4) -> str:
+    """A number for a Markdown table: 4 significant digits, '-' for missing."""
+    if v is None:
+        return "-"
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return f"{int(v):,}"
+    v = float(v)
+    if not math.isfinite(v):
+        return "-"
+    if v == 0:
+        return "0"
+    if abs(v) >= 1e5 or abs(v) < 1e-4:
+        return f"{v:.{digits - 1}e}"
+    return f"{v:.{digits}g}"
+
+
+def _pct(v: Any) -> str:
+    return "-" if v is None else f"{100.0 * float(v):.2f}%"
+
+
+def markdown(report: dict) -> str:
+    """report.md text: summary, point-level, Metro and compactness tables."""
+    lines = ["# cloudsieve evaluation", ""]
+    o, s = report.get("original", {}), report.get("simplified", {})
+    p = report.get("point")
+    lines += ["## Clouds", "", "| | file | points | bbox diagonal |", "|---|---|---:|---:|",
+              f"| original | {o.get('name', '-')} | {fmt(o.get('count'))} | {fmt(report.get('diagonal'))} |",
+              f"| simplified | {s.get('name', '-')} | {fmt(s.get('count'))} | |", ""]
+    if o.get("count") and s.get("count"):
+        lines += [f"Kept {fmt(s['count'])} of {fmt(o['count'])} points ({100.0 * s['count'] / o['count']:.2f}%).", ""]
+    for w in report.get("warnings", []):
+        lines += [f"> warning: {w}", ""]
+    if p:
+        lines += ["## Point level (nearest-neighbour distances)", "",
+                  f"Mode: {p['mode']}" + (f" (uniform sample of {fmt(p['sample'])} points, seed {p['seed']}, 95% CI)"
+                                         if p["mode"] == "sampled" else " (every point)") + ".", "",
+                  "| direction | points | mean | RMS | max | mean % diag | RMS % diag | max % diag |",
+                  "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for name, label in (("forward", "original → simplified"), ("backward", "simplified → original")):
+            d = p[name]
+            lines.append(f"| {label} | {fmt(d['count'])} | {fmt(d['mean'])} | {fmt(d['rms'])} | {fmt(d['max'])} | "
+                         f"{fmt(d['mean_pct'])} | {fmt(d['rms_pct'])} | {fmt(d['max_pct'])} |")
+        lines += ["", f"Symmetric Hausdorff: {fmt(p['hausdorff'])} ({fmt(p['hausdorff_pct'])}% of the diagonal)"
+                  + (" — a lower bound (sampled)." if p.get("hausdorff_is_lower_bound") else "."), ""]
+        for name in ("forward", "backward"):
+            ci = p[name].get("ci")
+            if ci:
+                lines.append(f"- {name} 95% CI: mean [{fmt(ci['mean'][0])}, {fmt(ci['mean'][1])}], "
+                             f"RMS [{fmt(ci['rms'][0])}, {fmt(ci['rms'][1])}]; the sampled max is a lower bound.")
+        lines.append("")
+    sf = report.get("surface")
+    if sf:
+        lines += ["## Surface level (ball-pivoting meshes, Metro distances, % of the original's bbox diagonal)", "",
+                  f"{len(sf['tiles'])} tile(s) of at most {fmt(sf['tile_points'])} original points"
+                  + (" (the whole cloud)." if sf["tiles"] and sf["tiles"][0].get("whole_cloud") else "."), "",
+                  "| mesh | direction | vertices | faces | mean % | max % | RMS % |", "|---|---|---:|---:|---:|---:|---:|"]
+        for name, label, mesh in (("forward", "original mesh → simplified mesh", "simplified"),
+                                  ("backward", "simplified mesh → original mesh", "simplified")):
+            d = sf.get(name)
+            if d:
+                m = sf[mesh]
+                lines.append(f"| {mesh} | {label} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | "
+                             f"{fmt(d['max_pct'])} | {fmt(d['rms_pct'])} |")
+        lines += ["", "| mesh | vertices | faces | compactness ≥ 0.6 | mean compactness | compact (≥ 50%) |",
+                  "|---|---:|---:|---:|---:|---|"]
+        for mesh in ("original", "simplified"):
+            m = sf[mesh]
+            lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {_pct(m['compact_share'])} | "
+                         f"{fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+        if len(sf["tiles"]) > 1:
+            lines += ["", "Per tile:", "",
+                      "| tile | original pts | simplified pts | Metro mean % | Metro max % | Metro RMS % | c≥0.6 orig | c≥0.6 simpl |",
+                      "|---:|---:|---:|---:|---:|---:|---:|---:|"]
+            for i, t in enumerate(sf["tiles"]):
+                f = t.get("forward") or {}
+                lines.append(f"| {i} | {fmt(t['points_original'])} | {fmt(t['points_simplified'])} | "
+                             f"{fmt(f.get('mean_pct'))} | {fmt(f.get('max_pct'))} | {fmt(f.get('rms_pct'))} | "
+                             f"{_pct(t['original']['compact_share'])} | {_pct(t['simplified']['compact_share'])} |")
+        errs = [t["error"] for t in sf["tiles"] if "error" in t]
+        for e in errs:
+            lines += ["", f"> tile error: {e}"]
+        lines.append("")
+    files = report.get("files", {})
+    if files:
+        lines += ["## Files", ""] + [f"- {k}: `{os.path.basename(v)}`" for k, v in files.items()] + [""]
+    return "\n".join(lines)
+
+
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_compactness(series: dict[str, list[int]], path: str | os.PathLike, title: str = "Triangle compactness") -> str:
+    """Histograms (50 bins on [0, 1]) of triangle compactness, one line per mesh, as shares of faces."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    edges = np.linspace(0, 1, 51)
+    centres = 0.5 * (edges[1:] + edges[:-1])
+    for label, counts in series.items():
+        c = np.asarray(counts, dtype=float)
+        if c.sum() > 0:
+            ax.step(centres, 100.0 * c / c.sum(), where="mid", label=label)
+    ax.axvline(0.6, color="grey", linestyle="--", linewidth=1)
+    ax.set_xlabel("compactness c = 4√3·a / (l1² + l2² + l3²)")
+    ax.set_ylabel("% of triangles")
+    ax.set_title(title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def plot_point_errors(series: dict[str, dict], path: str | os.PathLike, title: str = "Point-level errors") -> str:
+    """Histograms of point errors over the fixed log bins; *series* maps a label to a report["point"]["histogram"]-like dict with ``log10_edges``, ``per_decade`` and ``forward``."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for label, h in series.items():
+        counts = np.asarray(h.get("counts", h.get("forward", [])), dtype=float)
+        if not h.get("log10_edges") or counts.sum() == 0:
+            continue
+        e0 = h["log10_edges"][0]
+        edges = 10 ** (e0 + np.arange(len(counts) + 1) / h["per_decade"])
+        total = counts.sum() + h.get("zeros", h.get("forward_zeros", 0))
+        ax.stairs(100.0 * counts / total, edges, label=label)
+    ax.set_xscale("log")
+    ax.set_xlabel("distance to the other cloud (cloud units); zeros not shown")
+    ax.set_ylabel("% of points")
+    ax.set_title(title)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return str(path)
+
+
+def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray) -> str:
+    """Binary PLY of points coloured by *error* (red = 0, blue = max) with an ``error`` float property.
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (n, 3), float64
+    error : ndarray of shape (n,)
+    """
+    import matplotlib
+
+    xyz = np.asarray(xyz, dtype=np.float64)
+    error = np.asarray(error, dtype=np.float32)
+    mx = float(error.max()) if len(error) else 0.0
+    t = error / mx if mx > 0 else np.zeros(len(error), np.float32)
+    rgb = (matplotlib.colormaps["jet_r"](t)[:, :3] * 255 + 0.5).astype(np.uint8)
+    rows = np.empty(len(xyz), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"),
+                                     ("blue", "u1"), ("error", "<f4")])
+    rows["x"], rows["y"], rows["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
+    rows["error"] = error
+    header = ("ply\nformat binary_little_endian 1.0\ncomment cloudsieve point errors: red = 0, blue = max "
+              f"= {mx:.9g}\nelement vertex {len(xyz)}\nproperty double x\nproperty double y\nproperty double z\n"
+              "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty float error\nend_header\n")
+    tmp = f"{path}.tmp"
+    with open(tmp, "wb") as f:
+        f.write(header.encode("ascii"))
+        f.write(rows.tobytes())
+    os.replace(tmp, path)
+    return str(path)
+
+
+def write_report(report: dict, directory: str | os.PathLike, *, error_points: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Write report.json, report.md, the plots and (given points and errors) errors.ply into *directory*.
+
+    Returns the mapping of file kinds to paths (also stored in ``report["files"]``).
+    """
+    d = Path(directory)
+    d.mkdir(parents=True, exist_ok=True)
+    files: dict[str, str] = {}
+    sf = report.get("surface")
+    if sf:
+        files["compactness plot"] = plot_compactness(
+            {"original mesh": sf["original"]["compactness_hist"], "simplified mesh": sf["simplified"]["compactness_hist"]},
+            d / "compactness.png")
+    p = report.get("point")
+    if p:
+        h = p["histogram"]
+        series = {"original → simplified": {"log10_edges": h["log10_edges"], "per_decade": h["per_decade"],
+                                            "counts": h["forward"], "zeros": h["forward_zeros"]}}
+        if sum(h["backward"]):
+            series["simplified → original"] = {"log10_edges": h["log10_edges"], "per_decade": h["per_decade"],
+                                               "counts": h["backward"], "zeros": h["backward_zeros"]}
+        files["point error plot"] = plot_point_errors(series, d / "point_errors.png")
+    if error_points is not None and len(error_points[0]):
+        files["error PLY"] = write_error_ply(d / "errors.ply", *error_points)
+    files["markdown"] = str(d / "report.md")
+    files["json"] = str(d / "report.json")
+    report["files"] = files
+    (d / "report.md").write_text(markdown(report))
+    write_json(report, d / "report.json")
+    return files
