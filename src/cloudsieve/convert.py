@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import logging
 import os
+import queue
+import threading
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
@@ -50,6 +53,10 @@ class _StoreFiller:
         self.pending: list[dict[str, np.ndarray]] = []
         self.pending_n = 0
         self.written = 0
+        self.pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="cloudsieve-store")
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=True)
 
     def add(self, chunk: dict[str, np.ndarray]) -> None:
         n = len(chunk["xyz"])
@@ -79,8 +86,10 @@ class _StoreFiller:
             self.capacity = stop
             for arr in self.arrays.values():
                 arr.resize((stop, *arr.shape[1:]))
-        for name, arr in self.arrays.items():
-            arr[start:stop] = block[name]
+        # arrays are compressed and written concurrently (zarr's codecs release the GIL)
+        futures = [self.pool.submit(arr.__setitem__, slice(start, stop), block[name]) for name, arr in self.arrays.items()]
+        for f in futures:
+            f.result()
         self.written = stop
 
     def flush(self) -> None:
@@ -91,6 +100,51 @@ class _StoreFiller:
             for arr in self.arrays.values():
                 arr.resize((self.written, *arr.shape[1:]))
             self.capacity = self.written
+
+
+def _prefetch(chunks, depth: int = 1):
+    """Iterate *chunks* produced by a background thread, *depth* chunks ahead.
+
+    Decoding (lazrs, which releases the GIL) overlaps with compressing and
+    writing the previous chunk; memory grows by *depth* chunks at most.
+    """
+    q: queue.Queue = queue.Queue(maxsize=depth)
+    done = object()
+    stop = threading.Event()
+
+    def produce() -> None:
+        try:
+            for chunk in chunks:
+                while not stop.is_set():
+                    try:
+                        q.put(("ok", chunk), timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if stop.is_set():
+                    return
+            q.put(("ok", done))
+        except BaseException as exc:  # handed to the consumer
+            q.put(("error", exc))
+
+    thread = threading.Thread(target=produce, name="cloudsieve-reader", daemon=True)
+    thread.start()
+    try:
+        while True:
+            kind, item = q.get()
+            if kind == "error":
+                raise item
+            if item is done:
+                return
+            yield item
+    finally:
+        stop.set()
+        while thread.is_alive():
+            try:
+                q.get_nowait()
+            except queue.Empty:
+                pass
+            thread.join(timeout=0.05)
 
 
 def ingest(
@@ -161,11 +215,14 @@ def ingest(
             hi = np.full(3, -np.inf)
             read = invalid = 0
             first_invalid = None
-            for chunk in reader.chunks():
+            for chunk in _prefetch(reader.chunks()):
                 xyz = chunk["xyz"]
                 n = len(xyz)
-                finite = np.isfinite(xyz).all(axis=1)
-                bad = n - int(np.count_nonzero(finite))
+                if np.isfinite(xyz).all():  # fast path: one flat reduction
+                    bad = 0
+                else:
+                    finite = np.isfinite(xyz).all(axis=1)
+                    bad = n - int(np.count_nonzero(finite))
                 if bad:
                     if first_invalid is None:
                         first_invalid = read + int(np.argmin(finite))
@@ -208,6 +265,9 @@ def ingest(
             if local is not None:
                 remove(target)
             raise
+        finally:
+            if "filler" in locals():
+                filler.close()
     if local is not None:
         replace(target, local)
     logger.info("ingested %d points from %s into %s", meta["count"], src, store)

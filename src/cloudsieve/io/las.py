@@ -83,22 +83,47 @@ def _arr_or_none(a: Any) -> list | None:
     return None if a is None else np.asarray(a).ravel().tolist()
 
 
+def _wkt_name_and_epsg(wkt: str) -> tuple[str | None, int | None]:
+    """The top-level name and EPSG code (the AUTHORITY at depth 1) of a WKT1/WKT2 string."""
+    m = re.match(r'\s*\w+\s*[\[(]\s*"([^"]*)"', wkt)
+    name = m.group(1) if m else None
+    depth, epsg = 0, None
+    i = 0
+    while i < len(wkt):
+        c = wkt[i]
+        if c in "[(":
+            depth += 1
+        elif c in "])":
+            depth -= 1
+        elif depth == 1 and (wkt.startswith("AUTHORITY", i) or wkt.startswith("ID[", i)):
+            a = re.match(r'(?:AUTHORITY|ID)\s*[\[(]\s*"EPSG"\s*,\s*"?(\d+)', wkt[i:])
+            if a:
+                epsg = int(a.group(1))
+        i += 1
+    return name, epsg
+
+
 def _crs_of(vlrs: list) -> dict | None:
-    """CRS from the WKT VLR (and EPSG from GeoTIFF keys), without pyproj."""
+    """CRS from the WKT VLR (name, EPSG), else the GeoTIFF keys' EPSG; no pyproj needed."""
     crs: dict[str, Any] = {}
     for vlr in vlrs:
         name = type(vlr).__name__
-        if name == "WktCoordinateSystemVlr":
+        if name == "WktCoordinateSystemVlr" and "wkt" not in crs:
             wkt = vlr.string
-            crs["wkt"] = wkt.rstrip("\0") if isinstance(wkt, str) else wkt.decode(errors="replace").rstrip("\0")
-        elif name == "GeoKeyDirectoryVlr":
-            for key in vlr.geo_keys:
-                if key.id in (3072, 2048) and key.value_offset not in (0, 32767):  # Projected / Geographic CS
-                    crs.setdefault("epsg", int(key.value_offset))
-    if "wkt" in crs and "epsg" not in crs:
-        m = re.findall(r'AUTHORITY\["EPSG","(\d+)"\]', crs["wkt"])
-        if m:
-            crs["epsg"] = int(m[-1])
+            wkt = wkt if isinstance(wkt, str) else wkt.decode(errors="replace")
+            crs["wkt"] = wkt.rstrip("\0")
+            crs["name"], epsg = _wkt_name_and_epsg(crs["wkt"])
+            if epsg:
+                crs["epsg"] = epsg
+    if "epsg" not in crs:
+        for vlr in vlrs:
+            if type(vlr).__name__ == "GeoKeyDirectoryVlr":
+                keys = {k.id: k for k in vlr.geo_keys}
+                for key_id in (3072, 2048):  # ProjectedCSType, GeographicType
+                    key = keys.get(key_id)
+                    if key is not None and key.tiff_tag_location == 0 and key.value_offset not in (0, 32767):
+                        crs["epsg"] = int(key.value_offset)
+                        break
     return crs or None
 
 
@@ -309,10 +334,12 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
     if bounds is None:
         bounds = np.zeros((2, 3))
     bounds = np.asarray(bounds, dtype=np.float64)
-    extent = float(np.max(bounds[1] - bounds[0])) if np.all(np.isfinite(bounds)) else 0.0
+    if not np.all(np.isfinite(bounds)):
+        bounds = np.zeros((2, 3))
+    offsets = [float(np.floor(v)) for v in bounds[0]]
+    extent = float(np.max(np.abs(bounds - np.asarray(offsets))))
     scale = 10.0 ** math.ceil(math.log10(max(extent, 1e-9) / 2e9))
     scale = float(f"{scale:.0e}")
-    offsets = [float(np.floor(v)) if np.isfinite(v) else 0.0 for v in bounds[0]]
     header = {
         "version": "1.2",
         "point_format": pf_id,

@@ -1,0 +1,54 @@
+"""``cloudsieve export STORE DST``: write a point store (or its kept points) to a file."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from ._common import positive_int
+
+ORDER = 30
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "export",
+        help="write a point store to LAS/LAZ/PLY/XYZ",
+        description=(
+            "Write the points of STORE to DST (format by extension or --format) in chunks, with "
+            "every attribute and, for LAS sources, the original header (counts and bounds "
+            "updated). With --mask, only the points a bool array of the store keeps (e.g. "
+            "simplify/keep). Written under a temporary name and renamed when complete."
+        ),
+    )
+    p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
+    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts)")
+    p.add_argument("--format", choices=("las", "laz", "ply", "xyz"), help="output format (default: from the extension)")
+    p.add_argument("--mask", metavar="ARRAY", help="bool array of the store selecting the points to write (e.g. simplify/keep)")
+    p.add_argument("--chunk-size", type=positive_int, default=1_000_000, metavar="N", help="points per chunk (default 1000000)")
+    p.add_argument("--overwrite", action="store_true", help="replace DST if it exists")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .. import progress
+    from ..convert import export
+    from ..errors import CloudsieveError
+    from ..store import PointStore
+
+    store = PointStore.open(args.store)
+    if args.mask and args.mask not in store:
+        raise CloudsieveError(f"{args.store} has no array {args.mask!r}")
+    with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
+        export(
+            store,
+            args.dst,
+            format=args.format,
+            mask=args.mask,
+            chunk_size=args.chunk_size,
+            overwrite=args.overwrite,
+            progress=update,
+        )
+    print(f"exported {args.store} to {args.dst}", file=sys.stderr)
+    return 0

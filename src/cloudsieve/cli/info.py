@@ -1,0 +1,141 @@
+"""``cloudsieve info PATH``: format, count, bounds, attributes and CRS of a file or store."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import numpy as np
+
+ORDER = 10
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "info",
+        help="show format, point count, bounds, attributes and CRS of a file or point store",
+        description=(
+            "Describe PATH, a point cloud file (LAS/LAZ/COPC/PLY/E57/XYZ) or a point store. The "
+            "count and bounds come from the header where the format has one (LAS, E57 count); "
+            "otherwise (PLY bounds, XYZ) the file is streamed once, chunk by chunk."
+        ),
+    )
+    p.add_argument("path", metavar="PATH", help="file or point store (folder or fsspec URL)")
+    p.add_argument("--format", help="file format (default: from the extension)")
+    p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    p.set_defaults(func=run)
+
+
+def _describe_store(path: str) -> dict:
+    from ..store import PointStore
+
+    store = PointStore.open(path)
+    derived = []
+
+    def walk(group, prefix=""):
+        for name, node in group.members():
+            full = f"{prefix}{name}"
+            if hasattr(node, "members"):
+                walk(node, full + "/")
+            elif full not in store.dimensions:
+                derived.append(full)
+
+    walk(store.group)
+    return {
+        "path": path,
+        "kind": "point store",
+        "format": f"store (source {store.source_format})",
+        "count": store.count,
+        "bounds": store.bounds.tolist(),
+        "attributes": {n: _dtype_text(*v) for n, v in store.dtypes.items() if n != "xyz"},
+        "crs": _crs(store.header),
+        "header": _short_header(store.header),
+        "chunk_size": store.chunk_size,
+        "derived_arrays": derived,
+    }
+
+
+def _dtype_text(dtype, shape) -> str:
+    return f"{np.dtype(dtype)}{list(shape) if shape else ''}"
+
+
+def _crs(header: dict):
+    crs = header.get("crs")
+    if not crs:
+        return None
+    parts = [p for p in (crs.get("name"), f"EPSG:{crs['epsg']}" if crs.get("epsg") else None) if p]
+    return ", ".join(parts) or (crs.get("wkt") or "")[:80] or None
+
+
+def _short_header(header: dict) -> dict:
+    keys = ("version", "point_format", "scales", "offsets", "system_identifier", "generating_software", "creation_date")
+    out = {k: header[k] for k in keys if k in header}
+    if "vlrs" in header:
+        out["vlrs"] = [f"{v['user_id']}/{v['record_id']}" for v in header["vlrs"]]
+        out["evlrs"] = [f"{v['user_id']}/{v['record_id']}" for v in header.get("evlrs", [])]
+    for k in ("format", "comments", "columns", "delimiter", "scan_count"):
+        if k in header:
+            out[k] = header[k]
+    return out
+
+
+def _describe_file(path: str, format: str | None) -> dict:
+    from ..io import open_reader
+
+    with open_reader(path, format=format) as reader:
+        header = reader.header
+        count = reader.count
+        if "mins" in header and "maxs" in header:
+            bounds = [header["mins"], header["maxs"]]
+        else:  # stream once for the bounds (and the count of XYZ)
+            lo, hi, n = np.full(3, np.inf), np.full(3, -np.inf), 0
+            for chunk in reader.chunks():
+                xyz = chunk["xyz"]
+                if len(xyz):
+                    finite = xyz[np.isfinite(xyz).all(axis=1)]
+                    if len(finite):
+                        lo, hi = np.minimum(lo, finite.min(axis=0)), np.maximum(hi, finite.max(axis=0))
+                n += len(xyz)
+            count = n
+            bounds = [lo.tolist(), hi.tolist()] if n else None
+        return {
+            "path": path,
+            "kind": "file",
+            "format": reader.format,
+            "count": count,
+            "bounds": bounds,
+            "attributes": {n: _dtype_text(*v) for n, v in reader.dtypes.items() if n != "xyz"},
+            "crs": _crs(header),
+            "header": _short_header(header),
+        }
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..store import local_path
+
+    local = local_path(args.path)
+    if local is None or os.path.isdir(local):
+        if local is not None and not os.path.exists(os.path.join(local, "zarr.json")):
+            from ..errors import InputIsDirectoryError
+
+            raise InputIsDirectoryError(f"{args.path} is a directory, not a point cloud file or point store")
+        info = _describe_store(args.path)
+    else:
+        info = _describe_file(args.path, args.format)
+    if args.json:
+        print(json.dumps(info, indent=2))
+        return 0
+    print(f"{info['path']}: {info['format']}")
+    print(f"  points      {info['count']:,}" if info["count"] is not None else "  points      unknown")
+    if info["bounds"]:
+        lo, hi = info["bounds"]
+        for axis, a, b in zip("xyz", lo, hi):
+            print(f"  {axis}           {a:.6g} .. {b:.6g}")
+    print(f"  CRS         {info['crs'] or 'none'}")
+    print("  attributes  " + (", ".join(f"{k} ({v})" for k, v in info["attributes"].items()) or "none"))
+    for k, v in info["header"].items():
+        print(f"  {k:<11} {v}")
+    if info.get("derived_arrays"):
+        print("  derived     " + ", ".join(info["derived_arrays"]))
+    return 0

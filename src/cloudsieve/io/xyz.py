@@ -1,0 +1,201 @@
+"""XYZ / TXT / CSV / PTS text clouds: one point per row, in blocks of rows.
+
+Reading
+    * delimiter: given (``delimiter=","``) or sniffed from the first data row
+      (comma, semicolon, else whitespace);
+    * header line optional: a first row with a non-numeric value names the
+      columns (a leading ``#`` or ``//`` is stripped); a first row holding a
+      single integer (the PTS point count) is skipped; ``columns=[...]``
+      names them explicitly, ``skiprows=k`` skips k leading lines;
+    * without names, columns are ``x y z`` + ``intensity`` (4 columns),
+      ``red green blue`` (6), ``intensity red green blue`` (7, the PTS
+      layout), else ``col3, col4, ...``;
+    * ``x``, ``y``, ``z`` are required (matched case-insensitively);
+    * every column is read as float64 (a text file carries no types); blank
+      lines and lines starting with ``#`` or ``//`` are skipped;
+    * a bad row (wrong number of values, or a value that is not a number)
+      raises CorruptInputError naming its line number.
+
+    The point count is unknown until the file has been read (``count`` is None).
+
+Writing
+    A header row of column names, then one row per point, space separated
+    (comma for .csv); floats with 17 significant digits (float32 with 9), so
+    values read back exactly; (n, k) attributes as ``name_0 .. name_{k-1}``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+from collections.abc import Iterator
+from typing import Any
+
+import numpy as np
+
+from ..errors import InputFormatError
+from ._base import Reader, Writer
+from ._text import parse_rows
+
+__all__ = ["XyzReader", "XyzWriter"]
+
+logger = logging.getLogger(__name__)
+
+_DEFAULT_COLUMNS = {
+    3: ["x", "y", "z"],
+    4: ["x", "y", "z", "intensity"],
+    6: ["x", "y", "z", "red", "green", "blue"],
+    7: ["x", "y", "z", "intensity", "red", "green", "blue"],
+}
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+    except ValueError:
+        return False
+    return True
+
+
+def _is_comment(line: str) -> bool:
+    s = line.lstrip()
+    return not s or s.startswith("#") or s.startswith("//")
+
+
+def _split(line: str, delimiter: str | None) -> list[str]:
+    if delimiter is None:
+        return line.split()
+    return [t.strip() for t in line.strip().split(delimiter)]
+
+
+class XyzReader(Reader):
+    """Block reader of text point clouds (see the module docstring).
+
+    Options
+    -------
+    delimiter : str, optional
+        Column separator (default: sniffed).
+    columns : list of str, optional
+        Column names (default: header row, else by column count).
+    skiprows : int
+        Lines to skip before the data (default 0).
+    """
+
+    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+        super().__init__(path, format, chunk_size, **options)
+        self._delimiter = options.get("delimiter")
+        columns = options.get("columns")
+        skip = int(options.get("skiprows", 0))
+        header_line = None
+        first_data = None
+        lineno = 0
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            lines = iter(fh)
+            for line in itertools.islice(lines, skip):
+                lineno += 1
+            for line in lines:
+                lineno += 1
+                stripped = line.strip()
+                if not stripped:
+                    continue
+                if stripped.startswith("#") or stripped.startswith("//"):
+                    body = stripped.lstrip("#/").strip()
+                    if header_line is None and first_data is None and body and not _is_number(body.split()[0]):
+                        header_line = (lineno, body)
+                    continue
+                if self._delimiter is None:
+                    self._delimiter = "," if "," in stripped else (";" if ";" in stripped else None)
+                tokens = _split(stripped, self._delimiter)
+                if not all(_is_number(t) for t in tokens) and header_line is None:
+                    header_line = (lineno, stripped)  # a header row of column names
+                    continue
+                if len(tokens) == 1 and tokens[0].isdigit() and "pts_count" not in self.header:
+                    self.header["pts_count"] = int(tokens[0])  # PTS: first line is the count
+                    continue
+                first_data = (lineno, stripped)
+                break
+        if first_data is None and header_line is None:
+            self._names = columns or ["x", "y", "z"]
+            self._start = lineno + 1
+        else:
+            ncols = len(_split(first_data[1], self._delimiter)) if first_data else None
+            if columns is None and header_line is not None:
+                columns = [c for c in _split(header_line[1], self._delimiter) if c]
+            if columns is None:
+                columns = _DEFAULT_COLUMNS.get(ncols) or ["x", "y", "z"] + [f"col{i}" for i in range(3, ncols or 3)]
+            if ncols is not None and len(columns) != ncols:
+                raise InputFormatError(
+                    f"{path}, line {first_data[0]}: {ncols} values but {len(columns)} column names ({', '.join(columns)})"
+                )
+            self._names = list(columns)
+            self._start = first_data[0] if first_data else lineno + 1
+        lower = [c.lower() for c in self._names]
+        missing = [c for c in "xyz" if c not in lower]
+        if missing:
+            raise InputFormatError(f"{path}: text cloud has no {'/'.join(missing)} column (columns: {', '.join(self._names)})")
+        self._xyz_index = [lower.index(c) for c in "xyz"]
+        self._attr = [(i, n) for i, n in enumerate(self._names) if i not in self._xyz_index]
+        for _, name in self._attr:
+            self.dtypes[name] = (np.dtype(np.float64), ())
+        self.header.update({"columns": self._names, "delimiter": self._delimiter})
+        self.count = None
+
+    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Yield blocks of at most ``chunk_size`` rows."""
+        ncols = len(self._names)
+        with open(self.path, encoding="utf-8", errors="replace") as fh:
+            numbered = enumerate(fh, start=1)
+            for _ in itertools.islice(numbered, self._start - 1):
+                pass
+            rows = ((i, line) for i, line in numbered if not _is_comment(line))
+            while True:
+                block = list(itertools.islice(rows, self.chunk_size))
+                if not block:
+                    break
+                values = parse_rows(block, ncols, self.path, self._delimiter)
+                chunk = {"xyz": np.ascontiguousarray(values[:, self._xyz_index])}
+                for i, name in self._attr:
+                    chunk[name] = np.ascontiguousarray(values[:, i])
+                yield chunk
+
+
+class XyzWriter(Writer):
+    """Text writer: header row, then one row per point."""
+
+    def _open(self) -> None:
+        self._delimiter = "," if self.path.lower().endswith(".csv") else " "
+        names = ["x", "y", "z"]
+        fmts = ["%.17g"] * 3
+        self._cols: list[tuple[str, int | None]] = []
+        for name, (dtype, shape) in self.dtypes.items():
+            if name == "xyz":
+                continue
+            if dtype.kind in "iub":
+                fmt = "%d"
+            elif dtype == np.float32:
+                fmt = "%.9g"
+            elif dtype.kind == "f":
+                fmt = "%.17g"
+            else:
+                logger.warning("%s: attribute %r of type %s not written", self.path, name, dtype)
+                continue
+            if shape == ():
+                names.append(name)
+                fmts.append(fmt)
+                self._cols.append((name, None))
+            elif len(shape) == 1:
+                for i in range(shape[0]):
+                    names.append(f"{name}_{i}")
+                    fmts.append(fmt)
+                    self._cols.append((name, i))
+        self._fmt = self._delimiter.join(fmts)
+        self.file.write((self._delimiter.join(names) + "\n").encode())
+
+    def _write(self, chunk: dict[str, np.ndarray]) -> None:
+        xyz = chunk["xyz"]
+        columns = [xyz[:, 0], xyz[:, 1], xyz[:, 2]]
+        for name, i in self._cols:
+            columns.append(chunk[name] if i is None else chunk[name][:, i])
+        fmt = self._fmt
+        text = "\n".join(fmt % row for row in zip(*(c.tolist() for c in columns)))
+        self.file.write((text + "\n").encode())
