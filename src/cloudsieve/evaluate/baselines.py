@@ -186,17 +186,19 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
     return np.unique(idx).astype(np.int64)
 
 
-def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "fcm", rule: str = "target",
+def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "fcm", rule: str = "iterative",
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.prune.simplify_points`.
 
-    With ``rule="target"`` the output count is *count* (within 1%); with the
-    other rules *count* is ignored and the rule's threshold decides.
+    *count* is passed to every rule but ``threshold`` (``target``,
+    ``iterative`` and ``coverage`` then stop at the count); with ``threshold``
+    (the paper's single pass at S) or ``count=None`` the rule's threshold
+    decides the count.
     """
     from ..prune import simplify_points
 
     kw = dict(options)
-    if rule == "target":
+    if rule != "threshold" and count is not None:
         kw["count"] = int(count)
     keep = simplify_points(np.ascontiguousarray(points, dtype=np.float64), method=method, rule=rule, seed=seed, **kw)
     keep = np.asarray(keep)
@@ -213,7 +215,7 @@ BASELINES = {
 }
 
 
-def run_method(name: str, points: np.ndarray, count: int | None, *, seed: int = 0, rule: str = "target",
+def run_method(name: str, points: np.ndarray, count: int | None, *, seed: int = 0, rule: str = "iterative",
                **options) -> np.ndarray:
     """Run method *name* (``km``, ``fcm`` or a key of :data:`BASELINES`); sorted kept indices."""
     if name in ("km", "fcm"):

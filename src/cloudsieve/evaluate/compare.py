@@ -9,9 +9,11 @@ kept, time, point mean/RMS/max (% of the diagonal, original -> simplified),
 Metro mean/max/RMS (% of the diagonal, the larger of both directions),
 compactness >= 0.6 (share of the simplified mesh's triangles).
 
-The count comes from ``count``, or ``ratio`` x n; with ``rule`` other than
-``target`` (the paper's ``threshold``, or ``iterative``) and neither given,
-the first entropy method decides the count and the others follow it.
+The count comes from ``count``, or ``ratio`` x n (the entropy rules
+``iterative``, ``target`` and ``coverage`` stop at it); with the paper's
+``threshold`` rule, or neither given, the first entropy method decides the
+count and the others follow it. Several rules may be given: each entropy
+method then runs once per rule (rows "km (target)", ...).
 """
 
 from __future__ import annotations
@@ -78,7 +80,7 @@ def _share(v: Any) -> str:
     return "-" if v is None else f"{100.0 * float(v):.2f}%"
 
 
-def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str = "target",
+def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] = "iterative",
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
             metro_samples: int | None = None, progress=None, **entropy_options) -> dict:
@@ -91,8 +93,10 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     methods : sequence of str
         Among ``km``, ``fcm`` (entropy simplification), ``random``, ``voxel``,
         ``poisson``, ``fps`` (baselines, :mod:`.baselines`).
-    rule : str
-        Rule of the entropy methods (``target``, ``threshold``, ``iterative``).
+    rule : str or list of str
+        Rule(s) of the entropy methods (``iterative``, the default,
+        ``target``, ``coverage``, ``threshold``); a comma-separated string or
+        a list runs each entropy method once per rule.
     ratio, count : optional
         Kept share or kept count (one of them; required with ``rule="target"``
         unless no entropy method runs).
@@ -122,6 +126,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     xyz, _header, name = load_points(source, what="source cloud")
     n = len(xyz)
     methods = [m.strip() for m in methods if m.strip()]
+    rules = [r.strip() for r in (rule.split(",") if isinstance(rule, str) else rule) if r.strip()]
+    if not rules:
+        raise ValueError("no rule given")
     if ratio is not None and count is not None:
         raise ValueError("give ratio or count, not both")
     if ratio is not None:
@@ -130,48 +137,54 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         count = max(1, int(round(ratio * n)))
     if count is not None and not 1 <= count <= n:
         raise ValueError(f"count must be in [1, {n}], got {count}")
-    if count is None and (rule == "target" or not any(m in ("km", "fcm") for m in methods)):
-        raise ValueError("compare needs --ratio or --count (or an entropy method with rule threshold/iterative)")
-    if rule != "target" and count is None:  # entropy methods first: they set the count
-        methods = sorted(methods, key=lambda m: m not in ("km", "fcm"))
+    if count is None and not any(m in ("km", "fcm") for m in methods):
+        raise ValueError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
+    runs = []  # (row name, method, rule)
+    for m in methods:
+        if m in ("km", "fcm"):
+            runs += [(m if len(rules) == 1 else f"{m} ({r})", m, r) for r in rules]
+        else:
+            runs.append((m, m, None))
+    runs.sort(key=lambda x: x[2] is None)  # entropy methods first: without a count they set it
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
     rows, reports, hists, points_h = [], {}, {}, {}
     cache: dict = {}
-    for m in methods:
+    for label, m, r in runs:
         t = time.perf_counter()
         try:
-            idx = run_method(m, xyz, count, seed=seed, rule=rule, **(entropy_options if m in ("km", "fcm") else {}))
+            idx = run_method(m, xyz, count, seed=seed, rule=r or "iterative",
+                             **(entropy_options if r is not None else {}))
         except (CloudsieveError, ValueError, ImportError) as exc:
             logger.warning("compare: %s failed: %s", m, exc)
-            rows.append(_row(m, None, 0, time.perf_counter() - t, error=str(exc)))
+            rows.append(_row(label, None, 0, time.perf_counter() - t, error=str(exc)))
             tick(1)
             continue
         seconds = time.perf_counter() - t
         if count is None:
             count = len(idx)
         if len(idx) == 0:
-            rows.append(_row(m, None, 0, seconds, error="kept no point"))
+            rows.append(_row(label, None, 0, seconds, error="kept no point"))
             continue
+        sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
         rep = evaluate(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points, seed=seed,
-                       metro_samples=metro_samples, report_dir=None if out_dir is None else out_dir / m,
-                       _surface_cache=cache)
-        rep["method"] = {"name": m, "seconds": seconds, "rule": rule if m in ("km", "fcm") else None}
-        if out_dir is not None:  # rewrite with the method's name and time
-            write_json(rep, out_dir / m / "report.json")
-        reports[m] = rep
-        rows.append(_row(m, rep, int(len(idx)), seconds))
+                       metro_samples=metro_samples, report_dir=sub, _surface_cache=cache)
+        rep["method"] = {"name": m, "seconds": seconds, "rule": r}
+        if sub is not None:  # rewrite with the method's name and time
+            write_json(rep, sub / "report.json")
+        reports[label] = rep
+        rows.append(_row(label, rep, int(len(idx)), seconds))
         if rep.get("surface"):
-            hists[m] = rep["surface"]["simplified"]["compactness_hist"]
+            hists[label] = rep["surface"]["simplified"]["compactness_hist"]
             hists.setdefault("original", rep["surface"]["original"]["compactness_hist"])
         h = rep["point"]["histogram"]
-        points_h[m] = {"log10_edges": h["log10_edges"], "per_decade": h["per_decade"], "counts": h["forward"],
+        points_h[label] = {"log10_edges": h["log10_edges"], "per_decade": h["per_decade"], "counts": h["forward"],
                        "zeros": h["forward_zeros"]}
         tick(1)
     if not reports:
         raise EmptyInputError(f"every method failed on {name}: " + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
     any_rep = next(iter(reports.values()))
-    result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": rule,
+    result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": ",".join(rules),
               "seed": seed, "ratio": ratio, "rows": rows,
               "original_compact_share": (any_rep.get("surface") or {}).get("original", {}).get("compact_share"),
               "reports": reports}
