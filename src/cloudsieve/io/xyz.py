@@ -87,6 +87,7 @@ class XyzReader(Reader):
         columns = options.get("columns")
         skip = int(options.get("skiprows", 0))
         header_line = None
+        header_comment = False
         first_data = None
         lineno = 0
         with open(path, encoding="utf-8", errors="replace") as fh:
@@ -102,12 +103,14 @@ class XyzReader(Reader):
                     body = stripped.lstrip("#/").strip()
                     if header_line is None and first_data is None and body and not _is_number(body.split()[0]):
                         header_line = (lineno, body)
+                        header_comment = True
                     continue
                 if self._delimiter is None:
                     self._delimiter = "," if "," in stripped else (";" if ";" in stripped else None)
                 tokens = _split(stripped, self._delimiter)
-                if not all(_is_number(t) for t in tokens) and header_line is None:
+                if not all(_is_number(t) for t in tokens) and (header_line is None or header_comment):
                     header_line = (lineno, stripped)  # a header row of column names
+                    header_comment = False
                     continue
                 if len(tokens) == 1 and tokens[0].isdigit() and "pts_count" not in self.header:
                     self.header["pts_count"] = int(tokens[0])  # PTS: first line is the count
@@ -119,6 +122,8 @@ class XyzReader(Reader):
             self._start = lineno + 1
         else:
             ncols = len(_split(first_data[1], self._delimiter)) if first_data else None
+            if header_comment and ncols is not None and len(_split(header_line[1], self._delimiter)) != ncols:
+                header_line = None  # a comment, not column names
             if columns is None and header_line is not None:
                 columns = [c for c in _split(header_line[1], self._delimiter) if c]
             if columns is None:
