@@ -1,0 +1,404 @@
+"""End to end: cloudsieve.engine.simplify on real LAZ files and generated clouds,
+real zarr stores on disk, dask's local schedulers and a real dask.distributed
+LocalCluster of worker processes on loopback.
+
+Sizes are small (a few thousand points per cell) so that the whole file runs
+in a few minutes on 2 cores; KM and the threshold rule keep the core fast where
+the test is about the engine, not the method.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import laspy
+import numpy as np
+import pytest
+import zarr
+from conftest import shared_file
+
+from cloudsieve import partition as P
+from cloudsieve.cli import main
+from cloudsieve.convert import ingest
+from cloudsieve.engine import simplify
+from cloudsieve.errors import InvalidParameterError, ResumeMismatchError
+from cloudsieve.store import PointStore
+
+FAST = dict(method="km", rule="threshold", cluster_size=200, seed=7)
+
+
+def write_laz(path: Path, xyz: np.ndarray, seed: int = 0) -> Path:
+    """A real LAZ file (point format 3, with intensity, colour and GPS time)."""
+    rng = np.random.default_rng(seed)
+    header = laspy.LasHeader(point_format=3, version="1.2")
+    header.scales = np.array([0.001, 0.001, 0.001])
+    header.offsets = np.floor(xyz.min(axis=0))
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    n = len(xyz)
+    las.intensity = rng.integers(0, 65535, n, dtype=np.uint16)
+    las.red = rng.integers(0, 65535, n, dtype=np.uint16)
+    las.green = rng.integers(0, 65535, n, dtype=np.uint16)
+    las.blue = rng.integers(0, 65535, n, dtype=np.uint16)
+    las.gps_time = np.arange(n, dtype=np.float64) * 1e-3
+    las.classification = rng.integers(0, 6, n, dtype=np.uint8)
+    las.write(str(path))
+    return path
+
+
+def plane(n: int, side: float = 100.0, seed: int = 1) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    xy = rng.random((n, 2)) * side
+    z = 0.5 * np.sin(xy[:, 0] / 7.0) + rng.normal(0, 0.02, n)
+    return np.c_[xy + 500_000.0, z + 100.0]
+
+
+def read_xyz(path) -> np.ndarray:
+    las = laspy.read(str(path))
+    return np.c_[las.x, las.y, las.z]
+
+
+def digest(path) -> bytes:
+    return Path(path).read_bytes()
+
+
+@pytest.fixture(scope="module")
+def cluster2():
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as c:
+        with Client(c) as client:
+            yield client
+
+
+@pytest.fixture(scope="module")
+def real_laz():
+    return shared_file("append-bug.laz")
+
+
+@pytest.fixture(scope="module")
+def reference(real_laz, tmp_path_factory):
+    """The output of the synchronous scheduler, the reference for every other run."""
+    d = tmp_path_factory.mktemp("ref")
+    out = d / "ref.laz"
+    s = simplify(real_laz, out, scheduler="sync", cell_size=6_000, chunk_size=10_000, **FAST)
+    return out, s
+
+
+# ----------------------------------------------------------------- determinism
+
+
+@pytest.mark.parametrize(
+    "scheduler, workers",
+    [("threads", 1), ("threads", 2), ("processes", 2), ("processes", 1)],
+)
+def test_same_bytes_on_every_local_scheduler(reference, real_laz, tmp_path, scheduler, workers):
+    ref, ref_summary = reference
+    out = tmp_path / "out.laz"
+    s = simplify(real_laz, out, scheduler=scheduler, workers=workers, cell_size=6_000, chunk_size=10_000, **FAST)
+    assert digest(out) == digest(ref)
+    assert (s.kept, s.points_in, s.cells) == (ref_summary.kept, ref_summary.points_in, ref_summary.cells)
+    assert 0 < s.kept < s.points_in
+
+
+def test_same_bytes_on_a_local_cluster_with_1_and_2_workers(reference, real_laz, tmp_path, cluster2):
+    from distributed import Client, LocalCluster
+
+    ref, _ = reference
+    out2 = tmp_path / "two.laz"
+    simplify(real_laz, out2, client=cluster2, cell_size=6_000, chunk_size=10_000, **FAST)
+    assert digest(out2) == digest(ref)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as c:
+        with Client(c) as client:
+            out1 = tmp_path / "one.laz"
+            simplify(real_laz, out1, client=client, cell_size=6_000, chunk_size=10_000, **FAST)
+    assert digest(out1) == digest(ref)
+
+
+def test_scheduler_address_and_fcm_iterative_match_sync(cluster2, tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(6_000, side=60.0))
+    a, b = tmp_path / "a.laz", tmp_path / "b.laz"
+    kw = dict(method="fcm", rule="iterative", cluster_size=150, cell_size=1_500, chunk_size=2_000, seed=3)
+    sa = simplify(src, a, scheduler="sync", **kw)
+    sb = simplify(src, b, scheduler=cluster2.scheduler.address, **kw)
+    assert digest(a) == digest(b)
+    assert sa.kept == sb.kept < 6_000
+    assert sb.scheduler.startswith("distributed")
+
+
+# ----------------------------------------------------------------- conservation
+
+
+def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
+    store = tmp_path / "work.zarr"
+    out = tmp_path / "out.laz"
+    s = simplify(real_laz, out, store=store, scheduler="threads", cell_size=6_000, chunk_size=10_000, **FAST)
+    st = PointStore.open(str(store))
+    part = P.Partition.load(st)
+    g = st.group
+    n = st.count
+    # every point in exactly one cell core
+    labels = np.asarray(g["partition/cell"][:])
+    assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
+    xyz = np.asarray(g["xyz"][:])
+    cores = [P.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
+    allpts = np.concatenate(cores)
+    assert len(allpts) == n
+    key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731
+    assert np.array_equal(key(allpts), key(xyz))
+    # per cell: in = kept + dropped; the cells' kept points are the output
+    from cloudsieve.engine import _region_block, _regions
+
+    regions, _ = _regions(part.cell_counts, _region_block(6_000))
+    kc = np.asarray(g["simplify/keep_cells"][:])
+    keep = np.asarray(g["simplify/keep"][:])
+    total_kept = 0
+    for j in range(part.n_cells):
+        nj = int(part.cell_counts[j])
+        mask = kc[regions[j] : regions[j] + nj]
+        kept_j = int(mask.sum())
+        dropped_j = nj - kept_j
+        assert kept_j + dropped_j == nj == int((labels == j).sum())
+        assert kept_j == int(keep[labels == j].sum())
+        # the cell's kept points are exactly its points kept in input order
+        assert np.array_equal(cores[j][mask], xyz[(labels == j) & keep])
+        total_kept += kept_j
+    assert total_kept == s.kept == int(keep.sum())
+    assert s.kept + s.removed == s.points_in == n
+    # the output holds the kept points, in input order, with their attributes
+    src = laspy.read(str(real_laz))
+    res = laspy.read(str(out))
+    assert len(res.points) == s.kept
+    assert np.array_equal(res.X, src.X[keep]) and np.array_equal(res.intensity, src.intensity[keep])
+    assert np.array_equal(res.gps_time, src.gps_time[keep])
+    # the summary is stored in the store
+    assert st.attrs["cloudsieve_simplify"]["summary"]["kept"] == s.kept
+
+
+# ----------------------------------------------------------------- seams
+
+
+def _border_density_ratio(xyz_in, keep, centers, labels, radius):
+    s = np.full(len(xyz_in), np.inf)
+    for i in range(len(centers)):
+        other = labels != i
+        d = P.halo_distance(xyz_in[other], centers[i], centers[labels[other]])
+        s[other] = np.minimum(s[other], d)
+    near = s <= radius
+    return keep[near].mean() / keep[~near].mean(), near.sum()
+
+
+@pytest.mark.parametrize("ratio", [None, 0.5])
+def test_no_seams_at_cell_borders(tmp_path, ratio):
+    rng = np.random.default_rng(11)
+    n = 16_000
+    xyz = np.c_[rng.random((n, 2)) * 100.0, np.zeros(n)]
+    src = write_laz(tmp_path / "plane.laz", xyz)
+    store = tmp_path / "w.zarr"
+    cluster_size = 100
+    s = simplify(
+        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio,
+        cluster_size=cluster_size, cell_size=2_000, chunk_size=4_000, scheduler="processes", workers=2,
+    )
+    assert s.cells >= 8
+    st = PointStore.open(str(store))
+    g = st.group
+    part = P.Partition.load(st)
+    labels = np.asarray(g["partition/cell"][:])
+    keep = np.asarray(g["simplify/keep"][:])
+    pts = np.asarray(g["xyz"][:])
+    rho = n / 100.0**2
+    radius = math.sqrt(cluster_size / (math.pi * rho))  # one cluster radius
+    ratio_near, n_near = _border_density_ratio(pts, keep, part.centers, labels, radius)
+    assert n_near > 1_000
+    assert 0 < keep.mean() < 1
+    assert abs(ratio_near - 1.0) <= 0.10, (ratio_near, keep.mean())
+
+
+# ----------------------------------------------------------------- targets
+
+
+@pytest.mark.parametrize("rule, ratio, count", [("target", 0.3, None), ("target", None, 9_000), ("iterative", 0.6, None)])
+def test_ratio_and_count_across_cells_within_one_percent(tmp_path, rule, ratio, count):
+    src = write_laz(tmp_path / "p.laz", plane(20_000, side=120.0, seed=4))
+    s = simplify(
+        src, tmp_path / "o.laz", method="km", rule=rule, ratio=ratio, count=count,
+        cluster_size=200, cell_size=4_000, chunk_size=5_000, scheduler="threads",
+    )
+    want = count if count is not None else ratio * 20_000
+    assert abs(s.kept - want) <= 0.01 * want
+    assert s.threshold is not None and math.isfinite(s.threshold)
+    assert len(laspy.read(str(tmp_path / "o.laz")).points) == s.kept
+
+
+# ----------------------------------------------------------------- failures
+
+
+def test_a_worker_killed_mid_run_changes_nothing(real_laz, tmp_path, cluster2):
+    src = write_laz(tmp_path / "p.laz", plane(24_000, side=150.0, seed=9))
+    kw = dict(method="km", rule="iterative", cluster_size=200, cell_size=1_500, chunk_size=4_000, seed=2)
+    ref = tmp_path / "ref.laz"
+    simplify(src, ref, scheduler="threads", **kw)
+    store = tmp_path / "w.zarr"
+    out = tmp_path / "out.laz"
+    result: dict = {}
+
+    def go():
+        try:
+            result["summary"] = simplify(src, out, store=store, client=cluster2, **kw)
+        except BaseException as exc:  # pragma: no cover - reported below
+            result["error"] = exc
+
+    pids = cluster2.run(os.getpid)
+    t = threading.Thread(target=go)
+    t.start()
+    killed_at = None
+    deadline = time.time() + 120
+    while t.is_alive() and time.time() < deadline:
+        try:
+            done = np.asarray(zarr.open_group(str(store), mode="r")["simplify/done"][:])
+        except Exception:
+            time.sleep(0.02)
+            continue
+        if 1 <= done.sum() < len(done) // 2:
+            killed_at = int(done.sum()), len(done)
+            os.kill(next(iter(pids.values())), signal.SIGKILL)
+            break
+        time.sleep(0.02)
+    t.join(180)
+    assert "error" not in result, result.get("error")
+    assert killed_at is not None, "the run ended before a worker could be killed"
+    assert digest(out) == digest(ref)
+    cluster2.wait_for_workers(2, timeout=60)
+
+
+def test_driver_killed_then_resume_recomputes_only_missing_cells(tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(30_000, side=160.0, seed=5))
+    args = [
+        "simplify", str(src), str(tmp_path / "out.laz"), "--method", "km", "--rule", "iterative",
+        "--cluster-size", "200", "--cell-size", "1500", "--chunk-size", "5000", "--seed", "1",
+        "--store", str(tmp_path / "w.zarr"), "--scheduler", "threads", "--workers", "1",
+    ]
+    ref = tmp_path / "ref.laz"
+    simplify(src, ref, method="km", rule="iterative", cluster_size=200, cell_size=1_500, chunk_size=5_000, seed=1, scheduler="sync")
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    proc = subprocess.Popen([sys.executable, "-m", "cloudsieve", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    done_path = tmp_path / "w.zarr"
+    deadline = time.time() + 120
+    try:
+        while proc.poll() is None and time.time() < deadline:
+            try:
+                done = np.asarray(zarr.open_group(str(done_path), mode="r")["simplify/done"][:])
+            except Exception:
+                time.sleep(0.02)
+                continue
+            if done.sum() >= 3:
+                os.kill(proc.pid, signal.SIGKILL)
+                break
+            time.sleep(0.02)
+        proc.wait(60)
+    finally:
+        if proc.poll() is None:  # pragma: no cover
+            proc.kill()
+    assert proc.returncode == -signal.SIGKILL, proc.stderr.read().decode()
+    assert not (tmp_path / "out.laz").exists()
+    done = np.asarray(zarr.open_group(str(done_path), mode="r")["simplify/done"][:]).astype(bool)
+    n_done, n_cells = int(done.sum()), len(done)
+    assert 3 <= n_done < n_cells
+    out = tmp_path / "resumed.json"
+    args[2] = str(tmp_path / "out.laz")
+    rc = subprocess.run([sys.executable, "-m", "cloudsieve", *args, "--resume", "--json"], capture_output=True, env=env)
+    assert rc.returncode == 0, rc.stderr.decode()
+    summary = json.loads(rc.stdout.decode())
+    out.write_text(json.dumps(summary))
+    assert summary["cells_reused"] == n_done
+    assert summary["cells_computed"] == n_cells - n_done
+    assert digest(tmp_path / "out.laz") == digest(ref)
+
+
+def test_rerun_with_the_same_store_reuses_everything(tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(8_000, side=80.0))
+    kw = dict(cell_size=2_000, chunk_size=3_000, scheduler="sync", store=tmp_path / "w.zarr", **FAST)
+    a = simplify(src, tmp_path / "a.laz", **kw)
+    b = simplify(src, tmp_path / "b.laz", **kw)
+    assert a.cells_computed == a.cells and a.cells_reused == 0
+    assert b.cells_computed == 0 and b.cells_reused == b.cells
+    assert digest(tmp_path / "a.laz") == digest(tmp_path / "b.laz")
+
+
+def test_resume_with_other_parameters_is_refused(tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(4_000, side=60.0))
+    kw = dict(cell_size=2_000, chunk_size=3_000, scheduler="sync", store=tmp_path / "w.zarr", method="km", rule="threshold", cluster_size=200)
+    simplify(src, tmp_path / "a.laz", seed=1, **kw)
+    with pytest.raises(ResumeMismatchError, match=r"seed: stored 1, asked 2"):
+        simplify(src, tmp_path / "b.laz", seed=2, resume=True, **kw)
+    # overwrite discards the old run
+    s = simplify(src, tmp_path / "b.laz", seed=2, overwrite=True, **kw)
+    assert s.cells_reused == 0
+
+
+# ----------------------------------------------------------------- stores
+
+
+def test_a_file_url_store_works_like_a_path(tmp_path, reference, real_laz):
+    ref, _ = reference
+    out = tmp_path / "out.laz"
+    url = "file://" + str(tmp_path / "w.zarr")
+    s = simplify(real_laz, out, store=url, scheduler="threads", cell_size=6_000, chunk_size=10_000, **FAST)
+    assert digest(out) == digest(ref)
+    assert s.store == url
+    assert (tmp_path / "w.zarr" / "partition").is_dir()
+
+
+def test_a_store_as_source(tmp_path, reference, real_laz):
+    ref, _ = reference
+    st = ingest(real_laz, tmp_path / "in.zarr", chunk_size=10_000)
+    out = tmp_path / "out.laz"
+    simplify(st.path, out, scheduler="sync", cell_size=6_000, **FAST)
+    assert digest(out) == digest(ref)
+    assert "simplify" in zarr.open_group(str(tmp_path / "in.zarr"), mode="r")
+
+
+def test_default_work_store_is_removed_after_success(tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(3_000, side=50.0))
+    out = tmp_path / "o.laz"
+    s = simplify(src, out, scheduler="sync", cell_size=1_000, chunk_size=1_000, **FAST)
+    assert out.exists() and not Path(str(out) + ".cloudsieve.zarr").exists()
+    assert s.store == ""
+
+
+# ----------------------------------------------------------------- CLI, errors
+
+
+def test_cli_prints_the_summary(tmp_path, capsys):
+    src = write_laz(tmp_path / "p.laz", plane(3_000, side=50.0))
+    rc = main([
+        "simplify", str(src), str(tmp_path / "o.laz"), "--method", "km", "--rule", "threshold",
+        "--cluster-size", "200", "--cell-size", "1000", "--chunk-size", "1000", "--scheduler", "sync",
+    ])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "points in" in out and "kept" in out and "cells" in out and "peak memory" in out
+    rc = main(["simplify", str(src), str(tmp_path / "o.laz"), "--scheduler", "sync"])
+    assert rc == 2
+    assert "exists" in capsys.readouterr().err
+
+
+def test_bad_parameters_are_refused(tmp_path):
+    src = write_laz(tmp_path / "p.laz", plane(500, side=10.0))
+    with pytest.raises(InvalidParameterError, match="rule 'target' needs a ratio or a count"):
+        simplify(src, tmp_path / "o.laz", rule="target")
+    with pytest.raises(InvalidParameterError, match="not ratio=0.5"):
+        simplify(src, tmp_path / "o.laz", rule="threshold", ratio=0.5)
+    with pytest.raises(InvalidParameterError, match="unknown scheduler 'fast'"):
+        simplify(src, tmp_path / "o.laz", scheduler="fast", method="km")
+    with pytest.raises(InvalidParameterError, match=r"cell_size \(100\) must be >= cluster_size \(400\)"):
+        simplify(src, tmp_path / "o.laz", cell_size=100)
