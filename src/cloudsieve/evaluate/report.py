@@ -13,8 +13,8 @@ Tables 1-4. Plots (matplotlib, Agg backend, no display needed):
 of them, or a uniform sample of at most ``error_points``) coloured by their
 forward error, red = 0 to blue = max (the paper's figures 6-7, colour map
 ``jet`` reversed), with the error as a float vertex property ``error``.
-Binary little-endian PLY, x/y/z as double (survey coordinates keep their
-precision).
+Written with the IO layer's PLY writer (binary little-endian, x/y/z as
+double so survey coordinates keep their precision; atomic).
 """
 
 from __future__ import annotations
@@ -213,19 +213,14 @@ def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray)
     mx = float(error.max()) if len(error) else 0.0
     t = error / mx if mx > 0 else np.zeros(len(error), np.float32)
     rgb = (matplotlib.colormaps["jet_r"](t)[:, :3] * 255 + 0.5).astype(np.uint8)
-    rows = np.empty(len(xyz), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("red", "u1"), ("green", "u1"),
-                                     ("blue", "u1"), ("error", "<f4")])
-    rows["x"], rows["y"], rows["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    rows["red"], rows["green"], rows["blue"] = rgb[:, 0], rgb[:, 1], rgb[:, 2]
-    rows["error"] = error
-    header = ("ply\nformat binary_little_endian 1.0\ncomment cloudsieve point errors: red = 0, blue = max "
-              f"= {mx:.9g}\nelement vertex {len(xyz)}\nproperty double x\nproperty double y\nproperty double z\n"
-              "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty float error\nend_header\n")
-    tmp = f"{path}.tmp"
-    with open(tmp, "wb") as f:
-        f.write(header.encode("ascii"))
-        f.write(rows.tobytes())
-    os.replace(tmp, path)
+    from ..io import open_writer
+
+    u1 = np.dtype("uint8")
+    dtypes = {"xyz": (np.dtype("float64"), (3,)), "red": (u1, ()), "green": (u1, ()), "blue": (u1, ()),
+              "error": (np.dtype("float32"), ())}
+    with open_writer(path, header={}, dtypes=dtypes, format="ply", overwrite=True) as w:
+        w.write({"xyz": xyz, "red": rgb[:, 0].copy(), "green": rgb[:, 1].copy(), "blue": rgb[:, 2].copy(),
+                 "error": error})
     return str(path)
 
 

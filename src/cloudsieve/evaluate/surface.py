@@ -11,7 +11,8 @@ with pymeshlab's ``get_hausdorff_distance`` (Metro, Cignoni et al. 1998) with
 face sampling (not only vertices), as many samples as Metro's own default of
 10 x faces (capped, ``samples``) and a MaxDist of ten bounding-box diagonals
 so that no sample is dropped (pymeshlab's default drops samples beyond half
-the diagonal).
+the diagonal). Metro runs in a forked child so that its random sampling
+starts from the same state every time: same meshes, same figures.
 
 Triangle compactness is c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2): 1 for an
 equilateral triangle, 0 for a degenerate one; it equals vcg's mean-ratio
@@ -160,6 +161,61 @@ def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float) -> d
             "min": float(r["min"]), "samples": int(r["n_samples"])}
 
 
+def _metro_both(mesh_a, mesh_b, samples, max_samples) -> dict:
+    pml = _pymeshlab()
+    ms = pml.MeshSet()
+    ms.add_mesh(pml.Mesh(mesh_a[0], mesh_a[1]))
+    ms.add_mesh(pml.Mesh(mesh_b[0], mesh_b[1]))
+    allv = np.concatenate([mesh_a[0], mesh_b[0]])
+    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
+    out = {}
+    for name, (s, t, f) in {"forward": (0, 1, len(mesh_a[1])), "backward": (1, 0, len(mesh_b[1]))}.items():
+        n = samples if samples is not None else min(max(10 * f, 1000), max_samples)
+        out[name] = _metro_one(ms, s, t, n, maxdist)
+    return out
+
+
+def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
+    try:
+        conn.send(("ok", fn(*args)))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def _fresh_process(fn, *args):
+    """Run *fn(*args)* in a forked child so that vcg's static sampling RNG starts from its initial state.
+
+    pymeshlab's Metro sampling draws from a process-wide random generator that
+    is never reseeded: in one process, two identical calls give different
+    figures. A forked child starts from the parent's state, and this module
+    never samples in the parent, so every call gives the same figures as
+    the first call in a fresh Python process. Without ``fork`` (Windows,
+    macOS spawn) the call runs in process and figures vary in the last digits.
+    """
+    import multiprocessing as mp
+
+    try:
+        ctx = mp.get_context("fork")
+    except ValueError:  # pragma: no cover
+        logger.info("no fork: Metro figures will vary slightly between calls")
+        return fn(*args)
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_child, args=(child, fn, args), daemon=True)
+    proc.start()
+    child.close()
+    try:
+        status, value = parent.recv()
+    except EOFError:
+        proc.join()
+        raise CloudsieveError(f"Metro (pymeshlab) crashed in its worker process (exit code {proc.exitcode})") from None
+    proc.join()
+    if status != "ok":
+        raise CloudsieveError(f"Metro (pymeshlab) failed: {value}")
+    return value
+
+
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
           samples: int | None = None, max_samples: int = 1_000_000) -> dict:
     """Metro distances between two meshes, both ways (pymeshlab, face sampling).
@@ -178,18 +234,18 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
         ``forward`` (samples on a, distance to b) and ``backward`` (samples on
         b, distance to a), each ``mean, rms, max, min, samples`` in the
         meshes' units.
+
+    Notes
+    -----
+    Runs in a forked child process (see :func:`_fresh_process`) so that the
+    same meshes always give the same figures: equal to a direct
+    ``get_hausdorff_distance`` call, forward then backward, with
+    ``samplevert=False, sampleface=True``, the same ``samplenum`` and
+    ``maxdist``, made first thing in a fresh Python process.
     """
-    pml = _pymeshlab()
-    ms = pml.MeshSet()
-    ms.add_mesh(pml.Mesh(mesh_a[0], mesh_a[1]))
-    ms.add_mesh(pml.Mesh(mesh_b[0], mesh_b[1]))
-    allv = np.concatenate([mesh_a[0], mesh_b[0]])
-    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
-    out = {}
-    for name, (s, t, f) in {"forward": (0, 1, len(mesh_a[1])), "backward": (1, 0, len(mesh_b[1]))}.items():
-        n = samples if samples is not None else min(max(10 * f, 1000), max_samples)
-        out[name] = _metro_one(ms, s, t, n, maxdist)
-    return out
+    a = (np.ascontiguousarray(mesh_a[0], dtype=np.float64), np.ascontiguousarray(mesh_a[1], dtype=np.int32))
+    b = (np.ascontiguousarray(mesh_b[0], dtype=np.float64), np.ascontiguousarray(mesh_b[1], dtype=np.int32))
+    return _fresh_process(_metro_both, a, b, samples, max_samples)
 
 
 def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
