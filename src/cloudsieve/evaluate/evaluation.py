@@ -55,14 +55,19 @@ logger = logging.getLogger(__name__)
 __all__ = ["evaluate", "check_compatible"]
 
 
-def _crs_key(header: dict) -> Any:
-    crs = (header or {}).get("crs")
-    if not crs:
+def _crs_differ(a: dict | None, b: dict | None) -> tuple[str, str, str] | None:
+    """(kind, a's value, b's value) when two header CRS dicts differ, else None (same or not comparable)."""
+    if not a or not b:
         return None
-    if crs.get("epsg") is not None:
-        return ("epsg", int(crs["epsg"]))
-    wkt = crs.get("wkt")
-    return ("wkt", " ".join(str(wkt).split())) if wkt else None
+    for kind in ("epsg", "wkt", "name"):
+        va, vb = a.get(kind), b.get(kind)
+        if va is not None and vb is not None:
+            if kind == "epsg":
+                va, vb = int(va), int(vb)
+            else:
+                va, vb = " ".join(str(va).split()), " ".join(str(vb).split())
+            return None if va == vb else (kind, str(va), str(vb))
+    return None
 
 
 def check_compatible(original_header: dict, simplified_header: dict, original_bounds: np.ndarray | None,
@@ -72,7 +77,8 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
 
     Checks
     ------
-    - both headers carry a CRS (LAS CRS VLRs, as EPSG code or WKT) and they differ;
+    - both headers carry a CRS (LAS CRS VLRs) and they differ: EPSG codes
+      when both have one, else WKT (whitespace-normalised), else names;
     - the simplified points do not lie in the original's bounding box (more
       than 10% outside it, enlarged by 1% of its diagonal), or the simplified
       cloud's diagonal is over 3 times the original's: different units
@@ -83,10 +89,12 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
     *strict*, else warns (``UserWarning``) and returns it among the messages.
     """
     msgs, problems = [], []
-    a, b = _crs_key(original_header), _crs_key(simplified_header)
-    if a is not None and b is not None and a != b:
-        problems.append(f"different CRS: {names[0]} has {a[0]} {str(a[1])[:80]!r}, {names[1]} has {b[0]} {str(b[1])[:80]!r}")
-    elif (a is None) != (b is None):
+    a, b = (original_header or {}).get("crs"), (simplified_header or {}).get("crs")
+    diff = _crs_differ(a, b)
+    if diff is not None:
+        kind, va, vb = diff
+        problems.append(f"different CRS: {names[0]} has {kind} {va[:80]!r}, {names[1]} has {kind} {vb[:80]!r}")
+    elif bool(a) != bool(b):
         msgs.append(f"only the {names[0] if a else names[1]} has a CRS; assuming both are in it")
     if original_bounds is not None and len(simplified):
         lo, hi = np.asarray(original_bounds[0], float), np.asarray(original_bounds[1], float)
