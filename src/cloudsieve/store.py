@@ -53,14 +53,15 @@ def local_path(path: str | os.PathLike) -> str | None:
     return None
 
 
-def compressors(level: int = 1) -> tuple:
-    """The codecs used for every store array: zstd (fast level) in blosc, byte-shuffled.
+def compressors(level: int = 5) -> tuple:
+    """The codecs used for every store array: blosc lz4, byte-shuffled.
 
-    Blosc's shuffle groups the bytes of each value, which makes zstd both
-    faster and tighter on point attributes than plain zstd (measured on
-    autzen tiles: 0.21 s vs 0.30 s and 10.4 vs 11.5 MB per 10^6 points).
+    Measured on 10^6 points of autzen tiles (17 arrays, 52 MB raw, one core):
+    blosc-lz4 + shuffle 0.03 s CPU -> 25 MB; blosc-zstd(1) + shuffle 0.10 s
+    -> 21 MB; plain zstd(1) 0.13 s. Ingest is bounded by LAZ decoding, so the
+    cheapest codec wins; stores are work files, not archives.
     """
-    return (zarr.codecs.BloscCodec(cname="zstd", clevel=level, shuffle="shuffle"),)
+    return (zarr.codecs.BloscCodec(cname="lz4", clevel=level, shuffle="shuffle"),)
 
 
 def _zarr_store(path: str, read_only: bool):
@@ -179,6 +180,7 @@ class PointStore:
                 chunks=(chunk_size, *shape),
                 fill_value=0,
                 compressors=compressors(),
+                config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
         return group
 
