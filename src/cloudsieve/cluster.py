@@ -359,46 +359,92 @@ def _centres(Xs, idx, U, m, c, C_old):
     return C
 
 
-def _max_change(idx0, U0, idx1, U1, c):
-    """max |U1 - U0| over the full n x c matrices, from their kept entries."""
-    s0 = np.argsort(idx0, axis=1, kind="stable")
-    s1 = np.argsort(idx1, axis=1, kind="stable")
-    i0 = np.take_along_axis(idx0, s0, 1)
-    i1 = np.take_along_axis(idx1, s1, 1)
-    u0 = np.take_along_axis(U0, s0, 1)
-    u1 = np.take_along_axis(U1, s1, 1)
-    same = (i0 == i1).all(axis=1)
-    best = float(np.abs(u1[same] - u0[same]).max()) if same.any() else 0.0
-    diff = np.flatnonzero(~same)
-    if len(diff):
-        L = idx0.shape[1]
-        rows = np.repeat(diff, L)
-        key = np.concatenate([rows * c + i0[diff].ravel(), rows * c + i1[diff].ravel()])
-        val = np.concatenate([-u0[diff].ravel(), u1[diff].ravel()])
-        o = np.argsort(key, kind="stable")
-        key, val = key[o], val[o]
-        start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
-        best = max(best, float(np.abs(np.add.reduceat(val, start)).max()))
+def _max_change(idx0, U0, idx1, U1, c=None):
+    """max |U1 - U0| over the full n x c matrices, from their kept entries.
+
+    Rows hold the memberships to centres idx (n, L), in any order; an entry
+    absent from one side is 0 there.
+    """
+    if len(idx0) == 0:
+        return 0.0
+    eq = idx1[:, :, None] == idx0[:, None, :]  # (n, L1, L0)
+    matched0 = (eq * U0[:, None, :]).sum(axis=2)  # U0 at the new entries
+    best = float(np.abs(U1 - matched0).max())
+    gone = ~eq.any(axis=1)  # old entries absent from the new set
+    if gone.any():
+        best = max(best, float(U0[gone].max()))
     return best
 
 
 def _fcm(Xs, C, L, m, tol, max_iter, workers):
+    """FCM iterations. The L nearest centres of a point are re-queried only when
+    the centres moved enough to possibly change that set: with g the gap between
+    its (L+1)-th and L-th distances at the last query and D the sum of the largest
+    centre moves since, the set is unchanged while 2 D < g; otherwise distances
+    to the same L centres are recomputed directly (O(n L) per iteration)."""
+    n = len(Xs)
     c = len(C)
+    extra = L < c
     idx = U = None
     conv = False
     it = 0
+    gap = drift = None
     for it in range(1, max_iter + 1):
-        d, i = _tree(C).query(Xs, k=L, workers=workers)
-        if L == 1:
-            d, i = d[:, None], i[:, None]
-        i = i.astype(np.int64)
-        Un = _memberships(d, m)
-        if U is not None and _max_change(idx, U, i, Un, c) < tol:
-            idx, U = i, Un
-            conv = True
-            break
-        idx, U = i, Un
+        if idx is None:
+            redo = np.arange(n)
+        else:
+            redo = np.flatnonzero(2.0 * drift >= gap) if extra else np.zeros(0, dtype=np.int64)
+        i_new = idx.copy() if idx is not None else np.empty((n, L), dtype=np.int64)
+        if len(redo):
+            tree = _tree(C)
+            d, i = tree.query(Xs[redo], k=L + 1 if extra else L, workers=workers)
+            if d.ndim == 1:
+                d, i = d[:, None], i[:, None]
+            if gap is None:
+                gap = np.full(n, np.inf)
+                drift = np.zeros(n)
+            if extra:
+                gap[redo] = d[:, L] - d[:, L - 1]
+            drift[redo] = 0.0
+            i_new[redo] = i[:, :L]
+        diff = Xs[:, None, :] - C[i_new]
+        d = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+        Un = _memberships_any(d, m)
+        if U is not None:
+            if len(redo):
+                ch = _max_change(idx[redo], U[redo], i_new[redo], Un[redo], c)
+                rest = np.ones(n, dtype=bool)
+                rest[redo] = False
+                if rest.any():
+                    ch = max(ch, float(np.abs(Un[rest] - U[rest]).max()))
+            else:
+                ch = float(np.abs(Un - U).max())
+            if ch < tol:
+                idx, U = i_new, Un
+                conv = True
+                break
+        idx, U = i_new, Un
         if it == max_iter:
             break
-        C = _centres(Xs, idx, U, m, c, C)
-    return idx, U, C, it, conv
+        Cn = _centres(Xs, idx, U, m, c, C)
+        drift += np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
+        C = Cn
+    # nearest first, as documented
+    diff = Xs[:, None, :] - C[idx]
+    d = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+    o = np.argsort(d, axis=1, kind="stable")
+    return np.take_along_axis(idx, o, 1), np.take_along_axis(U, o, 1), C, it, conv
+
+
+def _memberships_any(d: np.ndarray, m: float) -> np.ndarray:
+    """u over the columns of d in any order (the nearest need not come first)."""
+    e = 2.0 / (m - 1.0)
+    dmin = d.min(axis=1, keepdims=True)
+    zero = dmin[:, 0] == 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = (dmin / d) ** e
+    U = r / r.sum(axis=1, keepdims=True)
+    if zero.any():
+        z = d[zero] == 0
+        U[zero] = z / z.sum(axis=1, keepdims=True)
+    return U

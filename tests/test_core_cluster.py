@@ -1,0 +1,131 @@
+"""KMeans and FuzzyCMeans: blobs, fixed points, dense-FCM oracle, invariances, errors."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from cloudsieve.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
+from cloudsieve.errors import InvalidParameterError, InvalidPointsError
+
+
+def blobs(rng, c=6, per=150, spread=1.0, gap=100.0):
+    centres = rng.random((c, 3)) * gap * c
+    truth = np.repeat(np.arange(c), per)
+    pts = centres[truth] + rng.normal(scale=spread, size=(c * per, 3))
+    perm = rng.permutation(len(pts))
+    return pts[perm], truth[perm]
+
+
+def same_partition(a, b):
+    """True when the labelings a and b define the same partition."""
+    pairs = np.unique(np.stack([a, b], 1), axis=0)
+    return len(pairs) == len(np.unique(a)) == len(np.unique(b))
+
+
+@pytest.mark.parametrize("init", ["k-means++", "random"])
+@pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
+def test_finds_well_separated_blobs(est, init):
+    rng = np.random.default_rng(1)
+    c = 2 if init == "random" else 4
+    pts, truth = blobs(rng, c=c, gap=1000.0)
+    # random init may put two centres in one blob (then no Lloyd step can fix it);
+    # k-means++ on separated blobs does not
+    seeds = range(10) if init == "random" else [0]
+    ok = [same_partition(est(c, init=init, seed=s).fit(pts).labels_, truth) for s in seeds]
+    assert any(ok) if init == "random" else all(ok)
+
+
+def test_kmeans_is_a_lloyd_fixed_point():
+    rng = np.random.default_rng(2)
+    pts = rng.random((3000, 3))
+    km = KMeans(30, seed=3).fit(pts)
+    assert km.converged_
+    C = km.cluster_centers_
+    d = ((pts[:, None, :] - C[None]) ** 2).sum(-1)
+    np.testing.assert_array_equal(km.labels_, d.argmin(1))  # every point at its nearest centre
+    for j in range(30):
+        np.testing.assert_allclose(C[j], pts[km.labels_ == j].mean(0), rtol=1e-12)
+
+
+def test_kmeans_warns_at_max_iter():
+    rng = np.random.default_rng(0)
+    pts = rng.random((2000, 3))
+    with pytest.warns(ConvergenceWarning, match=r"max_iter=1 .*n=2000, n_clusters=20"):
+        km = KMeans(20, max_iter=1).fit(pts)
+    assert km.n_iter_ == 1 and not km.converged_
+
+
+def dense_fcm(X, C, m, tol, max_iter):
+    """Textbook FCM on the full n x c membership matrix (the oracle)."""
+    U_old = None
+    for it in range(1, max_iter + 1):
+        d = np.sqrt(((X[:, None, :] - C[None]) ** 2).sum(-1))
+        U = 1.0 / ((d[:, :, None] / d[:, None, :]) ** (2 / (m - 1))).sum(2)
+        if U_old is not None and np.abs(U - U_old).max() < tol:
+            return U, C, it
+        U_old = U
+        W = U**m
+        C = (W.T @ X) / W.sum(0)[:, None]
+    return U, C, it
+
+
+@pytest.mark.parametrize("extra", [0, 3])
+def test_truncated_fcm_equals_dense_when_all_centres_kept(extra):
+    rng = np.random.default_rng(4)
+    pts = rng.random((400, 3))
+    c = 7
+    C0 = pts[rng.choice(400, c, replace=False)] + 1e-3  # off the points: the oracle divides by d
+    f = FuzzyCMeans(c, n_nearest=c + extra, init=C0, tol=1e-7, max_iter=500).fit(pts)
+    U, C, it = dense_fcm(pts, C0.copy(), 2.0, 1e-7, 500)
+    assert f.converged_ and f.n_iter_ == it
+    np.testing.assert_allclose(f.cluster_centers_, C, rtol=1e-10)
+    dense = np.zeros((400, c))
+    np.put_along_axis(dense, f.membership_indices_, f.memberships_, 1)
+    np.testing.assert_allclose(dense, U, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(f.labels_, U.argmax(1))
+    # memberships are stored nearest first
+    d = np.linalg.norm(pts[:, None, :] - f.cluster_centers_[f.membership_indices_], axis=2)
+    assert (np.diff(d, axis=1) >= 0).all()
+
+
+def test_truncated_fcm_close_to_dense_with_few_centres_kept():
+    rng = np.random.default_rng(5)
+    pts, _ = blobs(rng, c=5, per=80, gap=30.0, spread=2.0)
+    C0 = pts[rng.choice(len(pts), 5, replace=False)]
+    f = FuzzyCMeans(5, n_nearest=5, init=C0).fit(pts)
+    g = FuzzyCMeans(5, n_nearest=3, init=C0).fit(pts)
+    assert same_partition(f.labels_, g.labels_)
+    assert g.memberships_.shape == (len(pts), 3)
+    np.testing.assert_allclose(g.memberships_.sum(1), 1.0)
+
+
+@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
+def test_invariant_to_order_and_units(est):
+    rng = np.random.default_rng(6)
+    pts = rng.random((4000, 3))
+    perm = rng.permutation(len(pts))
+    a = est(10, seed=1).fit(pts)
+    b = est(10, seed=1).fit(pts[perm])
+    c = est(10, seed=1).fit(pts * 1000.0)
+    np.testing.assert_array_equal(a.labels_[perm], b.labels_)
+    np.testing.assert_array_equal(a.labels_, c.labels_)
+    np.testing.assert_allclose(a.cluster_centers_ * 1000.0, c.cluster_centers_, rtol=1e-9)
+
+
+def test_bad_input_messages():
+    with pytest.raises(InvalidParameterError, match=r"n_clusters=5 but the input has only 3 points"):
+        KMeans(5).fit(np.zeros((3, 3)))
+    with pytest.raises(ValueError, match=r"n_clusters=5 but the input has only 4 points"):
+        FuzzyCMeans(5).fit(np.random.default_rng(0).random((4, 3)))
+    with pytest.raises(InvalidPointsError, match=r"non-finite .* index 1"):
+        KMeans(1).fit(np.array([[0, 0, 0], [np.inf, 0, 0]]))
+    with pytest.raises(ValueError, match=r"shape \(n, d\), got shape \(2, 3, 1\)"):
+        KMeans(1).fit(np.zeros((2, 3, 1)))
+    with pytest.raises(ValueError, match=r"fuzzifier m must be > 1, got 1.0"):
+        FuzzyCMeans(2, m=1.0).fit(np.random.default_rng(0).random((10, 3)))
+    with pytest.raises(ValueError, match=r"init must be 'k-means\+\+', 'random' or an array of centres, got 'x'"):
+        KMeans(2, init="x").fit(np.random.default_rng(0).random((10, 3)))

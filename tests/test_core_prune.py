@@ -1,0 +1,171 @@
+"""The pruning rules' contracts, simplify_points' invariances, refine_labels, errors."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cloudsieve.entropy import score_points
+from cloudsieve.errors import InvalidParameterError
+from cloudsieve.prune import (
+    _first_independent,
+    prune,
+    refine_labels,
+    simplify_points,
+    threshold_for_count,
+    unit_free_scores,
+)
+
+
+def surface(n, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.random((n, 2))
+    return np.c_[u, 0.1 * np.sin(6 * u[:, 0]) * np.cos(4 * u[:, 1])]
+
+
+@pytest.fixture(scope="module")
+def cloud():
+    pts = surface(3000)
+    labels = refine_labels(pts, "km", 300, seed=0)
+    return pts, labels
+
+
+def test_threshold_rule_contract(cloud):
+    pts, labels = cloud
+    dh = score_points(pts, labels).delta_h
+    S = float(np.quantile(dh, 0.3))
+    keep = prune(pts, labels, rule="threshold", threshold=S)
+    assert (dh[~keep] <= S).all() and (dh[keep] > S).all()
+    assert 0 < (~keep).sum() < len(pts)
+    # on the unit-free score
+    uf = unit_free_scores(pts, labels)
+    t = float(np.median(uf))
+    keep = prune(pts, labels, rule="threshold", threshold=t, score="unit_free")
+    assert (uf[~keep] <= t).all() and (uf[keep] > t).all()
+
+
+def _adjacent(s, a, b):
+    """Is b among a's k nearest (CSR of Scores s)?"""
+    return b in s.indices[s.indptr[a] : s.indptr[a + 1]]
+
+
+def test_iterative_rule_rounds_are_independent_sets(cloud):
+    pts, labels = cloud
+    S = float(np.quantile(score_points(pts, labels).delta_h, 0.5))
+    alive = np.arange(len(pts))
+    for rnd in range(1, 4):
+        s = score_points(pts[alive], labels[alive])
+        before = prune(pts, labels, rule="iterative", threshold=S, max_rounds=rnd - 1)
+        after = prune(pts, labels, rule="iterative", threshold=S, max_rounds=rnd)
+        assert (before[alive]).all() and before.sum() == len(alive)
+        dropped = np.flatnonzero(before & ~after)  # this round, input indices
+        pos = np.searchsorted(alive, dropped)
+        cand = np.flatnonzero(s.delta_h <= S)
+        assert set(pos) <= set(cand)
+        assert len(pos) > 0
+        dset = set(pos.tolist())
+        for a in pos:  # no two dropped points are k-NN neighbours, either way
+            nb = set(s.indices[s.indptr[a] : s.indptr[a + 1]].tolist())
+            assert not (nb & dset)
+        for y in set(cand.tolist()) - dset:  # maximal: a kept candidate has a dropped neighbour
+            nb = set(s.indices[s.indptr[y] : s.indptr[y + 1]].tolist())
+            assert (nb & dset) or any(_adjacent(s, a, y) for a in pos)
+        alive = np.flatnonzero(after)
+    final = prune(pts, labels, rule="iterative", threshold=S)
+    s = score_points(pts[final], labels[final])
+    assert (s.delta_h > S).all()  # stops when no point qualifies
+
+
+def test_first_independent_is_the_sequential_greedy():
+    rng = np.random.default_rng(0)
+    n, k = 300, 5
+    indices = rng.integers(0, n, n * k)
+    indptr = np.arange(0, n * k + 1, k)
+    cand = rng.permutation(n)[:200]
+    got = _first_independent(cand, indptr, indices, n)
+    taken = []
+    blocked = np.zeros(n, bool)
+    nbrs = [set(indices[indptr[i] : indptr[i + 1]].tolist()) for i in range(n)]
+    for c in cand:
+        if not blocked[c] and not (nbrs[c] & set(taken)):
+            taken.append(c)
+            blocked[list(nbrs[c])] = True
+    np.testing.assert_array_equal(got, taken)
+
+
+@pytest.mark.parametrize("rule", ["target", "iterative", "coverage"])
+@pytest.mark.parametrize("req", [dict(ratio=0.5), dict(ratio=0.9), dict(count=1234)])
+def test_target_count(cloud, rule, req):
+    pts, labels = cloud
+    keep = prune(pts, labels, rule=rule, **req)
+    want = req.get("count", round(req.get("ratio", 0) * len(pts)))
+    assert abs(keep.sum() - want) <= 0.01 * want
+
+
+def test_target_drops_lowest_unit_free(cloud):
+    pts, labels = cloud
+    uf = unit_free_scores(pts, labels)
+    keep = prune(pts, labels, rule="target", ratio=0.6)
+    assert uf[~keep].max() <= uf[keep].min()
+    t = threshold_for_count(uf, int((~keep).sum()))
+    assert t == uf[~keep].max()
+
+
+@pytest.mark.parametrize("method", ["km", "fcm"])
+@pytest.mark.parametrize("rule,kw", [("threshold", {}), ("iterative", {}), ("target", dict(ratio=0.5)),
+                                     ("iterative", dict(count=1500)), ("coverage", dict(ratio=0.5))])
+def test_simplify_points_invariant_to_order_and_units(method, rule, kw):
+    pts = surface(3000, seed=1)
+    perm = np.random.default_rng(2).permutation(len(pts))
+    kept = simplify_points(pts, method=method, rule=rule, cluster_size=300, **kw)
+    assert kept.dtype == np.int64 and (np.diff(kept) > 0).all()
+    if rule == "threshold":
+        assert 0 < len(kept) < len(pts)
+    for other, back in [(pts[perm], perm), (pts * 1000.0, np.arange(len(pts)))]:
+        k2 = simplify_points(other, method=method, rule=rule, cluster_size=300, **kw)
+        np.testing.assert_array_equal(np.sort(back[k2]), kept)
+
+
+def test_duplicates_are_dropped():
+    pts = surface(1000)
+    dup = np.concatenate([pts, pts[:50]])
+    kept = simplify_points(dup, method="km", rule="threshold", threshold=-1.0, cluster_size=200)
+    assert len(kept) == 1050  # S < 0: nothing qualifies, not even the copies (score 0)
+    kept = simplify_points(dup, method="km", rule="threshold", threshold=0.0, cluster_size=200)
+    assert not np.isin(np.arange(1000, 1050), kept).any()
+
+
+def test_refine_labels():
+    pts = surface(2000)
+    for method in ("km", "fcm"):
+        lab = refine_labels(pts, method, 400, seed=3)
+        assert lab.shape == (2000,) and lab.dtype == np.int64
+        assert lab.min() >= 0 and lab.max() < 5
+
+
+def test_bad_input_messages():
+    pts = surface(100)
+    with pytest.raises(InvalidParameterError, match=r"cluster_size=5 is too small: .* k_min\+2=6 points"):
+        simplify_points(pts, cluster_size=5)
+    with pytest.raises(ValueError, match=r"cluster_size=7 is too small: .* k_min\+2=8"):
+        refine_labels(pts, "km", 7, k_min=6)
+    bad = pts.copy()
+    bad[10, 2] = np.nan
+    with pytest.raises(ValueError, match=r"1 non-finite .* index 10"):
+        simplify_points(bad)
+    with pytest.raises(ValueError, match=r"shape \(n, d\), got shape \(300,\)"):
+        simplify_points(pts.ravel())
+    with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, got 'x'"):
+        simplify_points(pts, rule="x")
+    with pytest.raises(ValueError, match=r"method must be 'fcm' or 'km', got 'dbscan'"):
+        simplify_points(pts, method="dbscan")
+    with pytest.raises(ValueError, match=r"rule='target' needs ratio="):
+        simplify_points(pts, rule="target")
+    with pytest.raises(ValueError, match=r"ratio is the kept fraction, in \[0, 1\], got 1.5"):
+        simplify_points(pts, rule="target", ratio=1.5)
+    with pytest.raises(ValueError, match=r"give ratio or count, not both"):
+        simplify_points(pts, rule="target", ratio=0.5, count=3)
+    with pytest.raises(ValueError, match=r"n_clusters=3 but the input has only 2 points"):
+        from cloudsieve.cluster import KMeans
+
+        KMeans(3).fit(pts[:2])
