@@ -77,20 +77,19 @@ _DIRECT = """
 import json, sys
 import numpy as np, pymeshlab
 z = np.load(sys.argv[1])
+s, t = sys.argv[2], sys.argv[3]
 ms = pymeshlab.MeshSet()
-ms.add_mesh(pymeshlab.Mesh(z["va"], z["fa"]))
-ms.add_mesh(pymeshlab.Mesh(z["vb"], z["fb"]))
-out = {}
-for name, (s, t) in (("forward", (0, 1)), ("backward", (1, 0))):
-    out[name] = ms.get_hausdorff_distance(sampledmesh=s, targetmesh=t, samplevert=False, sampleface=True,
-                                          samplenum=50000, maxdist=pymeshlab.PureValue(100.0))
-print(json.dumps(out))
+ms.add_mesh(pymeshlab.Mesh(z["v" + s], z["f" + s]))
+ms.add_mesh(pymeshlab.Mesh(z["v" + t], z["f" + t]))
+r = ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, samplevert=False, sampleface=True,
+                              samplenum=50000, maxdist=pymeshlab.PureValue(float(sys.argv[4])))
+print(json.dumps(r))
 """
 
 
 def test_metro_equals_direct_pymeshlab_call(tmp_path):
-    """Our figures equal a direct get_hausdorff_distance call (first thing in a fresh process: pymeshlab's
-    sampling RNG is process-wide and never reseeded, see surface._fresh_process)."""
+    """Our figures equal a direct get_hausdorff_distance call, made first thing in a fresh process
+    (pymeshlab's sampling RNG is process-wide and never reseeded, see surface._forked)."""
     import json
     import subprocess
     import sys
@@ -100,16 +99,17 @@ def test_metro_equals_direct_pymeshlab_call(tmp_path):
     ma, mb = ball_pivoting(a), ball_pivoting(b)
     assert len(ma[1]) > 3000 and len(mb[1]) > 1000
     ours = metro(ma, mb, samples=50_000)
-    again = metro(ma, mb, samples=50_000)
-    assert ours == again  # reproducible
+    assert ours == metro(ma, mb, samples=50_000)  # reproducible
     np.savez(tmp_path / "m.npz", va=ma[0], fa=ma[1], vb=mb[0], fb=mb[1])
-    res = subprocess.run([sys.executable, "-c", _DIRECT, str(tmp_path / "m.npz")], capture_output=True, text=True,
-                         check=True)
-    ref = json.loads(res.stdout.strip().splitlines()[-1])
-    for name in ("forward", "backward"):
-        assert ours[name]["samples"] == ref[name]["n_samples"] == 50_000  # no sample dropped
+    allv = np.concatenate([ma[0], mb[0]])
+    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
+    for name, (s, t) in (("forward", ("a", "b")), ("backward", ("b", "a"))):
+        res = subprocess.run([sys.executable, "-c", _DIRECT, str(tmp_path / "m.npz"), s, t, repr(maxdist)],
+                             capture_output=True, text=True, check=True)
+        ref = json.loads(res.stdout.strip().splitlines()[-1])
+        assert ours[name]["samples"] == ref["n_samples"] == 50_000  # no sample dropped
         for key, rkey in (("mean", "mean"), ("rms", "RMS"), ("max", "max"), ("min", "min")):
-            assert ours[name][key] == ref[name][rkey]
+            assert ours[name][key] == ref[rkey]
 
 
 def test_metro_keeps_far_samples_that_pymeshlab_defaults_drop():

@@ -166,7 +166,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     chunk_size : int
         Points per chunk of the original.
     metro_samples : int, optional
-        Metro samples per direction and tile (default 10 x faces, at most 1e6).
+        Metro samples per direction and tile (default 10 x faces, at most 500,000).
     client : distributed.Client, optional
         Run the point-level chunk tasks on this dask cluster.
     progress : callable, optional

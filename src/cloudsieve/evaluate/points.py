@@ -150,7 +150,9 @@ class _ExactIndex:
         if len(self.keys) == 0 or len(q) == 0:
             return np.zeros(len(q), bool), np.zeros(len(q), np.int64)
         h = _hash(q)
-        pos = np.searchsorted(self.keys, h)
+        o = np.argsort(h)  # sorted keys make searchsorted cache friendly (several times faster)
+        pos = np.empty(len(h), np.int64)
+        pos[o] = np.searchsorted(self.keys, h[o])
         np.minimum(pos, len(self.keys) - 1, out=pos)
         idx = self.order[pos]
         hit = self.keys[pos] == h

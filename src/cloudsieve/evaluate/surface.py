@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 from typing import Any
 
 import numpy as np
@@ -161,18 +162,13 @@ def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float) -> d
             "min": float(r["min"]), "samples": int(r["n_samples"])}
 
 
-def _metro_both(mesh_a, mesh_b, samples, max_samples) -> dict:
+def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float) -> dict:
+    """One Metro direction: samples on *mesh_s*, distances to *mesh_t*."""
     pml = _pymeshlab()
     ms = pml.MeshSet()
-    ms.add_mesh(pml.Mesh(mesh_a[0], mesh_a[1]))
-    ms.add_mesh(pml.Mesh(mesh_b[0], mesh_b[1]))
-    allv = np.concatenate([mesh_a[0], mesh_b[0]])
-    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
-    out = {}
-    for name, (s, t, f) in {"forward": (0, 1, len(mesh_a[1])), "backward": (1, 0, len(mesh_b[1]))}.items():
-        n = samples if samples is not None else min(max(10 * f, 1000), max_samples)
-        out[name] = _metro_one(ms, s, t, n, maxdist)
-    return out
+    ms.add_mesh(pml.Mesh(mesh_s[0], mesh_s[1]))
+    ms.add_mesh(pml.Mesh(mesh_t[0], mesh_t[1]))
+    return _metro_one(ms, 0, 1, n, maxdist)
 
 
 def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
@@ -184,40 +180,57 @@ def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
         conn.close()
 
 
-def _fresh_process(fn, *args):
-    """Run *fn(*args)* in a forked child so that vcg's static sampling RNG starts from its initial state.
+def _forked(calls: list[tuple], max_parallel: int | None = None) -> list:
+    """Run each ``(fn, *args)`` of *calls* in its own forked child, up to *max_parallel* at once; results in order.
 
-    pymeshlab's Metro sampling draws from a process-wide random generator that
-    is never reseeded: in one process, two identical calls give different
-    figures. A forked child starts from the parent's state, and this module
-    never samples in the parent, so every call gives the same figures as
-    the first call in a fresh Python process. Without ``fork`` (Windows,
-    macOS spawn) the call runs in process and figures vary in the last digits.
+    Why children: pymeshlab's Metro sampling draws from a process-wide random
+    generator that is never reseeded, so in one process two identical calls
+    give different figures. A forked child starts from the parent's state,
+    and this module never samples in the parent: every call gives the same
+    figures as the first call in a fresh Python process. It also runs the
+    (single-threaded) pymeshlab filters on all cores. Without ``fork``
+    (Windows, macOS spawn) the calls run in process, one after the other,
+    and Metro figures vary in the last digits.
     """
     import multiprocessing as mp
 
     try:
         ctx = mp.get_context("fork")
     except ValueError:  # pragma: no cover
-        logger.info("no fork: Metro figures will vary slightly between calls")
-        return fn(*args)
-    parent, child = ctx.Pipe(duplex=False)
-    proc = ctx.Process(target=_child, args=(child, fn, args), daemon=True)
-    proc.start()
-    child.close()
-    try:
-        status, value = parent.recv()
-    except EOFError:
+        logger.info("no fork: pymeshlab calls run in process; Metro figures vary slightly between calls")
+        return [c[0](*c[1:]) for c in calls]
+    max_parallel = max_parallel or os.cpu_count() or 1
+    results: list = [None] * len(calls)
+    running: list = []
+
+    def finish(item):
+        i, proc, conn = item
+        try:
+            status, value = conn.recv()
+        except EOFError:
+            proc.join()
+            raise CloudsieveError(f"pymeshlab crashed in its worker process (exit code {proc.exitcode})") from None
         proc.join()
-        raise CloudsieveError(f"Metro (pymeshlab) crashed in its worker process (exit code {proc.exitcode})") from None
-    proc.join()
-    if status != "ok":
-        raise CloudsieveError(f"Metro (pymeshlab) failed: {value}")
-    return value
+        conn.close()
+        if status != "ok":
+            raise CloudsieveError(f"pymeshlab failed: {value}")
+        results[i] = value
+
+    for i, call in enumerate(calls):
+        if len(running) >= max_parallel:
+            finish(running.pop(0))
+        parent, child = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_child, args=(child, call[0], call[1:]), daemon=True)
+        proc.start()
+        child.close()
+        running.append((i, proc, parent))
+    while running:
+        finish(running.pop(0))
+    return results
 
 
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
-          samples: int | None = None, max_samples: int = 1_000_000) -> dict:
+          samples: int | None = None, max_samples: int = 500_000) -> dict:
     """Metro distances between two meshes, both ways (pymeshlab, face sampling).
 
     Parameters
@@ -226,7 +239,7 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
         Typically the original's and the simplified cloud's meshes.
     samples : int, optional
         Surface samples per direction; default 10 x the sampled mesh's faces
-        (Metro's default), at most *max_samples*.
+        (Metro's default), at most *max_samples* (500,000).
 
     Returns
     -------
@@ -237,15 +250,22 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
 
     Notes
     -----
-    Runs in a forked child process (see :func:`_fresh_process`) so that the
-    same meshes always give the same figures: equal to a direct
-    ``get_hausdorff_distance`` call, forward then backward, with
-    ``samplevert=False, sampleface=True``, the same ``samplenum`` and
-    ``maxdist``, made first thing in a fresh Python process.
+    Each direction runs in a forked child process (see :func:`_forked`), both
+    at once, so that the same meshes always give the same figures: equal to
+    a direct ``get_hausdorff_distance`` call (``samplevert=False,
+    sampleface=True``, the same ``samplenum`` and ``maxdist``) made first
+    thing in a fresh Python process holding the two meshes.
     """
     a = (np.ascontiguousarray(mesh_a[0], dtype=np.float64), np.ascontiguousarray(mesh_a[1], dtype=np.int32))
     b = (np.ascontiguousarray(mesh_b[0], dtype=np.float64), np.ascontiguousarray(mesh_b[1], dtype=np.int32))
-    return _fresh_process(_metro_both, a, b, samples, max_samples)
+    allv = np.concatenate([a[0], b[0]])
+    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
+
+    def n_of(mesh):
+        return samples if samples is not None else min(max(10 * len(mesh[1]), 1000), max_samples)
+
+    fwd, bwd = _forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist)])
+    return {"forward": fwd, "backward": bwd}
 
 
 def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
@@ -318,11 +338,11 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
                            "diagonal": tile_diag}
     if cache is not None and key in cache and np.array_equal(cache[key][0], orig):
         mo = cache[key][1]
-    else:
-        mo = ball_pivoting(orig)
+        msimp = ball_pivoting(simp)
+    else:  # both meshes at once, one forked child each
+        mo, msimp = _forked([(ball_pivoting, orig), (ball_pivoting, simp)])
         if cache is not None:
             cache[key] = (orig, mo)
-    msimp = ball_pivoting(simp)
     co, cs = compactness(*mo), compactness(*msimp)
     rec["original"] = {"vertices": int(len(mo[0])), **compactness_summary(co)}
     rec["simplified"] = {"vertices": int(len(msimp[0])), **compactness_summary(cs)}
@@ -355,7 +375,7 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
 
 def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, tile_points: int = 200_000,
                    seed: int = 0, diagonal: float | None = None, samples: int | None = None,
-                   max_samples: int = 1_000_000, progress=None, cache: dict | None = None) -> dict:
+                   max_samples: int = 500_000, progress=None, cache: dict | None = None) -> dict:
     """The paper's surface-level figures on tiles of the cloud.
 
     Parameters
