@@ -176,3 +176,21 @@ def test_store_and_file_sources_equal_array(tmp_path):
         assert r["forward"]["max"] == ref["forward"]["max"]
         assert_allclose(r["forward"]["mean"], ref["forward"]["mean"], rtol=1e-12)
         assert r["backward"]["max"] == 0.0
+
+
+def test_distance_bound_keeps_results_exact():
+    """Later chunks query with an upper bound learnt from earlier ones; far points are re-queried."""
+    rng = np.random.default_rng(13)
+    a = rng.random((12_000, 3))
+    a[-50:] += 5.0  # far outliers in the last chunk: beyond any learnt bound
+    b = a[: len(a) - 50 : 3]
+    r = point_errors(a, b, chunk_size=4000)
+    f = cKDTree_query(b, a)
+    assert r["forward"]["max"] == pytest.approx(f.max(), rel=1e-12)
+    assert_allclose(r["forward"]["mean"], f.mean(), rtol=1e-12)
+
+
+def cKDTree_query(b, a):
+    from scipy.spatial import cKDTree
+
+    return cKDTree(b).query(a)[0]
