@@ -535,6 +535,8 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             on_error_points(*ply)
         tick(part["seen"])
     total = combine(partials)
+    if n is None:  # unknown count (XYZ text) and nothing sampled: counted on the way
+        n = int(total["seen"])
     if total["bbox"] is None:
         raise EmptyInputError(f"the original cloud is empty (0 points): {src.name}")
     bounds = total["bbox"]
