@@ -121,3 +121,22 @@ def test_run_end_to_end(tmp_path):
     with laspy.open(src) as a, laspy.open(out) as b:
         assert abs(b.header.point_count - a.header.point_count * 0.5) <= 0.01 * a.header.point_count
         assert b.header.point_format.id == a.header.point_format.id
+
+
+def test_reader_must_match_the_files(tmp_path):
+    doc = simple_pipeline(shared_file("bun_zipper.ply"), tmp_path / "out.las", ratio=0.5)
+    with pytest.raises(PipelineError, match=r"stage 1 \(readers.las\) cannot read .*bun_zipper.ply: its extension says ply"):
+        run_pipeline(load_pipeline(write(tmp_path, doc)))
+
+
+def test_reader_writer_without_filter_converts(tmp_path):
+    src = shared_file("simple.laz")
+    doc = {"pipeline": [str(src), {"type": "writers.ply", "filename": str(tmp_path / "simple.ply")}]}
+    run_pipeline(load_pipeline(write(tmp_path, doc)))
+    from cloudsieve.io import read_cloud
+
+    xyz, attrs = read_cloud(tmp_path / "simple.ply")
+    with laspy.open(src) as f:
+        las = f.read()
+    assert len(xyz) == len(las.points)
+    assert (attrs["intensity"] == las.intensity).all()

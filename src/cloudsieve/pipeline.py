@@ -7,7 +7,7 @@ A pipeline file is JSON::
         {"type": "readers.las", "filename": "scans/*.laz"},
         {"type": "filters.entropy", "method": "fcm", "rule": "iterative", "threshold": 0.001},
         {"type": "writers.las", "filename": "out/{stem}.laz"},
-        {"type": "evaluate", "report": "out/{stem}-report"}
+        {"type": "evaluate", "report_dir": "out/{stem}-report"}
       ]
     }
 
@@ -29,7 +29,7 @@ Stages, in this order:
     matches several files.
 ``evaluate`` (optional, after the writer)
     Evaluates the written cloud against the input; options are the keyword
-    arguments of :func:`cloudsieve.evaluate` (``report``, ``sample``, ...).
+    arguments of :func:`cloudsieve.evaluate` (``report_dir``, ``sample``, ...).
 ``compare`` (optional, instead of filters/writers)
     Runs :func:`cloudsieve.compare` on the input: the paper's comparison of KM,
     FCM and the baselines at equal count.
@@ -69,7 +69,7 @@ READERS = {
 }
 WRITERS = {"writers.las": None, "writers.ply": "ply", "writers.text": "xyz"}
 TOP_LEVEL = {"pipeline", "scheduler", "workers"}
-PATH_OPTIONS = {"filename", "report", "store"}
+PATH_OPTIONS = {"filename", "report_dir", "store"}
 
 
 @dataclass
@@ -110,7 +110,7 @@ def _accepted(func: Any, fixed: set[str]) -> set[str]:
     return {
         name
         for name, p in params.items()
-        if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and name not in fixed
+        if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and name not in fixed and not name.startswith("_")
     }
 
 
@@ -202,7 +202,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
         if kind in WRITERS:
             allowed = {"type", "filename", "overwrite"}
         elif kind in functions:
-            fixed = {"src", "dst", "original", "simplified", "client", "progress"}
+            fixed = {"src", "dst", "source", "original", "simplified", "client", "progress", "bars", "notify", "format", "overwrite"}
             allowed = {"type"} | _accepted(functions[kind], fixed)
         else:
             known = ", ".join([*WRITERS, *functions])
@@ -254,6 +254,30 @@ def _fill(value: Any, src: str) -> Any:
     return value.replace("{stem}", stem).replace("{name}", name)
 
 
+def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, progress: Any) -> None:
+    """A pipeline with a writer and no filter: a plain conversion, streamed through a temporary store."""
+    import tempfile
+
+    from .convert import export, ingest
+
+    with tempfile.TemporaryDirectory(prefix="cloudsieve-convert-") as tmp:
+        store = ingest(src, os.path.join(tmp, "store.zarr"), progress=progress)
+        export(store, dst, format=out_format, overwrite=overwrite, progress=progress)
+
+
+def _check_reader(pipeline: Pipeline) -> None:
+    from .io import detect_format
+
+    kind = pipeline.reader["type"]
+    accepted = {"readers.las": ("las", "laz", "copc")}.get(kind, (READERS[kind],))
+    for path in pipeline.inputs:
+        if kind == "readers.store":
+            continue
+        found = detect_format(path)
+        if found not in accepted:
+            raise PipelineError(f"{pipeline.source}: stage 1 ({kind}) cannot read {path}: its extension says {found}")
+
+
 def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None) -> list[dict]:
     """Run a pipeline, once per input file.
 
@@ -264,6 +288,7 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         "summary": ..., "report": ...}``.
     """
     functions = _stage_functions()
+    _check_reader(pipeline)
     results = []
     for src in pipeline.inputs:
         entry: dict[str, Any] = {"input": src, "output": None, "summary": None, "report": None}
@@ -273,19 +298,18 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         if writer is not None:
             dst = _fill(writer["filename"], src)
             Path(dst).parent.mkdir(parents=True, exist_ok=True)
-            params = {k: _fill(v, src) for k, v in (filt or {}).items() if k != "type"}
-            accepted = _accepted(functions["filters.entropy"], set())
-            for key, value in run_opts.items():
-                if key in accepted:
-                    params.setdefault(key, value)
-            if "format" in accepted and WRITERS[writer["type"]] is not None:
-                params.setdefault("format", WRITERS[writer["type"]])
-            if "overwrite" in writer:
-                params["overwrite"] = writer["overwrite"]
+            out_format = WRITERS[writer["type"]]
+            overwrite = bool(writer.get("overwrite", False))
+            log.info("pipeline %s: %s -> %s", pipeline.source, src, dst)
             if filt is None:
-                params["threshold"] = 0.0  # no filter: a plain conversion keeps every point
-            log.info("pipeline %s: simplify %s -> %s", pipeline.source, src, dst)
-            entry["summary"] = functions["filters.entropy"](src, dst, client=client, progress=progress, **params)
+                entry["summary"] = _convert(src, dst, out_format, overwrite, progress)
+            else:
+                params = {k: _fill(v, src) for k, v in filt.items() if k != "type"}
+                for key, value in run_opts.items():
+                    params.setdefault(key, value)
+                entry["summary"] = functions["filters.entropy"](
+                    src, dst, format=out_format, overwrite=overwrite, client=client, progress=progress, **params
+                )
             entry["output"] = dst
         for stage in pipeline.stages:
             params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
