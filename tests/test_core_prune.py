@@ -9,6 +9,7 @@ from cloudsieve.entropy import score_points
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.prune import (
     _first_independent,
+    _padded,
     prune,
     refine_labels,
     simplify_points,
@@ -82,7 +83,7 @@ def test_first_independent_is_the_sequential_greedy():
     indices = rng.integers(0, n, n * k)
     indptr = np.arange(0, n * k + 1, k)
     cand = rng.permutation(n)[:200]
-    got = _first_independent(cand, indptr, indices, n)
+    got = _first_independent(cand, _padded(indptr, indices), n)
     taken = []
     blocked = np.zeros(n, bool)
     nbrs = [set(indices[indptr[i] : indptr[i + 1]].tolist()) for i in range(n)]

@@ -334,7 +334,7 @@ def _knn_clusters(g, bounds, k0, k_min, workers):
     small = np.flatnonzero(sizes < _BIG_CLUSTER)
     for j in big:
         run(j, workers)
-    if workers > 1 and len(small) > 1:
+    if workers > 1 and len(small) >= 4 * workers:
         with ThreadPoolExecutor(workers) as ex:
             list(ex.map(run, small, chunksize=max(1, len(small) // (8 * workers))))
     else:

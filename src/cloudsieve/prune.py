@@ -59,7 +59,7 @@ import math
 import numpy as np
 
 from .cluster import FuzzyCMeans, KMeans, _canonical_order
-from .entropy import _check_labels, _check_params, _check_points, score_points
+from .entropy import _check_labels, _check_params, _check_points, neighbour_count, score_points
 from .errors import InvalidParameterError
 from .progress import callback
 
@@ -138,43 +138,53 @@ def _target_count(n, ratio, count):
     return None
 
 
-def _first_independent(cand: np.ndarray, indptr: np.ndarray, indices: np.ndarray, n: int) -> np.ndarray:
+def _padded(indptr: np.ndarray, indices: np.ndarray, width: int | None = None) -> np.ndarray:
+    """CSR neighbour lists as an (n, width) int64 array padded with -1."""
+    n = len(indptr) - 1
+    ln = np.diff(indptr)
+    width = int(ln.max(initial=0)) if width is None else width
+    out = np.full((n, width), -1, dtype=np.int64)
+    rows = np.repeat(np.arange(n), ln)
+    cols = np.arange(len(indices)) - np.repeat(indptr[:-1], ln)
+    out[rows, cols] = indices
+    return out
+
+
+def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int) -> np.ndarray:
     """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph.
 
-    Returns the selected candidates in priority order: exactly what a sequential
-    pass would keep (take a candidate unless a neighbour was taken before),
-    computed by rounds of local minima of the rank.
+    ``nb`` (n, K) holds each point's neighbours, padded with -1. Returns the
+    selected candidates in priority order: exactly what a sequential pass
+    keeps (take a candidate unless one of its neighbours, or a point having it
+    as a neighbour, was taken before), computed by rounds of local minima of
+    the rank.
     """
     if len(cand) == 0:
         return cand
-    rank = np.full(n, np.iinfo(np.int64).max, dtype=np.int64)
+    big = np.iinfo(np.int64).max
+    rank = np.full(n + 1, big, dtype=np.int64)  # slot n: the -1 padding
     rank[cand] = np.arange(len(cand))
-    starts, ends = indptr[cand], indptr[cand + 1]
-    ln = ends - starts
-    src = np.repeat(cand, ln)
-    pos = np.repeat(starts - np.concatenate([[0], np.cumsum(ln)[:-1]]), ln) + np.arange(int(ln.sum()))
-    dst = indices[pos]
-    keep = rank[dst] < np.iinfo(np.int64).max  # both ends candidates
+    src = np.repeat(cand, nb.shape[1])
+    dst = nb[cand].ravel()
+    dst = np.where(dst < 0, n, dst)
+    keep = rank[dst] < big  # both ends candidates
     u = np.concatenate([src[keep], dst[keep]])
     v = np.concatenate([dst[keep], src[keep]])
     undecided = np.zeros(n, dtype=bool)
     undecided[cand] = True
     selected = np.zeros(n, dtype=bool)
-    big = np.iinfo(np.int64).max
     while True:
         live = undecided[u] & undecided[v]
         u, v = u[live], v[live]
-        minnb = np.full(n, big, dtype=np.int64)
-        np.minimum.at(minnb, u, rank[v])
         und = np.flatnonzero(undecided)
         if len(und) == 0:
             break
+        minnb = np.full(n, big, dtype=np.int64)
+        np.minimum.at(minnb, u, rank[v])
         win = und[rank[und] < minnb[und]]
         selected[win] = True
         undecided[win] = False
-        # neighbours of winners are out
-        out = v[selected[u]]
-        undecided[out] = False
+        undecided[v[selected[u]]] = False  # neighbours of winners are out
     sel = np.flatnonzero(selected)
     return sel[np.argsort(rank[sel], kind="stable")]
 
@@ -238,7 +248,7 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
         return keep
     order = _canonical_order(pts)
     P = pts[order]
-    L = lab[order]
+    L = np.unique(lab[order], return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
     kw = dict(k0=k0, k_min=k_min, dim=dim, context=ctx)
 
     if rule == "threshold":
@@ -274,66 +284,80 @@ def _ranked(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
+    """The iterative/coverage rules. Between rounds only the clusters that lost a
+    point are rescored (without context the others' scores cannot change), which
+    gives exactly the scores of a full rescoring."""
     n = len(P)
-    alive = np.arange(n)
+    alive = np.ones(n, dtype=bool)
+    n_alive = n
+    use_unit = target is not None or score == "unit_free"
+    K = int(neighbour_count(np.bincount(L).max(), kw["k0"], kw["k_min"]))
+    val = np.full(n, np.inf)
+    nb = np.full((n, K), -1, dtype=np.int64)
+
+    def rescore(sub):
+        s = score_points(P[sub], L[sub], **kw)
+        val[sub] = s.unit_free if use_unit else s.delta_h
+        nb[sub] = -1
+        pad = _padded(s.indptr, s.indices, K)
+        nb[sub] = np.where(pad >= 0, sub[np.maximum(pad, 0)], -1)
+
+    rescore(np.arange(n))
     rnd = 0
     while True:
-        if target is not None and len(alive) <= target:
+        if target is not None and n_alive <= target:
             break
         if max_rounds is not None and rnd >= max_rounds:
             break
-        s = score_points(P[alive], L[alive], **kw)
-        if target is None:
-            val = s.delta_h if score == "delta_h" else s.unit_free
-            cand = _ranked(val, np.arange(len(alive)))
-            cand = cand[val[cand] <= threshold]
-        else:
-            cand = _ranked(s.unit_free, np.arange(len(alive)))
+        pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
+        cand = pool[np.lexsort((pool, val[pool]))]
         if rule == "coverage" and len(cand):
-            cand = _covered(P[alive], s, cand, coverage)
+            cand = cand[_covered(P, nb, cand, coverage)]
         if len(cand) == 0:
             break
-        sel = _first_independent(cand, s.indptr, s.indices, len(alive))
+        sel = _first_independent(cand, nb, n)
         if target is not None:
-            sel = sel[: len(alive) - target]
+            sel = sel[: n_alive - target]
         if len(sel) == 0:
             break
-        dead = np.zeros(len(alive), dtype=bool)
-        dead[sel] = True
-        alive = alive[~dead]
+        alive[sel] = False
+        n_alive -= len(sel)
+        val[sel] = np.inf
+        nb[sel] = -1
         rnd += 1
         report(len(sel))
-        logger.debug("round %d: dropped %d, %d left", rnd, len(sel), len(alive))
-    keep = np.zeros(n, dtype=bool)
-    keep[alive] = True
-    return keep
+        logger.debug("round %d: dropped %d, %d left", rnd, len(sel), n_alive)
+        if kw["context"] is None:
+            touched = np.zeros(int(L.max()) + 1 if len(L) else 0, dtype=bool)
+            touched[L[sel]] = True
+            sub = np.flatnonzero(alive & touched[L])
+        else:
+            sub = np.flatnonzero(alive)
+        if len(sub):
+            rescore(sub)
+    return alive
 
 
-def _covered(P, s, cand, coverage):
-    """Candidates whose removal leaves no gap wider than the local spacing.
+def _covered(P, nb, cand, coverage):
+    """Which candidates may go without opening a gap wider than the local spacing.
 
-    For a candidate y with k nearest N(y): its nearest neighbour distance
-    r_1(y) must be <= coverage * median over N(y) of their own r_1, so y sits
-    in a region at least as dense as its surroundings (an isolated point,
-    whose nearest neighbour is far compared with its neighbours' spacing,
-    stays).
+    r_1(y) is y's nearest-neighbour distance. A candidate y qualifies when
+    r_1(y) <= coverage * median of r_1 over y's k nearest: y sits where points
+    are at least as dense as around it. An isolated point (outlier, edge of a
+    thin part), whose nearest neighbour is far compared with its neighbours'
+    spacing, stays, whatever its entropy score.
     """
     n = len(P)
-    has = s.indptr[1:] > s.indptr[:-1]
-    first = np.where(has, s.indices[np.minimum(s.indptr[:-1], max(len(s.indices) - 1, 0))], 0)
+    has = nb[:, 0] >= 0
     r1 = np.full(n, np.inf)
-    r1[has] = np.sqrt(((P[has] - P[first[has]]) ** 2).sum(axis=1))
-    # median r_1 over each point's k-NN
-    ln = np.diff(s.indptr)
-    owners = np.repeat(np.arange(n), ln)
-    vals = r1[s.indices]
-    o = np.lexsort((vals, owners))
-    vals_sorted = vals[o]
-    mid = s.indptr[:-1] + ln // 2
-    med = np.full(n, np.inf)
-    med[has] = vals_sorted[mid[has]]
-    ok = r1[cand] <= coverage * med[cand]
-    return cand[ok]
+    r1[has] = np.sqrt(((P[has] - P[nb[has, 0]]) ** 2).sum(axis=1))
+    c = cand[has[cand]]
+    nbc = nb[c]
+    vals = np.where(nbc >= 0, r1[np.maximum(nbc, 0)], np.nan)
+    med = np.nanmedian(vals, axis=1)
+    ok = np.zeros(len(cand), dtype=bool)
+    ok[has[cand]] = r1[c] <= coverage * med
+    return ok
 
 
 def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", threshold: float = 1e-3,
