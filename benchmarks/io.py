@@ -107,12 +107,16 @@ def main(argv: list[str] | None = None) -> int:
     load1 = os.getloadavg()
 
     print(f"Chunk size {args.chunk_size:,} points; {os.cpu_count()} cores; load average {load0[0]:.1f} before, {load1[0]:.1f} after.\n")
-    print("| points | LAZ MB | store MB | laspy decode (pts/s) | ingest (pts/s) | ingest / laspy | ingest peak RSS | export LAZ (pts/s) | export peak RSS |")
-    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print(
+        "| points | LAZ MB | store MB | laspy decode (pts/s) | ingest (pts/s) | ingest / laspy | "
+        "CPU s laspy / ingest | ingest peak RSS | export LAZ (pts/s) | export peak RSS |"
+    )
+    print("|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for n, r in rows:
         lp, ing, exp = (n / r[k]["seconds"] for k in ("laspy", "ingest", "export"))
         print(
             f"| {n:,} | {r['size_mb']:.0f} | {r['store_mb']:.0f} | {lp / 1e6:.2f} M | {ing / 1e6:.2f} M | {ing / lp:.0%} | "
+            f"{r['laspy']['cpu']:.1f} / {r['ingest']['cpu']:.1f} | "
             f"{r['ingest']['rss'] / 2**20:.0f} MiB | {exp / 1e6:.2f} M | {r['export']['rss'] / 2**20:.0f} MiB |"
         )
     if len(rows) > 1:

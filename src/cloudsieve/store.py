@@ -11,9 +11,9 @@ Layout (see DESIGN.md)::
                            shape (N,) or (N, k), chunks (chunk_size, ...)
       partition/..., simplify/...   derived arrays of later stages
 
-Every array is compressed with zstd. A store path is a local path or an fsspec
-URL (``file:///...`` is treated as the local path it names). Stores are
-written by :func:`cloudsieve.convert.ingest`; :meth:`PointStore.open` refuses a
+Every array is compressed (blosc lz4, byte-shuffled; see :func:`compressors`).
+A store path is a local path or an fsspec URL (``file:///...`` is treated as
+the local path it names). Stores are written by :func:`cloudsieve.convert.ingest`; :meth:`PointStore.open` refuses a
 folder that is not a complete store.
 """
 
@@ -268,7 +268,7 @@ class PointStore:
         fill_value: Any = 0,
         overwrite: bool = False,
     ) -> zarr.Array:
-        """Create a derived array (e.g. "partition/labels"), zstd-compressed.
+        """Create a derived array (e.g. "partition/labels"), compressed like the input arrays.
 
         Input arrays are never rewritten: *name* may not be an input dimension.
         *chunks* defaults to the store's chunk size along the first axis.
