@@ -170,3 +170,28 @@ def test_bad_input_messages():
         from cloudsieve.cluster import KMeans
 
         KMeans(3).fit(pts[:2])
+
+
+def test_coverage_keeps_isolated_points_that_iterative_drops():
+    rng = np.random.default_rng(8)
+    plane = np.c_[rng.random((2000, 2)), np.zeros(2000)]
+    outliers = np.array([[0.5, 0.5, 0.3], [0.2, 0.7, -0.25], [0.9, 0.1, 0.4]])
+    pts = np.concatenate([plane, outliers])
+    labels = np.zeros(len(pts), dtype=np.int64)
+    uf = unit_free_scores(pts, labels)
+    assert (uf[2000:] < np.median(uf[:2000])).all()  # |dH| calls the outliers redundant
+    it = prune(pts, labels, rule="iterative", ratio=0.5)
+    cov = prune(pts, labels, rule="coverage", ratio=0.5)
+    assert not it[2000:].any()
+    assert cov[2000:].all()
+    assert abs(cov.sum() - 1002) <= 10
+
+
+def test_coverage_with_threshold_is_a_subset_rule(cloud):
+    pts, labels = cloud
+    S = float(np.quantile(score_points(pts, labels).delta_h, 0.5))
+    first = prune(pts, labels, rule="coverage", threshold=S, max_rounds=1)
+    s = score_points(pts, labels)
+    assert (s.delta_h[~first] <= S).all()
+    kept_it = prune(pts, labels, rule="iterative", threshold=S, max_rounds=1)
+    assert (~first).sum() < (~kept_it).sum()  # the coverage test only removes candidates

@@ -88,6 +88,10 @@ class Scores:
         k used for the point's cluster.
     duplicate : ndarray of shape (n,), bool
         True for an exact copy of a lower-index point of the same cluster.
+    gain : ndarray of shape (n,), float64
+        The signed change H(R minus y) - H(R) (dH is its absolute value):
+        > 0 when removing y makes the density of R more uniform. +inf in
+        small clusters, 0.0 for duplicates.
     indptr, indices : ndarray of int64
         The k-NN graph in CSR form: the neighbours of point i (input indices,
         points only, never context) are ``indices[indptr[i]:indptr[i+1]]``;
@@ -101,6 +105,7 @@ class Scores:
     duplicate: np.ndarray
     indptr: np.ndarray
     indices: np.ndarray
+    gain: np.ndarray | None = None
 
     @property
     def n_duplicates(self) -> int:
@@ -234,7 +239,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     if n == 0:
         z = np.zeros(0)
         zi = np.zeros(0, dtype=np.int64)
-        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), np.zeros(1, np.int64), zi.copy())
+        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), np.zeros(1, np.int64), zi.copy(), z.copy())
 
     inv, order, bounds = _group(lab)
     g = pts[order]  # grouped by cluster, stable
@@ -250,6 +255,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
 
     dh = np.full(n, np.inf)
     dh[dup] = 0.0
+    sg = dh.copy()
     if len(scored):
         cl = ginv[scored]
         # log-weights shifted per cluster so the largest weight is 1 (no overflow, units cancel)
@@ -281,10 +287,13 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
         Wc = W[cl]
         dH = np.log1p(dW / Wc) - dG / (Wc + dW)
         dh[scored] = np.abs(dH)
+        sg[scored] = dH
 
     # back to input order
     out_dh = np.empty(n)
     out_dh[order] = dh
+    out_sg = np.empty(n)
+    out_sg[order] = sg
     dup_in = np.empty(n, dtype=bool)
     dup_in[order] = dup
     m_g = msize[ginv]
@@ -316,7 +325,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     nd = int(dup_in.sum())
     if nd:
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
-    return Scores(out_dh, unit, out_m, k_in, dup_in, indptr, indices)
+    return Scores(out_dh, unit, out_m, k_in, dup_in, indptr, indices, out_sg)
 
 
 def _knn_clusters(g, bounds, k0, k_min, workers):

@@ -37,10 +37,14 @@ target
     One pass on the unit-free score: drop the n - target points of lowest
     m*dH (ties: canonical order), so the count is exact.
 coverage (cloudsieve's, not the paper's)
-    Like ``iterative`` with a target, but a candidate y is only dropped if a
-    point that stays covers its place: the nearest remaining neighbour of y
-    lies within ``coverage`` times the local spacing r_1 of that neighbour
-    region (see :func:`prune`). Protects isolated points and thin parts.
+    ``iterative`` (with S, or with a target) where a candidate y also needs
+    r_1(y) <= coverage * median of r_1 over y's k nearest (r_1: distance to
+    the nearest remaining point): y may only go where points are at least as
+    dense as around it, so no gap wider than the local spacing opens. |dH|
+    ranks isolated points (outliers, thin parts, borders) as the most
+    redundant; this rule keeps them. Measured in benchmarks/quality.py: at 50%
+    kept it lowers the point RMS error of ``iterative`` by 16-41% on
+    bun_zipper, maxplanck and autzen_trim (and the max error by 2-4x).
 
 Scores: ``score="delta_h"`` (dH, the paper's S = 0.001) or ``"unit_free"``
 (m*dH). Duplicates score 0 (dropped by every rule); clusters smaller than
@@ -204,6 +208,8 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
         S, compared with ``score`` (rules threshold and iterative without a target).
     ratio, count : float, int, optional
         Kept fraction or kept count (rule target; iterative/coverage with a target).
+        The coverage rule may stop short of a target when no remaining
+        candidate passes its test (logged).
     score : {"delta_h", "unit_free"}
         Which score S is compared with: dH (the paper) or m*dH.
     coverage : float
@@ -237,8 +243,6 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
     if rule == "threshold" and target is not None:
         raise InvalidParameterError(
             f"rule='threshold' takes threshold= only, not ratio={ratio!r}/count={count!r}: use rule='target'")
-    if rule == "coverage" and target is None:
-        raise InvalidParameterError("rule='coverage' needs ratio= (kept fraction) or count= (kept points)")
     if not np.isfinite(threshold):
         raise InvalidParameterError(f"threshold must be finite, got {threshold!r}")
     ctx = None if context is None else _check_points(context, "context")
@@ -314,6 +318,8 @@ def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, 
         if rule == "coverage" and len(cand):
             cand = cand[_covered(P, nb, cand, coverage)]
         if len(cand) == 0:
+            if target is not None:
+                logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
             break
         sel = _first_independent(cand, nb, n)
         if target is not None:
