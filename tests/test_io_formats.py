@@ -71,7 +71,9 @@ def test_e57_to_las_store(tmp_path):
     np.testing.assert_array_equal(np.asarray(las.red), attrs["colorRed"].astype(np.uint16) * 257)
     np.testing.assert_allclose(las.x, xyz[:, 0], atol=las.header.scales[0])
     np.testing.assert_array_equal(np.asarray(las["rowIndex"]), attrs["rowIndex"])
-    np.testing.assert_array_equal(np.asarray(las["intensity_"]), attrs["intensity"])  # float: kept as extra bytes
+    np.testing.assert_array_equal(np.asarray(las["intensity_"]), attrs["intensity"])  # float: kept exactly as extra bytes
+    expected = np.round(attrs["intensity"].astype(np.float64) * 65535).astype(np.uint16)  # and as LAS intensity
+    np.testing.assert_array_equal(np.asarray(las.intensity), expected)
 
 
 # ------------------------------------------------------------ round trips

@@ -12,14 +12,15 @@ from __future__ import annotations
 
 import logging
 import os
+import asyncio
 import queue
 import sys
 import threading
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 import zarr
+from zarr.core.sync import sync as zarr_sync
 
 from . import progress as _progress
 from .errors import (
@@ -82,10 +83,9 @@ class _StoreFiller:
         self.pending: list[dict[str, np.ndarray]] = []
         self.pending_n = 0
         self.written = 0
-        self.pool = ThreadPoolExecutor(max_workers=4, thread_name_prefix="cloudsieve-store")
 
     def close(self) -> None:
-        self.pool.shutdown(wait=True)
+        pass
 
     def add(self, chunk: dict[str, np.ndarray]) -> None:
         n = len(chunk["xyz"])
@@ -115,10 +115,14 @@ class _StoreFiller:
             self.capacity = stop
             for arr in self.arrays.values():
                 arr.resize((stop, *arr.shape[1:]))
-        # arrays are compressed and written concurrently (zarr's codecs release the GIL)
-        futures = [self.pool.submit(arr.__setitem__, slice(start, stop), block[name]) for name, arr in self.arrays.items()]
-        for f in futures:
-            f.result()
+        # all arrays in one call of zarr's event loop: compressed and written
+        # concurrently (the codecs release the GIL), without a thread per array
+        sel = slice(start, stop)
+
+        async def write_all() -> None:
+            await asyncio.gather(*(arr.async_array.setitem(sel, block[name]) for name, arr in self.arrays.items()))
+
+        zarr_sync(write_all())
         self.written = stop
 
     def flush(self) -> None:

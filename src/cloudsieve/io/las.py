@@ -272,19 +272,22 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
     Point format 0 (1 with gps_time, 2 with colour, 3 with both); scales the
     finest power of ten that keeps the bounds within int32 (never coarser
     than needed), offsets at the minimum; attributes with a LAS name and a
-    compatible type go to the standard dimension, colour is scaled to 16 bits,
+    compatible type go to the standard dimension, colour is scaled to 16 bits
+    (8-bit values x 257, floats taken as 0..1 x 65535), a float ``intensity``
+    (E57, PLY: normally 0..1) goes to LAS intensity as round(v x 65535),
+    clipped, *and* unchanged to the extra-bytes dimension ``intensity_``;
     everything else becomes extra bytes (names sanitised to 32 characters).
 
     Returns
     -------
     header : dict
         As :func:`header_to_dict`.
-    mapping : dict of str to (str, str)
-        Attribute -> (LAS dimension name, conversion "copy" | "color8" | "color16").
+    mapping : list of (str, str, str)
+        (attribute, LAS dimension name, conversion "copy" | "color8" |
+        "unit16"), one attribute possibly to several dimensions.
     """
     color = _color_source(dtypes)
     has_gps = "gps_time" in dtypes and np.dtype(dtypes["gps_time"][0]).kind == "f"
-    pf_id = (2 if color else 0) + (1 if has_gps else 0)
     pf_id = 3 if (color and has_gps) else (2 if color else (1 if has_gps else 0))
     pf = laspy.PointFormat(pf_id)
     std = {d.name: np.dtype(d.dtype) if d.dtype is not None else np.dtype("u1") for d in pf.dimensions}
@@ -295,7 +298,7 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
         "scan_direction_flag": 1,
         "edge_of_flight_line": 1,
     }
-    mapping: dict[str, tuple[str, str]] = {}
+    mapping: list[tuple[str, str, str]] = []
     taken = set(pf.dimension_names)
     extra: list[dict] = []
     for name, (dtype, shape) in dtypes.items():
@@ -304,13 +307,16 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
         dtype = np.dtype(dtype)
         if color and name in color:
             las_name = ("red", "green", "blue")[color.index(name)]
-            mapping[name] = (las_name, "color8" if dtype.itemsize == 1 else "color16")
+            how = "unit16" if dtype.kind == "f" else ("color8" if dtype.itemsize == 1 else "copy")
+            mapping.append((name, las_name, how))
             continue
         if shape == () and name in _STANDARD_NAMES and name in std and dtype.kind in "uif":
             target = np.dtype("u1") if name in sub_fields else std[name]
             if (dtype.kind in "ui" and _fits(dtype, target)) or (dtype.kind == "f" and target.kind == "f"):
-                mapping[name] = (name, "copy")
+                mapping.append((name, name, "copy"))
                 continue
+            if name == "intensity" and dtype.kind == "f":
+                mapping.append((name, name, "unit16"))  # and, below, the exact value as extra bytes
         if dtype.kind not in "uif" or len(shape) > 1 or (shape and shape[0] > 3):
             logger.warning("%s: attribute %r (%s, %s) has no LAS representation; not written", path, name, dtype, shape)
             continue
@@ -330,7 +336,7 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
                 "no_data": None,
             }
         )
-        mapping[name] = (ename, "copy")
+        mapping.append((name, ename, "copy"))
     if bounds is None:
         bounds = np.zeros((2, 3))
     bounds = np.asarray(bounds, dtype=np.float64)
@@ -491,7 +497,7 @@ class LasWriter(Writer):
         )
         if las_source:
             self._header_dict = self.header
-            self._mapping = {n: (n, "copy") for n in self.dtypes if n != "xyz"}
+            self._mapping = [(n, n, "copy") for n in self.dtypes if n != "xyz"]
         else:
             self._header_dict, self._mapping = build_header(self.dtypes, self.options.get("bounds"), self.path)
         header, self._evlrs = header_from_dict(self._header_dict, self.path)
@@ -548,14 +554,14 @@ class LasWriter(Writer):
                     f"LAS int32 with scale {self._scales[i]} and offset {self._offsets[i]}"
                 )
             rec.array[dim] = raw.astype(np.int32)
-        for name, (las_name, how) in self._mapping.items():
+        for name, las_name, how in self._mapping:
             if name not in chunk or las_name not in self._las_names:
                 continue
             values = np.asarray(chunk[name])
             if how == "color8":
                 values = values.astype(np.uint16) * np.uint16(257)
-            elif how == "color16":
-                values = values.astype(np.uint16)
+            elif how == "unit16":
+                values = np.clip(np.round(np.nan_to_num(values.astype(np.float64)) * 65535.0), 0, 65535).astype(np.uint16)
             try:
                 if las_name in self._packed:
                     rec.array[las_name] = values
