@@ -423,6 +423,8 @@ class LasReader(Reader):
         end = size
         if h.version.minor >= 4 and h.number_of_evlrs > 0 and 0 < h.start_of_first_evlr <= size:
             end = h.start_of_first_evlr
+        if h.version.minor >= 3 and 0 < h.start_of_waveform_data_packet_record <= end:
+            end = h.start_of_waveform_data_packet_record  # internal waveform data follows the points
         psize = h.point_format.size
         start = h.offset_to_point_data
         available = max(end - start, 0) // psize
