@@ -187,18 +187,24 @@ def _lloyd(Xs, C, max_iter, workers):
         Cn[nonempty] = S[nonempty] / cnt[nonempty, None]
         delta = np.sqrt(((Cn - C) ** 2).sum(axis=1))
         C = Cn
-        u += delta[a]
-        low -= delta.max()
+        moved_c = delta > 0
+        if moved_c.any():
+            u += delta[a]
+            low -= delta.max()
         tree = _tree(C)
         half = 0.5 * tree.query(C, k=2)[0][:, 1]
-        z = np.maximum(low, half[a])
-        act = np.flatnonzero(u > z)
+        act = np.flatnonzero(u > low)
+        if len(act):
+            aa = a[act]
+            act = act[u[act] > half[aa]]
         if len(act):
             u[act] = np.sqrt(((Xs[act] - C[a[act]]) ** 2).sum(axis=1))
-            act = act[u[act] > z[act]]
+            z = np.maximum(low[act], half[a[act]])
+            act = act[u[act] > z]
         changed = np.zeros(0, dtype=np.int64)
         if len(act):
-            d, i = tree.query(Xs[act], k=2, workers=workers)
+            w = workers if len(act) >= 20_000 else 1  # threads cost more than they save on small queries
+            d, i = tree.query(Xs[act], k=2, workers=w)
             na = i[:, 0].astype(np.int64)
             moved = na != a[act]
             changed = act[moved]

@@ -1,0 +1,125 @@
+"""Point-level quality of the rules at equal count (issue 3, "Measured before you start").
+
+Run: ``.venv/bin/python benchmarks/quality.py [--ratio 0.5] [--method km] [FILES...]``
+
+For each real scan (default: bun_zipper.ply, maxplanck.ply, autzen_trim.laz in
+../shared/data), keep ``ratio`` of the points with:
+
+- one-pass dH: the paper's threshold rule, S chosen so that the count is met;
+- one-pass m*dH: the ``target`` rule;
+- iterative: the ``iterative`` rule with the target (rounds of independent
+  removals, rescoring between rounds);
+- coverage: cloudsieve's ``coverage`` rule with the target;
+- random: a uniform random subset (seed 0);
+- voxel-nearest: a voxel grid whose size is bisected to reach the count, keeping
+  the original point nearest each occupied voxel's centroid.
+
+and report the one-sided distance from every original point to the simplified
+cloud (RMS, mean and max, as % of the bounding-box diagonal). Entropy rules
+use the same clusters (KM by default, ~400 points each, seed 0).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cloudsieve.entropy import score_points
+from cloudsieve.prune import prune, refine_labels, threshold_for_count
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def read_points(path: Path) -> np.ndarray:
+    from cloudsieve.io import read_cloud
+
+    return read_cloud(str(path))[0]
+
+
+def errors(P: np.ndarray, Q: np.ndarray):
+    d = cKDTree(Q).query(P, workers=-1)[0]
+    diag = float(np.linalg.norm(P.max(0) - P.min(0)))
+    return 100 * np.sqrt((d**2).mean()) / diag, 100 * d.mean() / diag, 100 * d.max() / diag
+
+
+def voxel_nearest(P: np.ndarray, target: int) -> np.ndarray:
+    lo = P.min(0)
+    diag = float(np.linalg.norm(P.max(0) - lo))
+
+    def run(h):
+        key = np.floor((P - lo) / h).astype(np.int64)
+        _, inv = np.unique(key, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        cnt = np.bincount(inv)
+        cen = np.stack([np.bincount(inv, P[:, j]) for j in range(3)], 1) / cnt[:, None]
+        d = ((P - cen[inv]) ** 2).sum(1)
+        o = np.lexsort((d, inv))
+        return np.sort(o[np.r_[True, inv[o][1:] != inv[o][:-1]]])
+
+    a, b = 1e-7 * diag, diag
+    for _ in range(60):
+        h = np.sqrt(a * b)
+        if len(run(h)) > target:
+            a = h
+        else:
+            b = h
+    return run(a)
+
+
+def table(files, ratio: float, method: str) -> str:
+    rows = ["| cloud | points | rule | kept | RMS % diag | mean % diag | max % diag | seconds |",
+            "|---|---:|---|---:|---:|---:|---:|---:|"]
+    for name in files:
+        path = Path(name) if Path(name).is_file() else DATA / name
+        P = read_points(path)
+        n = len(P)
+        tgt = int(round(ratio * n))
+        t = time.perf_counter()
+        labels = refine_labels(P, method, 400, 0)
+        t_ref = time.perf_counter() - t
+        runs = {}
+
+        def timed(key, fn):
+            t0 = time.perf_counter()
+            runs[key] = (fn(), time.perf_counter() - t0)
+
+        def one_pass_dh():
+            dh = score_points(P, labels).delta_h
+            S = threshold_for_count(dh, n - tgt)
+            return np.flatnonzero(prune(P, labels, rule="threshold", threshold=S))
+
+        timed("one-pass dH (paper, S fitted)", one_pass_dh)
+        timed("one-pass m*dH (target)", lambda: np.flatnonzero(prune(P, labels, rule="target", ratio=ratio)))
+        timed("iterative", lambda: np.flatnonzero(prune(P, labels, rule="iterative", ratio=ratio)))
+        timed("coverage", lambda: np.flatnonzero(prune(P, labels, rule="coverage", ratio=ratio)))
+        timed("random", lambda: np.sort(np.random.default_rng(0).choice(n, tgt, replace=False)))
+        timed("voxel-nearest", lambda: voxel_nearest(P, tgt))
+        for key, (kept, sec) in runs.items():
+            rms, mean, mx = errors(P, P[kept])
+            extra = f" (+{t_ref:.1f} refine)" if key.startswith(("one", "iter", "cov")) else ""
+            rows.append(f"| {path.name} | {n:,} | {key} | {len(kept):,} | {rms:.3f} | {mean:.3f} | {mx:.3f} | "
+                        f"{sec:.1f}{extra} |")
+        print(f"done {path.name}", file=sys.stderr, flush=True)
+    return "\n".join(rows)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("files", nargs="*", default=["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz"])
+    ap.add_argument("--ratio", type=float, default=0.5)
+    ap.add_argument("--method", choices=("km", "fcm"), default="km")
+    a = ap.parse_args(argv)
+    print(f"## Point-level error at {a.ratio:.0%} kept ({a.method.upper()} clusters of ~400 points)\n")
+    print("One-sided distance from every original point to the simplified cloud, as % of the "
+          "bounding-box diagonal.\n")
+    print(table(a.files, a.ratio, a.method))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
