@@ -7,13 +7,13 @@ deterministic.
 - ``random``: a uniform seeded sample, exactly *count* points.
 - ``voxel``: the original point nearest each occupied voxel's centroid, the
   voxel size found by bisection (on its logarithm) so that the number of
-  occupied voxels lands within 1% of *count* (the closest reached otherwise).
+  occupied voxels lands within 0.5% of *count* (the closest reached otherwise).
 - ``poisson``: Poisson-disk subsampling of the original points: the greedy
   dart-throwing sample in a seeded random order with minimum distance r (no
   two kept points closer than r, every dropped point within r of a kept
   one), computed as the lexicographically-first maximal independent set of
   the r-neighbour graph in vectorised Luby rounds; r found by bisection to
-  land within 1% of *count*. (pymeshlab's ``generate_sampling_poisson_disk``
+  land within 0.5% of *count*. (pymeshlab's ``generate_sampling_poisson_disk``
   with ``subsample=True`` does the same job but was measured to return
   different samples from one call to the next, so it cannot be seeded.)
 - ``fps``: farthest point sampling (open3d ``farthest_point_down_sample``),
@@ -71,7 +71,7 @@ def _voxel_keys(points: np.ndarray, lo: np.ndarray, size: float) -> np.ndarray:
     return inv.ravel().astype(np.int64)
 
 
-def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.01, max_iter: int = 80) -> np.ndarray:
+def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.005, max_iter: int = 80) -> np.ndarray:
     """The original point nearest each voxel's centroid, voxel size bisected to give *count* voxels (within *tol*).
 
     Returns sorted int64 indices (one per occupied voxel).
@@ -123,7 +123,7 @@ def _greedy_mis(n: int, i: np.ndarray, j: np.ndarray, prio: np.ndarray) -> np.nd
     return state == 1
 
 
-def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float = 0.01, max_iter: int = 40) -> np.ndarray:
+def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float = 0.005, max_iter: int = 40) -> np.ndarray:
     """Poisson-disk subsample of the original points, radius bisected to give *count* points (within *tol*).
 
     Returns sorted int64 indices. Seeded and deterministic (see module doc).
