@@ -95,3 +95,18 @@ def test_compare_needs_a_count(crop):
 
     with pytest.raises(ValueError, match="needs --ratio or --count"):
         compare(crop, methods=["random", "voxel"])
+
+
+def test_compare_bad_arguments_are_clear(crop, capsys):
+    from cloudsieve.errors import InvalidParameterError
+    from cloudsieve.evaluate import compare
+
+    with pytest.raises(InvalidParameterError, match=r"unknown method\(s\) \['kmeans'\]; choose among km, fcm"):
+        compare(crop, methods=["kmeans"], ratio=0.5)
+    with pytest.raises(InvalidParameterError, match=r"unknown rule\(s\) \['fast'\]"):
+        compare(crop, rule="iterative,fast", ratio=0.5)
+    with pytest.raises(InvalidParameterError, match=r"count must be in \[1, 6000\]"):
+        compare(crop, methods=["random"], count=7000)
+    assert main(["compare", str(shared_file("simple.las")), "--methods", "random,bogus", "--ratio", "0.5",
+                 "--no-progress"]) == 2
+    assert "unknown method(s) ['bogus']" in capsys.readouterr().err

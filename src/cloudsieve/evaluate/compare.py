@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CloudsieveError, EmptyInputError
+from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ._source import load_points
 from .baselines import run_method
 from .evaluation import evaluate
@@ -123,22 +123,28 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         faces``, or ``error``), ``original_compact_share``, ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
+    from ..prune import RULES
+
+    methods = [m.strip() for m in methods if m.strip()]
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise InvalidParameterError(f"unknown method(s) {bad or methods}; choose among {', '.join(METHODS)}")
+    rules = [r.strip() for r in (rule.split(",") if isinstance(rule, str) else rule) if r.strip()]
+    bad = [r for r in rules if r not in RULES]
+    if bad or not rules:
+        raise InvalidParameterError(f"unknown rule(s) {bad or rules}; choose among {', '.join(RULES)}")
     xyz, _header, name = load_points(source, what="source cloud")
     n = len(xyz)
-    methods = [m.strip() for m in methods if m.strip()]
-    rules = [r.strip() for r in (rule.split(",") if isinstance(rule, str) else rule) if r.strip()]
-    if not rules:
-        raise ValueError("no rule given")
     if ratio is not None and count is not None:
-        raise ValueError("give ratio or count, not both")
+        raise InvalidParameterError("give ratio or count, not both")
     if ratio is not None:
         if not 0 < ratio <= 1:
-            raise ValueError(f"ratio must be in (0, 1], got {ratio}")
+            raise InvalidParameterError(f"ratio must be in (0, 1], got {ratio}")
         count = max(1, int(round(ratio * n)))
     if count is not None and not 1 <= count <= n:
-        raise ValueError(f"count must be in [1, {n}], got {count}")
+        raise InvalidParameterError(f"count must be in [1, {n}] (the points of {name}), got {count}")
     if count is None and not any(m in ("km", "fcm") for m in methods):
-        raise ValueError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
+        raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = []  # (row name, method, rule)
     for m in methods:
         if m in ("km", "fcm"):
