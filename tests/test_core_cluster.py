@@ -129,3 +129,19 @@ def test_bad_input_messages():
         FuzzyCMeans(2, m=1.0).fit(np.random.default_rng(0).random((10, 3)))
     with pytest.raises(ValueError, match=r"init must be 'k-means\+\+', 'random' or an array of centres, got 'x'"):
         KMeans(2, init="x").fit(np.random.default_rng(0).random((10, 3)))
+
+
+def test_membership_change_equals_dense_difference():
+    from cloudsieve.cluster import _max_change
+
+    rng = np.random.default_rng(0)
+    n, L, c = 300, 4, 9
+    i0 = np.stack([rng.choice(c, L, replace=False) for _ in range(n)])
+    i1 = np.stack([rng.choice(c, L, replace=False) for _ in range(n)])
+    i1[:150] = i0[:150, ::-1]  # same centres, other order
+    u0, u1 = rng.random((n, L)), rng.random((n, L))
+    d0, d1 = np.zeros((n, c)), np.zeros((n, c))
+    np.put_along_axis(d0, i0, u0, 1)
+    np.put_along_axis(d1, i1, u1, 1)
+    for rows in (slice(None), slice(0, 150), slice(150, None)):
+        assert _max_change(i0[rows], u0[rows], i1[rows], u1[rows]) == np.abs(d1 - d0)[rows].max()

@@ -373,9 +373,20 @@ def _max_change(idx0, U0, idx1, U1, c=None):
     """
     if len(idx0) == 0:
         return 0.0
+    s0 = np.argsort(idx0, axis=1)
+    s1 = np.argsort(idx1, axis=1)
+    i0 = np.take_along_axis(idx0, s0, 1)
+    i1 = np.take_along_axis(idx1, s1, 1)
+    same = (i0 == i1).all(axis=1)
+    best = 0.0
+    if same.any():  # the usual case: same centres, maybe in another order
+        best = float(np.abs(np.take_along_axis(U1[same], s1[same], 1) - np.take_along_axis(U0[same], s0[same], 1)).max())
+    if same.all():
+        return best
+    idx0, U0, idx1, U1 = idx0[~same], U0[~same], idx1[~same], U1[~same]
     eq = idx1[:, :, None] == idx0[:, None, :]  # (n, L1, L0)
     matched0 = (eq * U0[:, None, :]).sum(axis=2)  # U0 at the new entries
-    best = float(np.abs(U1 - matched0).max())
+    best = max(best, float(np.abs(U1 - matched0).max()))
     gone = ~eq.any(axis=1)  # old entries absent from the new set
     if gone.any():
         best = max(best, float(U0[gone].max()))
@@ -403,7 +414,8 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
         i_new = idx.copy() if idx is not None else np.empty((n, L), dtype=np.int64)
         if len(redo):
             tree = _tree(C)
-            d, i = tree.query(Xs[redo], k=L + 1 if extra else L, workers=workers)
+            w = workers if len(redo) >= 20_000 else 1
+            d, i = tree.query(Xs[redo], k=L + 1 if extra else L, workers=w)
             if d.ndim == 1:
                 d, i = d[:, None], i[:, None]
             if gap is None:
