@@ -59,10 +59,11 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 
 import numpy as np
 
-from .cluster import FuzzyCMeans, KMeans, _canonical_order
+from .cluster import ConvergenceWarning, FuzzyCMeans, KMeans, _canonical_order
 from .entropy import _check_labels, _check_params, _check_points, neighbour_count, score_points
 from .errors import InvalidParameterError
 from .progress import callback
@@ -97,6 +98,13 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
     -------
     ndarray of shape (n,), int64
         Labels in 0..c-1 (some may be unused when a cluster empties).
+
+    Notes
+    -----
+    Hitting ``max_iter`` (usual for FCM at tol=1e-5 on large uniform
+    surfaces) is logged at INFO level instead of raising a
+    :class:`~cloudsieve.cluster.ConvergenceWarning`: the labels still form a
+    valid partition into small clusters.
     """
     pts = _check_points(points)
     if method not in METHODS:
@@ -110,7 +118,15 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
         est = KMeans(c, init=init, max_iter=max_iter, seed=seed)
     else:
         est = FuzzyCMeans(c, n_nearest=n_nearest, init=init, max_iter=max_iter, seed=seed)
-    return est.fit(pts).labels_
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", ConvergenceWarning)
+        labels = est.fit(pts).labels_
+    for w in caught:  # a refinement that ran out of iterations is still a partition: log, don't warn
+        if issubclass(w.category, ConvergenceWarning):
+            logger.info("%s", w.message)
+        else:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return labels
 
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
