@@ -174,7 +174,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
             continue
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
         rep = evaluate(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points, seed=seed,
-                       metro_samples=metro_samples, report_dir=sub, _surface_cache=cache)
+                       metro_samples=metro_samples, report_dir=sub, _surface_cache=cache,
+                       _names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time
             write_json(rep, sub / "report.json")

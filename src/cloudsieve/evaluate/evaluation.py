@@ -134,7 +134,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = 1_000_000,
              metro_samples: int | None = None, client: Any = None, progress=None,
-             _surface_cache: dict | None = None) -> dict:
+             _surface_cache: dict | None = None, _names: tuple[str, str] | None = None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -189,6 +189,8 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud")
     warn = check_compatible(src.header, simp_header, _header_bounds(src), simp,
                             names=(str(src.name), str(simp_name)), strict=strict)
+    if _names is not None:  # compare: arrays named after the source file and the method
+        src.name, simp_name = _names
     report: dict[str, Any] = {
         "cloudsieve_report": 1,
         "original": {"name": str(src.name), "count": src.count, "format": src.format,
