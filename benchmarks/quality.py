@@ -10,6 +10,8 @@ For each real scan (default: bun_zipper.ply, maxplanck.ply, autzen_trim.laz in
 - iterative: the ``iterative`` rule with the target (rounds of independent
   removals, rescoring between rounds);
 - coverage: cloudsieve's ``coverage`` rule with the target;
+- the same two with ``context=`` an empty array: r_k measured among all the
+  points (every cluster), not the point's cluster alone;
 - random: a uniform random subset (seed 0);
 - voxel-nearest: a voxel grid whose size is bisected to reach the count, keeping
   the original point nearest each occupied voxel's centroid.
@@ -97,6 +99,11 @@ def table(files, ratio: float, method: str) -> str:
         timed("one-pass m*dH (target)", lambda: np.flatnonzero(prune(P, labels, rule="target", ratio=ratio)))
         timed("iterative", lambda: np.flatnonzero(prune(P, labels, rule="iterative", ratio=ratio)))
         timed("coverage", lambda: np.flatnonzero(prune(P, labels, rule="coverage", ratio=ratio)))
+        whole = np.empty((0, 3))  # context mode with no extra points: density neighbours from every cluster
+        timed("iterative, whole-cloud neighbours",
+              lambda: np.flatnonzero(prune(P, labels, rule="iterative", ratio=ratio, context=whole)))
+        timed("coverage, whole-cloud neighbours",
+              lambda: np.flatnonzero(prune(P, labels, rule="coverage", ratio=ratio, context=whole)))
         timed("random", lambda: np.sort(np.random.default_rng(0).choice(n, tgt, replace=False)))
         timed("voxel-nearest", lambda: voxel_nearest(P, tgt))
         for key, (kept, sec) in runs.items():
