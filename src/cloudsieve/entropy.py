@@ -35,6 +35,9 @@ Context: with ``context=`` (extra points, e.g. a cell's halo, or the whole
 cloud around the clusters), r_k(x) is measured among all the points and the
 context instead of R alone; H is still summed over R only, and removing y only
 changes the terms of R. Context points that coincide with a point are ignored.
+An empty context (shape (0, p)) thus means: neighbours from every cluster of
+``points``, not from R alone (measured better at equal count in
+benchmarks/quality.py).
 
 Public names: :func:`entropy_scores` (dH per point), :func:`score_points`
 (a :class:`Scores` record with dH, the unit-free score m*dH used to pick one
