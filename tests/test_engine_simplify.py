@@ -196,17 +196,18 @@ def _border_density_ratio(xyz_in, keep, centers, labels, radius):
     return keep[near].mean() / keep[~near].mean(), near.sum()
 
 
+@pytest.mark.parametrize("context", [False, True])
 @pytest.mark.parametrize("ratio", [None, 0.5])
-def test_no_seams_at_cell_borders(tmp_path, ratio):
+def test_no_seams_at_cell_borders(tmp_path, ratio, context):
     rng = np.random.default_rng(11)
-    n = 16_000
+    n = 10_000
     xyz = np.c_[rng.random((n, 2)) * 100.0, np.zeros(n)]
     src = write_laz(tmp_path / "plane.laz", xyz)
     store = tmp_path / "w.zarr"
     cluster_size = 100
     s = simplify(
-        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio,
-        cluster_size=cluster_size, cell_size=2_000, chunk_size=4_000, scheduler="processes", workers=2,
+        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio, context=context,
+        cluster_size=cluster_size, cell_size=1_250, chunk_size=4_000, scheduler="threads",
     )
     assert s.cells >= 8
     st = PointStore.open(str(store))

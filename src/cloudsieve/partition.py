@@ -323,11 +323,18 @@ class Partition:
         np.cumsum(self.counts[:-1], axis=0, out=w[1:])
         return w
 
-    def runs(self, cell: int) -> np.ndarray:
-        """The (chunk, start, stop) runs of *cell* in ``partition/xyz``, shape (r, 3)."""
-        off = self.local_offsets()
+    def runs(self, cell: int, offsets: np.ndarray | None = None, within: np.ndarray | None = None) -> np.ndarray:
+        """The runs of *cell* in ``partition/xyz``: rows (chunk, start, stop, first), shape (r, 4).
+
+        ``first`` is the position of the run's first point among the cell's
+        points (the runs are in increasing chunk, i.e. input, order).
+        *offsets*/*within* are :meth:`local_offsets`/:meth:`within_offsets`,
+        passed in when calling for many cells.
+        """
+        off = self.local_offsets() if offsets is None else offsets
+        w = self.within_offsets() if within is None else within
         rows = np.nonzero(self.counts[:, cell])[0]
-        return np.stack([rows, off[rows, cell], off[rows, cell + 1]], axis=1).astype(np.int64)
+        return np.stack([rows, off[rows, cell], off[rows, cell + 1], w[rows, cell]], axis=1).astype(np.int64)
 
     def halo_sources(self, cell: int) -> np.ndarray:
         return self.halo_src[self.halo_ptr[cell] : self.halo_ptr[cell + 1]]
@@ -347,14 +354,14 @@ class Partition:
 
 
 def read_runs(group, runs: np.ndarray) -> np.ndarray:
-    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop)``.
+    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop, ...)``.
 
     Returns
     -------
     ndarray of shape (sum(stop - start), 3), float64
     """
     arr = group["partition/xyz"]
-    parts = [np.asarray(arr[int(c), int(a) : int(b)]) for c, a, b in runs if b > a]
+    parts = [np.asarray(arr[int(r[0]), int(r[1]) : int(r[2])]) for r in runs if r[2] > r[1]]
     if not parts:
         return np.empty((0, 3))
     return np.concatenate(parts, axis=0)
@@ -380,32 +387,48 @@ def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin
     return halo_distance(z, centers[cell], centers[source]) <= margin
 
 
-def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float) -> np.ndarray:
+def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float,
+              return_index: bool = False):
     """Halo of *cell*: points of its halo source cells within *margin* of its region.
 
     Parameters
     ----------
-    part_runs : dict int -> ndarray of shape (r, 3)
-        Runs of each halo source cell (see :meth:`Partition.runs`).
+    part_runs : dict int -> ndarray of shape (r, 3) or (r, 4)
+        Runs ``(chunk, start, stop[, first])`` of each halo source cell (see
+        :meth:`Partition.runs`); ``first`` is the position of the run's first
+        point among its cell's points (needed for *return_index*).
+    return_index : bool
+        Also return, for every halo point, its cell and its position among
+        that cell's points (to look up per-cell results such as scores).
 
     Returns
     -------
-    ndarray of shape (h, 3), float64, source cells in increasing id, each in
-    increasing input index.
+    points : ndarray of shape (h, 3), float64
+        Source cells in increasing id, each in increasing input index.
+    cells, positions : ndarray of shape (h,), int64
+        Only with *return_index*.
     """
     arr = group["partition/xyz"]
-    out = []
+    out, cells, pos = [], [], []
     for src in sorted(part_runs):
-        for c, a, b in part_runs[src]:
+        for run in part_runs[src]:
+            c, a, b = (int(v) for v in run[:3])
             if b <= a:
                 continue
-            z = np.asarray(arr[int(c), int(a) : int(b)])
+            z = np.asarray(arr[c, a:b])
             m = halo_mask(z, centers, cell, src, margin)
             if m.any():
                 out.append(z[m])
+                if return_index:
+                    sel = np.flatnonzero(m)
+                    cells.append(np.full(len(sel), src, dtype=np.int64))
+                    pos.append(int(run[3]) + sel)
+    pts = np.concatenate(out, axis=0) if out else np.empty((0, 3))
+    if not return_index:
+        return pts
     if not out:
-        return np.empty((0, 3))
-    return np.concatenate(out, axis=0)
+        return pts, np.empty(0, np.int64), np.empty(0, np.int64)
+    return pts, np.concatenate(cells), np.concatenate(pos).astype(np.int64)
 
 
 def n_cells_for(n: int, cell_size: int) -> int:

@@ -47,7 +47,8 @@ def add_parser(subparsers) -> None:
     g.add_argument("--count", type=_positive_int, metavar="N", help="keep this many points, within 1%%")
     p.add_argument("--cluster-size", type=_positive_int, default=400, metavar="M", help="points per small cluster (default 400)")
     p.add_argument(
-        "--cell-size", type=_positive_int, default=1_000_000, metavar="POINTS", help="points per cell, i.e. per task (default 1000000)"
+        "--cell-size", type=_positive_int, default=250_000, metavar="POINTS",
+        help="points per cell, i.e. per task; bounds a task's memory (default 250000)"
     )
     p.add_argument(
         "--scheduler",
@@ -57,6 +58,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--workers", type=_positive_int, metavar="N", help="local workers (default: all cores)")
     p.add_argument("--memory-limit", type=_memory, metavar="SIZE", help="memory cap per worker, e.g. 1GB (local cluster)")
     p.add_argument("--store", metavar="PATH", help="work store (path or fsspec URL); default DST.cloudsieve.zarr, removed on success")
+    p.add_argument(
+        "--halo-context",
+        action="store_true",
+        help="use each cell's halo (and the whole cell) as density context instead of the small cluster alone",
+    )
     p.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     p.add_argument("--resume", action="store_true", help="continue a crashed run from its work store")
     p.add_argument("--overwrite", action="store_true", help="replace DST and discard an incompatible work store")
@@ -96,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         overwrite=args.overwrite,
         format=args.format,
         chunk_size=args.chunk_size,
+        context=args.halo_context,
         bars=bars,
         notify=notify,
     )
