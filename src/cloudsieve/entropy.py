@@ -95,10 +95,12 @@ class Scores:
         The signed change H(R minus y) - H(R) (dH is its absolute value):
         > 0 when removing y makes the density of R more uniform. +inf in
         small clusters, 0.0 for duplicates.
+    neighbours : ndarray of shape (n, K), int64
+        The k-NN graph: row i holds the k nearest of point i (input indices,
+        points only, never context), nearest first, padded with -1; rows of
+        duplicates and of points in small clusters are all -1.
     indptr, indices : ndarray of int64
-        The k-NN graph in CSR form: the neighbours of point i (input indices,
-        points only, never context) are ``indices[indptr[i]:indptr[i+1]]``;
-        empty for duplicates and points of small clusters.
+        The same graph in CSR form (computed on access).
     """
 
     delta_h: np.ndarray
@@ -106,13 +108,23 @@ class Scores:
     cluster_size: np.ndarray
     k: np.ndarray
     duplicate: np.ndarray
-    indptr: np.ndarray
-    indices: np.ndarray
-    gain: np.ndarray | None = None
+    neighbours: np.ndarray
+    gain: np.ndarray
 
     @property
     def n_duplicates(self) -> int:
         return int(self.duplicate.sum())
+
+    @property
+    def indptr(self) -> np.ndarray:
+        out = np.zeros(len(self.neighbours) + 1, dtype=np.int64)
+        np.cumsum((self.neighbours >= 0).sum(axis=1), out=out[1:])
+        return out
+
+    @property
+    def indices(self) -> np.ndarray:
+        nb = self.neighbours
+        return nb[nb >= 0].astype(np.int64)  # row-major: row by row, nearest first
 
 
 def _check_points(points, name="points") -> np.ndarray:
@@ -242,24 +254,31 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     if n == 0:
         z = np.zeros(0)
         zi = np.zeros(0, dtype=np.int64)
-        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), np.zeros(1, np.int64), zi.copy(), z.copy())
+        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), np.zeros((0, 0), np.int64), z.copy())
 
     inv, order, bounds = _group(lab)
     g = pts[order]  # grouped by cluster, stable
     ginv = inv[order]
     c = len(bounds) - 1
     if context is None:
-        scored, kk, rk, rk1, nbr_flat, dup = _knn_clusters(g, bounds, k0, k_min, workers)
-        same = None
+        groups, dup = _knn_clusters(g, bounds, k0, k_min, workers)
     else:
-        scored, kk, rk, rk1, nbr_flat, dup = _knn_context(g, ginv, bounds, ctx, k0, k_min, workers)
-        same = True
+        groups, dup = _knn_context(g, ginv, bounds, ctx, k0, k_min, workers)
+    # groups: list of (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), k nearest (M, k) as
+    # positions in g, n for a context point)
     msize = np.bincount(ginv[~dup], minlength=c)  # distinct points per cluster
 
     dh = np.full(n, np.inf)
     dh[dup] = 0.0
     sg = dh.copy()
-    if len(scored):
+    K = max((grp[0] for grp in groups), default=0)
+    nb_in = np.full((n, K), -1, dtype=np.int64)
+    k_in = np.zeros(n, dtype=np.int64)
+    if groups:
+        scored = np.concatenate([grp[1] for grp in groups])
+        kk = np.concatenate([np.full(len(grp[1]), grp[0], dtype=np.int64) for grp in groups])
+        rk = np.concatenate([grp[2] for grp in groups])
+        rk1 = np.concatenate([grp[3] for grp in groups])
         cl = ginv[scored]
         # log-weights shifted per cluster so the largest weight is 1 (no overflow, units cancel)
         lr = np.log(rk)
@@ -278,15 +297,28 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
         gw1 = w1 * (lw1 - L[cl])
         dw_x = w1 - w  # exactly 0 when r_(k+1) = r_k (ties)
         dg_x = gw1 - gw
-        rep_w = np.repeat(dw_x, kk)
-        rep_g = np.repeat(dg_x, kk)
-        tgt = nbr_flat
-        if same is not None:  # context mode: only neighbours that are scored points of the same cluster
-            ok = tgt < n
-            ok[ok] = ginv[tgt[ok]] == np.repeat(cl, kk)[ok]
-            tgt = np.where(ok, tgt, n)
-        dW = np.bincount(tgt, weights=rep_w, minlength=n + 1)[scored] - w
-        dG = np.bincount(tgt, weights=rep_g, minlength=n + 1)[scored] - gw
+        acc_w = np.zeros(n + 1)
+        acc_g = np.zeros(n + 1)
+        ginv_ext = np.append(ginv, -1)
+        order_ext = np.append(order, -1)
+        off = 0
+        for k, sc, _, _, nbr in groups:
+            M = len(sc)
+            tgt = nbr.ravel()
+            rw = np.repeat(dw_x[off : off + M], k)
+            rg = np.repeat(dg_x[off : off + M], k)
+            if context is not None:  # only neighbours that are scored points of the same cluster count
+                other = ginv_ext[tgt] != np.repeat(cl[off : off + M], k)
+                rw[other] = 0.0
+                rg[other] = 0.0
+            acc_w += np.bincount(tgt, weights=rw, minlength=n + 1)
+            acc_g += np.bincount(tgt, weights=rg, minlength=n + 1)
+            rows = order[sc]
+            nb_in[rows, :k] = order_ext[nbr]
+            k_in[rows] = k
+            off += M
+        dW = acc_w[scored] - w
+        dG = acc_g[scored] - gw
         Wc = W[cl]
         dH = np.log1p(dW / Wc) - dG / (Wc + dW)
         dh[scored] = np.abs(dH)
@@ -299,40 +331,19 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     out_sg[order] = sg
     dup_in = np.empty(n, dtype=bool)
     dup_in[order] = dup
-    m_g = msize[ginv]
     out_m = np.empty(n, dtype=np.int64)
-    out_m[order] = m_g
-    kcl = np.zeros(n, dtype=np.int64)
-    k_in = np.zeros(n, dtype=np.int64)
-    if len(scored):
-        kcl[scored] = kk
-    k_in[order] = kcl
-    # CSR of the k-NN graph in input indices (points only)
-    cnt_g = np.zeros(n, dtype=np.int64)
-    if len(scored):
-        valid = nbr_flat < n
-        owner = np.repeat(scored, kk)[valid]
-        targets = order[nbr_flat[valid]]
-        owner_in = order[owner]
-        cnt_g_in = np.bincount(owner_in, minlength=n)
-        srt = np.argsort(owner_in, kind="stable")
-        indices = targets[srt].astype(np.int64)
-    else:
-        cnt_g_in = cnt_g
-        indices = np.zeros(0, dtype=np.int64)
-    indptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(cnt_g_in, out=indptr[1:])
+    out_m[order] = msize[ginv]
     with np.errstate(invalid="ignore"):
         unit = out_dh * out_m
     unit[dup_in] = 0.0
     nd = int(dup_in.sum())
     if nd:
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
-    return Scores(out_dh, unit, out_m, k_in, dup_in, indptr, indices, out_sg)
+    return Scores(out_dh, unit, out_m, k_in, dup_in, nb_in, out_sg)
 
 
 def _knn_clusters(g, bounds, k0, k_min, workers):
-    """k-NN of every point inside its own cluster (grouped points g)."""
+    """k-NN of every point inside its own cluster (grouped points g), grouped by k."""
     n = len(g)
     c = len(bounds) - 1
     sizes = np.diff(bounds)
@@ -353,7 +364,7 @@ def _knn_clusters(g, bounds, k0, k_min, workers):
         for j in small:
             run(j)
     dup = np.zeros(n, dtype=bool)
-    sc, kk, rk, rk1, nb = [], [], [], [], []
+    byk: dict = {}
     for j in range(c):
         keep, k, r_k, r_k1, nbr = results[j]
         a, b = bounds[j], bounds[j + 1]
@@ -364,21 +375,17 @@ def _knn_clusters(g, bounds, k0, k_min, workers):
         else:
             loc = np.arange(b - a)
         if k:
-            sc.append(a + loc)
-            kk.append(np.full(len(loc), k, dtype=np.int64))
-            rk.append(r_k)
-            rk1.append(r_k1)
-            nb.append((a + nbr).ravel())
-    if not sc:
-        e = np.zeros(0)
-        ei = np.zeros(0, dtype=np.int64)
-        return ei, ei, e, e, ei, dup
-    return (np.concatenate(sc), np.concatenate(kk), np.concatenate(rk), np.concatenate(rk1),
-            np.concatenate(nb).astype(np.int64), dup)
+            byk.setdefault(k, []).append((a + loc, r_k, r_k1, a + nbr))
+    groups = []
+    for k in sorted(byk):
+        parts = byk[k]
+        groups.append((k, np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
+                       np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])))
+    return groups, dup
 
 
 def _knn_context(g, ginv, bounds, ctx, k0, k_min, workers):
-    """k-NN of every point among all the points and the context."""
+    """k-NN of every point among all the points and the context, grouped by k."""
     n = len(g)
     pool = np.concatenate([g, ctx]) if len(ctx) else g
     first = _unique_first(pool)  # points come first, so a point wins over a context copy
@@ -394,39 +401,16 @@ def _knn_context(g, ginv, bounds, ctx, k0, k_min, workers):
     pos_in_u[first[first < n]] = np.flatnonzero(first < n)
     cand = np.flatnonzero(~dup & ok_cl[ginv])
     if len(cand) == 0:
-        e = np.zeros(0)
-        ei = np.zeros(0, dtype=np.int64)
-        return ei, ei, e, e, ei, dup
+        return [], dup
     tree = cKDTree(upool, balanced_tree=False, compact_nodes=False)
     kpt = kc[ginv[cand]]
-    sc, kk, rk, rk1, nb = [], [], [], [], []
+    groups = []
     for k in np.unique(kpt):
+        k = int(k)
         sel = cand[kpt == k]
-        d, i = tree.query(upool[pos_in_u[sel]], k=int(k) + 2, workers=workers)
-        sc.append(sel)
-        kk.append(np.full(len(sel), k, dtype=np.int64))
-        rk.append(d[:, k])
-        rk1.append(d[:, k + 1])
-        nb.append(pool_to_g[i[:, 1 : k + 1]].ravel())
-    sc = np.concatenate(sc)
-    srt = np.argsort(sc, kind="stable")
-    kk = np.concatenate(kk)
-    nbf = np.concatenate(nb)
-    # reorder the flat neighbour lists to follow the sorted scored positions
-    starts = np.zeros(len(kk) + 1, dtype=np.int64)
-    np.cumsum(kk, out=starts[1:])
-    idx = _ragged_take(starts, kk, srt)
-    return sc[srt], kk[srt], np.concatenate(rk)[srt], np.concatenate(rk1)[srt], nbf[idx].astype(np.int64), dup
-
-
-def _ragged_take(starts, lengths, rows):
-    """Flat positions of the ragged rows `rows` (CSR with `starts`), in that order."""
-    ln = lengths[rows]
-    out_starts = np.zeros(len(rows) + 1, dtype=np.int64)
-    np.cumsum(ln, out=out_starts[1:])
-    total = int(out_starts[-1])
-    base = np.repeat(starts[rows] - out_starts[:-1], ln)
-    return base + np.arange(total, dtype=np.int64)
+        d, i = tree.query(upool[pos_in_u[sel]], k=k + 2, workers=workers)
+        groups.append((k, sel, d[:, k], d[:, k + 1], pool_to_g[i[:, 1 : k + 1]]))
+    return groups, dup
 
 
 def entropy_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,

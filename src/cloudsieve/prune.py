@@ -319,8 +319,9 @@ def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, 
         s = score_points(P[sub], L[sub], **kw)
         val[sub] = s.unit_free if use_unit else s.delta_h
         nb[sub] = -1
-        pad = _padded(s.indptr, s.indices, K)
-        nb[sub] = np.where(pad >= 0, sub[np.maximum(pad, 0)], -1)
+        nbs = s.neighbours
+        if nbs.shape[1]:
+            nb[sub, : nbs.shape[1]] = np.where(nbs >= 0, sub[np.maximum(nbs, 0)], -1)
 
     rescore(np.arange(n))
     rnd = 0
