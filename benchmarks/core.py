@@ -99,8 +99,11 @@ def paper_table(fcm_max_iter: int) -> str:
     return "\n".join(rows)
 
 
-def throughput_table(sizes, fcm_iters: int) -> str:
-    rows = ["| points | stage | seconds | points/s | note |", "|---:|---|---:|---:|---|"]
+def throughput_table(sizes, fcm_iters: int):
+    """Yields the table's rows as they are measured."""
+    yield "| points | stage | seconds | points/s | note |"
+    yield "|---:|---|---:|---:|---|"
+    rows = _Rows()
     for n in sizes:
         pts = surface(n)
         c = math.ceil(n / 400)
@@ -109,8 +112,10 @@ def throughput_table(sizes, fcm_iters: int) -> str:
                     f"{'' if est.converged_ else ' (max_iter)'} to no change |")
         labels = est.labels_
         f, t = fit("fcm", pts, c, max_iter=fcm_iters)
+        yield from rows.take()
         rows.append(f"| {n:,} | refine FCM, {f.n_iter_} iterations | {t:.2f} | {n / t:,.0f} | "
                     f"{n * f.n_iter_ / t:,.0f} point-iterations/s{'' if f.converged_ else '; not converged'} |")
+        yield from rows.take()
         t0 = time.perf_counter()
         s = score_points(pts, labels)
         t = time.perf_counter() - t0
@@ -123,7 +128,14 @@ def throughput_table(sizes, fcm_iters: int) -> str:
             t = time.perf_counter() - t0
             label = rule + (" ratio 0.5" if kw else " S=0.001")
             rows.append(f"| {n:,} | rule {label} | {t:.2f} | {n / t:,.0f} | kept {int(keep.sum()):,} |")
-    return "\n".join(rows)
+        yield from rows.take()
+
+
+class _Rows(list):
+    def take(self):
+        out = list(self)
+        self.clear()
+        return out
 
 
 def memory_child(method: str, n: int, c: int, iters: int) -> None:
@@ -162,12 +174,13 @@ def main(argv=None) -> int:
         print("## (a) The paper's setting (S = 0.001, clusters of ~400 points)\n")
         print("maxplanck.ply here has 25,445 vertices, not the paper's 49,089 (a different model file); "
               "the paper's times are MATLAB on an i3 with 2 GB.\n")
-        print(paper_table(a.fcm_max_iter))
+        print(paper_table(a.fcm_max_iter), flush=True)
         print()
     sizes = [int(float(s)) for s in a.sizes.split(",") if s.strip()]
     if sizes:
         print("## (b) Throughput on a generated surface (clusters of ~400 points)\n")
-        print(throughput_table(sizes, a.fcm_iters))
+        for row in throughput_table(sizes, a.fcm_iters):
+            print(row, flush=True)
         print()
     if not a.skip_memory:
         print("## Memory: 1 M points into 2,500 clusters\n")
