@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cloudsieve.entropy import entropy_scores, neighbour_count, score_points
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
@@ -148,3 +150,20 @@ def test_bad_input_messages():
         entropy_scores(np.zeros((3, 3)), labels=[0, 1])
     with pytest.raises(ValueError, match=r"k_min must be an integer >= 1, got 0"):
         entropy_scores(np.zeros((3, 3)), k_min=0)
+
+
+@settings(max_examples=25, deadline=None)
+@given(m=st.integers(6, 60), seed=st.integers(0, 2**32 - 1), grid=st.booleans())
+def test_property_matches_oracle_and_is_order_free(m, seed, grid):
+    rng = np.random.default_rng(seed)
+    pts = rng.integers(0, 5, (m, 3)).astype(float) if grid else rng.random((m, 3))
+    s = score_points(pts)
+    perm = rng.permutation(m)
+    sp = score_points(pts[perm])
+    assert s.n_duplicates == sp.n_duplicates
+    distinct = pts[~s.duplicate]
+    if len(distinct) >= neighbour_count(len(distinct)) + 2:
+        np.testing.assert_allclose(s.delta_h[~s.duplicate], oracle(distinct), rtol=1e-9, atol=1e-15)
+    else:
+        assert np.isinf(s.delta_h[~s.duplicate]).all()
+    np.testing.assert_allclose(np.sort(sp.delta_h), np.sort(s.delta_h), rtol=1e-12)
