@@ -39,7 +39,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("dst", metavar="DST", help="output file (LAS/LAZ/PLY/XYZ, by extension)")
     p.add_argument("--method", choices=["km", "fcm"], default="fcm", help="refinement into small clusters (default fcm)")
     p.add_argument(
-        "--rule", choices=["iterative", "threshold", "target"], default="iterative", help="pruning rule (default iterative)"
+        "--rule", choices=["iterative", "threshold", "target", "coverage"], default="iterative",
+        help="pruning rule (default iterative; target and coverage need --ratio or --count)"
     )
     p.add_argument("--threshold", type=float, default=1e-3, metavar="S", help="entropy-change threshold S (default 0.001)")
     g = p.add_mutually_exclusive_group()
