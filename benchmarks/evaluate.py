@@ -88,30 +88,31 @@ def main(argv: list[str] | None = None) -> int:
         label = "in memory (tiled autzen_trim)"
         print(f"generated {n:,} points in {t_gen:.1f} s", file=sys.stderr)
     m = len(simplified)
-    rows = []
+    print(f"## Evaluation benchmark: {label}, {os.cpu_count()} cores\n")
+    print("| stage | original / simplified points | time (s) | original points/s | result |")
+    print("|---|---:|---:|---:|---|", flush=True)
+
+    def row(stage, size, t, rate, res):  # printed as soon as measured
+        print(f"| {stage} | {size} | {t:.2f} | {rate / 1e6:.2f} M | {res} |", flush=True)
+
     t, r = _time(lambda: point_errors(original, simplified))
-    rows.append(("point level, exact (both directions)", f"{n:,} / {m:,}", t, n / t,
-                 f"mean {r['forward']['mean']:.4g}, RMS {r['forward']['rms']:.4g}, max {r['forward']['max']:.4g}"))
+    row("point level, exact (both directions)", f"{n:,} / {m:,}", t, n / t,
+        f"mean {r['forward']['mean']:.4g}, RMS {r['forward']['rms']:.4g}, max {r['forward']['max']:.4g}")
     exact = r
     t, r = _time(lambda: point_errors(original, simplified, sample=args.sample, seed=args.seed))
     ci = r["forward"]["ci"]["mean"]
     inside = ci[0] <= exact["forward"]["mean"] <= ci[1]
-    rows.append((f"point level, sampled ({args.sample:,} per direction)", f"{n:,} / {m:,}", t, n / t,
-                 f"mean {r['forward']['mean']:.4g} CI [{ci[0]:.4g}, {ci[1]:.4g}] "
-                 f"({'contains' if inside else 'MISSES'} the exact mean)"))
+    row(f"point level, sampled ({args.sample:,} per direction)", f"{n:,} / {m:,}", t, n / t,
+        f"mean {r['forward']['mean']:.4g} CI [{ci[0]:.4g}, {ci[1]:.4g}] "
+        f"({'contains' if inside else 'MISSES'} the exact mean)")
     if not args.no_surface:
         t, s = _time(lambda: surface_errors(original, simplified, tiles=args.tiles, tile_points=args.tile_points,
                                             seed=args.seed, diagonal=exact["diagonal"]))
         pts = sum(x["points_original"] for x in s["tiles"])
-        rows.append((f"surface level, {len(s['tiles'])} tiles of <= {args.tile_points:,} points",
-                     f"{pts:,} / {sum(x['points_simplified'] for x in s['tiles']):,}", t, pts / t,
-                     f"Metro mean {s['mean_pct']:.4g}% max {s['max_pct']:.4g}% RMS {s['rms_pct']:.4g}%, "
-                     f"c>=0.6 {100 * s['original']['compact_share']:.1f}% -> {100 * s['compact_share']:.1f}%"))
-    print(f"## Evaluation benchmark: {label}, {os.cpu_count()} cores\n")
-    print("| stage | original / simplified points | time (s) | original points/s | result |")
-    print("|---|---:|---:|---:|---|")
-    for stage, size, t, rate, res in rows:
-        print(f"| {stage} | {size} | {t:.2f} | {rate / 1e6:.2f} M | {res} |")
+        row(f"surface level, {len(s['tiles'])} tiles of <= {args.tile_points:,} points",
+            f"{pts:,} / {sum(x['points_simplified'] for x in s['tiles']):,}", t, pts / t,
+            f"Metro mean {s['mean_pct']:.4g}% max {s['max_pct']:.4g}% RMS {s['rms_pct']:.4g}%, "
+            f"c>=0.6 {100 * s['original']['compact_share']:.1f}% -> {100 * s['compact_share']:.1f}%")
     return 0
 
 
