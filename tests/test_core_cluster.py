@@ -143,3 +143,17 @@ def test_membership_change_equals_dense_difference():
     np.put_along_axis(d1, i1, u1, 1)
     for rows in (slice(None), slice(0, 150), slice(150, None)):
         assert _max_change(i0[rows], u0[rows], i1[rows], u1[rows]) == np.abs(d1 - d0)[rows].max()
+
+
+def test_fcm_blocks_do_not_change_the_result(monkeypatch):
+    import cloudsieve.cluster as cl
+
+    rng = np.random.default_rng(9)
+    pts = rng.random((1000, 3))
+    a = FuzzyCMeans(12, n_nearest=4, max_iter=40, tol=1e-4).fit(pts)
+    monkeypatch.setattr(cl, "_BLOCK", 97)
+    b = FuzzyCMeans(12, n_nearest=4, max_iter=40, tol=1e-4).fit(pts)
+    assert a.n_iter_ == b.n_iter_
+    np.testing.assert_array_equal(a.labels_, b.labels_)
+    np.testing.assert_allclose(a.cluster_centers_, b.cluster_centers_, rtol=1e-12)
+    np.testing.assert_allclose(a.memberships_, b.memberships_, rtol=1e-10, atol=1e-14)

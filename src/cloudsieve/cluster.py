@@ -339,32 +339,6 @@ def _random_membership_centres(Xs, c, m, rng, block=None):
     return num / den[:, None]
 
 
-def _memberships(d: np.ndarray, m: float) -> np.ndarray:
-    """u over the columns of d (distances to the kept centres), rows summing to 1."""
-    e = 2.0 / (m - 1.0)
-    dmin = d[:, :1]
-    zero = dmin[:, 0] == 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = (dmin / d) ** e  # in (0, 1], 1 for the nearest
-    U = r / r.sum(axis=1, keepdims=True)
-    if zero.any():
-        z = d[zero] == 0
-        U[zero] = z / z.sum(axis=1, keepdims=True)
-    return U
-
-
-def _centres(Xs, idx, U, m, c, C_old):
-    w = (U**m).ravel()
-    flat = idx.ravel()
-    den = np.bincount(flat, weights=w, minlength=c)
-    C = C_old.copy()
-    ok = den > 0
-    for j in range(Xs.shape[1]):
-        num = np.bincount(flat, weights=w * np.repeat(Xs[:, j], idx.shape[1]), minlength=c)
-        C[ok, j] = num[ok] / den[ok]
-    return C
-
-
 def _max_change(idx0, U0, idx1, U1, c=None):
     """max |U1 - U0| over the full n x c matrices, from their kept entries.
 
@@ -393,65 +367,91 @@ def _max_change(idx0, U0, idx1, U1, c=None):
     return best
 
 
+_BLOCK = 1 << 17  # rows per block in FCM: bounds the temporaries to O(block * L)
+
+
+def _dist_to(Xs, C, idx):
+    diff = Xs[:, None, :] - C[idx]
+    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+
+
 def _fcm(Xs, C, L, m, tol, max_iter, workers):
-    """FCM iterations. The L nearest centres of a point are re-queried only when
-    the centres moved enough to possibly change that set: with g the gap between
-    its (L+1)-th and L-th distances at the last query and D the sum of the largest
-    centre moves since, the set is unchanged while 2 D < g; otherwise distances
-    to the same L centres are recomputed directly (O(n L) per iteration)."""
-    n = len(Xs)
+    """FCM iterations, in blocks of points (memory O(n L) for the memberships
+    plus O(block L) temporaries). The L nearest centres of a point are
+    re-queried only when the centres moved enough to possibly change that set:
+    with g the gap between its (L+1)-th and L-th distances at the last query and
+    D the sum of the largest centre moves since, the set is unchanged while
+    2 D < g; otherwise distances to the same L centres are recomputed directly."""
+    n, p = Xs.shape
     c = len(C)
     extra = L < c
-    idx = U = None
+    idx = np.zeros((n, L), dtype=np.int64)
+    U = np.zeros((n, L))
+    gap = np.full(n, np.inf)
+    drift = np.zeros(n)
+    have = False
     conv = False
     it = 0
-    gap = drift = None
     for it in range(1, max_iter + 1):
-        if idx is None:
-            redo = np.arange(n)
-        else:
-            redo = np.flatnonzero(2.0 * drift >= gap) if extra else np.zeros(0, dtype=np.int64)
-        i_new = idx.copy() if idx is not None else np.empty((n, L), dtype=np.int64)
-        if len(redo):
-            tree = _tree(C)
-            w = workers if len(redo) >= 20_000 else 1
-            d, i = tree.query(Xs[redo], k=L + 1 if extra else L, workers=w)
-            if d.ndim == 1:
-                d, i = d[:, None], i[:, None]
-            if gap is None:
-                gap = np.full(n, np.inf)
-                drift = np.zeros(n)
-            if extra:
-                gap[redo] = d[:, L] - d[:, L - 1]
-            drift[redo] = 0.0
-            i_new[redo] = i[:, :L]
-        diff = Xs[:, None, :] - C[i_new]
-        d = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-        Un = _memberships_any(d, m)
-        if U is not None:
-            if len(redo):
-                ch = _max_change(idx[redo], U[redo], i_new[redo], Un[redo], c)
-                rest = np.ones(n, dtype=bool)
-                rest[redo] = False
-                if rest.any():
-                    ch = max(ch, float(np.abs(Un[rest] - U[rest]).max()))
+        tree = None
+        ch = 0.0
+        num = np.zeros((c, p))
+        den = np.zeros(c)
+        for s in range(0, n, _BLOCK):
+            e = min(n, s + _BLOCK)
+            if not have:
+                redo = np.arange(e - s)
+            elif extra:
+                redo = np.flatnonzero(2.0 * drift[s:e] >= gap[s:e])
             else:
-                ch = float(np.abs(Un - U).max())
-            if ch < tol:
-                idx, U = i_new, Un
-                conv = True
-                break
-        idx, U = i_new, Un
+                redo = np.zeros(0, dtype=np.int64)
+            new_idx = idx[s:e].copy()
+            if len(redo):
+                if tree is None:
+                    tree = _tree(C)
+                w = workers if len(redo) >= 20_000 else 1
+                d, i = tree.query(Xs[s + redo], k=L + 1 if extra else L, workers=w)
+                if d.ndim == 1:
+                    d, i = d[:, None], i[:, None]
+                if extra:
+                    gap[s + redo] = d[:, L] - d[:, L - 1]
+                drift[s + redo] = 0.0
+                new_idx[redo] = i[:, :L]
+            Ub = _memberships_any(_dist_to(Xs[s:e], C, new_idx), m)
+            if have:
+                if len(redo):
+                    ch = max(ch, _max_change(idx[s:e][redo], U[s:e][redo], new_idx[redo], Ub[redo]))
+                    rest = np.ones(e - s, dtype=bool)
+                    rest[redo] = False
+                    if rest.any():
+                        ch = max(ch, float(np.abs(Ub[rest] - U[s:e][rest]).max()))
+                else:
+                    ch = max(ch, float(np.abs(Ub - U[s:e]).max()))
+            idx[s:e] = new_idx
+            U[s:e] = Ub
+            wm = (Ub**m).ravel()
+            flat = new_idx.ravel()
+            den += np.bincount(flat, weights=wm, minlength=c)
+            for j in range(p):
+                num[:, j] += np.bincount(flat, weights=(Ub**m * Xs[s:e, j : j + 1]).ravel(), minlength=c)
+        if have and ch < tol:
+            conv = True
+            break
+        have = True
         if it == max_iter:
             break
-        Cn = _centres(Xs, idx, U, m, c, C)
+        Cn = C.copy()
+        ok = den > 0
+        Cn[ok] = num[ok] / den[ok, None]
         drift += np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
         C = Cn
     # nearest first, as documented
-    diff = Xs[:, None, :] - C[idx]
-    d = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
-    o = np.argsort(d, axis=1, kind="stable")
-    return np.take_along_axis(idx, o, 1), np.take_along_axis(U, o, 1), C, it, conv
+    for s in range(0, n, _BLOCK):
+        e = min(n, s + _BLOCK)
+        o = np.argsort(_dist_to(Xs[s:e], C, idx[s:e]), axis=1, kind="stable")
+        idx[s:e] = np.take_along_axis(idx[s:e], o, 1)
+        U[s:e] = np.take_along_axis(U[s:e], o, 1)
+    return idx, U, C, it, conv
 
 
 def _memberships_any(d: np.ndarray, m: float) -> np.ndarray:
