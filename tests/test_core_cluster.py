@@ -145,6 +145,7 @@ def test_membership_change_equals_dense_difference():
         assert _max_change(i0[rows], u0[rows], i1[rows], u1[rows]) == np.abs(d1 - d0)[rows].max()
 
 
+@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
 def test_fcm_blocks_do_not_change_the_result(monkeypatch):
     import cloudsieve.cluster as cl
 
