@@ -48,8 +48,8 @@ def add_parser(subparsers) -> None:
     g.add_argument("--count", type=_positive_int, metavar="N", help="keep this many points, within 1%%")
     p.add_argument("--cluster-size", type=_positive_int, default=400, metavar="M", help="points per small cluster (default 400)")
     p.add_argument(
-        "--cell-size", type=_positive_int, default=250_000, metavar="POINTS",
-        help="points per cell, i.e. per task; bounds a task's memory (default 250000)"
+        "--cell-size", type=_positive_int, default=100_000, metavar="POINTS",
+        help="points per cell, i.e. per task; bounds a task's memory (default 100000)"
     )
     p.add_argument(
         "--scheduler",
