@@ -93,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---:|---:|---:|---|", flush=True)
 
     def row(stage, size, t, rate, res):  # printed as soon as measured
-        print(f"| {stage} | {size} | {t:.2f} | {rate / 1e6:.2f} M | {res} |", flush=True)
+        shown = f"{rate / 1e6:.2f} M" if rate >= 1e5 else f"{rate / 1e3:.1f} k"
+        print(f"| {stage} | {size} | {t:.2f} | {shown} | {res} |", flush=True)
 
     t, r = _time(lambda: point_errors(original, simplified))
     row("point level, exact (both directions)", f"{n:,} / {m:,}", t, n / t,
