@@ -103,6 +103,8 @@ ENGINE_VERSION = 1
 DEFAULT_SCHEDULER = "processes"
 #: histogram of log10(score) used to choose a global threshold
 _HIST_LO, _HIST_HI, _HIST_BINS = -16.0, 4.0, 4000
+#: tasks a local worker process runs before it is replaced (bounds heap growth)
+_TASKS_PER_CHILD = 8
 #: gather the scores of the threshold's bin once it holds at most this many
 _GATHER_MAX = 200_000
 
@@ -271,7 +273,12 @@ class _Runner:
 
             from dask.multiprocessing import get_context
 
-            self._pool = ProcessPoolExecutor(int(workers or os.cpu_count() or 1), mp_context=get_context())
+            # a worker process is replaced after a few tasks: long-lived
+            # processes keep the high-water mark of the allocator (fragmented
+            # heaps of many cells), so the peak memory would creep with N
+            self._pool = ProcessPoolExecutor(
+                int(workers or os.cpu_count() or 1), mp_context=get_context(), max_tasks_per_child=_TASKS_PER_CHILD
+            )
 
     @property
     def dashboard_link(self) -> str | None:
@@ -334,6 +341,7 @@ class _Runner:
             kwargs["num_workers"] = int(self.workers)
         if self._pool is not None:
             kwargs["pool"] = self._pool
+            kwargs["chunksize"] = 1  # dask batches 6 tasks per submission by default: 6 cells on one worker
         with _Count():
             return list(dask.compute(*tasks, **kwargs))
 
