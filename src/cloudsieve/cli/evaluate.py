@@ -26,8 +26,8 @@ def add_parser(subparsers) -> None:
         help="measure a simplified cloud against its original (point and surface errors, report)",
         description=(
             "Point level: distance from every original point to the simplified cloud (streamed; "
-            "or a uniform sample with 95%% confidence intervals) and back, mean/RMS/max, symmetric "
-            "Hausdorff, absolute and in %% of the original's bounding-box diagonal. Surface level "
+            "or a uniform sample with 95% confidence intervals) and back, mean/RMS/max, symmetric "
+            "Hausdorff, absolute and in % of the original's bounding-box diagonal. Surface level "
             "(the paper's): ball-pivoting meshes on T tiles, Metro distances both ways, triangle "
             "compactness. The original is streamed; the simplified cloud is loaded into memory."
         ),
