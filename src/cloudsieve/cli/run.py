@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 
 ORDER = 70
 
@@ -44,15 +43,16 @@ def run(args: argparse.Namespace) -> int:
     with bar("pipeline", None) as progress:
         results = run_pipeline(pipeline, progress=progress)
     for entry in results:
-        summary = entry["summary"]
         line = f"{entry['input']}"
+        summary, report = entry["summary"], entry["report"]
         if entry["output"]:
             line += f" -> {entry['output']}"
-        if summary is not None:
-            s = summary if isinstance(summary, dict) else getattr(summary, "__dict__", {})
-            if "points_in" in s and "kept" in s:
-                line += f": kept {s['kept']:,} of {s['points_in']:,} points"
+        if summary is not None and hasattr(summary, "kept"):
+            line += f": kept {summary.kept:,} of {summary.points_in:,} points"
         print(line)
-        if entry["report"] is not None and not entry["output"]:
-            print(json.dumps(entry["report"].get("table", ""), indent=1)[:2000] if isinstance(entry["report"], dict) else "")
+        if isinstance(report, dict) and "markdown" in report:  # compare
+            print(report["markdown"])
+        elif isinstance(report, dict) and "point" in report:  # evaluate
+            fwd = report["point"]["forward"]
+            print(f"  point error: mean {fwd['mean_pct']:.4f}%, RMS {fwd['rms_pct']:.4f}%, max {fwd['max_pct']:.4f}% of the diagonal")
     return 0
