@@ -22,7 +22,7 @@ import logging
 
 from .cluster import ConvergenceWarning, FuzzyCMeans, KMeans
 from .convert import export, ingest
-from .engine import simplify
+from .engine import Summary, simplify
 from .entropy import Scores, entropy_scores, score_points
 from .errors import *  # noqa: F401,F403
 from .errors import __all__ as _errors_all
@@ -39,6 +39,7 @@ logging.getLogger(__name__).addHandler(logging.NullHandler())
 __all__ = [
     "__version__",
     "simplify",
+    "Summary",
     "evaluate",
     "compare",
     "PointStore",
