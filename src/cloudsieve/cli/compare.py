@@ -5,17 +5,9 @@ from __future__ import annotations
 
 import argparse
 
+from ._common import positive_int as _positive_int
+
 ORDER = 60
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
 
 
 def _ratio(text: str) -> float:

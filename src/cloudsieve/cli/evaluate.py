@@ -7,17 +7,9 @@ import argparse
 import json
 import sys
 
+from ._common import positive_int as _positive_int
+
 ORDER = 50
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
-    return value
 
 
 def add_parser(subparsers) -> None:
