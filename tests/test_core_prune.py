@@ -195,3 +195,19 @@ def test_coverage_with_threshold_is_a_subset_rule(cloud):
     assert (s.delta_h[~first] <= S).all()
     kept_it = prune(pts, labels, rule="iterative", threshold=S, max_rounds=1)
     assert (~first).sum() < (~kept_it).sum()  # the coverage test only removes candidates
+
+
+@pytest.mark.parametrize("method", ["km", "fcm"])
+def test_workers_do_not_change_results(method):
+    pts = surface(2000, seed=3)
+    lab1 = refine_labels(pts, method, 200, seed=1, workers=1)
+    lab2 = refine_labels(pts, method, 200, seed=1, workers=2)
+    assert np.array_equal(lab1, lab2)
+    assert np.array_equal(unit_free_scores(pts, lab1, workers=1), unit_free_scores(pts, lab1, workers=2))
+    for rule, kw in [("iterative", {}), ("threshold", {}), ("target", {"ratio": 0.5}), ("coverage", {"ratio": 0.6})]:
+        k1 = prune(pts, lab1, rule=rule, workers=1, **kw)
+        k2 = prune(pts, lab1, rule=rule, workers=2, **kw)
+        assert np.array_equal(k1, k2), rule
+    a = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=1)
+    b = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=2)
+    assert np.array_equal(a, b)

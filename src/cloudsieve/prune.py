@@ -83,7 +83,8 @@ def _check_cluster_size(cluster_size, k_min):
 
 
 def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: int = 0, *,
-                  k_min: int = 4, n_nearest: int = 8, max_iter: int = 300, init="k-means++") -> np.ndarray:
+                  k_min: int = 4, n_nearest: int = 8, max_iter: int = 300, init="k-means++",
+                  workers: int | None = None) -> np.ndarray:
     """Cluster labels of KM or FCM into c = ceil(n / cluster_size) clusters.
 
     Parameters
@@ -93,6 +94,9 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
     cluster_size : int
         Mean points per cluster, >= k_min + 2.
     seed : int
+    workers : int, optional
+        Threads for the k-d tree queries (None: all cores). The labels do not
+        depend on it.
 
     Returns
     -------
@@ -120,7 +124,7 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
         est = FuzzyCMeans(c, n_nearest=n_nearest, init=init, max_iter=max_iter, seed=seed)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
-        labels = est.fit(pts).labels_
+        labels = est.fit(pts, workers=workers).labels_
     for w in caught:  # a refinement that ran out of iterations is still a partition: log, don't warn
         if issubclass(w.category, ConvergenceWarning):
             logger.info("%s", w.message)
@@ -130,9 +134,12 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
 
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
-                     context=None) -> np.ndarray:
-    """m * dH per point (ndarray (n,), float64); +inf in small clusters, 0 for duplicates."""
-    return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context).unit_free
+                     context=None, workers: int | None = None) -> np.ndarray:
+    """m * dH per point (ndarray (n,), float64); +inf in small clusters, 0 for duplicates.
+
+    ``workers``: threads for the k-d tree queries (None: all cores); the scores do not depend on it.
+    """
+    return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context, workers=workers).unit_free
 
 
 def threshold_for_count(scores, n_drop: int) -> float:
@@ -211,7 +218,8 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int) -> np.ndarray:
 
 def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e-3, ratio=None, count=None,
           score: str = "delta_h", k0: float = 1.0, k_min: int = 4, dim: float = 3, context=None,
-          coverage: float = 1.0, max_rounds: int | None = None, progress=None) -> np.ndarray:
+          coverage: float = 1.0, max_rounds: int | None = None, progress=None,
+          workers: int | None = None) -> np.ndarray:
     """Apply a pruning rule to clustered points: the keep mask.
 
     Parameters
@@ -234,6 +242,8 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
         nearest), i.e. no gap wider than the local spacing opens.
     progress : callable, optional
         Called with the number of points dropped in each round.
+    workers : int, optional
+        Threads for the k-d tree queries (None: all cores); the mask does not depend on it.
 
     Returns
     -------
@@ -269,7 +279,7 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
     order = _canonical_order(pts)
     P = pts[order]
     L = np.unique(lab[order], return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
-    kw = dict(k0=k0, k_min=k_min, dim=dim, context=ctx)
+    kw = dict(k0=k0, k_min=k_min, dim=dim, context=ctx, workers=workers)
 
     if rule == "threshold":
         s = score_points(P, L, **kw)
@@ -387,7 +397,7 @@ def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", thr
                     ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
                     k_min: int = 4, context=None, labels=None, score: str = "delta_h",
                     n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
-                    progress=None) -> np.ndarray:
+                    progress=None, workers: int | None = None) -> np.ndarray:
     """Simplify a cloud in memory: refine into clusters, score, prune.
 
     Parameters
@@ -410,6 +420,9 @@ def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", thr
         Extra density neighbours, never removed.
     labels : array_like of shape (n,), int, optional
         Use these clusters instead of refining.
+    workers : int, optional
+        Threads for the k-d tree queries of clustering and scoring (None: all
+        cores); the result does not depend on it.
 
     Returns
     -------
@@ -430,11 +443,13 @@ def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", thr
     _check_cluster_size(cluster_size, k_min)
     if labels is None:
         order = _canonical_order(pts)
-        lab_c = refine_labels(pts[order], method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
+        lab_c = refine_labels(pts[order], method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init,
+                             workers=workers)
         lab = np.empty(len(pts), dtype=np.int64)
         lab[order] = lab_c
     else:
         lab = labels
     keep = prune(pts, lab, rule=rule, threshold=threshold, ratio=ratio, count=count, score=score, k0=k0,
-                 k_min=k_min, context=context, coverage=coverage, progress=progress)
+                 k_min=k_min, context=context, coverage=coverage, progress=progress,
+                 workers=workers)
     return np.flatnonzero(keep).astype(np.int64)
