@@ -59,7 +59,7 @@ def built(tmp_path):
 def test_cells_hold_every_point_exactly_once(built):
     xyz, st, part = built
     assert part.n_cells == math.ceil(len(xyz) / 1_500)
-    assert part.counts.sum() == len(xyz)
+    assert part.cell_counts.sum() == len(xyz)
     labels = np.asarray(st.group["partition/cell"][:])
     assert labels.min() >= 0 and labels.max() < part.n_cells
     assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
@@ -140,14 +140,108 @@ def test_partition_does_not_depend_on_the_store_chunking(tmp_path):
 def test_bucketing_writes_each_row_sorted_by_cell(built):
     xyz, st, part = built
     rows = st.group["partition/xyz"]
-    off = part.local_offsets()
     labels = np.asarray(st.group["partition/cell"][:])
     for c in range(part.n_chunks):
         a, b = c * 2_500, min((c + 1) * 2_500, len(xyz))
         row = np.asarray(rows[c, : b - a])
         order = np.argsort(labels[a:b], kind="stable")
         assert np.array_equal(row, xyz[a:b][order])
-        assert off[c, -1] == b - a
+        assert part.chunk_runs(c)[:, 1].sum() == b - a
+
+
+def dense_counts(labels, chunk_size, n_cells):
+    """The (chunk x cell) table the sparse runs stand for (test oracle only)."""
+    chunk = np.arange(len(labels)) // chunk_size
+    t = np.zeros((chunk.max() + 1, n_cells), dtype=np.int64)
+    np.add.at(t, (chunk, labels), 1)
+    return t
+
+
+def check_run_tables(st, part, labels, chunk_size):
+    """Both CSR views hold exactly the nonzero (chunk, cell) runs, with the right offsets."""
+    g = st.group
+    t = dense_counts(labels, chunk_size, part.n_cells)
+    nz_chunk, nz_cell = np.nonzero(t)  # by chunk, cells increasing
+    nnz = len(nz_chunk)
+    assert part.n_runs == nnz
+    # stored: nnz rows, never an n_chunks x P table
+    assert g["partition/chunk_runs"].shape == (nnz, 3) and g["partition/cell_runs"].shape == (nnz, 3)
+    assert g["partition/chunk_ptr"].shape == (part.n_chunks + 1,) and g["partition/cell_ptr"].shape == (part.n_cells + 1,)
+    assert "partition/counts" not in g and "partition/label_runs" not in g
+    n = len(labels)
+    h = len(part.halo_src)
+    for name in g["partition"].array_keys():  # every array is sized by N, P, n_chunks, the runs or the halo pairs
+        shape = g["partition"][name].shape
+        assert shape[0] in (n, part.n_cells, part.n_cells + 1, part.n_chunks, part.n_chunks + 1, nnz, h, max(h, 1)), (name, shape)
+        assert len(shape) == 1 or shape[1] == 3 or (name == "xyz" and shape[1] >= chunk_size), (name, shape)
+    by_chunk = np.asarray(g["partition/chunk_runs"][:])
+    assert np.array_equal(by_chunk[:, 0], nz_cell) and np.all(by_chunk[:, 1] > 0)
+    assert np.array_equal(by_chunk[:, 1], t[nz_chunk, nz_cell])
+    within = np.cumsum(t, axis=0) - t  # points of cell j in chunks < c
+    assert np.array_equal(by_chunk[:, 2], within[nz_chunk, nz_cell])
+    assert np.array_equal(np.asarray(g["partition/chunk_ptr"][:]), np.r_[0, np.cumsum((t > 0).sum(axis=1))])
+    local = np.cumsum(t, axis=1) - t  # start of cell j's run in row c
+    for j in range(part.n_cells):
+        runs = part.runs(j)
+        rows = np.nonzero(t[:, j])[0]
+        assert np.array_equal(runs[:, 0], rows)
+        assert np.array_equal(runs[:, 1], local[rows, j])
+        assert np.array_equal(runs[:, 2] - runs[:, 1], t[rows, j])
+        assert np.array_equal(runs[:, 3], within[rows, j])
+    assert np.array_equal(part.cell_counts, t.sum(axis=0))
+
+
+def test_run_tables_hold_only_the_nonzero_runs(built):
+    xyz, st, part = built
+    labels = np.asarray(st.group["partition/cell"][:])
+    check_run_tables(st, part, labels, 2_500)
+
+
+def test_run_tables_built_in_small_blocks_are_the_same(tmp_path, monkeypatch):
+    """The run tables written in many small pieces (buffer of 7 runs, zarr chunks of 5) equal the one-piece build."""
+    xyz = plane(20_000, seed=9)
+    xyz = xyz[np.argsort(xyz[:, 0], kind="stable")]  # coherent order: runs vary in length
+    st = make_store(tmp_path / "s.zarr", xyz, chunk_size=1_000)
+    part = P.build_partition(st, cell_size=800, cluster_size=100, seed=1, run=run_sync)
+    labels = np.asarray(st.group["partition/cell"][:])
+    # a spatially coherent input: each chunk touches a few cells only
+    assert part.n_runs < 3 * (part.n_chunks + part.n_cells) < part.n_chunks * part.n_cells
+    before = {k: np.asarray(st.group[f"partition/{k}"][:]) for k in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs")}
+    # rebuild the scratch rows from the labels and index again with a 7-run buffer
+    g = st.group
+    g.create_array("partition/label_runs", shape=(part.n_chunks, part.n_cells, 2), dtype="int64", chunks=(1, 64, 2))
+    t = dense_counts(labels, 1_000, part.n_cells)
+    nnz = (t > 0).sum(axis=1)
+    for c in range(part.n_chunks):
+        cells = np.nonzero(t[c])[0]
+        g["partition/label_runs"][c, : len(cells)] = np.stack([cells, t[c, cells]], axis=1)
+    monkeypatch.setattr(P, "_RUN_CHUNK", 5)
+    P.index_runs(g, nnz, part.n_cells, 1_000, flush=7)
+    assert g["partition/cell_runs"].chunks == (5, 3)
+    for k, v in before.items():
+        assert np.array_equal(np.asarray(g[f"partition/{k}"][:]), v), k
+    check_run_tables(st, P.Partition.load(st), labels, 1_000)
+
+
+def test_shuffled_input_still_partitions_exactly(tmp_path):
+    """An incoherent order (every chunk touches most cells): the invariants still hold."""
+    xyz = plane(6_000, seed=4)
+    xyz = xyz[np.random.default_rng(0).permutation(len(xyz))]
+    st = make_store(tmp_path / "s.zarr", xyz, chunk_size=500)
+    part = P.build_partition(st, cell_size=1_000, cluster_size=100, seed=2, run=run_sync)
+    labels = np.asarray(st.group["partition/cell"][:])
+    check_run_tables(st, part, labels, 500)
+    for j in range(part.n_cells):
+        assert np.array_equal(P.read_cell(st.group, part.runs(j)), xyz[labels == j])
+
+
+def test_an_older_partition_layout_is_refused_with_a_clear_message(built):
+    xyz, st, part = built
+    meta = dict(st.attrs[P.PARTITION_ATTR])
+    meta["version"] = 1
+    st.group.attrs.update({P.PARTITION_ATTR: meta})
+    with pytest.raises(P.PartitionLayoutError, match="layout version 1, this cloudsieve reads version 2: partition it again"):
+        P.Partition.load(PointStore.open(str(st.path), "r"))
 
 
 def test_sample_is_uniform_and_seeded():

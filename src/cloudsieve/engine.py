@@ -354,13 +354,18 @@ def cell_seed(seed: int, cell: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(cell)]).generate_state(1, np.uint32)[0])
 
 
-def _cell_points(group, centers, margin, cell, runs, halo_runs):
+def _halo_runs(group, halo: dict) -> dict:
+    """The runs of the halo source cells, read from the store: {source: runs}."""
+    return {int(s): _part.cell_runs(group, int(s)) for s in halo}
+
+
+def _cell_points(group, centers, margin, cell, runs, halo):
     core = _part.read_cell(group, runs)
-    halo = _part.read_halo(group, {s: r for s, (r, _) in halo_runs.items()}, centers, cell, margin)
-    return core, halo
+    pts = _part.read_halo(group, _halo_runs(group, halo), centers, cell, margin)
+    return core, pts
 
 
-def _thinned_halo(group, centers, margin, cell, halo_runs, threshold: float) -> np.ndarray:
+def _thinned_halo(group, centers, margin, cell, halo: dict, threshold: float) -> np.ndarray:
     """The halo points whose own cell's pass-1 score exceeds T (those the target keeps).
 
     Pass 2 of an iterative ratio/count thins the cell over several rounds; a
@@ -368,14 +373,12 @@ def _thinned_halo(group, centers, margin, cell, halo_runs, threshold: float) -> 
     redundant and thin them more (a seam). The neighbours' pass-1 decisions
     are the best deterministic guess of their final density.
     """
-    pts, cells, pos = _part.read_halo(
-        group, {s: r for s, (r, _) in halo_runs.items()}, centers, cell, margin, return_index=True
-    )
+    pts, cells, pos = _part.read_halo(group, _halo_runs(group, halo), centers, cell, margin, return_index=True)
     if not len(pts):
         return pts
     sc = group["simplify/score_cells"]
     keep = np.empty(len(pts), dtype=bool)
-    for s, (_, region) in halo_runs.items():
+    for s, region in halo.items():
         sel = np.flatnonzero(cells == s)
         if len(sel):
             keep[sel] = np.asarray(sc.get_orthogonal_selection((region + pos[sel],))) > threshold
@@ -391,24 +394,27 @@ def _core_kwargs(params: dict) -> dict:
     return {"k0": params["k0"], "k_min": params["k_min"]}
 
 
-def _open_cell(store_path: str, cell: int, runs, halo_runs, centers, margin):
+def _open_cell(store_path: str, cell: int, halo, centers, margin):
     from .store import PointStore
 
     st = PointStore.open(store_path, "r+")
     g = st.group
-    core, halo = _cell_points(g, centers, margin, cell, runs, halo_runs)
-    return g, core, halo
+    core, pts = _cell_points(g, centers, margin, cell, _part.cell_runs(g, cell), halo)
+    return g, core, pts
 
 
 def _mark_done(g, name: str, cell: int) -> None:
     g[name][cell : cell + 1] = np.ones(1, dtype=np.uint8)
 
 
-def cell_task(store_path: str, cell: int, runs, halo_runs, centers, margin, region: int, params: dict) -> dict:
+def cell_task(store_path: str, cell: int, halo: dict, centers: dict, margin: float, region: int, params: dict) -> dict:
     """Simplify one cell with a threshold rule (a dask task): core + halo in, keep mask out.
 
     Calls :func:`cloudsieve.prune.simplify_points` (refine, score, rule) with
-    the cell's seed and its halo as density context. Writes
+    the cell's seed and its halo as density context. The task reads its runs
+    (and its halo sources') from the store; its arguments are small: *halo*
+    maps each halo source cell to its region, *centers* maps the cell and its
+    halo sources to their centres. Writes
     ``simplify/keep_cells[region:region + n]`` then ``simplify/done[cell]``.
 
     Returns
@@ -418,7 +424,7 @@ def cell_task(store_path: str, cell: int, runs, halo_runs, centers, margin, regi
     from .prune import simplify_points
 
     t0 = time.perf_counter()
-    g, core, halo = _open_cell(store_path, cell, runs, halo_runs, centers, margin)
+    g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
     n = len(core)
     keep = np.zeros(n, dtype=bool)
     if n:
@@ -438,7 +444,7 @@ def cell_task(store_path: str, cell: int, runs, halo_runs, centers, margin, regi
     return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "halo": int(len(halo)), "seconds": time.perf_counter() - t0}
 
 
-def score_task(store_path: str, cell: int, runs, halo_runs, centers, margin, region: int, params: dict) -> dict:
+def score_task(store_path: str, cell: int, halo: dict, centers: dict, margin: float, region: int, params: dict) -> dict:
     """Pass 1 of a ratio/count: refine one cell and score it (a dask task).
 
     :func:`cloudsieve.prune.refine_labels` then
@@ -449,7 +455,7 @@ def score_task(store_path: str, cell: int, runs, halo_runs, centers, margin, reg
     from .prune import refine_labels, unit_free_scores
 
     t0 = time.perf_counter()
-    g, core, halo = _open_cell(store_path, cell, runs, halo_runs, centers, margin)
+    g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
     n = len(core)
     scores = np.zeros(n, dtype=np.float64)
     labels = np.zeros(n, dtype=np.int64)
@@ -499,7 +505,9 @@ def _scores_between_task(store_path: str, region: int, n: int, lo: float, hi: fl
     return s[(ls >= lo) & (ls < hi)]
 
 
-def apply_task(store_path: str, cell: int, runs, halo_runs, centers, margin, region: int, params: dict, threshold: float) -> dict:
+def apply_task(
+    store_path: str, cell: int, halo: dict, centers: dict, margin: float, region: int, params: dict, threshold: float
+) -> dict:
     """Pass 2 of a ratio/count: apply the global threshold T to one cell (a dask task).
 
     rule "target": keep the points with score > T (what
@@ -512,14 +520,15 @@ def apply_task(store_path: str, cell: int, runs, halo_runs, centers, margin, reg
     from .store import PointStore
 
     t0 = time.perf_counter()
-    n = int(runs[:, 2].sum() - runs[:, 1].sum()) if len(runs) else 0
     st = PointStore.open(store_path, "r+")
     g = st.group
+    runs = _part.cell_runs(g, cell)
+    n = int(runs[:, 2].sum() - runs[:, 1].sum()) if len(runs) else 0
     s = np.asarray(g["simplify/score_cells"][region : region + n])
     keep = s > threshold
     if params["rule"] != "target" and n:
         core = _part.read_cell(g, runs)
-        halo = _thinned_halo(g, centers, margin, cell, halo_runs, threshold) if params["context"] else None
+        halo = _thinned_halo(g, centers, margin, cell, halo, threshold) if params["context"] else None
         labels = np.asarray(g["simplify/label_cells"][region : region + n]).astype(np.int64)
         kept = simplify_points(
             core,
@@ -539,8 +548,11 @@ def apply_task(store_path: str, cell: int, runs, halo_runs, centers, margin, reg
     return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 
 
-def merge_task(store_path: str, start: int, stop: int, counts_row, within_row, regions) -> int:
-    """Scatter the cells' keep masks back to input order for points ``[start, stop)``.
+def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
+    """Scatter the cells' keep masks back to input order for input chunk *chunk*, points ``[start, stop)``.
+
+    Reads the chunk's runs (``partition/chunk_runs``) and their cells' regions
+    (``simplify/regions``) from the store, so its arguments do not grow with P.
 
     Returns
     -------
@@ -550,19 +562,18 @@ def merge_task(store_path: str, start: int, stop: int, counts_row, within_row, r
 
     st = PointStore.open(store_path, "r+")
     g = st.group
+    runs = _part.chunk_runs(g, chunk)  # (cell, count, first), cells increasing
+    n = stop - start
+    if int(runs[:, 1].sum()) != n:  # pragma: no cover - the partition is inconsistent
+        raise CloudsieveError(f"{store_path}: chunk at {start} has {n} points but its cells hold {int(runs[:, 1].sum())}")
     labels = np.asarray(g["partition/cell"][start:stop]).astype(np.int64)
     order = np.argsort(labels, kind="stable")
-    kc = g["simplify/keep_cells"]
-    sorted_keep = np.empty(len(labels), dtype=bool)
-    pos = 0
-    for j in np.nonzero(counts_row)[0]:
-        m = int(counts_row[j])
-        a = int(regions[j] + within_row[j])
-        sorted_keep[pos : pos + m] = kc[a : a + m]
-        pos += m
-    if pos != len(labels):  # pragma: no cover - the partition is inconsistent
-        raise CloudsieveError(f"{store_path}: chunk at {start} has {len(labels)} labels but its cells hold {pos}")
-    keep = np.empty_like(sorted_keep)
+    regions = np.asarray(g["simplify/regions"].get_coordinate_selection(runs[:, 0])) if len(runs) else np.empty(0, np.int64)
+    # positions in the cell-ordered arrays of the chunk's points, sorted by cell (each run contiguous)
+    begin = regions + runs[:, 2]
+    idx = np.repeat(begin - np.cumsum(runs[:, 1]) + runs[:, 1], runs[:, 1]) + np.arange(n)
+    sorted_keep = np.asarray(g["simplify/keep_cells"].get_coordinate_selection(idx)) if n else np.empty(0, bool)
+    keep = np.empty(n, dtype=bool)
     keep[order] = sorted_keep
     g["simplify/keep"][start:stop] = keep
     return int(keep.sum())
@@ -865,7 +876,12 @@ def simplify(
             t0 = time.perf_counter()
             meta = st.attrs.get(_part.PARTITION_ATTR)
             want = {"cell_size": int(cell_size), "cluster_size": int(cluster_size), "seed": int(seed)}
-            if isinstance(meta, dict) and meta.get("complete") and all(meta.get(k) == v for k, v in want.items()):
+            if isinstance(meta, dict) and meta.get("complete") and meta.get("version") != _part.PARTITION_VERSION:
+                logger.info(
+                    "the partition in %s has layout version %s (this version writes %d): partitioning again",
+                    store_path, meta.get("version"), _part.PARTITION_VERSION,
+                )
+            elif isinstance(meta, dict) and meta.get("complete") and all(meta.get(k) == v for k, v in want.items()):
                 part = _part.Partition.load(st)
                 logger.info("reusing the partition in %s (%d cells)", store_path, part.n_cells)
             else:
@@ -882,7 +898,7 @@ def simplify(
             cell_counts = part.cell_counts
             block = _region_block(cell_size)
             regions, total = _regions(cell_counts, block)
-            _ensure_cell_arrays(st, part.n_cells, total, block)
+            _ensure_cell_arrays(st, part.n_cells, total, block, regions)
             target = None
             if ratio is not None:
                 target = int(round(float(ratio) * st.count))
@@ -903,11 +919,7 @@ def simplify(
                     "simplify/keep", shape=(n,), dtype="bool", chunks=(st.chunk_size,), fill_value=False,
                     compressors=_compressors(),
                 )
-            within = part.within_offsets()
-            args = [
-                (store_path, s, min(s + st.chunk_size, n), part.counts[c], within[c], regions)
-                for c, s in enumerate(range(0, n, st.chunk_size))
-            ]
+            args = [(store_path, c, s, min(s + st.chunk_size, n)) for c, s in enumerate(range(0, n, st.chunk_size))]
             kept_chunks = runner(merge_task, args, "merge")
             summary.kept = int(sum(kept_chunks))
             summary.removed = summary.points_in - summary.kept
@@ -959,12 +971,12 @@ def _clear_derived(st) -> None:
         del g["simplify"]
 
 
-def _ensure_cell_arrays(st, n_cells: int, total: int, block: int) -> None:
+def _ensure_cell_arrays(st, n_cells: int, total: int, block: int, regions: np.ndarray) -> None:
     g = st.group
     comp = _compressors()
-    if "simplify/keep_cells" in g and g["simplify/keep_cells"].shape == (total,):
+    if "simplify/keep_cells" in g and g["simplify/keep_cells"].shape == (total,) and "simplify/regions" in g:
         return
-    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep"):
+    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions"):
         if f"simplify/{name}" in g:
             del g[f"simplify/{name}"]
     g.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False, compressors=comp)
@@ -972,18 +984,23 @@ def _ensure_cell_arrays(st, n_cells: int, total: int, block: int) -> None:
     g.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0, compressors=comp)
     g.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0, compressors=comp)
     g.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0, compressors=comp)
+    # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)
+    g.create_array("simplify/regions", data=np.asarray(regions, dtype=np.int64),
+                   chunks=(max(1, min(len(regions), 65536)),), compressors=comp)
 
 
 def _cell_args(st, part, regions, cells, params):
-    """Arguments of the cell tasks (small: run tables, centres, a few numbers)."""
-    centers = part.centers
-    off, within = part.local_offsets(), part.within_offsets()
+    """Arguments of the cell tasks (small, independent of P: the task reads its runs from the store).
+
+    ``(path, cell, {halo source: region}, {cell and halo sources: centre}, margin, region, params)``.
+    """
+    c = part.centers
     out = []
     for j in cells:
-        halo_runs = {}
-        if params["context"]:
-            halo_runs = {int(s): (part.runs(int(s), off, within), int(regions[s])) for s in part.halo_sources(int(j))}
-        out.append((st.path, int(j), part.runs(int(j), off, within), halo_runs, centers, part.margin, int(regions[j]), params))
+        j = int(j)
+        halo = {int(s): int(regions[s]) for s in part.halo_sources(j)} if params["context"] else {}
+        centers = {j: c[j], **{s: c[s] for s in halo}}
+        out.append((st.path, j, halo, centers, part.margin, int(regions[j]), params))
     return out
 
 

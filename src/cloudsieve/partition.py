@@ -16,21 +16,35 @@ Layout written into the store (all under ``partition/``)::
 
     centers     float64 (P, 3)          cell centres (absolute coordinates)
     cell        int32   (N,)            cell of every point, input order
-    counts      int64   (n_chunks, P)   points of input chunk c in cell j
+    cell_count  int64   (P,)            points per cell
     xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell
                                          (stable), R = chunk size rounded up to the
                                          inner chunk; sharded, one shard per row,
                                          so a slice reads only the inner chunks it
                                          touches
+    chunk_ptr   int64   (n_chunks + 1,) CSR by chunk: the runs of chunk c are
+    chunk_runs  int64   (nnz, 3)          chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]],
+                                         rows (cell, count, first), cells increasing;
+                                         first = points of that cell in chunks < c
+    cell_ptr    int64   (P + 1,)        CSR by cell: the runs of cell j are
+    cell_runs   int64   (nnz, 3)          cell_runs[cell_ptr[j]:cell_ptr[j + 1]],
+                                         rows (chunk, start, count), chunks increasing;
+                                         the points are xyz[chunk, start:start + count]
     halo_ptr, halo_src                   CSR: for cell i, the cells that may hold
                                          points of i's halo
 
-This is a two-level CSR: the points of cell j are, in input order, the runs
-``xyz[c, off[c, j]:off[c, j + 1]]`` for c = 0..n_chunks-1 with
-``off[c] = [0, cumsum(counts[c])]``. It is written in one pass with
+Only the nonzero (chunk, cell) runs are stored (nnz of them, at most
+min(N, n_chunks * P) and about n_chunks + P for a spatially coherent input), so
+nothing of size n_chunks x P exists anywhere: a cell task reads its own runs
+(:func:`cell_runs`), a merge task its chunk's (:func:`chunk_runs`), and the
+driver holds arrays of size P or n_chunks only (the run tables are built by
+streaming, see :func:`index_runs`).
+
+This is a two-level CSR: the points of cell j are, in input order, its runs
+``xyz[c, start:start + count]``. ``xyz`` is written in one pass with
 chunk-aligned, conflict-free writes (concurrent tasks never share a zarr chunk),
-and read back with one small sharded slice per (chunk, cell) pair. The order
-of a cell's points is increasing input index, whatever the scheduler.
+and read back with one small sharded slice per run. The order of a cell's
+points is increasing input index, whatever the scheduler.
 
 Halo: a point z of cell j lies in the halo of cell i when its distance to the
 bisector plane of c_i and c_j is at most ``margin``::
@@ -52,10 +66,12 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
+
+from .errors import CloudsieveError
 
 __all__ = [
     "Partition",
@@ -66,6 +82,10 @@ __all__ = [
     "estimate_margin",
     "label_chunk",
     "read_cell",
+    "cell_runs",
+    "chunk_runs",
+    "index_runs",
+    "PartitionLayoutError",
     "read_halo",
     "halo_mask",
 ]
@@ -73,7 +93,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PARTITION_ATTR = "cloudsieve_partition"
-PARTITION_VERSION = 1
+PARTITION_VERSION = 2  # 2: sparse run tables (chunk_runs/cell_runs); 1 had a dense counts table
 #: halo margin, in k-NN radii of the full-density cloud
 HALO_RADII = 3.0
 #: nearest centres tested per point when listing halo sources
@@ -82,6 +102,14 @@ HALO_NEIGHBOURS = 5
 INNER_CHUNK = 16384
 #: points labelled at once inside a chunk task (bounds the k-d tree query arrays)
 _LABEL_BLOCK = 131072
+#: zarr chunk of the run tables (runs)
+_RUN_CHUNK = 65536
+#: runs held in memory while the run tables are built
+_RUN_FLUSH = 1 << 21
+
+
+class PartitionLayoutError(CloudsieveError):
+    """The store's partition is missing or in a layout this version does not read."""
 
 
 def sample_size(n: int, n_cells: int) -> int:
@@ -245,25 +273,30 @@ def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
     return ((z - mid) * diff).sum(axis=-1) / norm
 
 
-def label_chunk(
-    store_path: str, chunk: int, start: int, stop: int, centers: np.ndarray, margin: float
-) -> np.ndarray:
+def label_chunk(store_path: str, chunk: int, start: int, stop: int, margin: float) -> tuple[np.ndarray, int]:
     """Label + bucket task for input chunk *chunk* (points ``[start, stop)``).
 
-    Writes ``partition/cell[start:stop]``, ``partition/counts[chunk]`` and
-    ``partition/xyz[chunk, :stop - start]`` (the chunk sorted by cell, stable).
+    Reads the centres from ``partition/centers`` (not passed through the
+    scheduler: P x 3 floats per task would be O(n_chunks x P) in all). Writes
+    ``partition/cell[start:stop]``, ``partition/xyz[chunk, :stop - start]`` (the
+    chunk sorted by cell, stable) and the chunk's nonzero runs (cell, count),
+    cells increasing, into ``partition/label_runs[chunk, :nnz]`` (a scratch
+    array read back by :func:`index_runs`).
 
     Returns
     -------
     pairs : ndarray of shape (q, 2), int64
         Distinct (halo cell, source cell) pairs seen in this chunk (small).
+    nnz : int
+        Number of cells with points in this chunk.
     """
     from .store import PointStore
 
     st = PointStore.open(store_path, "r+")
+    g = st.group
+    centers = np.asarray(g["partition/centers"][:])
     xyz = st.read("xyz", start, stop)
     n = len(xyz)
-    p = len(centers)
     tree = cKDTree(centers)
     labels = np.empty(n, dtype=np.int64)
     pairs = []
@@ -272,93 +305,221 @@ def label_chunk(
         labels[a : a + _LABEL_BLOCK] = lab
         pairs.append(pr)
     order = np.argsort(labels, kind="stable")
-    g = st.group
+    sl = labels[order]
+    heads = np.flatnonzero(np.r_[True, sl[1:] != sl[:-1]]) if n else np.empty(0, np.int64)
+    cells = sl[heads]
+    counts = np.diff(np.r_[heads, n])
     g["partition/cell"][start:stop] = labels.astype(np.int32)
-    g["partition/counts"][chunk] = np.bincount(labels, minlength=p).astype(np.int64)
     g["partition/xyz"][chunk, :n] = xyz[order]
+    if len(cells):
+        g["partition/label_runs"][chunk, : len(cells)] = np.stack([cells, counts], axis=1).astype(np.int64)
     if pairs:
         u = np.unique(np.concatenate(pairs, axis=0), axis=0)
     else:
         u = np.empty((0, 2), dtype=np.int64)
-    return u
+    return u, int(len(cells))
+
+
+def _chunks_1d(n: int) -> int:
+    return max(1, min(int(n), _RUN_CHUNK))
+
+
+def index_runs(group, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int | None = None) -> None:
+    """Build the run tables (both CSR views) from the label pass's scratch rows.
+
+    Streams ``partition/label_runs`` chunk by chunk and writes
+    ``chunk_ptr``/``chunk_runs`` (by chunk, with each run's position inside
+    its cell) and ``cell_ptr``/``cell_runs`` (by cell, chunks increasing) and
+    ``cell_count``; then deletes the scratch array. Memory: arrays of size P
+    and n_chunks, plus a buffer of *flush* runs (the by-cell view is written
+    in blocks of cells holding about *flush* runs, one pass over the by-chunk
+    view per block: one pass unless the input is spatially incoherent).
+
+    Parameters
+    ----------
+    group : zarr.Group
+    nnz : ndarray of shape (n_chunks,)
+        Runs of each chunk (as returned by :func:`label_chunk`).
+    n_cells : int
+    chunk_size : int
+        Points per input chunk (chunk c starts at point c * chunk_size).
+    """
+    from .store import compressors
+
+    flush = int(flush or _RUN_FLUSH)
+    nnz = np.asarray(nnz, dtype=np.int64)
+    n_chunks, p = len(nnz), int(n_cells)
+    chunk_ptr = np.zeros(n_chunks + 1, dtype=np.int64)
+    np.cumsum(nnz, out=chunk_ptr[1:])
+    total = int(chunk_ptr[-1])
+    rc = _chunks_1d(total)
+    comp = compressors()
+    for name in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
+        if f"partition/{name}" in group:
+            del group[f"partition/{name}"]
+    by_chunk = group.create_array("partition/chunk_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3), compressors=comp)
+    tmp = group["partition/label_runs"]
+    acc = np.zeros(p, dtype=np.int64)  # points of each cell in the chunks seen so far
+    n_runs = np.zeros(p, dtype=np.int64)
+    buf: list[np.ndarray] = []
+    held, pos = 0, 0
+    for c in range(n_chunks):
+        k = int(nnz[c])
+        if k == 0:
+            continue
+        r = np.asarray(tmp[c, :k])
+        cells, cnt = r[:, 0], r[:, 1]  # cells distinct and increasing within a chunk
+        buf.append(np.stack([cells, cnt, acc[cells]], axis=1))
+        acc[cells] += cnt
+        n_runs[cells] += 1
+        held += k
+        if held >= max(flush, rc):
+            rows = np.concatenate(buf)
+            m = (len(rows) // rc) * rc  # aligned writes: no zarr chunk written twice
+            by_chunk[pos : pos + m] = rows[:m]
+            pos += m
+            buf, held = [rows[m:]], len(rows) - m
+    if held:
+        rows = np.concatenate(buf)
+        by_chunk[pos : pos + len(rows)] = rows
+    cell_ptr = np.zeros(p + 1, dtype=np.int64)
+    np.cumsum(n_runs, out=cell_ptr[1:])
+    by_cell = group.create_array("partition/cell_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3), compressors=comp)
+    j0 = 0
+    while j0 < p and total:
+        # a block of cells whose runs fit the buffer (at least one cell)
+        j1 = max(j0 + 1, int(np.searchsorted(cell_ptr, cell_ptr[j0] + flush, side="right")) - 1)
+        j1 = min(j1, p)
+        base = int(cell_ptr[j0])
+        out = np.empty((int(cell_ptr[j1]) - base, 3), dtype=np.int64)
+        fill = cell_ptr[j0:j1] - base
+        done_points = 0  # points of the by-chunk runs before the slice
+        for a in range(0, total, max(flush, rc)):
+            b = min(total, a + max(flush, rc))
+            rows = np.asarray(by_chunk[a:b])
+            cum = done_points + np.cumsum(rows[:, 1]) - rows[:, 1]  # points before each run, input order
+            done_points += int(rows[:, 1].sum())
+            sel = np.flatnonzero((rows[:, 0] >= j0) & (rows[:, 0] < j1))
+            if not len(sel):
+                continue
+            chunk_of = np.searchsorted(chunk_ptr, a + sel, side="right") - 1
+            local = cum[sel] - chunk_of * int(chunk_size)  # start of the run in its row of partition/xyz
+            o = np.argsort(rows[sel, 0], kind="stable")  # by cell, chunks stay increasing
+            cs = rows[sel, 0][o] - j0
+            heads = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+            sizes = np.diff(np.r_[heads, len(cs)])
+            rank = np.arange(len(cs)) - np.repeat(heads, sizes)
+            at = fill[cs] + rank
+            out[at, 0] = chunk_of[o]
+            out[at, 1] = local[o]
+            out[at, 2] = rows[sel, 1][o]
+            fill[cs[heads]] += sizes
+        by_cell[base : base + len(out)] = out
+        j0 = j1
+    for name, data in (("chunk_ptr", chunk_ptr), ("cell_ptr", cell_ptr), ("cell_count", acc)):
+        group.create_array(f"partition/{name}", data=data, chunks=(_chunks_1d(len(data)),), compressors=comp)
+    del group["partition/label_runs"]
+
+
+def cell_runs(group, cell: int) -> np.ndarray:
+    """The runs of *cell* read from the store: rows (chunk, start, stop, first), shape (r, 4).
+
+    ``partition/xyz[chunk, start:stop]`` are the points; ``first`` is the
+    position of the run's first point among the cell's points (the runs are
+    in increasing chunk, i.e. input, order).
+    """
+    a, b = (int(v) for v in group["partition/cell_ptr"][cell : cell + 2])
+    r = np.asarray(group["partition/cell_runs"][a:b]) if b > a else np.empty((0, 3), np.int64)
+    first = np.cumsum(r[:, 2]) - r[:, 2]
+    return np.stack([r[:, 0], r[:, 1], r[:, 1] + r[:, 2], first], axis=1).astype(np.int64)
+
+
+def chunk_runs(group, chunk: int) -> np.ndarray:
+    """The runs of input chunk *chunk*: rows (cell, count, first), cells increasing, shape (r, 3).
+
+    ``first`` is the position of the run's first point among its cell's points.
+    """
+    a, b = (int(v) for v in group["partition/chunk_ptr"][chunk : chunk + 2])
+    if b <= a:
+        return np.empty((0, 3), np.int64)
+    return np.asarray(group["partition/chunk_runs"][a:b]).astype(np.int64)
 
 
 @dataclass
 class Partition:
-    """The partition of a store, as read back from ``partition/`` (small arrays only).
+    """The partition of a store, as read back from ``partition/`` (arrays of size P only).
 
     Attributes
     ----------
     centers : ndarray of shape (P, 3)
-    counts : ndarray of shape (n_chunks, P), int64
-        Points of input chunk c in cell j.
+    cell_counts : ndarray of shape (P,), int64
+        Points per cell.
     halo_ptr : ndarray of shape (P + 1,), int64
     halo_src : ndarray of shape (h,), int64
         Cells that may hold halo points of cell i: ``halo_src[halo_ptr[i]:halo_ptr[i+1]]``.
     margin : float
     chunk_size : int
         Points per input chunk.
+    n_chunks, n_runs : int
+        Input chunks; nonzero (chunk, cell) runs.
+    group : zarr.Group
+        The store's group: the run tables are read from it on demand.
     """
 
     centers: np.ndarray
-    counts: np.ndarray
+    cell_counts: np.ndarray
     halo_ptr: np.ndarray
     halo_src: np.ndarray
     margin: float
     chunk_size: int
+    n_chunks: int
+    n_runs: int
+    group: object = field(repr=False, default=None)
 
     @property
     def n_cells(self) -> int:
         return len(self.centers)
 
-    @property
-    def n_chunks(self) -> int:
-        return len(self.counts)
+    def runs(self, cell: int) -> np.ndarray:
+        """The runs of *cell*: see :func:`cell_runs`."""
+        return cell_runs(self.group, cell)
 
-    @property
-    def cell_counts(self) -> np.ndarray:
-        """Points per cell, shape (P,)."""
-        return self.counts.sum(axis=0)
-
-    def local_offsets(self) -> np.ndarray:
-        """Start of cell j's run in row c of ``partition/xyz``, shape (n_chunks, P + 1)."""
-        off = np.zeros((self.n_chunks, self.n_cells + 1), dtype=np.int64)
-        np.cumsum(self.counts, axis=1, out=off[:, 1:])
-        return off
-
-    def within_offsets(self) -> np.ndarray:
-        """Position of chunk c's run inside cell j (points of j in chunks < c), shape (n_chunks, P)."""
-        w = np.zeros_like(self.counts)
-        np.cumsum(self.counts[:-1], axis=0, out=w[1:])
-        return w
-
-    def runs(self, cell: int, offsets: np.ndarray | None = None, within: np.ndarray | None = None) -> np.ndarray:
-        """The runs of *cell* in ``partition/xyz``: rows (chunk, start, stop, first), shape (r, 4).
-
-        ``first`` is the position of the run's first point among the cell's
-        points (the runs are in increasing chunk, i.e. input, order).
-        *offsets*/*within* are :meth:`local_offsets`/:meth:`within_offsets`,
-        passed in when calling for many cells.
-        """
-        off = self.local_offsets() if offsets is None else offsets
-        w = self.within_offsets() if within is None else within
-        rows = np.nonzero(self.counts[:, cell])[0]
-        return np.stack([rows, off[rows, cell], off[rows, cell + 1], w[rows, cell]], axis=1).astype(np.int64)
+    def chunk_runs(self, chunk: int) -> np.ndarray:
+        """The runs of input chunk *chunk*: see :func:`chunk_runs`."""
+        return chunk_runs(self.group, chunk)
 
     def halo_sources(self, cell: int) -> np.ndarray:
         return self.halo_src[self.halo_ptr[cell] : self.halo_ptr[cell + 1]]
 
     @classmethod
     def load(cls, store) -> Partition:
+        """Read the partition recorded in *store*.
+
+        Raises
+        ------
+        PartitionLayoutError
+            The store holds no complete partition, or one written in another
+            layout (an older cloudsieve): partition the store again.
+        """
         g = store.group
-        meta = store.attrs[PARTITION_ATTR]
+        meta = store.attrs.get(PARTITION_ATTR)
+        if not isinstance(meta, dict) or not meta.get("complete"):
+            raise PartitionLayoutError(f"{store.path} holds no complete partition: partition it again")
+        if meta.get("version") != PARTITION_VERSION:
+            raise PartitionLayoutError(
+                f"{store.path} holds a partition in layout version {meta.get('version')}, this cloudsieve reads "
+                f"version {PARTITION_VERSION}: partition it again (simplify does so by itself)"
+            )
         return cls(
             centers=np.asarray(g["partition/centers"][:]),
-            counts=np.asarray(g["partition/counts"][:]),
+            cell_counts=np.asarray(g["partition/cell_count"][:]).astype(np.int64),
             halo_ptr=np.asarray(g["partition/halo_ptr"][:]),
             halo_src=np.asarray(g["partition/halo_src"][:]),
             margin=float(meta["margin"]),
             chunk_size=int(meta["chunk_size"]),
+            n_chunks=int(meta["n_chunks"]),
+            n_runs=int(meta["n_runs"]),
+            group=g,
         )
 
 
@@ -493,11 +654,12 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
     g = store.group
     from .store import compressors
 
-    for name in ("partition/cell", "partition/counts", "partition/xyz", "partition/centers", "partition/halo_ptr", "partition/halo_src"):
-        if name in g:
-            del g[name]
+    for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src", "label_runs",
+                 "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
+        if f"partition/{name}" in g:
+            del g[f"partition/{name}"]
+    g.create_array("partition/centers", data=centers, chunks=centers.shape, compressors=compressors())
     g.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), compressors=compressors(), fill_value=-1)
-    g.create_array("partition/counts", shape=(n_chunks, p), dtype="int64", chunks=(1, p), compressors=compressors())
     r_len, inner = row_layout(chunk)
     g.create_array(
         "partition/xyz",
@@ -507,13 +669,22 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
         shards=(1, r_len, 3),
         compressors=compressors(),
     )
-    args = [(path, c, s, min(s + chunk, n), centers, margin) for c, s in enumerate(starts)]
-    pair_lists = run(label_chunk, args, "partition: label")
+    # scratch: row c holds chunk c's nonzero runs; only the zarr chunks a task
+    # writes are stored (about nnz entries), the logical shape is never filled
+    width = max(1, min(chunk, p))
+    g.create_array(
+        "partition/label_runs", shape=(n_chunks, width, 2), dtype="int64",
+        chunks=(1, min(width, 4096), 2), compressors=compressors(),
+    )
+    args = [(path, c, s, min(s + chunk, n), margin) for c, s in enumerate(starts)]
+    results = run(label_chunk, args, "partition: label")
+    pair_lists = [r[0] for r in results]
+    nnz = np.array([r[1] for r in results], dtype=np.int64)
     pairs = np.unique(np.concatenate(pair_lists, axis=0), axis=0) if pair_lists else np.empty((0, 2), np.int64)
     halo_ptr = np.zeros(p + 1, dtype=np.int64)
     np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
     halo_src = pairs[:, 1].astype(np.int64)  # rows sorted by (i, j)
-    g.create_array("partition/centers", data=centers, chunks=centers.shape, compressors=compressors())
+    index_runs(g, nnz, p, chunk)
     g.create_array("partition/halo_ptr", data=halo_ptr, chunks=halo_ptr.shape, compressors=compressors())
     g.create_array("partition/halo_src", data=halo_src, chunks=(max(1, len(halo_src)),), compressors=compressors())
     meta = {
@@ -524,6 +695,8 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
         "count": int(n),
         "chunk_size": int(chunk),
         "n_cells": int(p),
+        "n_chunks": int(n_chunks),
+        "n_runs": int(nnz.sum()),
         "sample": int(len(sample)),
         "k": k,
         "r_k": r_k,
