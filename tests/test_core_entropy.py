@@ -167,3 +167,29 @@ def test_property_matches_oracle_and_is_order_free(m, seed, grid):
     else:
         assert np.isinf(s.delta_h[~s.duplicate]).all()
     np.testing.assert_allclose(np.sort(sp.delta_h), np.sort(s.delta_h), rtol=1e-12)
+
+
+@pytest.mark.parametrize("values", [(0, 1, 2, 3, 4, 5), (-3, 7, 10**9, 2, 5, 6)])
+def test_clusters_scored_as_separate_clouds(values):
+    # overlapping clusters (random labels), copies, one small cluster, sparse label values:
+    # one k-d tree over all the clusters must give each cluster's own scores and graph
+    rng = np.random.default_rng(11)
+    pts = rng.random((1500, 3))
+    labels = np.asarray(values)[rng.integers(0, 5, 1500)]
+    labels[:8] = values[5]  # a cluster of 8 points, 3 distinct: too small to score (needs k + 2 = 6)
+    pts[:8] = pts[[0, 1, 2, 0, 1, 2, 0, 1]]
+    pts[100:130] = pts[200:230]
+    labels[100:130] = labels[200:230]
+    s = score_points(pts, labels)
+    for v in values:
+        idx = np.flatnonzero(labels == v)
+        r = score_points(pts[idx], None)
+        np.testing.assert_allclose(s.delta_h[idx], r.delta_h, rtol=1e-12)
+        np.testing.assert_array_equal(s.duplicate[idx], r.duplicate)
+        np.testing.assert_array_equal(s.k[idx], r.k)
+        nb = s.neighbours[idx]
+        back = np.where(r.neighbours >= 0, idx[np.maximum(r.neighbours, 0)], -1)
+        np.testing.assert_array_equal(nb[:, : back.shape[1]], back)
+        assert (nb[:, back.shape[1] :] == -1).all()
+    assert s.n_duplicates == 5 + 30
+    assert np.isinf(s.delta_h[:3]).all() and (s.delta_h[3:8] == 0).all()

@@ -48,8 +48,8 @@ from __future__ import annotations
 
 import logging
 import os
-from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -59,11 +59,6 @@ from .errors import InvalidParameterError, InvalidPointsError
 __all__ = ["entropy_scores", "score_points", "Scores", "neighbour_count"]
 
 logger = logging.getLogger(__name__)
-
-# Clusters at least this large are queried with a multi-threaded k-d tree query;
-# smaller ones are spread over a thread pool, one cluster per task.
-_BIG_CLUSTER = 50_000
-
 
 def neighbour_count(m, k0: float = 1.0, k_min: int = 4):
     """k = max(k_min, floor(k0 * sqrt(m) + 1/2)) for a cluster of m points (array-friendly)."""
@@ -98,7 +93,8 @@ class Scores:
     neighbours : ndarray of shape (n, K), int64
         The k-NN graph: row i holds the k nearest of point i (input indices,
         points only, never context), nearest first, padded with -1; rows of
-        duplicates and of points in small clusters are all -1.
+        duplicates and of points in small clusters are all -1. Built on
+        first access (the threshold and target rules never need it).
     indptr, indices : ndarray of int64
         The same graph in CSR form (computed on access).
     """
@@ -108,12 +104,28 @@ class Scores:
     cluster_size: np.ndarray
     k: np.ndarray
     duplicate: np.ndarray
-    neighbours: np.ndarray
     gain: np.ndarray
+    # (order, groups): order maps grouped positions to input indices; groups holds
+    # (k, scored grouped positions (M,), neighbours (M, k+1) as grouped positions, n for context)
+    _graph: tuple = field(default=(np.zeros(0, dtype=np.int64), ()), repr=False)
 
     @property
     def n_duplicates(self) -> int:
         return int(self.duplicate.sum())
+
+    @cached_property
+    def neighbours(self) -> np.ndarray:
+        n = len(self.delta_h)
+        out = np.full((n, self.k.max(initial=0)), -1, dtype=np.int64)
+        self._graph_into(out, np.arange(n))
+        return out
+
+    def _graph_into(self, out: np.ndarray, rows: np.ndarray) -> None:
+        """Write the graph into out[rows] (already -1), mapping every index i to rows[i]."""
+        order, groups = self._graph
+        to = np.append(rows[order], -1)  # grouped position -> rows; n (context) -> -1
+        for k, sc, nbx in groups:
+            out[to[sc], :k] = to[nbx[:, :k]]
 
     @property
     def indptr(self) -> np.ndarray:
@@ -175,47 +187,149 @@ def _unique_first(q: np.ndarray) -> np.ndarray:
     return np.sort(first)
 
 
-def _cluster_knn(q: np.ndarray, k0, k_min, workers: int):
-    """k-NN inside one cluster q (m, d).
+def _dense_labels(lab: np.ndarray):
+    """Cluster ids 0..c-1 in the order of the label values, and c.
 
-    Returns (keep, k, rk, rk1, nbr): keep = local positions of the distinct points
-    (None when all are distinct), and for the distinct points r_k, r_(k+1) and
-    their k nearest (positions in q). k = 0 and empty arrays for a small cluster.
+    Small non-negative labels (the usual case) are renumbered with a bincount
+    in O(n); others with np.unique (a sort).
     """
-    m = len(q)
-    keep = None
-    k = int(neighbour_count(m, k0, k_min))
-    if m < k + 2:
-        if m > 1:
-            u = _unique_first(q)
-            keep = u if len(u) < m else None
-        return keep, 0, None, None, None
-    tree = cKDTree(q, balanced_tree=False, compact_nodes=False)
-    d, i = tree.query(q, k=k + 2, workers=workers)
-    if (d[:, 1] == 0).any():  # exact duplicates: score the distinct points only
-        u = _unique_first(q)
-        keep = u
-        q = q[u]
-        m = len(q)
-        k = int(neighbour_count(m, k0, k_min))
-        if m < k + 2:
-            return keep, 0, None, None, None
-        tree = cKDTree(q, balanced_tree=False, compact_nodes=False)
-        d, i = tree.query(q, k=k + 2, workers=workers)
-        i = u[i]  # back to positions in the original q
-    # column 0 is the point itself (the only one at distance 0)
-    return keep, k, d[:, k], d[:, k + 1], i[:, 1 : k + 1]
+    n = len(lab)
+    if n == 0:
+        return lab.astype(np.int64), 0
+    if lab.min() >= 0 and lab.max() < 2 * n + 1024:
+        remap = np.cumsum(np.bincount(lab) > 0) - 1
+        return remap[lab], int(remap[-1]) + 1
+    u, inv = np.unique(lab, return_inverse=True)
+    return inv.reshape(-1).astype(np.int64), len(u)
 
 
-def _group(labels: np.ndarray):
-    """Cluster ids 0..c-1, the stable order grouping them, and the group bounds."""
-    _, inv = np.unique(labels, return_inverse=True)
-    inv = inv.reshape(-1).astype(np.int64)
-    order = np.argsort(inv, kind="stable")
-    counts = np.bincount(inv)
-    bounds = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(counts, out=bounds[1:])
-    return inv, order, bounds
+_SPREAD = [(32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+           (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)]
+
+
+def _morton(pts: np.ndarray, bits: int) -> np.ndarray:
+    """Z-order code (uint64) of the first three coordinates, ``bits`` <= 21 bits each over the bounding box.
+
+    Only a row order for memory locality (hand-written: numpy has no Morton
+    code); results do not depend on it.
+    """
+    q = min(pts.shape[1], 3)
+    code = np.zeros(len(pts), dtype=np.uint64)
+    lo = pts[:, :q].min(axis=0)
+    span = float((pts[:, :q].max(axis=0) - lo).max())
+    if not (np.isfinite(span) and span > 0):
+        return code
+    scale = ((1 << bits) - 1) / span
+    for j in range(q):
+        x = ((pts[:, j] - lo[j]) * scale).astype(np.uint64)
+        for s, mask in _SPREAD:
+            x |= x << np.uint64(s)
+            x &= np.uint64(mask)
+        x <<= np.uint64(j)
+        code |= x
+    return code
+
+
+def _group(pts: np.ndarray, labels: np.ndarray):
+    """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
+
+    Inside a cluster the rows follow a Z-order curve (exact copies keep their
+    input order), so that consecutive k-d tree queries touch the same memory:
+    the queries of 1 M points are ~1.5-2x faster than in input order.
+    """
+    inv, c = _dense_labels(labels)
+    bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
+    key = _morton(pts, bits)
+    key |= inv.astype(np.uint64) << np.uint64(3 * bits)
+    order = np.argsort(key, kind="stable")
+    return inv, order, np.bincount(inv, minlength=c)
+
+
+def _mark_duplicates(g, ginv, rows, dup):
+    """Among g[rows] (grouped by cluster), mark in ``dup`` every exact copy of an
+    earlier row of the same cluster; return the other rows, ascending."""
+    first = _unique_first(np.column_stack([ginv[rows].astype(np.float64), g[rows]]))
+    dup[rows] = True
+    distinct = rows[first]
+    dup[distinct] = False
+    return distinct
+
+
+def _knn_query(g, ginv, rows, kc, workers):
+    """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster.
+
+    One k-d tree over all the clusters: each point gets its cluster id times a
+    gap as an extra coordinate, the gap larger than twice the bounding-box
+    diagonal, so a point of another cluster is always farther than every point
+    of the own cluster (a cluster here has >= k + 2 points), and inside a
+    cluster the extra term is exactly 0.0: the distances are bit for bit
+    those of a tree of the cluster alone. One threaded query per distinct k.
+
+    Returns (groups, flagged): groups as in :func:`_knn_clusters`, for the
+    clusters without exact duplicates; flagged (c,) bool: clusters with some.
+    """
+    p = g.shape[1]
+    c = len(kc)
+    X = np.empty((len(rows), p + 1))
+    X[:, :p] = g[rows]
+    lo = X[:, :p].min(axis=0)
+    hi = X[:, :p].max(axis=0)
+    gap = 2.0 * float(np.sqrt(((hi - lo) ** 2).sum())) + 1.0
+    lab = ginv[rows]
+    np.multiply(lab, gap, out=X[:, p])
+    # leaves of 32: measured ~8% faster queries than 16 (1 M points, k = 20)
+    tree = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False)
+    kr = kc[lab]
+    flagged = np.zeros(c, dtype=bool)
+    groups = []
+    ks = np.unique(kr)
+    for k in ks:
+        k = int(k)
+        sel = None if len(ks) == 1 else np.flatnonzero(kr == k)
+        # the 2nd to (k+2)-th nearest: the nearest is the point itself (the only one at distance 0
+        # without copies); k + 1 contiguous columns
+        d, i = tree.query(X if sel is None else X[sel], k=list(range(2, k + 3)), workers=workers)
+        r = rows if sel is None else rows[sel]
+        z = d[:, 0] == 0
+        if z.any():
+            flagged[ginv[r[z]]] = True
+            good = ~flagged[ginv[r]]
+            r, d, i = r[good], d[good], i[good]
+        if len(r):
+            nbx = i if len(rows) == len(g) else rows[i]  # rows: all of g, in order
+            groups.append((k, r, d[:, k - 1].copy(), d[:, k].copy(), nbx))
+        del d
+    return groups, flagged
+
+
+def _knn_clusters(g, ginv, sizes, k0, k_min, workers):
+    """k-NN of every point inside its own cluster (points g grouped by cluster, ids ginv).
+
+    Returns (groups, dup): groups is a list of (k, scored positions in g (M,),
+    r_k (M,), r_(k+1) (M,), the k + 1 nearest (M, k + 1) as positions in g);
+    dup (n,) bool
+    marks the exact copies (only the first of each is scored).
+    """
+    n = len(g)
+    dup = np.zeros(n, dtype=bool)
+    kc = neighbour_count(sizes, k0, k_min)
+    ok = sizes >= kc + 2
+    okr = ok[ginv]
+    small = np.flatnonzero(~okr & (sizes[ginv] > 1))
+    if len(small):  # never scored, but their copies still score 0
+        _mark_duplicates(g, ginv, small, dup)
+    rows = np.flatnonzero(okr)
+    if len(rows) == 0:
+        return [], dup
+    groups, flagged = _knn_query(g, ginv, rows, kc, workers)
+    if flagged.any():  # score the distinct points of these clusters (m and k follow)
+        distinct = _mark_duplicates(g, ginv, np.flatnonzero(flagged[ginv]), dup)
+        m2 = np.bincount(ginv[distinct], minlength=len(sizes))
+        k2 = neighbour_count(m2, k0, k_min)
+        rows2 = distinct[(m2 >= k2 + 2)[ginv[distinct]]]
+        if len(rows2):
+            groups += _knn_query(g, ginv, rows2, k2, workers)[0]
+    return groups, dup
 
 
 def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
@@ -254,29 +368,26 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     if n == 0:
         z = np.zeros(0)
         zi = np.zeros(0, dtype=np.int64)
-        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), np.zeros((0, 0), np.int64), z.copy())
+        return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), z.copy())
 
-    inv, order, bounds = _group(lab)
-    g = pts[order]  # grouped by cluster, stable
+    inv, order, sizes = _group(pts, lab)
+    g = pts[order]  # grouped by cluster
     ginv = inv[order]
-    c = len(bounds) - 1
+    c = len(sizes)
     if context is None:
-        groups, dup = _knn_clusters(g, bounds, k0, k_min, workers)
+        groups, dup = _knn_clusters(g, ginv, sizes, k0, k_min, workers)
     else:
-        groups, dup = _knn_context(g, ginv, bounds, ctx, k0, k_min, workers)
-    # groups: list of (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), k nearest (M, k) as
-    # positions in g, n for a context point)
+        groups, dup = _knn_context(g, ginv, c, ctx, k0, k_min, workers)
+    # groups: list of (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), the k+1 nearest
+    # (M, k+1) as positions in g, n for a context point)
     msize = np.bincount(ginv[~dup], minlength=c)  # distinct points per cluster
 
     dh = np.full(n, np.inf)
     dh[dup] = 0.0
     sg = dh.copy()
-    K = max((grp[0] for grp in groups), default=0)
-    nb_in = np.full((n, K), -1, dtype=np.int64)
     k_in = np.zeros(n, dtype=np.int64)
     if groups:
         scored = np.concatenate([grp[1] for grp in groups])
-        kk = np.concatenate([np.full(len(grp[1]), grp[0], dtype=np.int64) for grp in groups])
         rk = np.concatenate([grp[2] for grp in groups])
         rk1 = np.concatenate([grp[3] for grp in groups])
         cl = ginv[scored]
@@ -300,22 +411,23 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
         acc_w = np.zeros(n + 1)
         acc_g = np.zeros(n + 1)
         ginv_ext = np.append(ginv, -1)
-        order_ext = np.append(order, -1)
         off = 0
-        for k, sc, _, _, nbr in groups:
+        for k, sc, _, _, nbx in groups:
             M = len(sc)
-            tgt = nbr.ravel()
-            rw = np.repeat(dw_x[off : off + M], k)
-            rg = np.repeat(dg_x[off : off + M], k)
+            tgt = nbx.ravel()  # contiguous: no copy
+            # x's change goes to its k nearest; weight 0.0 (adds nothing, exactly) for the (k+1)-th
+            rw = np.zeros((M, k + 1))
+            rg = np.zeros((M, k + 1))
+            rw[:, :k] = dw_x[off : off + M, None]
+            rg[:, :k] = dg_x[off : off + M, None]
             if context is not None:  # only neighbours that are scored points of the same cluster count
-                other = ginv_ext[tgt] != np.repeat(cl[off : off + M], k)
+                other = ginv_ext[nbx] != cl[off : off + M, None]
                 rw[other] = 0.0
                 rg[other] = 0.0
-            acc_w += np.bincount(tgt, weights=rw, minlength=n + 1)
-            acc_g += np.bincount(tgt, weights=rg, minlength=n + 1)
-            rows = order[sc]
-            nb_in[rows, :k] = order_ext[nbr]
-            k_in[rows] = k
+            acc_w += np.bincount(tgt, weights=rw.ravel(), minlength=n + 1)
+            acc_g += np.bincount(tgt, weights=rg.ravel(), minlength=n + 1)
+            del rw, rg
+            k_in[order[sc]] = k
             off += M
         dW = acc_w[scored] - w
         dG = acc_g[scored] - gw
@@ -339,52 +451,11 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     nd = int(dup_in.sum())
     if nd:
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
-    return Scores(out_dh, unit, out_m, k_in, dup_in, nb_in, out_sg)
+    graph = (order, tuple((grp[0], grp[1], grp[4]) for grp in groups))
+    return Scores(out_dh, unit, out_m, k_in, dup_in, out_sg, graph)
 
 
-def _knn_clusters(g, bounds, k0, k_min, workers):
-    """k-NN of every point inside its own cluster (grouped points g), grouped by k."""
-    n = len(g)
-    c = len(bounds) - 1
-    sizes = np.diff(bounds)
-    results: list = [None] * c
-
-    def run(j, w=1):
-        a, b = bounds[j], bounds[j + 1]
-        results[j] = _cluster_knn(g[a:b], k0, k_min, w)
-
-    big = np.flatnonzero(sizes >= _BIG_CLUSTER)
-    small = np.flatnonzero(sizes < _BIG_CLUSTER)
-    for j in big:
-        run(j, workers)
-    if workers > 1 and len(small) >= 4 * workers:
-        with ThreadPoolExecutor(workers) as ex:
-            list(ex.map(run, small, chunksize=max(1, len(small) // (8 * workers))))
-    else:
-        for j in small:
-            run(j)
-    dup = np.zeros(n, dtype=bool)
-    byk: dict = {}
-    for j in range(c):
-        keep, k, r_k, r_k1, nbr = results[j]
-        a, b = bounds[j], bounds[j + 1]
-        if keep is not None:
-            dup[a:b] = True
-            dup[a + keep] = False
-            loc = keep
-        else:
-            loc = np.arange(b - a)
-        if k:
-            byk.setdefault(k, []).append((a + loc, r_k, r_k1, a + nbr))
-    groups = []
-    for k in sorted(byk):
-        parts = byk[k]
-        groups.append((k, np.concatenate([p[0] for p in parts]), np.concatenate([p[1] for p in parts]),
-                       np.concatenate([p[2] for p in parts]), np.concatenate([p[3] for p in parts])))
-    return groups, dup
-
-
-def _knn_context(g, ginv, bounds, ctx, k0, k_min, workers):
+def _knn_context(g, ginv, c, ctx, k0, k_min, workers):
     """k-NN of every point among all the points and the context, grouped by k."""
     n = len(g)
     pool = np.concatenate([g, ctx]) if len(ctx) else g
@@ -394,7 +465,7 @@ def _knn_context(g, ginv, bounds, ctx, k0, k_min, workers):
     dup = ~is_first[:n]
     upool = pool[first]
     pool_to_g = np.where(first < n, first, n)  # position in g, or n for context
-    sizes = np.bincount(ginv[~dup], minlength=len(bounds) - 1)
+    sizes = np.bincount(ginv[~dup], minlength=c)
     kc = neighbour_count(sizes, k0, k_min)
     ok_cl = sizes >= kc + 2
     pos_in_u = np.full(n, -1, dtype=np.int64)
@@ -408,8 +479,8 @@ def _knn_context(g, ginv, bounds, ctx, k0, k_min, workers):
     for k in np.unique(kpt):
         k = int(k)
         sel = cand[kpt == k]
-        d, i = tree.query(upool[pos_in_u[sel]], k=k + 2, workers=workers)
-        groups.append((k, sel, d[:, k], d[:, k + 1], pool_to_g[i[:, 1 : k + 1]]))
+        d, i = tree.query(upool[pos_in_u[sel]], k=list(range(2, k + 3)), workers=workers)  # without itself
+        groups.append((k, sel, d[:, k - 1].copy(), d[:, k].copy(), pool_to_g[i]))
     return groups, dup
 
 
