@@ -281,6 +281,23 @@ class _Runner:
             )
 
     @property
+    def task_threads(self) -> int:
+        """k-d tree threads for each cell task: the machine's cores shared by the tasks running at once.
+
+        Without this every task queries with all cores (the core's
+        default): 2 worker processes on 2 cores ran 4 k-d tree threads. A
+        single worker still gets every core (its queries are threaded). On a
+        dask.distributed cluster the workers' threads are assumed to fill
+        their machines: 1. The results do not depend on it.
+        """
+        cores = os.cpu_count() or 1
+        if self.client is not None and self._cluster is None:
+            return 1
+        if getattr(self, "local", None) == "sync":
+            return cores
+        return max(1, cores // int(self.workers or cores))
+
+    @property
     def dashboard_link(self) -> str | None:
         if self.client is None:
             return None
@@ -391,7 +408,12 @@ def _context(params: dict, halo: np.ndarray):
 
 
 def _core_kwargs(params: dict) -> dict:
-    return {"k0": params["k0"], "k_min": params["k_min"]}
+    return {"k0": params["k0"], "k_min": params["k_min"], "workers": _threads(params)}
+
+
+def _threads(params: dict) -> int:
+    """k-d tree threads of a cell task (see :meth:`_Runner.task_threads`); the results do not depend on it."""
+    return int(params.get("threads") or 1)
 
 
 def _open_cell(store_path: str, cell: int, halo, centers, margin):
@@ -461,7 +483,8 @@ def score_task(store_path: str, cell: int, halo: dict, centers: dict, margin: fl
     labels = np.zeros(n, dtype=np.int64)
     if n:
         labels = refine_labels(
-            core, params["method"], params["cluster_size"], cell_seed(params["seed"], cell), k_min=params["k_min"]
+            core, params["method"], params["cluster_size"], cell_seed(params["seed"], cell), k_min=params["k_min"],
+            workers=_threads(params),
         )
         scores = np.asarray(
             unit_free_scores(core, labels, context=_context(params, halo), **_core_kwargs(params)), dtype=np.float64
@@ -989,12 +1012,15 @@ def _ensure_cell_arrays(st, n_cells: int, total: int, block: int, regions: np.nd
                    chunks=(max(1, min(len(regions), 65536)),), compressors=comp)
 
 
-def _cell_args(st, part, regions, cells, params):
+def _cell_args(st, part, regions, cells, params, threads: int = 1):
     """Arguments of the cell tasks (small, independent of P: the task reads its runs from the store).
 
-    ``(path, cell, {halo source: region}, {cell and halo sources: centre}, margin, region, params)``.
+    ``(path, cell, {halo source: region}, {cell and halo sources: centre}, margin, region, params)``;
+    *params* gets the tasks' k-d tree thread count under "threads" (not part
+    of the parameters recorded for resume: the results do not depend on it).
     """
     c = part.centers
+    params = {**params, "threads": int(threads)}
     out = []
     for j in cells:
         j = int(j)
@@ -1012,17 +1038,17 @@ def _run_cells(st, part, regions, params, runner, target, update):
     reused = int(done.sum())
     if target is None:
         todo = [j for j in range(p) if not done[j]]
-        results = runner(cell_task, _cell_args(st, part, regions, todo, params), "cells")
+        results = runner(cell_task, _cell_args(st, part, regions, todo, params, runner.task_threads), "cells")
         update(int(sum(r["n"] for r in results)))
         return len(todo), reused, None
     # ratio / count: pass 1 scores, one global threshold, pass 2 applies it
     scored = np.asarray(g["simplify/scored"][:]).astype(bool)
     todo = [j for j in range(p) if not scored[j] and not done[j]]
-    results = runner(score_task, _cell_args(st, part, regions, todo, params), "cells: score")
+    results = runner(score_task, _cell_args(st, part, regions, todo, params, runner.task_threads), "cells: score")
     update(int(sum(r["n"] for r in results)))
     threshold = _global_threshold(st, part, regions, runner, st.count - target)
     todo2 = [j for j in range(p) if not done[j]]
-    args = [a + (threshold,) for a in _cell_args(st, part, regions, todo2, params)]
+    args = [a + (threshold,) for a in _cell_args(st, part, regions, todo2, params, runner.task_threads)]
     runner(apply_task, args, "cells: apply")
     return len(todo2), reused, threshold
 
