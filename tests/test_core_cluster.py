@@ -23,7 +23,7 @@ def same_partition(a, b):
     return len(pairs) == len(np.unique(a)) == len(np.unique(b))
 
 
-@pytest.mark.parametrize("init", ["k-means++", "random"])
+@pytest.mark.parametrize("init", ["k-means++", "random", "kd-split"])
 @pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
 def test_finds_well_separated_blobs(est, init):
     rng = np.random.default_rng(1)
@@ -46,6 +46,60 @@ def test_kmeans_is_a_lloyd_fixed_point():
     np.testing.assert_array_equal(km.labels_, d.argmin(1))  # every point at its nearest centre
     for j in range(30):
         np.testing.assert_allclose(C[j], pts[km.labels_ == j].mean(0), rtol=1e-12)
+
+
+def plain_lloyd(X, C, max_iter):
+    """Lloyd's algorithm on the full n x c distance matrix (the oracle): labels, centres, centre updates."""
+    lab = None
+    for it in range(1, max_iter + 1):
+        new = ((X[:, None, :] - C[None]) ** 2).sum(-1).argmin(1)
+        if lab is not None and (new == lab).all():
+            return lab, C, it - 1
+        lab = new
+        cnt = np.bincount(lab, minlength=len(C))
+        S = np.stack([np.bincount(lab, weights=X[:, j], minlength=len(C)) for j in range(X.shape[1])], 1)
+        C = C.copy()
+        C[cnt > 0] = S[cnt > 0] / cnt[cnt > 0, None]
+    return lab, C, max_iter
+
+
+@pytest.mark.parametrize("neigh", [1, 3, 8])
+@pytest.mark.parametrize("init", ["random", "kd-split"])
+def test_kmeans_equals_plain_lloyd(monkeypatch, neigh, init):
+    # a wavy surface cut into many small clusters: the bounds skip most points,
+    # the neighbour lists (few with neigh=1) are re-made and the k-d tree fallback is used
+    import cloudsieve.cluster as cl
+
+    monkeypatch.setattr(cl, "_NEIGH", neigh)
+    rng = np.random.default_rng(7)
+    u = rng.random((4000, 2)) * 40.0
+    pts = np.c_[u, 3.0 * np.sin(u[:, 0] / 5.0) * np.cos(u[:, 1] / 7.0) + 0.01 * rng.standard_normal(4000)]
+    pts = pts[cl._canonical_order(pts)]  # the fit's own order: same init draws
+    C0 = cl._initial_centres(pts, 120, init, np.random.default_rng(1)) if init != "random" else \
+        pts[np.sort(np.random.default_rng(1).choice(4000, 120, replace=False))]
+    km = KMeans(120, init=C0, max_iter=500).fit(pts)
+    lab, C, it = plain_lloyd(pts, C0, 500)
+    assert km.converged_ and km.n_iter_ == it
+    np.testing.assert_array_equal(km.labels_, lab)
+    np.testing.assert_allclose(km.cluster_centers_, C, rtol=1e-12, atol=1e-12)
+
+
+def test_kmeans_tol_stops_early_and_canonical_order_is_lexsort():
+    import cloudsieve.cluster as cl
+
+    rng = np.random.default_rng(3)
+    pts = rng.random((6000, 3))
+    full = KMeans(60, seed=2).fit(pts)
+    early = KMeans(60, seed=2, tol=0.01).fit(pts)
+    assert early.converged_ and early.n_iter_ < full.n_iter_
+    # tol: stop at the first iteration where at most tol * n points changed
+    again = KMeans(60, seed=2, tol=0.01, max_iter=early.n_iter_ - 1)
+    with pytest.warns(ConvergenceWarning):
+        again.fit(pts)
+    with pytest.raises(ValueError, match=r"tol must be in \[0, 1\), got 1.5"):
+        KMeans(2, tol=1.5).fit(pts)
+    q = np.round(rng.random((5000, 3)) * 4)  # many ties in every column
+    np.testing.assert_array_equal(cl._canonical_order(q), np.lexsort(q.T[::-1]))
 
 
 def test_kmeans_warns_at_max_iter():
@@ -125,7 +179,7 @@ def test_bad_input_messages():
         KMeans(1).fit(np.zeros((2, 3, 1)))
     with pytest.raises(ValueError, match=r"fuzzifier m must be > 1, got 1.0"):
         FuzzyCMeans(2, m=1.0).fit(np.random.default_rng(0).random((10, 3)))
-    with pytest.raises(ValueError, match=r"init must be 'k-means\+\+', 'random' or an array of centres, got 'x'"):
+    with pytest.raises(ValueError, match=r"init must be 'k-means\+\+', 'random', 'kd-split' or an array of centres, got 'x'"):
         KMeans(2, init="x").fit(np.random.default_rng(0).random((10, 3)))
 
 

@@ -47,33 +47,126 @@ class ConvergenceWarning(UserWarning):
 
 
 def _canonical_order(X: np.ndarray) -> np.ndarray:
-    """Lexicographic order of the rows (first column first): input order never matters."""
-    return np.lexsort(X.T[::-1])
+    """Lexicographic order of the rows (first column first): input order never matters.
+
+    Same result as ``np.lexsort(X.T[::-1])`` (ties kept in input order), but a
+    stable sort on the first column and a lexsort of the rows tied there only
+    (lexsort's three passes over every row cost ~5x more on 1 M points)."""
+    X = np.asarray(X)
+    if X.ndim != 2 or len(X) < 2 or X.shape[1] < 2:
+        return np.lexsort(X.T[::-1]) if X.ndim == 2 and X.shape[1] else np.arange(len(X))
+    o = np.argsort(X[:, 0], kind="stable")
+    x = X[o, 0]
+    tie = x[1:] == x[:-1]
+    if tie.any():
+        t = np.zeros(len(x), dtype=bool)
+        t[1:] |= tie
+        t[:-1] |= tie
+        pos = np.flatnonzero(t)  # runs of equal x, each contiguous in o
+        sub = o[pos]  # in input order within each run (stable sort)
+        Y = X[sub]
+        o[pos] = sub[np.lexsort(Y.T[::-1])]
+    return o
 
 
 def _tree(C: np.ndarray) -> cKDTree:
     return cKDTree(C, balanced_tree=False, compact_nodes=False)
 
 
-def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
-    """k-means++ seeding (one trial per centre) on a uniform subsample of X."""
+def _sample(X: np.ndarray, s: int, rng: np.random.Generator) -> np.ndarray:
+    """s rows of X uniformly without replacement, in X's order (all when s >= n)."""
     n = len(X)
-    s = min(n, max(1000, 4 * c))
-    S = X if s == n else X[np.sort(rng.choice(n, s, replace=False))]
+    return X if s >= n else X[np.sort(rng.choice(n, s, replace=False))]
+
+
+_PP_BLOCK = 64  # k-means++: points per block of the running D^2 sums
+
+
+def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
+    """k-means++ seeding (one trial per centre) on a uniform subsample of X.
+
+    Exact D^2 sampling, written by hand (scikit-learn's is O(s c) per run and
+    would add a dependency): the sample is sorted on its first coordinate, so a
+    new centre x0 can only lower D^2 of the points within sqrt(max D^2) of x0
+    along that axis, a window found by binary search; sums and maxima of D^2
+    are kept per block of _PP_BLOCK points, so a draw costs O(s / B + B) and an
+    update O(window + s / B) instead of O(s)."""
+    S = _sample(X, min(len(X), max(1000, 4 * c)), rng)
+    S = S[np.argsort(S[:, 0], kind="stable")]
+    s, p = S.shape
+    B = _PP_BLOCK
+    nb = -(-s // B)
+    cols = [np.ascontiguousarray(S[:, j]) for j in range(p)]
+    x = cols[0]
+    d2 = np.full(nb * B, 0.0)  # padded with zeros (never drawn)
     chosen = np.empty(c, dtype=np.int64)
     chosen[0] = rng.integers(s)
-    d2 = ((S - S[chosen[0]]) ** 2).sum(axis=1)
-    for j in range(1, c):
-        cum = np.cumsum(d2)
-        total = cum[-1]
+    d2[:s] = sum((cols[j] - S[chosen[0], j]) ** 2 for j in range(p))
+    bsum = d2.reshape(nb, B).sum(axis=1)
+    bmax = d2.reshape(nb, B).max(axis=1)
+    for k in range(1, c):
+        total = bsum.sum()
         if total > 0:
-            nxt = int(np.searchsorted(cum, rng.random() * total, side="right"))
-            nxt = min(nxt, s - 1)
+            cum = np.cumsum(bsum)
+            r = rng.random() * cum[-1]
+            b = min(int(np.searchsorted(cum, r, side="right")), nb - 1)
+            r -= cum[b - 1] if b else 0.0
+            within = np.cumsum(d2[b * B : (b + 1) * B])
+            nxt = b * B + min(int(np.searchsorted(within, r, side="right")), B - 1)
+            while nxt >= s or d2[nxt] == 0:  # rounding landed on a zero or padding: step back
+                nxt -= 1
         else:  # every remaining point coincides with a centre
             nxt = int(rng.integers(s))
-        chosen[j] = nxt
-        np.minimum(d2, ((S - S[nxt]) ** 2).sum(axis=1), out=d2)
+        chosen[k] = nxt
+        reach = np.sqrt(bmax.max())
+        lo = int(np.searchsorted(x, x[nxt] - reach, side="left"))
+        hi = int(np.searchsorted(x, x[nxt] + reach, side="right"))
+        lo, hi = (lo // B) * B, min(-(-hi // B) * B, s)
+        dn = sum((cols[j][lo:hi] - S[nxt, j]) ** 2 for j in range(p))
+        np.minimum(d2[lo:hi], dn, out=d2[lo:hi])
+        blo, bhi = lo // B, -(-hi // B)
+        part = d2[blo * B : bhi * B].reshape(-1, B)
+        bsum[blo:bhi] = part.sum(axis=1)
+        bmax[blo:bhi] = part.max(axis=1)
     return S[chosen].copy()
+
+
+def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
+    """Centres of a balanced k-d split of a uniform subsample of X.
+
+    The sample (64 points per cluster, at least 10,000) is cut recursively
+    across its widest coordinate into two parts holding k1 = k // 2 and k - k1
+    clusters' shares of the points, until each part holds one cluster's; the
+    centres are the parts' means. Near-equal, compact parts: Lloyd's
+    iterations start close to a balanced partition."""
+    S = _sample(X, max(10_000, 64 * c), rng)
+    centres = np.empty((c, S.shape[1]))
+    stack = [(np.arange(len(S)), c, 0)]
+    while stack:
+        idx, k, first = stack.pop()
+        P = S[idx]
+        if k == 1 or len(idx) <= 1:
+            centres[first : first + k] = P.mean(axis=0)
+            continue
+        k1 = k // 2
+        axis = int(np.argmax(P.max(axis=0) - P.min(axis=0)))
+        cut = min(max(1, round(len(idx) * k1 / k)), len(idx) - 1)
+        o = np.argpartition(P[:, axis], cut - 1)  # deterministic (introselect)
+        stack.append((idx[o[cut:]], k - k1, first + k1))
+        stack.append((idx[o[:cut]], k1, first))
+    return centres
+
+
+INITS = ("k-means++", "random", "kd-split")
+
+
+def _initial_centres(Xs, c, init, rng):
+    """Centres to start from (init "random" is handled by each estimator)."""
+    if isinstance(init, str) and init == "k-means++":
+        return _kmeanspp(Xs, c, rng)
+    if isinstance(init, str):
+        return _kd_split(Xs, c, rng)
+    return np.array(init, dtype=np.float64)
 
 
 def _check_fit_args(X, n_clusters: int, max_iter: int, init):
@@ -86,8 +179,9 @@ def _check_fit_args(X, n_clusters: int, max_iter: int, init):
     if int(max_iter) != max_iter or max_iter < 1:
         raise InvalidParameterError(f"max_iter must be an integer >= 1, got {max_iter!r}")
     if isinstance(init, str):
-        if init not in ("k-means++", "random"):
-            raise InvalidParameterError(f"init must be 'k-means++', 'random' or an array of centres, got {init!r}")
+        if init not in INITS:
+            raise InvalidParameterError(
+                f"init must be 'k-means++', 'random', 'kd-split' or an array of centres, got {init!r}")
     else:
         a = np.asarray(init, dtype=np.float64)
         if a.shape != (n_clusters, pts.shape[1]):
@@ -106,9 +200,15 @@ class KMeans:
     Parameters
     ----------
     n_clusters : int
-    init : {"k-means++", "random"} or ndarray of shape (n_clusters, p)
+    init : {"k-means++", "random", "kd-split"} or ndarray of shape (n_clusters, p)
+        "kd-split": means of a balanced k-d split of a subsample (see
+        :func:`_kd_split`); fewer iterations than k-means++ on surfaces.
     max_iter : int
     seed : int
+    tol : float, default 0.0
+        Stop when at most ``tol * n`` points changed cluster in the last
+        iteration; 0 is the paper's test (no point changed). With tol > 0 the
+        labels are the last assignment and the centres their means.
 
     Attributes
     ----------
@@ -126,15 +226,19 @@ class KMeans:
     True
     """
 
-    def __init__(self, n_clusters: int, *, init="k-means++", max_iter: int = 300, seed: int = 0):
+    def __init__(self, n_clusters: int, *, init="k-means++", max_iter: int = 300, seed: int = 0,
+                 tol: float = 0.0):
         self.n_clusters = n_clusters
         self.init = init
         self.max_iter = max_iter
         self.seed = seed
+        self.tol = tol
 
     def fit(self, points, workers: int | None = None) -> KMeans:
         """Cluster ``points`` (array of shape (n, p)); returns self."""
         X = _check_fit_args(points, self.n_clusters, self.max_iter, self.init)
+        if not (0.0 <= self.tol < 1.0):
+            raise InvalidParameterError(f"tol must be in [0, 1), got {self.tol!r}")
         c = int(self.n_clusters)
         workers = int(workers or os.cpu_count() or 1)
         order = _canonical_order(X)
@@ -142,11 +246,9 @@ class KMeans:
         rng = np.random.default_rng(self.seed)
         if isinstance(self.init, str) and self.init == "random":
             C = Xs[np.sort(rng.choice(len(Xs), c, replace=False))].copy()
-        elif isinstance(self.init, str):
-            C = _kmeanspp(Xs, c, rng)
         else:
-            C = np.array(self.init, dtype=np.float64)
-        labels, C, n_iter, conv = _lloyd(Xs, C, self.max_iter, workers)
+            C = _initial_centres(Xs, c, self.init, rng)
+        labels, C, n_iter, conv = _lloyd(Xs, C, self.max_iter, workers, float(self.tol))
         if not conv:
             warnings.warn(
                 f"KMeans stopped at max_iter={self.max_iter} with points still changing cluster "
@@ -169,16 +271,99 @@ def _sums(Xs, a, c):
     return S, cnt
 
 
-def _lloyd(Xs, C, max_iter, workers):
+_NEIGH = 8  # other centres each centre keeps as neighbours (bounds and cheap reassignment)
+
+
+def _neighbour_lists(C, K):
+    """The K nearest other centres of each centre ((c, K) indices, self
+    excluded) and the distance T (c,) such that every other centre is at
+    distance >= T (the farthest of the K + 1 returned by the tree)."""
+    cd, ci = _tree(C).query(C, k=K + 1)
+    own = np.arange(len(C))[:, None]
+    self_at = ci == own
+    # self is usually in column 0; with duplicate centres it may be elsewhere (or absent)
+    nb = np.where(self_at[:, :1], ci[:, 1:], ci[:, :K])
+    fix = ~self_at[:, 0] & self_at[:, 1:].any(axis=1)
+    if fix.any():  # drop self from the list, keep K others
+        rows = np.flatnonzero(fix)
+        nb[rows] = np.array([r[r != j][:K] for j, r in zip(rows, ci[rows])])
+    return nb, cd[:, K].copy()
+
+
+class _Neighbours:
+    """Neighbour lists of the centres, re-queried only when the centres moved
+    enough since the last query to weaken T much.
+
+    Between queries a list stays valid with T_a lowered by the move of a plus
+    the largest move of any centre since the query (every non-listed centre j
+    had |c_a - c_j| >= T_a then). Distances to the listed neighbours are
+    computed exactly every iteration (c K of them)."""
+
+    def __init__(self, C, K):
+        self.K = K
+        self.refresh(C)
+
+    def refresh(self, C):
+        self.nb, self.T0 = _neighbour_lists(C, self.K)
+        self.Tmean = float(self.T0.mean())
+        self.C0 = C.copy()
+
+    def at(self, C):
+        """(T, nearest other centre distance, stale) for centres C."""
+        mv = np.sqrt(((C - self.C0) ** 2).sum(axis=1))
+        slack = mv.max()
+        T = self.T0 - mv - slack
+        dn = np.zeros(self.nb.shape)
+        for j in range(C.shape[1]):
+            dn += (np.take(C[:, j], self.nb) - C[:, j : j + 1]) ** 2
+        near = np.minimum(np.sqrt(dn.min(axis=1)), T)
+        return T, near, slack > 0.05 * self.Tmean
+
+
+def _lloyd(Xs, C, max_iter, workers, tol=0.0):
+    """Lloyd's iterations from centres C; exactly the plain algorithm's labels.
+
+    Work per iteration is O(c K) for the centres, O(n) for one gather and
+    compare, and O(active) for the points whose nearest centre may have
+    changed. Per point x (label a) we keep an upper bound u(x) on the distance
+    to its centre and a lower bound l(x) on the distance to every other
+    centre (Hamerly); x keeps its label while u < l. Each centre keeps a list
+    of its K nearest other centres; every centre j outside the list is at
+    distance >= T_a from centre a, so >= T_a - u(x) from x. Hence, as long
+    as 2 u(x) <= T_a, only listed centres can come closer than u(x), and l may
+    decay by the largest move M_a over the list instead of over all centres
+    (Hamerly's choice, far looser for many small clusters). Bounds are kept
+    lazily: with D_a, M_a cumulated since the list was made,
+    u(x) = U(x) + D_a and l(x) = L(x) - M_a, so the test is
+    R(x) = L(x) - U(x) > D_a + M_a: one gather of a per-centre array, which
+    is made +inf for the centres where 2 (max U + D_a) > T_a (then all their
+    points are checked). When the lists are re-made, l is first brought to a
+    bound over all centres: min(l - M_a, T_a - u). Points failing the test
+    get their exact u and l = max(min(L - M_a, T_a - u), h_a - u) (h_a the
+    distance from a to its nearest other centre); those still failing are
+    reassigned among their centre's list (exact when the best found is closer
+    than T_a - u) or, failing that, by a k-d tree query over all centres.
+
+    Stops when at most tol * n points changed cluster (tol = 0: none, the
+    paper's test) or at max_iter.
+    """
     n, p = Xs.shape
     c = len(C)
     if c == 1:
         return np.zeros(n, dtype=np.int64), Xs.mean(axis=0, keepdims=True), 1, True
+    neigh = _Neighbours(C, min(_NEIGH, c - 1))
     d, i = _tree(C).query(Xs, k=2, workers=workers)
     a = i[:, 0].astype(np.int64)
-    u = d[:, 0].copy()
-    low = d[:, 1].copy()
+    del i
+    cumD = np.zeros(c)  # own moves since the lists were made
+    cumM = np.zeros(c)  # largest moves over the lists since then
+    L = d[:, 1].copy()  # l + cumM[a]
+    R = d[:, 1] - d[:, 0]  # L - U with U = u - cumD[a]
+    Umax = np.zeros(c)  # an upper bound on U over each cluster
+    np.maximum.at(Umax, a, d[:, 0])
+    del d
     S, cnt = _sums(Xs, a, c)
+    limit = tol * n
     conv = False
     it = 0
     for it in range(1, max_iter + 1):
@@ -187,50 +372,98 @@ def _lloyd(Xs, C, max_iter, workers):
         Cn[nonempty] = S[nonempty] / cnt[nonempty, None]
         delta = np.sqrt(((Cn - C) ** 2).sum(axis=1))
         C = Cn
-        moved_c = delta > 0
-        if moved_c.any():
-            u += delta[a]
-            low -= delta.max()
-        tree = _tree(C)
-        half = 0.5 * tree.query(C, k=2)[0][:, 1]
-        act = np.flatnonzero(u > low)
+        T, near, stale = neigh.at(C)
+        cumD += delta
+        cumM += np.take(delta, neigh.nb).max(axis=1)
+        if stale:  # bounds over all centres now, then new lists (cumulated moves from 0)
+            U = L - R
+            ub = U + np.take(cumD, a)
+            lb = np.maximum(np.minimum(L - np.take(cumM, a), np.take(T, a) - ub), np.take(near, a) - ub)
+            neigh.refresh(C)
+            T, near, _ = neigh.at(C)
+            cumD[:] = 0.0
+            cumM[:] = 0.0
+            L = lb
+            R = lb - ub
+            Umax[:] = 0.0
+            np.maximum.at(Umax, a, ub)
+        Q = cumD + cumM
+        Q[2.0 * (Umax + cumD) >= T] = np.inf  # far centres might come close: check every point
+        act = np.flatnonzero(~(R > np.take(Q, a)))
+        n_changed = 0
         if len(act):
-            aa = a[act]
-            act = act[u[act] > half[aa]]
+            aa = np.take(a, act)
+            Xa = np.take(Xs, act, axis=0)
+            u = np.sqrt(((Xa - np.take(C, aa, axis=0)) ** 2).sum(axis=1))
+            low = np.maximum(np.minimum(np.take(L, act) - np.take(cumM, aa), np.take(T, aa) - u),
+                             np.take(near, aa) - u)
+            ok = u < low
+            done = act[ok]
+            aok = aa[ok]
+            L[done] = low[ok] + np.take(cumM, aok)
+            R[done] = low[ok] - u[ok] + np.take(cumD, aok) + np.take(cumM, aok)
+            todo = np.flatnonzero(~ok)
+            act, aa, Xa, u = act[todo], aa[todo], np.take(Xa, todo, axis=0), u[todo]
         if len(act):
-            u[act] = np.sqrt(((Xs[act] - C[a[act]]) ** 2).sum(axis=1))
-            z = np.maximum(low[act], half[a[act]])
-            act = act[u[act] > z]
-        changed = np.zeros(0, dtype=np.int64)
-        if len(act):
-            w = workers if len(act) >= 20_000 else 1  # threads cost more than they save on small queries
-            d, i = tree.query(Xs[act], k=2, workers=w)
-            na = i[:, 0].astype(np.int64)
-            moved = na != a[act]
-            changed = act[moved]
-            if len(changed):
-                old = a[changed]
+            na, d1, d2 = _reassign(Xa, aa, u, C, neigh.nb, T, workers)
+            moved = np.flatnonzero(na != aa)
+            n_changed = len(moved)
+            if n_changed:
+                old = aa[moved]
                 new = na[moved]
+                Xc = np.take(Xa, moved, axis=0)
                 for j in range(p):
-                    S[:, j] -= np.bincount(old, weights=Xs[changed, j], minlength=c)
-                    S[:, j] += np.bincount(new, weights=Xs[changed, j], minlength=c)
+                    S[:, j] -= np.bincount(old, weights=Xc[:, j], minlength=c)
+                    S[:, j] += np.bincount(new, weights=Xc[:, j], minlength=c)
                 cnt -= np.bincount(old, minlength=c)
                 cnt += np.bincount(new, minlength=c)
             a[act] = na
-            u[act] = d[:, 0]
-            low[act] = d[:, 1]
-        if len(changed) == 0:
+            cD = np.take(cumD, na)
+            L[act] = d2 + np.take(cumM, na)
+            R[act] = d2 - d1 + cD + np.take(cumM, na)
+            np.maximum.at(Umax, na, d1 - cD)
+        if n_changed <= limit:
             conv = True
             break
         if it % 20 == 0:  # refresh the running sums (no drift from +/- updates)
             S, cnt = _sums(Xs, a, c)
-    if conv:
-        # centres are the means of the final clusters
-        S, cnt = _sums(Xs, a, c)
-        ne = cnt > 0
-        C = C.copy()
-        C[ne] = S[ne] / cnt[ne, None]
+    # centres are the means of the final clusters
+    S, cnt = _sums(Xs, a, c)
+    ne = cnt > 0
+    C = C.copy()
+    C[ne] = S[ne] / cnt[ne, None]
     return a, C, it, conv
+
+
+def _reassign(Xa, aa, u, C, nb, T, workers):
+    """Nearest centre of each row of Xa (own centre aa at distance u) and a
+    lower bound on the distance to every other centre: (labels, d1, l).
+
+    First among the own centre and its K neighbours (a gather, cheaper than a
+    tree query); that answer is exact when the best distance found is below
+    T_a - u, the distance below which no non-neighbour centre can be. The
+    rest go to a k-d tree over all centres."""
+    cand = np.concatenate([aa[:, None], np.take(nb, aa, axis=0)], axis=1)  # (m, K + 1)
+    D = np.zeros(cand.shape)
+    for j in range(Xa.shape[1]):
+        D += (Xa[:, j : j + 1] - np.take(C[:, j], cand)) ** 2
+    np.sqrt(D, out=D)
+    rows = np.arange(len(D))
+    k1 = np.argmin(D, axis=1)
+    d1 = D[rows, k1]
+    D[rows, k1] = np.inf
+    d2 = D.min(axis=1)
+    far = np.take(T, aa) - u
+    na = cand[rows, k1]
+    low = np.minimum(d2, far)
+    bad = np.flatnonzero(~(d1 < far))
+    if len(bad):
+        w = workers if len(bad) >= 20_000 else 1  # threads cost more than they save on small queries
+        d, i = _tree(C).query(np.take(Xa, bad, axis=0), k=2, workers=w)
+        na[bad] = i[:, 0]
+        d1[bad] = d[:, 0]
+        low[bad] = d[:, 1]
+    return na, d1, low
 
 
 class FuzzyCMeans:
@@ -295,10 +528,8 @@ class FuzzyCMeans:
         rng = np.random.default_rng(self.seed)
         if isinstance(self.init, str) and self.init == "random":
             C = _random_membership_centres(Xs, c, self.m, rng)
-        elif isinstance(self.init, str):
-            C = _kmeanspp(Xs, c, rng)
         else:
-            C = np.array(self.init, dtype=np.float64)
+            C = _initial_centres(Xs, c, self.init, rng)
         idx, U, C, n_iter, conv = _fcm(Xs, C, L, float(self.m), float(self.tol), int(self.max_iter), workers)
         if not conv:
             warnings.warn(
