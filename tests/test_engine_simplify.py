@@ -335,6 +335,33 @@ def test_rerun_with_the_same_store_reuses_everything(tmp_path):
     assert digest(tmp_path / "a.laz") == digest(tmp_path / "b.laz")
 
 
+def test_a_store_with_the_older_dense_partition_layout_is_partitioned_again(tmp_path):
+    """A work store left by a version with the dense (chunks x cells) counts table: rebuilt, same output."""
+    src = write_laz(tmp_path / "p.laz", plane(8_000, side=80.0))
+    kw = dict(cell_size=2_000, chunk_size=3_000, scheduler="sync", store=tmp_path / "w.zarr", **FAST)
+    a = simplify(src, tmp_path / "a.laz", **kw)
+    # turn the store into the version-1 layout
+    g = zarr.open_group(str(tmp_path / "w.zarr"), mode="r+")
+    labels = np.asarray(g["partition/cell"][:])
+    counts = np.zeros((3, a.cells), dtype=np.int64)
+    np.add.at(counts, (np.arange(len(labels)) // 3_000, labels), 1)
+    for name in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
+        del g[f"partition/{name}"]
+    g.create_array("partition/counts", data=counts, chunks=(1, a.cells))
+    meta = dict(g.attrs[P.PARTITION_ATTR])
+    meta["version"] = 1
+    del meta["n_chunks"], meta["n_runs"]
+    g.attrs.update({P.PARTITION_ATTR: meta})
+    with pytest.raises(P.PartitionLayoutError, match="layout version 1"):
+        P.Partition.load(PointStore.open(str(tmp_path / "w.zarr")))
+    b = simplify(src, tmp_path / "b.laz", resume=True, **kw)
+    assert b.cells_computed == b.cells == a.cells and b.cells_reused == 0
+    assert digest(tmp_path / "a.laz") == digest(tmp_path / "b.laz")
+    st = PointStore.open(str(tmp_path / "w.zarr"))
+    assert st.attrs[P.PARTITION_ATTR]["version"] == P.PARTITION_VERSION
+    assert "partition/counts" not in st.group
+
+
 def test_resume_with_other_parameters_is_refused(tmp_path):
     src = write_laz(tmp_path / "p.laz", plane(4_000, side=60.0))
     kw = dict(cell_size=2_000, chunk_size=3_000, scheduler="sync", store=tmp_path / "w.zarr", method="km", rule="threshold", cluster_size=200)

@@ -924,12 +924,15 @@ def simplify(
             t0 = time.perf_counter()
             meta = st.attrs.get(_part.PARTITION_ATTR)
             want = {"cell_size": int(cell_size), "cluster_size": int(cluster_size), "seed": int(seed)}
-            if isinstance(meta, dict) and meta.get("complete") and meta.get("version") != _part.PARTITION_VERSION:
+            complete = isinstance(meta, dict) and meta.get("complete")
+            if complete and meta.get("version") != _part.PARTITION_VERSION:
+                # an older layout (version 1: a dense chunks x cells table): rebuilt, with the cells
                 logger.info(
                     "the partition in %s has layout version %s (this version writes %d): partitioning again",
                     store_path, meta.get("version"), _part.PARTITION_VERSION,
                 )
-            elif isinstance(meta, dict) and meta.get("complete") and all(meta.get(k) == v for k, v in want.items()):
+                complete = False
+            if complete and all(meta.get(k) == v for k, v in want.items()):
                 part = _part.Partition.load(st)
                 logger.info("reusing the partition in %s (%d cells)", store_path, part.n_cells)
             else:
