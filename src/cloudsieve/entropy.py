@@ -255,8 +255,10 @@ def _mark_duplicates(g, ginv, rows, dup):
     return distinct
 
 
-def _knn_query(g, ginv, rows, kc, workers):
-    """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster.
+def _knn_query(g, ginv, rows, kc, workers, query=None, extra=0):
+    """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster
+    (among g[rows]); only of the points rows[query] when ``query`` (positions in rows) is given.
+    With ``extra`` > 0, up to ``extra`` more nearest are returned (as many as the cluster has).
 
     One k-d tree over all the clusters: each point gets its cluster id times a
     gap as an extra coordinate, the gap larger than twice the bounding-box
@@ -265,7 +267,8 @@ def _knn_query(g, ginv, rows, kc, workers):
     cluster the extra term is exactly 0.0: the distances are bit for bit
     those of a tree of the cluster alone. One threaded query per distinct k.
 
-    Returns (groups, flagged): groups as in :func:`_knn_clusters`, for the
+    Returns (groups, flagged): groups as in :func:`_knn_clusters` (with
+    ``extra``, the last array has k + 1 + e columns, e <= extra), for the
     clusters without exact duplicates; flagged (c,) bool: clusters with some.
     """
     p = g.shape[1]
@@ -279,16 +282,22 @@ def _knn_query(g, ginv, rows, kc, workers):
     np.multiply(lab, gap, out=X[:, p])
     # leaves of 32: measured ~8% faster queries than 16 (1 M points, k = 20)
     tree = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False)
-    kr = kc[lab]
+    ec = np.clip(np.bincount(lab, minlength=c) - kc - 2, 0, extra) if extra else np.zeros(c, dtype=np.int64)
+    key = kc * (extra + 1) + ec  # (k, e) of each cluster
+    kr = key[lab]
+    if query is not None:
+        kr = kr[query]
     flagged = np.zeros(c, dtype=bool)
     groups = []
     ks = np.unique(kr)
-    for k in ks:
-        k = int(k)
-        sel = None if len(ks) == 1 else np.flatnonzero(kr == k)
-        # the 2nd to (k+2)-th nearest: the nearest is the point itself (the only one at distance 0
-        # without copies); k + 1 contiguous columns
-        d, i = tree.query(X if sel is None else X[sel], k=list(range(2, k + 3)), workers=workers)
+    for kv in ks:
+        k, e = divmod(int(kv), extra + 1)
+        sel = None if len(ks) == 1 else np.flatnonzero(kr == kv)
+        if query is not None:
+            sel = query if sel is None else query[sel]
+        # the 2nd to (k+e+2)-th nearest: the nearest is the point itself (the only one at distance 0
+        # without copies); k + e + 1 contiguous columns
+        d, i = tree.query(X if sel is None else X[sel], k=list(range(2, k + e + 3)), workers=workers)
         r = rows if sel is None else rows[sel]
         z = d[:, 0] == 0
         if z.any():
@@ -302,7 +311,7 @@ def _knn_query(g, ginv, rows, kc, workers):
     return groups, flagged
 
 
-def _knn_clusters(g, ginv, sizes, k0, k_min, workers):
+def _knn_clusters(g, ginv, sizes, k0, k_min, workers, extra=0):
     """k-NN of every point inside its own cluster (points g grouped by cluster, ids ginv).
 
     Returns (groups, dup): groups is a list of (k, scored positions in g (M,),
@@ -321,14 +330,14 @@ def _knn_clusters(g, ginv, sizes, k0, k_min, workers):
     rows = np.flatnonzero(okr)
     if len(rows) == 0:
         return [], dup
-    groups, flagged = _knn_query(g, ginv, rows, kc, workers)
+    groups, flagged = _knn_query(g, ginv, rows, kc, workers, extra=extra)
     if flagged.any():  # score the distinct points of these clusters (m and k follow)
         distinct = _mark_duplicates(g, ginv, np.flatnonzero(flagged[ginv]), dup)
         m2 = np.bincount(ginv[distinct], minlength=len(sizes))
         k2 = neighbour_count(m2, k0, k_min)
         rows2 = distinct[(m2 >= k2 + 2)[ginv[distinct]]]
         if len(rows2):
-            groups += _knn_query(g, ginv, rows2, k2, workers)[0]
+            groups += _knn_query(g, ginv, rows2, k2, workers, extra=extra)[0]
     return groups, dup
 
 
@@ -391,23 +400,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
         rk = np.concatenate([grp[2] for grp in groups])
         rk1 = np.concatenate([grp[3] for grp in groups])
         cl = ginv[scored]
-        # log-weights shifted per cluster so the largest weight is 1 (no overflow, units cancel)
-        lr = np.log(rk)
-        lr1 = np.log(rk1)
-        shift = np.full(c, np.inf)
-        np.minimum.at(shift, cl, lr)
-        lw = -dim * (lr - shift[cl])
-        lw1 = -dim * (lr1 - shift[cl])
-        w = np.exp(lw)
-        w1 = np.exp(lw1)
-        W = np.bincount(cl, weights=w, minlength=c)
-        A = np.bincount(cl, weights=w * lw, minlength=c)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            L = A / W
-        gw = w * (lw - L[cl])
-        gw1 = w1 * (lw1 - L[cl])
-        dw_x = w1 - w  # exactly 0 when r_(k+1) = r_k (ties)
-        dg_x = gw1 - gw
+        w, gw, Wc, dw_x, dg_x = _weights(cl, c, rk, rk1, dim)
         acc_w = np.zeros(n + 1)
         acc_g = np.zeros(n + 1)
         ginv_ext = np.append(ginv, -1)
@@ -429,10 +422,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
             del rw, rg
             k_in[order[sc]] = k
             off += M
-        dW = acc_w[scored] - w
-        dG = acc_g[scored] - gw
-        Wc = W[cl]
-        dH = np.log1p(dW / Wc) - dG / (Wc + dW)
+        dH = _change(acc_w[scored] - w, acc_g[scored] - gw, Wc)
         dh[scored] = np.abs(dH)
         sg[scored] = dH
 
@@ -453,6 +443,32 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
     graph = (order, tuple((grp[0], grp[1], grp[4]) for grp in groups))
     return Scores(out_dh, unit, out_m, k_in, dup_in, out_sg, graph)
+
+
+def _weights(cl, c, rk, rk1, dim):
+    """Per scored point (cluster ids cl in 0..c-1, r_k, r_(k+1)): w, g = w (log w - A/W), W of its
+    cluster, and the changes of w and g when r_k becomes r_(k+1)."""
+    # log-weights shifted per cluster so the largest weight is 1 (no overflow, units cancel)
+    lr = np.log(rk)
+    lr1 = np.log(rk1)
+    shift = np.full(c, np.inf)
+    np.minimum.at(shift, cl, lr)
+    lw = -dim * (lr - shift[cl])
+    lw1 = -dim * (lr1 - shift[cl])
+    w = np.exp(lw)
+    w1 = np.exp(lw1)
+    W = np.bincount(cl, weights=w, minlength=c)
+    A = np.bincount(cl, weights=w * lw, minlength=c)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        L = A / W
+    gw = w * (lw - L[cl])
+    gw1 = w1 * (lw1 - L[cl])
+    return w, gw, W[cl], w1 - w, gw1 - gw  # w1 - w is exactly 0 when r_(k+1) = r_k (ties)
+
+
+def _change(dW, dG, W):
+    """H(R minus y) - H(R) from the changes of W and G (no cancellation)."""
+    return np.log1p(dW / W) - dG / (W + dW)
 
 
 def _knn_context(g, ginv, c, ctx, k0, k_min, workers):

@@ -59,12 +59,25 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import warnings
 
 import numpy as np
 
 from .cluster import ConvergenceWarning, FuzzyCMeans, KMeans, _canonical_order
-from .entropy import _check_labels, _check_params, _check_points, neighbour_count, score_points
+from .entropy import (
+    _change,
+    _check_labels,
+    _check_params,
+    _check_points,
+    _group,
+    _knn_clusters,
+    _knn_query,
+    _mark_duplicates,
+    _weights,
+    neighbour_count,
+    score_points,
+)
 from .errors import InvalidParameterError
 from .progress import callback
 
@@ -177,11 +190,12 @@ def _padded(indptr: np.ndarray, indices: np.ndarray, width: int | None = None) -
     return out
 
 
-def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int) -> np.ndarray:
+def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray | None = None) -> np.ndarray:
     """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph.
 
     ``nb`` (n, K) holds each point's neighbours, padded with -1. Returns the
-    selected candidates in priority order: exactly what a sequential pass
+    selected candidates in priority order (with ``kk``, row i holds k = kk[i]
+    neighbours, the columns after them are ignored): exactly what a sequential pass
     keeps (take a candidate unless one of its neighbours, or a point having it
     as a neighbour, was taken before), computed by rounds of local minima of
     the rank.
@@ -191,8 +205,11 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int) -> np.ndarray:
     big = np.iinfo(np.int64).max
     rank = np.full(n + 1, big, dtype=np.int64)  # slot n: the -1 padding
     rank[cand] = np.arange(len(cand))
+    dst = nb[cand]
+    if kk is not None:
+        dst = np.where(np.arange(nb.shape[1]) < kk[cand, None], dst, -1)
     src = np.repeat(cand, nb.shape[1])
-    dst = nb[cand].ravel()
+    dst = dst.ravel()
     dst = np.where(dst < 0, n, dst)
     keep = rank[dst] < big  # both ends candidates
     u = np.concatenate([src[keep], dst[keep]])
@@ -314,9 +331,9 @@ def _ranked(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
 
 
 def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
-    """The iterative/coverage rules. Between rounds only the clusters that lost a
-    point are rescored (without context the others' scores cannot change), which
-    gives exactly the scores of a full rescoring."""
+    """The iterative/coverage rules with context: every remaining point is rescored between rounds."""
+    if kw["context"] is None:
+        return _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
     n = len(P)
     alive = np.ones(n, dtype=bool)
     n_alive = n
@@ -360,18 +377,190 @@ def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, 
         rnd += 1
         report(len(sel))
         logger.debug("round %d: dropped %d, %d left", rnd, len(sel), n_alive)
-        if kw["context"] is None:
-            touched = np.zeros(int(L.max()) + 1 if len(L) else 0, dtype=bool)
-            touched[L[sel]] = True
-            sub = np.flatnonzero(alive & touched[L])
-        else:
-            sub = np.flatnonzero(alive)
+        sub = np.flatnonzero(alive)
         if len(sub):
             rescore(sub)
     return alive
 
 
-def _covered(P, nb, cand, coverage):
+# Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
+# after losing more than this many of its k + 1 + _SPARE nearest (or k + 1 - k' when k falls).
+_SPARE = 4
+
+
+def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
+    """The iterative/coverage rules without context: incremental rescoring.
+
+    Without context a cluster's scores depend on its own points only, so after
+    a round only the clusters that lost a point change. Every point keeps its
+    k + 1 + e nearest (e <= _SPARE spares), nearest first; a dropped point
+    leaves the lists, and as long as a list keeps k' + 1 points (k' the
+    cluster's new k) they are still the k' + 1 nearest among the remaining
+    points (removing points brings none closer): r_k' and r_(k'+1) are then
+    the distances to its k'-th and (k'+1)-th entries, computed as the k-d
+    tree does. Only shorter lists need a new k-d tree query. Then W, A and
+    every score of a touched cluster are recomputed in O(m k). A cluster with
+    exact copies is scored again whole. The scores are those of a full
+    rescoring (the same formulas on the same distances; sums may differ in
+    the last bit from :func:`score_points`, which orders the points of a
+    cluster differently).
+
+    All the state is kept in the grouped order of :func:`entropy._group`
+    (ties between candidates are still broken by canonical index).
+    """
+    k0, k_min, dim = kw["k0"], kw["k_min"], kw["dim"]
+    workers = int(kw["workers"] or os.cpu_count() or 1)
+    n, p = P.shape
+    inv, order, sizes = _group(P, L)
+    g = P[order]
+    ginv = inv[order]
+    c = len(sizes)
+    groups, dup = _knn_clusters(g, ginv, sizes, k0, k_min, workers, extra=_SPARE)
+    K = max((grp[0] for grp in groups), default=0)
+    kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
+    rk = np.ones(n)
+    rk1 = np.ones(n)
+    nbx = np.full((n, K + 1 + _SPARE), n, dtype=np.int64)  # nearest first (grouped positions), n after
+    kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
+    alive = np.ones(n, dtype=bool)
+    val = np.full(n, np.inf)
+    val[dup] = 0.0
+
+    def store(grps):
+        for k, r, a, b, x in grps:
+            kk[r] = k
+            rk[r] = a
+            rk1[r] = b
+            nbx[r, : x.shape[1]] = x
+            nbx[r, x.shape[1] :] = n
+
+    def query(whole):
+        """Find the copies in the whole clusters again, then m, k; the rows to query."""
+        wrows = np.flatnonzero(alive & whole[ginv])
+        if len(wrows) == 0:
+            return wrows
+        kk[wrows] = 0
+        nbx[wrows] = n
+        val[wrows] = np.inf
+        distinct = _mark_duplicates(g, ginv, wrows, dup)
+        val[wrows[dup[wrows]]] = 0.0
+        m = np.bincount(ginv[distinct], minlength=c)
+        k2 = neighbour_count(m, k0, k_min)
+        ok = whole & (m >= k2 + 2)
+        kcl[whole] = np.where(ok, k2, 0)[whole]
+        return distinct[ok[ginv[distinct]]]
+
+    def run(q):
+        if len(q):
+            need = np.zeros(c, dtype=bool)
+            need[ginv[q]] = True
+            trows = np.flatnonzero(alive & ~dup & need[ginv])
+            store(_knn_query(g, ginv, trows, kcl, workers, query=np.searchsorted(trows, q), extra=_SPARE)[0])
+
+    store(groups)
+    for k, r, _, _, _ in groups:
+        kcl[ginv[r]] = k
+    del groups
+    n_alive = n
+    use_unit = target is not None or score == "unit_free"
+
+    def rescore(touched):
+        """Scores of the scored points of the touched clusters, from the kept k-NN data."""
+        rows = np.flatnonzero(touched[ginv] & (kk > 0))  # kk > 0: alive, distinct, in a scored cluster
+        if len(rows) == 0:
+            return
+        cl = ginv[rows]
+        w, gw, Wc, dw_x, dg_x = _weights(cl, c, rk[rows], rk1[rows], dim)
+        kr = kk[rows]
+        x = nbx[rows, : int(kr.max())]
+        tgt = x[np.arange(x.shape[1]) < kr[:, None]]  # row by row, the k nearest
+        acc_w = np.bincount(tgt, weights=np.repeat(dw_x, kr), minlength=n)
+        acc_g = np.bincount(tgt, weights=np.repeat(dg_x, kr), minlength=n)
+        dh = np.abs(_change(acc_w[rows] - w, acc_g[rows] - gw, Wc))
+        if use_unit:
+            m = np.bincount(ginv[alive & ~dup], minlength=c)
+            dh = dh * m[cl]
+        val[rows] = dh
+
+    def dist(a, b):
+        """|g[a] - g[b]| summed in the k-d tree's order (so r_k is the same as a query's)."""
+        d = g[a] - g[b]
+        s = d[:, 0] * d[:, 0]
+        for j in range(1, p):
+            s += d[:, j] * d[:, j]
+        return np.sqrt(s)
+
+    rescore(np.ones(c, dtype=bool))
+    removed = np.zeros(n + 1, dtype=bool)  # slot n: the padding
+    rnd = 0
+    while True:
+        if target is not None and n_alive <= target:
+            break
+        if max_rounds is not None and rnd >= max_rounds:
+            break
+        pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
+        cand = pool[np.lexsort((order[pool], val[pool]))]  # ties: canonical index
+        if rule == "coverage" and len(cand):
+            cand = cand[_covered(g, nbx, cand, coverage, kk)]
+        if len(cand) == 0:
+            if target is not None:
+                logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
+            break
+        sel = _first_independent(cand, nbx, n, kk)
+        if target is not None:
+            sel = sel[: n_alive - target]
+        if len(sel) == 0:
+            break
+        alive[sel] = False
+        n_alive -= len(sel)
+        val[sel] = np.inf
+        kk[sel] = 0
+        nbx[sel] = n
+        rnd += 1
+        report(len(sel))
+
+        touched = np.zeros(c, dtype=bool)
+        touched[ginv[sel]] = True
+        m = np.bincount(ginv[alive & ~dup], minlength=c)
+        k_new = neighbour_count(m, k0, k_min)
+        copies = np.zeros(c, dtype=bool)
+        copies[ginv[alive & dup]] = True
+        whole = touched & (copies | (m < k_new + 2))
+        part = touched & ~whole
+        # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
+        rows = np.flatnonzero(part[ginv] & (kk > 0))
+        removed[sel] = True
+        x = nbx[rows]
+        gone = removed[x]
+        kn = k_new[ginv[rows]]
+        hit = gone.any(axis=1) | (kk[rows] != kn)
+        rows, x, gone, kn = rows[hit], x[hit], gone[hit], kn[hit]
+        removed[sel] = False
+        stay = (x < n) & ~gone
+        col = np.cumsum(stay, axis=1) - 1
+        packed = np.full_like(x, n)
+        r_i, c_i = np.nonzero(stay)
+        packed[r_i, col[r_i, c_i]] = x[r_i, c_i]
+        nbx[rows] = packed
+        enough = stay.sum(axis=1) >= kn + 1
+        ok = rows[enough]
+        kk[ok] = kn[enough]
+        pk = packed[enough]
+        rk[ok] = dist(ok, np.take_along_axis(pk, (kn[enough] - 1)[:, None], axis=1)[:, 0])
+        rk1[ok] = dist(ok, np.take_along_axis(pk, kn[enough][:, None], axis=1)[:, 0])
+        kcl[part] = k_new[part]
+        q_part = rows[~enough]
+        q_whole = query(whole)
+        logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",
+                     rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part), len(q_whole))
+        run(np.union1d(q_part, q_whole))
+        rescore(touched)
+    out = np.empty(n, dtype=bool)
+    out[order] = alive
+    return out
+
+
+def _covered(P, nb, cand, coverage, kk=None):
     """Which candidates may go without opening a gap wider than the local spacing.
 
     r_1(y) is y's nearest-neighbour distance. A candidate y qualifies when
@@ -382,11 +571,16 @@ def _covered(P, nb, cand, coverage):
     """
     n = len(P)
     has = nb[:, 0] >= 0
+    if kk is not None:  # row i holds kk[i] neighbours
+        has &= kk > 0
     r1 = np.full(n, np.inf)
     r1[has] = np.sqrt(((P[has] - P[nb[has, 0]]) ** 2).sum(axis=1))
     c = cand[has[cand]]
     nbc = nb[c]
-    vals = np.where(nbc >= 0, r1[np.maximum(nbc, 0)], np.nan)
+    ok_col = nbc >= 0
+    if kk is not None:
+        ok_col &= np.arange(nb.shape[1]) < kk[c, None]
+    vals = np.where(ok_col, r1[np.where(ok_col, nbc, 0)], np.nan)
     med = np.nanmedian(vals, axis=1)
     ok = np.zeros(len(cand), dtype=bool)
     ok[has[cand]] = r1[c] <= coverage * med
