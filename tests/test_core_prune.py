@@ -211,3 +211,49 @@ def test_workers_do_not_change_results(method):
     a = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=1)
     b = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=2)
     assert np.array_equal(a, b)
+
+
+def _reference_rounds(pts, labels, rule, S=1e-3, target=None, coverage=1.0):
+    """The iterative/coverage rules by full rescoring of the remaining points every round."""
+    from cloudsieve.cluster import _canonical_order
+    from cloudsieve.prune import _covered
+
+    order = _canonical_order(pts)
+    P, L = pts[order], labels[order]
+    alive = np.arange(len(pts))
+    while target is None or len(alive) > target:
+        s = score_points(P[alive], L[alive])
+        val = s.delta_h if target is None else s.unit_free
+        pool = np.flatnonzero(val <= S if target is None else np.isfinite(val))
+        cand = pool[np.lexsort((pool, val[pool]))]
+        if rule == "coverage" and len(cand):
+            cand = cand[_covered(P[alive], s.neighbours, cand, coverage)]
+        if len(cand) == 0:
+            break
+        sel = _first_independent(cand, s.neighbours, len(alive))
+        if target is not None:
+            sel = sel[: len(alive) - target]
+        alive = np.delete(alive, sel)
+    keep = np.zeros(len(pts), dtype=bool)
+    keep[order[alive]] = True
+    return keep
+
+
+@pytest.mark.parametrize("rule,kw", [("iterative", dict(ratio=0.4)), ("coverage", dict(ratio=0.5)),
+                                     ("iterative", dict(threshold="q30")), ("coverage", dict(count=2500))])
+def test_incremental_rounds_equal_full_rescoring(rule, kw):
+    # clusters whose k falls round after round, exact copies, a small cluster: the incremental
+    # rescoring between rounds must keep exactly the points a full rescoring keeps
+    pts = surface(3000, seed=5)
+    labels = refine_labels(pts, "km", 150, seed=0)
+    pts = np.concatenate([pts, pts[:40], pts[:5] + 2.0])
+    labels = np.concatenate([labels, labels[:40], np.full(5, labels.max() + 1)])
+    kw = dict(kw)
+    if kw.get("threshold") == "q30":
+        kw["threshold"] = float(np.quantile(score_points(pts, labels).delta_h, 0.3))
+    n = len(pts)
+    target = round(kw["ratio"] * n) if "ratio" in kw else kw.get("count")
+    ref = _reference_rounds(pts, labels, rule, S=kw.get("threshold", 1e-3), target=target)
+    got = prune(pts, labels, rule=rule, **kw)
+    np.testing.assert_array_equal(got, ref)
+    assert got[-5:].all()  # the small cluster (5 < k + 2 = 6) is never scored
