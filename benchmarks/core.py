@@ -1,6 +1,6 @@
 """Core benchmark: the paper's setting on real scans, and throughput at 1 M / 5 M points.
 
-Run: ``.venv/bin/python benchmarks/core.py [--sizes 1e6,5e6] [--fcm-iters 20] [--skip-paper]``
+Run: ``.venv/bin/python benchmarks/core.py [--sizes 1e6,5e6] [--fcm-iters 20] [--workers N] [--skip-paper]``
 
 (a) bun_zipper.ply and maxplanck.ply (vertices as the cloud), clusters of ~400
     points, S = 0.001, KM and FCM, rule ``threshold`` (the paper) and
@@ -10,8 +10,13 @@ Run: ``.venv/bin/python benchmarks/core.py [--sizes 1e6,5e6] [--fcm-iters 20] [-
 (b) a generated surface (a height field with small noise) of each size:
     points/s of refinement (KM to convergence; FCM for ``--fcm-iters``
     iterations, also given per iteration), of one scoring pass, and of each
-    rule on the KM clusters; and the peak memory of KM at 1 M points into
-    2,500 clusters (a fresh process, so the figure is the process's peak RSS).
+    rule on the KM clusters (points/s = input points / seconds of the whole
+    call; the round rules give their number of rounds); and the peak memory
+    of KM at 1 M points into 2,500 clusters (a fresh process, so the figure
+    is the process's peak RSS).
+
+``--workers`` is the number of threads of the k-d tree queries (default: all
+cores), passed to every stage.
 
 Prints Markdown tables. Timings are wall-clock on whatever else runs on the
 machine.
@@ -56,12 +61,15 @@ def surface(n: int, seed: int = 0) -> np.ndarray:
     return np.c_[u, z]
 
 
+WORKERS = None  # k-d tree threads for every stage (--workers)
+
+
 def fit(method: str, pts: np.ndarray, c: int, **kw):
     est = KMeans(c, **kw) if method == "km" else FuzzyCMeans(c, **kw)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         t = time.perf_counter()
-        est.fit(pts)
+        est.fit(pts, workers=WORKERS)
         return est, time.perf_counter() - t
 
 
@@ -84,11 +92,11 @@ def paper_table(fcm_max_iter: int) -> str:
             est, t_ref = fit(method, pts, c, **kw)
             labels = est.labels_
             t = time.perf_counter()
-            score_points(pts, labels)
+            score_points(pts, labels, workers=WORKERS)
             t_sc = time.perf_counter() - t
             for rule in ("threshold", "iterative"):
                 t = time.perf_counter()
-                keep = prune(pts, labels, rule=rule, threshold=1e-3)
+                keep = prune(pts, labels, rule=rule, threshold=1e-3, workers=WORKERS)
                 t_rule = time.perf_counter() - t
                 kept = int(keep.sum())
                 conv = "" if est.converged_ else ", not converged"
@@ -117,18 +125,20 @@ def throughput_table(sizes, fcm_iters: int):
                     f"{n * f.n_iter_ / t:,.0f} point-iterations/s{'' if f.converged_ else '; not converged'} |")
         yield from rows.take()
         t0 = time.perf_counter()
-        s = score_points(pts, labels)
+        s = score_points(pts, labels, workers=WORKERS)
         t = time.perf_counter() - t0
         rows.append(f"| {n:,} | score (one pass, KM clusters) | {t:.2f} | {n / t:,.0f} | "
                     f"{s.n_duplicates} duplicates |")
         for rule, kw in (("threshold", {}), ("iterative", {}), ("target", {"ratio": 0.5}),
-                         ("iterative", {"ratio": 0.5})):
+                         ("iterative", {"ratio": 0.5}), ("coverage", {"ratio": 0.5})):
+            rounds = []
             t0 = time.perf_counter()
-            keep = prune(pts, labels, rule=rule, **kw)
+            keep = prune(pts, labels, rule=rule, workers=WORKERS, progress=rounds.append, **kw)
             t = time.perf_counter() - t0
             label = rule + (" ratio 0.5" if kw else " S=0.001")
-            rows.append(f"| {n:,} | rule {label} | {t:.2f} | {n / t:,.0f} | kept {int(keep.sum()):,} |")
-        yield from rows.take()
+            note = f"; {len(rounds)} rounds" if rule in ("iterative", "coverage") else ""
+            rows.append(f"| {n:,} | rule {label} | {t:.2f} | {n / t:,.0f} | kept {int(keep.sum()):,}{note} |")
+            yield from rows.take()
 
 
 class _Rows(list):
@@ -161,15 +171,19 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", default="1e6,5e6", help="comma-separated cloud sizes for (b); empty to skip")
     ap.add_argument("--fcm-iters", type=int, default=20, help="FCM iterations timed in (b)")
     ap.add_argument("--fcm-max-iter", type=int, default=300, help="FCM max_iter in (a)")
+    ap.add_argument("--workers", type=int, default=None, help="k-d tree threads (default: all cores)")
     ap.add_argument("--skip-paper", action="store_true")
     ap.add_argument("--skip-memory", action="store_true")
     ap.add_argument("--memory-child", nargs=4, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
+    global WORKERS
+    WORKERS = a.workers
     if a.memory_child:
         m, n, c, it = a.memory_child
         memory_child(m, int(n), int(c), int(it))
         return 0
-    print(f"cloudsieve core benchmark, {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}\n")
+    print(f"cloudsieve core benchmark, {os.cpu_count()} cores, k-d tree threads {a.workers or os.cpu_count()}, "
+          f"load average {os.getloadavg()[0]:.1f}\n")
     if not a.skip_paper:
         print("## (a) The paper's setting (S = 0.001, clusters of ~400 points)\n")
         print("maxplanck.ply here has 25,445 vertices, not the paper's 49,089 (a different model file); "
