@@ -7,8 +7,8 @@ work in ``fit``, fitted state with a trailing underscore, one ``seed``, and a
 Cost per iteration is O(n log c), not O(n c): nearest centres come from a
 k-d tree over the centres (scipy's ``cKDTree``, queried on all cores), and
 K-means skips the points whose assignment provably cannot change (Hamerly's
-bounds: distance to the own centre vs. half the distance to the nearest other
-centre and a lower bound on the second nearest). Fuzzy C-means keeps each
+bounds, with the lower bound decaying by the largest move among each centre's
+K nearest centres rather than among all; see :func:`_lloyd`). Fuzzy C-means keeps each
 point's memberships for its ``n_nearest`` nearest centres only (all others are
 zero); with ``n_nearest >= n_clusters`` this is exactly the textbook (dense)
 FCM.
@@ -19,10 +19,15 @@ order; the only randomness is ``np.random.default_rng(seed)``.
 
 ``init="k-means++"`` (default) seeds with k-means++ (D^2 sampling) on a uniform
 subsample of ``max(1000, 4 * n_clusters)`` points (all points when fewer),
-which keeps the seeding O(c^2) instead of O(n c); ``init="random"`` reproduces
-the paper: K-means starts from ``n_clusters`` distinct random points of X, FCM
-from random memberships (dense, computed in blocks: O(n c) once). An array of
-shape (n_clusters, p) gives the initial centres.
+which keeps the seeding O(c^2) instead of O(n c) (FCM then runs 5 Lloyd
+iterations before its own); ``init="kd-split"`` takes the means of a balanced
+k-d split of a subsample (near-equal compact parts); ``init="random"``
+reproduces the paper: K-means starts from ``n_clusters`` distinct random
+points of X, FCM from random memberships (dense, computed in blocks: O(n c)
+once). An array of shape (n_clusters, p) gives the initial centres.
+
+K-means takes ``tol`` (default 0, the paper's "no point changed cluster"):
+stop when at most ``tol * n`` points changed cluster in an iteration.
 """
 
 from __future__ import annotations
@@ -483,7 +488,9 @@ class FuzzyCMeans:
         Fuzzifier, > 1 (2 in the paper).
     tol : float
     n_nearest : int
-    init : {"k-means++", "random"} or ndarray of shape (n_clusters, p)
+    init : {"k-means++", "random", "kd-split"} or ndarray of shape (n_clusters, p)
+        "k-means++": k-means++ seeding then 5 Lloyd iterations (fewer FCM
+        iterations to ``tol``); "random": the paper's random memberships.
     max_iter : int
     seed : int
 
@@ -530,6 +537,10 @@ class FuzzyCMeans:
             C = _random_membership_centres(Xs, c, self.m, rng)
         else:
             C = _initial_centres(Xs, c, self.init, rng)
+            if isinstance(self.init, str) and self.init == "k-means++" and c > 1:
+                # a few Lloyd iterations first: FCM's slow start (centres far from
+                # a balanced partition) is cheaper to cover with K-means
+                C = _lloyd(Xs, C, _FCM_KM_ITERS, workers)[1]
         idx, U, C, n_iter, conv = _fcm(Xs, C, L, float(self.m), float(self.tol), int(self.max_iter), workers)
         if not conv:
             warnings.warn(
@@ -598,28 +609,42 @@ def _max_change(idx0, U0, idx1, U1, c=None):
     return best
 
 
+_FCM_KM_ITERS = 5  # Lloyd iterations before FCM when init="k-means++"
 _BLOCK = 1 << 17  # rows per block in FCM: bounds the temporaries to O(block * L)
 
 
 def _dist_to(Xs, C, idx):
-    diff = Xs[:, None, :] - C[idx]
-    return np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
+    """Distances from each row of Xs to the centres idx of that row (n, L)."""
+    return np.sqrt(_sqdist_to(Xs, C, idx))
+
+
+def _sqdist_to(Xs, C, idx):
+    """Squared distances, one coordinate at a time (no (n, L, p) temporary)."""
+    D2 = np.zeros(idx.shape)
+    for j in range(Xs.shape[1]):
+        diff = Xs[:, j : j + 1] - np.take(C[:, j], idx)
+        D2 += diff * diff
+    return D2
 
 
 def _fcm(Xs, C, L, m, tol, max_iter, workers):
     """FCM iterations, in blocks of points (memory O(n L) for the memberships
-    plus O(block L) temporaries). The L nearest centres of a point are
-    re-queried only when the centres moved enough to possibly change that set:
-    with g the gap between its (L+1)-th and L-th distances at the last query and
-    D the sum of the largest centre moves since, the set is unchanged while
-    2 D < g; otherwise distances to the same L centres are recomputed directly."""
+    plus O(block L) temporaries).
+
+    The L nearest centres of a point are re-queried (k-d tree) only when
+    another centre might have come closer than one of them: with r the
+    (L+1)-th nearest distance at the last query and D the sum, over the
+    iterations since, of the largest move of any centre, every other centre
+    is still >= r - D away; the set is kept while its largest current
+    distance (computed every iteration anyway) is below r - D. Each row of
+    centre indices is kept sorted by index, so an unchanged set is an equal
+    row and the membership change is a plain difference."""
     n, p = Xs.shape
     c = len(C)
     extra = L < c
     idx = np.zeros((n, L), dtype=np.int64)
     U = np.zeros((n, L))
-    gap = np.full(n, np.inf)
-    drift = np.zeros(n)
+    reach = np.zeros(n)  # r - D
     have = False
     conv = False
     it = 0
@@ -630,41 +655,52 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
         den = np.zeros(c)
         for s in range(0, n, _BLOCK):
             e = min(n, s + _BLOCK)
+            Xb = Xs[s:e]
             if not have:
+                Ib = np.empty((e - s, L), dtype=np.int64)
+                D2 = None
                 redo = np.arange(e - s)
-            elif extra:
-                redo = np.flatnonzero(2.0 * drift[s:e] >= gap[s:e])
             else:
-                redo = np.zeros(0, dtype=np.int64)
-            new_idx = idx[s:e].copy()
+                Ib = idx[s:e]
+                D2 = _sqdist_to(Xb, C, Ib)
+                if extra:
+                    rb = reach[s:e]
+                    redo = np.flatnonzero(~(D2.max(axis=1) < np.where(rb > 0, rb * rb, -1.0)))
+                else:
+                    redo = np.zeros(0, dtype=np.int64)
             if len(redo):
                 if tree is None:
                     tree = _tree(C)
                 w = workers if len(redo) >= 20_000 else 1
-                d, i = tree.query(Xs[s + redo], k=L + 1 if extra else L, workers=w)
+                Xr = np.take(Xb, redo, axis=0)
+                d, i = tree.query(Xr, k=L + 1 if extra else L, workers=w)
                 if d.ndim == 1:
                     d, i = d[:, None], i[:, None]
                 if extra:
-                    gap[s + redo] = d[:, L] - d[:, L - 1]
-                drift[s + redo] = 0.0
-                new_idx[redo] = i[:, :L]
-            Ub = _memberships_any(_dist_to(Xs[s:e], C, new_idx), m)
+                    reach[s + redo] = d[:, L]
+                Ib = Ib.copy()
+                Ib[redo] = np.sort(i[:, :L], axis=1)
+                if D2 is None:
+                    D2 = _sqdist_to(Xb, C, Ib)
+                else:
+                    D2[redo] = _sqdist_to(Xr, C, Ib[redo])
+            Ub = _memberships_sq(D2, m)
             if have:
-                if len(redo):
-                    ch = max(ch, _max_change(idx[s:e][redo], U[s:e][redo], new_idx[redo], Ub[redo]))
-                    rest = np.ones(e - s, dtype=bool)
-                    rest[redo] = False
-                    if rest.any():
-                        ch = max(ch, float(np.abs(Ub[rest] - U[s:e][rest]).max()))
+                moved = redo[~(Ib[redo] == idx[s + redo]).all(axis=1)] if len(redo) else redo
+                if len(moved):
+                    ch = max(ch, _max_change(idx[s + moved], U[s + moved], Ib[moved], Ub[moved]))
+                    Ub_same = Ub.copy()
+                    Ub_same[moved] = U[s + moved]  # their change is counted above
+                    ch = max(ch, float(np.abs(Ub_same - U[s:e]).max()))
                 else:
                     ch = max(ch, float(np.abs(Ub - U[s:e]).max()))
-            idx[s:e] = new_idx
+            idx[s:e] = Ib
             U[s:e] = Ub
-            wm = (Ub**m).ravel()
-            flat = new_idx.ravel()
-            den += np.bincount(flat, weights=wm, minlength=c)
+            W = Ub * Ub if m == 2.0 else Ub**m
+            flat = Ib.ravel()
+            den += np.bincount(flat, weights=W.ravel(), minlength=c)
             for j in range(p):
-                num[:, j] += np.bincount(flat, weights=(Ub**m * Xs[s:e, j : j + 1]).ravel(), minlength=c)
+                num[:, j] += np.bincount(flat, weights=(W * Xb[:, j : j + 1]).ravel(), minlength=c)
         if have and ch < tol:
             conv = True
             break
@@ -674,7 +710,7 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
         Cn = C.copy()
         ok = den > 0
         Cn[ok] = num[ok] / den[ok, None]
-        drift += np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
+        reach -= np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
         C = Cn
     # nearest first, as documented
     for s in range(0, n, _BLOCK):
@@ -685,15 +721,18 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
     return idx, U, C, it, conv
 
 
-def _memberships_any(d: np.ndarray, m: float) -> np.ndarray:
-    """u over the columns of d in any order (the nearest need not come first)."""
-    e = 2.0 / (m - 1.0)
-    dmin = d.min(axis=1, keepdims=True)
+def _memberships_sq(d2: np.ndarray, m: float) -> np.ndarray:
+    """u over the columns of the squared distances d2 (any order):
+    u_ij = 1 / sum_l (d_ij / d_il)^(2/(m-1)) = 1 / sum_l (d2_ij / d2_il)^(1/(m-1))."""
+    e = 1.0 / (m - 1.0)
+    dmin = d2.min(axis=1, keepdims=True)
     zero = dmin[:, 0] == 0
     with np.errstate(divide="ignore", invalid="ignore"):
-        r = (dmin / d) ** e
+        r = dmin / d2
+        if e != 1.0:
+            r **= e
     U = r / r.sum(axis=1, keepdims=True)
     if zero.any():
-        z = d[zero] == 0
+        z = d2[zero] == 0
         U[zero] = z / z.sum(axis=1, keepdims=True)
     return U
