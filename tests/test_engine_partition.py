@@ -87,6 +87,23 @@ def test_ties_go_to_the_lower_index():
     z = np.array([[1.0, 0, 0], [1.0, 0, 0.5], [-1.5, 0, 0], [0.1, 0, 0]])
     labels, _ = P.label_block(centers, z, margin=0.0)
     assert labels.tolist() == [0, 0, 0, 0]
+    labels, pairs = P.label_block(centers, z, margin=0.0, halo=False)
+    assert labels.tolist() == [0, 0, 0, 0] and pairs.shape == (0, 2)
+    # a three-way tie: the k=2 answer is re-queried
+    c3 = np.array([[1.0, 0, 0], [0.0, 1, 0], [-1.0, 0, 0], [0.0, -1, 0]])
+    for halo in (True, False):
+        assert P.label_block(c3[::-1].copy(), np.zeros((5, 3)), 0.0, halo=halo)[0].tolist() == [0] * 5
+
+
+def test_partition_without_halo_has_the_same_cells(built, tmp_path):
+    xyz, st, part = built
+    st2 = make_store(tmp_path / "b.zarr", xyz, chunk_size=2_500)
+    part2 = P.build_partition(st2, cell_size=1_500, cluster_size=100, seed=3, run=run_sync, halo=False)
+    assert np.array_equal(np.asarray(st.group["partition/cell"][:]), np.asarray(st2.group["partition/cell"][:]))
+    for j in range(part.n_cells):
+        assert np.array_equal(part.runs(j), part2.runs(j))
+        assert len(part2.halo_sources(j)) == 0
+    assert st.attrs[P.PARTITION_ATTR]["halo"] and not st2.attrs[P.PARTITION_ATTR]["halo"]
 
 
 def test_halo_is_every_point_within_the_margin_of_the_region(built):

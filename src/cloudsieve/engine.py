@@ -932,13 +932,14 @@ def simplify(
                     store_path, meta.get("version"), _part.PARTITION_VERSION,
                 )
                 complete = False
-            if complete and all(meta.get(k) == v for k, v in want.items()):
+            if complete and all(meta.get(k) == v for k, v in want.items()) and (meta.get("halo") or not context):
                 part = _part.Partition.load(st)
                 logger.info("reusing the partition in %s (%d cells)", store_path, part.n_cells)
             else:
                 _clear_derived(st)
                 part = _part.build_partition(
-                    st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min
+                    st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
+                    halo=bool(context),  # the halo sources are only read with a density context
                 )
             update(st.count)
             summary.cells = part.n_cells

@@ -208,8 +208,26 @@ def _nearest(tree: cKDTree, xyz: np.ndarray, kq: int) -> tuple[np.ndarray, np.nd
     return d, nn
 
 
-def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTree | None = None):
+def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
+    """Nearest centre of each row of a k-NN answer, exact ties to the lower index."""
+    labels = nn[:, 0].astype(np.int64)
+    # d is sorted, so tied columns come first
+    for col in range(1, d.shape[1]):
+        same = d[:, col] == d[:, 0]
+        if not same.any():
+            break
+        tie = same & (nn[:, col] < labels)
+        labels[tie] = nn[tie, col]
+    return labels
+
+
+def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTree | None = None, halo: bool = True):
     """Cell of each point (nearest centre, ties to the lower index) and halo pairs.
+
+    With ``halo=False`` (no density context: the cell tasks never read a
+    halo) only the 2 nearest centres are queried, the rows with a tie again
+    with ``HALO_NEIGHBOURS + 1``, and no pairs are returned: the label pass
+    measured ~2.5x faster (k=2 vs k=6 over 1 M points).
 
     The halo test uses the distances the k-d tree already returned:
     ``s_ij(z) = (|z - c_i|^2 - |z - c_j|^2) / (2 |c_i - c_j|)``, the same
@@ -228,15 +246,16 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
     if tree is None:
         tree = cKDTree(centers)
     kq = min(p, HALO_NEIGHBOURS + 1)
+    if not halo:
+        d, nn = _nearest(tree, xyz, min(p, 2))
+        labels = nn[:, 0].astype(np.int64)
+        if p > 1:
+            tied = np.flatnonzero(d[:, 1] == d[:, 0])
+            if len(tied):
+                labels[tied] = _lowest_tied(*_nearest(tree, xyz[tied], kq))
+        return labels, np.empty((0, 2), dtype=np.int64)
     d, nn = _nearest(tree, xyz, kq)
-    labels = nn[:, 0].astype(np.int64)
-    # exact ties: the lower index wins (d is sorted, so tied columns come first)
-    for col in range(1, kq):
-        same = d[:, col] == d[:, 0]
-        if not same.any():
-            break
-        tie = same & (nn[:, col] < labels)
-        labels[tie] = nn[tie, col]
+    labels = _lowest_tied(d, nn)
     if kq == 1:
         return labels, np.empty((0, 2), dtype=np.int64)
     d2 = d * d
@@ -273,7 +292,9 @@ def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
     return ((z - mid) * diff).sum(axis=-1) / norm
 
 
-def label_chunk(store_path: str, chunk: int, start: int, stop: int, margin: float) -> tuple[np.ndarray, int]:
+def label_chunk(
+    store_path: str, chunk: int, start: int, stop: int, margin: float, halo: bool = True
+) -> tuple[np.ndarray, int]:
     """Label + bucket task for input chunk *chunk* (points ``[start, stop)``).
 
     Reads the centres from ``partition/centers`` (not passed through the
@@ -301,7 +322,7 @@ def label_chunk(store_path: str, chunk: int, start: int, stop: int, margin: floa
     labels = np.empty(n, dtype=np.int64)
     pairs = []
     for a in range(0, n, _LABEL_BLOCK):
-        lab, pr = label_block(centers, xyz[a : a + _LABEL_BLOCK], margin, tree)
+        lab, pr = label_block(centers, xyz[a : a + _LABEL_BLOCK], margin, tree, halo)
         labels[a : a + _LABEL_BLOCK] = lab
         pairs.append(pr)
     order = np.argsort(labels, kind="stable")
@@ -612,7 +633,9 @@ def row_layout(chunk_size: int) -> tuple[int, int]:
     return -(-chunk_size // inner) * inner, inner
 
 
-def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4) -> Partition:
+def build_partition(
+    store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True
+) -> Partition:
     """Partition *store* into cells (stage 2) and record it in the store.
 
     Parameters
@@ -627,6 +650,10 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
     run : callable
         ``run(func, argument_tuples, stage) -> list of results in order``: the
         engine's task runner (any dask scheduler).
+    halo : bool
+        List the halo sources of every cell (needed by cell tasks that use a
+        density context); False leaves them empty and labels faster. Recorded
+        as ``"halo"`` in the partition's attributes.
 
     Returns
     -------
@@ -676,7 +703,7 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
         "partition/label_runs", shape=(n_chunks, width, 2), dtype="int64",
         chunks=(1, min(width, 4096), 2), compressors=compressors(),
     )
-    args = [(path, c, s, min(s + chunk, n), margin) for c, s in enumerate(starts)]
+    args = [(path, c, s, min(s + chunk, n), margin, bool(halo)) for c, s in enumerate(starts)]
     results = run(label_chunk, args, "partition: label")
     pair_lists = [r[0] for r in results]
     nnz = np.array([r[1] for r in results], dtype=np.int64)
@@ -697,6 +724,7 @@ def build_partition(store, *, cell_size: int, cluster_size: int, seed: int, run,
         "n_cells": int(p),
         "n_chunks": int(n_chunks),
         "n_runs": int(nnz.sum()),
+        "halo": bool(halo),
         "sample": int(len(sample)),
         "k": k,
         "r_k": r_k,
