@@ -370,7 +370,16 @@ class _Runner:
         import dask
         from dask.callbacks import Callback
 
-        tasks = [dask.delayed(func, pure=False)(*a) for a in args]
+        # keys that sort in reverse argument order: dask's local scheduler then
+        # starts the tasks in argument order (with random keys it picks them
+        # in key order, i.e. at random), which the cells stage uses to start
+        # the largest cells first
+        token = uuid.uuid4().hex[:8]
+        last = len(args) - 1
+        tasks = [
+            dask.delayed(func, pure=False)(*a, dask_key_name=f"cloudsieve-{func.__name__}-{token}-{last - i:09d}")
+            for i, a in enumerate(args)
+        ]
         keys = {t.key for t in tasks}
 
         class _Count(Callback):
@@ -1059,6 +1068,13 @@ def _cell_args(st, part, regions, cells, params, threads: int = 1):
     return out
 
 
+def _largest_first(part, cells) -> list[int]:
+    """*cells* by decreasing point count (ties by id): the longest tasks start first, so the
+    stage does not end with one worker busy on a large cell while the others wait."""
+    cells = np.asarray(cells, dtype=np.int64)
+    return [int(j) for j in cells[np.lexsort((cells, -part.cell_counts[cells]))]] if len(cells) else []
+
+
 def _run_cells(st, part, regions, params, runner, target, update):
     """Run the cell tasks still missing; returns (computed, reused, global threshold or None)."""
     g = st.group
@@ -1066,17 +1082,17 @@ def _run_cells(st, part, regions, params, runner, target, update):
     done = np.asarray(g["simplify/done"][:]).astype(bool)
     reused = int(done.sum())
     if target is None:
-        todo = [j for j in range(p) if not done[j]]
+        todo = _largest_first(part, [j for j in range(p) if not done[j]])
         results = runner(cell_task, _cell_args(st, part, regions, todo, params, runner.task_threads), "cells")
         update(int(sum(r["n"] for r in results)))
         return len(todo), reused, None
     # ratio / count: pass 1 scores, one global threshold, pass 2 applies it
     scored = np.asarray(g["simplify/scored"][:]).astype(bool)
-    todo = [j for j in range(p) if not scored[j] and not done[j]]
+    todo = _largest_first(part, [j for j in range(p) if not scored[j] and not done[j]])
     results = runner(score_task, _cell_args(st, part, regions, todo, params, runner.task_threads), "cells: score")
     update(int(sum(r["n"] for r in results)))
     threshold = _global_threshold(st, part, regions, runner, st.count - target)
-    todo2 = [j for j in range(p) if not done[j]]
+    todo2 = _largest_first(part, [j for j in range(p) if not done[j]])
     args = [a + (threshold,) for a in _cell_args(st, part, regions, todo2, params, runner.task_threads)]
     runner(apply_task, args, "cells: apply")
     return len(todo2), reused, threshold
