@@ -139,27 +139,40 @@ def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
 def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
     """Centres of a balanced k-d split of a uniform subsample of X.
 
-    The sample (64 points per cluster, at least 10,000) is cut recursively
-    across its widest coordinate into two parts holding k1 = k // 2 and k - k1
-    clusters' shares of the points, until each part holds one cluster's; the
-    centres are the parts' means. Near-equal, compact parts: Lloyd's
-    iterations start close to a balanced partition."""
-    S = _sample(X, max(10_000, 64 * c), rng)
-    centres = np.empty((c, S.shape[1]))
-    stack = [(np.arange(len(S)), c, 0)]
-    while stack:
-        idx, k, first = stack.pop()
-        P = S[idx]
-        if k == 1 or len(idx) <= 1:
-            centres[first : first + k] = P.mean(axis=0)
-            continue
+    The sample (32 points per cluster, at least 10,000) is cut recursively
+    across its widest coordinate into two parts holding k1 = k // 2 and
+    k - k1 clusters' shares of the points, until each part holds one
+    cluster's; the centres are the parts' means. Near-equal, compact parts:
+    Lloyd's iterations start close to a balanced partition. All parts of a
+    level are cut at once: one stable sort of the sample by (part, coordinate)."""
+    S = _sample(X, max(10_000, 32 * c), rng)
+    s, p = S.shape
+    perm = np.arange(s)
+    start = np.zeros(1, dtype=np.int64)
+    size = np.array([s], dtype=np.int64)
+    k = np.array([c], dtype=np.int64)
+    while (k > 1).any():
+        P = np.take(S, perm, axis=0)
+        ext = np.maximum.reduceat(P, start, axis=0) - np.minimum.reduceat(P, start, axis=0)
+        axis = np.argmax(ext, axis=1)
+        part = np.repeat(np.arange(len(start)), size)
+        key = P[np.arange(s), axis[part]]
+        o = np.argsort(key)  # deterministic; ties in any fixed order
+        perm = perm[o[np.argsort(part[o], kind="stable")]]  # by part, then key
+        split = k > 1
         k1 = k // 2
-        axis = int(np.argmax(P.max(axis=0) - P.min(axis=0)))
-        cut = min(max(1, round(len(idx) * k1 / k)), len(idx) - 1)
-        o = np.argpartition(P[:, axis], cut - 1)  # deterministic (introselect)
-        stack.append((idx[o[cut:]], k - k1, first + k1))
-        stack.append((idx[o[:cut]], k1, first))
-    return centres
+        cut = np.clip(np.round(size * k1 / np.maximum(k, 1)).astype(np.int64), 1, np.maximum(size - 1, 1))
+        # children in order: (start, cut, k1), (start + cut, size - cut, k - k1); unsplit parts kept
+        n_new = len(k) + int(split.sum())
+        ns, nz, nk = np.empty(n_new, np.int64), np.empty(n_new, np.int64), np.empty(n_new, np.int64)
+        pos = np.arange(len(k)) + np.cumsum(split) - split
+        ns[pos], nz[pos], nk[pos] = start, np.where(split, cut, size), np.where(split, k1, k)
+        q = pos[split] + 1
+        ns[q], nz[q], nk[q] = start[split] + cut[split], size[split] - cut[split], (k - k1)[split]
+        start, size, k = ns, nz, nk
+    P = np.take(S, perm, axis=0)
+    means = np.add.reduceat(P, start, axis=0) / size[:, None]
+    return np.repeat(means, k, axis=0)[:c]
 
 
 INITS = ("k-means++", "random", "kd-split")
