@@ -143,6 +143,33 @@ def open3d_same_count(src: Path, count: int) -> tuple[float, int, float]:
     return time.perf_counter() - t0, k, voxel
 
 
+def _spin(_) -> float:
+    t = time.process_time()
+    x = 0
+    for i in range(15_000_000):
+        x += i
+    return time.process_time() - t
+
+
+def machine_ceiling() -> float:
+    """Speed-up of a pure-Python CPU loop run in 2 processes at once vs 1 (the best 2 workers can do now).
+
+    On a machine shared with other jobs this is below 2; the 1 vs 2 workers
+    speed-up of the engine is to be read against it.
+    """
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(2) as ex:
+        list(ex.map(_spin, [0, 0]))  # start both processes
+        t0 = time.perf_counter()
+        ex.submit(_spin, 0).result()
+        one = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        list(ex.map(_spin, [0, 0]))
+        two = time.perf_counter() - t0
+    return 2 * one / two
+
+
 def fmt_stages(s: dict) -> str:
     sec = s["seconds"]
     return " / ".join(f"{sec.get(k, 0):.1f}" for k in ("ingest", "partition", "cells", "merge", "export"))
@@ -235,18 +262,20 @@ def main(argv=None) -> int:
         n = args.speedup_size
         src = scan(n, work)
         res = {}
+        ceil0 = machine_ceiling()
         for w in (1, 2):
             res[w] = run_simplify(
                 src, work / f"out_w{w}.laz", "--method", "km", "--rule", args.rule, "--cell-size", str(args.cell_size),
                 "--workers", str(w), "--scheduler", "processes",
             )
+        ceil1 = machine_ceiling()
         print("## 1 vs 2 workers (processes scheduler, KM)\n")
-        print("| points | 1 worker (s) | 2 workers (s) | speed-up, total | speed-up, cells stage |")
-        print("|---:|---:|---:|---:|---:|")
+        print("| points | 1 worker (s) | 2 workers (s) | speed-up, total | speed-up, cells stage | machine ceiling (2-process CPU loop, before / after) |")
+        print("|---:|---:|---:|---:|---:|---:|")
         a, b = res[1], res[2]
         print(
             f"| {n:,} | {a['wall']:.1f} | {b['wall']:.1f} | {a['wall'] / b['wall']:.2f}x | "
-            f"{a['seconds']['cells'] / b['seconds']['cells']:.2f}x |\n"
+            f"{a['seconds']['cells'] / b['seconds']['cells']:.2f}x | {ceil0:.2f}x / {ceil1:.2f}x |\n"
         )
     print(f"load average at end {os.getloadavg()[0]:.1f}")
     return 0

@@ -16,8 +16,10 @@
 5. **export** of the kept points, every attribute and the header
    (:func:`cloudsieve.convert.export`, atomic).
 
-Only small arrays (centres, run tables, a few numbers) pass through the
-scheduler; every task opens the store by path. Results do not depend on the
+Only a few numbers pass through the scheduler, never an array of size P or
+N: every task opens the store by path and reads its own runs there (see
+:mod:`cloudsieve.partition`); a cell task gets the centres of its cell and of
+its halo sources. Results do not depend on the
 scheduler, the number of workers or task completion order: a cell's points
 are in input order, its seed is ``SeedSequence([seed, cell])``, and every
 reduction is over integers or in a fixed order.
