@@ -462,15 +462,17 @@ def _reassign(Xa, aa, u, C, nb, T, workers):
     T_a - u, the distance below which no non-neighbour centre can be. The
     rest go to a k-d tree over all centres."""
     cand = np.concatenate([aa[:, None], np.take(nb, aa, axis=0)], axis=1)  # (m, K + 1)
-    D = np.zeros(cand.shape)
+    D = np.zeros(cand.shape)  # squared distances
     for j in range(Xa.shape[1]):
-        D += (Xa[:, j : j + 1] - np.take(C[:, j], cand)) ** 2
-    np.sqrt(D, out=D)
+        diff = np.take(np.ascontiguousarray(C[:, j]), cand)
+        np.subtract(Xa[:, j : j + 1], diff, out=diff)
+        np.multiply(diff, diff, out=diff)
+        D += diff
     rows = np.arange(len(D))
     k1 = np.argmin(D, axis=1)
-    d1 = D[rows, k1]
+    d1 = np.sqrt(D[rows, k1])
     D[rows, k1] = np.inf
-    d2 = D.min(axis=1)
+    d2 = np.sqrt(D.min(axis=1))
     far = np.take(T, aa) - u
     na = cand[rows, k1]
     low = np.minimum(d2, far)
@@ -699,7 +701,7 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
                     D2[redo] = _sqdist_to(Xr, C, Ib[redo])
             Ub = _memberships_sq(D2, m)
             if have:
-                moved = redo[~(Ib[redo] == idx[s + redo]).all(axis=1)] if len(redo) else redo
+                moved = redo[~(np.take(Ib, redo, axis=0) == np.take(idx[s:e], redo, axis=0)).all(axis=1)]
                 if len(moved):
                     ch = max(ch, _max_change(idx[s + moved], U[s + moved], Ib[moved], Ub[moved]))
                     Ub_same = Ub.copy()
