@@ -362,6 +362,30 @@ def test_a_store_with_the_older_dense_partition_layout_is_partitioned_again(tmp_
     assert "partition/counts" not in st.group
 
 
+@pytest.mark.parametrize("context", [False, True])
+def test_task_arguments_do_not_grow_with_the_number_of_cells(tmp_path, context):
+    """Cell tasks get the centres of their cell and halo sources only, and read their runs from the store."""
+    import pickle
+
+    from cloudsieve.engine import _cell_args, _params, _region_block, _regions
+
+    src = write_laz(tmp_path / "p.laz", plane(12_000, side=100.0))
+    store = tmp_path / "w.zarr"
+    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, context=context,
+             **{**FAST, "cluster_size": 100})
+    st = PointStore.open(str(store))
+    part = P.Partition.load(st)
+    assert part.n_cells == 40
+    regions, _ = _regions(part.cell_counts, _region_block(300))
+    params = _params("km", "threshold", 1e-3, None, None, 100, 300, 7, context, 1.0, 4)
+    for args in _cell_args(st, part, regions, range(part.n_cells), params):
+        path, cell, halo, centers, margin, region, task_params = args
+        assert set(centers) == {cell, *halo} and (len(halo) > 0) == context
+        assert len(halo) < part.n_cells / 2
+        assert all(np.size(a) < part.n_cells for a in args if isinstance(a, np.ndarray))
+        assert len(pickle.dumps(args)) < 2_000 + 200 * len(halo)
+
+
 def test_resume_with_other_parameters_is_refused(tmp_path):
     src = write_laz(tmp_path / "p.laz", plane(4_000, side=60.0))
     kw = dict(cell_size=2_000, chunk_size=3_000, scheduler="sync", store=tmp_path / "w.zarr", method="km", rule="threshold", cluster_size=200)
