@@ -257,3 +257,16 @@ def test_incremental_rounds_equal_full_rescoring(rule, kw):
     got = prune(pts, labels, rule=rule, **kw)
     np.testing.assert_array_equal(got, ref)
     assert got[-5:].all()  # the small cluster (5 < k + 2 = 6) is never scored
+
+
+def test_first_independent_with_row_lengths():
+    rng = np.random.default_rng(1)
+    n, k = 400, 6
+    nb = rng.integers(0, n, (n, k))
+    nb[nb == np.arange(n)[:, None]] = -1  # no self loops
+    kk = rng.integers(0, k + 1, n)
+    cut = np.where(np.arange(k) < kk[:, None], nb, -1)
+    cand = rng.permutation(n)[:300]
+    np.testing.assert_array_equal(_first_independent(cand, nb, n, kk), _first_independent(cand, cut, n))
+    padded_n = np.where(cut < 0, n, cut)  # padding n works like -1
+    np.testing.assert_array_equal(_first_independent(cand, padded_n, n), _first_independent(cand, cut, n))

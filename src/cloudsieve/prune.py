@@ -193,44 +193,44 @@ def _padded(indptr: np.ndarray, indices: np.ndarray, width: int | None = None) -
 def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray | None = None) -> np.ndarray:
     """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph.
 
-    ``nb`` (n, K) holds each point's neighbours, padded with -1. Returns the
-    selected candidates in priority order (with ``kk``, row i holds k = kk[i]
-    neighbours, the columns after them are ignored): exactly what a sequential pass
-    keeps (take a candidate unless one of its neighbours, or a point having it
-    as a neighbour, was taken before), computed by rounds of local minima of
-    the rank.
+    ``nb`` (n, K) holds each point's neighbours, padded with -1 (or n). Returns
+    the selected candidates in priority order (with ``kk``, row i holds k =
+    kk[i] neighbours, the columns after them are ignored): exactly what a
+    sequential pass keeps (take a candidate unless one of its neighbours, or a
+    point having it as a neighbour, was taken before), computed by rounds of
+    local minima of the rank: a candidate is taken when no undecided candidate
+    of lower rank points to it or is pointed to by it. Each round works on the
+    (candidates x K) rank matrix of the undecided ones, row-wise (no sort, no
+    ufunc.at).
     """
-    if len(cand) == 0:
+    nc = len(cand)
+    if nc == 0:
         return cand
-    big = np.iinfo(np.int64).max
-    rank = np.full(n + 1, big, dtype=np.int64)  # slot n: the -1 padding
-    rank[cand] = np.arange(len(cand))
+    pos = np.full(n + 1, nc, dtype=np.int64)  # nc: not a candidate, or padding
+    pos[cand] = np.arange(nc)  # a candidate's local id is its rank
     dst = nb[cand]
     if kk is not None:
         dst = np.where(np.arange(nb.shape[1]) < kk[cand, None], dst, -1)
-    src = np.repeat(cand, nb.shape[1])
-    dst = dst.ravel()
-    dst = np.where(dst < 0, n, dst)
-    keep = rank[dst] < big  # both ends candidates
-    u = np.concatenate([src[keep], dst[keep]])
-    v = np.concatenate([dst[keep], src[keep]])
-    undecided = np.zeros(n, dtype=bool)
-    undecided[cand] = True
-    selected = np.zeros(n, dtype=bool)
-    while True:
-        live = undecided[u] & undecided[v]
-        u, v = u[live], v[live]
-        und = np.flatnonzero(undecided)
-        if len(und) == 0:
-            break
-        minnb = np.full(n, big, dtype=np.int64)
-        np.minimum.at(minnb, u, rank[v])
-        win = und[rank[und] < minnb[und]]
-        selected[win] = True
-        undecided[win] = False
-        undecided[v[selected[u]]] = False  # neighbours of winners are out
-    sel = np.flatnonzero(selected)
-    return sel[np.argsort(rank[sel], kind="stable")]
+    D = pos[np.where((dst < 0) | (dst >= n), n, dst)]  # (nc, K): ranks of the neighbours, nc for none
+    state = np.zeros(nc + 1, dtype=np.int8)  # 0 undecided, 1 taken, 2 out; slot nc (none): out
+    state[nc] = 2
+    und = np.arange(nc)
+    blocked = np.zeros(nc + 1, dtype=bool)
+    while len(und):
+        live = state[D] == 0
+        me = und[:, None]
+        lower_out = (live & (D < me)).any(axis=1)  # points to a lower undecided candidate
+        higher = D[live & (D > me)]
+        blocked[higher] = True  # pointed to by a lower undecided candidate
+        win = ~lower_out & ~blocked[und]
+        blocked[higher] = False
+        state[und[win]] = 1
+        dw = D[win]
+        state[dw[state[dw] == 0]] = 2  # the winners' neighbours
+        state[und[(state[D] == 1).any(axis=1) & (state[und] == 0)]] = 2  # points having a winner as neighbour
+        keep = state[und] == 0
+        und, D = und[keep], D[keep]
+    return cand[np.flatnonzero(state[:nc] == 1)]
 
 
 def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e-3, ratio=None, count=None,
