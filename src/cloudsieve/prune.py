@@ -500,13 +500,14 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
             break
         pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
         cand = pool[np.lexsort((order[pool], val[pool]))]  # ties: canonical index
+        nbk = nbx[:, : int(kk.max(initial=1))]  # the columns that can hold one of the k nearest
         if rule == "coverage" and len(cand):
-            cand = cand[_covered(g, nbx, cand, coverage, kk)]
+            cand = cand[_covered(g, nbk, cand, coverage, kk)]
         if len(cand) == 0:
             if target is not None:
                 logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
             break
-        sel = _first_independent(cand, nbx, n, kk)
+        sel = _first_independent(cand, nbk, n, kk)
         if target is not None:
             sel = sel[: n_alive - target]
         if len(sel) == 0:
@@ -581,7 +582,14 @@ def _covered(P, nb, cand, coverage, kk=None):
     if kk is not None:
         ok_col &= np.arange(nb.shape[1]) < kk[c, None]
     vals = np.where(ok_col, r1[np.where(ok_col, nbc, 0)], np.nan)
-    med = np.nanmedian(vals, axis=1)
+    # row medians ignoring NaN, as np.nanmedian (mean of the two middle values) but with one
+    # row sort (NaN last) instead of its masked-array path (measured 3x slower on 200k rows)
+    cnt = ok_col.sum(axis=1)
+    vals.sort(axis=1)
+    lo = np.take_along_axis(vals, np.maximum((cnt - 1) // 2, 0)[:, None], axis=1)[:, 0]
+    hi = np.take_along_axis(vals, (cnt // 2)[:, None], axis=1)[:, 0]
+    with np.errstate(invalid="ignore"):
+        med = np.where(cnt > 0, (lo + hi) / 2, np.nan)
     ok = np.zeros(len(cand), dtype=bool)
     ok[has[cand]] = r1[c] <= coverage * med
     return ok
