@@ -472,10 +472,14 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
         cl = ginv[rows]
         w, gw, Wc, dw_x, dg_x = _weights(cl, c, rk[rows], rk1[rows], dim)
         kr = kk[rows]
-        x = nbx[rows, : int(kr.max())]
-        tgt = x[np.arange(x.shape[1]) < kr[:, None]]  # row by row, the k nearest
-        acc_w = np.bincount(tgt, weights=np.repeat(dw_x, kr), minlength=n)
-        acc_g = np.bincount(tgt, weights=np.repeat(dg_x, kr), minlength=n)
+        acc_w = np.zeros(n)
+        acc_g = np.zeros(n)
+        for k in np.unique(kr):  # x's change goes to its k nearest (a cluster has one k)
+            k = int(k)
+            at = np.flatnonzero(kr == k)
+            tgt = nbx[rows[at], :k].ravel()
+            acc_w += np.bincount(tgt, weights=np.repeat(dw_x[at], k), minlength=n)
+            acc_g += np.bincount(tgt, weights=np.repeat(dg_x[at], k), minlength=n)
         dh = np.abs(_change(acc_w[rows] - w, acc_g[rows] - gw, Wc))
         if use_unit:
             m = np.bincount(ginv[alive & ~dup], minlength=c)
