@@ -206,15 +206,16 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray 
     nc = len(cand)
     if nc == 0:
         return cand
-    pos = np.full(n + 1, nc, dtype=np.int64)  # nc: not a candidate, or padding
-    pos[cand] = np.arange(nc)  # a candidate's local id is its rank
+    idt = np.int32 if nc < 2**31 - 1 else np.int64  # half the memory traffic of the rounds below
+    pos = np.full(n + 1, nc, dtype=idt)  # nc: not a candidate, or padding
+    pos[cand] = np.arange(nc, dtype=idt)  # a candidate's local id is its rank
     dst = nb[cand]
     if kk is not None:
         dst = np.where(np.arange(nb.shape[1]) < kk[cand, None], dst, -1)
     D = pos[np.where((dst < 0) | (dst >= n), n, dst)]  # (nc, K): ranks of the neighbours, nc for none
     state = np.zeros(nc + 1, dtype=np.int8)  # 0 undecided, 1 taken, 2 out; slot nc (none): out
     state[nc] = 2
-    und = np.arange(nc)
+    und = np.arange(nc, dtype=idt)
     blocked = np.zeros(nc + 1, dtype=bool)
     while len(und):
         live = state[D] == 0
