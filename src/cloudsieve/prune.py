@@ -88,6 +88,18 @@ logger = logging.getLogger(__name__)
 RULES = ("iterative", "threshold", "target", "coverage")
 METHODS = ("fcm", "km")
 
+# The refinement's stopping rule. The paper runs KM until no point changes
+# cluster and FCM until memberships move less than 1e-5. Measured (session 2,
+# 1 M points into 2,500 clusters): KM needs 225 iterations to "no change" but
+# 16 to "at most 1% changed", at the same mean squared error within 2.3%; and
+# simplify_points(rule="iterative", ratio=0.5) then gives the same point RMS
+# (bun_zipper 0.3668% vs 0.3656% of the diagonal, maxplanck 0.4528% vs
+# 0.4504%). FCM never reaches 1e-5 in 300 iterations on the real scans, and 20
+# iterations give the same RMS as 300 on bun_zipper (0.3667% vs 0.3687%).
+# KMeans/FuzzyCMeans keep the paper's criteria as their own defaults.
+REFINE_KM_TOL = 0.01
+REFINE_FCM_MAX_ITER = 20
+
 
 def _check_cluster_size(cluster_size, k_min):
     if int(cluster_size) != cluster_size or cluster_size < k_min + 2:
@@ -96,8 +108,8 @@ def _check_cluster_size(cluster_size, k_min):
 
 
 def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: int = 0, *,
-                  k_min: int = 4, n_nearest: int = 8, max_iter: int = 300, init="k-means++",
-                  workers: int | None = None) -> np.ndarray:
+                  k_min: int = 4, n_nearest: int = 8, max_iter: int | None = None, init="k-means++",
+                  workers: int | None = None, tol: float | None = None) -> np.ndarray:
     """Cluster labels of KM or FCM into c = ceil(n / cluster_size) clusters.
 
     Parameters
@@ -107,6 +119,12 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
     cluster_size : int
         Mean points per cluster, >= k_min + 2.
     seed : int
+    max_iter : int, optional
+        Default: 300 for KM, ``REFINE_FCM_MAX_ITER`` (20) for FCM.
+    tol : float, optional
+        KM: stop when at most ``tol * n`` points changed cluster (default
+        ``REFINE_KM_TOL`` = 0.01; 0 is the paper's "no point changes").
+        FCM: the largest membership change (default 1e-5, the paper's).
     workers : int, optional
         Threads for the k-d tree queries (None: all cores). The labels do not
         depend on it.
@@ -118,8 +136,9 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
 
     Notes
     -----
-    Hitting ``max_iter`` (usual for FCM at tol=1e-5 on large uniform
-    surfaces) is logged at INFO level instead of raising a
+    The defaults stop earlier than the paper (see ``REFINE_KM_TOL`` for the
+    measurements); ``tol=0, max_iter=300`` gives the paper's KM. Hitting
+    ``max_iter`` (usual for FCM at tol=1e-5 on large uniform surfaces) is logged at INFO level instead of raising a
     :class:`~cloudsieve.cluster.ConvergenceWarning`: the labels still form a
     valid partition into small clusters.
     """
@@ -132,9 +151,12 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
         return np.zeros(0, dtype=np.int64)
     c = max(1, math.ceil(n / cluster_size))
     if method == "km":
-        est = KMeans(c, init=init, max_iter=max_iter, seed=seed)
+        est = KMeans(c, init=init, max_iter=300 if max_iter is None else max_iter, seed=seed,
+                     tol=REFINE_KM_TOL if tol is None else tol)
     else:
-        est = FuzzyCMeans(c, n_nearest=n_nearest, init=init, max_iter=max_iter, seed=seed)
+        est = FuzzyCMeans(c, n_nearest=n_nearest, init=init, seed=seed,
+                          max_iter=REFINE_FCM_MAX_ITER if max_iter is None else max_iter,
+                          tol=1e-5 if tol is None else tol)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", ConvergenceWarning)
         labels = est.fit(pts, workers=workers).labels_
