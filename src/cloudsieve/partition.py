@@ -269,7 +269,8 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
         j = labels[rows]
         diff = centers[i] - centers[j]
         cd = np.sqrt(np.einsum("ij,ij->i", diff, diff))
-        s = (d2[rows, cols + 1] - d2[rows, 0]) / (2.0 * cd)
+        with np.errstate(invalid="ignore", divide="ignore"):  # i == j gives 0/0, masked out below
+            s = (d2[rows, cols + 1] - d2[rows, 0]) / (2.0 * cd)
         hit = (i != j) & (s <= margin * (1 + 1e-6) + 1e-12)
         keys = np.unique(i[hit] * p + j[hit])
         pairs = np.stack([keys // p, keys % p], axis=1)
