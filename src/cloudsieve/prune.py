@@ -375,22 +375,8 @@ def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, 
 
     rescore(np.arange(n))
     rnd = 0
-    while True:
-        if target is not None and n_alive <= target:
-            break
-        if max_rounds is not None and rnd >= max_rounds:
-            break
-        pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
-        cand = pool[np.lexsort((pool, val[pool]))]
-        if rule == "coverage" and len(cand):
-            cand = cand[_covered(P, nb, cand, coverage)]
-        if len(cand) == 0:
-            if target is not None:
-                logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
-            break
-        sel = _first_independent(cand, nb, n)
-        if target is not None:
-            sel = sel[: n_alive - target]
+    while max_rounds is None or rnd < max_rounds:
+        sel = _round_selection(P, alive, val, np.arange(n), nb, n_alive, rule, threshold, target, coverage)
         if len(sel) == 0:
             break
         alive[sel] = False
@@ -404,6 +390,28 @@ def _rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, 
         if len(sub):
             rescore(sub)
     return alive
+
+
+def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None) -> np.ndarray:
+    """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
+
+    Candidates are the alive points with val <= threshold (with a target: any
+    finite val), lowest val first, ties by ``tie``; ``coverage`` keeps those
+    that pass :func:`_covered`; then a greedy independent set in the k-NN
+    graph ``nb``, cut at the target.
+    """
+    if target is not None and n_alive <= target:
+        return np.zeros(0, dtype=np.int64)
+    pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
+    cand = pool[np.lexsort((tie[pool], val[pool]))]
+    if rule == "coverage" and len(cand):
+        cand = cand[_covered(P, nb, cand, coverage, kk)]
+    if len(cand) == 0:
+        if target is not None:
+            logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
+        return cand
+    sel = _first_independent(cand, nb, len(P), kk)
+    return sel if target is None else sel[: n_alive - target]
 
 
 # Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
@@ -520,23 +528,10 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     rescore(np.ones(c, dtype=bool))
     removed = np.zeros(n + 1, dtype=bool)  # slot n: the padding
     rnd = 0
-    while True:
-        if target is not None and n_alive <= target:
-            break
-        if max_rounds is not None and rnd >= max_rounds:
-            break
-        pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
-        cand = pool[np.lexsort((order[pool], val[pool]))]  # ties: canonical index
+    while max_rounds is None or rnd < max_rounds:
         nbk = nbx[:, : int(kk.max(initial=1))]  # the columns that can hold one of the k nearest
-        if rule == "coverage" and len(cand):
-            cand = cand[_covered(g, nbk, cand, coverage, kk)]
-        if len(cand) == 0:
-            if target is not None:
-                logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
-            break
-        sel = _first_independent(cand, nbk, n, kk)
-        if target is not None:
-            sel = sel[: n_alive - target]
+        # ties: canonical index (the input order, not the grouped one)
+        sel = _round_selection(g, alive, val, order, nbk, n_alive, rule, threshold, target, coverage, kk)
         if len(sel) == 0:
             break
         alive[sel] = False
