@@ -212,3 +212,31 @@ def test_fcm_blocks_do_not_change_the_result(monkeypatch):
     np.testing.assert_array_equal(a.labels_, b.labels_)
     np.testing.assert_allclose(a.cluster_centers_, b.cluster_centers_, rtol=1e-12)
     np.testing.assert_allclose(a.memberships_, b.memberships_, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.parametrize("label_tol", [0.0, 0.01, 0.05])
+def test_fcm_label_tol_stops_at_the_first_small_relabelling(monkeypatch, label_tol):
+    """label_tol: FCM stops after the first update in which at most label_tol * n
+    hard labels changed. Oracle: runs of 1, 2, ... updates without it, whose
+    labels are compared by hand; the stopped run equals the run of that length."""
+    import cloudsieve.cluster as cl
+
+    rng = np.random.default_rng(3)
+    pts = rng.random((2000, 3)) * [10.0, 10.0, 1.0]
+    monkeypatch.setattr(cl, "_BLOCK", 333)  # the count spans blocks
+    runs = [FuzzyCMeans(20, n_nearest=6, max_iter=t, seed=2).fit(pts) for t in range(1, 41)]
+    changed = [None] + [int((runs[t].labels_ != runs[t - 1].labels_).sum()) for t in range(1, 40)]
+    first = next((t for t in range(1, 40) if changed[t] <= label_tol * len(pts)), None)
+    f = FuzzyCMeans(20, n_nearest=6, max_iter=40, seed=2, label_tol=label_tol).fit(pts)
+    if first is None:
+        assert f.n_iter_ == 40 and not f.converged_
+        return
+    assert f.converged_ and f.n_iter_ == first + 1
+    np.testing.assert_array_equal(f.labels_, runs[first].labels_)
+    np.testing.assert_array_equal(f.cluster_centers_, runs[first].cluster_centers_)
+
+
+def test_fcm_label_tol_checked():
+    with pytest.raises(InvalidParameterError, match=r"label_tol must be None or in \[0, 1\), got 1\.5"):
+        FuzzyCMeans(2, label_tol=1.5).fit(np.random.default_rng(0).random((10, 3)))

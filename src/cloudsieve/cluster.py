@@ -492,8 +492,10 @@ class FuzzyCMeans:
     u_ij = 1 / sum_l (d_ij / d_il)^(2/(m-1)) over the point's L = min(n_nearest,
     n_clusters) nearest centres (0 for the others), centres the u^m-weighted
     means; stops when the largest change of a membership between two
-    iterations is below ``tol`` (compared as full n x c matrices) or after
-    ``max_iter`` membership updates (then a :class:`ConvergenceWarning`).
+    iterations is below ``tol`` (compared as full n x c matrices), when
+    ``label_tol`` is given and at most ``label_tol * n`` hard labels changed
+    since the previous update, or after ``max_iter`` membership updates (then
+    a :class:`ConvergenceWarning`).
     Hard label: the centre of largest membership (the nearest for a tie).
 
     Parameters
@@ -508,6 +510,10 @@ class FuzzyCMeans:
         iterations to ``tol``); "random": the paper's random memberships.
     max_iter : int
     seed : int
+    label_tol : float, optional
+        Also stop when at most ``label_tol * n`` points changed hard label in
+        the last update (the test :class:`KMeans` applies with its ``tol``).
+        None (the default) keeps the paper's membership test alone.
 
     Attributes
     ----------
@@ -524,8 +530,9 @@ class FuzzyCMeans:
     """
 
     def __init__(self, n_clusters: int, *, m: float = 2.0, tol: float = 1e-5, n_nearest: int = 8,
-                 init="k-means++", max_iter: int = 300, seed: int = 0):
+                 init="k-means++", max_iter: int = 300, seed: int = 0, label_tol: float | None = None):
         self.n_clusters = n_clusters
+        self.label_tol = label_tol
         self.m = m
         self.tol = tol
         self.n_nearest = n_nearest
@@ -542,6 +549,8 @@ class FuzzyCMeans:
             raise InvalidParameterError(f"tol must be > 0, got {self.tol!r}")
         if int(self.n_nearest) != self.n_nearest or self.n_nearest < 1:
             raise InvalidParameterError(f"n_nearest must be an integer >= 1, got {self.n_nearest!r}")
+        if self.label_tol is not None and not (0.0 <= self.label_tol < 1.0):
+            raise InvalidParameterError(f"label_tol must be None or in [0, 1), got {self.label_tol!r}")
         c = int(self.n_clusters)
         L = min(int(self.n_nearest), c)
         workers = int(workers or os.cpu_count() or 1)
@@ -556,10 +565,12 @@ class FuzzyCMeans:
                 # a few Lloyd iterations first: FCM's slow start (centres far from
                 # a balanced partition) is cheaper to cover with K-means
                 C = _lloyd(Xs, C, _FCM_KM_ITERS, workers)[1]
-        idx, U, C, n_iter, conv = _fcm(Xs, C, L, float(self.m), float(self.tol), int(self.max_iter), workers)
+        label_tol = None if self.label_tol is None else float(self.label_tol)
+        idx, U, C, n_iter, conv = _fcm(Xs, C, L, float(self.m), float(self.tol), int(self.max_iter), workers, label_tol)
         if not conv:
+            also = "" if label_tol is None else f" and more than label_tol={self.label_tol} of the hard labels changing"
             warnings.warn(
-                f"FuzzyCMeans stopped at max_iter={self.max_iter} with membership change >= tol={self.tol} "
+                f"FuzzyCMeans stopped at max_iter={self.max_iter} with membership change >= tol={self.tol}{also} "
                 f"(n={len(X)}, n_clusters={c})", ConvergenceWarning, stacklevel=2)
         best = np.argmax(U, axis=1)
         lab = idx[np.arange(len(idx)), best]
@@ -642,9 +653,13 @@ def _sqdist_to(Xs, C, idx):
     return D2
 
 
-def _fcm(Xs, C, L, m, tol, max_iter, workers):
+def _fcm(Xs, C, L, m, tol, max_iter, workers, label_tol=None):
     """FCM iterations, in blocks of points (memory O(n L) for the memberships
-    plus O(block L) temporaries).
+    plus O(block L) temporaries). Stops when the membership change is below
+    ``tol`` or, with ``label_tol``, when at most ``label_tol * n`` hard labels
+    changed (the hard label in a row sorted by index: the first largest
+    membership, which is the nearest centre, lowest index on a tie, as in
+    :meth:`FuzzyCMeans.fit`).
 
     The L nearest centres of a point are re-queried (k-d tree) only when
     another centre might have come closer than one of them: with r the
@@ -660,12 +675,14 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
     idx = np.zeros((n, L), dtype=np.int64)
     U = np.zeros((n, L))
     reach = np.zeros(n)  # r - D
+    hard = np.full(n, -1, dtype=np.int64) if label_tol is not None else None
     have = False
     conv = False
     it = 0
     for it in range(1, max_iter + 1):
         tree = None
         ch = 0.0
+        relabelled = 0
         num = np.zeros((c, p))
         den = np.zeros(c)
         for s in range(0, n, _BLOCK):
@@ -709,6 +726,10 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
                     ch = max(ch, float(np.abs(Ub_same - U[s:e]).max()))
                 else:
                     ch = max(ch, float(np.abs(Ub - U[s:e]).max()))
+            if hard is not None:
+                hb = np.take_along_axis(Ib, np.argmax(Ub, axis=1)[:, None], 1)[:, 0]
+                relabelled += int(np.count_nonzero(hb != hard[s:e]))
+                hard[s:e] = hb
             idx[s:e] = Ib
             U[s:e] = Ub
             W = Ub * Ub if m == 2.0 else Ub**m
@@ -716,7 +737,7 @@ def _fcm(Xs, C, L, m, tol, max_iter, workers):
             den += np.bincount(flat, weights=W.ravel(), minlength=c)
             for j in range(p):
                 num[:, j] += np.bincount(flat, weights=(W * Xb[:, j : j + 1]).ravel(), minlength=c)
-        if have and ch < tol:
+        if have and (ch < tol or (label_tol is not None and relabelled <= label_tol * n)):
             conv = True
             break
         have = True
