@@ -144,6 +144,24 @@ def test_refine_labels():
         assert lab.min() >= 0 and lab.max() < 5
 
 
+@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+def test_refine_labels_default_stops():
+    """The refinement's defaults: KM and FCM stop at REFINE_LABEL_TOL (1%) of the
+    hard labels changing, FCM after REFINE_FCM_MAX_ITER at most; label_tol=None
+    with max_iter=300 is the paper's FCM."""
+    from cloudsieve.cluster import FuzzyCMeans, KMeans
+    from cloudsieve.prune import REFINE_FCM_MAX_ITER, REFINE_LABEL_TOL
+
+    pts = surface(6000)
+    km = KMeans(15, tol=REFINE_LABEL_TOL, seed=3).fit(pts)
+    np.testing.assert_array_equal(refine_labels(pts, "km", 400, seed=3), km.labels_)
+    f = FuzzyCMeans(15, max_iter=REFINE_FCM_MAX_ITER, label_tol=REFINE_LABEL_TOL, seed=3).fit(pts)
+    assert f.n_iter_ < REFINE_FCM_MAX_ITER  # the 1% test, not the cap, stopped it
+    np.testing.assert_array_equal(refine_labels(pts, "fcm", 400, seed=3), f.labels_)
+    paper = FuzzyCMeans(15, max_iter=300, seed=3).fit(pts)
+    np.testing.assert_array_equal(refine_labels(pts, "fcm", 400, seed=3, max_iter=300, label_tol=None), paper.labels_)
+
+
 def test_bad_input_messages():
     pts = surface(100)
     with pytest.raises(InvalidParameterError, match=r"cluster_size=5 is too small: .* k_min\+2=6 points"):
