@@ -527,6 +527,7 @@ class FuzzyCMeans:
     n_iter_ : int
         Membership updates done.
     converged_ : bool
+        True when ``tol`` or ``label_tol`` stopped it (not ``max_iter``).
     """
 
     def __init__(self, n_clusters: int, *, m: float = 2.0, tol: float = 1e-5, n_nearest: int = 8,

@@ -96,7 +96,7 @@ METHODS = ("fcm", "km")
 # (bun_zipper 0.3668% vs 0.3656% of the diagonal, maxplanck 0.4528% vs
 # 0.4504%). FCM never reaches 1e-5 in 300 iterations on the real scans, and 20
 # iterations give the same RMS as 300 on bun_zipper (0.3667% vs 0.3687%).
-# Session 3: FCM also stops at the KM test, at most 1% of the hard labels
+# FCM also stops at the KM test, at most 1% of the hard labels
 # changed in an update, which it reaches after 7-11 updates (bun_zipper, a
 # 100 k-point surface). Point RMS after iterative to 50%, 20 updates vs this
 # stop: bun_zipper 0.3667% vs 0.3655%, maxplanck 0.4519% vs 0.4506%,
@@ -147,7 +147,7 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
 
     Notes
     -----
-    The defaults stop earlier than the paper (see ``REFINE_KM_TOL`` for the
+    The defaults stop earlier than the paper (see ``REFINE_LABEL_TOL`` for the
     measurements); ``tol=0, max_iter=300`` gives the paper's KM and
     ``max_iter=300, label_tol=None`` the paper's FCM. Hitting
     ``max_iter`` (usual for FCM at tol=1e-5 on large uniform surfaces) is logged at INFO level instead of raising a
