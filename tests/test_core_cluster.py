@@ -240,3 +240,44 @@ def test_fcm_label_tol_stops_at_the_first_small_relabelling(monkeypatch, label_t
 def test_fcm_label_tol_checked():
     with pytest.raises(InvalidParameterError, match=r"label_tol must be None or in \[0, 1\), got 1\.5"):
         FuzzyCMeans(2, label_tol=1.5).fit(np.random.default_rng(0).random((10, 3)))
+
+
+def truncated_fcm(X, C, m, L, updates):
+    """FCM over each point's L nearest centres, found by brute force at every
+    update (the oracle of the k-d tree code and its bounds)."""
+    for t in range(1, updates + 1):
+        d2 = ((X[:, None, :] - C[None]) ** 2).sum(-1)
+        idx = np.argsort(d2, axis=1, kind="stable")[:, :L]
+        dl = np.take_along_axis(d2, idx, 1)
+        U = 1.0 / ((dl[:, :, None] / dl[:, None, :]) ** (1 / (m - 1))).sum(2)
+        if t == updates:
+            break
+        W = U**m
+        num = np.zeros_like(C)
+        for j in range(X.shape[1]):
+            np.add.at(num[:, j], idx, W * X[:, j : j + 1])
+        den = np.zeros(len(C))
+        np.add.at(den, idx, W)
+        C = num / den[:, None]
+    return idx, U, C
+
+
+@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.parametrize("L,c", [(3, 40), (8, 30), (8, 12), (6, 7)])
+def test_truncated_fcm_equals_brute_force_nearest_centres(monkeypatch, L, c):
+    """With n_nearest < n_clusters, every update uses exactly the L nearest
+    centres (the bounds that skip the k-d tree never keep a stale set)."""
+    import cloudsieve.cluster as cl
+
+    rng = np.random.default_rng(L * 100 + c)
+    pts = rng.random((1500, 3)) * [10.0, 10.0, 2.0]
+    C0 = pts[rng.choice(len(pts), c, replace=False)] + 1e-3
+    monkeypatch.setattr(cl, "_BLOCK", 400)
+    f = FuzzyCMeans(c, n_nearest=L, init=C0, tol=1e-12, max_iter=25).fit(pts)
+    idx, U, C = truncated_fcm(pts, C0.copy(), 2.0, L, 25)
+    assert f.n_iter_ == 25
+    np.testing.assert_allclose(f.cluster_centers_, C, rtol=1e-9)
+    np.testing.assert_array_equal(np.sort(f.membership_indices_, axis=1), np.sort(idx, axis=1))
+    np.testing.assert_array_equal(f.membership_indices_, idx)  # nearest first
+    np.testing.assert_allclose(f.memberships_, U, rtol=1e-9)
+    np.testing.assert_array_equal(f.labels_, idx[np.arange(len(idx)), U.argmax(1)])
