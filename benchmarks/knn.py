@@ -28,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from core import surface  # noqa: E402
 
 from cloudsieve.cluster import KMeans  # noqa: E402
+from cloudsieve.entropy import _with_cluster_coordinate  # noqa: E402
 from cloudsieve.prune import REFINE_LABEL_TOL  # noqa: E402
 
 
@@ -49,8 +50,7 @@ def main(argv=None) -> int:
     P = surface(n)
     lab = KMeans(max(1, n // 400), tol=REFINE_LABEL_TOL).fit(P).labels_
     o = np.lexsort((np.arange(n), lab))
-    gap = 2.0 * float(np.sqrt((np.ptp(P, axis=0) ** 2).sum())) + 1.0  # as in entropy._knn_query
-    X = np.column_stack([P[o], lab[o] * gap])
+    X = _with_cluster_coordinate(P[o], lab[o])  # the tree scoring builds
     cores = os.cpu_count() or 1
     rows = []
     t, (d0, _) = best(lambda: cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False).query(X, k=k + 2, workers=cores))
