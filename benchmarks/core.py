@@ -37,9 +37,9 @@ from pathlib import Path
 
 import numpy as np
 
-from cloudsieve.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
-from cloudsieve.entropy import score_points
-from cloudsieve.prune import REFINE_FCM_MAX_ITER, REFINE_KM_TOL, REFINE_LABEL_TOL, prune
+from cloudsieve.core.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
+from cloudsieve.core.entropy import score_points
+from cloudsieve.core.prune import REFINE_FCM_MAX_ITER, REFINE_KM_TOL, REFINE_LABEL_TOL, prune
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -10,8 +10,8 @@ resident memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``):
 
 * laspy: laspy's own chunked LAZ decode (``chunk_iterator``, lazrs with
   parallel decompression, same chunk size) - the reference speed;
-* ingest: ``cloudsieve.convert.ingest`` LAZ -> zarr point store;
-* export: ``cloudsieve.convert.export`` store -> LAZ (all points).
+* ingest: ``cloudsieve.store.ingest`` LAZ -> zarr point store;
+* export: ``cloudsieve.store.export`` store -> LAZ (all points).
 
 Goals (issue 2): ingest >= 80% of laspy's decode speed; peak RSS < 1 GB and
 within 20% between the smallest and the largest size (flat in N).
@@ -34,7 +34,7 @@ CHILD = r"""
 import json, resource, sys, time
 kind, src, dst, chunk = sys.argv[1], sys.argv[2], sys.argv[3], int(sys.argv[4])
 import laspy, zarr, numpy  # imports are not timed
-from cloudsieve.convert import export, ingest
+from cloudsieve.store import export, ingest
 from cloudsieve.store import PointStore
 t0 = time.perf_counter()
 c0 = resource.getrusage(resource.RUSAGE_SELF)

@@ -27,9 +27,9 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from core import surface  # noqa: E402
 
-from cloudsieve.cluster import KMeans  # noqa: E402
-from cloudsieve.entropy import _with_cluster_coordinate  # noqa: E402
-from cloudsieve.prune import REFINE_LABEL_TOL  # noqa: E402
+from cloudsieve.core.cluster import KMeans  # noqa: E402
+from cloudsieve.core.entropy import _with_cluster_coordinate  # noqa: E402
+from cloudsieve.core.prune import REFINE_LABEL_TOL  # noqa: E402
 
 
 def best(fn, reps=3):

@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial import cKDTree
 
-from cloudsieve.entropy import score_points
-from cloudsieve.prune import prune, refine_labels, threshold_for_count
+from cloudsieve.core.entropy import score_points
+from cloudsieve.core.prune import prune, refine_labels, threshold_for_count
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

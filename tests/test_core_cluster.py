@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
+from cloudsieve.core.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 
@@ -68,7 +68,7 @@ def plain_lloyd(X, C, max_iter):
 def test_kmeans_equals_plain_lloyd(monkeypatch, neigh, init):
     # a wavy surface cut into many small clusters: the bounds skip most points,
     # the neighbour lists (few with neigh=1) are re-made and the k-d tree fallback is used
-    import cloudsieve.cluster as cl
+    import cloudsieve.core.cluster as cl
 
     monkeypatch.setattr(cl, "_NEIGH", neigh)
     rng = np.random.default_rng(7)
@@ -85,7 +85,7 @@ def test_kmeans_equals_plain_lloyd(monkeypatch, neigh, init):
 
 
 def test_kmeans_tol_stops_early_and_canonical_order_is_lexsort():
-    import cloudsieve.cluster as cl
+    import cloudsieve.core.cluster as cl
 
     rng = np.random.default_rng(3)
     pts = rng.random((6000, 3))
@@ -154,7 +154,7 @@ def test_truncated_fcm_close_to_dense_with_few_centres_kept():
     np.testing.assert_allclose(g.memberships_.sum(1), 1.0)
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
 @pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
 def test_invariant_to_order_and_units(est):
     rng = np.random.default_rng(6)
@@ -184,7 +184,7 @@ def test_bad_input_messages():
 
 
 def test_membership_change_equals_dense_difference():
-    from cloudsieve.cluster import _max_change
+    from cloudsieve.core.cluster import _max_change
 
     rng = np.random.default_rng(0)
     n, L, c = 300, 4, 9
@@ -199,9 +199,9 @@ def test_membership_change_equals_dense_difference():
         assert _max_change(i0[rows], u0[rows], i1[rows], u1[rows]) == np.abs(d1 - d0)[rows].max()
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
 def test_fcm_blocks_do_not_change_the_result(monkeypatch):
-    import cloudsieve.cluster as cl
+    import cloudsieve.core.cluster as cl
 
     rng = np.random.default_rng(9)
     pts = rng.random((1000, 3))
@@ -214,13 +214,13 @@ def test_fcm_blocks_do_not_change_the_result(monkeypatch):
     np.testing.assert_allclose(a.memberships_, b.memberships_, rtol=1e-10, atol=1e-14)
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
 @pytest.mark.parametrize("label_tol", [0.0, 0.01, 0.05])
 def test_fcm_label_tol_stops_at_the_first_small_relabelling(monkeypatch, label_tol):
     """label_tol: FCM stops after the first update in which at most label_tol * n
     hard labels changed. Oracle: runs of 1, 2, ... updates without it, whose
     labels are compared by hand; the stopped run equals the run of that length."""
-    import cloudsieve.cluster as cl
+    import cloudsieve.core.cluster as cl
 
     rng = np.random.default_rng(3)
     pts = rng.random((2000, 3)) * [10.0, 10.0, 1.0]
@@ -262,12 +262,12 @@ def truncated_fcm(X, C, m, L, updates):
     return idx, U, C
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
 @pytest.mark.parametrize("L,c", [(3, 40), (8, 30), (8, 12), (6, 7)])
 def test_truncated_fcm_equals_brute_force_nearest_centres(monkeypatch, L, c):
     """With n_nearest < n_clusters, every update uses exactly the L nearest
     centres (the bounds that skip the k-d tree never keep a stale set)."""
-    import cloudsieve.cluster as cl
+    import cloudsieve.core.cluster as cl
 
     rng = np.random.default_rng(L * 100 + c)
     pts = rng.random((1500, 3)) * [10.0, 10.0, 2.0]

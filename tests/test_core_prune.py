@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.entropy import score_points
+from cloudsieve.core.entropy import score_points
 from cloudsieve.errors import InvalidParameterError
-from cloudsieve.prune import (
+from cloudsieve.core.prune import (
     _first_independent,
     _padded,
     prune,
@@ -144,13 +144,13 @@ def test_refine_labels():
         assert lab.min() >= 0 and lab.max() < 5
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
 def test_refine_labels_default_stops():
     """The refinement's defaults: KM and FCM stop at REFINE_LABEL_TOL (1%) of the
     hard labels changing, FCM after REFINE_FCM_MAX_ITER at most; label_tol=None
     with max_iter=300 is the paper's FCM."""
-    from cloudsieve.cluster import FuzzyCMeans, KMeans
-    from cloudsieve.prune import REFINE_FCM_MAX_ITER, REFINE_LABEL_TOL
+    from cloudsieve.core.cluster import FuzzyCMeans, KMeans
+    from cloudsieve.core.prune import REFINE_FCM_MAX_ITER, REFINE_LABEL_TOL
 
     pts = surface(6000)
     km = KMeans(15, tol=REFINE_LABEL_TOL, seed=3).fit(pts)
@@ -185,7 +185,7 @@ def test_bad_input_messages():
     with pytest.raises(ValueError, match=r"give ratio or count, not both"):
         simplify_points(pts, rule="target", ratio=0.5, count=3)
     with pytest.raises(ValueError, match=r"n_clusters=3 but the input has only 2 points"):
-        from cloudsieve.cluster import KMeans
+        from cloudsieve.core.cluster import KMeans
 
         KMeans(3).fit(pts[:2])
 
@@ -233,8 +233,8 @@ def test_workers_do_not_change_results(method):
 
 def _reference_rounds(pts, labels, rule, S=1e-3, target=None, coverage=1.0):
     """The iterative/coverage rules by full rescoring of the remaining points every round."""
-    from cloudsieve.cluster import _canonical_order
-    from cloudsieve.prune import _covered
+    from cloudsieve.core.cluster import _canonical_order
+    from cloudsieve.core.prune import _covered
 
     order = _canonical_order(pts)
     P, L = pts[order], labels[order]

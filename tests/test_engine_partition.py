@@ -14,7 +14,7 @@ import pytest
 import zarr
 from scipy.spatial import cKDTree
 
-from cloudsieve import partition as P
+from cloudsieve.engine import partition as P
 from cloudsieve.store import PointStore
 
 

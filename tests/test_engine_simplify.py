@@ -25,9 +25,9 @@ import pytest
 import zarr
 from conftest import shared_file
 
-from cloudsieve import partition as P
+from cloudsieve.engine import partition as P
 from cloudsieve.cli import main
-from cloudsieve.convert import ingest
+from cloudsieve.store import ingest
 from cloudsieve.engine import simplify
 from cloudsieve.errors import InvalidParameterError, ResumeMismatchError
 from cloudsieve.store import PointStore
@@ -155,7 +155,7 @@ def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
     key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731
     assert np.array_equal(key(allpts), key(xyz))
     # per cell: in = kept + dropped; the cells' kept points are the output
-    from cloudsieve.engine import _region_block, _regions
+    from cloudsieve.engine.simplify import _region_block, _regions
 
     regions, _ = _regions(part.cell_counts, _region_block(6_000))
     kc = np.asarray(g["simplify/keep_cells"][:])
@@ -367,7 +367,7 @@ def test_task_arguments_do_not_grow_with_the_number_of_cells(tmp_path, context):
     """Cell tasks get the centres of their cell and halo sources only, and read their runs from the store."""
     import pickle
 
-    from cloudsieve.engine import _cell_args, _params, _region_block, _regions
+    from cloudsieve.engine.simplify import _cell_args, _params, _region_block, _regions
 
     src = write_laz(tmp_path / "p.laz", plane(12_000, side=100.0))
     store = tmp_path / "w.zarr"

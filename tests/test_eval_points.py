@@ -162,7 +162,7 @@ def test_dask_localcluster_equals_local():
 def test_store_and_file_sources_equal_array(tmp_path):
     from conftest import shared_file
 
-    from cloudsieve.convert import ingest
+    from cloudsieve.store import ingest
     from cloudsieve.io import read_cloud
 
     src = shared_file("autzen_trim.laz")

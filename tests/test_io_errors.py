@@ -10,7 +10,7 @@ import pytest
 from conftest import shared_file
 
 from cloudsieve.cli import main
-from cloudsieve.convert import export, ingest
+from cloudsieve.store import export, ingest
 from cloudsieve.errors import (
     CloudsieveError,
     CorruptInputError,

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from cloudsieve.cli import main
-from cloudsieve.convert import export, ingest
+from cloudsieve.store import export, ingest
 from cloudsieve.io import detect_format, open_reader, read_cloud
 from cloudsieve.io.ply import read_ply_header
 from cloudsieve.store import PointStore

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from conftest import LAS_FILES, shared_file
 
-from cloudsieve.convert import export, ingest
+from cloudsieve.store import export, ingest
 from cloudsieve.io import open_reader
 from cloudsieve.store import PointStore
 

@@ -20,17 +20,15 @@ from __future__ import annotations
 
 import logging
 
-from .cluster import ConvergenceWarning, FuzzyCMeans, KMeans
-from .convert import export, ingest
+from .core import ConvergenceWarning, FuzzyCMeans, KMeans, Scores, entropy_scores, score_points
+from .store import PointStore, export, ingest
 from .engine import Summary, simplify
-from .entropy import Scores, entropy_scores, score_points
 from .errors import *  # noqa: F401,F403
 from .errors import __all__ as _errors_all
 from .evaluate import compare, evaluate
 from .io import open_reader, open_writer, read_cloud
 from .pipeline import load_pipeline, run_pipeline
-from .prune import prune, refine_labels, simplify_points, threshold_for_count, unit_free_scores
-from .store import PointStore
+from .core import prune, refine_labels, simplify_points, threshold_for_count, unit_free_scores
 
 __version__ = "0.1.0"
 

@@ -258,7 +258,7 @@ def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, progre
     """A pipeline with a writer and no filter: a plain conversion, streamed through a temporary store."""
     import tempfile
 
-    from .convert import export, ingest
+    from .store import export, ingest
 
     with tempfile.TemporaryDirectory(prefix="cloudsieve-convert-") as tmp:
         store = ingest(src, os.path.join(tmp, "store.zarr"), progress=progress)

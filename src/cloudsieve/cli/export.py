@@ -33,7 +33,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
-    from ..convert import export
+    from ..store import export
     from ..errors import CloudsieveError
     from ..store import PointStore
 

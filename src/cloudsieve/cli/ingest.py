@@ -34,7 +34,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
-    from ..convert import ingest
+    from ..store import ingest
     from ..io import open_reader
 
     options = {}

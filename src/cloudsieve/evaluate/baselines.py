@@ -195,7 +195,7 @@ def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "fcm"
     (the paper's single pass at S) or ``count=None`` the rule's threshold
     decides the count.
     """
-    from ..prune import simplify_points
+    from ..core import simplify_points
 
     kw = dict(options)
     if rule != "threshold" and count is not None:

@@ -123,7 +123,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         faces``, or ``error``), ``original_compact_share``, ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
-    from ..prune import RULES
+    from ..core import RULES
 
     methods = [m.strip() for m in methods if m.strip()]
     bad = [m for m in methods if m not in METHODS]

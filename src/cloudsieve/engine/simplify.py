@@ -86,14 +86,14 @@ from typing import Any
 import numpy as np
 
 from . import partition as _part
-from .errors import (
+from ..errors import (
     CloudsieveError,
     DestinationExistsError,
     InvalidParameterError,
     ResumeMismatchError,
     SameSourceDestinationError,
 )
-from .progress import callback
+from ..progress import callback
 
 __all__ = ["simplify", "Summary", "DEFAULT_SCHEDULER", "SIMPLIFY_ATTR", "cell_seed"]
 
@@ -216,8 +216,8 @@ class _PeakMemory:
 # ---------------------------------------------------------------- runner
 
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
-_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.partition", "cloudsieve.cluster",
-            "cloudsieve.entropy", "cloudsieve.prune", "cloudsieve.engine"]
+_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.engine.partition", "cloudsieve.core",
+            "cloudsieve.engine"]
 
 
 def _worker_context():
@@ -453,7 +453,7 @@ def _threads(params: dict) -> int:
 
 
 def _open_cell(store_path: str, cell: int, halo, centers, margin):
-    from .store import PointStore
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
     g = st.group
@@ -479,7 +479,7 @@ def cell_task(store_path: str, cell: int, halo: dict, centers: dict, margin: flo
     -------
     dict with "cell", "n", "kept", "halo", "seconds" (small).
     """
-    from .prune import simplify_points
+    from ..core.prune import simplify_points
 
     t0 = time.perf_counter()
     g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
@@ -510,7 +510,7 @@ def score_task(store_path: str, cell: int, halo: dict, centers: dict, margin: fl
     Writes ``simplify/score_cells`` and ``simplify/label_cells`` in the cell's
     region, then ``simplify/scored[cell]``.
     """
-    from .prune import refine_labels, unit_free_scores
+    from ..core.prune import refine_labels, unit_free_scores
 
     t0 = time.perf_counter()
     g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
@@ -538,7 +538,7 @@ def _score_hist_task(store_path: str, region: int, n: int, lo: float, hi: float,
     -------
     ndarray of shape (bins + 2,), int64: [below lo, bins..., at or above hi]
     """
-    from .store import PointStore
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r")
     s = np.asarray(st.group["simplify/score_cells"][region : region + n])
@@ -555,7 +555,7 @@ def _score_hist_task(store_path: str, region: int, n: int, lo: float, hi: float,
 
 def _scores_between_task(store_path: str, region: int, n: int, lo: float, hi: float) -> np.ndarray:
     """The stored scores of one cell with lo <= log10(score) < hi (few, by construction)."""
-    from .store import PointStore
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r")
     s = np.asarray(st.group["simplify/score_cells"][region : region + n])
@@ -575,8 +575,8 @@ def apply_task(
     target rule would (n - #{score <= T}), chosen by the core's rule on the
     stored clusters (``simplify_points(labels=..., count=...)``).
     """
-    from .prune import simplify_points
-    from .store import PointStore
+    from ..core.prune import simplify_points
+    from ..store import PointStore
 
     t0 = time.perf_counter()
     st = PointStore.open(store_path, "r+")
@@ -617,7 +617,7 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     -------
     int : kept points in the chunk.
     """
-    from .store import PointStore
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
     g = st.group
@@ -642,7 +642,7 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
 
 
 def _is_store(path: str) -> bool:
-    from .store import PointStore
+    from ..store import PointStore
 
     try:
         PointStore.open(path, "r")
@@ -657,7 +657,7 @@ def _source_identity(src: str) -> dict:
 
 
 def _remove_store(path: str) -> None:
-    from .store import local_path
+    from ..store import local_path
 
     local = local_path(path)
     if local is not None:
@@ -845,8 +845,8 @@ def simplify(
     DestinationExistsError
         DST exists and *overwrite* is False.
     """
-    from .convert import export, ingest
-    from .store import PointStore, local_path
+    from ..store.convert import export, ingest
+    from ..store import PointStore, local_path
 
     t_start = time.perf_counter()
     src, dst = os.fspath(src), os.fspath(dst)
@@ -1013,7 +1013,7 @@ def simplify(
 
 
 def _compressors():
-    from .store import compressors
+    from ..store import compressors
 
     return compressors()
 
@@ -1110,7 +1110,7 @@ def _global_threshold(st, part, regions, runner, remove: int) -> float:
     scores go together). Every sum is over integers: the result does not
     depend on the task order.
     """
-    from .prune import threshold_for_count
+    from ..core.prune import threshold_for_count
 
     counts = part.cell_counts
     cells = [j for j in range(part.n_cells) if counts[j] > 0]

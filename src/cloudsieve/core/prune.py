@@ -78,8 +78,8 @@ from .entropy import (
     neighbour_count,
     score_points,
 )
-from .errors import InvalidParameterError
-from .progress import callback
+from ..errors import InvalidParameterError
+from ..progress import callback
 
 __all__ = ["simplify_points", "refine_labels", "prune", "unit_free_scores", "threshold_for_count", "RULES"]
 

@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import CloudsieveError
+from ..errors import CloudsieveError
 
 __all__ = [
     "Partition",
@@ -138,7 +138,7 @@ def sample_chunk(store_path: str, start: int, stop: int, indices: np.ndarray) ->
     -------
     ndarray of shape (len(indices), 3), float64
     """
-    from .store import PointStore
+    from ..store import PointStore
 
     if len(indices) == 0:
         return np.empty((0, 3))
@@ -155,7 +155,7 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
     ndarray of shape (n_cells, 3), float64, sorted lexicographically (x, y, z)
     so that cell ids do not depend on the K-means initialisation order.
     """
-    from .cluster import KMeans
+    from ..core.cluster import KMeans
 
     rel = sample - origin
     if n_cells <= 1:
@@ -313,7 +313,7 @@ def label_chunk(
     nnz : int
         Number of cells with points in this chunk.
     """
-    from .store import PointStore
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
     g = st.group
@@ -367,7 +367,7 @@ def index_runs(group, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int
     chunk_size : int
         Points per input chunk (chunk c starts at point c * chunk_size).
     """
-    from .store import compressors
+    from ..store import compressors
 
     flush = int(flush or _RUN_FLUSH)
     nnz = np.asarray(nnz, dtype=np.int64)
@@ -681,7 +681,7 @@ def build_partition(
     logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)
 
     g = store.group
-    from .store import compressors
+    from ..store import compressors
 
     for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src", "label_runs",
                  "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):

@@ -61,7 +61,7 @@ from functools import cached_property
 import numpy as np
 from scipy.spatial import cKDTree
 
-from .errors import InvalidParameterError, InvalidPointsError
+from ..errors import InvalidParameterError, InvalidPointsError
 
 __all__ = ["entropy_scores", "score_points", "Scores", "neighbour_count"]
 

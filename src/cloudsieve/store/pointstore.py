@@ -28,7 +28,7 @@ from urllib.parse import unquote, urlparse
 import numpy as np
 import zarr
 
-from .errors import CloudsieveError, StoreNotFoundError
+from ..errors import CloudsieveError, StoreNotFoundError
 
 __all__ = ["PointStore", "STORE_ATTR", "STORE_VERSION", "local_path", "compressors"]
 

@@ -22,16 +22,16 @@ import numpy as np
 import zarr
 from zarr.core.sync import sync as zarr_sync
 
-from . import progress as _progress
-from .errors import (
+from .. import progress as _progress
+from ..errors import (
     DestinationExistsError,
     EmptyInputError,
     InvalidPointsError,
     SameSourceDestinationError,
 )
-from .io import open_reader, open_writer
-from .io._base import check_destination, make_temp_path, remove, replace
-from .store import PointStore, _exists, local_path
+from ..io import open_reader, open_writer
+from ..io._base import check_destination, make_temp_path, remove, replace
+from .pointstore import PointStore, _exists, local_path
 
 __all__ = ["ingest", "export"]
 

@@ -40,7 +40,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .entropy import _check_points
-from .errors import InvalidParameterError
+from ..errors import InvalidParameterError
 
 __all__ = ["KMeans", "FuzzyCMeans", "ConvergenceWarning"]
 
