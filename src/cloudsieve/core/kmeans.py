@@ -152,6 +152,25 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
 
     Stops when at most tol * n points changed cluster (tol = 0: none, the
     paper's test) or at max_iter.
+
+    Parameters
+    ----------
+    Xs : ndarray of shape (n, p), float64
+        Valid points (canonically ordered by the estimators).
+    C : ndarray of shape (c, p), float64
+        Initial centres.
+    max_iter : int
+    threads : int
+        Threads of the k-d tree queries.
+    tol : float
+
+    Returns
+    -------
+    labels : ndarray of shape (n,), int64
+    centres : ndarray of shape (c, p), float64
+        The means of the final clusters (an empty cluster keeps its centre).
+    n_iter : int
+    converged : bool
     """
     n, p = Xs.shape
     c = len(C)
