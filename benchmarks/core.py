@@ -37,9 +37,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cloudsieve.core.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
+from cloudsieve.core import ConvergenceWarning, FuzzyCMeans, KMeans
 from cloudsieve.core.entropy import score_points
-from cloudsieve.core.prune import REFINE_FCM_MAX_ITER, REFINE_KM_TOL, REFINE_LABEL_TOL, prune
+from cloudsieve.core import prune
+from cloudsieve.core.refine import REFINE_FCM_MAX_ITER, REFINE_KM_TOL, REFINE_LABEL_TOL
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 
@@ -70,7 +71,7 @@ def fit(method: str, pts: np.ndarray, c: int, **kw):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         t = time.perf_counter()
-        est.fit(pts, workers=WORKERS)
+        est.fit(pts, threads=WORKERS)
         return est, time.perf_counter() - t
 
 
@@ -96,11 +97,11 @@ def paper_table(fcm_max_iter: int) -> str:
             est, t_ref = fit(method, pts, c, **kw)
             labels = est.labels_
             t = time.perf_counter()
-            score_points(pts, labels, workers=WORKERS)
+            score_points(pts, labels, threads=WORKERS)
             t_sc = time.perf_counter() - t
             for rule in ("threshold", "iterative"):
                 t = time.perf_counter()
-                keep = prune(pts, labels, rule=rule, threshold=1e-3, workers=WORKERS)
+                keep = prune(pts, labels, rule=rule, threshold=1e-3, threads=WORKERS)
                 t_rule = time.perf_counter() - t
                 kept = int(keep.sum())
                 conv = "" if est.converged_ else ", not converged"
@@ -137,7 +138,7 @@ def throughput_table(sizes, fcm_iters: int):
                     f"{REFINE_LABEL_TOL:.0%} hard labels changing, max {REFINE_FCM_MAX_ITER} (simplify's default) |")
         yield from rows.take()
         t0 = time.perf_counter()
-        s = score_points(pts, labels, workers=WORKERS)
+        s = score_points(pts, labels, threads=WORKERS)
         t = time.perf_counter() - t0
         rows.append(f"| {n:,} | score (one pass, KM clusters) | {t:.2f} | {n / t:,.0f} | "
                     f"{s.n_duplicates} duplicates |")
@@ -145,7 +146,7 @@ def throughput_table(sizes, fcm_iters: int):
                          ("iterative", {"ratio": 0.5}), ("coverage", {"ratio": 0.5})):
             rounds = []
             t0 = time.perf_counter()
-            keep = prune(pts, labels, rule=rule, workers=WORKERS, progress=rounds.append, **kw)
+            keep = prune(pts, labels, rule=rule, threads=WORKERS, progress=rounds.append, **kw)
             t = time.perf_counter() - t0
             label = rule + (" ratio 0.5" if kw else " S=0.001")
             note = f"; {len(rounds)} rounds" if rule in ("iterative", "coverage") else ""

@@ -27,9 +27,9 @@ from scipy.spatial import cKDTree
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from core import surface  # noqa: E402
 
-from cloudsieve.core.cluster import KMeans  # noqa: E402
-from cloudsieve.core.entropy import _with_cluster_coordinate  # noqa: E402
-from cloudsieve.core.prune import REFINE_LABEL_TOL  # noqa: E402
+from cloudsieve.core import KMeans  # noqa: E402
+from cloudsieve.core.knn import with_cluster_coordinate  # noqa: E402
+from cloudsieve.core.refine import REFINE_LABEL_TOL  # noqa: E402
 
 
 def best(fn, reps=3):
@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     P = surface(n)
     lab = KMeans(max(1, n // 400), tol=REFINE_LABEL_TOL).fit(P).labels_
     o = np.lexsort((np.arange(n), lab))
-    X = _with_cluster_coordinate(P[o], lab[o])  # the tree scoring builds
+    X = with_cluster_coordinate(P[o], lab[o])  # the tree scoring builds
     cores = os.cpu_count() or 1
     rows = []
     t, (d0, _) = best(lambda: cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False).query(X, k=k + 2, workers=cores))

@@ -32,7 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from cloudsieve.core.entropy import score_points
-from cloudsieve.core.prune import prune, refine_labels, threshold_for_count
+from cloudsieve.core import prune, refine_labels, threshold_for_count
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.core.cluster import ConvergenceWarning, FuzzyCMeans, KMeans
+from cloudsieve.core import ConvergenceWarning, FuzzyCMeans, KMeans
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 
@@ -69,13 +69,15 @@ def test_kmeans_equals_plain_lloyd(monkeypatch, neigh, init):
     # a wavy surface cut into many small clusters: the bounds skip most points,
     # the neighbour lists (few with neigh=1) are re-made and the k-d tree fallback is used
     import cloudsieve.core.cluster as cl
+    import cloudsieve.core.kmeans as km
+    from cloudsieve.core.knn import canonical_order
 
-    monkeypatch.setattr(cl, "_NEIGH", neigh)
+    monkeypatch.setattr(km, "_NEIGH", neigh)
     rng = np.random.default_rng(7)
     u = rng.random((4000, 2)) * 40.0
     pts = np.c_[u, 3.0 * np.sin(u[:, 0] / 5.0) * np.cos(u[:, 1] / 7.0) + 0.01 * rng.standard_normal(4000)]
-    pts = pts[cl._canonical_order(pts)]  # the fit's own order: same init draws
-    C0 = cl._initial_centres(pts, 120, init, np.random.default_rng(1)) if init != "random" else \
+    pts = pts[canonical_order(pts)]  # the fit's own order: same init draws
+    C0 = cl.initial_centres(pts, 120, init, np.random.default_rng(1)) if init != "random" else \
         pts[np.sort(np.random.default_rng(1).choice(4000, 120, replace=False))]
     km = KMeans(120, init=C0, max_iter=500).fit(pts)
     lab, C, it = plain_lloyd(pts, C0, 500)
@@ -85,7 +87,7 @@ def test_kmeans_equals_plain_lloyd(monkeypatch, neigh, init):
 
 
 def test_kmeans_tol_stops_early_and_canonical_order_is_lexsort():
-    import cloudsieve.core.cluster as cl
+    from cloudsieve.core.knn import canonical_order
 
     rng = np.random.default_rng(3)
     pts = rng.random((6000, 3))
@@ -99,7 +101,7 @@ def test_kmeans_tol_stops_early_and_canonical_order_is_lexsort():
     with pytest.raises(ValueError, match=r"tol must be in \[0, 1\), got 1.5"):
         KMeans(2, tol=1.5).fit(pts)
     q = np.round(rng.random((5000, 3)) * 4)  # many ties in every column
-    np.testing.assert_array_equal(cl._canonical_order(q), np.lexsort(q.T[::-1]))
+    np.testing.assert_array_equal(canonical_order(q), np.lexsort(q.T[::-1]))
 
 
 def test_kmeans_warns_at_max_iter():
@@ -154,7 +156,7 @@ def test_truncated_fcm_close_to_dense_with_few_centres_kept():
     np.testing.assert_allclose(g.memberships_.sum(1), 1.0)
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")
 @pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
 def test_invariant_to_order_and_units(est):
     rng = np.random.default_rng(6)
@@ -184,7 +186,7 @@ def test_bad_input_messages():
 
 
 def test_membership_change_equals_dense_difference():
-    from cloudsieve.core.cluster import _max_change
+    from cloudsieve.core.fcm import _max_change
 
     rng = np.random.default_rng(0)
     n, L, c = 300, 4, 9
@@ -199,14 +201,14 @@ def test_membership_change_equals_dense_difference():
         assert _max_change(i0[rows], u0[rows], i1[rows], u1[rows]) == np.abs(d1 - d0)[rows].max()
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")
 def test_fcm_blocks_do_not_change_the_result(monkeypatch):
-    import cloudsieve.core.cluster as cl
+    import cloudsieve.core.fcm as fcm
 
     rng = np.random.default_rng(9)
     pts = rng.random((1000, 3))
     a = FuzzyCMeans(12, n_nearest=4, max_iter=40, tol=1e-4).fit(pts)
-    monkeypatch.setattr(cl, "_BLOCK", 97)
+    monkeypatch.setattr(fcm, "_BLOCK", 97)
     b = FuzzyCMeans(12, n_nearest=4, max_iter=40, tol=1e-4).fit(pts)
     assert a.n_iter_ == b.n_iter_
     np.testing.assert_array_equal(a.labels_, b.labels_)
@@ -214,17 +216,17 @@ def test_fcm_blocks_do_not_change_the_result(monkeypatch):
     np.testing.assert_allclose(a.memberships_, b.memberships_, rtol=1e-10, atol=1e-14)
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")
 @pytest.mark.parametrize("label_tol", [0.0, 0.01, 0.05])
 def test_fcm_label_tol_stops_at_the_first_small_relabelling(monkeypatch, label_tol):
     """label_tol: FCM stops after the first update in which at most label_tol * n
     hard labels changed. Oracle: runs of 1, 2, ... updates without it, whose
     labels are compared by hand; the stopped run equals the run of that length."""
-    import cloudsieve.core.cluster as cl
+    import cloudsieve.core.fcm as fcm
 
     rng = np.random.default_rng(3)
     pts = rng.random((2000, 3)) * [10.0, 10.0, 1.0]
-    monkeypatch.setattr(cl, "_BLOCK", 333)  # the count spans blocks
+    monkeypatch.setattr(fcm, "_BLOCK", 333)  # the count spans blocks
     runs = [FuzzyCMeans(20, n_nearest=6, max_iter=t, seed=2).fit(pts) for t in range(1, 41)]
     changed = [None] + [int((runs[t].labels_ != runs[t - 1].labels_).sum()) for t in range(1, 40)]
     first = next((t for t in range(1, 40) if changed[t] <= label_tol * len(pts)), None)
@@ -262,17 +264,17 @@ def truncated_fcm(X, C, m, L, updates):
     return idx, U, C
 
 
-@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")
 @pytest.mark.parametrize("L,c", [(3, 40), (8, 30), (8, 12), (6, 7)])
 def test_truncated_fcm_equals_brute_force_nearest_centres(monkeypatch, L, c):
     """With n_nearest < n_clusters, every update uses exactly the L nearest
     centres (the bounds that skip the k-d tree never keep a stale set)."""
-    import cloudsieve.core.cluster as cl
+    import cloudsieve.core.fcm as fcm
 
     rng = np.random.default_rng(L * 100 + c)
     pts = rng.random((1500, 3)) * [10.0, 10.0, 2.0]
     C0 = pts[rng.choice(len(pts), c, replace=False)] + 1e-3
-    monkeypatch.setattr(cl, "_BLOCK", 400)
+    monkeypatch.setattr(fcm, "_BLOCK", 400)
     f = FuzzyCMeans(c, n_nearest=L, init=C0, tol=1e-12, max_iter=25).fit(pts)
     idx, U, C = truncated_fcm(pts, C0.copy(), 2.0, L, 25)
     assert f.n_iter_ == 25

@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cloudsieve.core.entropy import entropy_scores, neighbour_count, score_points
+from cloudsieve.core import entropy_scores, neighbour_count, score_points
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import logging
 
-from .core import ConvergenceWarning, FuzzyCMeans, KMeans, Scores, entropy_scores, score_points
+from .core import FuzzyCMeans, KMeans, Scores, entropy_scores, score_points
 from .store import PointStore, export, ingest
 from .engine import Summary, simplify
 from .errors import *  # noqa: F401,F403
@@ -48,7 +48,6 @@ __all__ = [
     "read_cloud",
     "KMeans",
     "FuzzyCMeans",
-    "ConvergenceWarning",
     "entropy_scores",
     "score_points",
     "Scores",

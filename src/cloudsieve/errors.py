@@ -3,6 +3,7 @@
 One root, :class:`CloudsieveError`; every subclass also inherits the built-in
 exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
 ``except ValueError`` keeps working. Messages name the file and the problem.
+The warnings are here too (:class:`ConvergenceWarning`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ __all__ = [
     "IncompatibleCloudsError",
     "InvalidParameterError",
     "ResumeMismatchError",
+    "ConvergenceWarning",
 ]
 
 
@@ -94,3 +96,7 @@ class InvalidParameterError(CloudsieveError, ValueError):
 
 class ResumeMismatchError(CloudsieveError, ValueError):
     """A work store holds a run with other parameters or another source (cannot resume it)."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative fit stopped at max_iter before its convergence test held."""

@@ -1,21 +1,28 @@
 """The method in memory, on numpy arrays: no dask, no zarr.
 
-One module per stage of the method: :mod:`.cluster` (K-means, fuzzy C-means),
-:mod:`.entropy` (the k-NN density entropy scores), :mod:`.prune` (refinement,
-the rules and :func:`simplify_points`).
+One module per stage, found by its name:
+
+- :mod:`._validation`: the input checks and the one k formula (:func:`neighbour_count`);
+- :mod:`.knn`: point orders, grouping by cluster, the k nearest inside clusters;
+- :mod:`.cluster` (the shared base and seeding), :mod:`.kmeans` (:class:`KMeans`),
+  :mod:`.fcm` (:class:`FuzzyCMeans`);
+- :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
+- :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
+- :mod:`.rules` (:func:`prune`: threshold, target, and the rounds of :mod:`.rounds`:
+  iterative, coverage);
+- :mod:`.simplify`: :func:`simplify_points`, all of it.
+
+Public functions validate their input once and run kernels that assume valid input.
 """
 
-from .cluster import ConvergenceWarning, FuzzyCMeans, KMeans
-from .entropy import Scores, entropy_scores, neighbour_count, score_points
-from .prune import (
-    METHODS,
-    RULES,
-    prune,
-    refine_labels,
-    simplify_points,
-    threshold_for_count,
-    unit_free_scores,
-)
+from ._validation import neighbour_count
+from .entropy import Scores, entropy_scores, score_points
+from .fcm import FuzzyCMeans
+from .kmeans import KMeans
+from .refine import METHODS, refine_labels
+from .rules import RULES, prune, threshold_for_count, unit_free_scores
+from .simplify import simplify_points
+from ..errors import ConvergenceWarning
 
 __all__ = [
     "KMeans",

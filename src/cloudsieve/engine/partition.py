@@ -155,7 +155,7 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
     ndarray of shape (n_cells, 3), float64, sorted lexicographically (x, y, z)
     so that cell ids do not depend on the K-means initialisation order.
     """
-    from ..core.cluster import KMeans
+    from ..core import KMeans
 
     rel = sample - origin
     if n_cells <= 1:

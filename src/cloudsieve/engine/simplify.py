@@ -444,7 +444,7 @@ def _context(params: dict, halo: np.ndarray):
 
 
 def _core_kwargs(params: dict) -> dict:
-    return {"k0": params["k0"], "k_min": params["k_min"], "workers": _threads(params)}
+    return {"k0": params["k0"], "k_min": params["k_min"], "threads": _threads(params)}
 
 
 def _threads(params: dict) -> int:
@@ -479,7 +479,7 @@ def cell_task(store_path: str, cell: int, halo: dict, centers: dict, margin: flo
     -------
     dict with "cell", "n", "kept", "halo", "seconds" (small).
     """
-    from ..core.prune import simplify_points
+    from ..core import simplify_points
 
     t0 = time.perf_counter()
     g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
@@ -510,7 +510,7 @@ def score_task(store_path: str, cell: int, halo: dict, centers: dict, margin: fl
     Writes ``simplify/score_cells`` and ``simplify/label_cells`` in the cell's
     region, then ``simplify/scored[cell]``.
     """
-    from ..core.prune import refine_labels, unit_free_scores
+    from ..core import refine_labels, unit_free_scores
 
     t0 = time.perf_counter()
     g, core, halo = _open_cell(store_path, cell, halo, centers, margin)
@@ -520,7 +520,7 @@ def score_task(store_path: str, cell: int, halo: dict, centers: dict, margin: fl
     if n:
         labels = refine_labels(
             core, params["method"], params["cluster_size"], cell_seed(params["seed"], cell), k_min=params["k_min"],
-            workers=_threads(params),
+            threads=_threads(params),
         )
         scores = np.asarray(
             unit_free_scores(core, labels, context=_context(params, halo), **_core_kwargs(params)), dtype=np.float64
@@ -575,7 +575,7 @@ def apply_task(
     target rule would (n - #{score <= T}), chosen by the core's rule on the
     stored clusters (``simplify_points(labels=..., count=...)``).
     """
-    from ..core.prune import simplify_points
+    from ..core import simplify_points
     from ..store import PointStore
 
     t0 = time.perf_counter()
@@ -1110,7 +1110,7 @@ def _global_threshold(st, part, regions, runner, remove: int) -> float:
     scores go together). Every sum is over integers: the result does not
     depend on the task order.
     """
-    from ..core.prune import threshold_for_count
+    from ..core import threshold_for_count
 
     counts = part.cell_counts
     cells = [j for j in range(part.n_cells) if counts[j] > 0]

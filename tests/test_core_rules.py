@@ -1,21 +1,12 @@
-"""The pruning rules' contracts, simplify_points' invariances, refine_labels, errors."""
+"""The pruning rules' contracts: threshold, target, the rounds of iterative and coverage."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from cloudsieve.core.entropy import score_points
-from cloudsieve.errors import InvalidParameterError
-from cloudsieve.core.prune import (
-    _first_independent,
-    _padded,
-    prune,
-    refine_labels,
-    simplify_points,
-    threshold_for_count,
-    unit_free_scores,
-)
+from cloudsieve.core import prune, refine_labels, score_points, threshold_for_count, unit_free_scores
+from cloudsieve.core.rounds import _first_independent, _padded
 
 
 def surface(n, seed=0):
@@ -112,84 +103,6 @@ def test_target_drops_lowest_unit_free(cloud):
     assert t == uf[~keep].max()
 
 
-@pytest.mark.parametrize("method", ["km", "fcm"])
-@pytest.mark.parametrize("rule,kw", [("threshold", {}), ("iterative", {}), ("target", dict(ratio=0.5)),
-                                     ("iterative", dict(count=1500)), ("coverage", dict(ratio=0.5))])
-def test_simplify_points_invariant_to_order_and_units(method, rule, kw):
-    pts = surface(3000, seed=1)
-    perm = np.random.default_rng(2).permutation(len(pts))
-    kept = simplify_points(pts, method=method, rule=rule, cluster_size=300, **kw)
-    assert kept.dtype == np.int64 and (np.diff(kept) > 0).all()
-    if rule == "threshold":
-        assert 0 < len(kept) < len(pts)
-    for other, back in [(pts[perm], perm), (pts * 1000.0, np.arange(len(pts)))]:
-        k2 = simplify_points(other, method=method, rule=rule, cluster_size=300, **kw)
-        np.testing.assert_array_equal(np.sort(back[k2]), kept)
-
-
-def test_duplicates_are_dropped():
-    pts = surface(1000)
-    dup = np.concatenate([pts, pts[:50]])
-    kept = simplify_points(dup, method="km", rule="threshold", threshold=-1.0, cluster_size=200)
-    assert len(kept) == 1050  # S < 0: nothing qualifies, not even the copies (score 0)
-    kept = simplify_points(dup, method="km", rule="threshold", threshold=0.0, cluster_size=200)
-    assert not np.isin(np.arange(1000, 1050), kept).any()
-
-
-def test_refine_labels():
-    pts = surface(2000)
-    for method in ("km", "fcm"):
-        lab = refine_labels(pts, method, 400, seed=3)
-        assert lab.shape == (2000,) and lab.dtype == np.int64
-        assert lab.min() >= 0 and lab.max() < 5
-
-
-@pytest.mark.filterwarnings("ignore::cloudsieve.core.cluster.ConvergenceWarning")
-def test_refine_labels_default_stops():
-    """The refinement's defaults: KM and FCM stop at REFINE_LABEL_TOL (1%) of the
-    hard labels changing, FCM after REFINE_FCM_MAX_ITER at most; label_tol=None
-    with max_iter=300 is the paper's FCM."""
-    from cloudsieve.core.cluster import FuzzyCMeans, KMeans
-    from cloudsieve.core.prune import REFINE_FCM_MAX_ITER, REFINE_LABEL_TOL
-
-    pts = surface(6000)
-    km = KMeans(15, tol=REFINE_LABEL_TOL, seed=3).fit(pts)
-    np.testing.assert_array_equal(refine_labels(pts, "km", 400, seed=3), km.labels_)
-    f = FuzzyCMeans(15, max_iter=REFINE_FCM_MAX_ITER, label_tol=REFINE_LABEL_TOL, seed=3).fit(pts)
-    assert f.n_iter_ < REFINE_FCM_MAX_ITER  # the 1% test, not the cap, stopped it
-    np.testing.assert_array_equal(refine_labels(pts, "fcm", 400, seed=3), f.labels_)
-    paper = FuzzyCMeans(15, max_iter=300, seed=3).fit(pts)
-    np.testing.assert_array_equal(refine_labels(pts, "fcm", 400, seed=3, max_iter=300, label_tol=None), paper.labels_)
-
-
-def test_bad_input_messages():
-    pts = surface(100)
-    with pytest.raises(InvalidParameterError, match=r"cluster_size=5 is too small: .* k_min\+2=6 points"):
-        simplify_points(pts, cluster_size=5)
-    with pytest.raises(ValueError, match=r"cluster_size=7 is too small: .* k_min\+2=8"):
-        refine_labels(pts, "km", 7, k_min=6)
-    bad = pts.copy()
-    bad[10, 2] = np.nan
-    with pytest.raises(ValueError, match=r"1 non-finite .* index 10"):
-        simplify_points(bad)
-    with pytest.raises(ValueError, match=r"shape \(n, d\), got shape \(300,\)"):
-        simplify_points(pts.ravel())
-    with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, got 'x'"):
-        simplify_points(pts, rule="x")
-    with pytest.raises(ValueError, match=r"method must be 'fcm' or 'km', got 'dbscan'"):
-        simplify_points(pts, method="dbscan")
-    with pytest.raises(ValueError, match=r"rule='target' needs ratio="):
-        simplify_points(pts, rule="target")
-    with pytest.raises(ValueError, match=r"ratio is the kept fraction, in \[0, 1\], got 1.5"):
-        simplify_points(pts, rule="target", ratio=1.5)
-    with pytest.raises(ValueError, match=r"give ratio or count, not both"):
-        simplify_points(pts, rule="target", ratio=0.5, count=3)
-    with pytest.raises(ValueError, match=r"n_clusters=3 but the input has only 2 points"):
-        from cloudsieve.core.cluster import KMeans
-
-        KMeans(3).fit(pts[:2])
-
-
 def test_coverage_keeps_isolated_points_that_iterative_drops():
     rng = np.random.default_rng(8)
     plane = np.c_[rng.random((2000, 2)), np.zeros(2000)]
@@ -215,28 +128,12 @@ def test_coverage_with_threshold_is_a_subset_rule(cloud):
     assert (~first).sum() < (~kept_it).sum()  # the coverage test only removes candidates
 
 
-@pytest.mark.parametrize("method", ["km", "fcm"])
-def test_workers_do_not_change_results(method):
-    pts = surface(2000, seed=3)
-    lab1 = refine_labels(pts, method, 200, seed=1, workers=1)
-    lab2 = refine_labels(pts, method, 200, seed=1, workers=2)
-    assert np.array_equal(lab1, lab2)
-    assert np.array_equal(unit_free_scores(pts, lab1, workers=1), unit_free_scores(pts, lab1, workers=2))
-    for rule, kw in [("iterative", {}), ("threshold", {}), ("target", {"ratio": 0.5}), ("coverage", {"ratio": 0.6})]:
-        k1 = prune(pts, lab1, rule=rule, workers=1, **kw)
-        k2 = prune(pts, lab1, rule=rule, workers=2, **kw)
-        assert np.array_equal(k1, k2), rule
-    a = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=1)
-    b = simplify_points(pts, method=method, cluster_size=200, seed=1, workers=2)
-    assert np.array_equal(a, b)
-
-
 def _reference_rounds(pts, labels, rule, S=1e-3, target=None, coverage=1.0):
     """The iterative/coverage rules by full rescoring of the remaining points every round."""
-    from cloudsieve.core.cluster import _canonical_order
-    from cloudsieve.core.prune import _covered
+    from cloudsieve.core.knn import canonical_order
+    from cloudsieve.core.rounds import _covered
 
-    order = _canonical_order(pts)
+    order = canonical_order(pts)
     P, L = pts[order], labels[order]
     alive = np.arange(len(pts))
     while target is None or len(alive) > target:

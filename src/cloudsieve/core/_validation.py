@@ -1,0 +1,117 @@
+"""The input checks of the in-memory method, and the one k formula.
+
+Every public function of :mod:`cloudsieve.core` validates its input here once
+(shapes, dtypes, finite coordinates, parameter ranges) and hands the validated
+arrays to kernels that assume valid input. Messages carry the values.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidParameterError, InvalidPointsError
+
+__all__ = [
+    "neighbour_count",
+    "check_points",
+    "check_labels",
+    "check_density_params",
+    "check_cluster_size",
+    "check_context",
+]
+
+
+def neighbour_count(m, k0: float = 1.0, k_min: int = 4):
+    """k = max(k_min, floor(k0 * sqrt(m) + 1/2)) for a cluster of m points (array-friendly).
+
+    The one k formula of cloudsieve (rounding halves up).
+
+    Parameters
+    ----------
+    m : int or array_like of int
+        Points of the cluster(s).
+    k0 : float
+    k_min : int
+
+    Returns
+    -------
+    ndarray of int64, of the shape of ``m``
+    """
+    m = np.asarray(m)
+    k = np.floor(k0 * np.sqrt(m) + 0.5).astype(np.int64)
+    return np.maximum(k, int(k_min))
+
+
+def check_points(points, name: str = "points") -> np.ndarray:
+    """Validated coordinates: ndarray of shape (n, p), float64, C-contiguous, finite.
+
+    Parameters
+    ----------
+    points : array_like of shape (n, p), real
+    name : str
+        Used in the messages.
+
+    Returns
+    -------
+    ndarray of shape (n, p), float64
+        ``points`` itself when already float64 and C-contiguous, else a copy.
+
+    Raises
+    ------
+    InvalidParameterError
+        Wrong shape or dtype.
+    InvalidPointsError
+        A NaN or infinite coordinate (the count and the first row are named).
+    """
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] < 1:
+        raise InvalidParameterError(f"{name} must have shape (n, d), got shape {pts.shape}")
+    if not np.issubdtype(pts.dtype, np.number) or np.iscomplexobj(pts):
+        raise InvalidParameterError(f"{name} must be real numbers, got dtype {pts.dtype}")
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise InvalidPointsError(
+            f"{name} has {int(bad.sum())} non-finite (NaN or infinite) rows, the first at index {first}: {pts[first].tolist()}"
+        )
+    return pts
+
+
+def check_labels(labels, n: int) -> np.ndarray:
+    """Cluster labels as ndarray of shape (n,), int64 (None: one cluster, all zeros)."""
+    if labels is None:
+        return np.zeros(n, dtype=np.int64)
+    lab = np.asarray(labels)
+    if lab.shape != (n,):
+        raise InvalidParameterError(f"labels must have shape ({n},) like the points, got shape {lab.shape}")
+    if n and not np.issubdtype(lab.dtype, np.integer):
+        raise InvalidParameterError(f"labels must be integers, got dtype {lab.dtype}")
+    return lab.astype(np.int64, copy=False)
+
+
+def check_density_params(k0, k_min, dim) -> None:
+    """k0 > 0, integer k_min >= 1 and dim > 0 (the k-NN density's parameters)."""
+    if not (np.isfinite(k0) and k0 > 0):
+        raise InvalidParameterError(f"k0 must be a positive number, got {k0!r}")
+    if int(k_min) != k_min or k_min < 1:
+        raise InvalidParameterError(f"k_min must be an integer >= 1, got {k_min!r}")
+    if not (np.isfinite(dim) and dim > 0):
+        raise InvalidParameterError(f"dim must be a positive number, got {dim!r}")
+
+
+def check_cluster_size(cluster_size, k_min) -> None:
+    """An integer cluster_size >= k_min + 2 (a cluster must be able to lose a point and keep k neighbours)."""
+    if int(cluster_size) != cluster_size or cluster_size < k_min + 2:
+        raise InvalidParameterError(
+            f"cluster_size={cluster_size!r} is too small: a cluster needs at least k_min+2={int(k_min) + 2} points")
+
+
+def check_context(context, p: int) -> np.ndarray | None:
+    """Validated density context of shape (q, p) like the points' p columns, or None."""
+    if context is None:
+        return None
+    ctx = check_points(context, "context")
+    if ctx.shape[1] != p:
+        raise InvalidParameterError(f"context must have {p} columns like the points, got shape {ctx.shape}")
+    return ctx

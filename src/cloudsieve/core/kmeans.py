@@ -1,0 +1,293 @@
+"""K-means into many small clusters: Lloyd's iterations with k-d tree assignment and Hamerly's bounds.
+
+See :mod:`.cluster` for the conventions shared with fuzzy C-means (seeding,
+canonical order, the convergence warning); :func:`lloyd` is also FCM's warm
+start.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .cluster import CentroidClustering, centre_tree, rowwise
+from ..errors import InvalidParameterError
+
+__all__ = ["KMeans", "lloyd"]
+
+
+class KMeans(CentroidClustering):
+    """Lloyd's K-means with k-d tree assignment and Hamerly's bounds.
+
+    Stops when no point changes cluster (the paper) or after ``max_iter``
+    iterations (then a :class:`~cloudsieve.errors.ConvergenceWarning`). An
+    empty cluster keeps its previous centre.
+
+    Parameters
+    ----------
+    n_clusters : int
+    init : {"k-means++", "random", "kd-split"} or ndarray of shape (n_clusters, p)
+        "kd-split": means of a balanced k-d split of a subsample (see
+        :mod:`.cluster`); fewer iterations than k-means++ on surfaces.
+    max_iter : int
+    seed : int
+    tol : float, default 0.0
+        Stop when at most ``tol * n`` points changed cluster in the last
+        iteration; 0 is the paper's test (no point changed). With tol > 0 the
+        labels are the last assignment and the centres their means.
+
+    Attributes
+    ----------
+    cluster_centers_ : ndarray of shape (n_clusters, p)
+    labels_ : ndarray of shape (n,), int64
+    n_iter_ : int
+        Centre updates done.
+    converged_ : bool
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> X = np.r_[np.zeros((5, 3)), np.ones((5, 3))] + np.arange(10)[:, None] * 1e-3
+    >>> KMeans(2, seed=0).fit(X).labels_.tolist() in ([0] * 5 + [1] * 5, [1] * 5 + [0] * 5)
+    True
+    """
+
+    def __init__(self, n_clusters: int, *, init="k-means++", max_iter: int = 300, seed: int = 0,
+                 tol: float = 0.0):
+        super().__init__(n_clusters, init=init, max_iter=max_iter, seed=seed, tol=tol)
+
+    def _check_own_params(self) -> None:
+        if not (0.0 <= self.tol < 1.0):
+            raise InvalidParameterError(f"tol must be in [0, 1), got {self.tol!r}")
+
+    def _random_start(self, Xs, c, rng):
+        return Xs[np.sort(rng.choice(len(Xs), c, replace=False))].copy()
+
+    def _iterate(self, Xs, C, threads):
+        labels, C, n_iter, conv = lloyd(Xs, C, self.max_iter, threads, float(self.tol))
+        return labels, C, n_iter, conv, {}
+
+    def _unconverged(self, n: int, c: int) -> str:
+        return (f"KMeans stopped at max_iter={self.max_iter} with points still changing cluster "
+                f"(n={n}, n_clusters={c})")
+
+
+def _sums(Xs, a, c):
+    cnt = np.bincount(a, minlength=c).astype(np.float64)
+    S = np.stack([np.bincount(a, weights=Xs[:, j], minlength=c) for j in range(Xs.shape[1])], axis=1)
+    return S, cnt
+
+
+_NEIGH = 8  # other centres each centre keeps as neighbours (bounds and cheap reassignment)
+
+
+def _neighbour_lists(C, K):
+    """The K nearest other centres of each centre ((c, K) indices, self
+    excluded) and the distance T (c,) such that every other centre is at
+    distance >= T (the farthest of the K + 1 returned by the tree)."""
+    cd, ci = centre_tree(C).query(C, k=K + 1)
+    own = np.arange(len(C))[:, None]
+    self_at = ci == own
+    # self is usually in column 0; with duplicate centres it may be elsewhere (or absent)
+    nb = np.where(self_at[:, :1], ci[:, 1:], ci[:, :K])
+    fix = ~self_at[:, 0] & self_at[:, 1:].any(axis=1)
+    if fix.any():  # drop self from the list, keep K others
+        rows = np.flatnonzero(fix)
+        nb[rows] = np.array([r[r != j][:K] for j, r in zip(rows, ci[rows])])
+    return nb, cd[:, K].copy()
+
+
+class _Neighbours:
+    """Neighbour lists of the centres, re-queried only when the centres moved
+    enough since the last query to weaken T much.
+
+    Between queries a list stays valid with T_a lowered by the move of a plus
+    the largest move of any centre since the query (every non-listed centre j
+    had |c_a - c_j| >= T_a then). Distances to the listed neighbours are
+    computed exactly every iteration (c K of them)."""
+
+    def __init__(self, C, K):
+        self.K = K
+        self.refresh(C)
+
+    def refresh(self, C):
+        self.nb, self.T0 = _neighbour_lists(C, self.K)
+        self.Tmean = float(self.T0.mean())
+        self.C0 = C.copy()
+
+    def at(self, C):
+        """(T, nearest other centre distance, stale) for centres C."""
+        mv = np.sqrt(((C - self.C0) ** 2).sum(axis=1))
+        slack = mv.max()
+        T = self.T0 - mv - slack
+        dn = np.zeros(self.nb.shape)
+        for j in range(C.shape[1]):
+            dn += (np.take(C[:, j], self.nb) - C[:, j : j + 1]) ** 2
+        near = np.minimum(np.sqrt(dn.min(axis=1)), T)
+        return T, near, slack > 0.05 * self.Tmean
+
+
+def lloyd(Xs, C, max_iter, threads, tol=0.0):
+    """Lloyd's iterations from centres C; exactly the plain algorithm's labels.
+
+    Work per iteration is O(c K) for the centres, O(n) for one gather and
+    compare, and O(active) for the points whose nearest centre may have
+    changed. Per point x (label a) we keep an upper bound u(x) on the distance
+    to its centre and a lower bound l(x) on the distance to every other
+    centre (Hamerly); x keeps its label while u < l. Each centre keeps a list
+    of its K nearest other centres; every centre j outside the list is at
+    distance >= T_a from centre a, so >= T_a - u(x) from x. Hence, as long
+    as 2 u(x) <= T_a, only listed centres can come closer than u(x), and l may
+    decay by the largest move M_a over the list instead of over all centres
+    (Hamerly's choice, far looser for many small clusters). Bounds are kept
+    lazily: with D_a, M_a cumulated since the list was made,
+    u(x) = U(x) + D_a and l(x) = L(x) - M_a, so the test is
+    R(x) = L(x) - U(x) > D_a + M_a: one gather of a per-centre array, which
+    is made +inf for the centres where 2 (max U + D_a) > T_a (then all their
+    points are checked). When the lists are re-made, l is first brought to a
+    bound over all centres: min(l - M_a, T_a - u). Points failing the test
+    get their exact u and l = max(min(L - M_a, T_a - u), h_a - u) (h_a the
+    distance from a to its nearest other centre); those still failing are
+    reassigned among their centre's list (exact when the best found is closer
+    than T_a - u) or, failing that, by a k-d tree query over all centres.
+
+    Stops when at most tol * n points changed cluster (tol = 0: none, the
+    paper's test) or at max_iter.
+
+    Parameters
+    ----------
+    Xs : ndarray of shape (n, p), float64
+        Valid points (canonically ordered by the estimators).
+    C : ndarray of shape (c, p), float64
+        Initial centres.
+    max_iter : int
+    threads : int
+        Threads of the k-d tree queries.
+    tol : float
+
+    Returns
+    -------
+    labels : ndarray of shape (n,), int64
+    centres : ndarray of shape (c, p), float64
+        The means of the final clusters (an empty cluster keeps its centre).
+    n_iter : int
+    converged : bool
+    """
+    n, p = Xs.shape
+    c = len(C)
+    if c == 1:
+        return np.zeros(n, dtype=np.int64), Xs.mean(axis=0, keepdims=True), 1, True
+    neigh = _Neighbours(C, min(_NEIGH, c - 1))
+    d, i = centre_tree(C).query(Xs, k=2, workers=threads)
+    a = i[:, 0].astype(np.int64)
+    del i
+    cumD = np.zeros(c)  # own moves since the lists were made
+    cumM = np.zeros(c)  # largest moves over the lists since then
+    L = d[:, 1].copy()  # l + cumM[a]
+    R = d[:, 1] - d[:, 0]  # L - U with U = u - cumD[a]
+    Umax = np.zeros(c)  # an upper bound on U over each cluster
+    np.maximum.at(Umax, a, d[:, 0])
+    del d
+    S, cnt = _sums(Xs, a, c)
+    limit = tol * n
+    conv = False
+    it = 0
+    for it in range(1, max_iter + 1):
+        nonempty = cnt > 0
+        Cn = C.copy()
+        Cn[nonempty] = S[nonempty] / cnt[nonempty, None]
+        delta = np.sqrt(((Cn - C) ** 2).sum(axis=1))
+        C = Cn
+        T, near, stale = neigh.at(C)
+        cumD += delta
+        cumM += np.take(delta, neigh.nb).max(axis=1)
+        if stale:  # bounds over all centres now, then new lists (cumulated moves from 0)
+            U = L - R
+            ub = U + np.take(cumD, a)
+            lb = np.maximum(np.minimum(L - np.take(cumM, a), np.take(T, a) - ub), np.take(near, a) - ub)
+            neigh.refresh(C)
+            T, near, _ = neigh.at(C)
+            cumD[:] = 0.0
+            cumM[:] = 0.0
+            L = lb
+            R = lb - ub
+            Umax[:] = 0.0
+            np.maximum.at(Umax, a, ub)
+        Q = cumD + cumM
+        Q[2.0 * (Umax + cumD) >= T] = np.inf  # far centres might come close: check every point
+        act = np.flatnonzero(~(R > np.take(Q, a)))
+        n_changed = 0
+        if len(act):
+            aa = np.take(a, act)
+            Xa = np.take(Xs, act, axis=0)
+            u = np.sqrt(((Xa - np.take(C, aa, axis=0)) ** 2).sum(axis=1))
+            low = np.maximum(np.minimum(np.take(L, act) - np.take(cumM, aa), np.take(T, aa) - u),
+                             np.take(near, aa) - u)
+            ok = u < low
+            done = act[ok]
+            aok = aa[ok]
+            L[done] = low[ok] + np.take(cumM, aok)
+            R[done] = low[ok] - u[ok] + np.take(cumD, aok) + np.take(cumM, aok)
+            todo = np.flatnonzero(~ok)
+            act, aa, Xa, u = act[todo], aa[todo], np.take(Xa, todo, axis=0), u[todo]
+        if len(act):
+            na, d1, d2 = _reassign(Xa, aa, u, C, neigh.nb, T, threads)
+            moved = np.flatnonzero(na != aa)
+            n_changed = len(moved)
+            if n_changed:
+                old = aa[moved]
+                new = na[moved]
+                Xc = np.take(Xa, moved, axis=0)
+                for j in range(p):
+                    S[:, j] -= np.bincount(old, weights=Xc[:, j], minlength=c)
+                    S[:, j] += np.bincount(new, weights=Xc[:, j], minlength=c)
+                cnt -= np.bincount(old, minlength=c)
+                cnt += np.bincount(new, minlength=c)
+            a[act] = na
+            cD = np.take(cumD, na)
+            L[act] = d2 + np.take(cumM, na)
+            R[act] = d2 - d1 + cD + np.take(cumM, na)
+            np.maximum.at(Umax, na, d1 - cD)
+        if n_changed <= limit:
+            conv = True
+            break
+        if it % 20 == 0:  # refresh the running sums (no drift from +/- updates)
+            S, cnt = _sums(Xs, a, c)
+    # centres are the means of the final clusters
+    S, cnt = _sums(Xs, a, c)
+    ne = cnt > 0
+    C = C.copy()
+    C[ne] = S[ne] / cnt[ne, None]
+    return a, C, it, conv
+
+
+def _reassign(Xa, aa, u, C, nb, T, threads):
+    """Nearest centre of each row of Xa (own centre aa at distance u) and a
+    lower bound on the distance to every other centre: (labels, d1, l).
+
+    First among the own centre and its K neighbours (a gather, cheaper than a
+    tree query); that answer is exact when the best distance found is below
+    T_a - u, the distance below which no non-neighbour centre can be. The
+    rest go to a k-d tree over all centres."""
+    cand = np.concatenate([aa[:, None], np.take(nb, aa, axis=0)], axis=1)  # (m, K + 1)
+    D = np.zeros(cand.shape)  # squared distances
+    for j in range(Xa.shape[1]):
+        diff = np.take(np.ascontiguousarray(C[:, j]), cand)
+        np.subtract(Xa[:, j : j + 1], diff, out=diff)
+        np.multiply(diff, diff, out=diff)
+        D += diff
+    rows = np.arange(len(D))
+    k1 = np.argmin(D, axis=1)
+    d1 = np.sqrt(D[rows, k1])
+    D[rows, k1] = np.inf
+    d2 = np.sqrt(rowwise(np.minimum, D))
+    far = np.take(T, aa) - u
+    na = cand[rows, k1]
+    low = np.minimum(d2, far)
+    bad = np.flatnonzero(~(d1 < far))
+    if len(bad):
+        w = threads if len(bad) >= 20_000 else 1  # threads cost more than they save on small queries
+        d, i = centre_tree(C).query(np.take(Xa, bad, axis=0), k=2, workers=w)
+        na[bad] = i[:, 0]
+        d1[bad] = d[:, 0]
+        low[bad] = d[:, 1]
+    return na, d1, low

@@ -1,0 +1,297 @@
+"""Point orders and the k nearest neighbours inside clusters (DESIGN.md stage 4's k-NN).
+
+- :func:`canonical_order`: the lexicographic order of the points, so that no
+  result depends on the input order;
+- :func:`group`: the points grouped by cluster, each cluster in Z-order
+  (Morton codes), for memory locality of the queries;
+- :func:`mark_duplicates`: exact copies inside a cluster (only the first is
+  scored);
+- :func:`knn_clusters` / :func:`knn_query`: the k nearest *other* points of
+  each point inside its own cluster, from one k-d tree over all the clusters
+  (:func:`with_cluster_coordinate`);
+- :func:`knn_context`: the same among all the points and extra context
+  points (a cell's halo).
+
+All functions here assume valid input (see :mod:`._validation`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ._validation import neighbour_count
+
+__all__ = [
+    "canonical_order",
+    "group",
+    "mark_duplicates",
+    "with_cluster_coordinate",
+    "knn_query",
+    "knn_clusters",
+    "knn_context",
+]
+
+
+def canonical_order(X: np.ndarray) -> np.ndarray:
+    """Lexicographic order of the rows (first column first): input order never matters.
+
+    Same result as ``np.lexsort(X.T[::-1])`` (ties kept in input order), but a
+    stable sort on the first column and a lexsort of the rows tied there only
+    (lexsort's three passes over every row cost ~5x more on 1 M points).
+
+    Parameters
+    ----------
+    X : ndarray of shape (n, p)
+
+    Returns
+    -------
+    ndarray of shape (n,), int64
+    """
+    X = np.asarray(X)
+    if X.ndim != 2 or len(X) < 2 or X.shape[1] < 2:
+        return np.lexsort(X.T[::-1]) if X.ndim == 2 and X.shape[1] else np.arange(len(X))
+    o = np.argsort(X[:, 0], kind="stable")
+    x = X[o, 0]
+    tie = x[1:] == x[:-1]
+    if tie.any():
+        t = np.zeros(len(x), dtype=bool)
+        t[1:] |= tie
+        t[:-1] |= tie
+        pos = np.flatnonzero(t)  # runs of equal x, each contiguous in o
+        sub = o[pos]  # in input order within each run (stable sort)
+        Y = X[sub]
+        o[pos] = sub[np.lexsort(Y.T[::-1])]
+    return o
+
+
+def _unique_first(q: np.ndarray) -> np.ndarray:
+    """Positions of the first occurrence of each distinct row of q, ascending."""
+    order = np.lexsort(q.T[::-1])
+    s = q[order]
+    new = np.ones(len(q), dtype=bool)
+    new[1:] = (s[1:] != s[:-1]).any(axis=1)
+    grp = np.cumsum(new) - 1
+    first = np.full(int(grp[-1]) + 1 if len(q) else 0, len(q), dtype=np.int64)
+    np.minimum.at(first, grp, order)
+    return np.sort(first)
+
+
+def _dense_labels(lab: np.ndarray):
+    """Cluster ids 0..c-1 in the order of the label values, and c.
+
+    Small non-negative labels (the usual case) are renumbered with a bincount
+    in O(n); others with np.unique (a sort).
+    """
+    n = len(lab)
+    if n == 0:
+        return lab.astype(np.int64), 0
+    if lab.min() >= 0 and lab.max() < 2 * n + 1024:
+        remap = np.cumsum(np.bincount(lab) > 0) - 1
+        return remap[lab], int(remap[-1]) + 1
+    u, inv = np.unique(lab, return_inverse=True)
+    return inv.reshape(-1).astype(np.int64), len(u)
+
+
+_SPREAD = [(32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+           (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)]
+
+
+def _morton(pts: np.ndarray, bits: int) -> np.ndarray:
+    """Z-order code (uint64) of the first three coordinates, ``bits`` <= 21 bits each over the bounding box.
+
+    Only a row order for memory locality (hand-written: numpy has no Morton
+    code); results do not depend on it.
+    """
+    q = min(pts.shape[1], 3)
+    code = np.zeros(len(pts), dtype=np.uint64)
+    lo = pts[:, :q].min(axis=0)
+    span = float((pts[:, :q].max(axis=0) - lo).max())
+    if not (np.isfinite(span) and span > 0):
+        return code
+    scale = ((1 << bits) - 1) / span
+    for j in range(q):
+        x = ((pts[:, j] - lo[j]) * scale).astype(np.uint64)
+        for s, mask in _SPREAD:
+            x |= x << np.uint64(s)
+            x &= np.uint64(mask)
+        x <<= np.uint64(j)
+        code |= x
+    return code
+
+
+def group(pts: np.ndarray, labels: np.ndarray):
+    """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
+
+    Inside a cluster the rows follow a Z-order curve (exact copies keep their
+    input order), so that consecutive k-d tree queries touch the same memory:
+    the queries of 1 M points are ~1.5-2x faster than in input order.
+
+    Parameters
+    ----------
+    pts : ndarray of shape (n, p), float64
+    labels : ndarray of shape (n,), int64
+
+    Returns
+    -------
+    inv : ndarray of shape (n,), int64
+        Cluster id of each point (input order).
+    order : ndarray of shape (n,), int64
+        Input indices in grouped order.
+    sizes : ndarray of shape (c,), int64
+    """
+    inv, c = _dense_labels(labels)
+    bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
+    key = _morton(pts, bits)
+    key |= inv.astype(np.uint64) << np.uint64(3 * bits)
+    order = np.argsort(key, kind="stable")
+    return inv, order, np.bincount(inv, minlength=c)
+
+
+def mark_duplicates(g, ginv, rows, dup):
+    """Among g[rows] (grouped by cluster), mark in ``dup`` every exact copy of an
+    earlier row of the same cluster; return the other rows, ascending.
+
+    Parameters
+    ----------
+    g : ndarray of shape (n, p), float64
+        Points grouped by cluster.
+    ginv : ndarray of shape (n,), int64
+        Their cluster ids.
+    rows : ndarray of shape (r,), int64
+        Positions in g, ascending.
+    dup : ndarray of shape (n,), bool
+        Written in place at ``rows``.
+    """
+    first = _unique_first(np.column_stack([ginv[rows].astype(np.float64), g[rows]]))
+    dup[rows] = True
+    distinct = rows[first]
+    dup[distinct] = False
+    return distinct
+
+
+def with_cluster_coordinate(pts: np.ndarray, lab: np.ndarray) -> np.ndarray:
+    """(n, p + 1): the points and, as the last coordinate, their cluster id times a
+    gap larger than twice the bounding-box diagonal (see :func:`knn_query`)."""
+    p = pts.shape[1]
+    X = np.empty((len(pts), p + 1))
+    X[:, :p] = pts
+    lo = pts.min(axis=0)
+    hi = pts.max(axis=0)
+    gap = 2.0 * float(np.sqrt(((hi - lo) ** 2).sum())) + 1.0
+    np.multiply(lab, gap, out=X[:, p])
+    return X
+
+
+def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
+    """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster
+    (among g[rows]); only of the points rows[query] when ``query`` (positions in rows) is given.
+    With ``extra`` > 0, up to ``extra`` more nearest are returned (as many as the cluster has).
+
+    One k-d tree over all the clusters: each point gets its cluster id times a
+    gap as an extra coordinate, the gap larger than twice the bounding-box
+    diagonal, so a point of another cluster is always farther than every point
+    of the own cluster (a cluster here has >= k + 2 points), and inside a
+    cluster the extra term is exactly 0.0: the distances are bit for bit
+    those of a tree of the cluster alone. One query per distinct k, on
+    ``threads`` threads.
+
+    Returns (groups, flagged): groups as in :func:`knn_clusters` (with
+    ``extra``, the last array has k + 1 + e columns, e <= extra), for the
+    clusters without exact duplicates; flagged (c,) bool: clusters with some.
+    """
+    c = len(kc)
+    lab = ginv[rows]
+    X = with_cluster_coordinate(g[rows], lab)
+    # leaves of 32: measured ~8% faster queries than 16 (1 M points, k = 20)
+    tree = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False)
+    ec = np.clip(np.bincount(lab, minlength=c) - kc - 2, 0, extra) if extra else np.zeros(c, dtype=np.int64)
+    key = kc * (extra + 1) + ec  # (k, e) of each cluster
+    kr = key[lab]
+    if query is not None:
+        kr = kr[query]
+    flagged = np.zeros(c, dtype=bool)
+    groups = []
+    ks = np.unique(kr)
+    for kv in ks:
+        k, e = divmod(int(kv), extra + 1)
+        sel = None if len(ks) == 1 else np.flatnonzero(kr == kv)
+        if query is not None:
+            sel = query if sel is None else query[sel]
+        # the 2nd to (k+e+2)-th nearest: the nearest is the point itself (the only one at distance 0
+        # without copies); k + e + 1 contiguous columns
+        d, i = tree.query(X if sel is None else X[sel], k=list(range(2, k + e + 3)), workers=threads)
+        r = rows if sel is None else rows[sel]
+        z = d[:, 0] == 0
+        if z.any():
+            flagged[ginv[r[z]]] = True
+            good = ~flagged[ginv[r]]
+            r, d, i = r[good], d[good], i[good]
+        if len(r):
+            nbx = i if len(rows) == len(g) else rows[i]  # rows: all of g, in order
+            groups.append((k, r, d[:, k - 1].copy(), d[:, k].copy(), nbx))
+        del d
+    return groups, flagged
+
+
+def knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=0):
+    """k-NN of every point inside its own cluster (points g grouped by cluster, ids ginv).
+
+    Returns (groups, dup): groups is a list of (k, scored positions in g (M,),
+    r_k (M,), r_(k+1) (M,), the k + 1 nearest (M, k + 1 + e) as positions in
+    g, e <= ``extra`` more nearest when the cluster has them); dup (n,) bool
+    marks the exact copies (only the first of each is scored).
+    """
+    n = len(g)
+    dup = np.zeros(n, dtype=bool)
+    kc = neighbour_count(sizes, k0, k_min)
+    ok = sizes >= kc + 2
+    okr = ok[ginv]
+    small = np.flatnonzero(~okr & (sizes[ginv] > 1))
+    if len(small):  # never scored, but their copies still score 0
+        mark_duplicates(g, ginv, small, dup)
+    rows = np.flatnonzero(okr)
+    if len(rows) == 0:
+        return [], dup
+    groups, flagged = knn_query(g, ginv, rows, kc, threads, extra=extra)
+    if flagged.any():  # score the distinct points of these clusters (m and k follow)
+        distinct = mark_duplicates(g, ginv, np.flatnonzero(flagged[ginv]), dup)
+        m2 = np.bincount(ginv[distinct], minlength=len(sizes))
+        k2 = neighbour_count(m2, k0, k_min)
+        rows2 = distinct[(m2 >= k2 + 2)[ginv[distinct]]]
+        if len(rows2):
+            groups += knn_query(g, ginv, rows2, k2, threads, extra=extra)[0]
+    return groups, dup
+
+
+def knn_context(g, ginv, c, ctx, k0, k_min, threads):
+    """k-NN of every point among all the points and the context, grouped by k.
+
+    Returns (groups, dup) as :func:`knn_clusters`; a neighbour that is a
+    context point is given as position n (one past the points).
+    """
+    n = len(g)
+    pool = np.concatenate([g, ctx]) if len(ctx) else g
+    first = _unique_first(pool)  # points come first, so a point wins over a context copy
+    is_first = np.zeros(len(pool), dtype=bool)
+    is_first[first] = True
+    dup = ~is_first[:n]
+    upool = pool[first]
+    pool_to_g = np.where(first < n, first, n)  # position in g, or n for context
+    sizes = np.bincount(ginv[~dup], minlength=c)
+    kc = neighbour_count(sizes, k0, k_min)
+    ok_cl = sizes >= kc + 2
+    pos_in_u = np.full(n, -1, dtype=np.int64)
+    pos_in_u[first[first < n]] = np.flatnonzero(first < n)
+    cand = np.flatnonzero(~dup & ok_cl[ginv])
+    if len(cand) == 0:
+        return [], dup
+    tree = cKDTree(upool, balanced_tree=False, compact_nodes=False)
+    kpt = kc[ginv[cand]]
+    groups = []
+    for k in np.unique(kpt):
+        k = int(k)
+        sel = cand[kpt == k]
+        d, i = tree.query(upool[pos_in_u[sel]], k=list(range(2, k + 3)), workers=threads)  # without itself
+        groups.append((k, sel, d[:, k - 1].copy(), d[:, k].copy(), pool_to_g[i]))
+    return groups, dup

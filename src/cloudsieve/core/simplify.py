@@ -1,0 +1,84 @@
+"""The method in memory, end to end (DESIGN.md stages 3-5): refine, score, prune.
+
+:func:`simplify_points` validates everything once, then runs the stages'
+kernels on the validated arrays: :func:`.refine.refine_unchecked` (KM or FCM
+labels, unless ``labels`` are given) and :func:`.rules.prune_unchecked`
+(scores and the rule).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import check_cluster_size, check_context, check_density_params, check_labels, check_points
+from .knn import canonical_order
+from .refine import check_method, make_estimator, refine_unchecked
+from .rules import check_rule_args, prune_unchecked
+
+__all__ = ["simplify_points"]
+
+
+def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", threshold: float = 1e-3,
+                    ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
+                    k_min: int = 4, context=None, labels=None, score: str = "delta_h",
+                    n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
+                    progress=None, threads: int | None = None) -> np.ndarray:
+    """Simplify a cloud in memory: refine into clusters, score, prune.
+
+    Parameters
+    ----------
+    points : array_like of shape (n, 3), float
+    method : {"fcm", "km"}
+        Refinement into c = ceil(n / cluster_size) clusters (ignored when
+        ``labels`` is given).
+    rule : {"iterative", "threshold", "target", "coverage"}
+        See :mod:`.rules`.
+    threshold : float
+        S on dH (0.001, the paper).
+    ratio, count : optional
+        Kept fraction / kept count (rules target, coverage; iterative with a target).
+    cluster_size : int
+        >= k_min + 2.
+    seed : int
+    k0, k_min : float, int
+    context : array_like of shape (q, 3), optional
+        Extra density neighbours, never removed.
+    labels : array_like of shape (n,), int, optional
+        Use these clusters instead of refining.
+    threads : int, optional
+        Threads for the k-d tree queries of clustering and scoring (None: all
+        cores); the result does not depend on it.
+
+    Returns
+    -------
+    ndarray of shape (n_kept,), int64
+        Indices of the kept points, ascending.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> pts = np.random.default_rng(0).random((2000, 3))
+    >>> kept = simplify_points(pts, method="km", rule="target", ratio=0.5)
+    >>> len(kept)
+    1000
+    """
+    pts = check_points(points)
+    n, p = pts.shape
+    if labels is None:
+        est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
+    else:
+        check_method(method)
+        check_cluster_size(cluster_size, k_min)
+        lab = check_labels(labels, n)
+    check_density_params(k0, k_min, 3)
+    target = check_rule_args(n, rule, threshold, ratio, count, score)
+    ctx = check_context(context, p)
+    if labels is None:
+        order = canonical_order(pts)
+        lab_c = refine_unchecked(pts[order], est, threads)
+        lab = np.empty(n, dtype=np.int64)
+        lab[order] = lab_c
+    keep = prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
+                           k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
+                           threads=threads)
+    return np.flatnonzero(keep).astype(np.int64)

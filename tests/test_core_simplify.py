@@ -1,0 +1,84 @@
+"""simplify_points: invariances, duplicates, errors, thread count; unit_free_scores, prune and
+refine_labels give the same results on any thread count."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cloudsieve.core import prune, refine_labels, simplify_points, unit_free_scores
+from cloudsieve.errors import InvalidParameterError
+
+
+def surface(n, seed=0):
+    rng = np.random.default_rng(seed)
+    u = rng.random((n, 2))
+    return np.c_[u, 0.1 * np.sin(6 * u[:, 0]) * np.cos(4 * u[:, 1])]
+
+
+@pytest.mark.parametrize("method", ["km", "fcm"])
+@pytest.mark.parametrize("rule,kw", [("threshold", {}), ("iterative", {}), ("target", dict(ratio=0.5)),
+                                     ("iterative", dict(count=1500)), ("coverage", dict(ratio=0.5))])
+def test_simplify_points_invariant_to_order_and_units(method, rule, kw):
+    pts = surface(3000, seed=1)
+    perm = np.random.default_rng(2).permutation(len(pts))
+    kept = simplify_points(pts, method=method, rule=rule, cluster_size=300, **kw)
+    assert kept.dtype == np.int64 and (np.diff(kept) > 0).all()
+    if rule == "threshold":
+        assert 0 < len(kept) < len(pts)
+    for other, back in [(pts[perm], perm), (pts * 1000.0, np.arange(len(pts)))]:
+        k2 = simplify_points(other, method=method, rule=rule, cluster_size=300, **kw)
+        np.testing.assert_array_equal(np.sort(back[k2]), kept)
+
+
+def test_duplicates_are_dropped():
+    pts = surface(1000)
+    dup = np.concatenate([pts, pts[:50]])
+    kept = simplify_points(dup, method="km", rule="threshold", threshold=-1.0, cluster_size=200)
+    assert len(kept) == 1050  # S < 0: nothing qualifies, not even the copies (score 0)
+    kept = simplify_points(dup, method="km", rule="threshold", threshold=0.0, cluster_size=200)
+    assert not np.isin(np.arange(1000, 1050), kept).any()
+
+
+def test_bad_input_messages():
+    pts = surface(100)
+    with pytest.raises(InvalidParameterError, match=r"cluster_size=5 is too small: .* k_min\+2=6 points"):
+        simplify_points(pts, cluster_size=5)
+    with pytest.raises(ValueError, match=r"cluster_size=7 is too small: .* k_min\+2=8"):
+        refine_labels(pts, "km", 7, k_min=6)
+    bad = pts.copy()
+    bad[10, 2] = np.nan
+    with pytest.raises(ValueError, match=r"1 non-finite .* index 10"):
+        simplify_points(bad)
+    with pytest.raises(ValueError, match=r"shape \(n, d\), got shape \(300,\)"):
+        simplify_points(pts.ravel())
+    with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, got 'x'"):
+        simplify_points(pts, rule="x")
+    with pytest.raises(ValueError, match=r"method must be 'fcm' or 'km', got 'dbscan'"):
+        simplify_points(pts, method="dbscan")
+    with pytest.raises(ValueError, match=r"rule='target' needs ratio="):
+        simplify_points(pts, rule="target")
+    with pytest.raises(ValueError, match=r"ratio is the kept fraction, in \[0, 1\], got 1.5"):
+        simplify_points(pts, rule="target", ratio=1.5)
+    with pytest.raises(ValueError, match=r"give ratio or count, not both"):
+        simplify_points(pts, rule="target", ratio=0.5, count=3)
+    with pytest.raises(ValueError, match=r"n_clusters=3 but the input has only 2 points"):
+        from cloudsieve.core import KMeans
+
+        KMeans(3).fit(pts[:2])
+
+
+@pytest.mark.parametrize("method", ["km", "fcm"])
+def test_threads_do_not_change_results(method):
+    pts = surface(2000, seed=3)
+    lab1 = refine_labels(pts, method, 200, seed=1, threads=1)
+    lab2 = refine_labels(pts, method, 200, seed=1, threads=2)
+    assert np.array_equal(lab1, lab2)
+    assert np.array_equal(unit_free_scores(pts, lab1, threads=1), unit_free_scores(pts, lab1, threads=2))
+    for rule, kw in [("iterative", {}), ("threshold", {}), ("target", {"ratio": 0.5}), ("coverage", {"ratio": 0.6})]:
+        k1 = prune(pts, lab1, rule=rule, threads=1, **kw)
+        k2 = prune(pts, lab1, rule=rule, threads=2, **kw)
+        assert np.array_equal(k1, k2), rule
+    a = simplify_points(pts, method=method, cluster_size=200, seed=1, threads=1)
+    b = simplify_points(pts, method=method, cluster_size=200, seed=1, threads=2)
+    assert np.array_equal(a, b)
