@@ -25,7 +25,10 @@ import pytest
 import zarr
 from conftest import shared_file
 
+from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
+from cloudsieve.engine import runs as R
+from cloudsieve.engine import workstore
 from cloudsieve.cli import main
 from cloudsieve.store import ingest
 from cloudsieve.engine import simplify
@@ -149,15 +152,13 @@ def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
     labels = np.asarray(g["partition/cell"][:])
     assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
     xyz = np.asarray(g["xyz"][:])
-    cores = [P.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
+    cores = [R.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
     allpts = np.concatenate(cores)
     assert len(allpts) == n
     key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731
     assert np.array_equal(key(allpts), key(xyz))
     # per cell: in = kept + dropped; the cells' kept points are the output
-    from cloudsieve.engine.simplify import _region_block, _regions
-
-    regions, _ = _regions(part.cell_counts, _region_block(6_000))
+    regions, _ = workstore.regions(part.cell_counts, workstore.region_block(6_000))
     kc = np.asarray(g["simplify/keep_cells"][:])
     keep = np.asarray(g["simplify/keep"][:])
     total_kept = 0
@@ -190,7 +191,7 @@ def _border_density_ratio(xyz_in, keep, centers, labels, radius):
     s = np.full(len(xyz_in), np.inf)
     for i in range(len(centers)):
         other = labels != i
-        d = P.halo_distance(xyz_in[other], centers[i], centers[labels[other]])
+        d = H.halo_distance(xyz_in[other], centers[i], centers[labels[other]])
         s[other] = np.minimum(s[other], d)
     near = s <= radius
     return keep[near].mean() / keep[~near].mean(), near.sum()
