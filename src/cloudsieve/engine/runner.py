@@ -1,28 +1,12 @@
 """The one task runner: batches of independent calls on dask, or in forked children.
 
-Used by the engine (every stage's tasks) and by the evaluation (point-error
-chunks, pymeshlab calls).
-
-:class:`Runner`
-    Runs a batch of independent tasks on the chosen dask scheduler and
-    returns the results in argument order, with one progress bar per stage.
-    ``None`` (the embedded default, :data:`DEFAULT_SCHEDULER`): dask's local
-    ``"processes"`` scheduler with one process pool for the whole run
-    (measured on 2 cores, 2 M points, KM: cells stage 88 s with processes,
-    128 s with threads: the in-memory method holds the GIL in its Python
-    parts); with ``memory_limit`` a :class:`distributed.LocalCluster` of
-    *workers* processes, each capped. ``"sync"``, ``"threads"``,
-    ``"processes"``: dask's local schedulers. ``"tcp://host:port"`` or
-    ``client=``: an existing dask.distributed cluster whose workers can reach
-    the store path.
-:func:`imap`
-    Streams calls over an iterable in this process, or on a dask.distributed
-    client with a bounded number in flight (results in order).
-:func:`forked`
-    Runs each call in its own forked child process, a few at once (the
-    reproducible pymeshlab Metro figures depend on it).
-:class:`PeakMemory`
-    Samples the resident memory of this process and its children.
+Used by the engine (every stage's tasks) and by the evaluation:
+:class:`Runner` runs a batch of tasks on the chosen dask scheduler (results in
+argument order, one progress bar per stage); :func:`imap` streams calls in
+this process or on a dask.distributed client with a bounded number in
+flight (the point-error chunks); :func:`forked` runs each call in its own
+forked child (the reproducible pymeshlab Metro figures depend on it);
+:class:`PeakMemory` samples the memory of this process and its children.
 """
 
 from __future__ import annotations
@@ -42,25 +26,14 @@ __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "worker_context", "stage
 
 logger = logging.getLogger(__name__)
 
-#: the embedded default local scheduler (measured faster than threads: see the module docstring)
+#: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
 DEFAULT_SCHEDULER = "processes"
 #: tasks a local worker process runs before it is replaced (bounds heap growth)
 _TASKS_PER_CHILD = 8
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
-_PRELOAD = [
-    "numpy",
-    "scipy.spatial",
-    "zarr",
-    "cloudsieve.store",
-    "cloudsieve.core",
-    "cloudsieve.engine",
-    "cloudsieve.engine.partition",
-    "cloudsieve.engine.runs",
-    "cloudsieve.engine.halo",
-    "cloudsieve.engine.cells",
-    "cloudsieve.engine.threshold",
-    "cloudsieve.engine.merge",
-]
+_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
+            "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
+            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge"]
 
 
 class PeakMemory:
@@ -148,8 +121,15 @@ class Runner:
     Parameters
     ----------
     scheduler : str, optional
-        None (the embedded default), "sync", "threads", "processes" or a
-        "tcp://host:port" dask.distributed scheduler address.
+        None (the embedded default, :data:`DEFAULT_SCHEDULER`): dask's local
+        "processes" scheduler with one process pool for the whole run
+        (measured on 2 cores, 2 M points, KM: cells stage 88 s with
+        processes, 128 s with threads: the in-memory method holds the GIL in
+        its Python parts); with *memory_limit* a
+        :class:`distributed.LocalCluster` of *workers* processes, each
+        capped. "sync", "threads", "processes": dask's local schedulers.
+        "tcp://host:port": an existing dask.distributed cluster whose workers
+        can reach the store path.
     workers : int, optional
         Local worker count (threads/processes/LocalCluster).
     memory_limit : str or int, optional
@@ -310,14 +290,8 @@ class Runner:
             return list(dask.compute(*tasks, **kwargs))
 
 
-def imap(
-    func: Callable,
-    items: Iterable[tuple[tuple, dict]],
-    client: Any = None,
-    shared: Sequence[Any] = (),
-    kwargs: dict | None = None,
-    max_inflight: int | None = None,
-) -> Iterator[Any]:
+def imap(func: Callable, items: Iterable[tuple[tuple, dict]], client: Any = None, shared: Sequence[Any] = (),
+         kwargs: dict | None = None, max_inflight: int | None = None) -> Iterator[Any]:
     """Yield ``func(*args, *shared, **kw, **kwargs)`` for each ``(args, kw)`` of *items*, in item order.
 
     Without a *client* the calls run one after the other in this process
@@ -328,15 +302,10 @@ def imap(
 
     Parameters
     ----------
-    func : callable
     items : iterable of (tuple, dict)
         Per-call positional and keyword arguments.
-    client : distributed.Client, optional
-    shared : sequence
-        Trailing positional arguments common to every call (broadcast on a cluster).
-    kwargs : dict, optional
-        Keyword arguments common to every call.
-    max_inflight : int, optional
+    shared, kwargs : sequence, dict
+        Trailing positional (broadcast on a cluster) and keyword arguments common to every call.
     """
     kwargs = kwargs or {}
     if client is None:
