@@ -133,7 +133,8 @@ def _open_cell(task: CellTask):
 
     g = PointStore.open(task.store_path, "r+").group
     core = read_cell(g, cell_runs(g, task.cell))
-    halo = read_halo(g, _halo_runs(g, task.halo), task.centers, task.cell, task.margin)
+    sources = _halo_runs(g, task.halo)
+    halo = read_halo(g, sources, task.centers, task.cell, task.margin)
     return g, core, halo
 
 
@@ -149,9 +150,8 @@ def thinned_halo(group, task: CellTask, threshold: float) -> np.ndarray:
     -------
     ndarray of shape (h, 3), float64
     """
-    pts, cells, pos = read_halo(
-        group, _halo_runs(group, task.halo), task.centers, task.cell, task.margin, return_index=True
-    )
+    sources = _halo_runs(group, task.halo)
+    pts, cells, pos = read_halo(group, sources, task.centers, task.cell, task.margin, return_index=True)
     if not len(pts):
         return pts
     sc = group["simplify/score_cells"]

@@ -129,9 +129,10 @@ def label_chunk(
     tree = cKDTree(centers)
     labels = np.empty(n, dtype=np.int64)
     pairs = []
-    for a in range(0, n, _LABEL_BLOCK):
-        lab, pr = label_block(centers, xyz[a : a + _LABEL_BLOCK], margin, tree, halo)
-        labels[a : a + _LABEL_BLOCK] = lab
+    block = _LABEL_BLOCK
+    for a in range(0, n, block):
+        lab, pr = label_block(centers, xyz[a : a + block], margin, tree, halo)
+        labels[a : a + block] = lab
         pairs.append(pr)
     order = np.argsort(labels, kind="stable")
     sl = labels[order]

@@ -37,7 +37,7 @@ _RUN_FLUSH = 1 << 21
 
 
 def _chunks_1d(n: int) -> int:
-    return max(1, min(int(n), _RUN_CHUNK))
+    return max(1, min(_RUN_CHUNK, int(n)))
 
 
 def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int | None = None) -> None:

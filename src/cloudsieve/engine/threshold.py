@@ -19,7 +19,9 @@ import numpy as np
 __all__ = ["global_threshold", "score_hist_task", "scores_between_task"]
 
 #: histogram of log10(score) used to choose a global threshold
-_HIST_LO, _HIST_HI, _HIST_BINS = -16.0, 4.0, 4000
+_HIST_LO = -16.0
+_HIST_HI = 4.0
+_HIST_BINS = 4000
 #: gather the scores of the threshold's bin once it holds at most this many
 _GATHER_MAX = 200_000
 
@@ -96,7 +98,9 @@ def global_threshold(store, part, regions: np.ndarray, runner, remove: int) -> f
         return -math.inf
     if remove >= total:
         return math.inf
-    lo, hi, bins = _HIST_LO, _HIST_HI, _HIST_BINS
+    lo = _HIST_LO
+    hi = _HIST_HI
+    bins = _HIST_BINS
     for _ in range(6):
         hists = runner(
             score_hist_task, [(store.path, int(regions[j]), int(counts[j]), lo, hi, bins) for j in cells], "cells: threshold"
