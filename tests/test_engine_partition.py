@@ -14,7 +14,10 @@ import pytest
 import zarr
 from scipy.spatial import cKDTree
 
+from cloudsieve.engine import halo as H
+from cloudsieve.engine import label as L
 from cloudsieve.engine import partition as P
+from cloudsieve.engine import runs as R
 from cloudsieve.store import PointStore
 
 
@@ -67,7 +70,7 @@ def test_cells_hold_every_point_exactly_once(built):
     # each cell in increasing input index
     seen = []
     for j in range(part.n_cells):
-        core = P.read_cell(st.group, part.runs(j))
+        core = R.read_cell(st.group, part.runs(j))
         idx = np.nonzero(labels == j)[0]
         assert np.array_equal(core, xyz[idx])
         seen.append(idx)
@@ -85,14 +88,14 @@ def test_labels_are_the_nearest_centre(built):
 def test_ties_go_to_the_lower_index():
     centers = np.array([[0.0, 0, 0], [2.0, 0, 0], [1.0, 5, 0], [-3.0, 0, 0]])
     z = np.array([[1.0, 0, 0], [1.0, 0, 0.5], [-1.5, 0, 0], [0.1, 0, 0]])
-    labels, _ = P.label_block(centers, z, margin=0.0)
+    labels, _ = L.label_block(centers, z, margin=0.0)
     assert labels.tolist() == [0, 0, 0, 0]
-    labels, pairs = P.label_block(centers, z, margin=0.0, halo=False)
+    labels, pairs = L.label_block(centers, z, margin=0.0, halo=False)
     assert labels.tolist() == [0, 0, 0, 0] and pairs.shape == (0, 2)
     # a three-way tie: the k=2 answer is re-queried
     c3 = np.array([[1.0, 0, 0], [0.0, 1, 0], [-1.0, 0, 0], [0.0, -1, 0]])
     for halo in (True, False):
-        assert P.label_block(c3[::-1].copy(), np.zeros((5, 3)), 0.0, halo=halo)[0].tolist() == [0] * 5
+        assert L.label_block(c3[::-1].copy(), np.zeros((5, 3)), 0.0, halo=halo)[0].tolist() == [0] * 5
 
 
 def test_partition_without_halo_has_the_same_cells(built, tmp_path):
@@ -112,10 +115,10 @@ def test_halo_is_every_point_within_the_margin_of_the_region(built):
     c = part.centers
     for i in range(part.n_cells):
         runs = {int(s): part.runs(int(s)) for s in part.halo_sources(i)}
-        halo = P.read_halo(st.group, runs, c, i, part.margin)
+        halo = H.read_halo(st.group, runs, c, i, part.margin)
         # brute force: points of other cells whose bisector distance to cell i <= margin
         other = labels != i
-        s = P.halo_distance(xyz[other], c[i], c[labels[other]])
+        s = H.halo_distance(xyz[other], c[i], c[labels[other]])
         expect = xyz[other][s <= part.margin]
         assert len(halo) == len(expect)
         key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731
@@ -151,7 +154,7 @@ def test_partition_does_not_depend_on_the_store_chunking(tmp_path):
     assert np.array_equal(pa.centers, pb.centers)
     assert np.array_equal(pa.cell_counts, pb.cell_counts)
     for j in range(pa.n_cells):
-        assert np.array_equal(P.read_cell(a.group, pa.runs(j)), P.read_cell(b.group, pb.runs(j)))
+        assert np.array_equal(R.read_cell(a.group, pa.runs(j)), R.read_cell(b.group, pb.runs(j)))
 
 
 def test_bucketing_writes_each_row_sorted_by_cell(built):
@@ -232,8 +235,8 @@ def test_run_tables_built_in_small_blocks_are_the_same(tmp_path, monkeypatch):
     for c in range(part.n_chunks):
         cells = np.nonzero(t[c])[0]
         g["partition/label_runs"][c, : len(cells)] = np.stack([cells, t[c, cells]], axis=1)
-    monkeypatch.setattr(P, "_RUN_CHUNK", 5)
-    P.index_runs(g, nnz, part.n_cells, 1_000, flush=7)
+    monkeypatch.setattr(R, "_RUN_CHUNK", 5)
+    R.index_runs(st, nnz, part.n_cells, 1_000, flush=7)
     assert g["partition/cell_runs"].chunks == (5, 3)
     for k, v in before.items():
         assert np.array_equal(np.asarray(g[f"partition/{k}"][:]), v), k
@@ -249,7 +252,7 @@ def test_shuffled_input_still_partitions_exactly(tmp_path):
     labels = np.asarray(st.group["partition/cell"][:])
     check_run_tables(st, part, labels, 500)
     for j in range(part.n_cells):
-        assert np.array_equal(P.read_cell(st.group, part.runs(j)), xyz[labels == j])
+        assert np.array_equal(R.read_cell(st.group, part.runs(j)), xyz[labels == j])
 
 
 def test_an_older_partition_layout_is_refused_with_a_clear_message(built):
@@ -278,5 +281,5 @@ def test_single_cell(tmp_path):
     st = make_store(tmp_path / "s.zarr", xyz, chunk_size=1_000)
     part = P.build_partition(st, cell_size=10_000, cluster_size=100, seed=0, run=run_sync)
     assert part.n_cells == 1
-    assert np.array_equal(P.read_cell(st.group, part.runs(0)), xyz)
+    assert np.array_equal(R.read_cell(st.group, part.runs(0)), xyz)
     assert len(part.halo_sources(0)) == 0

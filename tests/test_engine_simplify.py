@@ -24,8 +24,12 @@ import numpy as np
 import pytest
 import zarr
 from conftest import shared_file
+from engine_data import plane, write_laz
 
+from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
+from cloudsieve.engine import runs as R
+from cloudsieve.engine import workstore
 from cloudsieve.cli import main
 from cloudsieve.store import ingest
 from cloudsieve.engine import simplify
@@ -33,32 +37,6 @@ from cloudsieve.errors import InvalidParameterError, ResumeMismatchError
 from cloudsieve.store import PointStore
 
 FAST = dict(method="km", rule="threshold", cluster_size=200, seed=7)
-
-
-def write_laz(path: Path, xyz: np.ndarray, seed: int = 0) -> Path:
-    """A real LAZ file (point format 3, with intensity, colour and GPS time)."""
-    rng = np.random.default_rng(seed)
-    header = laspy.LasHeader(point_format=3, version="1.2")
-    header.scales = np.array([0.001, 0.001, 0.001])
-    header.offsets = np.floor(xyz.min(axis=0))
-    las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    n = len(xyz)
-    las.intensity = rng.integers(0, 65535, n, dtype=np.uint16)
-    las.red = rng.integers(0, 65535, n, dtype=np.uint16)
-    las.green = rng.integers(0, 65535, n, dtype=np.uint16)
-    las.blue = rng.integers(0, 65535, n, dtype=np.uint16)
-    las.gps_time = np.arange(n, dtype=np.float64) * 1e-3
-    las.classification = rng.integers(0, 6, n, dtype=np.uint8)
-    las.write(str(path))
-    return path
-
-
-def plane(n: int, side: float = 100.0, seed: int = 1) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    xy = rng.random((n, 2)) * side
-    z = 0.5 * np.sin(xy[:, 0] / 7.0) + rng.normal(0, 0.02, n)
-    return np.c_[xy + 500_000.0, z + 100.0]
 
 
 def read_xyz(path) -> np.ndarray:
@@ -149,15 +127,13 @@ def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
     labels = np.asarray(g["partition/cell"][:])
     assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
     xyz = np.asarray(g["xyz"][:])
-    cores = [P.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
+    cores = [R.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
     allpts = np.concatenate(cores)
     assert len(allpts) == n
     key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731
     assert np.array_equal(key(allpts), key(xyz))
     # per cell: in = kept + dropped; the cells' kept points are the output
-    from cloudsieve.engine.simplify import _region_block, _regions
-
-    regions, _ = _regions(part.cell_counts, _region_block(6_000))
+    regions, _ = workstore.regions(part.cell_counts, workstore.region_block(6_000))
     kc = np.asarray(g["simplify/keep_cells"][:])
     keep = np.asarray(g["simplify/keep"][:])
     total_kept = 0
@@ -190,7 +166,7 @@ def _border_density_ratio(xyz_in, keep, centers, labels, radius):
     s = np.full(len(xyz_in), np.inf)
     for i in range(len(centers)):
         other = labels != i
-        d = P.halo_distance(xyz_in[other], centers[i], centers[labels[other]])
+        d = H.halo_distance(xyz_in[other], centers[i], centers[labels[other]])
         s[other] = np.minimum(s[other], d)
     near = s <= radius
     return keep[near].mean() / keep[~near].mean(), near.sum()
@@ -360,30 +336,6 @@ def test_a_store_with_the_older_dense_partition_layout_is_partitioned_again(tmp_
     st = PointStore.open(str(tmp_path / "w.zarr"))
     assert st.attrs[P.PARTITION_ATTR]["version"] == P.PARTITION_VERSION
     assert "partition/counts" not in st.group
-
-
-@pytest.mark.parametrize("context", [False, True])
-def test_task_arguments_do_not_grow_with_the_number_of_cells(tmp_path, context):
-    """Cell tasks get the centres of their cell and halo sources only, and read their runs from the store."""
-    import pickle
-
-    from cloudsieve.engine.simplify import _cell_args, _params, _region_block, _regions
-
-    src = write_laz(tmp_path / "p.laz", plane(12_000, side=100.0))
-    store = tmp_path / "w.zarr"
-    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, context=context,
-             **{**FAST, "cluster_size": 100})
-    st = PointStore.open(str(store))
-    part = P.Partition.load(st)
-    assert part.n_cells == 40
-    regions, _ = _regions(part.cell_counts, _region_block(300))
-    params = _params("km", "threshold", 1e-3, None, None, 100, 300, 7, context, 1.0, 4)
-    for args in _cell_args(st, part, regions, range(part.n_cells), params):
-        path, cell, halo, centers, margin, region, task_params = args
-        assert set(centers) == {cell, *halo} and (len(halo) > 0) == context
-        assert len(halo) < part.n_cells / 2
-        assert all(np.size(a) < part.n_cells for a in args if isinstance(a, np.ndarray))
-        assert len(pickle.dumps(args)) < 2_000 + 200 * len(halo)
 
 
 def test_resume_with_other_parameters_is_refused(tmp_path):

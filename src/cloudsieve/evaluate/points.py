@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..engine.runner import imap
 from ..errors import EmptyInputError, NotASubsetError
 from ..progress import callback
 from ._source import Source, open_source
@@ -421,25 +422,6 @@ def _sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(n, size=size, replace=False)).astype(np.int64)
 
 
-def _run_tasks(fn, items, client, extra_args=(), extra_kwargs=None, max_inflight=None):
-    """Yield ``fn(*item_args, *extra_args, **kw)`` results in item order, locally or on dask."""
-    extra_kwargs = extra_kwargs or {}
-    if client is None:
-        for args, kw in items:
-            yield fn(*args, *extra_args, **kw, **extra_kwargs)
-        return
-    nworkers = max(len(client.scheduler_info().get("workers", {})), 1)
-    max_inflight = max_inflight or 2 * nworkers
-    extra = [client.scatter(a, broadcast=True) if isinstance(a, (Target, np.ndarray)) else a for a in extra_args]
-    pending = []
-    for args, kw in items:
-        pending.append(client.submit(fn, *args, *extra, **kw, **extra_kwargs, pure=False))
-        while len(pending) >= max_inflight:
-            yield pending.pop(0).result()
-    while pending:
-        yield pending.pop(0).result()
-
-
 def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
                  chunk_size: int = 1_000_000, subset: bool = False, client: Any = None,
                  error_points: int = 0, on_error_points=None, progress=None) -> dict:
@@ -526,8 +508,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             yield (xyz,), kw
 
     partials = []
-    for part, ply in _run_tasks(forward_chunk, items(), client, extra_args=(target,),
-                                extra_kwargs={"backward_index": bindex}):
+    for part, ply in imap(forward_chunk, items(), client, shared=(target,), kwargs={"backward_index": bindex}):
         partials.append(part)
         if len(partials) > 16:
             partials = [combine(partials)]
@@ -552,7 +533,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         pts = bpoints[todo]
         best = np.full(len(todo), np.inf)
         items2 = (((xyz,), {}) for _, xyz in src.chunks())
-        for d in _run_tasks(backward_chunk, items2, client, extra_args=(pts, best)):
+        for d in imap(backward_chunk, items2, client, shared=(pts, best)):
             np.minimum(best, d, out=best)
         bd[todo] = best
     if subset and len(todo):

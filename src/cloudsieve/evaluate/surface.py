@@ -11,8 +11,11 @@ with pymeshlab's ``get_hausdorff_distance`` (Metro, Cignoni et al. 1998) with
 face sampling (not only vertices), as many samples as Metro's own default of
 10 x faces (capped, ``samples``) and a MaxDist of ten bounding-box diagonals
 so that no sample is dropped (pymeshlab's default drops samples beyond half
-the diagonal). Metro runs in a forked child so that its random sampling
-starts from the same state every time: same meshes, same figures.
+the diagonal). Metro runs in a forked child (:func:`cloudsieve.engine.runner.forked`)
+so that its random sampling starts from the same state every time: same
+meshes, same figures. pymeshlab's sampling draws from a process-wide random
+generator that is never reseeded, so this module never samples in the parent
+process.
 
 Triangle compactness is c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2): 1 for an
 equilateral triangle, 0 for a degenerate one; it equals vcg's mean-ratio
@@ -35,12 +38,12 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..engine.runner import forked
 from ..errors import CloudsieveError
 from ._source import open_source
 
@@ -178,64 +181,6 @@ def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float) -> dict:
     return _metro_one(ms, 0, 1, n, maxdist)
 
 
-def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
-    try:
-        conn.send(("ok", fn(*args)))
-    except BaseException as exc:  # noqa: BLE001 - reported to the parent
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
-    finally:
-        conn.close()
-
-
-def _forked(calls: list[tuple], max_parallel: int | None = None) -> list:
-    """Run each ``(fn, *args)`` of *calls* in its own forked child, up to *max_parallel* at once; results in order.
-
-    Why children: pymeshlab's Metro sampling draws from a process-wide random
-    generator that is never reseeded, so in one process two identical calls
-    give different figures. A forked child starts from the parent's state,
-    and this module never samples in the parent: every call gives the same
-    figures as the first call in a fresh Python process. It also runs the
-    (single-threaded) pymeshlab filters on all cores. Without ``fork``
-    (Windows, macOS spawn) the calls run in process, one after the other,
-    and Metro figures vary in the last digits.
-    """
-    import multiprocessing as mp
-
-    try:
-        ctx = mp.get_context("fork")
-    except ValueError:  # pragma: no cover
-        logger.info("no fork: pymeshlab calls run in process; Metro figures vary slightly between calls")
-        return [c[0](*c[1:]) for c in calls]
-    max_parallel = max_parallel or os.cpu_count() or 1
-    results: list = [None] * len(calls)
-    running: list = []
-
-    def finish(item):
-        i, proc, conn = item
-        try:
-            status, value = conn.recv()
-        except EOFError:
-            proc.join()
-            raise CloudsieveError(f"pymeshlab crashed in its worker process (exit code {proc.exitcode})") from None
-        proc.join()
-        conn.close()
-        if status != "ok":
-            raise CloudsieveError(f"pymeshlab failed: {value}")
-        results[i] = value
-
-    for i, call in enumerate(calls):
-        if len(running) >= max_parallel:
-            finish(running.pop(0))
-        parent, child = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(child, call[0], call[1:]), daemon=True)
-        proc.start()
-        child.close()
-        running.append((i, proc, parent))
-    while running:
-        finish(running.pop(0))
-    return results
-
-
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
           samples: int | None = None, max_samples: int = 500_000) -> dict:
     """Metro distances between two meshes, both ways (pymeshlab, face sampling).
@@ -257,8 +202,9 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
 
     Notes
     -----
-    Each direction runs in a forked child process (see :func:`_forked`), both
-    at once, so that the same meshes always give the same figures: equal to
+    Each direction runs in a forked child process (see
+    :func:`cloudsieve.engine.runner.forked`), both at once, so that the same
+    meshes always give the same figures: equal to
     a direct ``get_hausdorff_distance`` call (``samplevert=False,
     sampleface=True``, the same ``samplenum`` and ``maxdist``) made first
     thing in a fresh Python process holding the two meshes.
@@ -271,7 +217,7 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
     def n_of(mesh):
         return samples if samples is not None else min(max(10 * len(mesh[1]), 1000), max_samples)
 
-    fwd, bwd = _forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist)])
+    fwd, bwd = forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist)])
     return {"forward": fwd, "backward": bwd}
 
 
@@ -347,7 +293,7 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
         mo = cache[key][1]
         msimp = ball_pivoting(simp)
     else:  # both meshes at once, one forked child each
-        mo, msimp = _forked([(ball_pivoting, orig), (ball_pivoting, simp)])
+        mo, msimp = forked([(ball_pivoting, orig), (ball_pivoting, simp)])
         if cache is not None:
             cache[key] = (orig, mo)
     co, cs = compactness(*mo), compactness(*msimp)

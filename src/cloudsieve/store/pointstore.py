@@ -262,38 +262,57 @@ class PointStore:
         self,
         name: str,
         *,
-        shape: Sequence[int],
-        dtype: Any,
+        shape: Sequence[int] | None = None,
+        dtype: Any = None,
         chunks: Sequence[int] | None = None,
         fill_value: Any = 0,
         overwrite: bool = False,
+        data: np.ndarray | None = None,
+        shards: Sequence[int] | None = None,
     ) -> zarr.Array:
         """Create a derived array (e.g. "partition/labels"), compressed like the input arrays.
 
         Input arrays are never rewritten: *name* may not be an input dimension.
         *chunks* defaults to the store's chunk size along the first axis.
+        With *data* the array is created holding it (its shape and dtype);
+        *shards* groups chunks into shards (zarr v3 sharding).
         """
         if name in self.dimensions or name.split("/")[0] in self.dimensions:
             raise CloudsieveError(
                 f"{self.path}: {name!r} is an input array; derived arrays go under a path such as 'simplify/{name}'"
             )
+        if data is not None:
+            data = np.asarray(data)
+            shape, dtype = data.shape, data.dtype
         shape = tuple(int(s) for s in shape)
         if chunks is None:
             chunks = (max(1, min(self.chunk_size, shape[0] if shape else 1)), *shape[1:]) if shape else ()
         group = self._writable_group()
+        layout = {"shape": shape, "dtype": dtype} if data is None else {"data": data}
+        if shards is not None:
+            layout["shards"] = tuple(shards)
         arr = group.create_array(
             name,
-            shape=shape,
-            dtype=dtype,
             chunks=tuple(chunks),
             fill_value=fill_value,
             compressors=compressors(),
             overwrite=overwrite,
+            **layout,
         )
         # keep the read handle in sync so that store.read(name) sees the new array
         if self.mode == "r":
             self.group = zarr.open_group(_zarr_store(self.path, read_only=True), mode="r")
         return arr
+
+    def delete_array(self, name: str) -> None:
+        """Delete the derived array or group *name* (e.g. "simplify") if present; input arrays are never deleted."""
+        if name in self.dimensions or name.split("/")[0] in self.dimensions:
+            raise CloudsieveError(f"{self.path}: {name!r} is an input array; only derived arrays can be deleted")
+        group = self._writable_group()
+        if name in group:
+            del group[name]
+        if self.mode == "r":
+            self.group = zarr.open_group(_zarr_store(self.path, read_only=True), mode="r")
 
     def __repr__(self) -> str:
         return f"PointStore({self.path!r}, count={self.count}, format={self.source_format!r}, dimensions={self.dimensions})"

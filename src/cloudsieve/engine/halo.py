@@ -1,0 +1,94 @@
+"""Halos: the points of neighbouring cells near a cell's border (density context, never pruned).
+
+A point z of cell j lies in the halo of cell i when its distance to the
+bisector plane of c_i and c_j is at most ``margin``::
+
+    s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i) / |c_j - c_i|  <=  margin
+
+Since the Voronoi region of i lies on c_i's side of that plane, every point
+within ``margin`` of cell i's region passes (the test is a safe superset).
+The partition (:mod:`cloudsieve.engine.partition`) lists, for every cell,
+the cells that may hold points of its halo; a cell task reads those cells'
+runs and applies the test itself (:func:`read_halo`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["halo_distance", "halo_mask", "read_halo"]
+
+
+def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
+    """Signed distance of points z of cell j to the bisector plane of c_i and c_j.
+
+    Positive on c_j's side. ``ci``/``cj`` broadcast against ``z`` (n, 3).
+
+    Returns
+    -------
+    ndarray of shape (n,), float64
+    """
+    diff = cj - ci
+    mid = (ci + cj) * 0.5
+    norm = np.sqrt((diff * diff).sum(axis=-1))
+    return ((z - mid) * diff).sum(axis=-1) / norm
+
+
+def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin: float) -> np.ndarray:
+    """Which points z of cell *source* belong to the halo of *cell*.
+
+    Returns
+    -------
+    ndarray of shape (n,), bool
+    """
+    return halo_distance(z, centers[cell], centers[source]) <= margin
+
+
+def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float,
+              return_index: bool = False):
+    """Halo of *cell*: points of its halo source cells within *margin* of its region.
+
+    Parameters
+    ----------
+    group : zarr.Group
+        The store's group (reads ``partition/xyz``).
+    part_runs : dict int -> ndarray of shape (r, 3) or (r, 4)
+        Runs ``(chunk, start, stop[, first])`` of each halo source cell (see
+        :func:`cloudsieve.engine.runs.cell_runs`); ``first`` is the position of the run's first
+        point among its cell's points (needed for *return_index*).
+    centers : ndarray of shape (P, 3) or dict int -> ndarray of shape (3,)
+        Centres of *cell* and of its halo sources.
+    cell : int
+    margin : float
+    return_index : bool
+        Also return, for every halo point, its cell and its position among
+        that cell's points (to look up per-cell results such as scores).
+
+    Returns
+    -------
+    points : ndarray of shape (h, 3), float64
+        Source cells in increasing id, each in increasing input index.
+    cells, positions : ndarray of shape (h,), int64
+        Only with *return_index*.
+    """
+    arr = group["partition/xyz"]
+    out, cells, pos = [], [], []
+    for src in sorted(part_runs):
+        for run in part_runs[src]:
+            c, a, b = (int(v) for v in run[:3])
+            if b <= a:
+                continue
+            z = np.asarray(arr[c, a:b])
+            m = halo_mask(z, centers, cell, src, margin)
+            if m.any():
+                out.append(z[m])
+                if return_index:
+                    sel = np.flatnonzero(m)
+                    cells.append(np.full(len(sel), src, dtype=np.int64))
+                    pos.append(int(run[3]) + sel)
+    pts = np.concatenate(out, axis=0) if out else np.empty((0, 3))
+    if not return_index:
+        return pts
+    if not out:
+        return pts, np.empty(0, np.int64), np.empty(0, np.int64)
+    return pts, np.concatenate(cells), np.concatenate(pos).astype(np.int64)

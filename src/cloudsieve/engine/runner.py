@@ -1,0 +1,397 @@
+"""The one task runner: batches of independent calls on dask, or in forked children.
+
+Used by the engine (every stage's tasks) and by the evaluation:
+:class:`Runner` runs a batch of tasks on the chosen dask scheduler (results in
+argument order, one progress bar per stage); :func:`imap` streams calls in
+this process or on a dask.distributed client with a bounded number in
+flight (the point-error chunks); :func:`forked` runs each call in its own
+forked child (the reproducible pymeshlab Metro figures depend on it);
+:class:`PeakMemory` samples the memory of this process and its children.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import threading
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from typing import Any
+
+from ..errors import CloudsieveError, InvalidParameterError
+from ..progress import callback
+
+__all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "worker_context", "stage_bar", "imap", "forked"]
+
+logger = logging.getLogger(__name__)
+
+#: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
+DEFAULT_SCHEDULER = "processes"
+#: tasks a local worker process runs before it is replaced (bounds heap growth)
+_TASKS_PER_CHILD = 8
+#: modules imported once by the fork server, so a replaced worker starts in milliseconds
+_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
+            "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
+            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge"]
+
+
+class PeakMemory:
+    """Samples the resident memory of this process and its children in a thread.
+
+    Use as a context manager; ``peak`` holds the largest sample (bytes).
+    """
+
+    def __init__(self, interval: float = 0.1) -> None:
+        self.interval = interval
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def sample(self) -> int:
+        """Resident memory of this process and its children now (bytes)."""
+        try:
+            import psutil
+        except ImportError:  # pragma: no cover
+            import resource
+
+            return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+        proc = psutil.Process()
+        total = 0
+        for p in [proc, *proc.children(recursive=True)]:
+            with contextlib.suppress(Exception):
+                total += p.memory_info().rss
+        return total
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval):
+            self.peak = max(self.peak, self.sample())
+
+    def __enter__(self) -> PeakMemory:
+        self.peak = self.sample()
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="cloudsieve-peak-memory")
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self.peak = max(self.peak, self.sample())
+
+
+def worker_context():
+    """The multiprocessing context of the local worker processes.
+
+    dask's default is "spawn": every new process starts Python and imports
+    numpy, scipy, zarr and cloudsieve again (~1.3 s measured), and workers are
+    replaced every ``_TASKS_PER_CHILD`` tasks. Where available (and unless
+    dask's ``multiprocessing.context`` is configured) a "forkserver" that has
+    imported them once forks the workers instead: a clean single-threaded
+    parent, like spawn, without the start-up cost.
+    """
+    import multiprocessing as mp
+
+    import dask
+    from dask.multiprocessing import get_context
+
+    if dask.config.get("multiprocessing.context", None) is None and "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(_PRELOAD)
+        return ctx
+    return get_context()
+
+
+@contextlib.contextmanager
+def stage_bar(bars, stage: str, total: int | None, unit: str) -> Iterator[Callable[[int], None]]:
+    """``bars(stage, total, unit)`` as a context yielding ``update(n)``, or a no-op when *bars* is None."""
+    if bars is None:
+        yield callback(None)
+    else:
+        with bars(stage, total, unit) as upd:
+            yield callback(upd)
+
+
+class Runner:
+    """Runs batches of independent tasks on the chosen dask scheduler.
+
+    ``runner(func, argument_tuples, stage)`` returns the results in the order
+    of the arguments, whatever the completion order.
+
+    Parameters
+    ----------
+    scheduler : str, optional
+        None (the embedded default, :data:`DEFAULT_SCHEDULER`): dask's local
+        "processes" scheduler with one process pool for the whole run
+        (measured on 2 cores, 2 M points, KM: cells stage 88 s with
+        processes, 128 s with threads: the in-memory method holds the GIL in
+        its Python parts); with *memory_limit* a
+        :class:`distributed.LocalCluster` of *workers* processes, each
+        capped. "sync", "threads", "processes": dask's local schedulers.
+        "tcp://host:port": an existing dask.distributed cluster whose workers
+        can reach the store path.
+    workers : int, optional
+        Local worker count (threads/processes/LocalCluster).
+    memory_limit : str or int, optional
+        Per-worker memory cap: runs a LocalCluster of *workers* processes.
+    client : distributed.Client, optional
+        Run on this cluster.
+    bars : callable, optional
+        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
+    """
+
+    def __init__(self, scheduler=None, workers=None, memory_limit=None, client=None, bars=None) -> None:
+        self.client = client
+        self._own_client = False
+        self._cluster = None
+        self.workers = workers
+        self.bars = bars
+        if client is not None:
+            self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
+            return
+        if isinstance(scheduler, str) and "://" in scheduler:
+            from distributed import Client
+
+            self.client = Client(scheduler)
+            self._own_client = True
+            self.name = f"distributed ({scheduler})"
+            return
+        if memory_limit is not None:
+            if scheduler not in (None, "processes"):
+                raise InvalidParameterError(
+                    f"memory_limit ({memory_limit}) needs worker processes: use the default scheduler or 'processes', not {scheduler!r}"
+                )
+            from distributed import Client, LocalCluster
+
+            n = int(workers or os.cpu_count() or 1)
+            self._cluster = LocalCluster(
+                n_workers=n,
+                threads_per_worker=1,
+                processes=True,
+                memory_limit=memory_limit,
+                host="127.0.0.1",
+                dashboard_address=None,
+            )
+            self.client = Client(self._cluster)
+            self._own_client = True
+            self.name = f"local cluster ({n} workers, memory limit {memory_limit})"
+            return
+        if scheduler is None:
+            scheduler = DEFAULT_SCHEDULER
+        if scheduler not in ("sync", "synchronous", "threads", "processes"):
+            raise InvalidParameterError(
+                f"unknown scheduler {scheduler!r}: use sync, threads, processes or a tcp://host:port address"
+            )
+        self.local = "sync" if scheduler == "synchronous" else scheduler
+        self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
+        self._pool = None
+        if self.local == "processes":
+            # one pool for the whole run: dask would start (and import into) a
+            # new pool at every compute() otherwise, seconds per stage
+            from concurrent.futures import ProcessPoolExecutor
+
+            # a worker process is replaced after a few tasks: long-lived
+            # processes keep the high-water mark of the allocator (fragmented
+            # heaps of many cells), so the peak memory would creep with N
+            self._pool = ProcessPoolExecutor(
+                int(workers or os.cpu_count() or 1), mp_context=worker_context(), max_tasks_per_child=_TASKS_PER_CHILD
+            )
+
+    @property
+    def task_threads(self) -> int:
+        """k-d tree threads for each cell task: the machine's cores shared by the tasks running at once.
+
+        Without this every task queries with all cores (the core's
+        default): 2 worker processes on 2 cores ran 4 k-d tree threads. A
+        single worker still gets every core (its queries are threaded). On a
+        dask.distributed cluster the workers' threads are assumed to fill
+        their machines: 1. The results do not depend on it.
+        """
+        cores = os.cpu_count() or 1
+        if self.client is not None and self._cluster is None:
+            return 1
+        if getattr(self, "local", None) == "sync":
+            return cores
+        return max(1, cores // int(self.workers or cores))
+
+    @property
+    def dashboard_link(self) -> str | None:
+        """The dask dashboard of a distributed run, or None."""
+        if self.client is None:
+            return None
+        with contextlib.suppress(Exception):
+            return self.client.dashboard_link
+        return None
+
+    def close(self) -> None:
+        """Shut down the process pool and the client/cluster this runner started."""
+        if getattr(self, "_pool", None) is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        if self._own_client and self.client is not None:
+            self.client.close()
+        if self._cluster is not None:
+            self._cluster.close()
+
+    def __call__(self, func: Callable, args: Sequence[tuple], stage: str, unit: str = "task") -> list:
+        """``[func(*a) for a in args]`` as tasks of stage *stage*, results in argument order."""
+        args = list(args)
+        if not args:
+            return []
+        with stage_bar(self.bars, stage, len(args), unit) as update:
+            if self.client is not None:
+                return self._distributed(func, args, stage, update)
+            return self._local(func, args, update)
+
+    def _distributed(self, func, args, stage, update) -> list:
+        from distributed import as_completed
+
+        token = uuid.uuid4().hex[:8]
+        tag = stage.replace(" ", "").replace(":", "-")
+        futures = [
+            self.client.submit(func, *a, key=f"cloudsieve-{tag}-{i}-{token}", pure=False) for i, a in enumerate(args)
+        ]
+        try:
+            for _ in as_completed(futures):
+                update(1)
+            return self.client.gather(futures)
+        finally:
+            for f in futures:
+                f.release()
+
+    def _local(self, func, args, update) -> list:
+        import dask
+        from dask.callbacks import Callback
+
+        # keys that sort in reverse argument order: dask's local scheduler then
+        # starts the tasks in argument order (with random keys it picks them
+        # in key order, i.e. at random), which the cells stage uses to start
+        # the largest cells first
+        token = uuid.uuid4().hex[:8]
+        last = len(args) - 1
+        tasks = [
+            dask.delayed(func, pure=False)(*a, dask_key_name=f"cloudsieve-{func.__name__}-{token}-{last - i:09d}")
+            for i, a in enumerate(args)
+        ]
+        keys = {t.key for t in tasks}
+
+        class _Count(Callback):
+            def _posttask(self, key, result, dsk, state, worker_id):
+                if key in keys:
+                    update(1)
+
+        kwargs = {"scheduler": self.local}
+        if self.workers and self.local != "sync":
+            kwargs["num_workers"] = int(self.workers)
+        if self._pool is not None:
+            kwargs["pool"] = self._pool
+            kwargs["chunksize"] = 1  # dask batches 6 tasks per submission by default: 6 cells on one worker
+        with _Count():
+            return list(dask.compute(*tasks, **kwargs))
+
+
+def imap(func: Callable, items: Iterable[tuple[tuple, dict]], client: Any = None, shared: Sequence[Any] = (),
+         kwargs: dict | None = None, max_inflight: int | None = None) -> Iterator[Any]:
+    """Yield ``func(*args, *shared, **kw, **kwargs)`` for each ``(args, kw)`` of *items*, in item order.
+
+    Without a *client* the calls run one after the other in this process
+    (each may use every core itself). With a dask.distributed *client* they
+    are submitted as tasks, at most *max_inflight* (default: twice the
+    workers) pending at once, so *items* may be a generator over data larger
+    than memory; each of *shared* is scattered once to every worker.
+
+    Parameters
+    ----------
+    items : iterable of (tuple, dict)
+        Per-call positional and keyword arguments.
+    shared, kwargs : sequence, dict
+        Trailing positional (broadcast on a cluster) and keyword arguments common to every call.
+    """
+    kwargs = kwargs or {}
+    if client is None:
+        for args, kw in items:
+            yield func(*args, *shared, **kw, **kwargs)
+        return
+    nworkers = max(len(client.scheduler_info().get("workers", {})), 1)
+    max_inflight = max_inflight or 2 * nworkers
+    extra = [client.scatter(a, broadcast=True) for a in shared]
+    pending = []
+    for args, kw in items:
+        pending.append(client.submit(func, *args, *extra, **kw, **kwargs, pure=False))
+        while len(pending) >= max_inflight:
+            yield pending.pop(0).result()
+    while pending:
+        yield pending.pop(0).result()
+
+
+def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
+    try:
+        conn.send(("ok", fn(*args)))
+    except BaseException as exc:  # noqa: BLE001 - reported to the parent
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    finally:
+        conn.close()
+
+
+def forked(calls: Sequence[tuple], max_parallel: int | None = None, name: str = "pymeshlab") -> list:
+    """Run each ``(fn, *args)`` of *calls* in its own forked child, up to *max_parallel* at once; results in order.
+
+    A forked child starts from the parent's state and ends with its call, so
+    a library with hidden process-wide state gives the same result for the
+    same call every time, as long as the parent never calls it itself.
+    pymeshlab's Metro sampling is such a case: it draws from a process-wide
+    random generator that is never reseeded, so in one process two identical
+    calls give different figures (see :mod:`cloudsieve.evaluate.surface`).
+    It also runs single-threaded libraries on all cores. Without ``fork``
+    (Windows, macOS spawn) the calls run in process, one after the other.
+
+    Parameters
+    ----------
+    calls : sequence of tuple
+        ``(fn, *args)``; *fn* and the arguments need not be picklable (the
+        child inherits them), the result must be.
+    max_parallel : int, optional
+        Children at once (default: the machine's cores).
+    name : str
+        What the calls run, for the error messages.
+
+    Raises
+    ------
+    CloudsieveError
+        A call raised (its type and message are given) or its child died.
+    """
+    import multiprocessing as mp
+
+    try:
+        ctx = mp.get_context("fork")
+    except ValueError:  # pragma: no cover
+        logger.info("no fork: %s calls run in process; results that depend on process state vary between calls", name)
+        return [c[0](*c[1:]) for c in calls]
+    max_parallel = max_parallel or os.cpu_count() or 1
+    results: list = [None] * len(calls)
+    running: list = []
+
+    def finish(item):
+        i, proc, conn = item
+        try:
+            status, value = conn.recv()
+        except EOFError:
+            proc.join()
+            raise CloudsieveError(f"{name} crashed in its worker process (exit code {proc.exitcode})") from None
+        proc.join()
+        conn.close()
+        if status != "ok":
+            raise CloudsieveError(f"{name} failed: {value}")
+        results[i] = value
+
+    for i, call in enumerate(calls):
+        if len(running) >= max_parallel:
+            finish(running.pop(0))
+        parent, child = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_child, args=(child, call[0], call[1:]), daemon=True)
+        proc.start()
+        child.close()
+        running.append((i, proc, parent))
+    while running:
+        finish(running.pop(0))
+    return results

@@ -1,0 +1,182 @@
+"""The partition's run tables: two CSR views of the (chunk, cell) runs, and reading points by runs.
+
+The label pass (:func:`cloudsieve.engine.partition.label_chunk`) sorts each
+input chunk by cell into its row of ``partition/xyz``; a *run* is the points
+of one cell inside one chunk, contiguous in that row. Only the nonzero runs
+are stored (nnz of them, at most min(N, n_chunks * P) and about
+n_chunks + P for a spatially coherent input), so nothing of size
+n_chunks x P exists anywhere::
+
+    chunk_ptr   int64   (n_chunks + 1,) CSR by chunk: the runs of chunk c are
+    chunk_runs  int64   (nnz, 3)          chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]],
+                                         rows (cell, count, first), cells increasing;
+                                         first = points of that cell in chunks < c
+    cell_ptr    int64   (P + 1,)        CSR by cell: the runs of cell j are
+    cell_runs   int64   (nnz, 3)          cell_runs[cell_ptr[j]:cell_ptr[j + 1]],
+                                         rows (chunk, start, count), chunks increasing;
+                                         the points are xyz[chunk, start:start + count]
+    cell_count  int64   (P,)            points per cell
+
+A cell task reads its own runs (:func:`cell_runs`), a merge task its chunk's
+(:func:`chunk_runs`); the driver holds arrays of size P or n_chunks only (the
+tables are built by streaming, :func:`index_runs`). The points of cell j are,
+in input order, its runs ``xyz[c, start:start + count]``
+(:func:`read_cell`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell"]
+
+#: zarr chunk of the run tables (runs)
+_RUN_CHUNK = 65536
+#: runs held in memory while the run tables are built
+_RUN_FLUSH = 1 << 21
+
+
+def _chunks_1d(n: int) -> int:
+    return max(1, min(_RUN_CHUNK, int(n)))
+
+
+def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int | None = None) -> None:
+    """Build the run tables (both CSR views) from the label pass's scratch rows.
+
+    Streams ``partition/label_runs`` chunk by chunk and writes
+    ``chunk_ptr``/``chunk_runs`` (by chunk, with each run's position inside
+    its cell) and ``cell_ptr``/``cell_runs`` (by cell, chunks increasing) and
+    ``cell_count``; then deletes the scratch array. Memory: arrays of size P
+    and n_chunks, plus a buffer of *flush* runs (the by-cell view is written
+    in blocks of cells holding about *flush* runs, one pass over the by-chunk
+    view per block: one pass unless the input is spatially incoherent).
+
+    Parameters
+    ----------
+    store : PointStore
+        Opened writable; holds ``partition/label_runs``.
+    nnz : ndarray of shape (n_chunks,)
+        Runs of each chunk (as returned by :func:`cloudsieve.engine.label.label_chunk`).
+    n_cells : int
+    chunk_size : int
+        Points per input chunk (chunk c starts at point c * chunk_size).
+    """
+    flush = int(flush or _RUN_FLUSH)
+    nnz = np.asarray(nnz, dtype=np.int64)
+    n_chunks, p = len(nnz), int(n_cells)
+    chunk_ptr = np.zeros(n_chunks + 1, dtype=np.int64)
+    np.cumsum(nnz, out=chunk_ptr[1:])
+    total = int(chunk_ptr[-1])
+    rc = _chunks_1d(total)
+    for name in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
+        store.delete_array(f"partition/{name}")
+    by_chunk = store.create_array("partition/chunk_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3))
+    tmp = store.group["partition/label_runs"]
+    acc = np.zeros(p, dtype=np.int64)  # points of each cell in the chunks seen so far
+    n_runs = np.zeros(p, dtype=np.int64)
+    buf: list[np.ndarray] = []
+    held, pos = 0, 0
+    for c in range(n_chunks):
+        k = int(nnz[c])
+        if k == 0:
+            continue
+        r = np.asarray(tmp[c, :k])
+        cells, cnt = r[:, 0], r[:, 1]  # cells distinct and increasing within a chunk
+        buf.append(np.stack([cells, cnt, acc[cells]], axis=1))
+        acc[cells] += cnt
+        n_runs[cells] += 1
+        held += k
+        if held >= max(flush, rc):
+            rows = np.concatenate(buf)
+            m = (len(rows) // rc) * rc  # aligned writes: no zarr chunk written twice
+            by_chunk[pos : pos + m] = rows[:m]
+            pos += m
+            buf, held = [rows[m:]], len(rows) - m
+    if held:
+        rows = np.concatenate(buf)
+        by_chunk[pos : pos + len(rows)] = rows
+    cell_ptr = np.zeros(p + 1, dtype=np.int64)
+    np.cumsum(n_runs, out=cell_ptr[1:])
+    by_cell = store.create_array("partition/cell_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3))
+    j0 = 0
+    while j0 < p and total:
+        # a block of cells whose runs fit the buffer (at least one cell)
+        j1 = max(j0 + 1, int(np.searchsorted(cell_ptr, cell_ptr[j0] + flush, side="right")) - 1)
+        j1 = min(j1, p)
+        base = int(cell_ptr[j0])
+        out = np.empty((int(cell_ptr[j1]) - base, 3), dtype=np.int64)
+        fill = cell_ptr[j0:j1] - base
+        done_points = 0  # points of the by-chunk runs before the slice
+        for a in range(0, total, max(flush, rc)):
+            b = min(total, a + max(flush, rc))
+            rows = np.asarray(by_chunk[a:b])
+            cum = done_points + np.cumsum(rows[:, 1]) - rows[:, 1]  # points before each run, input order
+            done_points += int(rows[:, 1].sum())
+            sel = np.flatnonzero((rows[:, 0] >= j0) & (rows[:, 0] < j1))
+            if not len(sel):
+                continue
+            chunk_of = np.searchsorted(chunk_ptr, a + sel, side="right") - 1
+            local = cum[sel] - chunk_of * int(chunk_size)  # start of the run in its row of partition/xyz
+            o = np.argsort(rows[sel, 0], kind="stable")  # by cell, chunks stay increasing
+            cs = rows[sel, 0][o] - j0
+            heads = np.flatnonzero(np.r_[True, cs[1:] != cs[:-1]])
+            sizes = np.diff(np.r_[heads, len(cs)])
+            rank = np.arange(len(cs)) - np.repeat(heads, sizes)
+            at = fill[cs] + rank
+            out[at, 0] = chunk_of[o]
+            out[at, 1] = local[o]
+            out[at, 2] = rows[sel, 1][o]
+            fill[cs[heads]] += sizes
+        by_cell[base : base + len(out)] = out
+        j0 = j1
+    for name, data in (("chunk_ptr", chunk_ptr), ("cell_ptr", cell_ptr), ("cell_count", acc)):
+        store.create_array(f"partition/{name}", data=data, chunks=(_chunks_1d(len(data)),))
+    store.delete_array("partition/label_runs")
+
+
+def cell_runs(group, cell: int) -> np.ndarray:
+    """The runs of *cell* read from the store: rows (chunk, start, stop, first), shape (r, 4).
+
+    ``partition/xyz[chunk, start:stop]`` are the points; ``first`` is the
+    position of the run's first point among the cell's points (the runs are
+    in increasing chunk, i.e. input, order).
+    """
+    a, b = (int(v) for v in group["partition/cell_ptr"][cell : cell + 2])
+    r = np.asarray(group["partition/cell_runs"][a:b]) if b > a else np.empty((0, 3), np.int64)
+    first = np.cumsum(r[:, 2]) - r[:, 2]
+    return np.stack([r[:, 0], r[:, 1], r[:, 1] + r[:, 2], first], axis=1).astype(np.int64)
+
+
+def chunk_runs(group, chunk: int) -> np.ndarray:
+    """The runs of input chunk *chunk*: rows (cell, count, first), cells increasing, shape (r, 3).
+
+    ``first`` is the position of the run's first point among its cell's points.
+    """
+    a, b = (int(v) for v in group["partition/chunk_ptr"][chunk : chunk + 2])
+    if b <= a:
+        return np.empty((0, 3), np.int64)
+    return np.asarray(group["partition/chunk_runs"][a:b]).astype(np.int64)
+
+
+def read_runs(group, runs: np.ndarray) -> np.ndarray:
+    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop, ...)``.
+
+    Returns
+    -------
+    ndarray of shape (sum(stop - start), 3), float64
+    """
+    arr = group["partition/xyz"]
+    parts = [np.asarray(arr[int(r[0]), int(r[1]) : int(r[2])]) for r in runs if r[2] > r[1]]
+    if not parts:
+        return np.empty((0, 3))
+    return np.concatenate(parts, axis=0)
+
+
+def read_cell(group, runs: np.ndarray) -> np.ndarray:
+    """Core points of a cell (increasing input index), from its runs.
+
+    Returns
+    -------
+    ndarray of shape (n, 3), float64
+    """
+    return read_runs(group, runs)

@@ -1,0 +1,251 @@
+"""The work store of a run: where it is, what it was made from, what a rerun may reuse.
+
+When SRC is a file it is ingested into a work store, by default
+``DST + ".cloudsieve.zarr"`` beside DST; that default store is deleted after
+a successful run (pass ``store=`` to keep it). A run that crashed leaves it
+in place, and a rerun (``resume=True``, or simply the same command) reuses
+the ingest, the partition and every completed cell, after checking that the
+source file (its size and mtime, recorded under ``"source"``) and the
+parameters (recorded under ``"params"``) are the same
+(:class:`~cloudsieve.errors.ResumeMismatchError` otherwise; ``overwrite=True``
+starts again). When SRC is a store, the derived arrays are written into it.
+Both records, and the run's summary, live in the store's attribute
+``"cloudsieve_simplify"``.
+
+Derived arrays of the cells stage (``simplify/``; created and deleted
+through :class:`~cloudsieve.store.PointStore`)::
+
+    keep_cells   bool    (T,)  keep mask, cell-ordered: cell j's points at
+                               regions[j]:regions[j] + n_j (T: the padded total)
+    score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
+    label_cells  int32   (T,)  pass-1 small-cluster labels (ratio/count)
+    done, scored uint8   (P,)  one zarr chunk per cell: concurrent tasks never share one
+    regions      int64   (P,)  start of each cell's region
+    keep         bool    (N,)  keep mask in input order (the merge stage)
+
+Each cell's region starts on a zarr-chunk boundary (:func:`regions`), so the
+tasks of different cells never write the same chunk.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import shutil
+
+import numpy as np
+
+from ..errors import CloudsieveError, ResumeMismatchError
+
+__all__ = [
+    "SIMPLIFY_ATTR",
+    "ENGINE_VERSION",
+    "is_store",
+    "source_identity",
+    "work_store_path",
+    "remove_store",
+    "reusable_store",
+    "ingest_source",
+    "record_params",
+    "clear_derived",
+    "region_block",
+    "regions",
+    "ensure_cell_arrays",
+    "ensure_keep_array",
+    "record_summary",
+]
+
+logger = logging.getLogger(__name__)
+
+SIMPLIFY_ATTR = "cloudsieve_simplify"
+ENGINE_VERSION = 1
+
+
+def is_store(path: str) -> bool:
+    """Whether *path* holds a complete point store."""
+    from ..store import PointStore
+
+    try:
+        PointStore.open(path, "r")
+    except (CloudsieveError, OSError, ValueError):
+        return False
+    return True
+
+
+def source_identity(src: str) -> dict:
+    """What identifies a source file for resume: its absolute path, size and mtime (ns)."""
+    st = os.stat(src)
+    return {"path": os.path.abspath(src), "size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+
+
+def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_store: bool) -> str:
+    """The store a run works in: SRC itself when it is a store, else *store* or ``DST + ".cloudsieve.zarr"``.
+
+    A local path is made absolute: workers may run elsewhere (another cwd).
+    """
+    if src_is_store:
+        path = src
+    else:
+        path = os.fspath(store) if store is not None else dst + ".cloudsieve.zarr"
+    if "://" not in path:
+        path = os.path.abspath(path)
+    return path
+
+
+def remove_store(path: str) -> None:
+    """Delete the store at *path* (local path or fsspec URL)."""
+    from ..store import local_path
+
+    local = local_path(path)
+    if local is not None:
+        shutil.rmtree(local, ignore_errors=True)
+    else:  # pragma: no cover - remote stores
+        import fsspec
+
+        fs, p = fsspec.core.url_to_fs(path)
+        fs.rm(p, recursive=True)
+
+
+def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: bool, resume: bool):
+    """The store to work in when no ingest is needed, else None.
+
+    SRC itself when it is a store; the work store at *store_path* when it
+    holds an ingest of the same source file. With *overwrite* an existing work
+    store is deleted (None: ingest again).
+
+    Raises
+    ------
+    ResumeMismatchError
+        The work store was ingested from another file (or the file changed).
+    """
+    from ..store import PointStore
+
+    if src_is_store:
+        return PointStore.open(store_path, "r+")
+    identity = source_identity(src)
+    existing = is_store(store_path)
+    if existing and overwrite:
+        remove_store(store_path)
+        existing = False
+    if resume and not existing:
+        logger.info("resume: no complete work store at %s, starting from the ingest", store_path)
+    if not existing:
+        return None
+    st = PointStore.open(store_path, "r+")
+    rec = st.attrs.get(SIMPLIFY_ATTR, {}).get("source")
+    if rec is not None and (rec["size"], rec["mtime_ns"]) != (identity["size"], identity["mtime_ns"]):
+        raise ResumeMismatchError(
+            f"work store {store_path} was ingested from {rec['path']} "
+            f"({rec['size']} bytes, mtime {rec['mtime_ns']}), not from {src} "
+            f"({identity['size']} bytes, mtime {identity['mtime_ns']}); pass overwrite=True (--overwrite) to start again"
+        )
+    logger.info("reusing the ingest in %s", store_path)
+    return st
+
+
+def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None):
+    """Ingest the file *src* into a new work store at *store_path* and record the source's identity.
+
+    Returns
+    -------
+    PointStore
+        Opened writable ("r+").
+    """
+    from ..store import PointStore, ingest
+
+    identity = source_identity(src)
+    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress)
+    st = PointStore.open(store_path, "r+")
+    st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
+    return st
+
+
+def record_params(store, params: dict, overwrite: bool) -> None:
+    """Check the parameters of the run recorded in *store* against *params*, then record *params*.
+
+    A store holding another run's results is refused (or, with *overwrite*,
+    its derived arrays deleted); a store with no run recorded gets its derived
+    arrays deleted. The summary of an earlier run is dropped.
+
+    Raises
+    ------
+    ResumeMismatchError
+        Other parameters were recorded and *overwrite* is False.
+    """
+    rec = dict(store.attrs.get(SIMPLIFY_ATTR, {}))
+    old = rec.get("params")
+    if old is not None and old != params:
+        if not overwrite:
+            diff = {k: (old.get(k), params[k]) for k in params if old.get(k) != params[k]}
+            raise ResumeMismatchError(
+                f"store {store.path} holds a run with other parameters "
+                + ", ".join(f"{k}: stored {a!r}, asked {b!r}" for k, (a, b) in diff.items())
+                + "; pass overwrite=True (--overwrite) to discard it"
+            )
+        old = None
+    if old is None:
+        clear_derived(store)
+    rec["params"] = params
+    rec.pop("summary", None)
+    store.group.attrs.update({SIMPLIFY_ATTR: rec})
+
+
+def record_summary(store, summary: dict) -> None:
+    """Store a run's summary (``Summary.to_dict()``) beside its parameters."""
+    rec = dict(store.attrs.get(SIMPLIFY_ATTR, {}))
+    rec["summary"] = summary
+    store.group.attrs.update({SIMPLIFY_ATTR: rec})
+
+
+def clear_derived(store) -> None:
+    """Delete the simplify arrays (they depend on the partition and the parameters)."""
+    store.delete_array("simplify")
+
+
+def region_block(cell_size: int) -> int:
+    """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 16."""
+    return 1 << max(10, min(16, int(math.log2(max(1, cell_size // 16)))))
+
+
+def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
+    """Start of each cell's region in the cell-ordered arrays, aligned to *block*.
+
+    Returns
+    -------
+    starts : ndarray of shape (P,), int64
+    total : int
+        Length of the cell-ordered arrays (at least *block*).
+    """
+    padded = -(-cell_counts // block) * block
+    padded = np.maximum(padded, 0)
+    starts = np.zeros(len(cell_counts), dtype=np.int64)
+    np.cumsum(padded[:-1], out=starts[1:])
+    total = int(padded.sum())
+    return starts, max(total, block)
+
+
+def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray) -> None:
+    """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (a resumed run)."""
+    g = store.group
+    if "simplify/keep_cells" in g and g["simplify/keep_cells"].shape == (total,) and "simplify/regions" in g:
+        return
+    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions"):
+        store.delete_array(f"simplify/{name}")
+    store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
+    store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
+    store.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0)
+    store.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0)
+    store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
+    # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)
+    store.create_array(
+        "simplify/regions", data=np.asarray(starts, dtype=np.int64), chunks=(max(1, min(len(starts), 65536)),)
+    )
+
+
+def ensure_keep_array(store) -> None:
+    """Create ``simplify/keep`` (input order, one zarr chunk per input chunk) unless it exists."""
+    if "simplify/keep" not in store:
+        store.create_array(
+            "simplify/keep", shape=(store.count,), dtype="bool", chunks=(store.chunk_size,), fill_value=False
+        )

@@ -1,0 +1,107 @@
+"""The one task runner: dask batches in argument order, streamed calls, forked children."""
+
+from __future__ import annotations
+
+import importlib
+import os
+
+import numpy as np
+import pytest
+
+from cloudsieve.engine import runner as runner_module
+from cloudsieve.engine.runner import PeakMemory, Runner, forked, imap, stage_bar
+from cloudsieve.errors import CloudsieveError, InvalidParameterError
+
+
+@pytest.mark.parametrize("scheduler, workers", [("sync", None), ("threads", 2), ("processes", 2)])
+def test_results_come_in_argument_order(scheduler, workers):
+    seen = []
+
+    class Bars:
+        def __call__(self, stage, total, unit):
+            import contextlib
+
+            seen.append((stage, total, unit))
+            return contextlib.nullcontext(lambda n: seen.append(n))
+
+    run = Runner(scheduler, workers, bars=Bars())
+    try:
+        out = run(divmod, [(i, 7) for i in range(40)], "stage: test")
+        assert out == [divmod(i, 7) for i in range(40)]
+        assert run(divmod, [], "empty") == []
+    finally:
+        run.close()
+    assert seen[0] == ("stage: test", 40, "task") and seen[1:] == [1] * 40
+
+
+def test_unknown_scheduler_and_memory_limit_without_processes_are_refused():
+    with pytest.raises(InvalidParameterError, match="unknown scheduler 'fast'"):
+        Runner("fast")
+    with pytest.raises(InvalidParameterError, match=r"memory_limit \(1GB\) needs worker processes"):
+        Runner("threads", memory_limit="1GB")
+
+
+def test_task_threads_share_the_cores():
+    cores = os.cpu_count() or 1
+    assert Runner("sync").task_threads == cores
+    assert Runner("threads", 1).task_threads == cores
+    assert Runner("threads", cores).task_threads == 1
+
+
+def test_every_preloaded_module_imports():
+    """The fork server imports these once; a stale name would only show as slower workers."""
+    for name in runner_module._PRELOAD:
+        importlib.import_module(name)
+
+
+def test_imap_in_process_streams_in_order_with_shared_arguments():
+    best = np.full(3, np.inf)
+    items = (((np.full(3, float(v)),), {"scale": 2.0}) for v in (5, 3, 4))
+
+    def smaller(x, shared, scale):
+        return np.minimum(x * scale, shared)
+
+    out = []
+    for d in imap(smaller, items, None, shared=(best,)):
+        np.minimum(best, d, out=best)  # the consumer may update a shared array between calls
+        out.append(float(d[0]))
+    assert out == [10.0, 6.0, 6.0]
+    assert list(imap(divmod, [((9,), {}), ((8,), {})], shared=(4,))) == [(2, 1), (2, 0)]
+
+
+def test_stage_bar_without_bars_is_a_no_op():
+    with stage_bar(None, "ingest", None, "pt") as update:
+        update(5)
+
+
+def test_peak_memory_samples_this_process():
+    base = PeakMemory().sample()
+    with PeakMemory(interval=0.01) as peak:
+        a = np.ones(40_000_000, dtype=np.uint8)  # touched: resident
+    assert peak.peak >= base + 30_000_000
+    del a
+
+
+def _fail():
+    raise ZeroDivisionError("boom")
+
+
+def _die():
+    os._exit(3)
+
+
+def test_forked_children_start_from_the_parent_state():
+    """Every child starts from the parent's random state: the same call gives the same value each time."""
+    state = np.random.get_state()
+    values = forked([(np.random.random,)] * 4, max_parallel=2)
+    assert len(set(values)) == 1
+    assert values[0] == np.random.random()  # the parent's state was not advanced by the children
+    np.random.set_state(state)
+
+
+def test_forked_results_in_order_and_errors_named():
+    assert forked([(divmod, i, 3) for i in range(7)], max_parallel=3) == [divmod(i, 3) for i in range(7)]
+    with pytest.raises(CloudsieveError, match="pymeshlab failed: ZeroDivisionError: boom"):
+        forked([(divmod, 1, 1), (_fail,)])
+    with pytest.raises(CloudsieveError, match=r"metro crashed in its worker process \(exit code 3\)"):
+        forked([(_die,)], name="metro")
