@@ -21,6 +21,7 @@ from typing import Any
 
 from ..errors import CloudsieveError, InvalidParameterError
 from ..progress import callback
+from .lifeline import die_with_parent
 
 __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "worker_context", "stage_bar", "imap", "forked"]
 
@@ -33,7 +34,9 @@ _TASKS_PER_CHILD = 8
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
 _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
             "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
-            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge"]
+            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
+            # last: the fork server asks to die with the driver (see engine/lifeline.py)
+            "cloudsieve.engine.forkserver_init"]
 
 
 class PeakMemory:
@@ -194,7 +197,8 @@ class Runner:
             # processes keep the high-water mark of the allocator (fragmented
             # heaps of many cells), so the peak memory would creep with N
             self._pool = ProcessPoolExecutor(
-                int(workers or os.cpu_count() or 1), mp_context=worker_context(), max_tasks_per_child=_TASKS_PER_CHILD
+                int(workers or os.cpu_count() or 1), mp_context=worker_context(), max_tasks_per_child=_TASKS_PER_CHILD,
+                initializer=die_with_parent,  # a worker dies with the fork server, which dies with the driver
             )
 
     @property

@@ -1,0 +1,83 @@
+"""No process of a run outlives its driver (issue 13, item 2).
+
+A ``kill -9`` of ``cloudsieve simplify`` used to leave the fork server, its
+workers and the resource tracker running. The test starts a real run in a
+subprocess, waits until its worker processes are busy, kills the driver with
+SIGKILL, and asserts that within 10 s none of the processes that belonged to
+the run is left. A second run on the same work store then resumes.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import psutil
+import pytest
+
+from cloudsieve.synthetic import write_scene_laz
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="process-tree checks use Linux semantics")
+
+
+def _tree(pid: int) -> list[psutil.Process]:
+    with_children = []
+    try:
+        p = psutil.Process(pid)
+        with_children = [p, *p.children(recursive=True)]
+    except psutil.NoSuchProcess:
+        pass
+    return with_children
+
+
+def _alive(p: psutil.Process) -> bool:
+    try:
+        return p.is_running() and p.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
+def test_sigkill_of_the_driver_leaves_no_process(tmp_path: Path):
+    src = write_scene_laz(str(tmp_path / "scene.laz"), 400_000, seed=3)
+    dst = tmp_path / "out.laz"
+    store = tmp_path / "work.zarr"
+    cmd = [sys.executable, "-m", "cloudsieve", "simplify", src, str(dst), "--method", "km", "--rule", "threshold",
+           "--cell-size", "20000", "--workers", "2", "--store", str(store)]
+    driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    seen: dict[int, psutil.Process] = {}
+    try:
+        deadline = time.monotonic() + 120
+        # wait for the cells stage: the fork server and at least 2 workers below the driver
+        while time.monotonic() < deadline and driver.poll() is None:
+            for p in _tree(driver.pid):
+                seen[p.pid] = p
+            if len(_tree(driver.pid)) >= 4 and (store / "simplify").exists():
+                break
+            time.sleep(0.2)
+        assert driver.poll() is None, "the run ended before it could be killed: make the input larger"
+        for p in _tree(driver.pid):
+            seen[p.pid] = p
+        assert len(seen) >= 4, f"expected the driver, a fork server and 2 workers, saw {len(seen)} processes"
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait(timeout=10)
+        t0 = time.monotonic()
+        left = [p for p in seen.values() if p.pid != driver.pid and _alive(p)]
+        while left and time.monotonic() - t0 < 10:
+            time.sleep(0.2)
+            left = [p for p in left if _alive(p)]
+        assert not left, "left behind: " + ", ".join(f"{p.pid} {' '.join(p.cmdline())[:80]}" for p in left)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+        for p in seen.values():
+            if _alive(p) and p.pid != os.getpid():
+                p.kill()
+    assert not dst.exists()
+    # the work store is resumable: the same command finishes the run
+    done = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert dst.exists()
