@@ -25,6 +25,8 @@ __all__ = [
     "IncompatibleCloudsError",
     "InvalidParameterError",
     "ResumeMismatchError",
+    "InputNotReadableError",
+    "SchedulerUnreachableError",
 ]
 
 
@@ -94,3 +96,11 @@ class InvalidParameterError(CloudsieveError, ValueError):
 
 class ResumeMismatchError(CloudsieveError, ValueError):
     """A work store holds a run with other parameters or another source (cannot resume it)."""
+
+
+class InputNotReadableError(CloudsieveError, PermissionError):
+    """The input exists but cannot be read (permissions)."""
+
+
+class SchedulerUnreachableError(CloudsieveError, ConnectionError):
+    """The dask.distributed scheduler address does not answer."""
