@@ -206,7 +206,7 @@ def test_no_seams_at_cell_borders(tmp_path, ratio, context):
     store = tmp_path / "w.zarr"
     cluster_size = 100
     s = simplify(
-        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio, context=context,
+        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio, halo_context=context,
         cluster_size=cluster_size, cell_size=1_250, chunk_size=4_000, scheduler="threads",
     )
     assert s.cells >= 8
@@ -367,17 +367,20 @@ def test_task_arguments_do_not_grow_with_the_number_of_cells(tmp_path, context):
     """Cell tasks get the centres of their cell and halo sources only, and read their runs from the store."""
     import pickle
 
-    from cloudsieve.engine.simplify import _cell_args, _params, _region_block, _regions
+    from cloudsieve.engine.simplify import ENGINE_VERSION, _cell_args, _region_block, _regions
+    from cloudsieve.params import run_record, validate
 
     src = write_laz(tmp_path / "p.laz", plane(12_000, side=100.0))
     store = tmp_path / "w.zarr"
-    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, context=context,
+    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, halo_context=context,
              **{**FAST, "cluster_size": 100})
     st = PointStore.open(str(store))
     part = P.Partition.load(st)
     assert part.n_cells == 40
     regions, _ = _regions(part.cell_counts, _region_block(300))
-    params = _params("km", "threshold", 1e-3, None, None, 100, 300, 7, context, 1.0, 4)
+    options = validate("simplify", {"method": "km", "rule": "threshold", "cluster_size": 100, "cell_size": 300,
+                                    "seed": 7, "halo_context": context})
+    params = {"version": ENGINE_VERSION, **run_record(options)}
     for args in _cell_args(st, part, regions, range(part.n_cells), params):
         path, cell, halo, centers, margin, region, task_params = args
         assert set(centers) == {cell, *halo} and (len(halo) > 0) == context
