@@ -44,6 +44,7 @@ __all__ = [
     "COMMANDS",
     "COMPARE_METHODS",
     "LOCAL_SCHEDULERS",
+    "TARGET_RULES",
     "check",
     "validate",
     "run_record",
@@ -127,70 +128,67 @@ class Option:
         }[self.kind]
 
 
-def _o(name, kind, default, help, **kw) -> Option:
-    return Option(name, kind, default, help, **kw)
-
-
 _OPTIONS = [
     # -- the method
-    _o("method", CHOICE, "fcm", "refinement into small clusters: fuzzy C-means or K-means", choices=METHODS),
-    _o("rule", CHOICE, "iterative", "pruning rule (target and coverage need --ratio or --count)", choices=RULES),
-    _o("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
-       metavar="S"),
-    _o("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1%", low=0.0, low_open=True, high=1.0,
-       metavar="R"),
-    _o("count", INT, None, "keep this many points, within 1%", low=1, metavar="N"),
-    _o("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
-    _o("cell_size", INT, 100_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
-       metavar="POINTS"),
-    _o("halo_context", BOOL, False,
-       "use each cell's halo (and the whole cell) as density context instead of the small cluster alone"),
-    _o("k0", FLOAT, 1.0, "k-NN rule k = max(k_min, round(k0 * sqrt(m)))", low=0.0, low_open=True),
-    _o("k_min", INT, 4, "smallest k of the k-NN rule", low=1),
-    _o("seed", INT, 0, "one seed for everything: same seed, same bytes", low=0),
+    Option("method", CHOICE, "fcm", "refinement into small clusters: fuzzy C-means or K-means", choices=METHODS),
+    Option("rule", CHOICE, "iterative", "pruning rule (target and coverage need --ratio or --count)", choices=RULES),
+    Option("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
+           metavar="S"),
+    Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1%", low=0.0, low_open=True,
+           high=1.0, metavar="R"),
+    Option("count", INT, None, "keep this many points, within 1%", low=1, metavar="N"),
+    Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
+    Option("cell_size", INT, 100_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
+           metavar="POINTS"),
+    Option("halo_context", BOOL, False,
+           "use each cell's halo (and the whole cell) as density context instead of the small cluster alone"),
+    Option("k0", FLOAT, 1.0, "k-NN rule k = max(k_min, round(k0 * sqrt(m)))", low=0.0, low_open=True),
+    Option("k_min", INT, 4, "smallest k of the k-NN rule", low=1),
+    Option("seed", INT, 0, "one seed for everything: same seed, same bytes", low=0),
     # -- the run
-    _o("scheduler", SCHEDULER, None,
-       "sync, threads, processes or a dask.distributed address tcp://host:port (default: local, no set-up)",
-       metavar="SCHED"),
-    _o("workers", INT, None, "local dask workers (default: all cores)", low=1, metavar="N"),
-    _o("memory_limit", SIZE, None, "memory cap per worker, e.g. 1GB (runs a local dask cluster)", metavar="SIZE"),
-    _o("store", PATH, None, "work store (path or fsspec URL); default DST.cloudsieve.zarr, removed on success",
-       metavar="PATH"),
-    _o("resume", BOOL, False, "continue a crashed run from its work store"),
-    _o("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
-    _o("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
+    Option("scheduler", SCHEDULER, None,
+           "sync, threads, processes or a dask.distributed address tcp://host:port (default: local, no set-up)",
+           metavar="SCHED"),
+    Option("workers", INT, None, "local dask workers (default: all cores)", low=1, metavar="N"),
+    Option("memory_limit", SIZE, None, "memory cap per worker, e.g. 1GB (runs a local dask cluster)", metavar="SIZE"),
+    Option("store", PATH, None, "work store (path or fsspec URL); default DST.cloudsieve.zarr, removed on success",
+           metavar="PATH"),
+    Option("resume", BOOL, False, "continue a crashed run from its work store"),
+    Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
+    Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
     # -- evaluation
-    _o("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
-       low=1, metavar="N"),
-    _o("surface", BOOL, True, "surface level: ball-pivoting meshes, Metro distances, compactness"),
-    _o("tiles", INT, 4, "surface tiles", low=1, metavar="T"),
-    _o("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
-       low=1, metavar="M"),
-    _o("subset", BOOL, False, "the simplified cloud must be a subset of the original (error otherwise)"),
-    _o("strict", BOOL, True, "fail on different CRS or units (--no-strict: warn and compare anyway)",
-       aliases=("--force",)),
-    _o("report_dir", PATH, None, "write report.json, report.md and plots into this folder", aliases=("--report",),
-       metavar="DIR"),
-    _o("error_points", INT, 2_000_000, "at most N points in errors.ply (uniform sample)", low=0, metavar="N"),
-    _o("metro_samples", INT, None, "Metro samples per direction and tile (default 10 x faces, at most 500000)",
-       low=1, metavar="N"),
-    _o("methods", CHOICES, COMPARE_METHODS, "methods to compare, comma-separated", choices=COMPARE_METHODS,
-       metavar="LIST"),
+    Option("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
+           low=1, metavar="N"),
+    Option("surface", BOOL, True,
+           "surface level (ball-pivoting meshes, Metro distances, compactness); --no-surface: point level only"),
+    Option("tiles", INT, 4, "surface tiles", low=1, metavar="T"),
+    Option("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
+           low=1, metavar="M"),
+    Option("subset", BOOL, False, "the simplified cloud must be a subset of the original (error otherwise)"),
+    Option("strict", BOOL, True, "fail on different CRS or units; --no-strict (or --force): warn and compare anyway",
+           aliases=("--force",)),
+    Option("report_dir", PATH, None, "write report.json, report.md and plots into this folder", aliases=("--report",),
+           metavar="DIR"),
+    Option("error_points", INT, 2_000_000, "at most N points in errors.ply (uniform sample)", low=0, metavar="N"),
+    Option("metro_samples", INT, None, "Metro samples per direction and tile (default 10 x faces, at most 500000)",
+           low=1, metavar="N"),
+    Option("methods", CHOICES, COMPARE_METHODS, "methods to compare, comma-separated", choices=COMPARE_METHODS,
+           metavar="LIST"),
     # -- ingest / export
-    _o("delimiter", TEXT, None, "XYZ/TXT/CSV column separator (default: sniffed)"),
-    _o("columns", TEXT, None, "XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)"),
-    _o("drop_invalid", BOOL, False, "drop points with NaN/infinite coordinates (default: refuse)"),
-    _o("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
-       metavar="ARRAY"),
+    Option("delimiter", TEXT, None, "XYZ/TXT/CSV column separator (default: sniffed)"),
+    Option("columns", TEXT, None, "XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)"),
+    Option("drop_invalid", BOOL, False, "drop points with NaN/infinite coordinates (default: refuse)"),
+    Option("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
+           metavar="ARRAY"),
 ]
 #: every option, by name (``format`` and compare's ``rule`` are variants, see :data:`COMMANDS`)
 OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 
-_OUTPUT_FORMAT = _o("format", FORMAT, None, "output format (default: by the destination's extension)",
-                    choices=_WRITABLE)
-_INPUT_FORMAT = _o("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-_RULE_LIST = _o("rule", CHOICES, ("iterative",), "entropy rule(s), comma-separated; each runs once per method",
-                choices=RULES, metavar="RULES")
+_OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
+                        choices=_WRITABLE)
+_INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
+_RULE_LIST = Option("rule", CHOICES, ("iterative",), "entropy rule(s), comma-separated; each runs once per method",
+                    choices=RULES, metavar="RULES")
 
 
 def _command(*names: str, extra: tuple[Option, ...] = ()) -> dict[str, Option]:
