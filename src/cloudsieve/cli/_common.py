@@ -14,7 +14,7 @@ from typing import Any
 
 from .. import params
 
-__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int", "FORMATS"]
+__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int"]
 
 
 def parse_int(text: str) -> int | float:
@@ -97,5 +97,3 @@ def option_values(args: argparse.Namespace, command: str, names: Iterable[str] |
         values = {n: normalised[n] for n in values}
     return values
 
-
-FORMATS = params.COMMANDS["ingest"]["format"].choices

@@ -721,6 +721,10 @@ def simplify(
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
+    Every option (:mod:`cloudsieve.params`), the source, the destination and
+    the scheduler are checked first, before any work starts and before any
+    file or store is created.
+
     Parameters
     ----------
     src : str or path-like
@@ -797,10 +801,6 @@ def simplify(
     -------
     Summary
         Also stored in the store's attributes under ``"cloudsieve_simplify"``.
-
-    Every option (:mod:`cloudsieve.params`), the source, the destination and
-    the scheduler are checked before any work starts and before any file or
-    store is created.
 
     Raises
     ------
