@@ -22,7 +22,7 @@ def test_task_arguments_do_not_grow_with_the_number_of_cells(tmp_path, context):
     """Cell tasks get the centres of their cell and halo sources only, and read their runs from the store."""
     src = write_laz(tmp_path / "p.laz", plane(12_000, side=100.0))
     store = tmp_path / "w.zarr"
-    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, context=context,
+    simplify(src, tmp_path / "a.laz", cell_size=300, chunk_size=3_000, scheduler="sync", store=store, halo_context=context,
              **FAST)
     st = PointStore.open(str(store))
     part = P.Partition.load(st)

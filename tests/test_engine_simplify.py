@@ -182,7 +182,7 @@ def test_no_seams_at_cell_borders(tmp_path, ratio, context):
     store = tmp_path / "w.zarr"
     cluster_size = 100
     s = simplify(
-        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio, context=context,
+        src, tmp_path / "o.laz", store=store, method="km", rule="iterative", ratio=ratio, halo_context=context,
         cluster_size=cluster_size, cell_size=1_250, chunk_size=4_000, scheduler="threads",
     )
     assert s.cells >= 8

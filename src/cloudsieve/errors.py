@@ -27,6 +27,8 @@ __all__ = [
     "InvalidParameterError",
     "ResumeMismatchError",
     "ConvergenceWarning",
+    "InputNotReadableError",
+    "SchedulerUnreachableError",
 ]
 
 
@@ -100,3 +102,11 @@ class ResumeMismatchError(CloudsieveError, ValueError):
 
 class ConvergenceWarning(UserWarning):
     """An iterative fit stopped at max_iter before its convergence test held."""
+
+
+class InputNotReadableError(CloudsieveError, PermissionError):
+    """The input exists but cannot be read (permissions)."""
+
+
+class SchedulerUnreachableError(CloudsieveError, ConnectionError):
+    """The dask.distributed scheduler address does not answer."""

@@ -19,9 +19,10 @@ Stages, in this order:
     ``filename`` may be a glob; the pipeline then runs once per matching file.
     A bare string stands for a reader chosen by extension (as in PDAL).
 ``filters.entropy`` (at most one)
-    The simplification; its options are the keyword arguments of
-    :func:`cloudsieve.simplify` (``method``, ``rule``, ``threshold``, ``ratio``,
-    ``count``, ``cluster_size``, ``cell_size``, ``seed``, ...).
+    The simplification; its options are those of :func:`cloudsieve.simplify`
+    (``method``, ``rule``, ``threshold``, ``ratio``, ``count``,
+    ``cluster_size``, ``cell_size``, ``seed``, ``halo_context``, ...) but
+    ``format`` and ``overwrite`` (the writer's).
 ``writers.*`` (one, required after ``filters.entropy``)
     ``writers.las`` (also LAZ, by extension), ``writers.ply``, ``writers.text``.
     ``filename`` may use ``{stem}`` (the input's name without extensions) and
@@ -35,7 +36,11 @@ Stages, in this order:
     FCM and the baselines at equal count.
 
 Top-level keys beside ``"pipeline"``: ``"scheduler"`` and ``"workers"`` apply to
-every stage that runs on dask. Relative paths are relative to the working
+every stage that runs on dask.
+
+Every option is checked when the file is loaded, as the API checks it (names,
+types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
+so a bad value fails before any stage runs, naming the stage. Relative paths are relative to the working
 folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
 environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``). Any option can be overridden from the command line with
 ``--set STAGE.OPTION=VALUE`` (``--set readers.las.filename=scan.laz``).
@@ -45,7 +50,6 @@ from __future__ import annotations
 
 import copy
 import glob
-import inspect
 import json
 import logging
 import os
@@ -53,7 +57,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import PipelineError
+from .errors import InvalidParameterError, PipelineError
+from .params import COMMANDS, check, validate
 
 __all__ = ["Pipeline", "load_pipeline", "run_pipeline"]
 
@@ -105,13 +110,33 @@ def _stage_functions() -> dict[str, Any]:
     return {"filters.entropy": simplify, "evaluate": evaluate, "compare": compare}
 
 
-def _accepted(func: Any, fixed: set[str]) -> set[str]:
-    params = inspect.signature(func).parameters
-    return {
-        name
-        for name, p in params.items()
-        if p.kind in (p.KEYWORD_ONLY, p.POSITIONAL_OR_KEYWORD) and name not in fixed and not name.startswith("_")
-    }
+#: stage type -> its command in :data:`cloudsieve.params.COMMANDS`
+STAGE_COMMANDS = {"filters.entropy": "simplify", "evaluate": "evaluate", "compare": "compare"}
+#: options a stage does not take: the writer gives the destination's format and overwrite
+_FROM_WRITER = {"format", "overwrite"}
+
+
+def _accepted(kind: str) -> set[str]:
+    """The options of stage type *kind*, from the parameter spec."""
+    if kind in WRITERS:
+        return {"filename", "overwrite"}
+    return set(COMMANDS[STAGE_COMMANDS[kind]]) - _FROM_WRITER
+
+
+def _check_values(stage: dict, run_options: dict, label: str) -> None:
+    """Validate a stage's option values (types, ranges, together) as the API will; PipelineError naming the stage."""
+    kind = stage["type"]
+    values = {k: v for k, v in stage.items() if k != "type"}
+    try:
+        if kind in WRITERS:
+            if "overwrite" in values:
+                check("overwrite", values["overwrite"])
+        else:
+            if kind == "filters.entropy":
+                values = {**run_options, **values}
+            validate(STAGE_COMMANDS[kind], values)
+    except InvalidParameterError as exc:
+        raise PipelineError(f"{label}: {exc}") from None
 
 
 def _apply_override(doc: dict, item: str, where: str) -> None:
@@ -192,24 +217,25 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
         raise PipelineError(
             f"{where}: stage 1 must be a reader ({', '.join(READERS)}), got {reader['type']!r}"
         )
-    functions = _stage_functions()
+    try:
+        run_options = validate("pipeline", {k: v for k, v in doc.items() if k != "pipeline"})
+    except InvalidParameterError as exc:
+        raise PipelineError(f"{where}: {exc}") from None
+    run_options = {k: v for k, v in run_options.items() if k in doc}
     seen: list[str] = []
     for i, stage in enumerate(rest, 2):
         kind = stage["type"]
         label = f"{where}: stage {i} ({kind})"
         if kind in READERS:
             raise PipelineError(f"{label}: only one reader is allowed, and it must come first")
-        if kind in WRITERS:
-            allowed = {"type", "filename", "overwrite"}
-        elif kind in functions:
-            fixed = {"src", "dst", "source", "original", "simplified", "client", "progress", "bars", "notify", "format", "overwrite"}
-            allowed = {"type"} | _accepted(functions[kind], fixed)
-        else:
-            known = ", ".join([*WRITERS, *functions])
+        if kind not in WRITERS and kind not in STAGE_COMMANDS:
+            known = ", ".join([*WRITERS, *STAGE_COMMANDS])
             raise PipelineError(f"{label}: unknown stage type; known after the reader: {known}")
-        extra = set(stage) - allowed
+        allowed = _accepted(kind)
+        extra = set(stage) - allowed - {"type"}
         if extra:
-            raise PipelineError(f"{label}: unknown option(s) {sorted(extra)}; accepted: {sorted(allowed - {'type'})}")
+            raise PipelineError(f"{label}: unknown option(s) {sorted(extra)}; accepted: {sorted(allowed)}")
+        _check_values(stage, run_options, label)
         if kind in WRITERS and "filename" not in stage:
             raise PipelineError(f"{label}: a writer needs a \"filename\"")
         family = "writer" if kind in WRITERS else kind

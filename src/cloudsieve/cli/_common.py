@@ -1,19 +1,99 @@
-"""Small helpers shared by the IO subcommands (argument types)."""
+"""The subcommands' options, generated from :mod:`cloudsieve.params`.
+
+argparse only turns text into numbers and strings here; ranges and choices
+are checked by :func:`cloudsieve.params.validate` (in the API, or in
+:func:`option_values` for the commands without one), so the command line, the
+pipelines and the API refuse the same values with the same message.
+"""
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+from .. import params
+
+__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int"]
+
+
+def parse_int(text: str) -> int | float:
+    """argparse type of an integer option: ``1000000``, ``1_000_000`` or ``1e6`` (2.5 is left for the range check)."""
+    clean = text.replace("_", "")
+    try:
+        return int(clean)
+    except ValueError:
+        pass
+    try:
+        value = float(clean)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
+    return int(value) if value.is_integer() else value
+
+
+def parse_float(text: str) -> float:
+    """argparse type of a number option."""
+    try:
+        return float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
 
 
 def positive_int(text: str) -> int:
-    """argparse type: an integer > 0; accepts 1_000_000 and 1e6."""
-    try:
-        value = int(float(text.replace("_", ""))) if any(c in text for c in "eE.") else int(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer: {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"must be > 0, got {value}")
+    """argparse type: an integer > 0 (for CLI-only options such as ``demo --points``)."""
+    value = parse_int(text)
+    if not isinstance(value, int) or value <= 0:
+        raise argparse.ArgumentTypeError(f"must be an integer > 0, got {text!r}")
     return value
 
 
-FORMATS = ("las", "laz", "copc", "ply", "e57", "xyz")
+def _size(text: str) -> int | str:
+    return int(text) if text.isdigit() else text
+
+
+_TYPES = {params.INT: parse_int, params.FLOAT: parse_float, params.SIZE: _size}
+
+
+def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[str] | None = None, *,
+                defaults: Mapping[str, Any] | None = None) -> None:
+    """Add the options of *command* (all, or *names*) to *parser*, from the spec.
+
+    The flag is the option's name with dashes (``--cluster-size``), ``--no-NAME``
+    for a bool that defaults to True; old flags are aliases. *defaults*
+    overrides the spec's defaults (``demo``).
+    """
+    spec = params.COMMANDS[command]
+    defaults = defaults or {}
+    for name in names if names is not None else spec:
+        opt = spec[name]
+        default = defaults.get(name, opt.default)
+        flags = (opt.flag, *opt.aliases)
+        if opt.kind == params.BOOL:
+            action = "store_false" if opt.default is True else "store_true"
+            parser.add_argument(*flags, dest=name, action=action, default=default, help=opt.help)
+            continue
+        text = opt.help
+        if default is not None:
+            shown = ",".join(default) if isinstance(default, (list, tuple)) else default
+            text += f" (default {shown})"
+        metavar = opt.metavar
+        if metavar is None and opt.kind in (params.CHOICE, params.FORMAT):
+            metavar = "{" + ",".join(opt.choices) + "}"
+        parser.add_argument(*flags, dest=name, type=_TYPES.get(opt.kind, str), default=default,
+                            metavar=metavar or name.upper(), help=text.replace("%", "%%"))
+
+
+def option_values(args: argparse.Namespace, command: str, names: Iterable[str] | None = None, *,
+                  check: bool = False) -> dict[str, Any]:
+    """The options of *command* found in *args*, as keyword arguments of the API.
+
+    With *check*, they are validated (:func:`cloudsieve.params.validate`) and
+    returned normalised: for the commands whose API does not validate them.
+    """
+    spec = params.COMMANDS[command]
+    values = {n: getattr(args, n) for n in (names if names is not None else spec) if hasattr(args, n)}
+    if check:
+        normalised = params.validate(command, values)
+        values = {n: normalised[n] for n in values}
+    return values
+

@@ -6,6 +6,8 @@ import argparse
 import os
 import time
 
+from ._common import add_options, option_values, positive_int
+
 ORDER = 80
 
 
@@ -19,23 +21,9 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "on dask, and evaluate what was lost. Writes everything into --out."
         ),
     )
-    p.add_argument("--points", type=int, default=200_000, help="points in the example scan (default: 200000)")
+    p.add_argument("--points", type=positive_int, default=200_000, help="points in the example scan (default: 200000)")
     p.add_argument("--out", default="cloudsieve-demo", help="output folder (default: ./cloudsieve-demo)")
-    p.add_argument(
-        "--method",
-        choices=("km", "fcm"),
-        default="km",
-        help="refinement clustering (default: km here, the fast one; fcm is 5-10x slower for about the same quality)",
-    )
-    p.add_argument(
-        "--rule",
-        choices=("iterative", "threshold", "target", "coverage"),
-        default="iterative",
-        help="pruning rule (default: iterative)",
-    )
-    p.add_argument("--ratio", type=float, default=0.5, help="fraction of points to keep (default: 0.5)")
-    p.add_argument("--scheduler", default=None, help="sync, threads, processes or tcp://host:port (default: local)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    add_options(p, "simplify", ["method", "rule", "ratio", "scheduler", "seed"], defaults={"method": "km", "ratio": 0.5})
     p.set_defaults(func=run)
 
 
@@ -45,6 +33,7 @@ def run(args: argparse.Namespace) -> int:
     from ..progress import bar
     from ..synthetic import write_scene_laz
 
+    options = option_values(args, "simplify", check=True)  # before anything is written
     os.makedirs(args.out, exist_ok=True)
     src = os.path.join(args.out, "scene.laz")
     dst = os.path.join(args.out, "scene-simplified.laz")
@@ -54,18 +43,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"1/3 wrote example scan {src}: {args.points:,} points ({time.perf_counter() - t0:.1f} s)")
 
     t0 = time.perf_counter()
-    summary = simplify(
-        src,
-        dst,
-        method=args.method,
-        rule=args.rule,
-        ratio=args.ratio,
-        scheduler=args.scheduler,
-        seed=args.seed,
-        overwrite=True,
-        bars=bar,
-        notify=print,
-    )
+    summary = simplify(src, dst, **options, overwrite=True, bars=bar, notify=print)
     print(
         f"2/3 simplified -> {dst}: kept {summary.kept:,} of {summary.points_in:,} points "
         f"({time.perf_counter() - t0:.1f} s, method {args.method}, rule {args.rule})"

@@ -7,7 +7,7 @@ import argparse
 import json
 import sys
 
-from ._common import positive_int as _positive_int
+from ._common import add_options, option_values
 
 ORDER = 50
 
@@ -26,18 +26,7 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("original", metavar="ORIGINAL", help="original cloud (LAS/LAZ/COPC/PLY/E57/XYZ file or point store)")
     p.add_argument("simplified", metavar="SIMPLIFIED", help="simplified cloud (file or point store; fits in memory)")
-    p.add_argument("--sample", type=_positive_int, metavar="N", help="evaluate a uniform sample of N points per direction (95%% CI)")
-    p.add_argument("--tiles", type=_positive_int, default=4, metavar="T", help="surface tiles (default 4)")
-    p.add_argument("--tile-points", type=_positive_int, default=200_000, metavar="M",
-                   help="at most M original points per tile; the whole cloud when it has at most M (default 200000)")
-    p.add_argument("--no-surface", action="store_true", help="point level only (no meshes)")
-    p.add_argument("--report", metavar="DIR", help="write report.json, report.md, plots and errors.ply into DIR")
-    p.add_argument("--subset", action="store_true", help="the simplified cloud must be a subset of the original (error otherwise)")
-    p.add_argument("--force", action="store_true", help="warn instead of failing on different CRS or units")
-    p.add_argument("--seed", type=int, default=0, help="seed of the samples and tiles (default 0)")
-    p.add_argument("--chunk-size", type=_positive_int, default=1_000_000, metavar="POINTS", help="points per chunk of the original")
-    p.add_argument("--error-points", type=int, default=2_000_000, metavar="N",
-                   help="at most N points in errors.ply (uniform sample; default 2000000)")
+    add_options(p, "evaluate")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--json", action="store_true", help="print the whole report as JSON instead of the summary")
     p.set_defaults(func=run)
@@ -49,11 +38,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate.report import _clean, fmt
 
     with progress.bar("point errors", None, enabled=not args.no_progress) as tick:
-        report = evaluate(
-            args.original, args.simplified, sample=args.sample, surface=not args.no_surface, tiles=args.tiles,
-            tile_points=args.tile_points, seed=args.seed, subset=args.subset, strict=not args.force,
-            report_dir=args.report, error_points=args.error_points, chunk_size=args.chunk_size, progress=tick,
-        )
+        report = evaluate(args.original, args.simplified, **option_values(args, "evaluate"), progress=tick)
     if args.json:
         print(json.dumps(_clean(report), indent=1))
         return 0
@@ -74,6 +59,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"compactness>=0.6: original {100 * s['original']['compact_share']:.2f}%  "
               f"simplified {100 * s['simplified']['compact_share']:.2f}%  "
               f"(simplified mesh {fmt(s['vertices'])} vertices, {fmt(s['faces'])} faces)")
-    if args.report:
-        print(f"report: {args.report}/report.md")
+    if args.report_dir:
+        print(f"report: {args.report_dir}/report.md")
     return 0

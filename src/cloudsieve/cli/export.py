@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import positive_int
+from ._common import add_options, option_values
 
 ORDER = 30
 
@@ -23,10 +23,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
     p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts)")
-    p.add_argument("--format", choices=("las", "laz", "ply", "xyz"), help="output format (default: from the extension)")
-    p.add_argument("--mask", metavar="ARRAY", help="bool array of the store selecting the points to write (e.g. simplify/keep)")
-    p.add_argument("--chunk-size", type=positive_int, default=1_000_000, metavar="N", help="points per chunk (default 1000000)")
-    p.add_argument("--overwrite", action="store_true", help="replace DST if it exists")
+    add_options(p, "export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -37,6 +34,7 @@ def run(args: argparse.Namespace) -> int:
     from ..errors import CloudsieveError
     from ..store import PointStore
 
+    option_values(args, "export", check=True)
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise CloudsieveError(f"{args.store} has no array {args.mask!r}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import FORMATS, positive_int
+from ._common import add_options, option_values
 
 ORDER = 20
 
@@ -22,12 +22,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("src", metavar="SRC", help="input file (format by extension, or --format)")
     p.add_argument("store", metavar="STORE", help="point store to create (folder or fsspec URL)")
-    p.add_argument("--format", choices=FORMATS, help="input format (default: from the extension)")
-    p.add_argument("--chunk-size", type=positive_int, default=1_000_000, metavar="N", help="points per chunk (default 1000000)")
-    p.add_argument("--delimiter", help="XYZ/TXT/CSV column separator (default: sniffed)")
-    p.add_argument("--columns", help="XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)")
-    p.add_argument("--drop-invalid", action="store_true", help="drop points with NaN/infinite coordinates (default: refuse)")
-    p.add_argument("--overwrite", action="store_true", help="replace STORE if it exists")
+    add_options(p, "ingest")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -37,6 +32,7 @@ def run(args: argparse.Namespace) -> int:
     from ..store import ingest
     from ..io import open_reader
 
+    option_values(args, "ingest", check=True)
     options = {}
     if args.delimiter:
         options["delimiter"] = args.delimiter

@@ -153,9 +153,9 @@ class Runner:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
             return
         if isinstance(scheduler, str) and "://" in scheduler:
-            from distributed import Client
+            from ..scheduler import connect
 
-            self.client = Client(scheduler)
+            self.client = connect(scheduler)  # dask's OSError becomes a SchedulerUnreachableError
             self._own_client = True
             self.name = f"distributed ({scheduler})"
             return

@@ -40,7 +40,10 @@ from ..errors import (
     InvalidParameterError,
     SameSourceDestinationError,
 )
+from ..io import check_readable, check_writable
+from ..params import run_record, validate
 from ..progress import callback
+from ..scheduler import check_scheduler
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
 from .partition import build_partition, reusable_partition
@@ -117,50 +120,6 @@ class Summary:
 # ---------------------------------------------------------------- parameters
 
 
-def _params(method, rule, threshold, ratio, count, cluster_size, cell_size, seed, context, k0, k_min) -> dict:
-    return {
-        "version": ENGINE_VERSION,
-        "method": method,
-        "rule": rule,
-        "threshold": float(threshold),
-        "ratio": None if ratio is None else float(ratio),
-        "count": None if count is None else int(count),
-        "cluster_size": int(cluster_size),
-        "cell_size": int(cell_size),
-        "seed": int(seed),
-        "context": bool(context),
-        "k0": float(k0),
-        "k_min": int(k_min),
-    }
-
-
-def _check_args(method, rule, threshold, ratio, count, cluster_size, cell_size) -> str:
-    if method not in ("km", "fcm"):
-        raise InvalidParameterError(f"method must be 'km' or 'fcm', got {method!r}")
-    if rule not in ("iterative", "threshold", "target", "coverage"):
-        raise InvalidParameterError(f"rule must be 'iterative', 'threshold', 'target' or 'coverage', got {rule!r}")
-    if ratio is not None and count is not None:
-        raise InvalidParameterError(f"give ratio or count, not both (got ratio={ratio}, count={count})")
-    if ratio is not None and not (0.0 <= float(ratio) <= 1.0):
-        raise InvalidParameterError(f"ratio is the kept fraction, in [0, 1], got {ratio}")
-    if count is not None and (int(count) != count or int(count) < 0):
-        raise InvalidParameterError(f"count must be an integer >= 0, got {count}")
-    has_target = ratio is not None or count is not None
-    if rule in ("target", "coverage") and not has_target:
-        raise InvalidParameterError(f"rule {rule!r} needs a ratio or a count")
-    if rule == "threshold" and has_target:
-        raise InvalidParameterError(
-            f"rule 'threshold' takes a threshold only, not ratio={ratio}/count={count}: use rule 'target' or 'iterative'"
-        )
-    if not (math.isfinite(threshold) and threshold >= 0):
-        raise InvalidParameterError(f"threshold must be a finite number >= 0, got {threshold}")
-    if int(cluster_size) < 6:
-        raise InvalidParameterError(f"cluster_size must be >= 6 (k_min + 2), got {cluster_size}")
-    if int(cell_size) < int(cluster_size):
-        raise InvalidParameterError(f"cell_size ({cell_size}) must be >= cluster_size ({cluster_size})")
-    return rule
-
-
 # ---------------------------------------------------------------- simplify
 
 
@@ -188,11 +147,15 @@ def simplify(
     notify: Callable[[str], None] | None = None,
     format: str | None = None,
     chunk_size: int = 1_000_000,
-    context: bool = False,
+    halo_context: bool = False,
     k0: float = 1.0,
     k_min: int = 4,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
+
+    Every option (:mod:`cloudsieve.params`), the source, the destination and
+    the scheduler are checked first, before any work starts and before any
+    file or store is created.
 
     Parameters
     ----------
@@ -202,16 +165,17 @@ def simplify(
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"fcm", "km"}
         Refinement into small clusters: fuzzy C-means or K-means.
-    rule : {"iterative", "threshold", "target"}
+    rule : {"iterative", "threshold", "target", "coverage"}
         Pruning rule (see :mod:`cloudsieve.prune`).
     threshold : float
         S, the entropy-change threshold of the threshold/iterative rules.
-    ratio, count : float or int, optional
+    ratio, count : float in (0, 1] or int >= 1, optional
         Keep this share / number of the input points instead of using S
         (one of them; required by ``rule="target"``). The total lands within
         1% of the request.
     cluster_size : int
-        Points per small cluster (c = ceil(n / cluster_size) per cell).
+        Points per small cluster (c = ceil(n / cluster_size) per cell), at
+        least ``k_min + 2``.
     cell_size : int
         Points per coarse cell, i.e. per task; bounds a task's memory. The
         in-memory method peaks at about 2 kB per point, and K-means cells
@@ -253,7 +217,7 @@ def simplify(
         Output format (default: by DST's extension).
     chunk_size : int
         Points per chunk of the ingested store.
-    context : bool
+    halo_context : bool
         False (default): density neighbours come from each small cluster R
         alone (the paper; the core's default), and a cell border is just
         another cluster border. True: the cell's halo and the whole cell are
@@ -272,17 +236,31 @@ def simplify(
 
     Raises
     ------
-    ResumeMismatchError
-        The work store holds a run with other parameters or another source.
+    InvalidParameterError
+        An option out of its range, or options that contradict each other.
+    InputNotFoundError, InputIsDirectoryError, UnknownFormatError, StoreNotFoundError
+        SRC cannot be read.
     DestinationExistsError
         DST exists and *overwrite* is False.
+    UnknownFormatError, DestinationNotWritableError
+        DST's format cannot be written, or its folder is missing or not writable.
+    SchedulerUnreachableError
+        Nothing answers at the *scheduler* address (5 s connect timeout).
+    ResumeMismatchError
+        The work store holds a run with other parameters or another source.
     """
     from ..store import export, local_path
 
     t_start = time.perf_counter()
     src, dst = os.fspath(src), os.fspath(dst)
-    rule = _check_args(method, rule, threshold, ratio, count, cluster_size, cell_size)
-    params = _params(method, rule, threshold, ratio, count, cluster_size, cell_size, seed, context, k0, k_min)
+    opts = validate("simplify", {
+        "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
+        "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
+        "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
+        "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
+    })
+    params = {"version": ENGINE_VERSION, **run_record(opts)}
+    context = opts["halo_context"]
     update = callback(progress)
     summary = Summary(source=src, destination=dst)
     dst_local = local_path(dst)
@@ -290,6 +268,10 @@ def simplify(
         raise DestinationExistsError(f"{dst} exists (pass overwrite=True / --overwrite to replace it)")
     if local_path(src) is not None and dst_local is not None and os.path.abspath(local_path(src)) == dst_local:
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
+    check_readable(src)
+    check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
+    if client is None and scheduler is not None and "://" in scheduler:
+        check_scheduler(scheduler)
 
     src_is_store = workstore.is_store(src)
     default_store = store is None and not src_is_store

@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
+from ..io import check_folder
+from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
 from .evaluation import evaluate
@@ -36,7 +38,7 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["compare", "compare_markdown", "METHODS"]
 
-METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
+METHODS = COMPARE_METHODS
 
 
 def _row(name: str, report: dict | None, kept: int, seconds: float, error: str | None = None) -> dict:
@@ -110,8 +112,11 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     progress : callable, optional
         Called with 1 per method done.
     **entropy_options
-        Passed to :func:`cloudsieve.prune.simplify_points` (``cluster_size``,
-        ``threshold``, ``k0``...).
+        Passed to :func:`cloudsieve.prune.simplify_points`: ``threshold``,
+        ``cluster_size``, ``k0``, ``k_min`` (:mod:`cloudsieve.params`).
+
+    Every option is checked first (:func:`cloudsieve.params.validate`),
+    before the source is loaded.
 
     Returns
     -------
@@ -123,23 +128,18 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         faces``, or ``error``), ``original_compact_share``, ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
-    from ..core import RULES
-
-    methods = [m.strip() for m in methods if m.strip()]
-    bad = [m for m in methods if m not in METHODS]
-    if bad or not methods:
-        raise InvalidParameterError(f"unknown method(s) {bad or methods}; choose among {', '.join(METHODS)}")
-    rules = [r.strip() for r in (rule.split(",") if isinstance(rule, str) else rule) if r.strip()]
-    bad = [r for r in rules if r not in RULES]
-    if bad or not rules:
-        raise InvalidParameterError(f"unknown rule(s) {bad or rules}; choose among {', '.join(RULES)}")
+    opts = validate("compare", {
+        "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
+        "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
+        "metro_samples": metro_samples, **entropy_options,
+    })
+    if report_dir is not None:
+        check_folder(report_dir)
+    methods, rules = opts["methods"], opts["rule"]
+    entropy_options = {k: opts[k] for k in entropy_options}
     xyz, _header, name = load_points(source, what="source cloud")
     n = len(xyz)
-    if ratio is not None and count is not None:
-        raise InvalidParameterError("give ratio or count, not both")
     if ratio is not None:
-        if not 0 < ratio <= 1:
-            raise InvalidParameterError(f"ratio must be in (0, 1], got {ratio}")
         count = max(1, int(round(ratio * n)))
     if count is not None and not 1 <= count <= n:
         raise InvalidParameterError(f"count must be in [1, {n}] (the points of {name}), got {count}")

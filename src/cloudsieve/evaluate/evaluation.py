@@ -45,6 +45,8 @@ from typing import Any
 import numpy as np
 
 from ..errors import IncompatibleCloudsError
+from ..io import check_folder
+from ..params import validate
 from ._source import load_points, open_source
 from .points import point_errors
 from .report import write_report
@@ -179,11 +181,20 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
 
     Raises
     ------
+    InvalidParameterError
+        An option out of its range (checked first, with *report_dir*'s folder).
     EmptyInputError
         Either cloud has no point.
     IncompatibleCloudsError, NotASubsetError
         See *strict* and *subset*.
     """
+    validate("evaluate", {
+        "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
+        "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
+        "chunk_size": chunk_size, "metro_samples": metro_samples,
+    })
+    if report_dir is not None:
+        check_folder(report_dir)
     t0 = time.perf_counter()
     src = open_source(original, chunk_size=chunk_size)
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud")

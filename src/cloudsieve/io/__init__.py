@@ -34,18 +34,23 @@ from typing import Any
 import numpy as np
 
 from ..errors import (
+    DestinationNotWritableError,
     EmptyInputError,
     InputIsDirectoryError,
     InputNotFoundError,
+    InputNotReadableError,
     UnknownFormatError,
 )
-from ._base import Reader, Writer
+from ._base import Reader, Writer, check_destination
 
 __all__ = [
     "Reader",
     "Writer",
     "register_format",
     "detect_format",
+    "check_readable",
+    "check_writable",
+    "check_folder",
     "open_reader",
     "open_writer",
     "read_cloud",
@@ -125,6 +130,104 @@ def check_input_file(path: str) -> None:
         raise InputIsDirectoryError(f"{path} is a directory, not a point cloud file")
     if os.path.getsize(path) == 0:
         raise EmptyInputError(f"{path} is empty (0 bytes)")
+
+
+def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
+    """Raise unless *path* is a point cloud file cloudsieve can read, or a point store.
+
+    Checks only what can be known without reading the points: the file exists,
+    is a file, is not empty, can be opened, and its format (*format*, else the
+    extension) has a reader. A folder or a URL must be a point store.
+
+    Raises
+    ------
+    InputNotFoundError, InputIsDirectoryError, EmptyInputError,
+    InputNotReadableError, UnknownFormatError, StoreNotFoundError
+    """
+    path = os.fspath(path)
+    from ..store import PointStore, local_path
+
+    local = local_path(path)
+    if local is None or os.path.isdir(local):
+        if local is not None and not os.path.exists(os.path.join(local, "zarr.json")):
+            raise InputIsDirectoryError(f"{path} is a directory, not a point cloud file or point store")
+        PointStore.open(path, "r")
+        return
+    check_input_file(path)
+    try:
+        with open(local, "rb"):
+            pass
+    except OSError as exc:
+        raise InputNotReadableError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    spec = FORMATS[detect_format(path, format)]["reader"]
+    if spec is None:  # pragma: no cover - every format reads
+        raise UnknownFormatError(f"{path}: reading {format} is not supported")
+
+
+def _writable_formats() -> str:
+    return ", ".join(f"{name} ({' '.join(f['extensions'])})" for name, f in FORMATS.items() if f["writer"] is not None)
+
+
+def check_writable(path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False) -> str:
+    """Raise unless a cloud of *format* (default: by extension) can be written at *path*; returns the format.
+
+    Checks, without creating anything: the format has a writer; for a local
+    path, that *path* does not exist (unless *overwrite*) and its folder
+    exists, is a folder and is writable.
+
+    Raises
+    ------
+    UnknownFormatError
+        Unknown extension or format, or a format that cannot be written
+        (E57, COPC); the message lists the formats that can.
+    DestinationExistsError, DestinationNotWritableError
+    """
+    path = os.fspath(path)
+    try:
+        fmt = detect_format(path, format)
+    except UnknownFormatError:
+        ext = os.path.splitext(os.path.basename(path.rstrip("/")))[1] or "(none)"
+        what = f"format {format!r}" if format is not None else f"extension {ext}"
+        raise UnknownFormatError(
+            f"{path}: cannot write {what} (unknown format); formats that can be written: {_writable_formats()}"
+        ) from None
+    if FORMATS[fmt]["writer"] is None:
+        hint = " (write .laz: a COPC file needs an octree order)" if fmt == "copc" else ""
+        raise UnknownFormatError(
+            f"{path}: writing {fmt} files is not supported{hint}; formats that can be written: {_writable_formats()}")
+    from ..store import local_path
+
+    if local_path(path) is None:  # a remote URL: checked when written
+        return fmt
+    check_destination(path, overwrite)
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise DestinationNotWritableError(f"cannot write {path}: folder {parent} is not writable")
+    return fmt
+
+
+def check_folder(path: str | os.PathLike) -> None:
+    """Raise unless the folder *path* exists and is writable, or could be created (nothing is created).
+
+    For outputs written into a folder (reports): the nearest existing
+    ancestor must be a writable folder. A remote URL is not checked.
+
+    Raises
+    ------
+    DestinationNotWritableError
+    """
+    path = os.fspath(path)
+    if "://" in path and not path.startswith("file://"):
+        return
+    from ..store import local_path
+
+    existing = local_path(path)
+    while not os.path.exists(existing):
+        existing = os.path.dirname(existing)
+    if not os.path.isdir(existing):
+        raise DestinationNotWritableError(f"cannot write {path}: {existing} is not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise DestinationNotWritableError(f"cannot write {path}: folder {existing} is not writable")
 
 
 def open_reader(

@@ -1,0 +1,98 @@
+"""Reaching a dask.distributed scheduler by address, with a short timeout.
+
+dask's own connect waits 30 s for a scheduler that is not there and then
+raises a raw ``OSError``; :func:`check_scheduler` asks the address with a plain
+socket connect first (before any work starts), and :func:`connect` turns
+whatever dask's connect raises into :class:`SchedulerUnreachableError`.
+"""
+
+from __future__ import annotations
+
+import socket
+from typing import Any
+from urllib.parse import urlparse
+
+from .errors import InvalidParameterError, SchedulerUnreachableError
+
+__all__ = ["CONNECT_TIMEOUT", "host_port", "check_scheduler", "connect"]
+
+#: seconds to wait for a scheduler's address to accept a connection
+CONNECT_TIMEOUT = 5.0
+#: address schemes that run over TCP (a socket connect tells whether they answer)
+_TCP_SCHEMES = ("tcp", "tls", "ws", "wss")
+
+
+def _reason(exc: BaseException) -> str:
+    if isinstance(exc, (socket.timeout, TimeoutError)):
+        return "no answer"
+    return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
+
+
+def host_port(address: str) -> tuple[str, int] | None:
+    """The (host, port) of a TCP scheduler *address*; None for a scheme that is not TCP (left to dask).
+
+    Raises
+    ------
+    InvalidParameterError
+        A ``tcp://`` (``tls://``, ``ws://``, ``wss://``) address without a host or a port.
+    """
+    url = urlparse(address)
+    if url.scheme not in _TCP_SCHEMES:
+        return None
+    try:
+        host, port = url.hostname, url.port
+    except ValueError:
+        host, port = None, None
+    if not host or port is None:
+        raise InvalidParameterError(f"scheduler address {address!r} needs a host and a port: tcp://host:port")
+    return host, port
+
+
+def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
+    """Raise unless something accepts connections at the scheduler *address*.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://host:port`` (also ``tls://``, ``ws://``, ``wss://``; other
+        schemes are left to dask).
+    timeout : float
+        Seconds to wait for the connection.
+
+    Raises
+    ------
+    InvalidParameterError
+        The address has no host or port.
+    SchedulerUnreachableError
+        Nothing answers at the address within *timeout* (refused, unknown
+        host, timed out).
+    """
+    where = host_port(address)
+    if where is None:
+        return
+    try:
+        with socket.create_connection(where, timeout=timeout):
+            pass
+    except OSError as exc:
+        raise SchedulerUnreachableError(
+            f"cannot reach the dask scheduler at {address}: {_reason(exc)} (connect timeout {timeout:g} s)"
+        ) from None
+
+
+def connect(address: str, timeout: float | None = None) -> Any:
+    """A :class:`distributed.Client` of the scheduler at *address*.
+
+    *timeout* (seconds) defaults to dask's ``distributed.comm.timeouts.connect``.
+
+    Raises
+    ------
+    SchedulerUnreachableError
+        dask could not connect (its ``OSError`` / ``TimeoutError``, e.g. the
+        address answers but is not a dask scheduler).
+    """
+    from distributed import Client
+
+    try:
+        return Client(address) if timeout is None else Client(address, timeout=timeout)
+    except (OSError, TimeoutError) as exc:
+        raise SchedulerUnreachableError(f"cannot connect to the dask scheduler at {address}: {_reason(exc)}") from exc
