@@ -1,8 +1,9 @@
-"""The exceptions cloudsieve raises.
+"""The exceptions and warnings cloudsieve raises: every one of them is here.
 
 One root, :class:`CloudsieveError`; every subclass also inherits the built-in
 exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
 ``except ValueError`` keeps working. Messages name the file and the problem.
+Warnings: :class:`ConvergenceWarning` (a ``UserWarning``).
 """
 
 from __future__ import annotations
@@ -25,6 +26,10 @@ __all__ = [
     "IncompatibleCloudsError",
     "InvalidParameterError",
     "ResumeMismatchError",
+    "ArrayNotFoundError",
+    "PartitionLayoutError",
+    "MissingDependencyError",
+    "ConvergenceWarning",
 ]
 
 
@@ -94,3 +99,22 @@ class InvalidParameterError(CloudsieveError, ValueError):
 
 class ResumeMismatchError(CloudsieveError, ValueError):
     """A work store holds a run with other parameters or another source (cannot resume it)."""
+
+
+class ArrayNotFoundError(CloudsieveError, KeyError):
+    """A point store has no array of that name (or the name is a group)."""
+
+    def __str__(self) -> str:  # the message, not KeyError's quoted repr of it
+        return str(self.args[0]) if self.args else ""
+
+
+class PartitionLayoutError(CloudsieveError, ValueError):
+    """The store's partition is missing or in a layout this version does not read."""
+
+
+class MissingDependencyError(CloudsieveError, ImportError):
+    """An optional package needed for this input or evaluation is not installed."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative fit stopped at max_iter before its convergence test held."""

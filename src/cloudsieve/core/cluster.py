@@ -40,15 +40,11 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from .entropy import _check_points
-from ..errors import InvalidParameterError
+from ..errors import ConvergenceWarning, InvalidParameterError
 
 __all__ = ["KMeans", "FuzzyCMeans", "ConvergenceWarning"]
 
 logger = logging.getLogger(__name__)
-
-
-class ConvergenceWarning(UserWarning):
-    """An iterative fit stopped at max_iter before its convergence test held."""
 
 
 def _canonical_order(X: np.ndarray) -> np.ndarray:

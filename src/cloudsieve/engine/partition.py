@@ -71,7 +71,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import CloudsieveError
+from ..errors import PartitionLayoutError
 
 __all__ = [
     "Partition",
@@ -106,10 +106,6 @@ _LABEL_BLOCK = 131072
 _RUN_CHUNK = 65536
 #: runs held in memory while the run tables are built
 _RUN_FLUSH = 1 << 21
-
-
-class PartitionLayoutError(CloudsieveError):
-    """The store's partition is missing or in a layout this version does not read."""
 
 
 def sample_size(n: int, n_cells: int) -> int:
