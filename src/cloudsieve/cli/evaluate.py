@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from ..store import DEFAULT_CHUNK_SIZE
 from ._common import positive_int as _positive_int
 
 ORDER = 50
@@ -35,7 +36,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--subset", action="store_true", help="the simplified cloud must be a subset of the original (error otherwise)")
     p.add_argument("--force", action="store_true", help="warn instead of failing on different CRS or units")
     p.add_argument("--seed", type=int, default=0, help="seed of the samples and tiles (default 0)")
-    p.add_argument("--chunk-size", type=_positive_int, default=1_000_000, metavar="POINTS", help="points per chunk of the original")
+    p.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE, metavar="POINTS", help="points per chunk of the original")
     p.add_argument("--error-points", type=int, default=2_000_000, metavar="N",
                    help="at most N points in errors.ply (uniform sample; default 2000000)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -46,7 +47,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..evaluate import evaluate
-    from ..evaluate.report import _clean, fmt
+    from ..evaluate.report import fmt, json_ready
 
     with progress.bar("point errors", None, enabled=not args.no_progress) as tick:
         report = evaluate(
@@ -55,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
             report_dir=args.report, error_points=args.error_points, chunk_size=args.chunk_size, progress=tick,
         )
     if args.json:
-        print(json.dumps(_clean(report), indent=1))
+        print(json.dumps(json_ready(report), indent=1))
         return 0
     for w in report["warnings"]:
         print(f"warning: {w}", file=sys.stderr)

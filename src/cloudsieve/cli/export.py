@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..store import DEFAULT_CHUNK_SIZE
 from ._common import positive_int
 
 ORDER = 30
@@ -25,7 +26,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts)")
     p.add_argument("--format", choices=("las", "laz", "ply", "xyz"), help="output format (default: from the extension)")
     p.add_argument("--mask", metavar="ARRAY", help="bool array of the store selecting the points to write (e.g. simplify/keep)")
-    p.add_argument("--chunk-size", type=positive_int, default=1_000_000, metavar="N", help="points per chunk (default 1000000)")
+    p.add_argument("--chunk-size", type=positive_int, default=DEFAULT_CHUNK_SIZE, metavar="N", help=f"points per chunk (default {DEFAULT_CHUNK_SIZE})")
     p.add_argument("--overwrite", action="store_true", help="replace DST if it exists")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from ..store import DEFAULT_CHUNK_SIZE
 from ._common import FORMATS, positive_int
 
 ORDER = 20
@@ -23,7 +24,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("src", metavar="SRC", help="input file (format by extension, or --format)")
     p.add_argument("store", metavar="STORE", help="point store to create (folder or fsspec URL)")
     p.add_argument("--format", choices=FORMATS, help="input format (default: from the extension)")
-    p.add_argument("--chunk-size", type=positive_int, default=1_000_000, metavar="N", help="points per chunk (default 1000000)")
+    p.add_argument("--chunk-size", type=positive_int, default=DEFAULT_CHUNK_SIZE, metavar="N", help=f"points per chunk (default {DEFAULT_CHUNK_SIZE})")
     p.add_argument("--delimiter", help="XYZ/TXT/CSV column separator (default: sniffed)")
     p.add_argument("--columns", help="XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)")
     p.add_argument("--drop-invalid", action="store_true", help="drop points with NaN/infinite coordinates (default: refuse)")

@@ -7,6 +7,7 @@ import argparse
 import json
 import sys
 
+from ..store import DEFAULT_CHUNK_SIZE
 from ._common import positive_int as _positive_int
 
 ORDER = 40
@@ -60,7 +61,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--resume", action="store_true", help="continue a crashed run from its work store")
     p.add_argument("--overwrite", action="store_true", help="replace DST and discard an incompatible work store")
     p.add_argument("--format", help="output format (default: by DST's extension)")
-    p.add_argument("--chunk-size", type=_positive_int, default=1_000_000, metavar="POINTS", help="points per store chunk")
+    p.add_argument("--chunk-size", type=_positive_int, default=DEFAULT_CHUNK_SIZE, metavar="POINTS", help="points per store chunk")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run)

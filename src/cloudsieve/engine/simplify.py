@@ -75,7 +75,6 @@ import contextlib
 import logging
 import math
 import os
-import shutil
 import threading
 import time
 import uuid
@@ -94,6 +93,7 @@ from ..errors import (
     SameSourceDestinationError,
 )
 from ..progress import callback
+from ..store import DEFAULT_CHUNK_SIZE
 
 __all__ = ["simplify", "Summary", "DEFAULT_SCHEDULER", "SIMPLIFY_ATTR", "cell_seed"]
 
@@ -641,32 +641,9 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
 # ---------------------------------------------------------------- helpers
 
 
-def _is_store(path: str) -> bool:
-    from ..store import PointStore
-
-    try:
-        PointStore.open(path, "r")
-    except (CloudsieveError, OSError, ValueError):
-        return False
-    return True
-
-
 def _source_identity(src: str) -> dict:
     st = os.stat(src)
     return {"path": os.path.abspath(src), "size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
-
-
-def _remove_store(path: str) -> None:
-    from ..store import local_path
-
-    local = local_path(path)
-    if local is not None:
-        shutil.rmtree(local, ignore_errors=True)
-    else:  # pragma: no cover - remote stores
-        import fsspec
-
-        fs, p = fsspec.core.url_to_fs(path)
-        fs.rm(p, recursive=True)
 
 
 def _regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
@@ -755,7 +732,7 @@ def simplify(
     bars=None,
     notify: Callable[[str], None] | None = None,
     format: str | None = None,
-    chunk_size: int = 1_000_000,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
     context: bool = False,
     k0: float = 1.0,
     k_min: int = 4,
@@ -845,8 +822,7 @@ def simplify(
     DestinationExistsError
         DST exists and *overwrite* is False.
     """
-    from ..store.convert import export, ingest
-    from ..store import PointStore, local_path
+    from ..store import PointStore, delete_store, export, ingest, is_store, local_path
 
     t_start = time.perf_counter()
     src, dst = os.fspath(src), os.fspath(dst)
@@ -860,7 +836,7 @@ def simplify(
     if local_path(src) is not None and dst_local is not None and os.path.abspath(local_path(src)) == dst_local:
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
 
-    src_is_store = _is_store(src)
+    src_is_store = is_store(src)
     default_store = store is None and not src_is_store
     if src_is_store:
         store_path = src
@@ -884,9 +860,9 @@ def simplify(
                 st = PointStore.open(store_path, "r+")
             else:
                 identity = _source_identity(src)
-                existing = _is_store(store_path)
+                existing = is_store(store_path)
                 if existing and overwrite:
-                    _remove_store(store_path)
+                    delete_store(store_path)
                     existing = False
                 if resume and not existing:
                     logger.info("resume: no complete work store at %s, starting from the ingest", store_path)
@@ -1006,7 +982,7 @@ def simplify(
     rec["summary"] = summary.to_dict()
     st.group.attrs.update({SIMPLIFY_ATTR: rec})
     if default_store:
-        _remove_store(store_path)
+        delete_store(store_path)
         summary.store = ""
     logger.info("simplify %s -> %s: %d of %d points kept", src, dst, summary.kept, summary.points_in)
     return summary
