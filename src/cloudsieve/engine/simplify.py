@@ -14,7 +14,7 @@
 4. **merge**: one task per input chunk scatters the keep masks back to input
    order as ``simplify/keep``;
 5. **export** of the kept points, every attribute and the header
-   (:func:`cloudsieve.convert.export`, atomic).
+   (:func:`cloudsieve.store.export`, atomic).
 
 Only a few numbers pass through the scheduler, never an array of size P or
 N: every task opens the store by path and reads its own runs there (see
