@@ -16,7 +16,6 @@ import zarr
 
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
-from ..io import open_writer
 from .ingest import bound_malloc
 from .paths import same_path
 from .pointstore import DEFAULT_CHUNK_SIZE, PointStore
@@ -87,6 +86,8 @@ def export(
     StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError, UnknownFormatError
     """
+    from ..io import open_writer  # here, not at the top: see ingest()
+
     dst = os.fspath(dst)
     if not isinstance(store, PointStore):
         store = PointStore.open(os.fspath(store))

@@ -29,8 +29,6 @@ from ..errors import (
     InvalidPointsError,
     SameSourceDestinationError,
 )
-from ..io import open_reader
-from ..io._base import check_destination, make_temp_path, remove, replace
 from .paths import local_path, same_path
 from .pointstore import DEFAULT_CHUNK_SIZE, PointStore
 
@@ -223,6 +221,11 @@ def ingest(
     SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError
     """
+    # io is imported here, not at the top: io imports the store's Chunk and DEFAULT_CHUNK_SIZE,
+    # so either package can be imported first
+    from ..io import open_reader
+    from ..io._base import check_destination, make_temp_path, remove, replace
+
     src, store = os.fspath(src), os.fspath(store)
     if same_path(src, store):
         raise SameSourceDestinationError(f"destination {store} is the source {src}: cloudsieve never overwrites its input")
