@@ -115,3 +115,12 @@ def test_evaluation_errors():
 def test_evaluate_signature_has_no_private_keywords():
     assert not [p for p in inspect.signature(evaluate).parameters if p.startswith("_")]
 
+
+
+def test_cli_missing_mask_array(tmp_path, las_store, capsys):
+    from cloudsieve.cli import main
+
+    out = tmp_path / "o.las"
+    assert main(["export", las_store.path, str(out), "--mask", "simplify/keep", "--no-progress"]) == 2
+    assert f"cloudsieve export: error: {las_store.path} has no array 'simplify/keep'\n" in capsys.readouterr().err
+    assert not out.exists()
