@@ -293,7 +293,7 @@ def test_failed_write_leaves_nothing(tmp_path, las_store):
     dst = tmp_path / "half.las"
     with pytest.raises(RuntimeError, match="boom"):
         with open_writer(dst, header=las_store.header, dtypes=las_store.dtypes, source_format="las") as w:
-            for _, chunk in las_store.iter_chunks(chunk_size=100):
+            for _, chunk in las_store.chunks(chunk_size=100):
                 w.write(chunk)
                 raise RuntimeError("boom")
     assert leftovers(tmp_path, "half.las") == []

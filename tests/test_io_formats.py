@@ -1,4 +1,4 @@
-"""PLY, E57 and XYZ files; cross-format exports; Hypothesis round trips; the store API."""
+"""PLY, E57 and XYZ files; cross-format exports; Hypothesis round trips (the store API: test_store_pointstore.py)."""
 
 from __future__ import annotations
 
@@ -15,7 +15,6 @@ from cloudsieve.cli import main
 from cloudsieve.store import export, ingest
 from cloudsieve.io import detect_format, open_reader, read_cloud
 from cloudsieve.io.ply import read_ply_header
-from cloudsieve.store import PointStore
 
 
 # ------------------------------------------------------------ real files
@@ -35,8 +34,10 @@ def test_maxplanck_ply_chunks():
     with open_reader(shared_file("maxplanck.ply"), chunk_size=4_000) as reader:
         assert reader.count == 25_445
         assert list(reader.dtypes) == ["xyz"]
-        sizes = [len(c["xyz"]) for c in reader.chunks()]
+        chunks = list(reader.chunks())
+        sizes = [len(c.xyz) for c in chunks]
     assert sizes == [4_000] * 6 + [1_445]
+    assert [c.start for c in chunks] == [4_000 * i for i in range(7)] and chunks[-1].stop == 25_445
 
 
 def test_e57_pump():
@@ -44,7 +45,7 @@ def test_e57_pump():
     with open_reader(src, chunk_size=50_000) as reader:
         assert reader.count == 155_201
         assert reader.header["scan_count"] == 1
-        sizes = [len(c["xyz"]) for c in reader.chunks()]
+        sizes = [len(c.xyz) for c in reader.chunks()]
     assert sizes == [50_000, 50_000, 50_000, 5_201]
     xyz, attrs = read_cloud(src)
     for name in ("intensity", "colorRed", "colorGreen", "colorBlue", "rowIndex", "columnIndex"):
@@ -155,7 +156,7 @@ def test_big_endian_and_ascii_ply(tmp_path):
     (tmp_path / "a.ply").write_text(asc)
     with open_reader(tmp_path / "a.ply", chunk_size=77) as reader:
         chunks = list(reader.chunks())
-    assert [len(c["xyz"]) for c in chunks] == [77, 77, 77, 69]
+    assert [len(c.arrays["xyz"]) for c in chunks] == [77, 77, 77, 69]
     x2, a2 = read_cloud(tmp_path / "a.ply")
     np.testing.assert_array_equal(x2, xyz)
     np.testing.assert_array_equal(a2["id"], ids)
@@ -174,7 +175,7 @@ def test_xyz_header_delimiters_and_pts(tmp_path):
     xyz, attrs = read_cloud(tmp_path / "c.txt")
     np.testing.assert_array_equal(xyz, [[1, 2, 3], [4, 5, 6]])
     with open_reader(tmp_path / "c.txt", columns=["z", "y", "x"]) as reader:
-        np.testing.assert_array_equal(next(reader.chunks())["xyz"], [[3, 2, 1], [6, 5, 4]])
+        np.testing.assert_array_equal(next(reader.chunks()).xyz, [[3, 2, 1], [6, 5, 4]])
         assert reader.count is None
 
 
@@ -241,41 +242,6 @@ def test_hypothesis_las_round_trip(tmp_path_factory, cloud, chunk):
     store2 = ingest(folder / "o.las", folder / "s2.zarr", chunk_size=chunk + 1)
     export(store2, folder / "o2.las")
     assert (folder / "o2.las").read_bytes()[400:] == (folder / "o.las").read_bytes()[400:]
-
-
-# ------------------------------------------------------------ store API
-def test_store_file_url_and_api(tmp_path):
-    url = "file://" + str(tmp_path / "s.zarr")
-    store = ingest(shared_file("simple.laz"), url, chunk_size=100)
-    assert store.path == url
-    same = PointStore.open(tmp_path / "s.zarr")
-    assert same.count == store.count == 1065
-    assert same.chunk_size == 100
-    assert same.group["xyz"].chunks == (100, 3)
-    assert same.group["intensity"].chunks == (100,)
-    assert same.source_format == "laz"
-    meta = same.attrs["cloudsieve"]
-    assert meta["version"] == 1 and meta["complete"] is True and meta["count"] == 1065
-    las = laspy.read(shared_file("simple.laz"))
-    np.testing.assert_array_equal(same.read("intensity", 10, 20), las.intensity[10:20])
-    np.testing.assert_array_equal(store.read("xyz")[:, 2], las.z)
-    starts = [s for s, _ in store.iter_chunks(["xyz", "classification"], chunk_size=250)]
-    assert starts == [0, 250, 500, 750, 1000]
-    parts = [c["classification"] for _, c in store.iter_chunks(["classification"], chunk_size=250)]
-    np.testing.assert_array_equal(np.concatenate(parts), las.classification)
-    # derived arrays, from a read-only handle; input arrays are protected
-    labels = store.create_array("partition/labels", shape=(1065,), dtype=np.int32)
-    labels[:] = np.arange(1065) % 7
-    np.testing.assert_array_equal(PointStore.open(url).read("partition/labels")[:8], [0, 1, 2, 3, 4, 5, 6, 0])
-    with pytest.raises(Exception, match="'intensity' is an input array"):
-        store.create_array("intensity", shape=(1065,), dtype=np.uint16)
-    export(url, tmp_path / "o.laz")
-    assert laspy.read(tmp_path / "o.laz").header.point_count == 1065
-    # export with a mask from the URL store
-    keep = store.create_array("simplify/keep", shape=(1065,), dtype=bool)
-    keep[:] = np.arange(1065) < 10
-    export(url, tmp_path / "k.laz", mask="simplify/keep")
-    assert laspy.read(tmp_path / "k.laz").header.point_count == 10
 
 
 def test_cli_ingest_info_export(tmp_path, capsys):

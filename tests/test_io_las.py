@@ -122,7 +122,8 @@ def test_reader_chunks_and_dtypes():
         assert reader.dtypes["Reserved"] == (np.dtype(np.uint8), (7,))
         assert reader.dtypes["classification"][0] == np.uint8
         sizes = []
-        for chunk in reader.chunks():
+        for start, chunk in reader.chunks():
+            assert start == sum(sizes)
             sizes.append(len(chunk["xyz"]))
             for name, (dtype, shape) in reader.dtypes.items():
                 assert chunk[name].dtype == dtype and chunk[name].shape[1:] == shape, name

@@ -1,9 +1,9 @@
-"""The exceptions cloudsieve raises.
+"""The exceptions and warnings cloudsieve raises: every one of them is here.
 
 One root, :class:`CloudsieveError`; every subclass also inherits the built-in
 exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
 ``except ValueError`` keeps working. Messages name the file and the problem.
-The warnings are here too (:class:`ConvergenceWarning`).
+Warnings: :class:`ConvergenceWarning` (a ``UserWarning``).
 """
 
 from __future__ import annotations
@@ -26,9 +26,12 @@ __all__ = [
     "IncompatibleCloudsError",
     "InvalidParameterError",
     "ResumeMismatchError",
-    "ConvergenceWarning",
     "InputNotReadableError",
     "SchedulerUnreachableError",
+    "ArrayNotFoundError",
+    "PartitionLayoutError",
+    "MissingDependencyError",
+    "ConvergenceWarning",
 ]
 
 
@@ -100,13 +103,28 @@ class ResumeMismatchError(CloudsieveError, ValueError):
     """A work store holds a run with other parameters or another source (cannot resume it)."""
 
 
-class ConvergenceWarning(UserWarning):
-    """An iterative fit stopped at max_iter before its convergence test held."""
-
-
 class InputNotReadableError(CloudsieveError, PermissionError):
     """The input exists but cannot be read (permissions)."""
 
 
 class SchedulerUnreachableError(CloudsieveError, ConnectionError):
     """The dask.distributed scheduler address does not answer."""
+
+
+class ArrayNotFoundError(CloudsieveError, KeyError):
+    """A point store has no array of that name (or the name is a group)."""
+
+    def __str__(self) -> str:  # the message, not KeyError's quoted repr of it
+        return str(self.args[0]) if self.args else ""
+
+
+class PartitionLayoutError(CloudsieveError, ValueError):
+    """The store's partition is missing or in a layout this version does not read."""
+
+
+class MissingDependencyError(CloudsieveError, ImportError):
+    """An optional package needed for this input or evaluation is not installed."""
+
+
+class ConvergenceWarning(UserWarning):
+    """An iterative fit stopped at max_iter before its convergence test held."""

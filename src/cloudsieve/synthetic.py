@@ -11,6 +11,8 @@ from collections.abc import Iterator
 
 import numpy as np
 
+from .store import DEFAULT_CHUNK_SIZE
+
 __all__ = ["scene_chunks", "write_scene_laz"]
 
 # Scene extent in metres; points are spread over it whatever the count.
@@ -30,7 +32,7 @@ def _buildings(rng: np.random.Generator) -> np.ndarray:
     return np.hstack([centres, half, height])
 
 
-def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = 1_000_000) -> Iterator[dict[str, np.ndarray]]:
+def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE) -> Iterator[dict[str, np.ndarray]]:
     """Yield the example scene in chunks of at most *chunk_size* points.
 
     Parameters
@@ -90,7 +92,7 @@ def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = 1_000_000) -> Itera
         }
 
 
-def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = 1_000_000) -> str:
+def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE) -> str:
     """Write the example scene as a LAS 1.4 point format 7 file (LAZ by ``.laz``).
 
     Streams chunk by chunk through laspy; the file is written under a temporary

@@ -35,12 +35,12 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..evaluate import evaluate
-    from ..evaluate.report import _clean, fmt
+    from ..evaluate.report import fmt, json_ready
 
     with progress.bar("point errors", None, enabled=not args.no_progress) as tick:
         report = evaluate(args.original, args.simplified, **option_values(args, "evaluate"), progress=tick)
     if args.json:
-        print(json.dumps(_clean(report), indent=1))
+        print(json.dumps(json_ready(report), indent=1))
         return 0
     for w in report["warnings"]:
         print(f"warning: {w}", file=sys.stderr)

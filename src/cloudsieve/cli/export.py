@@ -31,13 +31,13 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..store import export
-    from ..errors import CloudsieveError
+    from ..errors import ArrayNotFoundError
     from ..store import PointStore
 
     option_values(args, "export", check=True)
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
-        raise CloudsieveError(f"{args.store} has no array {args.mask!r}")
+        raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
     with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
         export(
             store,

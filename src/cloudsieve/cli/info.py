@@ -90,7 +90,7 @@ def _describe_file(path: str, format: str | None) -> dict:
             bounds = [header["mins"], header["maxs"]]
         else:  # stream once for the bounds (and the count of XYZ)
             lo, hi, n = np.full(3, np.inf), np.full(3, -np.inf), 0
-            for chunk in reader.chunks():
+            for _, chunk in reader.chunks():
                 xyz = chunk["xyz"]
                 if len(xyz):
                     finite = xyz[np.isfinite(xyz).all(axis=1)]
@@ -112,15 +112,15 @@ def _describe_file(path: str, format: str | None) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..store import local_path
+    from ..store import is_store, local_path
 
     local = local_path(args.path)
-    if local is None or os.path.isdir(local):
-        if local is not None and not os.path.exists(os.path.join(local, "zarr.json")):
-            from ..errors import InputIsDirectoryError
-
-            raise InputIsDirectoryError(f"{args.path} is a directory, not a point cloud file or point store")
+    if is_store(args.path):
         info = _describe_store(args.path)
+    elif local is not None and os.path.isdir(local):
+        from ..errors import InputIsDirectoryError
+
+        raise InputIsDirectoryError(f"{args.path} is a directory, not a point cloud file or point store")
     else:
         info = _describe_file(args.path, args.format)
     if args.json:

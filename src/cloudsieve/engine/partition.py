@@ -49,7 +49,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..core import neighbour_count
-from ..errors import CloudsieveError
+from ..errors import PartitionLayoutError
 from .label import label_chunk
 from .runs import cell_runs, chunk_runs, index_runs
 
@@ -74,10 +74,6 @@ PARTITION_VERSION = 2  # 2: sparse run tables (chunk_runs/cell_runs); 1 had a de
 HALO_RADII = 3.0
 #: inner chunk of the sharded ``partition/xyz`` rows (points)
 INNER_CHUNK = 16384
-
-
-class PartitionLayoutError(CloudsieveError):
-    """The store's partition is missing or in a layout this version does not read."""
 
 
 def sample_size(n: int, n_cells: int) -> int:

@@ -28,22 +28,18 @@ fixed order.
 from __future__ import annotations
 
 import logging
-import math
 import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from ..errors import (
-    DestinationExistsError,
-    InvalidParameterError,
-    SameSourceDestinationError,
-)
+from ..errors import DestinationExistsError, SameSourceDestinationError
 from ..io import check_readable, check_writable
 from ..params import run_record, validate
 from ..progress import callback
 from ..scheduler import check_scheduler
+from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
 from .partition import build_partition, reusable_partition
@@ -146,7 +142,7 @@ def simplify(
     bars=None,
     notify: Callable[[str], None] | None = None,
     format: str | None = None,
-    chunk_size: int = 1_000_000,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
     halo_context: bool = False,
     k0: float = 1.0,
     k_min: int = 4,
@@ -273,7 +269,7 @@ def simplify(
     if client is None and scheduler is not None and "://" in scheduler:
         check_scheduler(scheduler)
 
-    src_is_store = workstore.is_store(src)
+    src_is_store = is_store(src)
     default_store = store is None and not src_is_store
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
 
@@ -347,7 +343,7 @@ def simplify(
     summary.peak_memory = int(peak.peak)
     workstore.record_summary(st, summary.to_dict())
     if default_store:
-        workstore.remove_store(store_path)
+        delete_store(store_path)
         summary.store = ""
     logger.info("simplify %s -> %s: %d of %d points kept", src, dst, summary.kept, summary.points_in)
     return summary

@@ -32,19 +32,18 @@ from __future__ import annotations
 import logging
 import math
 import os
-import shutil
+
 
 import numpy as np
 
-from ..errors import CloudsieveError, ResumeMismatchError
+from ..errors import ResumeMismatchError
+from ..store import delete_store, is_store
 
 __all__ = [
     "SIMPLIFY_ATTR",
     "ENGINE_VERSION",
-    "is_store",
     "source_identity",
     "work_store_path",
-    "remove_store",
     "reusable_store",
     "ingest_source",
     "record_params",
@@ -60,17 +59,6 @@ logger = logging.getLogger(__name__)
 
 SIMPLIFY_ATTR = "cloudsieve_simplify"
 ENGINE_VERSION = 1
-
-
-def is_store(path: str) -> bool:
-    """Whether *path* holds a complete point store."""
-    from ..store import PointStore
-
-    try:
-        PointStore.open(path, "r")
-    except (CloudsieveError, OSError, ValueError):
-        return False
-    return True
 
 
 def source_identity(src: str) -> dict:
@@ -93,20 +81,6 @@ def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_
     return path
 
 
-def remove_store(path: str) -> None:
-    """Delete the store at *path* (local path or fsspec URL)."""
-    from ..store import local_path
-
-    local = local_path(path)
-    if local is not None:
-        shutil.rmtree(local, ignore_errors=True)
-    else:  # pragma: no cover - remote stores
-        import fsspec
-
-        fs, p = fsspec.core.url_to_fs(path)
-        fs.rm(p, recursive=True)
-
-
 def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: bool, resume: bool):
     """The store to work in when no ingest is needed, else None.
 
@@ -126,7 +100,7 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
     identity = source_identity(src)
     existing = is_store(store_path)
     if existing and overwrite:
-        remove_store(store_path)
+        delete_store(store_path)
         existing = False
     if resume and not existing:
         logger.info("resume: no complete work store at %s, starting from the ingest", store_path)

@@ -1,8 +1,9 @@
 """Where the evaluation reads its points from (private).
 
-The original cloud may be huge: it is only ever *streamed* chunk by chunk, from
-a numpy array, a :class:`cloudsieve.store.PointStore` (or its path) or any file
-the IO layer reads (``open_reader(...).chunks()``). The simplified cloud is
+The original cloud may be huge: it is only ever *streamed* chunk by chunk
+(:class:`cloudsieve.store.Chunk`, as every chunk iterator), from a numpy array,
+a :class:`cloudsieve.store.PointStore` (or its path) or any file the IO layer
+reads (``open_reader(...).chunks()``). The simplified cloud is
 assumed to fit in memory (it is the smaller one) and is loaded whole by
 :func:`load_points`.
 """
@@ -10,7 +11,6 @@ assumed to fit in memory (it is the smaller one) and is loaded whole by
 from __future__ import annotations
 
 import logging
-import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,16 +18,11 @@ from typing import Any
 import numpy as np
 
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError
+from ..store import DEFAULT_CHUNK_SIZE, Chunk, PointStore, is_store
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["Source", "open_source", "load_points", "is_store_path"]
-
-
-def is_store_path(path: str | os.PathLike) -> bool:
-    """True when *path* is a zarr point store (a folder holding ``zarr.json``)."""
-    p = Path(path)
-    return p.is_dir() and (p / "zarr.json").is_file()
+__all__ = ["Source", "open_source", "load_points"]
 
 
 class Source:
@@ -45,7 +40,7 @@ class Source:
         ``"array"``, ``"store"`` or the IO layer's format name.
     """
 
-    def __init__(self, obj: Any, chunk_size: int = 1_000_000):
+    def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE):
         self.chunk_size = int(chunk_size)
         self._array = None
         self._store = None
@@ -59,7 +54,7 @@ class Source:
             self.name = "<array>"
             self.format = "array"
             self.count = len(arr)
-        elif hasattr(obj, "iter_chunks") and hasattr(obj, "count"):
+        elif isinstance(obj, PointStore):
             self._store = obj
             self.name = str(getattr(obj, "path", "<store>"))
             self.format = "store"
@@ -70,9 +65,7 @@ class Source:
             if not path.exists():
                 raise InputNotFoundError(f"input not found: {path}")
             self.name = str(path)
-            if is_store_path(path):
-                from ..store import PointStore
-
+            if is_store(path):
                 self._store = PointStore.open(str(path))
                 self.format = "store"
                 self.count = int(self._store.count)
@@ -91,32 +84,41 @@ class Source:
         """The store's path when the source is a point store (tasks reopen it)."""
         return None if self._store is None else str(self._store.path)
 
-    def chunks(self) -> Iterator[tuple[int, np.ndarray]]:
-        """Yield ``(start, xyz)`` with xyz of shape (n, 3) float64, in point order."""
+    def chunks(self) -> Iterator[Chunk]:
+        """Yield :class:`~cloudsieve.store.Chunk` ``(start, {"xyz": xyz})``, xyz of shape (n, 3) float64, in point order."""
         if self._array is not None:
             for start in range(0, len(self._array), self.chunk_size):
-                yield start, self._array[start : start + self.chunk_size]
+                yield Chunk(start, {"xyz": self._array[start : start + self.chunk_size]})
         elif self._store is not None:
-            for start, chunk in self._store.iter_chunks(names=["xyz"], chunk_size=self.chunk_size):
-                yield int(start), np.asarray(chunk["xyz"], dtype=np.float64)
+            for start, arrays in self._store.chunks(names=["xyz"], chunk_size=self.chunk_size):
+                yield Chunk(int(start), {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
         else:
             from ..io import open_reader
 
-            start = 0
             with open_reader(self._path, chunk_size=self.chunk_size) as reader:
-                for chunk in reader.chunks():
-                    xyz = np.asarray(chunk["xyz"], dtype=np.float64)
-                    yield start, xyz
-                    start += len(xyz)
+                for start, arrays in reader.chunks():
+                    yield Chunk(start, {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
+
+    def known_bounds(self) -> np.ndarray | None:
+        """Bounds ``[[min], [max]]`` of shape (2, 3) known without a scan (store, array, LAS header), else None."""
+        h = self.header or {}
+        if self._store is not None:
+            return np.asarray(self._store.bounds, dtype=float)
+        if self._array is not None:
+            a = self._array
+            return np.stack([a.min(0), a.max(0)]) if len(a) else None
+        if "mins" in h and "maxs" in h:
+            return np.array([h["mins"], h["maxs"]], dtype=float)
+        return None
 
     def count_points(self) -> int:
         """The point count, scanning the source once when it is unknown (XYZ text)."""
         if self.count is None:
-            self.count = sum(len(xyz) for _, xyz in self.chunks())
+            self.count = sum(len(chunk.xyz) for chunk in self.chunks())
         return int(self.count)
 
 
-def open_source(obj: Any, chunk_size: int = 1_000_000) -> Source:
+def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE) -> Source:
     """Wrap an array, a PointStore, a store path or a file path as a :class:`Source`."""
     if isinstance(obj, Source):
         return obj

@@ -35,7 +35,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..errors import CloudsieveError
+from ..errors import CloudsieveError, InvalidParameterError
 
 logger = logging.getLogger(__name__)
 
@@ -48,10 +48,10 @@ FPS_MAX_WORK = 2e10
 def _check(points: np.ndarray, count: int) -> tuple[np.ndarray, int]:
     points = np.ascontiguousarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"points must have shape (n, 3), got {points.shape}")
+        raise InvalidParameterError(f"points must have shape (n, 3), got {points.shape}")
     count = int(count)
     if not 1 <= count <= len(points):
-        raise ValueError(f"count must be in [1, {len(points)}] (the number of points), got {count}")
+        raise InvalidParameterError(f"count must be in [1, {len(points)}] (the number of points), got {count}")
     return points, count
 
 
@@ -166,21 +166,21 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
 
     Raises
     ------
-    CloudsieveError
+    InvalidParameterError
         When n x count exceeds *max_work* (FPS is O(n x count)).
     """
     points, count = _check(points, count)
     work = float(len(points)) * count
     if work > max_work:
-        raise CloudsieveError(f"fps: {len(points)} points x {count} kept = {work:.3g} > {max_work:.3g}; "
-                              "farthest point sampling is O(n x count): run it on a smaller crop")
+        raise InvalidParameterError(f"fps: {len(points)} points x {count} kept = {work:.3g} > {max_work:.3g}; "
+                                    "farthest point sampling is O(n x count): run it on a smaller crop")
     import open3d as o3d
 
-    from .points import _ExactIndex
+    from .points import ExactIndex
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     out = np.asarray(pc.farthest_point_down_sample(int(count)).points)
-    hit, idx = _ExactIndex(points).lookup(out)
+    hit, idx = ExactIndex(points).lookup(out)
     if not hit.all():
         raise CloudsieveError(f"fps: {int((~hit).sum())} sampled points not found among the originals")
     return np.unique(idx).astype(np.int64)
@@ -221,5 +221,5 @@ def run_method(name: str, points: np.ndarray, count: int | None, *, seed: int = 
     if name in ("km", "fcm"):
         return entropy_subset(points, count, method=name, rule=rule, seed=seed, **options)
     if name not in BASELINES:
-        raise ValueError(f"unknown method {name!r}; choose among km, fcm, {', '.join(BASELINES)}")
+        raise InvalidParameterError(f"unknown method {name!r}; choose among km, fcm, {', '.join(BASELINES)}")
     return BASELINES[name](points, count, seed)

@@ -24,14 +24,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
-from .evaluation import evaluate
+from .evaluation import run_evaluation
 from .report import fmt, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
@@ -173,9 +171,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
             rows.append(_row(label, None, 0, seconds, error="kept no point"))
             continue
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
-        rep = evaluate(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points, seed=seed,
-                       metro_samples=metro_samples, report_dir=sub, _surface_cache=cache,
-                       _names=(str(name), f"{label} ({len(idx):,} kept)"))
+        rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
+                             seed=seed, metro_samples=metro_samples, report_dir=sub, surface_cache=cache,
+                             names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time
             write_json(rep, sub / "report.json")

@@ -47,6 +47,7 @@ import numpy as np
 from ..errors import IncompatibleCloudsError
 from ..io import check_folder
 from ..params import validate
+from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
 from .points import point_errors
 from .report import write_report
@@ -54,7 +55,7 @@ from .surface import surface_errors
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["evaluate", "check_compatible"]
+__all__ = ["evaluate", "run_evaluation", "check_compatible"]
 
 
 def _crs_differ(a: dict | None, b: dict | None) -> tuple[str, str, str] | None:
@@ -113,30 +114,17 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
     for p in problems:
         if strict:
             raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False / --force to compare anyway)")
-        warnings.warn(p, UserWarning, stacklevel=3)
+        warnings.warn(p, UserWarning, stacklevel=4)  # the caller of evaluate() (or of compare())
         msgs.append(p)
     for m in msgs:
         logger.warning(m)
     return msgs
 
 
-def _header_bounds(src) -> np.ndarray | None:
-    h = src.header or {}
-    if src._store is not None:
-        return np.asarray(src._store.bounds, dtype=float)
-    if src._array is not None:
-        a = src._array
-        return np.stack([a.min(0), a.max(0)]) if len(a) else None
-    if "mins" in h and "maxs" in h:
-        return np.array([h["mins"], h["maxs"]], dtype=float)
-    return None
-
-
 def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
-             report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = 1_000_000,
-             metro_samples: int | None = None, client: Any = None, progress=None,
-             _surface_cache: dict | None = None, _names: tuple[str, str] | None = None) -> dict:
+             report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
+             metro_samples: int | None = None, client: Any = None, progress=None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -195,13 +183,36 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     })
     if report_dir is not None:
         check_folder(report_dir)
+    return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
+                          seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
+                          chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress)
+
+
+def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
+                   tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
+                   report_dir: str | None = None, error_points: int = 2_000_000,
+                   chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
+                   progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None) -> dict:
+    """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
+
+    Parameters
+    ----------
+    names : (str, str), optional
+        Names of the original and simplified clouds in the report (default:
+        their file names, or ``"<array>"``); compare names arrays after the
+        source file and the method.
+    surface_cache : dict, optional
+        Meshes of the original's tiles, filled by the first call and reused
+        by the next ones on the same original (compare evaluates several
+        simplified clouds of one original).
+    """
     t0 = time.perf_counter()
     src = open_source(original, chunk_size=chunk_size)
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud")
-    warn = check_compatible(src.header, simp_header, _header_bounds(src), simp,
+    warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
                             names=(str(src.name), str(simp_name)), strict=strict)
-    if _names is not None:  # compare: arrays named after the source file and the method
-        src.name, simp_name = _names
+    if names is not None:
+        src.name, simp_name = names
     report: dict[str, Any] = {
         "cloudsieve_report": 1,
         "original": {"name": str(src.name), "count": src.count, "format": src.format,
@@ -227,7 +238,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         t = time.perf_counter()
         report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
                                            diagonal=p["diagonal"], samples=metro_samples,
-                                           cache=_surface_cache)
+                                           cache=surface_cache)
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:

@@ -62,8 +62,9 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..engine.runner import imap
-from ..errors import EmptyInputError, NotASubsetError
+from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
 from ..progress import callback
+from ..store import DEFAULT_CHUNK_SIZE
 from ._source import Source, open_source
 
 logger = logging.getLogger(__name__)
@@ -72,6 +73,7 @@ __all__ = [
     "HIST_DECADES",
     "HIST_PER_DECADE",
     "hist_edges",
+    "ExactIndex",
     "Target",
     "forward_chunk",
     "combine",
@@ -138,8 +140,14 @@ def _hash(points: np.ndarray) -> np.ndarray:
         return (u[:, 0] * _H1) ^ (u[:, 1] * _H2) ^ (u[:, 2] * _H3)
 
 
-class _ExactIndex:
-    """Exact-coordinate lookup of points (hash + sorted search + verification)."""
+class ExactIndex:
+    """Exact-coordinate lookup of points (hash + sorted search + verification).
+
+    Parameters
+    ----------
+    points : ndarray of shape (n, 3), float64
+        The points to find (kept by reference).
+    """
 
     def __init__(self, points: np.ndarray):
         self.points = points
@@ -185,7 +193,7 @@ class Target:
         self.points = np.ascontiguousarray(points, dtype=np.float64)
         self._perm = morton_order(self.points)
         self._tree = cKDTree(self.points[self._perm], balanced_tree=False, compact_nodes=False)
-        self._exact = _ExactIndex(self.points)
+        self._exact = ExactIndex(self.points)
         self.bound: float | None = None
 
     def __len__(self) -> int:
@@ -250,7 +258,7 @@ def _stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
 
 
 def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None = None,
-                  backward_index: _ExactIndex | None = None, n_backward: int | None = None,
+                  backward_index: ExactIndex | None = None, n_backward: int | None = None,
                   keep: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
     """Partial forward statistics of one chunk of original points.
 
@@ -423,7 +431,7 @@ def _sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
-                 chunk_size: int = 1_000_000, subset: bool = False, client: Any = None,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
                  error_points: int = 0, on_error_points=None, progress=None) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
@@ -469,7 +477,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     src: Source = open_source(original, chunk_size=chunk_size)
     simplified = np.ascontiguousarray(simplified, dtype=np.float64)
     if simplified.ndim != 2 or simplified.shape[1] != 3:
-        raise ValueError(f"simplified points must have shape (m, 3), got {simplified.shape}")
+        raise InvalidParameterError(f"simplified points must have shape (m, 3), got {simplified.shape}")
     if len(simplified) == 0:
         raise EmptyInputError(f"the simplified cloud is empty (0 points); original: {src.name}")
     tick = callback(progress)
@@ -480,7 +488,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     if sampled:
         sample = int(sample)
         if sample <= 0:
-            raise ValueError(f"sample must be a positive number of points, got {sample}")
+            raise InvalidParameterError(f"sample must be a positive number of points, got {sample}")
         fwd_idx = _sample_indices(n, sample, rng)
         bwd_idx = _sample_indices(len(simplified), sample, rng)
         sampled = len(fwd_idx) < n or len(bwd_idx) < len(simplified)
@@ -495,17 +503,17 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
 
     target = Target(simplified)
     bpoints = simplified if bwd_idx is None else simplified[bwd_idx]
-    bindex = None if bwd_idx is None else _ExactIndex(bpoints)
+    bindex = None if bwd_idx is None else ExactIndex(bpoints)
     nb = len(bpoints)
     logger.info("point errors: %s original points (%s), %d simplified, %s", n, src.name, len(simplified),
                 f"sample {sample}" if sampled else "exact")
 
     def items():
-        for start, xyz in src.chunks():
-            stop = start + len(xyz)
+        for chunk in src.chunks():
+            start, stop = chunk.start, chunk.stop
             kw = {"select": _select(fwd_idx, start, stop), "keep": _select(ply_idx, start, stop),
                   "n_backward": nb}
-            yield (xyz,), kw
+            yield (chunk.xyz,), kw
 
     partials = []
     for part, ply in imap(forward_chunk, items(), client, shared=(target,), kwargs={"backward_index": bindex}):
@@ -532,7 +540,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         logger.info("backward: %d of %d simplified points not found exactly; searching the original", len(todo), nb)
         pts = bpoints[todo]
         best = np.full(len(todo), np.inf)
-        items2 = (((xyz,), {}) for _, xyz in src.chunks())
+        items2 = (((chunk.xyz,), {}) for chunk in src.chunks())
         for d in imap(backward_chunk, items2, client, shared=(pts, best)):
             np.minimum(best, d, out=best)
         bd[todo] = best

@@ -27,17 +27,18 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["write_report", "write_json", "markdown", "plot_compactness", "plot_point_errors",
+__all__ = ["write_report", "write_json", "json_ready", "markdown", "plot_compactness", "plot_point_errors",
            "write_error_ply", "fmt"]
 
 
-def _clean(obj: Any) -> Any:
+def json_ready(obj: Any) -> Any:
+    """*obj* with numpy values as Python ones, tuples as lists and NaN/inf as None (for ``json.dumps``)."""
     if isinstance(obj, dict):
-        return {str(k): _clean(v) for k, v in obj.items()}
+        return {str(k): json_ready(v) for k, v in obj.items()}
     if isinstance(obj, (list, tuple)):
-        return [_clean(v) for v in obj]
+        return [json_ready(v) for v in obj]
     if isinstance(obj, np.ndarray):
-        return _clean(obj.tolist())
+        return json_ready(obj.tolist())
     if isinstance(obj, (np.integer,)):
         return int(obj)
     if isinstance(obj, (np.floating, float)):
@@ -50,7 +51,7 @@ def _clean(obj: Any) -> Any:
 
 def write_json(report: dict, path: str | os.PathLike) -> str:
     """Write *report* as JSON (NaN/inf become null); returns the path."""
-    Path(path).write_text(json.dumps(_clean(report), indent=1, sort_keys=False) + "\n")
+    Path(path).write_text(json.dumps(json_ready(report), indent=1, sort_keys=False) + "\n")
     return str(path)
 
 

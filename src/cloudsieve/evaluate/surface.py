@@ -44,7 +44,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..engine.runner import forked
-from ..errors import CloudsieveError
+from ..errors import MissingDependencyError
 from ._source import open_source
 
 logger = logging.getLogger(__name__)
@@ -129,7 +129,7 @@ def _pymeshlab():
     try:
         import pymeshlab
     except ImportError as exc:  # pragma: no cover
-        raise CloudsieveError("surface evaluation needs pymeshlab: pip install pymeshlab") from exc
+        raise MissingDependencyError("surface evaluation needs pymeshlab: pip install pymeshlab") from exc
     return pymeshlab
 
 
@@ -240,9 +240,9 @@ def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sa
     s = min(n, sample_size)
     idx = np.sort(rng.choice(n, size=s, replace=False))
     parts = []
-    for start, xyz in src.chunks():
-        a, b = np.searchsorted(idx, [start, start + len(xyz)])
-        parts.append(xyz[idx[a:b] - start])
+    for chunk in src.chunks():
+        a, b = np.searchsorted(idx, [chunk.start, chunk.stop])
+        parts.append(chunk.xyz[idx[a:b] - chunk.start])
     sample = np.concatenate(parts)
     tiles = int(min(tiles, max(1, n // tile_points)))
     centres, _ = kmeans2(sample, tiles, seed=rng, minit="++")
@@ -262,7 +262,8 @@ def _gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
     kept: list[list[np.ndarray]] = [[] for _ in tiles]
     dist: list[list[np.ndarray]] = [[] for _ in tiles]
     counts = np.zeros(len(tiles), np.int64)
-    for _, xyz in src.chunks():
+    for chunk in src.chunks():
+        xyz = chunk.xyz
         for i, c in enumerate(centres):
             d = np.sqrt(((xyz - c) ** 2).sum(axis=1))
             w = d <= radii[i]
@@ -372,7 +373,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     tick = progress or (lambda n: None)
     chosen = choose_tiles(src, tiles, tile_points, seed=seed)
     if not chosen:
-        origs = [np.concatenate([xyz for _, xyz in src.chunks()])]
+        origs = [np.concatenate([chunk.xyz for chunk in src.chunks()])]
         simps = [simplified]
         chosen = [{"centre": None, "radius": None, "whole_cloud": True}]
     else:
@@ -385,7 +386,8 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     if diagonal is None:
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)
-        for _, xyz in src.chunks():
+        for chunk in src.chunks():
+            xyz = chunk.xyz
             if len(xyz):
                 lo, hi = np.minimum(lo, xyz.min(0)), np.maximum(hi, xyz.max(0))
         diagonal = float(np.linalg.norm(hi - lo))

@@ -20,9 +20,9 @@ Example
 -------
 >>> from cloudsieve.io import open_reader
 >>> with open_reader("scan.laz", chunk_size=500_000) as reader:  # doctest: +SKIP
-...     for chunk in reader.chunks():
-...         xyz = chunk["xyz"]          # (n, 3) float64
-...         intensity = chunk["intensity"]
+...     for start, arrays in reader.chunks():  # cloudsieve.store.Chunk
+...         xyz = arrays["xyz"]          # (n, 3) float64, points start .. start + n - 1
+...         intensity = arrays["intensity"]
 """
 
 from __future__ import annotations
@@ -39,8 +39,10 @@ from ..errors import (
     InputIsDirectoryError,
     InputNotFoundError,
     InputNotReadableError,
+    InvalidParameterError,
     UnknownFormatError,
 )
+from ..store.pointstore import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, check_destination
 
 __all__ = [
@@ -231,7 +233,7 @@ def check_folder(path: str | os.PathLike) -> None:
 
 
 def open_reader(
-    path: str | os.PathLike, *, format: str | None = None, chunk_size: int = 1_000_000, **options: Any
+    path: str | os.PathLike, *, format: str | None = None, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any
 ) -> Reader:
     """Open *path* for streaming reading.
 
@@ -255,10 +257,12 @@ def open_reader(
     ------
     InputNotFoundError, InputIsDirectoryError, EmptyInputError,
     UnknownFormatError, CorruptInputError, InputFormatError
+    InvalidParameterError
+        *chunk_size* is not positive.
     """
     path = os.fspath(path)
     if int(chunk_size) <= 0:
-        raise ValueError(f"chunk_size must be positive, got {chunk_size}")
+        raise InvalidParameterError(f"chunk_size must be positive, got {chunk_size}")
     check_input_file(path)
     fmt = detect_format(path, format)
     spec = FORMATS[fmt]["reader"]
@@ -313,7 +317,7 @@ def open_writer(
 
 
 def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Load a whole (small) cloud: a file, or a point store folder.
+    """Load a whole (small) cloud: a point store (see :func:`cloudsieve.store.is_store`), else a file.
 
     This loads everything into memory: use it for tests, tiles and small
     clouds; stream large ones with :func:`open_reader`.
@@ -324,16 +328,15 @@ def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[n
     attributes : dict of str to ndarray of shape (n,) or (n, k)
     """
     path = os.fspath(path)
-    from ..store import PointStore, local_path
+    from ..store import PointStore, is_store
 
-    local = local_path(path)
-    if local is None or os.path.isdir(local):
+    if is_store(path):
         store = PointStore.open(path)
-        parts = [c for _, c in store.iter_chunks()]
+        parts = [arrays for _, arrays in store.chunks()]
         dtypes = store.dtypes
     else:
         with open_reader(path, format=format) as reader:
-            parts = list(reader.chunks())
+            parts = [arrays for _, arrays in reader.chunks()]
             dtypes = reader.dtypes
     out = {}
     for name, (dtype, shape) in dtypes.items():

@@ -1,8 +1,9 @@
 """Reader and Writer base classes shared by the format modules.
 
 A :class:`Reader` is a context manager whose :meth:`Reader.chunks` yields
-dicts of numpy arrays ("xyz" (n, 3) float64 plus one array per attribute);
-it never holds the whole file. A :class:`Writer` writes to a temporary file
+:class:`~cloudsieve.store.Chunk` ``(start, arrays)``: ``arrays`` maps "xyz"
+(n, 3) float64 and each attribute to numpy arrays; it never holds the whole
+file. A :class:`Writer` writes to a temporary file
 in the destination's folder and renames it to the destination only when the
 ``with`` block exits cleanly, so a failed write leaves nothing under the
 destination name.
@@ -19,6 +20,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..errors import DestinationExistsError, DestinationNotWritableError
+from ..store.pointstore import DEFAULT_CHUNK_SIZE, Chunk
 
 __all__ = ["Reader", "Writer", "check_destination"]
 
@@ -54,7 +56,7 @@ class Reader:
     dtypes: Dtypes
     chunk_size: int
 
-    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+    def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         self.path = path
         self.format = format
         self.chunk_size = int(chunk_size)
@@ -63,8 +65,18 @@ class Reader:
         self.header = {}
         self.dtypes = {"xyz": (np.dtype(np.float64), (3,))}
 
-    def chunks(self) -> Iterator[dict[str, np.ndarray]]:  # pragma: no cover - abstract
-        """Yield chunks: ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``."""
+    def chunks(self) -> Iterator[Chunk]:
+        """Yield :class:`~cloudsieve.store.Chunk` ``(start, arrays)`` of at most ``chunk_size`` points, in file order.
+
+        ``arrays`` is ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``.
+        """
+        start = 0
+        for arrays in self._read_chunks():
+            yield Chunk(start, arrays)
+            start += len(arrays["xyz"])
+
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:  # pragma: no cover - abstract
+        """The format's blocks of points, as dicts (subclass hook)."""
         raise NotImplementedError
 
     def close(self) -> None:

@@ -24,7 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CloudsieveError, CorruptInputError, InputFormatError
+from ..errors import CorruptInputError, InputFormatError, MissingDependencyError
+from ..store.pointstore import DEFAULT_CHUNK_SIZE
 from ._base import Reader
 
 __all__ = ["E57Reader"]
@@ -39,7 +40,7 @@ def _pye57():
     try:
         import pye57
     except ImportError as exc:  # pragma: no cover - pye57 is in the test extra
-        raise CloudsieveError(
+        raise MissingDependencyError(
             "reading E57 needs the optional package pye57: pip install 'cloudsieve[e57]' (or pip install pye57)"
         ) from exc
     return pye57
@@ -63,7 +64,7 @@ def _rotation_matrix(q: np.ndarray) -> np.ndarray:
 class E57Reader(Reader):
     """Chunked reader of every scan of an E57 file (see the module docstring)."""
 
-    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+    def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         pye57 = _pye57()
         from pye57.e57 import SUPPORTED_POINT_FIELDS
@@ -96,8 +97,8 @@ class E57Reader(Reader):
         self.count = int(sum(h.point_count for h in scans))
         self.header = {"scans": info, "scan_count": len(scans)}
 
-    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
-        """Yield chunks of at most ``chunk_size`` points, scan after scan."""
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Blocks of at most ``chunk_size`` points, scan after scan, as dicts."""
         for i, h in enumerate(self._scans):
             yield from self._scan_chunks(i, h)
 

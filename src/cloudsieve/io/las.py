@@ -40,6 +40,7 @@ from laspy.vlrs.known import vlr_factory
 from laspy.vlrs.vlrlist import VLRList
 
 from ..errors import CorruptInputError, InputFormatError
+from ..store.pointstore import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
 
 __all__ = ["LasReader", "LasWriter", "header_to_dict", "header_from_dict", "build_header", "COPC_USER_ID"]
@@ -392,7 +393,7 @@ class LasReader(Reader):
         Default: lazrs with parallel decompression when available.
     """
 
-    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+    def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         backend = options.get("laz_backend", _laz_backend())
         try:
@@ -441,8 +442,8 @@ class LasReader(Reader):
                 f"(header count disagrees with the data)"
             )
 
-    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
-        """Yield chunks of at most ``chunk_size`` points (see :class:`Reader`)."""
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Blocks of at most ``chunk_size`` points, as dicts (see :meth:`Reader.chunks`)."""
         done = 0
         it = self._las.chunk_iterator(self.chunk_size)
         while True:

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CorruptInputError, InputFormatError
+from ..store.pointstore import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
 from ._text import parse_rows
 
@@ -141,7 +142,7 @@ def _vertex_layout(path: str, header: dict) -> tuple[int, dict, list]:
 class PlyReader(Reader):
     """Chunked reader of the vertices of a PLY file (ASCII or binary)."""
 
-    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+    def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         header = read_ply_header(path)
         index, element, props = _vertex_layout(path, header)
@@ -186,8 +187,8 @@ class PlyReader(Reader):
                 chunk[name] = np.ascontiguousarray(columns[name], dtype=dtype)
         return chunk
 
-    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
-        """Yield chunks of at most ``chunk_size`` vertices."""
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Blocks of at most ``chunk_size`` vertices, as dicts."""
         if self.count == 0:
             return
         if self._mode != "ascii":

@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputFormatError
+from ..store.pointstore import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
 from ._text import parse_rows
 
@@ -81,7 +82,7 @@ class XyzReader(Reader):
         Lines to skip before the data (default 0).
     """
 
-    def __init__(self, path: str, format: str, chunk_size: int = 1_000_000, **options: Any) -> None:
+    def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         self._delimiter = options.get("delimiter")
         columns = options.get("columns")
@@ -145,8 +146,8 @@ class XyzReader(Reader):
         self.header.update({"columns": self._names, "delimiter": self._delimiter})
         self.count = None
 
-    def chunks(self) -> Iterator[dict[str, np.ndarray]]:
-        """Yield blocks of at most ``chunk_size`` rows."""
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Blocks of at most ``chunk_size`` rows, as dicts."""
         ncols = len(self._names)
         with open(self.path, encoding="utf-8", errors="replace") as fh:
             numbered = enumerate(fh, start=1)

@@ -13,44 +13,76 @@ Layout (see DESIGN.md)::
 
 Every array is compressed (blosc lz4, byte-shuffled; see :func:`compressors`).
 A store path is a local path or an fsspec URL (``file:///...`` is treated as
-the local path it names). Stores are written by :func:`cloudsieve.convert.ingest`; :meth:`PointStore.open` refuses a
-folder that is not a complete store.
+the local path it names). This module is the only code that creates or
+deletes stores and store arrays: :meth:`PointStore.create` /
+:meth:`PointStore.finish` (used by :func:`cloudsieve.store.ingest`),
+:meth:`PointStore.create_array`, :meth:`PointStore.require_array`,
+:meth:`PointStore.delete_array` and :func:`delete_store`. :func:`is_store`
+is the one test of whether a path holds a store; :meth:`PointStore.open`
+refuses a folder that is not a complete store.
+
+Every chunk iterator of cloudsieve (file readers, :meth:`PointStore.chunks`,
+the evaluation's sources) yields :class:`Chunk` ``(start, arrays)``.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+import shutil
 from collections.abc import Iterator, Sequence
-from typing import Any
-from urllib.parse import unquote, urlparse
+from typing import Any, NamedTuple
 
 import numpy as np
 import zarr
 
-from ..errors import CloudsieveError, StoreNotFoundError
+from ..errors import (
+    ArrayNotFoundError,
+    CloudsieveError,
+    DestinationExistsError,
+    InvalidParameterError,
+    StoreNotFoundError,
+)
+from .paths import local_path, path_exists, zarr_store
 
-__all__ = ["PointStore", "STORE_ATTR", "STORE_VERSION", "local_path", "compressors"]
+__all__ = [
+    "PointStore",
+    "Chunk",
+    "STORE_ATTR",
+    "STORE_VERSION",
+    "DEFAULT_CHUNK_SIZE",
+    "is_store",
+    "delete_store",
+    "compressors",
+]
 
 logger = logging.getLogger(__name__)
 
 STORE_ATTR = "cloudsieve"
 STORE_VERSION = 1
+#: points per chunk of every reader, store array and streamed evaluation, unless given
+DEFAULT_CHUNK_SIZE = 1_000_000
 
 
-def local_path(path: str | os.PathLike) -> str | None:
-    """The local file-system path behind *path*, or None for a remote URL.
+class Chunk(NamedTuple):
+    """Consecutive points from *start* on, as every chunk iterator yields them (``start, arrays = chunk``).
 
-    ``file:///a/b`` and plain paths are local; ``s3://...``, ``memory://...``
-    and other fsspec URLs are not.
+    *arrays* holds ``"xyz"``, ndarray of shape (n, 3), float64, and one array
+    per attribute of shape (n,) or (n, k).
     """
-    path = os.fspath(path)
-    if "://" not in path:
-        return os.path.abspath(path)
-    url = urlparse(path)
-    if url.scheme == "file":
-        return os.path.abspath(unquote(url.netloc + url.path))
-    return None
+
+    start: int
+    arrays: dict[str, np.ndarray]
+
+    @property
+    def xyz(self) -> np.ndarray:
+        """The coordinates, ndarray of shape (n, 3)."""
+        return self.arrays["xyz"]
+
+    @property
+    def stop(self) -> int:
+        """One past the index of the block's last point."""
+        return self.start + len(self.arrays["xyz"])
 
 
 def compressors(level: int = 5) -> tuple:
@@ -64,29 +96,39 @@ def compressors(level: int = 5) -> tuple:
     return (zarr.codecs.BloscCodec(cname="lz4", clevel=level, shuffle="shuffle"),)
 
 
-def _zarr_store(path: str, read_only: bool):
-    """A zarr store object for a local path or an fsspec URL."""
+def is_store(path: str | os.PathLike) -> bool:
+    """True when *path* (local path or fsspec URL) holds a complete point store.
+
+    That is, when :meth:`PointStore.open` accepts it; a missing path, a file,
+    a folder that is not a zarr group and a store left incomplete by an
+    interrupted ingest are not stores.
+    """
+    try:
+        PointStore.open(path, "r")
+    except (CloudsieveError, OSError, ValueError):
+        return False
+    return True
+
+
+def delete_store(path: str | os.PathLike) -> None:
+    """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
+    path = os.fspath(path)
     local = local_path(path)
     if local is not None:
-        return zarr.storage.LocalStore(local, read_only=read_only)
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only)
+        shutil.rmtree(local, ignore_errors=True)
+    else:  # pragma: no cover - remote stores
+        import fsspec
 
-
-def _exists(path: str) -> bool:
-    local = local_path(path)
-    if local is not None:
-        return os.path.exists(local)
-    import fsspec
-
-    fs, p = fsspec.core.url_to_fs(path)
-    return fs.exists(p)
+        fs, p = fsspec.core.url_to_fs(path)
+        if fs.exists(p):
+            fs.rm(p, recursive=True)
 
 
 class PointStore:
     """A cloud of N points in a zarr group, read and extended chunk by chunk.
 
     Open an existing store with :meth:`PointStore.open`; create one with
-    :func:`cloudsieve.convert.ingest`.
+    :func:`cloudsieve.store.ingest` (which uses :meth:`create` and :meth:`finish`).
 
     Attributes
     ----------
@@ -94,6 +136,8 @@ class PointStore:
         Local path or fsspec URL of the store, as given.
     group : zarr.Group
         The zarr group.
+    complete : bool
+        False only for a store being written (from :meth:`create` until :meth:`finish`).
     count : int
         Number of points N.
     bounds : ndarray of shape (2, 3), float64
@@ -108,21 +152,27 @@ class PointStore:
         Points per chunk of the input arrays.
     """
 
-    def __init__(self, group: zarr.Group, path: str, mode: str = "r") -> None:
-        meta = group.attrs.get(STORE_ATTR)
-        if not isinstance(meta, dict) or not meta.get("complete", False):
-            raise StoreNotFoundError(f"{path} is not a complete cloudsieve point store (no 'cloudsieve' attributes)")
+    def __init__(self, group: zarr.Group, path: str, mode: str = "r", *, meta: dict | None = None) -> None:
+        """Wrap an open zarr *group*; *meta* defaults to its "cloudsieve" attribute, which must be complete."""
+        if meta is None:
+            meta = group.attrs.get(STORE_ATTR)
+            if not isinstance(meta, dict) or not meta.get("complete", False):
+                raise StoreNotFoundError(f"{path} is not a complete cloudsieve point store (no 'cloudsieve' attributes)")
         self.group = group
         self.path = str(path)
         self.mode = mode
+        self._writable: zarr.Group | None = group if mode != "r" else None
+        self._use(meta)
+
+    def _use(self, meta: dict[str, Any]) -> None:
         self._meta = meta
+        self.complete = bool(meta.get("complete", False))
         self.count = int(meta["count"])
         self.bounds = np.asarray(meta["bounds"], dtype=np.float64).reshape(2, 3)
         self.header = meta.get("header", {})
         self.source_format = meta["format"]
         self.dimensions = list(meta["dimensions"])
         self.chunk_size = int(meta["chunk_size"])
-        self._writable: zarr.Group | None = group if mode != "r" else None
 
     # ------------------------------------------------------------------ open
     @classmethod
@@ -141,55 +191,81 @@ class PointStore:
         ------
         StoreNotFoundError
             When *path* does not exist or is not a complete point store.
+        InvalidParameterError
+            Unknown *mode*.
         """
         path = os.fspath(path)
         if mode not in ("r", "r+", "a"):
-            raise ValueError(f"mode must be 'r', 'r+' or 'a', got {mode!r}")
-        if not _exists(path):
+            raise InvalidParameterError(f"mode must be 'r', 'r+' or 'a', got {mode!r}")
+        if not path_exists(path):
             raise StoreNotFoundError(f"{path}: no such point store")
         local = local_path(path)
         if local is not None and os.path.isfile(local):
             raise StoreNotFoundError(f"{path} is a file, not a point store (ingest it first: cloudsieve ingest)")
         try:
-            group = zarr.open_group(_zarr_store(path, read_only=(mode == "r")), mode="r" if mode == "r" else "r+")
+            group = zarr.open_group(zarr_store(path, read_only=(mode == "r")), mode="r" if mode == "r" else "r+")
         except (FileNotFoundError, KeyError, ValueError, zarr.errors.NodeTypeValidationError) as exc:  # type: ignore[attr-defined]
             raise StoreNotFoundError(f"{path} is not a cloudsieve point store: {exc}") from exc
         return cls(group, path, mode)
 
     @classmethod
-    def _create(
+    def create(
         cls,
-        path: str,
+        path: str | os.PathLike,
         *,
         dtypes: dict[str, tuple[np.dtype, tuple]],
-        chunk_size: int,
+        chunk_size: int = DEFAULT_CHUNK_SIZE,
         count: int = 0,
-    ) -> zarr.Group:
-        """Create an empty store group with one array per dimension (internal).
+        overwrite: bool = False,
+    ) -> PointStore:
+        """Create an empty store at *path* (local path or URL): one array per entry of *dtypes*.
 
-        Arrays start with *count* points (0 when unknown); the group gets its
-        "cloudsieve" attribute (complete) from :func:`_finish` once filled.
+        *dtypes* maps attribute name -> (dtype, per-point shape), ``"xyz"``
+        first (as ``Reader.dtypes``); arrays start with *count* points (0 when
+        unknown), in chunks of *chunk_size*. The store returned (mode "w") is
+        incomplete, and :meth:`open` refuses it, until :meth:`finish`.
+        An existing *path* raises :class:`DestinationExistsError` unless *overwrite*.
         """
-        group = zarr.open_group(_zarr_store(path, read_only=False), mode="w")
+        path = os.fspath(path)
+        if not overwrite and path_exists(path):
+            raise DestinationExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
         for name, (dtype, shape) in dtypes.items():
-            dtype = np.dtype(dtype)
             group.create_array(
                 name,
                 shape=(count, *shape),
-                dtype=dtype,
+                dtype=np.dtype(dtype),
                 chunks=(chunk_size, *shape),
                 fill_value=0,
                 compressors=compressors(),
                 config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
-        return group
+        meta = {
+            "count": int(count),
+            "bounds": np.full((2, 3), np.nan),
+            "format": None,
+            "header": {},
+            "dimensions": list(dtypes),
+            "chunk_size": int(chunk_size),
+            "complete": False,
+        }
+        return cls(group, path, "w", meta=meta)
 
-    @staticmethod
-    def _finish(group: zarr.Group, meta: dict[str, Any]) -> None:
+    def finish(self, meta: dict[str, Any]) -> None:
+        """Record the store's metadata and mark it complete (the last step of writing a store).
+
+        Parameters
+        ----------
+        meta : dict
+            ``count``, ``bounds``, ``format``, ``header``, ``dimensions``,
+            ``chunk_size`` and any further keys to keep (JSON-serialisable);
+            ``version`` is added when missing.
+        """
         meta = dict(meta)
         meta.setdefault("version", STORE_VERSION)
         meta["complete"] = True
-        group.attrs.update({STORE_ATTR: meta})
+        self._writable_group().attrs.update({STORE_ATTR: meta})
+        self._use(meta)
 
     # ------------------------------------------------------------------ read
     @property
@@ -210,13 +286,19 @@ class PointStore:
         return name in self.group
 
     def array(self, name: str) -> zarr.Array:
-        """The zarr array *name* (input attribute or derived, e.g. "simplify/keep")."""
+        """The zarr array *name* (input attribute or derived, e.g. "simplify/keep").
+
+        Raises
+        ------
+        ArrayNotFoundError
+            No array *name* (or *name* is a group).
+        """
         try:
             node = self.group[name]
         except KeyError:
-            raise KeyError(f"{self.path} has no array {name!r}; input arrays: {self.dimensions}") from None
+            raise ArrayNotFoundError(f"{self.path} has no array {name!r}; input arrays: {self.dimensions}") from None
         if not isinstance(node, zarr.Array):
-            raise KeyError(f"{self.path}: {name!r} is a group, not an array")
+            raise ArrayNotFoundError(f"{self.path}: {name!r} is a group, not an array")
         return node
 
     def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
@@ -230,10 +312,8 @@ class PointStore:
         stop = arr.shape[0] if stop is None else min(stop, arr.shape[0])
         return np.asarray(arr[start:stop])
 
-    def iter_chunks(
-        self, names: Sequence[str] | None = None, chunk_size: int | None = None
-    ) -> Iterator[tuple[int, dict[str, np.ndarray]]]:
-        """Yield ``(start, {name: array})`` over the point axis.
+    def chunks(self, names: Sequence[str] | None = None, chunk_size: int | None = None) -> Iterator[Chunk]:
+        """Yield :class:`Chunk` ``(start, {name: array})`` over the point axis, in point order.
 
         Parameters
         ----------
@@ -247,16 +327,27 @@ class PointStore:
         arrays = {n: self.array(n) for n in names}
         step = int(chunk_size or self.chunk_size)
         if step <= 0:
-            raise ValueError(f"chunk_size must be positive, got {step}")
+            raise InvalidParameterError(f"chunk_size must be positive, got {step}")
         for start in range(0, self.count, step):
             stop = min(start + step, self.count)
-            yield start, {n: np.asarray(a[start:stop]) for n, a in arrays.items()}
+            yield Chunk(start, {n: np.asarray(a[start:stop]) for n, a in arrays.items()})
 
     # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:
         if self._writable is None:
-            self._writable = zarr.open_group(_zarr_store(self.path, read_only=False), mode="r+")
+            self._writable = zarr.open_group(zarr_store(self.path, read_only=False), mode="r+")
         return self._writable
+
+    def _refresh(self) -> None:
+        """Keep the read handle in sync, so that ``store.read(name)`` sees arrays created or deleted."""
+        if self.mode == "r":
+            self.group = zarr.open_group(zarr_store(self.path, read_only=True), mode="r")
+
+    def _check_derived(self, name: str) -> None:
+        if name in self.dimensions or name.split("/")[0] in self.dimensions:
+            raise InvalidParameterError(
+                f"{self.path}: {name!r} is an input array; derived arrays go under a path such as 'simplify/{name}'"
+            )
 
     def create_array(
         self,
@@ -264,55 +355,67 @@ class PointStore:
         *,
         shape: Sequence[int] | None = None,
         dtype: Any = None,
+        data: np.ndarray | None = None,
         chunks: Sequence[int] | None = None,
+        shards: Sequence[int] | None = None,
         fill_value: Any = 0,
         overwrite: bool = False,
-        data: np.ndarray | None = None,
-        shards: Sequence[int] | None = None,
     ) -> zarr.Array:
-        """Create a derived array (e.g. "partition/labels"), compressed like the input arrays.
+        """Create a derived array *name* ("stage/name"), compressed like the input arrays.
 
-        Input arrays are never rewritten: *name* may not be an input dimension.
-        *chunks* defaults to the store's chunk size along the first axis.
-        With *data* the array is created holding it (its shape and dtype);
-        *shards* groups chunks into shards (zarr v3 sharding).
+        Give *shape* and *dtype*, or *data* (initial content). *chunks*
+        defaults to the store's chunk size along the first axis; *shards*
+        (zarr shard shape) stores several chunks per object. Input arrays are
+        never rewritten: an input dimension as *name* raises
+        :class:`InvalidParameterError`, as does a missing shape or dtype.
         """
-        if name in self.dimensions or name.split("/")[0] in self.dimensions:
-            raise CloudsieveError(
-                f"{self.path}: {name!r} is an input array; derived arrays go under a path such as 'simplify/{name}'"
-            )
+        self._check_derived(name)
         if data is not None:
             data = np.asarray(data)
             shape, dtype = data.shape, data.dtype
+        elif shape is None or dtype is None:
+            raise InvalidParameterError(f"{self.path}: array {name!r} needs data, or a shape and a dtype")
         shape = tuple(int(s) for s in shape)
         if chunks is None:
             chunks = (max(1, min(self.chunk_size, shape[0] if shape else 1)), *shape[1:]) if shape else ()
-        group = self._writable_group()
-        layout = {"shape": shape, "dtype": dtype} if data is None else {"data": data}
+        options: dict[str, Any] = {"shape": shape, "dtype": dtype} if data is None else {"data": data}
         if shards is not None:
-            layout["shards"] = tuple(shards)
-        arr = group.create_array(
-            name,
-            chunks=tuple(chunks),
-            fill_value=fill_value,
-            compressors=compressors(),
-            overwrite=overwrite,
-            **layout,
+            options["shards"] = tuple(shards)
+        arr = self._writable_group().create_array(
+            name, chunks=tuple(chunks), fill_value=fill_value, compressors=compressors(), overwrite=overwrite, **options
         )
-        # keep the read handle in sync so that store.read(name) sees the new array
-        if self.mode == "r":
-            self.group = zarr.open_group(_zarr_store(self.path, read_only=True), mode="r")
+        self._refresh()
         return arr
 
-    def delete_array(self, name: str) -> None:
-        """Delete the derived array or group *name* (e.g. "simplify") if present; input arrays are never deleted."""
-        if name in self.dimensions or name.split("/")[0] in self.dimensions:
-            raise CloudsieveError(f"{self.path}: {name!r} is an input array; only derived arrays can be deleted")
+    def require_array(
+        self, name: str, *, shape: Sequence[int], dtype: Any, chunks: Sequence[int] | None = None, fill_value: Any = 0
+    ) -> zarr.Array:
+        """The derived array *name*: the existing one when its shape and dtype match, else a new one.
+
+        Parameters are those of :meth:`create_array`; a mismatching array is replaced.
+        """
+        shape = tuple(int(s) for s in shape)
+        if name in self.group:
+            node = self.group[name]
+            if isinstance(node, zarr.Array) and node.shape == shape and np.dtype(node.dtype) == np.dtype(dtype):
+                return node
+        return self.create_array(name, shape=shape, dtype=dtype, chunks=chunks, fill_value=fill_value, overwrite=True)
+
+    def delete_array(self, name: str) -> bool:
+        """Delete the derived array or group *name* (e.g. "simplify"); returns False when there was none.
+
+        Raises
+        ------
+        InvalidParameterError
+            *name* is an input array.
+        """
+        self._check_derived(name)
         group = self._writable_group()
-        if name in group:
-            del group[name]
-        if self.mode == "r":
-            self.group = zarr.open_group(_zarr_store(self.path, read_only=True), mode="r")
+        if name not in group:
+            return False
+        del group[name]
+        self._refresh()
+        return True
 
     def __repr__(self) -> str:
         return f"PointStore({self.path!r}, count={self.count}, format={self.source_format!r}, dimensions={self.dimensions})"

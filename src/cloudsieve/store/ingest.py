@@ -1,11 +1,11 @@
-"""Files in and out of the point store: :func:`ingest` and :func:`export`.
+"""File -> point store: :func:`ingest`.
 
-Both stream chunk by chunk (memory bounded by the chunk size, never by the
-cloud) and are atomic: the store (a folder) or the file is written under a
-temporary name beside the destination and renamed only when complete, so a
-failure leaves nothing under the destination name. (For a remote fsspec
-store URL there is no rename: the store is marked complete only at the end,
-and :meth:`PointStore.open` refuses an incomplete one.)
+Streams chunk by chunk (memory bounded by the chunk size, never by the
+cloud) and is atomic: the store (a folder) is written under a temporary name
+beside the destination and renamed only when complete, so a failure leaves
+nothing under the destination name. (For a remote fsspec store URL there is
+no rename: the store is marked complete only at the end, and
+:meth:`PointStore.open` refuses an incomplete one.)
 """
 
 from __future__ import annotations
@@ -24,16 +24,15 @@ from zarr.core.sync import sync as zarr_sync
 
 from .. import progress as _progress
 from ..errors import (
-    DestinationExistsError,
     EmptyInputError,
+    InvalidParameterError,
     InvalidPointsError,
     SameSourceDestinationError,
 )
-from ..io import open_reader, open_writer
-from ..io._base import check_destination, make_temp_path, remove, replace
-from .pointstore import PointStore, _exists, local_path
+from .paths import local_path, same_path
+from .pointstore import DEFAULT_CHUNK_SIZE, PointStore
 
-__all__ = ["ingest", "export"]
+__all__ = ["ingest", "bound_malloc"]
 
 logger = logging.getLogger(__name__)
 
@@ -41,7 +40,7 @@ logger = logging.getLogger(__name__)
 _MALLOC_TUNED = False
 
 
-def _bound_malloc() -> None:
+def bound_malloc() -> None:
     """Return big buffers to the OS on free (glibc), so memory stays flat in N.
 
     glibc raises its mmap threshold after the first large free, and from then
@@ -65,13 +64,6 @@ def _bound_malloc() -> None:
         logger.debug("glibc mmap threshold set to 1 MiB")
     except (OSError, AttributeError):  # pragma: no cover - not glibc
         pass
-
-
-def _same_path(a: str, b: str) -> bool:
-    la, lb = local_path(a), local_path(b)
-    if la is None or lb is None:
-        return a.rstrip("/") == b.rstrip("/")
-    return os.path.realpath(la) == os.path.realpath(lb)
 
 
 class _StoreFiller:
@@ -189,7 +181,7 @@ def ingest(
     store: str | os.PathLike,
     *,
     format: str | None = None,
-    chunk_size: int = 1_000_000,
+    chunk_size: int = DEFAULT_CHUNK_SIZE,
     drop_invalid: bool = False,
     overwrite: bool = False,
     progress: _progress.ProgressCallback | None = None,
@@ -229,13 +221,18 @@ def ingest(
     SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError
     """
+    # io is imported here, not at the top: io imports the store's Chunk and DEFAULT_CHUNK_SIZE,
+    # so either package can be imported first
+    from ..io import open_reader
+    from ..io._base import check_destination, make_temp_path, remove, replace
+
     src, store = os.fspath(src), os.fspath(store)
-    if _same_path(src, store):
+    if same_path(src, store):
         raise SameSourceDestinationError(f"destination {store} is the source {src}: cloudsieve never overwrites its input")
     chunk_size = int(chunk_size)
     if chunk_size <= 0:
-        raise ValueError(f"chunk_size must be positive, got {chunk_size}")
-    _bound_malloc()
+        raise InvalidParameterError(f"chunk_size must be positive, got {chunk_size}")
+    bound_malloc()
     update = _progress.callback(progress)
     local = local_path(store)
     with open_reader(src, format=format, chunk_size=chunk_size, **reader_options) as reader:
@@ -243,18 +240,20 @@ def ingest(
             check_destination(local, overwrite)
             target = make_temp_path(local, directory=True)
         else:
-            if _exists(store) and not overwrite:
-                raise DestinationExistsError(f"{store} exists; pass overwrite=True (--overwrite) to replace it")
             target = store
         try:
-            group = PointStore._create(target, dtypes=reader.dtypes, chunk_size=chunk_size, count=reader.count or 0)
-            filler = _StoreFiller(group, list(reader.dtypes), chunk_size, reader.count or 0)
+            # a local target is the fresh temporary folder; a remote one is refused if it exists unless overwrite
+            new = PointStore.create(
+                target, dtypes=reader.dtypes, chunk_size=chunk_size, count=reader.count or 0,
+                overwrite=overwrite or local is not None,
+            )
+            filler = _StoreFiller(new.group, list(reader.dtypes), chunk_size, reader.count or 0)
             lo = np.full(3, np.inf)
             hi = np.full(3, -np.inf)
             read = invalid = 0
             first_invalid = None
             prefetched = _prefetch(reader.chunks())
-            for chunk in prefetched:
+            for _, chunk in prefetched:
                 xyz = chunk["xyz"]
                 n = len(xyz)
                 if np.isfinite(xyz).all():  # fast path: one flat reduction
@@ -300,7 +299,7 @@ def ingest(
                 "source": os.path.abspath(src),
                 "dropped_invalid": int(invalid),
             }
-            PointStore._finish(group, meta)
+            new.finish(meta)
         except BaseException:
             if local is not None:
                 remove(target)
@@ -314,96 +313,3 @@ def ingest(
         replace(target, local)
     logger.info("ingested %d points from %s into %s", meta["count"], src, store)
     return PointStore.open(store)
-
-
-def _mask_source(store: PointStore, mask: Any):
-    """A callable (start, stop) -> bool array, or None for all points."""
-    if mask is None:
-        return None
-    if isinstance(mask, str):
-        arr = store.array(mask)
-    elif isinstance(mask, zarr.Array):
-        arr = mask
-    else:
-        arr = np.asarray(mask)
-    if arr.ndim != 1 or arr.shape[0] != store.count:
-        raise ValueError(f"mask must be 1-D with {store.count} entries (one per point), got shape {tuple(arr.shape)}")
-    if np.dtype(arr.dtype) != np.bool_:
-        raise ValueError(f"mask must be boolean, got dtype {arr.dtype}")
-    return lambda start, stop: np.asarray(arr[start:stop], dtype=bool)
-
-
-def export(
-    store: PointStore | str | os.PathLike,
-    dst: str | os.PathLike,
-    *,
-    format: str | None = None,
-    mask: Any = None,
-    chunk_size: int = 1_000_000,
-    overwrite: bool = False,
-    progress: _progress.ProgressCallback | None = None,
-) -> str:
-    """Write the points of *store* (all, or those kept by *mask*) to *dst*.
-
-    Points keep their input order, every attribute and the source header
-    (LAS/LAZ counts and bounds updated). The file is written under a
-    temporary name and renamed when complete.
-
-    Parameters
-    ----------
-    store : PointStore or str
-        The store or its path/URL.
-    dst : str or path-like
-        Destination file (.las, .laz, .ply, .xyz/.txt/.csv/.pts).
-    format : str, optional
-        Overrides the format found from *dst*'s extension.
-    mask : None, str, or 1-D bool array-like of length N
-        None keeps every point; a str names a bool array of the store (e.g.
-        "simplify/keep"); numpy and zarr arrays are read chunk by chunk.
-    chunk_size : int
-        Points per chunk.
-    overwrite : bool
-        Replace an existing *dst*.
-    progress : callable, optional
-        Called with the number of points processed after each chunk.
-
-    Returns
-    -------
-    str
-        *dst*.
-
-    Raises
-    ------
-    StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
-    DestinationNotWritableError, UnknownFormatError
-    """
-    dst = os.fspath(dst)
-    if not isinstance(store, PointStore):
-        store = PointStore.open(os.fspath(store))
-    if _same_path(store.path, dst):
-        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
-    take = _mask_source(store, mask)
-    _bound_malloc()
-    update = _progress.callback(progress)
-    kept = 0
-    with open_writer(
-        dst,
-        header=store.header,
-        dtypes=store.dtypes,
-        format=format,
-        source_format=store.source_format,
-        overwrite=overwrite,
-        bounds=store.bounds,
-    ) as writer:
-        for start, chunk in store.iter_chunks(chunk_size=chunk_size):
-            n = len(chunk["xyz"])
-            if take is not None:
-                keep = take(start, start + n)
-                chunk = {k: v[keep] for k, v in chunk.items()}
-            writer.write(chunk)
-            kept += len(chunk["xyz"])
-            update(n)
-    if kept == 0:
-        logger.warning("%s: no point kept; wrote an empty cloud", dst)
-    logger.info("exported %d of %d points from %s to %s", kept, store.count, store.path, dst)
-    return dst
