@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial.distance import cdist
 
 from cloudsieve.errors import EmptyInputError, NotASubsetError
-from cloudsieve.evaluate.points import combine, forward_chunk, point_errors, Target
+from cloudsieve.evaluate.points import point_errors
 
 
 def _brute(a, b):
@@ -68,19 +68,6 @@ def test_streamed_equals_in_memory():
             assert_allclose(one[name][key], many[name][key], rtol=1e-12)
     assert one["histogram"] == many["histogram"]
     assert one["bounds"] == many["bounds"]
-
-
-def test_chunk_combine_any_grouping():
-    rng = np.random.default_rng(6)
-    a = rng.random((3000, 3))
-    t = Target(a[::2])
-    parts = [forward_chunk(a[i : i + 500], t)[0] for i in range(0, 3000, 500)]
-    left = combine([combine(parts[:2]), combine(parts[2:])])
-    flat = combine(parts)
-    assert left["count"] == flat["count"] == 3000
-    assert left["max"] == flat["max"]
-    assert np.array_equal(left["hist"], flat["hist"])
-    assert np.array_equal(left["matched"], flat["matched"])
 
 
 def test_sampled_mean_within_interval_of_exact_1M():

@@ -91,7 +91,7 @@ def test_copc_records_dropped_with_log(tmp_path, caplog):
     assert store.source_format == "copc"
     assert [v["user_id"] for v in store.header["vlrs"]].count("copc") == 1
     assert [v["user_id"] for v in store.header["evlrs"]] == ["copc"]
-    with caplog.at_level(logging.INFO, logger="cloudsieve.io.las"):
+    with caplog.at_level(logging.INFO, logger="cloudsieve.io.las_header"):
         export(store, tmp_path / "out.laz")
     messages = [r.getMessage() for r in caplog.records]
     assert any("dropping COPC record (user_id 'copc', record_id 1)" in m for m in messages)

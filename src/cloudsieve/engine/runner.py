@@ -345,7 +345,7 @@ def forked(calls: Sequence[tuple], max_parallel: int | None = None, name: str = 
     same call every time, as long as the parent never calls it itself.
     pymeshlab's Metro sampling is such a case: it draws from a process-wide
     random generator that is never reseeded, so in one process two identical
-    calls give different figures (see :mod:`cloudsieve.evaluate.surface`).
+    calls give different figures (see :mod:`cloudsieve.evaluate.mesh`).
     It also runs single-threaded libraries on all cores. Without ``fork``
     (Windows, macOS spawn) the calls run in process, one after the other.
 

@@ -8,8 +8,8 @@
   (random, voxel, Poisson disk, farthest point) to the same output count on a
   cloud that fits in memory, evaluate each, one table.
 
-Building blocks: :mod:`.points`, :mod:`.surface`, :mod:`.baselines`,
-:mod:`.report`.
+Building blocks: :mod:`.points`, :mod:`.distances`, :mod:`.surface`,
+:mod:`.mesh`, :mod:`.baselines`, :mod:`.report`.
 """
 
 from __future__ import annotations

@@ -176,7 +176,7 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
                                     "farthest point sampling is O(n x count): run it on a smaller crop")
     import open3d as o3d
 
-    from .points import ExactIndex
+    from .distances import ExactIndex
 
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     out = np.asarray(pc.farthest_point_down_sample(int(count)).points)

@@ -26,11 +26,9 @@ aggregate, as dask reductions do), in the driver or as dask tasks on a
 ``distributed.Client``. Results do not depend on chunk size or scheduler
 (up to floating-point summation order).
 
-Three shortcuts keep it fast without changing any figure: an exact-coordinate
-hash lookup answers the original points that were kept (distance 0) without a
-tree query; the remaining queries are sorted in Morton order for cache
-locality; and they run with a distance upper bound learnt from the previous
-chunk, the few points beyond it queried again without bound.
+The per-chunk distances and their statistics (and the shortcuts that keep
+them fast: exact hash lookup, Morton-ordered queries, a learnt distance bound)
+are in :mod:`.distances`; this module holds the streamed (or sampled) stage.
 
 The backward direction needs, for each simplified point, its nearest original
 point. Every simplified point found exactly among the original points during
@@ -55,366 +53,30 @@ The source is still read once in full (decoding is cheap next to the queries).
 from __future__ import annotations
 
 import logging
-import math
 from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..engine.runner import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import Source, open_source
+from .distances import (
+    HIST_PER_DECADE,
+    ExactIndex,
+    Target,
+    aggregate,
+    backward_chunk,
+    combine,
+    forward_chunk,
+    hist_edges,
+    stats_partial,
+)
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "HIST_DECADES",
-    "HIST_PER_DECADE",
-    "hist_edges",
-    "ExactIndex",
-    "Target",
-    "forward_chunk",
-    "combine",
-    "aggregate",
-    "backward_chunk",
-    "point_errors",
-    "morton_order",
-]
-
-#: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
-#: so that partial histograms of any chunk can be summed; zeros counted apart.
-HIST_DECADES = (-12, 12)
-HIST_PER_DECADE = 20
-_NBINS = (HIST_DECADES[1] - HIST_DECADES[0]) * HIST_PER_DECADE
-
-_Z95 = 1.959963984540054
-
-
-def hist_edges() -> np.ndarray:
-    """Edges of the fixed error histogram, shape (481,), from 1e-12 to 1e12."""
-    return np.logspace(HIST_DECADES[0], HIST_DECADES[1], _NBINS + 1)
-
-
-def _histogram(d: np.ndarray) -> tuple[np.ndarray, int]:
-    pos = d[d > 0]
-    if len(pos) == 0:
-        return np.zeros(_NBINS, np.int64), int(len(d))
-    b = np.floor((np.log10(pos) - HIST_DECADES[0]) * HIST_PER_DECADE).astype(np.int64)
-    np.clip(b, 0, _NBINS - 1, out=b)
-    return np.bincount(b, minlength=_NBINS).astype(np.int64), int(len(d) - len(pos))
-
-
-def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
-    """Permutation sorting *points* (n, 3) along a Morton (Z-order) curve.
-
-    Used only to make k-d tree queries cache friendly; any order gives the
-    same distances.
-    """
-    n = len(points)
-    if n < 2:
-        return np.arange(n)
-    lo = points.min(axis=0)
-    span = float((points.max(axis=0) - lo).max()) or 1.0
-    q = ((points - lo) * (((1 << bits) - 1) / span)).astype(np.uint64)
-
-    def spread(v: np.ndarray) -> np.ndarray:
-        v = v & np.uint64(0x3FF)
-        v = (v | (v << np.uint64(16))) & np.uint64(0x30000FF)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x300F00F)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x30C30C3)
-        v = (v | (v << np.uint64(2))) & np.uint64(0x9249249)
-        return v
-
-    code = spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)) | (spread(q[:, 2]) << np.uint64(2))
-    return np.argsort(code, kind="stable")
-
-
-_H1, _H2, _H3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xC2B2AE3D27D4EB4F), np.uint64(0x165667B19E3779F9)
-
-
-def _hash(points: np.ndarray) -> np.ndarray:
-    u = np.ascontiguousarray(points, dtype=np.float64).view(np.uint64).reshape(-1, 3)
-    with np.errstate(over="ignore"):
-        return (u[:, 0] * _H1) ^ (u[:, 1] * _H2) ^ (u[:, 2] * _H3)
-
-
-class ExactIndex:
-    """Exact-coordinate lookup of points (hash + sorted search + verification).
-
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3), float64
-        The points to find (kept by reference).
-    """
-
-    def __init__(self, points: np.ndarray):
-        self.points = points
-        h = _hash(points)
-        self.order = np.argsort(h, kind="stable")
-        self.keys = h[self.order]
-
-    def lookup(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(hit (m,) bool, index (m,) int64)``: index of an identical point where hit."""
-        if len(self.keys) == 0 or len(q) == 0:
-            return np.zeros(len(q), bool), np.zeros(len(q), np.int64)
-        h = _hash(q)
-        o = np.argsort(h)  # sorted keys make searchsorted cache friendly (several times faster)
-        pos = np.empty(len(h), np.int64)
-        pos[o] = np.searchsorted(self.keys, h[o])
-        np.minimum(pos, len(self.keys) - 1, out=pos)
-        idx = self.order[pos]
-        hit = self.keys[pos] == h
-        if hit.any():
-            w = np.flatnonzero(hit)
-            hit[w] = np.all(self.points[idx[w]] == q[w], axis=1)
-        return hit, idx
-
-
-class Target:
-    """The in-memory simplified cloud, ready for nearest-neighbour queries.
-
-    Parameters
-    ----------
-    points : ndarray of shape (m, 3), float64
-        The simplified cloud (kept whole in memory).
-
-    Notes
-    -----
-    The k-d tree is built over a Morton-sorted copy; :meth:`query` returns
-    indices into *points* as given. Queries use a distance upper bound (twice
-    the 99th percentile of the previous query's distances; about 20% faster)
-    and query the few points beyond it again without bound, so results stay
-    exact. Picklable (sent once to dask workers).
-    """
-
-    def __init__(self, points: np.ndarray):
-        self.points = np.ascontiguousarray(points, dtype=np.float64)
-        self._perm = morton_order(self.points)
-        self._tree = cKDTree(self.points[self._perm], balanced_tree=False, compact_nodes=False)
-        self._exact = ExactIndex(self.points)
-        self.bound: float | None = None
-
-    def __len__(self) -> int:
-        return len(self.points)
-
-    def query(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Nearest simplified point of each row of *q* (m, 3): ``(distance, index)``.
-
-        Exact: identical points are answered by hash lookup, the rest by a k-d
-        tree query (Morton-sorted, all cores).
-        """
-        d = np.zeros(len(q))
-        hit, idx = self._exact.lookup(q)
-        rest = np.flatnonzero(~hit)
-        if len(rest):
-            sub = q[rest]
-            o = morton_order(sub)
-            sub = sub[o]
-            if self.bound is not None:  # exact: points beyond the bound are queried again without it
-                dd, jj = self._tree.query(sub, k=1, workers=-1, distance_upper_bound=self.bound)
-                miss = np.flatnonzero(~np.isfinite(dd))
-                if len(miss):
-                    dd[miss], jj[miss] = self._tree.query(sub[miss], k=1, workers=-1)
-            else:
-                dd, jj = self._tree.query(sub, k=1, workers=-1)
-            d[rest[o]] = dd
-            idx[rest[o]] = self._perm[jj]
-            if len(dd) >= 1000:
-                self.bound = 2.0 * float(np.quantile(dd, 0.99)) or None
-        return d, idx
-
-
-def _empty_partial(m: int) -> dict:
-    return {
-        "count": 0,
-        "sum": 0.0,
-        "sumsq": 0.0,
-        "sum4": 0.0,
-        "max": 0.0,
-        "argmax": None,
-        "zeros": 0,
-        "hist": np.zeros(_NBINS, np.int64),
-        "bbox": None,
-        "matched": np.zeros((m + 7) // 8, np.uint8),
-        "seen": 0,
-    }
-
-
-def _stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
-    p = _empty_partial(m_matched)
-    if len(d):
-        p["count"] = int(len(d))
-        p["sum"] = float(d.sum())
-        d2 = d * d
-        p["sumsq"] = float(d2.sum())
-        p["sum4"] = float((d2 * d2).sum())
-        k = int(np.argmax(d))
-        p["max"] = float(d[k])
-        p["argmax"] = [float(v) for v in where[k]]
-        p["hist"], p["zeros"] = _histogram(d)
-    return p
-
-
-def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None = None,
-                  backward_index: ExactIndex | None = None, n_backward: int | None = None,
-                  keep: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
-    """Partial forward statistics of one chunk of original points.
-
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-        One chunk of the original cloud.
-    target : Target
-        The simplified cloud.
-    select : ndarray of int, optional
-        Rows of *xyz* to evaluate (a sample); all rows when None.
-    backward_index : optional
-        Exact index of the sampled simplified points (sampled mode); when None
-        the simplified points found here at distance 0 are marked directly.
-    n_backward : int, optional
-        Number of (sampled) simplified points the ``matched`` bitmask covers.
-    keep : ndarray of int, optional
-        Rows of *xyz* whose (xyz, distance) are returned for the error PLY.
-
-    Returns
-    -------
-    partial : dict
-        ``count, sum, sumsq, sum4, max, argmax, zeros, hist, bbox, matched``
-        (packed bitmask over the simplified points found exactly in this chunk)
-        and ``seen`` (points read).
-    ply : (ndarray (k, 3), ndarray (k,)) or None
-        Coordinates and forward errors of the *keep* rows.
-    """
-    m = len(target) if n_backward is None else n_backward
-    q = xyz if select is None else xyz[select]
-    d, idx = target.query(q)
-    p = _stats_partial(d, q, m)
-    p["seen"] = int(len(xyz))
-    if len(xyz):
-        p["bbox"] = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
-    mask = np.zeros(m, bool)
-    if backward_index is None:
-        mask[idx[d == 0]] = True
-    else:
-        hit, bidx = backward_index.lookup(xyz)
-        mask[bidx[hit]] = True
-    p["matched"] = np.packbits(mask)
-    ply = None
-    if keep is not None:
-        if select is None:
-            ply = (xyz[keep], d[keep].astype(np.float32))
-        else:
-            pos = np.searchsorted(select, keep)
-            ply = (xyz[keep], d[pos].astype(np.float32))
-    return p, ply
-
-
-def combine(partials: list[dict]) -> dict:
-    """Merge partial results (any grouping, any order) into one partial."""
-    partials = list(partials)
-    out = dict(partials[0])
-    out["hist"] = out["hist"].copy()
-    out["matched"] = out["matched"].copy()
-    for p in partials[1:]:
-        out["count"] += p["count"]
-        out["sum"] += p["sum"]
-        out["sumsq"] += p["sumsq"]
-        out["sum4"] += p["sum4"]
-        out["zeros"] += p["zeros"]
-        out["seen"] += p["seen"]
-        out["hist"] += p["hist"]
-        np.bitwise_or(out["matched"], p["matched"], out=out["matched"])
-        if p["count"] and (out["argmax"] is None or p["max"] > out["max"]):
-            out["max"], out["argmax"] = p["max"], p["argmax"]
-        if p["bbox"] is not None:
-            if out["bbox"] is None:
-                out["bbox"] = p["bbox"].copy()
-            else:
-                out["bbox"] = np.stack([np.minimum(out["bbox"][0], p["bbox"][0]),
-                                        np.maximum(out["bbox"][1], p["bbox"][1])])
-    return out
-
-
-def aggregate(partial: dict, diagonal: float, population: int | None = None) -> dict:
-    """Final figures from a combined partial.
-
-    Parameters
-    ----------
-    partial : dict
-        Output of :func:`combine`.
-    diagonal : float
-        The original's bounding-box diagonal (for the ``*_pct`` figures).
-    population : int, optional
-        Size of the population when *partial* covers a sample of it: adds
-        95% confidence intervals ``ci["mean"]``, ``ci["rms"]`` (and their
-        ``_pct``) and ``max_is_lower_bound``.
-
-    Returns
-    -------
-    dict
-        ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``
-        and, when sampled, ``ci``, ``population``, ``max_is_lower_bound``.
-    """
-    n = partial["count"]
-    if n == 0:
-        raise EmptyInputError("no point to evaluate (0 distances)")
-    mean = partial["sum"] / n
-    msq = partial["sumsq"] / n
-    rms = math.sqrt(max(msq, 0.0))
-    mx = partial["max"]
-    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
-    out: dict[str, Any] = {
-        "count": int(n),
-        "mean": mean,
-        "rms": rms,
-        "max": mx,
-        "mean_pct": mean * scale,
-        "rms_pct": rms * scale,
-        "max_pct": mx * scale,
-        "zeros": int(partial["zeros"]),
-        "argmax": partial["argmax"],
-    }
-    if population is not None and population > n:
-        fpc = math.sqrt((population - n) / (population - 1)) if population > 1 else 0.0
-        var = max((partial["sumsq"] - n * mean * mean) / max(n - 1, 1), 0.0)
-        var2 = max((partial["sum4"] - n * msq * msq) / max(n - 1, 1), 0.0)
-        h = _Z95 * math.sqrt(var / n) * fpc
-        h2 = _Z95 * math.sqrt(var2 / n) * fpc
-        ci_mean = [max(mean - h, 0.0), mean + h]
-        ci_rms = [math.sqrt(max(msq - h2, 0.0)), math.sqrt(msq + h2)]
-        out["population"] = int(population)
-        out["ci"] = {
-            "level": 0.95,
-            "mean": ci_mean,
-            "rms": ci_rms,
-            "mean_pct": [v * scale for v in ci_mean],
-            "rms_pct": [v * scale for v in ci_rms],
-        }
-        out["max_is_lower_bound"] = True
-    return out
-
-
-def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray) -> np.ndarray:
-    """Distances from *points* (u, 3) to one chunk of original points, where they can beat *best*.
-
-    Returns an array (u,) of distances, ``inf`` where the chunk cannot beat
-    *best* (its bounding box is farther); combine chunks with ``np.minimum``.
-    """
-    out = np.full(len(points), np.inf)
-    if len(xyz) == 0 or len(points) == 0:
-        return out
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
-    todo = np.flatnonzero(gap < best)
-    if len(todo):
-        tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
-        sub = points[todo]
-        o = morton_order(sub)
-        d, _ = tree.query(sub[o], k=1, workers=-1)
-        out[todo[o]] = d
-    return out
+__all__ = ["point_errors"]
 
 
 def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray | None:
@@ -466,7 +128,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     Returns
     -------
     dict
-        ``forward`` and ``backward`` (see :func:`aggregate`), ``hausdorff``,
+        ``forward`` and ``backward`` (see :func:`.distances.aggregate`), ``hausdorff``,
         ``hausdorff_pct``, ``diagonal``, ``bounds`` [[min], [max]],
         ``original_count``, ``simplified_count``, ``mode`` ("exact" or
         "sampled"), ``sample``, ``seed``, ``subset`` (every (sampled)
@@ -549,7 +211,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         raise NotASubsetError(
             f"{len(todo)} of {nb} {'sampled ' if bwd_idx is not None else ''}simplified points are not points of "
             f"the original {src.name} (e.g. {ex.tolist()}, {bd[todo[0]]:.6g} away), but a subset was claimed")
-    bpart = _stats_partial(bd, bpoints, 0)
+    bpart = stats_partial(bd, bpoints, 0)
     backward = aggregate(bpart, diagonal, population=len(simplified) if bwd_idx is not None and nb < len(simplified) else None)
     haus = max(forward["max"], backward["max"])
     fh, bh = total["hist"], bpart["hist"]

@@ -1,27 +1,13 @@
-"""Surface-level errors, the paper's: meshes, Metro distances, compactness.
+"""Surface-level errors, the paper's: meshes, Metro distances, compactness, on tiles.
 
 On T *tiles* (balls of at most M original points, centred on k-means centres
 of a uniform sample so that they spread over the cloud in proportion to its
 points; one tile holding the whole cloud when it has at most M points) the
-original and the simplified points are each meshed by ball pivoting
-(pymeshlab: normals from 10 neighbours, two passes with radius r and 2r, r
-the median over points of the mean distance to their 6 nearest neighbours,
-computed for each cloud on its own). The two meshes are compared both ways
-with pymeshlab's ``get_hausdorff_distance`` (Metro, Cignoni et al. 1998) with
-face sampling (not only vertices), as many samples as Metro's own default of
-10 x faces (capped, ``samples``) and a MaxDist of ten bounding-box diagonals
-so that no sample is dropped (pymeshlab's default drops samples beyond half
-the diagonal). Metro runs in a forked child (:func:`cloudsieve.engine.runner.forked`)
-so that its random sampling starts from the same state every time: same
-meshes, same figures. pymeshlab's sampling draws from a process-wide random
-generator that is never reseeded, so this module never samples in the parent
-process.
-
-Triangle compactness is c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2): 1 for an
-equilateral triangle, 0 for a degenerate one; it equals vcg's mean-ratio
-quality (pymeshlab ``compute_scalar_by_aspect_ratio_per_face(metric="Mean
-ratio")``). A mesh is "compact" when at least 50% of its triangles have
-c >= 0.6 (the paper's criterion).
+original and the simplified points are each meshed by ball pivoting, the two
+meshes compared both ways by Metro, and the compactness of their triangles
+measured (see :mod:`.mesh` for each, and for why Metro runs in a forked
+child). Per-tile figures are aggregated over tiles: Metro mean and RMS
+weighted by samples, max over tiles, compactness over all triangles.
 
 Tiles are gathered in one streamed pass over the original (memory: at most
 M points per tile plus one chunk), after one pass for the sample of tile
@@ -44,181 +30,12 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..engine.runner import forked
-from ..errors import MissingDependencyError
 from ._source import open_source
+from .mesh import COMPACT_THRESHOLD, ball_pivoting, compactness, compactness_summary, metro
 
 logger = logging.getLogger(__name__)
 
-__all__ = [
-    "COMPACT_THRESHOLD",
-    "COMPACT_SHARE",
-    "compactness",
-    "compactness_summary",
-    "point_spacing",
-    "ball_pivoting",
-    "metro",
-    "choose_tiles",
-    "surface_errors",
-]
-
-COMPACT_THRESHOLD = 0.6
-COMPACT_SHARE = 0.5
-HIST_BINS = 50
-
-
-def compactness(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Compactness c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2) of every triangle.
-
-    Parameters
-    ----------
-    vertices : ndarray of shape (v, 3)
-    faces : ndarray of shape (f, 3), int
-
-    Returns
-    -------
-    ndarray of shape (f,), float64
-        In [0, 1]; 1 for equilateral, 0 for degenerate triangles (including
-        triangles whose three corners coincide).
-
-    Examples
-    --------
-    >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-    >>> round(float(compactness(v, np.array([[0, 1, 2]]))[0]), 6)  # sqrt(3)/2
-    0.866025
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    if len(f) == 0:
-        return np.zeros(0)
-    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
-    ab, bc, ca = b - a, c - b, a - c
-    area = 0.5 * np.linalg.norm(np.cross(ab, -ca), axis=1)
-    s = (ab * ab).sum(1) + (bc * bc).sum(1) + (ca * ca).sum(1)
-    out = np.zeros(len(f))
-    ok = s > 0
-    out[ok] = 4.0 * math.sqrt(3.0) * area[ok] / s[ok]
-    return np.clip(out, 0.0, 1.0)
-
-
-def compactness_summary(c: np.ndarray) -> dict:
-    """Share of triangles with c >= 0.6, mean, the "compact" verdict, and a histogram (50 bins on [0, 1])."""
-    n = int(len(c))
-    good = int((c >= COMPACT_THRESHOLD).sum())
-    share = good / n if n else float("nan")
-    return {
-        "faces": n,
-        "compact_count": good,
-        "compact_share": share,
-        "compact": bool(n and share >= COMPACT_SHARE),
-        "compactness_mean": float(c.mean()) if n else float("nan"),
-        "compactness_hist": np.histogram(c, bins=HIST_BINS, range=(0.0, 1.0))[0].tolist(),
-    }
-
-
-def point_spacing(points: np.ndarray, k: int = 6) -> float:
-    """Median over points of the mean distance to their *k* nearest neighbours."""
-    n = len(points)
-    if n < 2:
-        return 0.0
-    k = min(k, n - 1)
-    d, _ = cKDTree(points).query(points, k=k + 1, workers=-1)
-    return float(np.median(d[:, 1:].mean(axis=1)))
-
-
-def _pymeshlab():
-    try:
-        import pymeshlab
-    except ImportError as exc:  # pragma: no cover
-        raise MissingDependencyError("surface evaluation needs pymeshlab: pip install pymeshlab") from exc
-    return pymeshlab
-
-
-def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Mesh *points* (n, 3) by ball pivoting (pymeshlab), radius r then 2r.
-
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3)
-    radius : float, optional
-        Ball radius r; default :func:`point_spacing` of *points*.
-    k_normals : int
-        Neighbours for the normal estimate.
-
-    Returns
-    -------
-    vertices : ndarray of shape (v, 3), float64
-    faces : ndarray of shape (f, 3), int32
-    """
-    pml = _pymeshlab()
-    points = np.ascontiguousarray(points, dtype=np.float64)
-    if len(points) < 3:
-        return points, np.zeros((0, 3), np.int32)
-    r = point_spacing(points) if radius is None else float(radius)
-    ms = pml.MeshSet()
-    ms.add_mesh(pml.Mesh(points))
-    ms.compute_normal_for_point_clouds(k=int(min(k_normals, len(points) - 1)))
-    if r > 0:
-        for mult in (1.0, 2.0):
-            ms.generate_surface_reconstruction_ball_pivoting(ballradius=pml.PureValue(mult * r))
-    m = ms.current_mesh()
-    return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
-
-
-def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float) -> dict:
-    pml = _pymeshlab()
-    r = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=False, sampleedge=False,
-                                  sampleface=True, samplenum=int(samples), maxdist=pml.PureValue(maxdist))
-    return {"mean": float(r["mean"]), "rms": float(r["RMS"]), "max": float(r["max"]),
-            "min": float(r["min"]), "samples": int(r["n_samples"])}
-
-
-def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float) -> dict:
-    """One Metro direction: samples on *mesh_s*, distances to *mesh_t*."""
-    pml = _pymeshlab()
-    ms = pml.MeshSet()
-    ms.add_mesh(pml.Mesh(mesh_s[0], mesh_s[1]))
-    ms.add_mesh(pml.Mesh(mesh_t[0], mesh_t[1]))
-    return _metro_one(ms, 0, 1, n, maxdist)
-
-
-def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
-          samples: int | None = None, max_samples: int = 500_000) -> dict:
-    """Metro distances between two meshes, both ways (pymeshlab, face sampling).
-
-    Parameters
-    ----------
-    mesh_a, mesh_b : (vertices (v, 3), faces (f, 3))
-        Typically the original's and the simplified cloud's meshes.
-    samples : int, optional
-        Surface samples per direction; default 10 x the sampled mesh's faces
-        (Metro's default), at most *max_samples* (500,000).
-
-    Returns
-    -------
-    dict
-        ``forward`` (samples on a, distance to b) and ``backward`` (samples on
-        b, distance to a), each ``mean, rms, max, min, samples`` in the
-        meshes' units.
-
-    Notes
-    -----
-    Each direction runs in a forked child process (see
-    :func:`cloudsieve.engine.runner.forked`), both at once, so that the same
-    meshes always give the same figures: equal to
-    a direct ``get_hausdorff_distance`` call (``samplevert=False,
-    sampleface=True``, the same ``samplenum`` and ``maxdist``) made first
-    thing in a fresh Python process holding the two meshes.
-    """
-    a = (np.ascontiguousarray(mesh_a[0], dtype=np.float64), np.ascontiguousarray(mesh_a[1], dtype=np.int32))
-    b = (np.ascontiguousarray(mesh_b[0], dtype=np.float64), np.ascontiguousarray(mesh_b[1], dtype=np.int32))
-    allv = np.concatenate([a[0], b[0]])
-    maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
-
-    def n_of(mesh):
-        return samples if samples is not None else min(max(10 * len(mesh[1]), 1000), max_samples)
-
-    fwd, bwd = forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist)])
-    return {"forward": fwd, "backward": bwd}
+__all__ = ["choose_tiles", "surface_errors"]
 
 
 def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
@@ -349,7 +166,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         The original's bounding-box diagonal for the ``*_pct`` figures
         (computed when not given).
     samples, max_samples : int
-        Metro samples per direction (see :func:`metro`).
+        Metro samples per direction (see :func:`.mesh.metro`).
     progress : callable, optional
         Called with 1 per tile done.
     cache : dict, optional

@@ -20,7 +20,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..errors import DestinationExistsError, DestinationNotWritableError
-from ..store.pointstore import DEFAULT_CHUNK_SIZE, Chunk
+from ..store.chunk import DEFAULT_CHUNK_SIZE, Chunk
 
 __all__ = ["Reader", "Writer", "check_destination"]
 

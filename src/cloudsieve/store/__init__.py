@@ -1,11 +1,10 @@
 """The point store (zarr v3) and the two ways in and out of it: ingest and export."""
 
+from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import local_path, same_path
 from .pointstore import (
-    DEFAULT_CHUNK_SIZE,
     STORE_ATTR,
     STORE_VERSION,
-    Chunk,
     PointStore,
     compressors,
     delete_store,

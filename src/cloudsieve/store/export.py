@@ -18,7 +18,8 @@ from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
 from .ingest import bound_malloc
 from .paths import same_path
-from .pointstore import DEFAULT_CHUNK_SIZE, PointStore
+from .chunk import DEFAULT_CHUNK_SIZE
+from .pointstore import PointStore
 
 __all__ = ["export"]
 

@@ -30,7 +30,8 @@ from ..errors import (
     SameSourceDestinationError,
 )
 from .paths import local_path, same_path
-from .pointstore import DEFAULT_CHUNK_SIZE, PointStore
+from .chunk import DEFAULT_CHUNK_SIZE
+from .pointstore import PointStore
 
 __all__ = ["ingest", "bound_malloc"]
 

@@ -22,7 +22,8 @@ is the one test of whether a path holds a store; :meth:`PointStore.open`
 refuses a folder that is not a complete store.
 
 Every chunk iterator of cloudsieve (file readers, :meth:`PointStore.chunks`,
-the evaluation's sources) yields :class:`Chunk` ``(start, arrays)``.
+the evaluation's sources) yields :class:`~cloudsieve.store.chunk.Chunk`
+``(start, arrays)``.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import logging
 import os
 import shutil
 from collections.abc import Iterator, Sequence
-from typing import Any, NamedTuple
+from typing import Any
 
 import numpy as np
 import zarr
@@ -43,14 +44,13 @@ from ..errors import (
     InvalidParameterError,
     StoreNotFoundError,
 )
+from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import local_path, path_exists, zarr_store
 
 __all__ = [
     "PointStore",
-    "Chunk",
     "STORE_ATTR",
     "STORE_VERSION",
-    "DEFAULT_CHUNK_SIZE",
     "is_store",
     "delete_store",
     "compressors",
@@ -60,31 +60,6 @@ logger = logging.getLogger(__name__)
 
 STORE_ATTR = "cloudsieve"
 STORE_VERSION = 1
-#: points per chunk of every reader, store array and streamed evaluation, unless given
-DEFAULT_CHUNK_SIZE = 1_000_000
-
-
-class Chunk(NamedTuple):
-    """Consecutive points from *start* on, as every chunk iterator yields them (``start, arrays = chunk``).
-
-    *arrays* holds ``"xyz"``, ndarray of shape (n, 3), float64, and one array
-    per attribute of shape (n,) or (n, k).
-    """
-
-    start: int
-    arrays: dict[str, np.ndarray]
-
-    @property
-    def xyz(self) -> np.ndarray:
-        """The coordinates, ndarray of shape (n, 3)."""
-        return self.arrays["xyz"]
-
-    @property
-    def stop(self) -> int:
-        """One past the index of the block's last point."""
-        return self.start + len(self.arrays["xyz"])
-
-
 def compressors(level: int = 5) -> tuple:
     """The codecs used for every store array: blosc lz4, byte-shuffled.
 
