@@ -48,9 +48,9 @@ __all__ = ["knn_in_clusters"]
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
 # k + TRIM (measured: see benchmarks/knn.py)
 LEAF_MIN = 16
-LEAF_EXTRA = 3
-BOUND_NODE = 1
-TRIM = 29
+LEAF_EXTRA = 0
+BOUND_NODE = 2
+TRIM = 8
 
 
 @njit(cache=True, nogil=True, inline="always")
