@@ -43,7 +43,7 @@ from numba import njit
 from ...errors import InvalidParameterError, InvalidPointsError
 from .kdtree import box_gap2, build_tree, dist2, gather, kth_smallest
 
-__all__ = ["knn_in_clusters", "knn_unchecked"]
+__all__ = ["knn_in_clusters", "knn_unchecked", "check_grouped", "run_chunks"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
@@ -174,7 +174,10 @@ def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, tr
         _cluster(P, s, indptr[c + 1] - s, kc[c], K, query, leaf, bound_node, trim, out_d, out_i, w)
 
 
-def _check(points, indptr, k, query):
+def check_grouped(points, indptr, query):
+    """Validate points grouped by cluster: (P (n, 3) float64 C-contiguous, 1- and 2-D points
+    padded with zero columns, which add exactly 0.0 to every squared distance; indptr (c + 1,)
+    int64; query (n,) bool, all True when None)."""
     P = np.asarray(points)
     if P.ndim != 2 or not 1 <= P.shape[1] <= 3:
         raise InvalidParameterError(f"points must have shape (n, p) with 1 <= p <= 3, got shape {P.shape}")
@@ -183,7 +186,7 @@ def _check(points, indptr, k, query):
     n = len(P)
     if P.shape[1] == 3:
         P = np.ascontiguousarray(P, dtype=np.float64)
-    else:  # zero columns add exactly 0.0 to every squared distance
+    else:
         P = np.column_stack([P.astype(np.float64), np.zeros((n, 3 - P.shape[1]))])
     bad = ~np.isfinite(P).all(axis=1)
     if bad.any():
@@ -197,20 +200,30 @@ def _check(points, indptr, k, query):
         raise InvalidParameterError(
             f"indptr must rise from 0 to n = {n}, got first {int(ip[0])}, last {int(ip[-1])}"
             f"{', with a decrease' if (np.diff(ip) < 0).any() else ''}")
-    c = len(ip) - 1
-    kc = np.asarray(k)
-    if not np.issubdtype(kc.dtype, np.integer) or kc.ndim > 1 or (kc.ndim == 1 and len(kc) != c):
-        raise InvalidParameterError(f"k must be an integer or {c} integers (one per cluster), got {kc.dtype} shape {kc.shape}")
-    kc = np.broadcast_to(kc.astype(np.int64), (c,)).copy()
-    if c and kc.min() < 0:
-        raise InvalidParameterError(f"k must be >= 0, got {int(kc.min())} for cluster {int(kc.argmin())}")
     if query is None:
         q = np.ones(n, dtype=bool)
     else:
         q = np.asarray(query)
         if q.shape != (n,) or q.dtype != bool:
             raise InvalidParameterError(f"query must be a boolean array of shape ({n},), got {q.dtype} shape {q.shape}")
-    return P, ip, kc, q
+    return P, ip, q
+
+
+def run_chunks(fn, indptr, threads, *args):
+    """fn(*args[:3], c0, c1, *args[3:]) over chunks of clusters of about equal point counts,
+    on ``threads`` threads (the kernels release the GIL)."""
+    n = int(indptr[-1])
+    c = len(indptr) - 1
+    threads = max(1, int(threads or os.cpu_count() or 1))
+    parts = 1 if threads == 1 else min(c, 4 * threads)
+    cuts = np.unique(np.searchsorted(indptr, np.linspace(0, n, parts + 1)[1:-1]))
+    bounds = np.r_[0, cuts[(cuts > 0) & (cuts < c)], c]
+    if len(bounds) == 2:
+        fn(*args[:3], 0, c, *args[3:])
+        return
+    with ThreadPoolExecutor(min(threads, len(bounds) - 1)) as pool:
+        for f in [pool.submit(fn, *args[:3], int(a), int(b), *args[3:]) for a, b in zip(bounds[:-1], bounds[1:])]:
+            f.result()
 
 
 def knn_in_clusters(points, indptr, k, *, query=None, threads: int | None = None):
@@ -251,7 +264,14 @@ def knn_in_clusters(points, indptr, k, *, query=None, threads: int | None = None
     >>> d.tolist(), i.tolist()
     ([[1.0, 3.0], [1.0, 2.0], [2.0, 3.0], [2.0, inf], [2.0, inf]], [[1, 2], [0, 2], [1, 0], [4, -1], [3, -1]])
     """
-    P, ip, kc, q = _check(points, indptr, k, query)
+    P, ip, q = check_grouped(points, indptr, query)
+    c = len(ip) - 1
+    kc = np.asarray(k)
+    if not np.issubdtype(kc.dtype, np.integer) or kc.ndim > 1 or (kc.ndim == 1 and len(kc) != c):
+        raise InvalidParameterError(f"k must be an integer or {c} integers (one per cluster), got {kc.dtype} shape {kc.shape}")
+    kc = np.broadcast_to(kc.astype(np.int64), (c,)).copy()
+    if c and kc.min() < 0:
+        raise InvalidParameterError(f"k must be >= 0, got {int(kc.min())} for cluster {int(kc.argmin())}")
     return knn_unchecked(P, ip, kc, q, threads)
 
 
@@ -262,19 +282,6 @@ def knn_unchecked(P, indptr, kc, query, threads=None):
     K = int(kc.max(initial=0))
     out_d = np.empty((n, K))
     out_i = np.empty((n, K), dtype=np.int64)
-    c = len(indptr) - 1
-    if K == 0 or c == 0:
-        return out_d, out_i
-    threads = max(1, int(threads or os.cpu_count() or 1))
-    parts = 1 if threads == 1 else min(c, 4 * threads)  # chunks of about equal point counts
-    cuts = np.unique(np.searchsorted(indptr, np.linspace(0, n, parts + 1)[1:-1]))
-    bounds = np.r_[0, cuts[(cuts > 0) & (cuts < c)], c]
-    args = (P, indptr, kc)
-    tail = (K, query, LEAF_MIN, LEAF_EXTRA, BOUND_NODE, TRIM, out_d, out_i)
-    if len(bounds) == 2:
-        _chunk(*args, 0, c, *tail)
-    else:
-        with ThreadPoolExecutor(min(threads, len(bounds) - 1)) as pool:
-            for f in [pool.submit(_chunk, *args, int(a), int(b), *tail) for a, b in zip(bounds[:-1], bounds[1:])]:
-                f.result()
+    if K and len(indptr) > 1:
+        run_chunks(_chunk, indptr, threads, P, indptr, kc, K, query, LEAF_MIN, LEAF_EXTRA, BOUND_NODE, TRIM, out_d, out_i)
     return out_d, out_i
