@@ -54,6 +54,7 @@ t = time.perf_counter()
 import numpy as np
 from cloudsieve.core.kernels.knn import knn_in_clusters
 from cloudsieve.core.kernels.entropy import entropy_gain
+from cloudsieve.core.kernels.radius import within_radius
 t1 = time.perf_counter()
 P = np.random.default_rng(0).random((200, 3))
 d, nb = knn_in_clusters(P, [0, 100, 200], 11)
@@ -61,12 +62,14 @@ t2 = time.perf_counter()
 rows, cl, kr = np.arange(200), np.repeat([0, 1], 100), np.full(200, 10)
 entropy_gain(rows, cl, 2, d[:, 9], d[:, 10], nb, kr, 3, 200)
 t3 = time.perf_counter()
-print(t1 - t, t2 - t1, t3 - t2)
+within_radius(P, [0, 100, 200], 0.2)
+t4 = time.perf_counter()
+print(t1 - t, t2 - t1, t3 - t2, t4 - t3)
 """
 
 
 def compile_times() -> list[tuple[str, list[float]]]:
-    """Import, first k-NN call and first entropy call (s) in fresh processes: no cache, then cached."""
+    """Import, first k-NN, entropy and radius calls (s) in fresh processes: no cache, then cached."""
     out = []
     with tempfile.TemporaryDirectory() as cache:
         env = dict(os.environ, NUMBA_CACHE_DIR=cache)
@@ -126,8 +129,8 @@ def main(argv=None) -> int:
         else:
             print(f"| {name} | {t:.2f} | {n / t:,.0f} | {diff:.3g} |")
     print()
-    print("| numba kernels, first call in a fresh process | import (s) | first k-NN call (s) | first entropy call (s) |")
-    print("|---|---:|---:|---:|")
+    print("| numba kernels, first call in a fresh process | import (s) | first k-NN call (s) | first entropy call (s) | first radius call (s) |")
+    print("|---|---:|---:|---:|---:|")
     for label, ts in compile_times():
         print(f"| {label} | " + " | ".join(f"{x:.2f}" for x in ts) + " |")
     return 0
