@@ -1,0 +1,189 @@
+"""The entropy terms of the exact leave-one-out scores, from the k-NN distances.
+
+For the scored points x of clusters 0..c-1 (see :mod:`..entropy` for the
+definitions), given r_k(x) and r_(k+1)(x):
+
+- w = r_k^-d, computed as exp(lw) with lw = -d (log r_k - min_R log r_k), so
+  the largest weight of a cluster is 1 (no overflow; units cancel);
+- W = sum_R w and A = sum_R w lw per cluster, G-terms g = w (lw - A/W);
+- dw, dg: the changes of w and g when r_k(x) becomes r_(k+1)(x);
+- acc_w(y), acc_g(y): the sums of dw, dg over the x that have y among their k
+  nearest (y's reverse neighbours), and the gain
+  H(R - y) - H(R) = log1p(dW / W) - dG / (W + dW), dW = acc_w(y) - w(y),
+  dG = acc_g(y) - g(y).
+
+Bit for bit equal to the numpy code of :mod:`..entropy` (``_weights``,
+the bincounts, ``_change``): the logarithms and exponentials are numpy's
+(its SIMD log/exp differ from libm's, so numba's, in the last bit for some
+inputs); the loops, the per-cluster minimum and the sums are numba's, in the
+same order: ``np.bincount`` adds its weights one by one in index order, and so
+do these loops (no ``fastmath``: nothing is reordered or fused).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from ...errors import InvalidParameterError
+
+__all__ = ["entropy_gain", "entropy_weights", "reverse_sums"]
+
+
+@njit(cache=True, nogil=True)
+def _cluster_min(lr, cl, c):
+    out = np.full(c, np.inf)
+    for i in range(len(lr)):
+        if lr[i] < out[cl[i]]:
+            out[cl[i]] = lr[i]
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _log_weights(lr, lr1, cl, shift, dim):
+    """lw = -dim (log r_k - shift), lw1 the same with r_(k+1)."""
+    n = len(lr)
+    lw = np.empty(n)
+    lw1 = np.empty(n)
+    nd = -dim
+    for i in range(n):
+        sh = shift[cl[i]]
+        lw[i] = nd * (lr[i] - sh)
+        lw1[i] = nd * (lr1[i] - sh)
+    return lw, lw1
+
+
+@njit(cache=True, nogil=True)
+def _terms(w, w1, lw, lw1, cl, c):
+    """W, A per cluster (summed in index order, as np.bincount does), then per
+    point g, W of its cluster, dw = w1 - w and dg = g1 - g."""
+    n = len(w)
+    W = np.zeros(c)
+    A = np.zeros(c)
+    for i in range(n):
+        W[cl[i]] += w[i]
+        A[cl[i]] += w[i] * lw[i]
+    L = np.empty(c)
+    for j in range(c):
+        L[j] = A[j] / W[j] if W[j] != 0.0 else np.nan
+    gw = np.empty(n)
+    Wc = np.empty(n)
+    dw = np.empty(n)
+    dg = np.empty(n)
+    for i in range(n):
+        Li = L[cl[i]]
+        g = w[i] * (lw[i] - Li)
+        g1 = w1[i] * (lw1[i] - Li)
+        gw[i] = g
+        Wc[i] = W[cl[i]]
+        dw[i] = w1[i] - w[i]  # exactly 0.0 when r_(k+1) = r_k (ties)
+        dg[i] = g1 - g
+    return gw, Wc, dw, dg
+
+
+@njit(cache=True, nogil=True)
+def _reverse_sums(nbr, kr, dw, dg, tcl, cl, n):
+    acc_w = np.zeros(n)
+    acc_g = np.zeros(n)
+    check = len(tcl) > 0
+    for x in range(len(nbr)):
+        a = dw[x]
+        b = dg[x]
+        for j in range(kr[x]):
+            y = nbr[x, j]
+            if y < 0 or y >= n:
+                continue
+            if check and tcl[y] != cl[x]:
+                continue
+            acc_w[y] += a
+            acc_g[y] += b
+    return acc_w, acc_g
+
+
+def entropy_weights(cl, c, rk, rk1, dim):
+    """w, g, W of the cluster, dw and dg for every scored point (``entropy._weights``).
+
+    Parameters
+    ----------
+    cl : ndarray of shape (M,), int64
+        Cluster of each scored point, in 0..c-1.
+    c : int
+        Number of clusters.
+    rk, rk1 : ndarray of shape (M,), float64
+        r_k and r_(k+1) of each point, > 0.
+    dim : float
+        The exponent d.
+
+    Returns
+    -------
+    w, gw, Wc, dw, dg : ndarray of shape (M,), float64
+    """
+    cl = np.ascontiguousarray(cl, dtype=np.int64)
+    lr = np.log(rk)  # numpy's log and exp, as the numpy code (not numba's libm)
+    lr1 = np.log(rk1)
+    shift = _cluster_min(lr, cl, int(c))
+    lw, lw1 = _log_weights(lr, lr1, cl, shift, float(dim))
+    w = np.exp(lw)
+    w1 = np.exp(lw1)
+    gw, Wc, dw, dg = _terms(w, w1, lw, lw1, cl, int(c))
+    return w, gw, Wc, dw, dg
+
+
+def reverse_sums(nbr, kr, dw, dg, n, target_cluster=None, cl=None):
+    """Sums of dw and dg over each point's reverse neighbours.
+
+    Parameters
+    ----------
+    nbr : ndarray of shape (M, K), int64
+        Row x: the neighbours of scored point x, nearest first (positions in
+        0..n-1; others, e.g. -1 or n for padding or context, are skipped).
+    kr : ndarray of shape (M,), int64
+        The first kr[x] <= K columns of row x are its k nearest.
+    dw, dg : ndarray of shape (M,), float64
+    n : int
+        Number of positions.
+    target_cluster, cl : ndarray of shape (n,) and (M,), int64, optional
+        When given, x counts for y only if target_cluster[y] == cl[x].
+
+    Returns
+    -------
+    acc_w, acc_g : ndarray of shape (n,), float64
+        Added in row order, as ``np.bincount`` over the rows' neighbours adds them.
+    """
+    if target_cluster is None:
+        tcl = np.zeros(0, dtype=np.int64)
+        cl = np.zeros(len(dw), dtype=np.int64)
+    else:
+        tcl = np.ascontiguousarray(target_cluster, dtype=np.int64)
+        cl = np.ascontiguousarray(cl, dtype=np.int64)
+    nbr = np.asarray(nbr)
+    if nbr.ndim != 2 or len(nbr) != len(dw) or len(kr) != len(dw) or (len(kr) and int(np.max(kr)) > nbr.shape[1]):
+        raise InvalidParameterError(
+            f"nbr must have shape (M, K) with M = {len(dw)} rows and K >= max(kr), got shape {nbr.shape}")
+    return _reverse_sums(nbr, np.ascontiguousarray(kr, dtype=np.int64), dw, dg, tcl, cl, int(n))
+
+
+def entropy_gain(rows, cl, c, rk, rk1, nbr, kr, dim, n, target_cluster=None):
+    """H(R - y) - H(R) for every scored point y (the signed gain; dH is its absolute value).
+
+    Parameters
+    ----------
+    rows : ndarray of shape (M,), int64
+        Position (in 0..n-1) of each scored point, the targets of ``nbr``.
+    cl, c, rk, rk1, dim
+        As in :func:`entropy_weights`.
+    nbr, kr, n, target_cluster
+        As in :func:`reverse_sums` (``target_cluster``: the cluster of every
+        position, for neighbours that may lie in other clusters, e.g. with a
+        context).
+
+    Returns
+    -------
+    ndarray of shape (M,), float64
+        The same values, bit for bit, as ``entropy.score_points`` computes.
+    """
+    w, gw, Wc, dw, dg = entropy_weights(cl, c, rk, rk1, dim)
+    acc_w, acc_g = reverse_sums(nbr, kr, dw, dg, n, target_cluster, cl if target_cluster is not None else None)
+    dW = acc_w[rows] - w
+    dG = acc_g[rows] - gw
+    return np.log1p(dW / Wc) - dG / (Wc + dW)

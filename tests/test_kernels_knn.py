@@ -1,0 +1,253 @@
+"""The compiled kernels against scipy's cKDTree and the brute-force entropy oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+from test_core_entropy import oracle
+
+from cloudsieve.core.kernels.entropy import entropy_gain, entropy_weights, reverse_sums
+from cloudsieve.core.kernels.knn import knn_in_clusters
+from cloudsieve.core.kernels.radius import within_radius
+from cloudsieve.errors import InvalidParameterError, InvalidPointsError
+
+KINDS = ["random", "grid", "duplicates", "collinear", "planar"]
+
+
+def _cloud(rng, kind, m, dim=3):
+    """m points of one kind: ties (integer grids), copies, a line, a plane."""
+    if kind == "random":
+        return rng.random((m, dim)) * rng.uniform(0.01, 100)
+    if kind == "grid":  # many exactly equal distances
+        return rng.integers(0, max(2, round(m ** (1 / dim)) + 2), (m, dim)).astype(float)
+    if kind == "duplicates":
+        p = rng.random((m, dim))
+        p[rng.integers(0, m, m // 3)] = p[rng.integers(0, m, m // 3)]
+        return p
+    if kind == "collinear":  # integer steps along a line: ties on both sides
+        p = np.zeros((m, dim))
+        p[:, 0] = rng.integers(0, 2 * m, m)
+        return p @ np.linalg.qr(rng.standard_normal((dim, dim)))[0] if dim > 1 and rng.random() < 0.5 else p
+    p = np.zeros((m, dim))  # planar, on a tilted lattice half of the time
+    p[:, : min(2, dim)] = rng.integers(0, round(np.sqrt(m)) + 2, (m, min(2, dim)))
+    return p + 1000.0 if rng.random() < 0.5 else p * 0.1
+
+
+def _reference(P, kq):
+    """The kq nearest other points of each row: the smallest (squared distance, row) pairs,
+    squared distances summed as cKDTree sums them."""
+    m = len(P)
+    diff = P[:, None, :] - P[None, :, :]
+    d2 = diff[..., 0] * diff[..., 0]
+    for j in range(1, P.shape[1]):
+        d2 = d2 + diff[..., j] * diff[..., j]
+    np.fill_diagonal(d2, np.inf)
+    kk = min(kq, m - 1)
+    idx = np.array([np.lexsort((np.arange(m), row))[:kk] for row in d2], dtype=np.int64).reshape(m, kk)
+    return np.sqrt(np.take_along_axis(d2, idx, axis=1)), idx
+
+
+def _clusters(seed, n_clusters=6, dim=3):
+    rng = np.random.default_rng(seed)
+    sizes = rng.integers(5, 601, n_clusters)
+    parts = [_cloud(rng, KINDS[(seed + j) % len(KINDS)], int(m), dim) + 1e4 * j for j, m in enumerate(sizes)]
+    return np.concatenate(parts), np.r_[0, np.cumsum(sizes)], rng.integers(4, 31, n_clusters)
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_matches_ckdtree_and_reference(seed):
+    P, indptr, k = _clusters(seed)
+    d, i = knn_in_clusters(P, indptr, k, threads=2)
+    assert d.shape == i.shape == (len(P), k.max())
+    for j in range(len(k)):
+        a, b = indptr[j], indptr[j + 1]
+        C = P[a:b]
+        kk = min(int(k[j]), len(C) - 1)
+        dk = cKDTree(C).query(C, k=kk + 1)[0][:, 1:]
+        # the same distances as cKDTree, bit for bit (its first column is a copy at 0 or the point)
+        np.testing.assert_array_equal(d[a:b, :kk], dk)
+        rd, ri = _reference(C, kk)
+        np.testing.assert_array_equal(d[a:b, :kk], rd)
+        np.testing.assert_array_equal(i[a:b, :kk], ri + a)  # ties: the lower row first
+        assert np.isinf(d[a:b, kk:]).all() and (i[a:b, kk:] == -1).all()
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_fewer_dimensions(dim):
+    P, indptr, k = _clusters(3, dim=dim)
+    d, i = knn_in_clusters(P, indptr, k)
+    for j in range(len(k)):
+        a, b = indptr[j], indptr[j + 1]
+        kk = min(int(k[j]), b - a - 1)
+        np.testing.assert_array_equal(d[a:b, :kk], cKDTree(P[a:b]).query(P[a:b], k=kk + 1)[0][:, 1:])
+        np.testing.assert_array_equal(i[a:b, :kk], _reference(P[a:b], kk)[1] + a)
+
+
+def test_one_tree_with_a_cluster_coordinate_gives_the_same_bits():
+    # entropy's one k-d tree over all clusters adds the cluster id times a gap as a 4th
+    # coordinate: inside a cluster it adds exactly 0.0, so its distances are these
+    rng = np.random.default_rng(8)
+    P = np.concatenate([_cloud(rng, kind, 400) * 3.7 + 50 for kind in KINDS])
+    lab = np.repeat(np.arange(5), 400)
+    X = np.column_stack([P, lab * (2 * np.ptp(P, axis=0).max() * np.sqrt(3) + 1)])
+    d4 = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False).query(X, k=22)[0][:, 1:]
+    d, _ = knn_in_clusters(P, np.arange(0, 2001, 400), 21)
+    np.testing.assert_array_equal(d, d4)
+
+
+def test_large_cluster_and_thread_count_do_not_change_the_result():
+    rng = np.random.default_rng(1)
+    P = np.concatenate([rng.random((20000, 3)), rng.integers(0, 30, (3000, 3)) * 0.5])
+    indptr = [0, 20000, 23000]
+    d1, i1 = knn_in_clusters(P, indptr, [25, 12], threads=1)
+    d3, i3 = knn_in_clusters(P, indptr, [25, 12], threads=3)
+    np.testing.assert_array_equal(d1, d3)
+    np.testing.assert_array_equal(i1, i3)
+    np.testing.assert_array_equal(d1[:20000], cKDTree(P[:20000]).query(P[:20000], k=26)[0][:, 1:])
+    np.testing.assert_array_equal(d1[20000:, :12], cKDTree(P[20000:]).query(P[20000:], k=13)[0][:, 1:])
+
+
+def test_query_subset_small_clusters_and_padding():
+    rng = np.random.default_rng(2)
+    P = rng.random((60, 3))
+    indptr = [0, 0, 1, 3, 60]  # an empty cluster, one point, two points, 57
+    q = rng.random(60) < 0.5
+    d, i = knn_in_clusters(P, indptr, [4, 4, 4, 6], query=q)
+    full_d, full_i = knn_in_clusters(P, indptr, [4, 4, 4, 6])
+    np.testing.assert_array_equal(d[q], full_d[q])
+    np.testing.assert_array_equal(i[q], full_i[q])
+    assert np.isinf(d[~q]).all() and (i[~q] == -1).all()
+    assert np.isinf(full_d[0]).all() and (full_i[0] == -1).all()  # alone in its cluster
+    assert full_i[1].tolist() == [2, -1, -1, -1, -1, -1] and full_i[2, 0] == 1
+    assert full_d[3:, :6].max() < np.inf
+    d0, i0 = knn_in_clusters(P, [0, 60], 0)
+    assert d0.shape == i0.shape == (60, 0)
+
+
+def test_bad_input_messages():
+    P = np.zeros((5, 3))
+    with pytest.raises(InvalidParameterError, match=r"shape \(n, p\) with 1 <= p <= 3, got shape \(5, 4\)"):
+        knn_in_clusters(np.zeros((5, 4)), [0, 5], 2)
+    with pytest.raises(InvalidPointsError, match=r"1 non-finite rows, the first at index 2"):
+        knn_in_clusters(np.where(np.arange(5)[:, None] == 2, np.nan, P), [0, 5], 2)
+    with pytest.raises(ValueError, match=r"indptr must rise from 0 to n = 5, got first 0, last 4"):
+        knn_in_clusters(P, [0, 4], 2)
+    with pytest.raises(InvalidParameterError, match=r"with a decrease"):
+        knn_in_clusters(P, [0, 3, 2, 5], 2)
+    with pytest.raises(InvalidParameterError, match=r"k must be >= 0, got -1 for cluster 1"):
+        knn_in_clusters(P, [0, 2, 5], [1, -1])
+    with pytest.raises(InvalidParameterError, match=r"k must be an integer or 2 integers"):
+        knn_in_clusters(P, [0, 2, 5], [1, 2, 3])
+    with pytest.raises(InvalidParameterError, match=r"query must be a boolean array of shape \(5,\)"):
+        knn_in_clusters(P, [0, 5], 2, query=np.ones(4, bool))
+
+
+def _numpy_gain(cl, c, rk, rk1, nbr, kr, dim, rows, n):
+    """The numpy formulas of entropy.score_points (its _weights, bincounts and _change)."""
+    lr, lr1 = np.log(rk), np.log(rk1)
+    shift = np.full(c, np.inf)
+    np.minimum.at(shift, cl, lr)
+    lw, lw1 = -dim * (lr - shift[cl]), -dim * (lr1 - shift[cl])
+    w, w1 = np.exp(lw), np.exp(lw1)
+    W = np.bincount(cl, weights=w, minlength=c)
+    A = np.bincount(cl, weights=w * lw, minlength=c)
+    L = A / W
+    gw, gw1 = w * (lw - L[cl]), w1 * (lw1 - L[cl])
+    dw, dg = w1 - w, gw1 - gw
+    acc_w, acc_g = np.zeros(n + 1), np.zeros(n + 1)
+    for k in np.unique(kr):  # one bincount per k, as score_points groups its queries
+        at = np.flatnonzero(kr == k)
+        tgt = nbr[at, :k].ravel()
+        acc_w += np.bincount(tgt, weights=np.repeat(dw[at], k), minlength=n + 1)
+        acc_g += np.bincount(tgt, weights=np.repeat(dg[at], k), minlength=n + 1)
+    dW, dG, Wc = acc_w[rows] - w, acc_g[rows] - gw, W[cl]
+    return np.log1p(dW / Wc) - dG / (Wc + dW)
+
+
+def _scored(P, indptr, k0=1.0, k_min=4):
+    """The scoring inputs of clusters of distinct points: k per cluster, the k + 1 nearest."""
+    m = np.diff(indptr)
+    k = np.maximum(np.floor(k0 * np.sqrt(m) + 0.5).astype(np.int64), k_min)
+    d, nbr = knn_in_clusters(P, indptr, k + 1)
+    cl = np.repeat(np.arange(len(m)), m)
+    kr = k[cl]
+    rows = np.arange(len(P))
+    return cl, d[rows, kr - 1], d[rows, kr], nbr, kr
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("lattice", [False, True], ids=["random", "ties"])
+def test_entropy_gain_matches_oracle_and_numpy_bits(dim, lattice):
+    rng = np.random.default_rng(20 + dim + lattice)
+    parts = []
+    for m in rng.integers(20, 301, 4):
+        if lattice:  # distinct integer points: ties, no copies
+            side = int(np.ceil(m ** (1 / dim))) + 3
+            cells = rng.choice(side**dim, size=m, replace=False)
+            parts.append(np.stack(np.unravel_index(cells, (side,) * dim), axis=1).astype(float))
+        else:
+            parts.append(rng.random((m, dim)) * rng.uniform(0.5, 5))
+    P = np.concatenate([p + 100.0 * j for j, p in enumerate(parts)])
+    indptr = np.r_[0, np.cumsum([len(p) for p in parts])]
+    cl, rk, rk1, nbr, kr = _scored(P, indptr)
+    n, c, rows = len(P), len(parts), np.arange(len(P))
+    gain = entropy_gain(rows, cl, c, rk, rk1, nbr, kr, dim, n)
+    np.testing.assert_array_equal(gain, _numpy_gain(cl, c, rk, rk1, nbr, kr, dim, rows, n))
+    for j in range(c):
+        a, b = indptr[j], indptr[j + 1]
+        np.testing.assert_allclose(np.abs(gain[a:b]), oracle(P[a:b], dim=dim), rtol=1e-9, atol=1e-15)
+
+
+def test_entropy_weights_and_reverse_sums():
+    rng = np.random.default_rng(4)
+    P = rng.random((500, 3))
+    indptr = np.array([0, 180, 500])
+    cl, rk, rk1, nbr, kr = _scored(P, indptr)
+    w, gw, Wc, dw, dg = entropy_weights(cl, 2, rk, rk1, 3)
+    assert w.max() == 1.0 and np.isclose(Wc[0], w[:180].sum())
+    # only targets in the same cluster count: a mask that moves row 7 to cluster 1 drops it as a target
+    tcl = cl.copy()
+    tcl[7] = 1
+    acc_w, _ = reverse_sums(nbr, kr, dw, dg, 500, tcl, cl)
+    full_w, _ = reverse_sums(nbr, kr, dw, dg, 500)
+    assert acc_w[7] == 0.0 and full_w[7] != 0.0
+    np.testing.assert_array_equal(np.delete(acc_w, 7), np.delete(full_w, 7))
+    with pytest.raises(InvalidParameterError, match=r"M = 500 rows and K >= max\(kr\), got shape \(500, 3\)"):
+        reverse_sums(nbr[:, :3], kr, dw, dg, 500)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_within_radius_matches_ckdtree_ball(seed):
+    P, indptr, _ = _clusters(seed, n_clusters=4)
+    rng = np.random.default_rng(seed)
+    radius = rng.uniform(0.05, 2.0, 4) * np.array([np.ptp(P[a:b], axis=0).max() / 4 + 1 for a, b in zip(indptr[:-1], indptr[1:])])
+    radius[seed % 4] = 1.0  # on the integer grids: points at exactly r
+    ptr, idx, dist = within_radius(P, indptr, radius, threads=2)
+    for j in range(4):
+        a, b = indptr[j], indptr[j + 1]
+        C = P[a:b]
+        rd, ri = _reference(C, len(C) - 1)
+        ball = cKDTree(C).query_ball_point(C, radius[j])
+        for r in range(len(C)):
+            got = idx[ptr[a + r]:ptr[a + r + 1]] - a
+            assert sorted(got.tolist()) == sorted(x for x in ball[r] if x != r)  # the same points
+            np.testing.assert_array_equal(got, ri[r, : len(got)])  # nearest first, ties by row
+            np.testing.assert_array_equal(dist[ptr[a + r]:ptr[a + r + 1]], rd[r, : len(got)])
+    p1, i1, d1 = within_radius(P, indptr, radius, threads=1)
+    assert np.array_equal(p1, ptr) and np.array_equal(i1, idx) and np.array_equal(d1, dist)
+
+
+def test_within_radius_query_and_bad_radius():
+    rng = np.random.default_rng(6)
+    P = rng.random((300, 3))
+    q = rng.random(300) < 0.3
+    ptr, idx, _ = within_radius(P, [0, 100, 300], 0.2, query=q)
+    full_ptr, full_idx, _ = within_radius(P, [0, 100, 300], 0.2)
+    assert (np.diff(ptr)[~q] == 0).all()
+    for r in np.flatnonzero(q):
+        np.testing.assert_array_equal(idx[ptr[r]:ptr[r + 1]], full_idx[full_ptr[r]:full_ptr[r + 1]])
+    with pytest.raises(InvalidParameterError, match=r"radius must be finite and >= 0, got -1.0 for cluster 1"):
+        within_radius(P, [0, 100, 300], [0.1, -1.0])
+    with pytest.raises(InvalidParameterError, match=r"radius must be a number or 2 numbers"):
+        within_radius(P, [0, 100, 300], [0.1, 0.2, 0.3])
