@@ -130,7 +130,7 @@ class Option:
 
 _OPTIONS = [
     # -- the method
-    Option("method", CHOICE, "fcm", "refinement into small clusters: fuzzy C-means or K-means", choices=METHODS),
+    Option("method", CHOICE, "km", "refinement into small clusters: K-means (default) or fuzzy C-means", choices=METHODS),
     Option("rule", CHOICE, "iterative", "pruning rule (target and coverage need --ratio or --count)", choices=RULES),
     Option("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
            metavar="S"),

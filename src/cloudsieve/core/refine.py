@@ -53,7 +53,7 @@ def check_method(method) -> None:
         raise InvalidParameterError(f"method must be 'fcm' or 'km', got {method!r}")
 
 
-def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: int = 0, *,
+def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int = 0, *,
                   k_min: int = 4, n_nearest: int = 8, max_iter: int | None = None, init="k-means++",
                   threads: int | None = None, tol: float | None = None,
                   label_tol: float | None = REFINE_LABEL_TOL) -> np.ndarray:
@@ -62,7 +62,7 @@ def refine_labels(points, method: str = "fcm", cluster_size: int = 400, seed: in
     Parameters
     ----------
     points : array_like of shape (n, p), float
-    method : {"fcm", "km"}
+    method : {"km", "fcm"}
     cluster_size : int
         Mean points per cluster, >= k_min + 2.
     seed : int

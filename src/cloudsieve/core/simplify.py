@@ -18,7 +18,7 @@ from .rules import check_rule_args, prune_unchecked
 __all__ = ["simplify_points"]
 
 
-def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", threshold: float = 1e-3,
+def simplify_points(points, *, method: str = "km", rule: str = "iterative", threshold: float = 1e-3,
                     ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
                     k_min: int = 4, context=None, labels=None, score: str = "delta_h",
                     n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
@@ -28,7 +28,7 @@ def simplify_points(points, *, method: str = "fcm", rule: str = "iterative", thr
     Parameters
     ----------
     points : array_like of shape (n, 3), float
-    method : {"fcm", "km"}
+    method : {"km", "fcm"}
         Refinement into c = ceil(n / cluster_size) clusters (ignored when
         ``labels`` is given).
     rule : {"iterative", "threshold", "target", "coverage"}

@@ -186,7 +186,7 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
     return np.unique(idx).astype(np.int64)
 
 
-def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "fcm", rule: str = "iterative",
+def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = "iterative",
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.prune.simplify_points`.
 
