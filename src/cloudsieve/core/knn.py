@@ -23,7 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._validation import neighbour_count
-from .kernels.knn import knn_unchecked
+from .kernels.knn import knn_unchecked, take_neighbours
 
 __all__ = [
     "canonical_order",
@@ -244,13 +244,14 @@ def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
     flagged[lab[sel[d[sel, 0] == 0]]] = True  # a copy at distance 0
     key = (kc * (extra + 1) + ec)[lab[sel]]  # (k, e) of each answered point
     keys = np.unique(key)
+    whole = len(rows) == len(g)  # rows: all of g, in order (rows[j] == j)
     groups = []
     for kv in keys:
         k, e = divmod(int(kv), extra + 1)
         s = sel if len(keys) == 1 else sel[key == kv]
         s = s[~flagged[lab[s]]]
         if len(s):
-            groups.append((k, rows[s], d[s, k - 1], d[s, k], rows[i[s, : k + e + 1]]))
+            groups.append((k, rows[s], d[s, k - 1], d[s, k], take_neighbours(i, s, k + e + 1, None if whole else rows)))
     return groups, flagged
 
 

@@ -17,7 +17,7 @@ import time
 import numpy as np
 
 from .entropy import entropy_gain, reverse_sums
-from .knn import knn_unchecked
+from .knn import knn_unchecked, take_neighbours
 
 __all__ = ["warm_up"]
 
@@ -31,10 +31,12 @@ def warm_up() -> float:
     indptr = np.array([0, 12, 24], dtype=np.int64)
     kq = np.array([5, 5], dtype=np.int64)
     d, i = knn_unchecked(P, indptr, kq, np.ones(24, dtype=bool), 1)
+    rows = np.arange(24, dtype=np.int64)
+    take_neighbours(i, rows, 5)
+    take_neighbours(i, rows, 5, rows)
     cl = np.repeat(np.arange(2, dtype=np.int64), 12)
     nbr = np.ascontiguousarray(i[:, :5])
     kr = np.full(24, 4, dtype=np.int64)
-    rows = np.arange(24, dtype=np.int64)
     entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24)
     entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24, target_cluster=cl)
     reverse_sums(nbr, kr, d[:, 0].copy(), d[:, 1].copy(), 24)
