@@ -39,12 +39,13 @@ An empty context (shape (0, p)) thus means: neighbours from every cluster of
 ``points``, not from R alone (measured better at equal count in
 benchmarks/quality.py).
 
-Speed: without context, all the clusters share one k-d tree (the cluster id
-times a gap wider than any cluster as an extra coordinate, which adds exactly
-0.0 inside a cluster, so the distances are those of a per-cluster tree), with
-the points of each cluster in Z-order, and one threaded query per distinct k.
-The k-d tree query is ~80% of the time (cProfile, 1 M points in clusters of
-~400, one thread).
+Speed: without context, the k nearest come from the compiled kernel of
+:mod:`.kernels.knn` (a small k-d tree per cluster, the clusters shared among
+``threads`` threads; the distances of a k-d tree, bit for bit), with the
+points of each cluster in Z-order; the W/A terms and the reverse-neighbour
+sums from :mod:`.kernels.entropy` (the same values, bit for bit, as the
+numpy code they replace). With a context, the neighbours come from scipy's
+cKDTree over the points and the context.
 
 (:mod:`.knn` holds the k-NN queries.)
 
@@ -66,6 +67,7 @@ from functools import cached_property
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
+from .kernels.entropy import entropy_weights, reverse_sums
 from .knn import group, knn_clusters, knn_context
 
 __all__ = ["entropy_scores", "score_points", "Scores", "score_unchecked", "entropy_terms", "entropy_change"]
@@ -219,26 +221,21 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
         rk = np.concatenate([grp[2] for grp in groups])
         rk1 = np.concatenate([grp[3] for grp in groups])
         cl = ginv[scored]
-        w, gw, Wc, dw_x, dg_x = entropy_terms(cl, c, rk, rk1, dim)
-        acc_w = np.zeros(n + 1)
-        acc_g = np.zeros(n + 1)
-        ginv_ext = np.append(ginv, -1)
+        w, gw, Wc, dw_x, dg_x = entropy_weights(cl, c, rk, rk1, dim)
+        acc_w = np.zeros(n)
+        acc_g = np.zeros(n)
+        tcl = None if ctx is None else ginv  # with a context, only neighbours of the same cluster count
         off = 0
         for k, sc, _, _, nbx in groups:
             M = len(sc)
-            tgt = nbx.ravel()  # contiguous: no copy
-            # x's change goes to its k nearest; weight 0.0 (adds nothing, exactly) for the (k+1)-th
-            rw = np.zeros((M, k + 1))
-            rg = np.zeros((M, k + 1))
-            rw[:, :k] = dw_x[off : off + M, None]
-            rg[:, :k] = dg_x[off : off + M, None]
-            if ctx is not None:  # only neighbours that are scored points of the same cluster count
-                other = ginv_ext[nbx] != cl[off : off + M, None]
-                rw[other] = 0.0
-                rg[other] = 0.0
-            acc_w += np.bincount(tgt, weights=rw.ravel(), minlength=n + 1)
-            acc_g += np.bincount(tgt, weights=rg.ravel(), minlength=n + 1)
-            del rw, rg
+            part = slice(off, off + M)
+            # x's change goes to its k nearest; a point's reverse neighbours are all in its
+            # cluster's group, so each sum is the one of the rows in order (as np.bincount)
+            aw, ag = reverse_sums(nbx, np.full(M, k, dtype=np.int64), dw_x[part], dg_x[part], n,
+                                  tcl, None if tcl is None else cl[part])
+            acc_w += aw
+            acc_g += ag
+            del aw, ag
             k_in[order[sc]] = k
             off += M
         dH = entropy_change(acc_w[scored] - w, acc_g[scored] - gw, Wc)
@@ -266,7 +263,8 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
 
 def entropy_terms(cl, c, rk, rk1, dim):
     """Per scored point (cluster ids cl in 0..c-1, r_k, r_(k+1)): w, g = w (log w - A/W), W of its
-    cluster, and the changes of w and g when r_k becomes r_(k+1).
+    cluster, and the changes of w and g when r_k becomes r_(k+1) (the compiled
+    :func:`.kernels.entropy.entropy_weights`).
 
     Parameters
     ----------
@@ -281,22 +279,7 @@ def entropy_terms(cl, c, rk, rk1, dim):
     -------
     w, g, W, dw, dg : five ndarrays of shape (M,), float64
     """
-    # log-weights shifted per cluster so the largest weight is 1 (no overflow, units cancel)
-    lr = np.log(rk)
-    lr1 = np.log(rk1)
-    shift = np.full(c, np.inf)
-    np.minimum.at(shift, cl, lr)
-    lw = -dim * (lr - shift[cl])
-    lw1 = -dim * (lr1 - shift[cl])
-    w = np.exp(lw)
-    w1 = np.exp(lw1)
-    W = np.bincount(cl, weights=w, minlength=c)
-    A = np.bincount(cl, weights=w * lw, minlength=c)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        L = A / W
-    gw = w * (lw - L[cl])
-    gw1 = w1 * (lw1 - L[cl])
-    return w, gw, W[cl], w1 - w, gw1 - gw  # w1 - w is exactly 0 when r_(k+1) = r_k (ties)
+    return entropy_weights(cl, c, rk, rk1, dim)
 
 
 def entropy_change(dW, dG, W):

@@ -7,10 +7,12 @@
 - :func:`mark_duplicates`: exact copies inside a cluster (only the first is
   scored);
 - :func:`knn_clusters` / :func:`knn_query`: the k nearest *other* points of
-  each point inside its own cluster, from one k-d tree over all the clusters
-  (:func:`with_cluster_coordinate`);
+  each point inside its own cluster, from the compiled kernel
+  :func:`.kernels.knn.knn_unchecked` (points of more than 3 coordinates: one
+  k-d tree over all the clusters, :func:`with_cluster_coordinate`);
 - :func:`knn_context`: the same among all the points and extra context
-  points (a cell's halo).
+  points (a cell's halo), from scipy's cKDTree (the neighbours are not
+  confined to a cluster, so the kernel does not apply).
 
 All functions here assume valid input (see :mod:`._validation`).
 """
@@ -21,6 +23,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._validation import neighbour_count
+from .kernels.knn import knn_unchecked, take_neighbours
 
 __all__ = [
     "canonical_order",
@@ -185,20 +188,82 @@ def with_cluster_coordinate(pts: np.ndarray, lab: np.ndarray) -> np.ndarray:
 
 def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
     """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster
-    (among g[rows]); only of the points rows[query] when ``query`` (positions in rows) is given.
-    With ``extra`` > 0, up to ``extra`` more nearest are returned (as many as the cluster has).
+    (among g[rows]); only of the points rows[query] when ``query`` (positions in rows,
+    ascending or not) is given. With ``extra`` > 0, up to ``extra`` more nearest are
+    returned (as many as the cluster has).
 
-    One k-d tree over all the clusters: each point gets its cluster id times a
-    gap as an extra coordinate, the gap larger than twice the bounding-box
-    diagonal, so a point of another cluster is always farther than every point
-    of the own cluster (a cluster here has >= k + 2 points), and inside a
-    cluster the extra term is exactly 0.0: the distances are bit for bit
-    those of a tree of the cluster alone. One query per distinct k, on
-    ``threads`` threads.
+    Points of up to 3 coordinates go to the compiled kernel
+    (:func:`.kernels.knn.knn_unchecked`: the distances of a k-d tree of the
+    cluster alone, bit for bit; among equal distances the lower row first);
+    more coordinates to one k-d tree over all the clusters
+    (:func:`_knn_query_tree`). The kernel runs on ``threads`` threads.
 
-    Returns (groups, flagged): groups as in :func:`knn_clusters` (with
-    ``extra``, the last array has k + 1 + e columns, e <= extra), for the
-    clusters without exact duplicates; flagged (c,) bool: clusters with some.
+    Parameters
+    ----------
+    g : ndarray of shape (n, p), float64
+        Points grouped by cluster (ascending ids ``ginv``).
+    ginv : ndarray of shape (n,), int64
+    rows : ndarray of shape (r,), int64
+        Positions in g, ascending; each cluster among them has >= k + 2 points.
+    kc : ndarray of shape (c,), int64
+        k of each cluster.
+    threads : int
+    query : ndarray of shape (q,), int64, optional
+        Positions in rows of the points to answer (default: all).
+    extra : int
+
+    Returns
+    -------
+    groups : list of (k, r (M,), r_k (M,), r_(k+1) (M,), nbx (M, k + 1 + e))
+        One per distinct (k, e), e <= ``extra``: the points rows[...] answered
+        (in the order of ``query``), their k-th and (k+1)-th nearest distances
+        and their k + 1 + e nearest as positions in g; only the clusters
+        without exact duplicates.
+    flagged : ndarray of shape (c,), bool
+        Clusters with exact duplicates among the answered points.
+    """
+    if g.shape[1] > 3:
+        return _knn_query_tree(g, ginv, rows, kc, threads, query, extra)
+    c = len(kc)
+    lab = ginv[rows]
+    sizes = np.bincount(lab, minlength=c)
+    ec = np.clip(sizes - kc - 2, 0, extra) if extra else np.zeros(c, dtype=np.int64)
+    qm = None
+    if query is not None:
+        qm = np.zeros(len(rows), dtype=bool)
+        qm[query] = True
+    P = g[rows]
+    if P.shape[1] < 3:  # zero columns add exactly 0.0 to every squared distance
+        P = np.column_stack([P, np.zeros((len(P), 3 - P.shape[1]))])
+    indptr = np.zeros(c + 1, dtype=np.int64)
+    np.cumsum(sizes, out=indptr[1:])
+    kq = np.where(sizes > 0, kc + 1 + ec, 0).astype(np.int64)
+    d, i = knn_unchecked(P, indptr, kq, np.ones(len(rows), dtype=bool) if qm is None else qm, threads)
+    sel = np.arange(len(rows)) if query is None else np.asarray(query, dtype=np.int64)
+    flagged = np.zeros(c, dtype=bool)
+    flagged[lab[sel[d[sel, 0] == 0]]] = True  # a copy at distance 0
+    key = (kc * (extra + 1) + ec)[lab[sel]]  # (k, e) of each answered point
+    keys = np.unique(key)
+    whole = len(rows) == len(g)  # rows: all of g, in order (rows[j] == j)
+    groups = []
+    for kv in keys:
+        k, e = divmod(int(kv), extra + 1)
+        s = sel if len(keys) == 1 else sel[key == kv]
+        s = s[~flagged[lab[s]]]
+        if len(s):
+            groups.append((k, rows[s], d[s, k - 1], d[s, k], take_neighbours(i, s, k + e + 1, None if whole else rows)))
+    return groups, flagged
+
+
+def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
+    """:func:`knn_query` with one k-d tree over all the clusters, for points of any dimension.
+
+    Each point gets its cluster id times a gap as an extra coordinate, the
+    gap larger than twice the bounding-box diagonal, so a point of another
+    cluster is always farther than every point of the own cluster (a cluster
+    here has >= k + 2 points), and inside a cluster the extra term is exactly
+    0.0: the distances are bit for bit those of a tree of the cluster alone.
+    One query per distinct k, on ``threads`` threads.
     """
     c = len(kc)
     lab = ginv[rows]

@@ -1,14 +1,19 @@
 """Imported by the local fork server at start-up (see :mod:`cloudsieve.engine.lifeline`).
 
 It is the last module of the fork server's preload list: imported there, it
-asks the kernel to kill the fork server when its parent, the driver, dies.
+asks the kernel to kill the fork server when its parent, the driver, dies,
+then compiles the numba kernels (or loads them from numba's cache) once, so
+every worker forked from the server inherits them
+(:func:`cloudsieve.core.kernels.warmup.warm_up`).
 Imported anywhere else (a test that imports every preload module) it does
 nothing: the caller is recognised by ``multiprocessing.forkserver.main`` on
 the import's call stack.
 """
 
+import logging
 import sys
 
+from ..core.kernels.warmup import warm_up
 from .lifeline import die_with_parent
 
 
@@ -23,3 +28,7 @@ def _in_forkserver_main() -> bool:
 
 if _in_forkserver_main():
     die_with_parent()
+    try:
+        logging.getLogger(__name__).debug("kernels warmed up in %.2f s", warm_up())
+    except Exception as exc:  # noqa: BLE001 - the workers then compile at their first call, and raise there
+        logging.getLogger(__name__).warning("kernel warm-up failed in the fork server: %r", exc)

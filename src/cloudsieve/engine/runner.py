@@ -35,7 +35,9 @@ _TASKS_PER_CHILD = 8
 _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
             "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
             "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
-            # last: the fork server asks to die with the driver (see engine/lifeline.py)
+            # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
+            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.kernels.warmup",
+            # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
 
 

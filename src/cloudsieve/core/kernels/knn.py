@@ -43,7 +43,7 @@ from numba import njit
 from ...errors import InvalidParameterError, InvalidPointsError
 from .kdtree import box_gap2, build_tree, dist2, gather, kth_smallest
 
-__all__ = ["knn_in_clusters", "knn_unchecked", "check_grouped", "run_chunks"]
+__all__ = ["knn_in_clusters", "knn_unchecked", "check_grouped", "run_chunks", "take_neighbours"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
@@ -285,3 +285,35 @@ def knn_unchecked(P, indptr, kc, query, threads=None):
     if K and len(indptr) > 1:
         run_chunks(_chunk, indptr, threads, P, indptr, kc, K, query, LEAF_MIN, LEAF_EXTRA, BOUND_NODE, TRIM, out_d, out_i)
     return out_d, out_i
+
+
+@njit(cache=True, nogil=True)
+def _take(idx, sel, width, rows, out):
+    ident = len(rows) == 0
+    for a in range(len(sel)):
+        r = sel[a]
+        for j in range(width):
+            out[a, j] = idx[r, j] if ident else rows[idx[r, j]]
+
+
+def take_neighbours(idx, sel, width, rows=None):
+    """``rows[idx[sel, :width]]`` (``idx[sel, :width]`` when rows is None) in one pass.
+
+    Parameters
+    ----------
+    idx : ndarray of shape (n, K), int64
+        Neighbour rows from :func:`knn_unchecked`, >= 0 in the first ``width`` columns of ``sel``.
+    sel : ndarray of shape (M,), int64
+        Rows of idx to take, in 0..n-1.
+    width : int, <= K
+    rows : ndarray of shape (r,), int64, optional
+        Maps a row of idx's points to another position (e.g. in a larger array).
+
+    Returns
+    -------
+    ndarray of shape (M, width), int64, C-contiguous
+    """
+    out = np.empty((len(sel), int(width)), dtype=np.int64)
+    r = np.zeros(0, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
+    _take(idx, np.ascontiguousarray(sel, dtype=np.int64), int(width), r, out)
+    return out
