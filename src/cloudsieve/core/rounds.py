@@ -21,7 +21,8 @@ import os
 import numpy as np
 
 from ._validation import neighbour_count
-from .entropy import entropy_change, entropy_terms, score_unchecked
+from .entropy import entropy_change, score_unchecked
+from .kernels import rounds as kr
 from .knn import group, knn_clusters, knn_query, mark_duplicates
 
 __all__ = ["prune_in_rounds"]
@@ -48,41 +49,15 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray 
     the selected candidates in priority order (with ``kk``, row i holds k =
     kk[i] neighbours, the columns after them are ignored): exactly what a
     sequential pass keeps (take a candidate unless one of its neighbours, or a
-    point having it as a neighbour, was taken before), computed by rounds of
-    local minima of the rank: a candidate is taken when no undecided candidate
-    of lower rank points to it or is pointed to by it. Each round works on the
-    (candidates x K) rank matrix of the undecided ones, row-wise (no sort, no
-    ufunc.at).
+    point having it as a neighbour, was taken before), computed by that pass
+    (:func:`.kernels.rounds.select_round`).
     """
-    nc = len(cand)
-    if nc == 0:
+    cand = np.asarray(cand, dtype=np.int64)
+    nb = np.asarray(nb, dtype=np.int64)
+    if len(cand) == 0:
         return cand
-    idt = np.int32 if nc < 2**31 - 1 else np.int64  # half the memory traffic of the rounds below
-    pos = np.full(n + 1, nc, dtype=idt)  # nc: not a candidate, or padding
-    pos[cand] = np.arange(nc, dtype=idt)  # a candidate's local id is its rank
-    dst = nb[cand]
-    if kk is not None:
-        dst = np.where(np.arange(nb.shape[1]) < kk[cand, None], dst, -1)
-    D = pos[np.where((dst < 0) | (dst >= n), n, dst)]  # (nc, K): ranks of the neighbours, nc for none
-    state = np.zeros(nc + 1, dtype=np.int8)  # 0 undecided, 1 taken, 2 out; slot nc (none): out
-    state[nc] = 2
-    und = np.arange(nc, dtype=idt)
-    blocked = np.zeros(nc + 1, dtype=bool)
-    while len(und):
-        live = state[D] == 0
-        me = und[:, None]
-        lower_out = (live & (D < me)).any(axis=1)  # points to a lower undecided candidate
-        higher = D[live & (D > me)]
-        blocked[higher] = True  # pointed to by a lower undecided candidate
-        win = ~lower_out & ~blocked[und]
-        blocked[higher] = False
-        state[und[win]] = 1
-        dw = D[win]
-        state[dw[state[dw] == 0]] = 2  # the winners' neighbours
-        state[und[(state[D] == 1).any(axis=1) & (state[und] == 0)]] = 2  # points having a winner as neighbour
-        keep = state[und] == 0
-        und, D = und[keep], D[keep]
-    return cand[np.flatnonzero(state[:nc] == 1)]
+    kk = np.full(n, nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
+    return kr.select_round(cand, nb, kk, np.zeros((0, 1)), 1.0, False, -1)
 
 
 def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
@@ -135,22 +110,22 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
     Candidates are the alive points with val <= threshold (with a target: any
-    finite val), lowest val first, ties by ``tie``; ``coverage`` keeps those
-    that pass :func:`_covered`; then a greedy independent set in the k-NN
-    graph ``nb``, cut at the target.
+    finite val), lowest val first, ties by ``tie`` (unique ids); ``coverage``
+    keeps those that pass :func:`_covered`; then a greedy independent set in
+    the k-NN graph ``nb`` (rows cut at ``kk``), cut at the target.
     """
     if target is not None and n_alive <= target:
         return np.zeros(0, dtype=np.int64)
-    pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
-    cand = pool[np.lexsort((tie[pool], val[pool]))]
-    if rule == "coverage" and len(cand):
-        cand = cand[_covered(P, nb, cand, coverage, kk)]
-    if len(cand) == 0:
-        if target is not None:
-            logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
-        return cand
-    sel = _first_independent(cand, nb, len(P), kk)
-    return sel if target is None else sel[: n_alive - target]
+    pool, keys = kr.candidates(alive, val, float(threshold), target is not None)
+    cand = pool[np.argsort(keys)]
+    kr.break_ties(cand, val, tie)
+    if kk is None:
+        kk = np.full(len(P), nb.shape[1], dtype=np.int64)
+    limit = -1 if target is None else n_alive - target
+    sel = kr.select_round(cand, nb, kk, P, float(coverage), rule == "coverage", limit)
+    if len(sel) == 0 and target is not None:
+        logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
+    return sel
 
 
 # Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
@@ -180,7 +155,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     """
     k0, k_min, dim = kw["k0"], kw["k_min"], kw["dim"]
     threads = int(kw["threads"] or os.cpu_count() or 1)
-    n, p = P.shape
+    n = len(P)
     inv, order, sizes = group(P, L)
     g = P[order]
     ginv = inv[order]
@@ -233,85 +208,41 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     del groups
     n_alive = n
     use_unit = target is not None or score == "unit_free"
+    acc_w = np.zeros(n)  # scratch of kr.entropy_deltas
+    acc_g = np.zeros(n)
 
     def rescore(touched):
         """Scores of the scored points of the touched clusters, from the kept k-NN data."""
-        rows = np.flatnonzero(touched[ginv] & (kk > 0))  # kk > 0: alive, distinct, in a scored cluster
+        rows = kr.scored_rows(touched, ginv, kk)  # kk > 0: alive, distinct, in a scored cluster
         if len(rows) == 0:
             return
-        cl = ginv[rows]
-        w, gw, Wc, dw_x, dg_x = entropy_terms(cl, c, rk[rows], rk1[rows], dim)
-        kr = kk[rows]
-        acc_w = np.zeros(n)
-        acc_g = np.zeros(n)
-        for k in np.unique(kr):  # x's change goes to its k nearest (a cluster has one k)
-            k = int(k)
-            at = np.flatnonzero(kr == k)
-            tgt = nbx[rows[at], :k].ravel()
-            acc_w += np.bincount(tgt, weights=np.repeat(dw_x[at], k), minlength=n)
-            acc_g += np.bincount(tgt, weights=np.repeat(dg_x[at], k), minlength=n)
-        dh = np.abs(entropy_change(acc_w[rows] - w, acc_g[rows] - gw, Wc))
-        if use_unit:
-            m = np.bincount(ginv[alive & ~dup], minlength=c)
-            dh = dh * m[cl]
-        val[rows] = dh
-
-    def dist(a, b):
-        """|g[a] - g[b]| summed in the k-d tree's order (so r_k is the same as a query's)."""
-        d = g[a] - g[b]
-        s = d[:, 0] * d[:, 0]
-        for j in range(1, p):
-            s += d[:, j] * d[:, j]
-        return np.sqrt(s)
+        # the terms of .entropy.entropy_terms, with numpy's log and exp
+        lw, lw1 = kr.log_weights(rows, ginv, c, np.log(rk[rows]), np.log(rk1[rows]), -float(dim))
+        dW, dG, Wc = kr.entropy_deltas(rows, ginv, c, kk, nbx, np.exp(lw), np.exp(lw1), lw, lw1, acc_w, acc_g)
+        dh = np.abs(entropy_change(dW, dG, Wc))
+        m = kr.cluster_counts(ginv, alive, dup, c)[0] if use_unit else kcl
+        kr.store_scores(rows, ginv, dh, m, use_unit, val)
 
     rescore(np.ones(c, dtype=bool))
-    removed = np.zeros(n + 1, dtype=bool)  # slot n: the padding
     rnd = 0
     while max_rounds is None or rnd < max_rounds:
-        nbk = nbx[:, : int(kk.max(initial=1))]  # the columns that can hold one of the k nearest
         # ties: canonical index (the input order, not the grouped one)
-        sel = _round_selection(g, alive, val, order, nbk, n_alive, rule, threshold, target, coverage, kk)
+        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk)
         if len(sel) == 0:
             break
-        alive[sel] = False
+        touched = np.zeros(c, dtype=bool)
+        kr.drop_rows(sel, alive, val, kk, nbx, ginv, touched)
         n_alive -= len(sel)
-        val[sel] = np.inf
-        kk[sel] = 0
-        nbx[sel] = n
         rnd += 1
         report(len(sel))
 
-        touched = np.zeros(c, dtype=bool)
-        touched[ginv[sel]] = True
-        m = np.bincount(ginv[alive & ~dup], minlength=c)
+        m, copies = kr.cluster_counts(ginv, alive, dup, c)
         k_new = neighbour_count(m, k0, k_min)
-        copies = np.zeros(c, dtype=bool)
-        copies[ginv[alive & dup]] = True
-        whole = touched & (copies | (m < k_new + 2))
+        whole = touched & ((copies > 0) | (m < k_new + 2))
         part = touched & ~whole
         # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
-        rows = np.flatnonzero(part[ginv] & (kk > 0))
-        removed[sel] = True
-        x = nbx[rows]
-        gone = removed[x]
-        kn = k_new[ginv[rows]]
-        hit = gone.any(axis=1) | (kk[rows] != kn)
-        rows, x, gone, kn = rows[hit], x[hit], gone[hit], kn[hit]
-        removed[sel] = False
-        stay = (x < n) & ~gone
-        col = np.cumsum(stay, axis=1) - 1
-        packed = np.full_like(x, n)
-        r_i, c_i = np.nonzero(stay)
-        packed[r_i, col[r_i, c_i]] = x[r_i, c_i]
-        nbx[rows] = packed
-        enough = stay.sum(axis=1) >= kn + 1
-        ok = rows[enough]
-        kk[ok] = kn[enough]
-        pk = packed[enough]
-        rk[ok] = dist(ok, np.take_along_axis(pk, (kn[enough] - 1)[:, None], axis=1)[:, 0])
-        rk1[ok] = dist(ok, np.take_along_axis(pk, kn[enough][:, None], axis=1)[:, 0])
+        q_part = kr.repack_lists(g, ginv, kk, rk, rk1, nbx, part, k_new, sel)
         kcl[part] = k_new[part]
-        q_part = rows[~enough]
         q_whole = query(whole)
         logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",
                      rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part), len(q_whole))
@@ -329,28 +260,11 @@ def _covered(P, nb, cand, coverage, kk=None):
     r_1(y) <= coverage * median of r_1 over y's k nearest: y sits where points
     are at least as dense as around it. An isolated point (outlier, edge of a
     thin part), whose nearest neighbour is far compared with its neighbours'
-    spacing, stays, whatever its entropy score.
+    spacing, stays, whatever its entropy score. ``nb`` (n, K) padded with -1
+    (or n); with ``kk`` (n,), row i holds kk[i] neighbours. Returns a bool
+    mask (len(cand),) (:func:`.kernels.rounds.covered_mask`).
     """
-    n = len(P)
-    has = nb[:, 0] >= 0
-    if kk is not None:  # row i holds kk[i] neighbours
-        has &= kk > 0
-    r1 = np.full(n, np.inf)
-    r1[has] = np.sqrt(((P[has] - P[nb[has, 0]]) ** 2).sum(axis=1))
-    c = cand[has[cand]]
-    nbc = nb[c]
-    ok_col = nbc >= 0
-    if kk is not None:
-        ok_col &= np.arange(nb.shape[1]) < kk[c, None]
-    vals = np.where(ok_col, r1[np.where(ok_col, nbc, 0)], np.nan)
-    # row medians ignoring NaN, as np.nanmedian (mean of the two middle values) but with one
-    # row sort (NaN last) instead of its masked-array path (measured 3x slower on 200k rows)
-    cnt = ok_col.sum(axis=1)
-    vals.sort(axis=1)
-    lo = np.take_along_axis(vals, np.maximum((cnt - 1) // 2, 0)[:, None], axis=1)[:, 0]
-    hi = np.take_along_axis(vals, (cnt // 2)[:, None], axis=1)[:, 0]
-    with np.errstate(invalid="ignore"):
-        med = np.where(cnt > 0, (lo + hi) / 2, np.nan)
-    ok = np.zeros(len(cand), dtype=bool)
-    ok[has[cand]] = r1[c] <= coverage * med
-    return ok
+    nb = np.asarray(nb, dtype=np.int64)
+    kk = np.full(len(P), nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
+    return kr.covered_mask(np.ascontiguousarray(P, dtype=np.float64), nb, kk,
+                           np.asarray(cand, dtype=np.int64), float(coverage))

@@ -1,0 +1,366 @@
+"""Compiled kernels of the ``iterative`` and ``coverage`` rounds (numba; private, inputs assumed valid).
+
+The caller (:mod:`cloudsieve.core.rounds`) keeps the state of the rounds in
+flat arrays over the n points (its own order, "rows"):
+
+- ``nb`` (n, K) int64: the neighbour list of each row, nearest first; an
+  entry outside [0, n) (-1 or n) is no neighbour, and only the first
+  ``kk[row]`` columns count (``kk`` (n,) int64; 0: the row has no list);
+- ``val`` (n,) float64 the scores, ``alive`` (n,) bool, ``ginv`` (n,) int64
+  the cluster of each row (0..c-1), ``dup`` (n,) bool the exact copies.
+
+Exactness: every floating-point value is computed with the operations, and
+sums in the order, of the numpy code it replaced (distances as
+``((d0 * d0) + d1 * d1) + d2 * d2`` then ``sqrt``, as the k-d tree does;
+cluster sums in ascending row order, as ``np.bincount``), so the scores and
+kept sets are the same bit for bit. ``log``, ``exp`` and ``log1p`` are left
+to numpy by the caller: numba's differ from numpy's SIMD ones in the last bit.
+No function here allocates per point in a Python loop or uses threads, so the
+results never depend on a thread count.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True, nogil=True)
+def _dist(P, a, b):
+    """|P[a] - P[b]|, summed coordinate by coordinate from the first (the k-d tree's order)."""
+    s = 0.0
+    for j in range(P.shape[1]):
+        d = P[a, j] - P[b, j]
+        s += d * d
+    return math.sqrt(s)
+
+
+@njit(cache=True, nogil=True)
+def candidates(alive, val, threshold, any_finite):
+    """The alive rows with val <= threshold (``any_finite``: with a finite val), ascending, and their val.
+
+    Returns
+    -------
+    pool : ndarray of shape (m,), int64
+    keys : ndarray of shape (m,), float64
+    """
+    n = len(val)
+    pool = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if alive[i]:
+            v = val[i]
+            if (np.isfinite(v) if any_finite else v <= threshold):
+                pool[m] = i
+                m += 1
+    pool = pool[:m]
+    keys = np.empty(m)
+    for i in range(m):
+        keys[i] = val[pool[i]]
+    return pool, keys
+
+
+@njit(cache=True, nogil=True)
+def break_ties(cand, val, tie):
+    """Sort, in place, each run of equal ``val`` of ``cand`` (already sorted by val) by ``tie``.
+
+    With unique ``tie`` ids the result is the lexicographic order (val, tie),
+    whatever order the sort left the equal values in.
+    """
+    m = len(cand)
+    i = 0
+    while i < m:
+        j = i + 1
+        v = val[cand[i]]
+        while j < m and val[cand[j]] == v:
+            j += 1
+        if j - i > 1:
+            seg = cand[i:j].copy()
+            t = np.empty(j - i, dtype=np.int64)
+            for a in range(j - i):
+                t[a] = tie[seg[a]]
+            o = np.argsort(t)
+            for a in range(j - i):
+                cand[i + a] = seg[o[a]]
+        i = j
+
+
+@njit(cache=True, nogil=True)
+def _nearest(P, nb, kk, x, n):
+    """r_1(x): the distance to the first entry of x's list; inf when x has no list."""
+    if kk[x] <= 0 or nb.shape[1] == 0:
+        return np.inf
+    y = nb[x, 0]
+    if y < 0 or y >= n:
+        return np.inf
+    return _dist(P, x, y)
+
+
+@njit(cache=True, nogil=True)
+def _is_covered(P, nb, kk, r1, y, coverage, vals):
+    """r_1(y) <= coverage * (median of r_1 over y's listed neighbours); False without neighbours.
+
+    The median of an even count is the mean of the two middle values (as
+    ``np.nanmedian``). ``vals`` is scratch space of length >= K.
+    """
+    n = len(kk)
+    r = r1[y]
+    if kk[y] <= 0 or nb.shape[1] == 0 or nb[y, 0] < 0 or nb[y, 0] >= n:
+        return False
+    cnt = 0
+    for j in range(min(kk[y], nb.shape[1])):
+        x = nb[y, j]
+        if 0 <= x < n:
+            v = r1[x]
+            a = cnt  # insertion sort: lists are short (k + 1 + spares)
+            while a > 0 and vals[a - 1] > v:
+                vals[a] = vals[a - 1]
+                a -= 1
+            vals[a] = v
+            cnt += 1
+    if cnt == 0:
+        return False
+    med = (vals[(cnt - 1) // 2] + vals[cnt // 2]) / 2
+    return r <= coverage * med
+
+
+@njit(cache=True, nogil=True)
+def spacings(P, nb, kk):
+    """r_1 of every row (n,) float64: distance to its nearest listed neighbour, inf without a list."""
+    n = len(kk)
+    r1 = np.empty(n)
+    for x in range(n):
+        r1[x] = _nearest(P, nb, kk, x, n)
+    return r1
+
+
+@njit(cache=True, nogil=True)
+def covered_mask(P, nb, kk, cand, coverage):
+    """The coverage test of each candidate (bool (len(cand),)); see :func:`_is_covered`."""
+    r1 = spacings(P, nb, kk)
+    vals = np.empty(max(nb.shape[1], 1))
+    ok = np.zeros(len(cand), dtype=np.bool_)
+    for i in range(len(cand)):
+        ok[i] = _is_covered(P, nb, kk, r1, cand[i], coverage, vals)
+    return ok
+
+
+@njit(cache=True, nogil=True)
+def select_round(cand, nb, kk, P, coverage, use_coverage, limit):
+    """One round's greedy independent set of ``cand`` (priority order): the rows taken, in that order.
+
+    A candidate is taken unless a row taken before is in its list or has it
+    in its own list; with ``use_coverage`` it must also pass the coverage
+    test (computed on the lists as they are at the start of the round, so
+    filtering the candidates first gives the same set). Stops after
+    ``limit`` rows (limit < 0: no limit): the first ``limit`` of the whole
+    set, since the pass is sequential.
+    """
+    n = len(kk)
+    K = nb.shape[1]
+    state = np.zeros(n, dtype=np.uint8)  # 0 free, 1 taken, 2 in a taken row's list
+    if use_coverage:
+        r1 = spacings(P, nb, kk)
+    else:
+        r1 = np.empty(0)
+    vals = np.empty(max(K, 1))
+    out = np.empty(len(cand), dtype=np.int64)
+    t = 0
+    for i in range(len(cand)):
+        if t == limit:
+            break
+        y = cand[i]
+        if state[y] != 0:
+            continue
+        ky = min(kk[y], K)
+        free = True
+        for j in range(ky):
+            x = nb[y, j]
+            if 0 <= x < n and state[x] == 1:
+                free = False
+                break
+        if not free:
+            continue
+        if use_coverage and not _is_covered(P, nb, kk, r1, y, coverage, vals):
+            continue
+        state[y] = 1
+        out[t] = y
+        t += 1
+        for j in range(ky):
+            x = nb[y, j]
+            if 0 <= x < n and state[x] == 0:
+                state[x] = 2
+    return out[:t]
+
+
+@njit(cache=True, nogil=True)
+def drop_rows(sel, alive, val, kk, nb, ginv, touched):
+    """Remove the rows ``sel``: dead, val +inf, no list; mark their clusters in ``touched``."""
+    n = len(kk)
+    for y in sel:
+        alive[y] = False
+        val[y] = np.inf
+        kk[y] = 0
+        nb[y, :] = n
+        touched[ginv[y]] = True
+
+
+@njit(cache=True, nogil=True)
+def cluster_counts(ginv, alive, dup, c):
+    """Per cluster: alive distinct rows (m) and alive copies; two (c,) int64 arrays."""
+    m = np.zeros(c, dtype=np.int64)
+    copies = np.zeros(c, dtype=np.int64)
+    for i in range(len(ginv)):
+        if alive[i]:
+            if dup[i]:
+                copies[ginv[i]] += 1
+            else:
+                m[ginv[i]] += 1
+    return m, copies
+
+
+@njit(cache=True, nogil=True)
+def repack_lists(P, ginv, kk, rk, rk1, nb, part, k_new, sel):
+    """Drop the removed rows ``sel`` from the lists of the rows of the ``part`` clusters.
+
+    A list (nearest first, padded with n) that lost an entry, or whose
+    cluster's k changed to k' = ``k_new``, is packed; if it still holds
+    k' + 1 rows, they are the k' + 1 nearest of the remaining ones (removing
+    rows brings none closer), so kk = k', r_k and r_(k+1) are the distances
+    to its k'-th and (k'+1)-th entries. The other rows (their list is packed,
+    kk unchanged) are returned, ascending: they need a new k-NN query.
+    """
+    n = len(kk)
+    W = nb.shape[1]
+    removed = np.zeros(n + 1, dtype=np.bool_)  # slot n: the padding
+    for y in sel:
+        removed[y] = True
+    short = np.empty(n, dtype=np.int64)
+    ns = 0
+    for row in range(n):
+        if kk[row] <= 0 or not part[ginv[row]]:
+            continue
+        kn = k_new[ginv[row]]
+        hit = kk[row] != kn
+        if not hit:
+            for j in range(W):
+                if removed[nb[row, j]]:
+                    hit = True
+                    break
+        if not hit:
+            continue
+        cnt = 0
+        for j in range(W):
+            x = nb[row, j]
+            if x < n and not removed[x]:
+                nb[row, cnt] = x
+                cnt += 1
+        for j in range(cnt, W):
+            nb[row, j] = n
+        if cnt >= kn + 1:
+            kk[row] = kn
+            rk[row] = _dist(P, row, nb[row, kn - 1])
+            rk1[row] = _dist(P, row, nb[row, kn])
+        else:
+            short[ns] = row
+            ns += 1
+    return short[:ns].copy()
+
+
+@njit(cache=True, nogil=True)
+def scored_rows(touched, ginv, kk):
+    """The rows with a list (kk > 0) in the ``touched`` clusters, ascending (int64)."""
+    n = len(kk)
+    rows = np.empty(n, dtype=np.int64)
+    m = 0
+    for i in range(n):
+        if kk[i] > 0 and touched[ginv[i]]:
+            rows[m] = i
+            m += 1
+    return rows[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def log_weights(rows, ginv, c, lr, lr1, neg_dim):
+    """log w and log w' (r_k replaced by r_(k+1)) of the rows, shifted per cluster so the largest w is 1.
+
+    ``lr``, ``lr1`` (M,) are log r_k and log r_(k+1); ``neg_dim`` = -d.
+    Returns lw, lw1 (M,) float64: -d (log r - min over the cluster of log r_k).
+    """
+    M = len(rows)
+    shift = np.full(c, np.inf)
+    for i in range(M):
+        cl = ginv[rows[i]]
+        if lr[i] < shift[cl]:
+            shift[cl] = lr[i]
+    lw = np.empty(M)
+    lw1 = np.empty(M)
+    for i in range(M):
+        s = shift[ginv[rows[i]]]
+        lw[i] = neg_dim * (lr[i] - s)
+        lw1[i] = neg_dim * (lr1[i] - s)
+    return lw, lw1
+
+
+@njit(cache=True, nogil=True)
+def entropy_deltas(rows, ginv, c, kk, nb, w, w1, lw, lw1, acc_w, acc_g):
+    """The changes of W and G when each row leaves its cluster, and its cluster's W.
+
+    With w = r_k^-d (``w``, ``lw`` = log w), w' the weight with r_(k+1)
+    (``w1``, ``lw1``), W = sum w and A = sum w log w per cluster (ascending
+    rows), g = w (log w - A/W): a row x's change (w' - w, g' - g) goes to the
+    rows of its list's first kk[x] entries; the change of removing y is then
+    (sum of what y received - w(y), the same for g). ``acc_w``/``acc_g`` (n,)
+    are scratch (overwritten at ``rows``).
+
+    Returns
+    -------
+    dW, dG, W : three ndarrays of shape (M,), float64
+    """
+    M = len(rows)
+    Wc = np.zeros(c)
+    Ac = np.zeros(c)
+    for i in range(M):
+        cl = ginv[rows[i]]
+        Wc[cl] += w[i]
+        Ac[cl] += w[i] * lw[i]
+    gw = np.empty(M)
+    dw = np.empty(M)
+    dg = np.empty(M)
+    for i in range(M):
+        cl = ginv[rows[i]]
+        L = Ac[cl] / Wc[cl]
+        g = w[i] * (lw[i] - L)
+        g1 = w1[i] * (lw1[i] - L)
+        gw[i] = g
+        dw[i] = w1[i] - w[i]  # exactly 0 when r_(k+1) = r_k (ties)
+        dg[i] = g1 - g
+        acc_w[rows[i]] = 0.0
+        acc_g[rows[i]] = 0.0
+    for i in range(M):
+        r = rows[i]
+        for j in range(kk[r]):
+            t = nb[r, j]
+            acc_w[t] += dw[i]
+            acc_g[t] += dg[i]
+    dW = np.empty(M)
+    dG = np.empty(M)
+    W = np.empty(M)
+    for i in range(M):
+        r = rows[i]
+        dW[i] = acc_w[r] - w[i]
+        dG[i] = acc_g[r] - gw[i]
+        W[i] = Wc[ginv[r]]
+    return dW, dG, W
+
+
+@njit(cache=True, nogil=True)
+def store_scores(rows, ginv, dh, m, use_unit, val):
+    """val[rows] = dH, or m * dH (``m`` (c,) the clusters' distinct alive rows) with ``use_unit``."""
+    for i in range(len(rows)):
+        v = dh[i]
+        if use_unit:
+            v = v * m[ginv[rows[i]]]
+        val[rows[i]] = v
