@@ -57,7 +57,7 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray 
     if len(cand) == 0:
         return cand
     kk = np.full(n, nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
-    return kr.select_round(cand, nb, kk, np.zeros((0, 1)), 1.0, False, -1)
+    return kr.select_round(cand, nb, kk, np.zeros(0, dtype=bool), -1)
 
 
 def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
@@ -106,23 +106,30 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
     return alive
 
 
-def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None) -> np.ndarray:
+def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None,
+                     r1=None) -> np.ndarray:
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
     Candidates are the alive points with val <= threshold (with a target: any
     finite val), lowest val first, ties by ``tie`` (unique ids); ``coverage``
-    keeps those that pass :func:`_covered`; then a greedy independent set in
-    the k-NN graph ``nb`` (rows cut at ``kk``), cut at the target.
+    keeps those that pass :func:`_covered` (on ``r1``, the r_1 of every point,
+    computed when not given); then a greedy independent set in the k-NN graph
+    ``nb`` (rows cut at ``kk``), cut at the target.
     """
     if target is not None and n_alive <= target:
         return np.zeros(0, dtype=np.int64)
     pool, keys = kr.candidates(alive, val, float(threshold), target is not None)
-    cand = pool[np.argsort(keys)]
-    kr.break_ties(cand, val, tie)
+    o = np.argsort(keys)
+    cand = pool[o]
+    kr.break_ties(cand, keys[o], tie)
     if kk is None:
         kk = np.full(len(P), nb.shape[1], dtype=np.int64)
+    if rule != "coverage":
+        ok = np.zeros(0, dtype=bool)
+    else:
+        ok = kr.covered_rows(nb, kk, kr.spacings(P, nb, kk) if r1 is None else r1, float(coverage))
     limit = -1 if target is None else n_alive - target
-    sel = kr.select_round(cand, nb, kk, P, float(coverage), rule == "coverage", limit)
+    sel = kr.select_round(cand, nb, kk, ok, limit)
     if len(sel) == 0 and target is not None:
         logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
     return sel
@@ -171,6 +178,8 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     val = np.full(n, np.inf)
     val[dup] = 0.0
 
+    r1 = np.full(n, np.inf)  # r_1 of the rows with a list (kk > 0), +inf for the others
+
     def store(grps):
         for k, r, a, b, x in grps:
             kk[r] = k
@@ -178,6 +187,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
             rk1[r] = b
             nbx[r, : x.shape[1]] = x
             nbx[r, x.shape[1] :] = n
+            kr.spacings_at(g, nbx, kk, r, r1)
 
     def query(whole):
         """Find the copies in the whole clusters again, then m, k; the rows to query."""
@@ -185,6 +195,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
         if len(wrows) == 0:
             return wrows
         kk[wrows] = 0
+        r1[wrows] = np.inf
         nbx[wrows] = n
         val[wrows] = np.inf
         distinct = mark_duplicates(g, ginv, wrows, dup)
@@ -227,11 +238,11 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     rnd = 0
     while max_rounds is None or rnd < max_rounds:
         # ties: canonical index (the input order, not the grouped one)
-        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk)
+        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk, r1)
         if len(sel) == 0:
             break
         touched = np.zeros(c, dtype=bool)
-        kr.drop_rows(sel, alive, val, kk, nbx, ginv, touched)
+        kr.drop_rows(sel, alive, val, kk, r1, nbx, ginv, touched)
         n_alive -= len(sel)
         rnd += 1
         report(len(sel))
@@ -241,7 +252,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
         whole = touched & ((copies > 0) | (m < k_new + 2))
         part = touched & ~whole
         # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
-        q_part = kr.repack_lists(g, ginv, kk, rk, rk1, nbx, part, k_new, sel)
+        q_part = kr.repack_lists(g, ginv, kk, rk, rk1, r1, nbx, part, k_new, sel)
         kcl[part] = k_new[part]
         q_whole = query(whole)
         logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",

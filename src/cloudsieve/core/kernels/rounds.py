@@ -63,8 +63,8 @@ def candidates(alive, val, threshold, any_finite):
 
 
 @njit(cache=True, nogil=True)
-def break_ties(cand, val, tie):
-    """Sort, in place, each run of equal ``val`` of ``cand`` (already sorted by val) by ``tie``.
+def break_ties(cand, keys, tie):
+    """Sort, in place, each run of equal ``keys`` of ``cand`` (sorted by ``keys``, aligned with it) by ``tie``.
 
     With unique ``tie`` ids the result is the lexicographic order (val, tie),
     whatever order the sort left the equal values in.
@@ -73,8 +73,8 @@ def break_ties(cand, val, tie):
     i = 0
     while i < m:
         j = i + 1
-        v = val[cand[i]]
-        while j < m and val[cand[j]] == v:
+        v = keys[i]
+        while j < m and keys[j] == v:
             j += 1
         if j - i > 1:
             seg = cand[i:j].copy()
@@ -99,18 +99,71 @@ def _nearest(P, nb, kk, x, n):
 
 
 @njit(cache=True, nogil=True)
-def _is_covered(P, nb, kk, r1, y, coverage, vals):
+def spacings(P, nb, kk):
+    """r_1 of every row (n,) float64: distance to its nearest listed neighbour, inf without a list."""
+    n = len(kk)
+    r1 = np.empty(n)
+    for x in range(n):
+        r1[x] = _nearest(P, nb, kk, x, n)
+    return r1
+
+
+@njit(cache=True, nogil=True)
+def spacings_at(P, nb, kk, rows, r1):
+    """r1[rows] = r_1 of those rows (see :func:`spacings`)."""
+    n = len(kk)
+    for x in rows:
+        r1[x] = _nearest(P, nb, kk, x, n)
+
+
+_HALF_MAX = np.finfo(np.float64).max / 2
+
+
+@njit(cache=True, nogil=True)
+def _is_covered(nb, kk, r1, y, coverage, vals):
     """r_1(y) <= coverage * (median of r_1 over y's listed neighbours); False without neighbours.
 
-    The median of an even count is the mean of the two middle values (as
-    ``np.nanmedian``). ``vals`` is scratch space of length >= K.
+    ``r1`` (n,) holds r_1 of every row, +inf for a row without a list (kk <= 0),
+    as :func:`spacings` gives it. The median of an even count is the mean of
+    the two middle values, as ``np.nanmedian``. With 0 < coverage < inf, c v
+    is monotone in v, so the values v with r_1(y) <= c v are the upper part of
+    the sorted values: counting them decides, except when the median is the
+    mean of the largest value below and the smallest above (both known from
+    the same pass), or when a sum could overflow; then (and for other
+    coverages) the values are sorted. ``vals`` is scratch space of length >= K.
     """
     n = len(kk)
-    r = r1[y]
     if kk[y] <= 0 or nb.shape[1] == 0 or nb[y, 0] < 0 or nb[y, 0] >= n:
         return False
+    r = r1[y]
+    K = min(kk[y], nb.shape[1])
+    if 0.0 < coverage < np.inf:
+        cnt = 0
+        s = 0  # values v with r <= c v
+        lo_above = np.inf  # smallest of them
+        hi_below = -np.inf  # largest of the others
+        for j in range(K):
+            x = nb[y, j]
+            if 0 <= x < n:
+                v = r1[x]
+                cnt += 1
+                up = r <= coverage * v  # no branch on it: it is a coin toss
+                s += up
+                lo_above = min(lo_above, v if up else np.inf)
+                hi_below = max(hi_below, -np.inf if up else v)
+        if cnt == 0:
+            return False
+        a = (cnt - 1) // 2  # the median is (v_a + v_b) / 2 of the sorted values
+        b = cnt // 2
+        first = cnt - s  # sorted position of the first value with r <= c v
+        if first <= a:  # r <= c v_a <= c median
+            return True
+        if first > b and hi_below <= _HALF_MAX:  # r > c v_b >= c median (v_a + v_b does not overflow)
+            return False
+        if first == b and a < b:  # v_a, v_b: the largest below, the smallest above
+            return r <= coverage * ((hi_below + lo_above) / 2)
     cnt = 0
-    for j in range(min(kk[y], nb.shape[1])):
+    for j in range(K):
         x = nb[y, j]
         if 0 <= x < n:
             v = r1[x]
@@ -127,52 +180,53 @@ def _is_covered(P, nb, kk, r1, y, coverage, vals):
 
 
 @njit(cache=True, nogil=True)
-def spacings(P, nb, kk):
-    """r_1 of every row (n,) float64: distance to its nearest listed neighbour, inf without a list."""
-    n = len(kk)
-    r1 = np.empty(n)
-    for x in range(n):
-        r1[x] = _nearest(P, nb, kk, x, n)
-    return r1
-
-
-@njit(cache=True, nogil=True)
 def covered_mask(P, nb, kk, cand, coverage):
     """The coverage test of each candidate (bool (len(cand),)); see :func:`_is_covered`."""
     r1 = spacings(P, nb, kk)
     vals = np.empty(max(nb.shape[1], 1))
     ok = np.zeros(len(cand), dtype=np.bool_)
     for i in range(len(cand)):
-        ok[i] = _is_covered(P, nb, kk, r1, cand[i], coverage, vals)
+        ok[i] = _is_covered(nb, kk, r1, cand[i], coverage, vals)
     return ok
 
 
 @njit(cache=True, nogil=True)
-def select_round(cand, nb, kk, P, coverage, use_coverage, limit):
+def covered_rows(nb, kk, r1, coverage):
+    """The coverage test of every row (bool (n,)), in row order (a cluster's rows are close in memory).
+
+    ``r1`` (n,): the rows' r_1, +inf where kk <= 0 (:func:`spacings`).
+    """
+    n = len(kk)
+    vals = np.empty(max(nb.shape[1], 1))
+    ok = np.zeros(n, dtype=np.bool_)
+    for y in range(n):
+        if kk[y] > 0:
+            ok[y] = _is_covered(nb, kk, r1, y, coverage, vals)
+    return ok
+
+
+@njit(cache=True, nogil=True)
+def select_round(cand, nb, kk, ok, limit):
     """One round's greedy independent set of ``cand`` (priority order): the rows taken, in that order.
 
     A candidate is taken unless a row taken before is in its list or has it
-    in its own list; with ``use_coverage`` it must also pass the coverage
-    test (computed on the lists as they are at the start of the round, so
-    filtering the candidates first gives the same set). Stops after
-    ``limit`` rows (limit < 0: no limit): the first ``limit`` of the whole
-    set, since the pass is sequential.
+    in its own list; when ``ok`` (n,) bool is not empty, it must also have
+    ok[row] (the coverage test, on the lists as they are at the start of the
+    round, so filtering the candidates first gives the same set). Stops
+    after ``limit`` rows (limit < 0: no limit): the first ``limit`` of the
+    whole set, since the pass is sequential.
     """
     n = len(kk)
     K = nb.shape[1]
+    test = len(ok) > 0
     state = np.zeros(n, dtype=np.uint8)  # 0 free, 1 taken, 2 in a taken row's list
-    if use_coverage:
-        r1 = spacings(P, nb, kk)
-    else:
-        r1 = np.empty(0)
-    vals = np.empty(max(K, 1))
     out = np.empty(len(cand), dtype=np.int64)
     t = 0
     for i in range(len(cand)):
         if t == limit:
             break
         y = cand[i]
-        if state[y] != 0:
+        if state[y] != 0 or (test and not ok[y]):
             continue
         ky = min(kk[y], K)
         free = True
@@ -182,8 +236,6 @@ def select_round(cand, nb, kk, P, coverage, use_coverage, limit):
                 free = False
                 break
         if not free:
-            continue
-        if use_coverage and not _is_covered(P, nb, kk, r1, y, coverage, vals):
             continue
         state[y] = 1
         out[t] = y
@@ -196,12 +248,13 @@ def select_round(cand, nb, kk, P, coverage, use_coverage, limit):
 
 
 @njit(cache=True, nogil=True)
-def drop_rows(sel, alive, val, kk, nb, ginv, touched):
-    """Remove the rows ``sel``: dead, val +inf, no list; mark their clusters in ``touched``."""
+def drop_rows(sel, alive, val, kk, r1, nb, ginv, touched):
+    """Remove the rows ``sel``: dead, val and r1 +inf, no list; mark their clusters in ``touched``."""
     n = len(kk)
     for y in sel:
         alive[y] = False
         val[y] = np.inf
+        r1[y] = np.inf
         kk[y] = 0
         nb[y, :] = n
         touched[ginv[y]] = True
@@ -222,15 +275,16 @@ def cluster_counts(ginv, alive, dup, c):
 
 
 @njit(cache=True, nogil=True)
-def repack_lists(P, ginv, kk, rk, rk1, nb, part, k_new, sel):
+def repack_lists(P, ginv, kk, rk, rk1, r1, nb, part, k_new, sel):
     """Drop the removed rows ``sel`` from the lists of the rows of the ``part`` clusters.
 
     A list (nearest first, padded with n) that lost an entry, or whose
     cluster's k changed to k' = ``k_new``, is packed; if it still holds
     k' + 1 rows, they are the k' + 1 nearest of the remaining ones (removing
     rows brings none closer), so kk = k', r_k and r_(k+1) are the distances
-    to its k'-th and (k'+1)-th entries. The other rows (their list is packed,
-    kk unchanged) are returned, ascending: they need a new k-NN query.
+    to its k'-th and (k'+1)-th entries (and r1 to its first, when that
+    changed). The other rows (their list is packed, kk unchanged) are
+    returned, ascending: they need a new k-NN query.
     """
     n = len(kk)
     W = nb.shape[1]
@@ -243,26 +297,27 @@ def repack_lists(P, ginv, kk, rk, rk1, nb, part, k_new, sel):
         if kk[row] <= 0 or not part[ginv[row]]:
             continue
         kn = k_new[ginv[row]]
-        hit = kk[row] != kn
-        if not hit:
-            for j in range(W):
-                if removed[nb[row, j]]:
-                    hit = True
-                    break
-        if not hit:
-            continue
+        first = nb[row, 0]
         cnt = 0
-        for j in range(W):
+        lost = 0
+        for j in range(W):  # pack in place (the entries come first, unchanged when none was removed)
             x = nb[row, j]
-            if x < n and not removed[x]:
-                nb[row, cnt] = x
-                cnt += 1
+            if x < n:
+                if removed[x]:
+                    lost += 1
+                else:
+                    nb[row, cnt] = x
+                    cnt += 1
+        if lost == 0 and kk[row] == kn:
+            continue
         for j in range(cnt, W):
             nb[row, j] = n
         if cnt >= kn + 1:
             kk[row] = kn
             rk[row] = _dist(P, row, nb[row, kn - 1])
             rk1[row] = _dist(P, row, nb[row, kn])
+            if nb[row, 0] != first:
+                r1[row] = _dist(P, row, nb[row, 0])
         else:
             short[ns] = row
             ns += 1
