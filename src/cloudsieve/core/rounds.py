@@ -107,21 +107,19 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
 
 
 def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None,
-                     r1=None) -> np.ndarray:
+                     r1=None, starts=None) -> np.ndarray:
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
     Candidates are the alive points with val <= threshold (with a target: any
     finite val), lowest val first, ties by ``tie`` (unique ids); ``coverage``
     keeps those that pass :func:`_covered` (on ``r1``, the r_1 of every point,
     computed when not given); then a greedy independent set in the k-NN graph
-    ``nb`` (rows cut at ``kk``), cut at the target.
+    ``nb`` (rows cut at ``kk``), cut at the target (then in priority order,
+    otherwise in any order). ``starts`` (c + 1,): the points are grouped by
+    cluster and no list leaves its cluster, so each cluster is run on its own.
     """
     if target is not None and n_alive <= target:
         return np.zeros(0, dtype=np.int64)
-    pool, keys = kr.candidates(alive, val, float(threshold), target is not None)
-    o = np.argsort(keys)
-    cand = pool[o]
-    kr.break_ties(cand, keys[o], tie)
     if kk is None:
         kk = np.full(len(P), nb.shape[1], dtype=np.int64)
     if rule != "coverage":
@@ -129,7 +127,20 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
     else:
         ok = kr.covered_rows(nb, kk, kr.spacings(P, nb, kk) if r1 is None else r1, float(coverage))
     limit = -1 if target is None else n_alive - target
-    sel = kr.select_round(cand, nb, kk, ok, limit)
+    if starts is not None:
+        sel = kr.select_clusters(starts, alive, val, float(threshold), target is not None, tie, nb, kk, ok)
+        if 0 <= limit < len(sel):  # the first ``limit`` in priority order
+            keys = val[sel]
+            o = np.argsort(keys)
+            sel = sel[o]
+            kr.break_ties(sel, keys[o], tie)
+            sel = sel[:limit]
+    else:
+        pool, keys = kr.candidates(alive, val, float(threshold), target is not None)
+        o = np.argsort(keys)
+        cand = pool[o]
+        kr.break_ties(cand, keys[o], tie)
+        sel = kr.select_round(cand, nb, kk, ok, limit)
     if len(sel) == 0 and target is not None:
         logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
     return sel
@@ -172,7 +183,8 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
     rk = np.ones(n)
     rk1 = np.ones(n)
-    nbx = np.full((n, K + 1 + _SPARE), n, dtype=np.int64)  # nearest first (grouped positions), n after
+    idt = np.int32 if n < 2**31 - 1 else np.int64  # half the memory traffic of the rounds' kernels
+    nbx = np.full((n, K + 1 + _SPARE), n, dtype=idt)  # nearest first (grouped positions), n after
     kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
     alive = np.ones(n, dtype=bool)
     val = np.full(n, np.inf)
@@ -182,12 +194,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
 
     def store(grps):
         for k, r, a, b, x in grps:
-            kk[r] = k
-            rk[r] = a
-            rk1[r] = b
-            nbx[r, : x.shape[1]] = x
-            nbx[r, x.shape[1] :] = n
-            kr.spacings_at(g, nbx, kk, r, r1)
+            kr.store_lists(r, k, a, b, x, g, kk, rk, rk1, r1, nbx)
 
     def query(whole):
         """Find the copies in the whole clusters again, then m, k; the rows to query."""
@@ -213,6 +220,8 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
             trows = np.flatnonzero(alive & ~dup & need[ginv])
             store(knn_query(g, ginv, trows, kcl, threads, query=np.searchsorted(trows, q), extra=_SPARE)[0])
 
+    starts = np.zeros(c + 1, dtype=np.int64)  # cluster j: rows starts[j] to starts[j + 1]
+    np.cumsum(sizes, out=starts[1:])
     store(groups)
     for k, r, _, _, _ in groups:
         kcl[ginv[r]] = k
@@ -238,7 +247,8 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     rnd = 0
     while max_rounds is None or rnd < max_rounds:
         # ties: canonical index (the input order, not the grouped one)
-        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk, r1)
+        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk, r1,
+                               starts)
         if len(sel) == 0:
             break
         touched = np.zeros(c, dtype=bool)
@@ -257,7 +267,7 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
         q_whole = query(whole)
         logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",
                      rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part), len(q_whole))
-        run(np.union1d(q_part, q_whole))
+        run(np.union1d(q_part, q_whole) if len(q_whole) else q_part)
         rescore(touched)
     out = np.empty(n, dtype=bool)
     out[order] = alive

@@ -248,6 +248,139 @@ def select_round(cand, nb, kk, ok, limit):
 
 
 @njit(cache=True, nogil=True)
+def _sort_key(v):
+    """uint64 in the order of the float64 v (-0.0 as 0.0; no NaN)."""
+    b = np.array([v + 0.0]).view(np.uint64)[0]
+    if b >> np.uint64(63):
+        return ~b
+    return b | (np.uint64(1) << np.uint64(63))
+
+
+@njit(cache=True, nogil=True)
+def _radix_order(keys, m, kb, kb2, ib, ib2, count):
+    """The stable order of keys[:m] (float64, no NaN): a byte-wise radix sort skipping the bytes
+    all keys share (few in one cluster). ``kb``, ``kb2`` (uint64), ``ib``, ``ib2`` (int64) of
+    length >= m and ``count`` (256,) int64 are scratch; returns a view of ``ib`` or ``ib2``."""
+    same_or = np.uint64(0)
+    same_and = ~np.uint64(0)
+    for i in range(m):
+        u = _sort_key(keys[i])
+        kb[i] = u
+        ib[i] = i
+        same_or |= u
+        same_and &= u
+    varies = same_or ^ same_and
+    a_k, a_i, b_k, b_i = kb, ib, kb2, ib2
+    for p in range(8):
+        sh = np.uint64(8 * p)
+        if (varies >> sh) & np.uint64(255) == 0:
+            continue
+        count[:] = 0
+        for i in range(m):
+            count[(a_k[i] >> sh) & np.uint64(255)] += 1
+        tot = 0
+        for d in range(256):
+            c = count[d]
+            count[d] = tot
+            tot += c
+        for i in range(m):
+            d = (a_k[i] >> sh) & np.uint64(255)
+            o = count[d]
+            count[d] = o + 1
+            b_k[o] = a_k[i]
+            b_i[o] = a_i[i]
+        a_k, b_k = b_k, a_k
+        a_i, b_i = b_i, a_i
+    return a_i[:m]
+
+
+@njit(cache=True, nogil=True)
+def select_clusters(starts, alive, val, threshold, any_finite, tie, nb, kk, ok):
+    """The greedy independent sets of one round when every list stays inside its cluster.
+
+    Rows are grouped by cluster (cluster j: rows starts[j] to starts[j + 1]).
+    The candidates (alive, val <= threshold, or finite val with
+    ``any_finite``) are taken in the order (val, tie) as in
+    :func:`select_round`; since no list leaves its cluster, a row's fate
+    depends only on the candidates of its cluster before it, so each cluster
+    is ordered and run on its own (small sorts, memory at hand). Returns the
+    rows taken (int64, cluster by cluster): the whole set of
+    :func:`select_round` without limit, in another order.
+    """
+    n = len(kk)
+    K = nb.shape[1]
+    test = len(ok) > 0
+    M = 1
+    for c in range(len(starts) - 1):
+        M = max(M, starts[c + 1] - starts[c])
+    cand = np.empty(M, dtype=np.int64)
+    keys = np.empty(M)
+    kb = np.empty(M, dtype=np.uint64)
+    kb2 = np.empty(M, dtype=np.uint64)
+    ib = np.empty(M, dtype=np.int64)
+    ib2 = np.empty(M, dtype=np.int64)
+    count = np.zeros(256, dtype=np.int64)
+    srt = np.empty(M, dtype=np.int64)
+    skeys = np.empty(M)
+    state = np.zeros(n, dtype=np.uint8)  # 0 free, 1 taken, 2 in a taken row's list
+    out = np.empty(n, dtype=np.int64)
+    t = 0
+    for c in range(len(starts) - 1):
+        m = 0
+        for i in range(starts[c], starts[c + 1]):
+            if alive[i] and (np.isfinite(val[i]) if any_finite else val[i] <= threshold):
+                cand[m] = i
+                keys[m] = val[i]
+                m += 1
+        if m == 0:
+            continue
+        o = _radix_order(keys, m, kb, kb2, ib, ib2, count)
+        for i in range(m):
+            srt[i] = cand[o[i]]
+            skeys[i] = keys[o[i]]
+        break_ties(srt[:m], skeys[:m], tie)
+        for i in range(m):
+            y = srt[i]
+            if state[y] != 0 or (test and not ok[y]):
+                continue
+            ky = min(kk[y], K)
+            free = True
+            for j in range(ky):
+                x = nb[y, j]
+                if 0 <= x < n and state[x] == 1:
+                    free = False
+                    break
+            if not free:
+                continue
+            state[y] = 1
+            out[t] = y
+            t += 1
+            for j in range(ky):
+                x = nb[y, j]
+                if 0 <= x < n and state[x] == 0:
+                    state[x] = 2
+    return out[:t].copy()
+
+
+@njit(cache=True, nogil=True)
+def store_lists(rows, k, rk_rows, rk1_rows, lists, P, kk, rk, rk1, r1, nb):
+    """Write the k-NN query results of ``rows``: kk = k, r_k, r_(k+1), the lists (padded with n), r_1."""
+    n = len(kk)
+    W = nb.shape[1]
+    w = lists.shape[1]
+    for i in range(len(rows)):
+        r = rows[i]
+        kk[r] = k
+        rk[r] = rk_rows[i]
+        rk1[r] = rk1_rows[i]
+        for j in range(w):
+            nb[r, j] = lists[i, j]
+        for j in range(w, W):
+            nb[r, j] = n
+        r1[r] = _nearest(P, nb, kk, r, n)
+
+
+@njit(cache=True, nogil=True)
 def drop_rows(sel, alive, val, kk, r1, nb, ginv, touched):
     """Remove the rows ``sel``: dead, val and r1 +inf, no list; mark their clusters in ``touched``."""
     n = len(kk)
@@ -300,17 +433,20 @@ def repack_lists(P, ginv, kk, rk, rk1, r1, nb, part, k_new, sel):
         first = nb[row, 0]
         cnt = 0
         lost = 0
+        end = W
         for j in range(W):  # pack in place (the entries come first, unchanged when none was removed)
             x = nb[row, j]
-            if x < n:
-                if removed[x]:
-                    lost += 1
-                else:
-                    nb[row, cnt] = x
-                    cnt += 1
+            if x >= n:
+                end = j
+                break
+            if removed[x]:
+                lost += 1
+            else:
+                nb[row, cnt] = x
+                cnt += 1
         if lost == 0 and kk[row] == kn:
             continue
-        for j in range(cnt, W):
+        for j in range(cnt, end):
             nb[row, j] = n
         if cnt >= kn + 1:
             kk[row] = kn
