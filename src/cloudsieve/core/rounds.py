@@ -214,11 +214,23 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
         return distinct[ok[ginv[distinct]]]
 
     def run(q):
-        if len(q):
+        """New k-NN lists for the rows q (ascending): by brute force inside the cluster
+        (:func:`.kernels.rounds.refresh_lists`), by the k-d tree for rows whose list has
+        tied distances (so their tie order is the tree's, as with a query of all of q)."""
+        if len(q) == 0:
+            return
+        lists, kq, a, b, d1, status = kr.refresh_lists(g, ginv, starts, alive, dup, q, kcl, _SPARE, nbx.shape[1])
+        if (status == 2).any():
+            tree_q = q  # a zero distance: the tree's cluster flag decides, query them all
+        else:
+            kr.store_refreshed(q, status, lists, kq, a, b, d1, kk, rk, rk1, r1, nbx)
+            tree_q = q[status == 1]
+        if len(tree_q):
             need = np.zeros(c, dtype=bool)
-            need[ginv[q]] = True
+            need[ginv[q]] = True  # the tree of all of q's clusters, as a query of all of q would build
             trows = np.flatnonzero(alive & ~dup & need[ginv])
-            store(knn_query(g, ginv, trows, kcl, threads, query=np.searchsorted(trows, q), extra=_SPARE)[0])
+            store(knn_query(g, ginv, trows, kcl, threads, query=np.searchsorted(trows, tree_q), extra=_SPARE)[0])
+        logger.debug("k-NN lists refreshed for %d points, %d by the k-d tree", len(q), len(tree_q))
 
     starts = np.zeros(c + 1, dtype=np.int64)  # cluster j: rows starts[j] to starts[j + 1]
     np.cumsum(sizes, out=starts[1:])

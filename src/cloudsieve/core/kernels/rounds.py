@@ -381,6 +381,116 @@ def store_lists(rows, k, rk_rows, rk1_rows, lists, P, kk, rk, rk1, r1, nb):
 
 
 @njit(cache=True, nogil=True)
+def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
+    """New lists for the rows ``q`` (ascending) among the alive distinct rows of their cluster, by brute force.
+
+    Row y of cluster j gets k = kcl[j] and its L = k + 1 + e nearest, e =
+    min(extra, m - k - 2) (m: the cluster's alive distinct rows), nearest
+    first, as the k-d tree query of :func:`cloudsieve.core.knn.knn_query`
+    would return them: squared distances summed as the tree does, so the
+    same values. The tree's list is the sorted one whenever the squared
+    distances to the L + 1 nearest are all different (ties aside, no two
+    exact k-NN lists differ); otherwise the row is flagged for the tree.
+
+    Returns
+    -------
+    lists : ndarray of shape (len(q), width), int64
+        The lists, padded with n.
+    kq : ndarray of shape (len(q),), int64
+    rk, rk1, r1 : ndarrays of shape (len(q),), float64
+        r_k, r_(k+1) and r_1 of each row.
+    status : ndarray of shape (len(q),), int8
+        0 done, 1 a tie (ask the tree), 2 a zero distance to another row
+        (the tree would flag the cluster as holding copies).
+    """
+    n = len(ginv)
+    p = P.shape[1]
+    nq = len(q)
+    lists = np.full((nq, width), n, dtype=np.int64)
+    kq = np.zeros(nq, dtype=np.int64)
+    rk = np.zeros(nq)
+    rk1 = np.zeros(nq)
+    r1 = np.zeros(nq)
+    status = np.zeros(nq, dtype=np.int8)
+    M = 1
+    for j in range(len(starts) - 1):
+        M = max(M, starts[j + 1] - starts[j])
+    idx = np.empty(M, dtype=np.int64)
+    pts = np.empty((M, p))
+    bs = np.empty(width + 2)  # the L + 1 smallest squared distances, ascending
+    bi = np.empty(width + 2, dtype=np.int64)
+    i = 0
+    while i < nq:
+        j = ginv[q[i]]
+        m = 0
+        for r in range(starts[j], starts[j + 1]):
+            if alive[r] and not dup[r]:
+                idx[m] = r
+                for d in range(p):
+                    pts[m, d] = P[r, d]
+                m += 1
+        k = kcl[j]
+        e = min(extra, max(m - k - 2, 0))
+        L = k + 1 + e
+        while i < nq and ginv[q[i]] == j:
+            y = q[i]
+            nbuf = 0
+            for a in range(m):
+                r = idx[a]
+                if r == y:
+                    continue
+                sq = 0.0
+                for d in range(p):
+                    dd = P[y, d] - pts[a, d]
+                    sq += dd * dd
+                if nbuf == L + 1 and sq >= bs[L]:
+                    continue
+                b = nbuf if nbuf < L + 1 else L  # insert, dropping the largest when full
+                while b > 0 and bs[b - 1] > sq:
+                    bs[b] = bs[b - 1]
+                    bi[b] = bi[b - 1]
+                    b -= 1
+                bs[b] = sq
+                bi[b] = r
+                if nbuf < L + 1:
+                    nbuf += 1
+            st = 0
+            if nbuf == 0 or bs[0] == 0.0:
+                st = 2
+            else:
+                for b in range(1, min(nbuf, L + 1)):
+                    if bs[b] == bs[b - 1]:
+                        st = 1
+                        break
+            status[i] = st
+            if st == 0:
+                kq[i] = k
+                for b in range(L):
+                    lists[i, b] = bi[b]
+                rk[i] = math.sqrt(bs[k - 1])
+                rk1[i] = math.sqrt(bs[k])
+                r1[i] = math.sqrt(bs[0])
+            i += 1
+    return lists, kq, rk, rk1, r1, status
+
+
+@njit(cache=True, nogil=True)
+def store_refreshed(q, status, lists, kq, rkq, rk1q, r1q, kk, rk, rk1, r1, nb):
+    """Write the lists of :func:`refresh_lists` with status 0 into the state."""
+    W = nb.shape[1]
+    for i in range(len(q)):
+        if status[i] != 0:
+            continue
+        r = q[i]
+        kk[r] = kq[i]
+        rk[r] = rkq[i]
+        rk1[r] = rk1q[i]
+        r1[r] = r1q[i]
+        for j in range(W):
+            nb[r, j] = lists[i, j]
+
+
+@njit(cache=True, nogil=True)
 def drop_rows(sel, alive, val, kk, r1, nb, ginv, touched):
     """Remove the rows ``sel``: dead, val and r1 +inf, no list; mark their clusters in ``touched``."""
     n = len(kk)
