@@ -416,44 +416,88 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
     for j in range(len(starts) - 1):
         M = max(M, starts[j + 1] - starts[j])
     idx = np.empty(M, dtype=np.int64)
-    pts = np.empty((M, p))
+    cols = np.empty((p, M))  # the cluster's alive distinct points, one coordinate a row
+    sq = np.empty(M)
+    cs = np.empty(M)
+    ci = np.empty(M, dtype=np.int64)
+    ipos = np.zeros(M, dtype=np.int64)  # position in the buffer of each row of the cluster
     bs = np.empty(width + 2)  # the L + 1 smallest squared distances, ascending
     bi = np.empty(width + 2, dtype=np.int64)
+    t = np.inf
     i = 0
     while i < nq:
         j = ginv[q[i]]
         m = 0
+        t = np.inf
         for r in range(starts[j], starts[j + 1]):
             if alive[r] and not dup[r]:
+                ipos[r - starts[j]] = m
                 idx[m] = r
                 for d in range(p):
-                    pts[m, d] = P[r, d]
+                    cols[d, m] = P[r, d]
                 m += 1
         k = kcl[j]
         e = min(extra, max(m - k - 2, 0))
         L = k + 1 + e
         while i < nq and ginv[q[i]] == j:
             y = q[i]
-            nbuf = 0
+            # squared distances, summed coordinate by coordinate as the tree does (vectorised)
+            c0 = P[y, 0]
             for a in range(m):
-                r = idx[a]
-                if r == y:
-                    continue
-                sq = 0.0
-                for d in range(p):
-                    dd = P[y, d] - pts[a, d]
-                    sq += dd * dd
-                if nbuf == L + 1 and sq >= bs[L]:
-                    continue
-                b = nbuf if nbuf < L + 1 else L  # insert, dropping the largest when full
-                while b > 0 and bs[b - 1] > sq:
-                    bs[b] = bs[b - 1]
-                    bi[b] = bi[b - 1]
-                    b -= 1
-                bs[b] = sq
-                bi[b] = r
-                if nbuf < L + 1:
-                    nbuf += 1
+                dd = c0 - cols[0, a]
+                sq[a] = dd * dd
+            for d in range(1, p):
+                cd = P[y, d]
+                for a in range(m):
+                    dd = cd - cols[d, a]
+                    sq[a] += dd * dd
+            # the L + 1 smallest (itself excluded): a threshold t with L + 1 to ~2 (L + 1) values
+            # <= t (counted without branches, t from the previous row's), those values ranked
+            sp = ipos[y - starts[j]]
+            sq[sp] = np.inf
+            need = min(L + 1, m - 1)
+            if need <= 0:
+                nbuf = 0
+            else:
+                if not (0.0 < t < np.inf):
+                    tot = 0.0
+                    for a in range(m):
+                        if sq[a] < np.inf:
+                            tot += sq[a]
+                    t = tot / m * (need + 1) / m * 2.0
+                lo = 0.0
+                hi = np.inf
+                for _ in range(200):
+                    cnt = 0
+                    for a in range(m):
+                        cnt += (sq[a] <= t) & (a != sp)
+                    if cnt < need:
+                        lo = t
+                        t = t * 2.0 if hi == np.inf else (t + hi) / 2
+                    elif cnt > 2 * need + 4:
+                        hi = t
+                        t = (lo + t) / 2
+                    else:
+                        break
+                if cnt < need:  # t did not settle (huge spread): take every value
+                    t = np.inf
+                cnt = 0
+                for a in range(m):
+                    v = sq[a]
+                    cs[cnt] = v
+                    ci[cnt] = a
+                    cnt += (v <= t) & (a != sp)
+                for x in range(cnt):  # rank (ties by position) without branches
+                    v = cs[x]
+                    rank = 0
+                    for z in range(cnt):
+                        w = cs[z]
+                        rank += (w < v) | ((w == v) & (z < x))
+                    if rank <= L:
+                        bs[rank] = v
+                        bi[rank] = idx[ci[x]]
+                nbuf = min(cnt, L + 1)
+                t = bs[need - 1] * 1.25
             st = 0
             if nbuf == 0 or bs[0] == 0.0:
                 st = 2
