@@ -17,11 +17,14 @@ from __future__ import annotations
 
 import logging
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from ._validation import neighbour_count
 from .entropy import entropy_change, score_unchecked
+from .kernels import lists as kl
+from .kernels import rescore as ks
 from .kernels import rounds as kr
 from .knn import group, knn_clusters, knn_query, mark_duplicates
 
@@ -107,7 +110,7 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
 
 
 def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None,
-                     r1=None, starts=None) -> np.ndarray:
+                     r1=None, chunked=None) -> np.ndarray:
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
     Candidates are the alive points with val <= threshold (with a target: any
@@ -115,20 +118,28 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
     keeps those that pass :func:`_covered` (on ``r1``, the r_1 of every point,
     computed when not given); then a greedy independent set in the k-NN graph
     ``nb`` (rows cut at ``kk``), cut at the target (then in priority order,
-    otherwise in any order). ``starts`` (c + 1,): the points are grouped by
-    cluster and no list leaves its cluster, so each cluster is run on its own.
+    otherwise in any order). ``chunked``: a :class:`_Chunks` of the points,
+    grouped by cluster with every list inside its cluster, so that each
+    cluster is run on its own.
     """
     if target is not None and n_alive <= target:
         return np.zeros(0, dtype=np.int64)
+    n = len(P)
     if kk is None:
-        kk = np.full(len(P), nb.shape[1], dtype=np.int64)
-    if rule != "coverage":
-        ok = np.zeros(0, dtype=bool)
-    else:
-        ok = kr.covered_rows(nb, kk, kr.spacings(P, nb, kk) if r1 is None else r1, float(coverage))
+        kk = np.full(n, nb.shape[1], dtype=np.int64)
+    ok = np.zeros(0, dtype=bool)
+    if rule == "coverage":
+        if r1 is None:
+            r1 = kl.spacings(P, nb, kk)
+        ok = np.zeros(n, dtype=bool)
+        if chunked is None:
+            kr.covered_rows(nb, kk, r1, float(coverage), 0, n, ok)
+        else:
+            chunked.map(lambda i, c0, c1, a, b: kr.covered_rows(nb, kk, r1, float(coverage), a, b, ok))
     limit = -1 if target is None else n_alive - target
-    if starts is not None:
-        sel = kr.select_clusters(starts, alive, val, float(threshold), target is not None, tie, nb, kk, ok)
+    if chunked is not None:
+        sel = np.concatenate(chunked.map(lambda i, c0, c1, a, b: kr.select_clusters(
+            chunked.starts, c0, c1, alive, val, float(threshold), target is not None, tie, nb, kk, ok)))
         if 0 <= limit < len(sel):  # the first ``limit`` in priority order
             keys = val[sel]
             o = np.argsort(keys)
@@ -146,6 +157,29 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
     return sel
 
 
+class _Chunks:
+    """Cluster ranges of points grouped by cluster (cluster j: rows starts[j] to starts[j + 1]),
+    of about equal point counts: one for one thread, four per thread otherwise; :meth:`map`
+    runs a function of (range number, c0, c1, first row, end row) on each, on the threads,
+    results in range order. A cluster's result never depends on the ranges, so no result
+    depends on ``threads``."""
+
+    def __init__(self, starts: np.ndarray, threads: int, pool: ThreadPoolExecutor | None):
+        self.starts = starts
+        c = len(starts) - 1
+        parts = 1 if pool is None else min(c, 4 * threads)
+        cuts = np.searchsorted(starts, np.linspace(0, starts[-1], parts + 1)[1:-1])
+        bounds = np.unique(np.r_[0, cuts[(cuts > 0) & (cuts < c)], c])
+        self.ranges = [(i, int(c0), int(c1), int(starts[c0]), int(starts[c1]))
+                       for i, (c0, c1) in enumerate(zip(bounds[:-1], bounds[1:]))]
+        self.pool = pool if len(self.ranges) > 1 else None
+
+    def map(self, fn):
+        if self.pool is None:
+            return [fn(*r) for r in self.ranges]
+        return list(self.pool.map(lambda r: fn(*r), self.ranges))
+
+
 # Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
 # after losing more than this many of its k + 1 + _SPARE nearest (or k + 1 - k' when k falls).
 _SPARE = 4
@@ -161,129 +195,166 @@ def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, re
     cluster's new k) they are still the k' + 1 nearest among the remaining
     points (removing points brings none closer): r_k' and r_(k'+1) are then
     the distances to its k'-th and (k'+1)-th entries, computed as the k-d
-    tree does. Only shorter lists need a new k-d tree query. Then W, A and
-    every score of a touched cluster are recomputed in O(m k). A cluster with
-    exact copies is scored again whole. The scores are those of a full
-    rescoring (the same formulas on the same distances; sums may differ in
-    the last bit from :func:`.entropy.score_points`, which orders the points of a
-    cluster differently).
+    tree does. Only shorter lists are made again (:func:`.kernels.lists.refresh_lists`,
+    or the k-d tree when distances tie). Then W, A and every score of a
+    touched cluster are recomputed in O(m k). A cluster with exact copies is
+    scored again whole. The scores are those of a full rescoring (the same
+    formulas on the same distances; sums may differ in the last bit from
+    :func:`.entropy.score_points`, which orders the points of a cluster
+    differently).
 
-    All the state is kept in the grouped order of :func:`.knn.group`
-    (ties between candidates are still broken by canonical index).
+    All the state is kept in the grouped order of :func:`.knn.group` (ties
+    between candidates are still broken by canonical index); the kernels run
+    on ranges of clusters, on ``threads`` threads (:class:`_Chunks`).
     """
-    k0, k_min, dim = kw["k0"], kw["k_min"], kw["dim"]
     threads = int(kw["threads"] or os.cpu_count() or 1)
-    n = len(P)
-    inv, order, sizes = group(P, L)
-    g = P[order]
-    ginv = inv[order]
-    c = len(sizes)
-    groups, dup = knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=_SPARE)
-    K = max((grp[0] for grp in groups), default=0)
-    kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
-    rk = np.ones(n)
-    rk1 = np.ones(n)
-    idt = np.int32 if n < 2**31 - 1 else np.int64  # half the memory traffic of the rounds' kernels
-    nbx = np.full((n, K + 1 + _SPARE), n, dtype=idt)  # nearest first (grouped positions), n after
-    kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
-    alive = np.ones(n, dtype=bool)
-    val = np.full(n, np.inf)
-    val[dup] = 0.0
+    if threads <= 1:
+        return _Local(P, L, kw, threads, None).run(rule, threshold, target, score, coverage, max_rounds, report)
+    with ThreadPoolExecutor(threads) as pool:
+        return _Local(P, L, kw, threads, pool).run(rule, threshold, target, score, coverage, max_rounds, report)
 
-    r1 = np.full(n, np.inf)  # r_1 of the rows with a list (kk > 0), +inf for the others
 
-    def store(grps):
+class _Local:
+    """The state of :func:`_rounds_local` (rows: the points in grouped order)."""
+
+    def __init__(self, P, L, kw, threads, pool):
+        self.k0, self.k_min, self.dim = kw["k0"], kw["k_min"], kw["dim"]
+        self.threads = threads
+        n = self.n = len(P)
+        inv, self.order, sizes = group(P, L)
+        g = self.g = P[self.order]
+        ginv = self.ginv = inv[self.order]
+        c = self.c = len(sizes)
+        starts = np.zeros(c + 1, dtype=np.int64)  # cluster j: rows starts[j] to starts[j + 1]
+        np.cumsum(sizes, out=starts[1:])
+        self.chunks = _Chunks(starts, threads, pool)
+        groups, self.dup = knn_clusters(g, ginv, sizes, self.k0, self.k_min, threads, extra=_SPARE)
+        K = max((grp[0] for grp in groups), default=0)
+        self.kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
+        self.rk = np.ones(n)
+        self.rk1 = np.ones(n)
+        self.r1 = np.full(n, np.inf)  # r_1 of the rows with a list (kk > 0), +inf for the others
+        idt = np.int32 if n < 2**31 - 1 else np.int64  # half the memory traffic of the kernels
+        self.nbx = np.full((n, K + 1 + _SPARE), n, dtype=idt)  # nearest first (grouped positions), n after
+        self.kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
+        self.alive = np.ones(n, dtype=bool)
+        self.val = np.full(n, np.inf)
+        self.val[self.dup] = 0.0
+        self.acc_w = np.zeros(n)  # scratch of kernels.rescore.entropy_deltas
+        self.acc_g = np.zeros(n)
+        self.store(groups)
+        for k, r, _, _, _ in groups:
+            self.kcl[ginv[r]] = k
+
+    def store(self, grps):
+        """Write the k-NN results of :func:`.knn.knn_query` into the state."""
         for k, r, a, b, x in grps:
-            kr.store_lists(r, k, a, b, x, g, kk, rk, rk1, r1, nbx)
+            kl.store_lists(r, k, a, b, x, self.g, self.kk, self.rk, self.rk1, self.r1, self.nbx)
 
-    def query(whole):
-        """Find the copies in the whole clusters again, then m, k; the rows to query."""
+    def run(self, rule, threshold, target, score, coverage, max_rounds, report):
+        """The rounds: the keep mask (n,) bool in the order of the points given."""
+        n, c, ginv, alive = self.n, self.c, self.ginv, self.alive
+        use_unit = target is not None or score == "unit_free"
+        self.rescore(np.ones(c, dtype=bool), use_unit)
+        n_alive = n
+        rnd = 0
+        while max_rounds is None or rnd < max_rounds:
+            # ties: canonical index (the input order, not the grouped one)
+            sel = _round_selection(self.g, alive, self.val, self.order, self.nbx, n_alive, rule, threshold, target,
+                                   coverage, self.kk, self.r1, self.chunks)
+            if len(sel) == 0:
+                break
+            touched = np.zeros(c, dtype=bool)
+            kr.drop_rows(sel, alive, self.val, self.kk, self.r1, self.nbx, ginv, touched)
+            n_alive -= len(sel)
+            rnd += 1
+            report(len(sel))
+
+            m, copies = kr.cluster_counts(ginv, alive, self.dup, c)
+            k_new = neighbour_count(m, self.k0, self.k_min)
+            whole = touched & ((copies > 0) | (m < k_new + 2))
+            part = touched & ~whole
+            # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
+            removed = np.zeros(n + 1, dtype=bool)  # slot n: the padding
+            removed[sel] = True
+            q_part = np.concatenate(self.chunks.map(lambda i, c0, c1, a, b: kl.repack_lists(
+                self.g, ginv, self.kk, self.rk, self.rk1, self.r1, self.nbx, part, k_new, removed, a, b)))
+            self.kcl[part] = k_new[part]
+            q_whole = self.query(whole)
+            logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), new k-NN lists for "
+                         "%d + %d points", rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part),
+                         len(q_whole))
+            self.refresh(np.union1d(q_part, q_whole) if len(q_whole) else q_part)
+            self.rescore(touched, use_unit)
+        out = np.empty(n, dtype=bool)
+        out[self.order] = alive
+        return out
+
+    def query(self, whole):
+        """Find the copies in the whole clusters again, then m, k; the rows needing new lists."""
+        alive, ginv, dup = self.alive, self.ginv, self.dup
         wrows = np.flatnonzero(alive & whole[ginv])
         if len(wrows) == 0:
             return wrows
-        kk[wrows] = 0
-        r1[wrows] = np.inf
-        nbx[wrows] = n
-        val[wrows] = np.inf
-        distinct = mark_duplicates(g, ginv, wrows, dup)
-        val[wrows[dup[wrows]]] = 0.0
-        m = np.bincount(ginv[distinct], minlength=c)
-        k2 = neighbour_count(m, k0, k_min)
+        self.kk[wrows] = 0
+        self.r1[wrows] = np.inf
+        self.nbx[wrows] = self.n
+        self.val[wrows] = np.inf
+        distinct = mark_duplicates(self.g, ginv, wrows, dup)
+        self.val[wrows[dup[wrows]]] = 0.0
+        m = np.bincount(ginv[distinct], minlength=self.c)
+        k2 = neighbour_count(m, self.k0, self.k_min)
         ok = whole & (m >= k2 + 2)
-        kcl[whole] = np.where(ok, k2, 0)[whole]
+        self.kcl[whole] = np.where(ok, k2, 0)[whole]
         return distinct[ok[ginv[distinct]]]
 
-    def run(q):
+    def refresh(self, q):
         """New k-NN lists for the rows q (ascending): by brute force inside the cluster
-        (:func:`.kernels.rounds.refresh_lists`), by the k-d tree for rows whose list has
-        tied distances (so their tie order is the tree's, as with a query of all of q)."""
+        (:func:`.kernels.lists.refresh_lists`), by the k-d tree for rows whose list has tied
+        distances (so their tie order is the tree's, as with a query of all of q)."""
         if len(q) == 0:
             return
-        lists, kq, a, b, d1, status = kr.refresh_lists(g, ginv, starts, alive, dup, q, kcl, _SPARE, nbx.shape[1])
+        ginv, starts = self.ginv, self.chunks.starts
+        cut = np.searchsorted(q, [r[3] for r in self.chunks.ranges] + [self.n])  # q of each range
+
+        def part(i, c0, c1, a, b):
+            return kl.refresh_lists(self.g, ginv, starts, self.alive, self.dup, q[cut[i] : cut[i + 1]], self.kcl,
+                                    _SPARE, self.nbx.shape[1])
+
+        res = self.chunks.map(part)
+        status = np.concatenate([r[5] for r in res])
         if (status == 2).any():
             tree_q = q  # a zero distance: the tree's cluster flag decides, query them all
         else:
-            kr.store_refreshed(q, status, lists, kq, a, b, d1, kk, rk, rk1, r1, nbx)
+            for i, (ls, kq, a, b, d1, st) in enumerate(res):
+                kl.store_refreshed(q[cut[i] : cut[i + 1]], st, ls, kq, a, b, d1, self.kk, self.rk, self.rk1, self.r1,
+                                   self.nbx)
             tree_q = q[status == 1]
         if len(tree_q):
-            need = np.zeros(c, dtype=bool)
+            need = np.zeros(self.c, dtype=bool)
             need[ginv[q]] = True  # the tree of all of q's clusters, as a query of all of q would build
-            trows = np.flatnonzero(alive & ~dup & need[ginv])
-            store(knn_query(g, ginv, trows, kcl, threads, query=np.searchsorted(trows, tree_q), extra=_SPARE)[0])
-        logger.debug("k-NN lists refreshed for %d points, %d by the k-d tree", len(q), len(tree_q))
+            trows = np.flatnonzero(self.alive & ~self.dup & need[ginv])
+            self.store(knn_query(self.g, ginv, trows, self.kcl, self.threads, query=np.searchsorted(trows, tree_q),
+                                 extra=_SPARE)[0])
+        logger.debug("new k-NN lists for %d points, %d by the k-d tree", len(q), len(tree_q))
 
-    starts = np.zeros(c + 1, dtype=np.int64)  # cluster j: rows starts[j] to starts[j + 1]
-    np.cumsum(sizes, out=starts[1:])
-    store(groups)
-    for k, r, _, _, _ in groups:
-        kcl[ginv[r]] = k
-    del groups
-    n_alive = n
-    use_unit = target is not None or score == "unit_free"
-    acc_w = np.zeros(n)  # scratch of kr.entropy_deltas
-    acc_g = np.zeros(n)
-
-    def rescore(touched):
+    def rescore(self, touched, use_unit):
         """Scores of the scored points of the touched clusters, from the kept k-NN data."""
-        rows = kr.scored_rows(touched, ginv, kk)  # kk > 0: alive, distinct, in a scored cluster
-        if len(rows) == 0:
-            return
-        # the terms of .entropy.entropy_terms, with numpy's log and exp
-        lw, lw1 = kr.log_weights(rows, ginv, c, np.log(rk[rows]), np.log(rk1[rows]), -float(dim))
-        dW, dG, Wc = kr.entropy_deltas(rows, ginv, c, kk, nbx, np.exp(lw), np.exp(lw1), lw, lw1, acc_w, acc_g)
-        dh = np.abs(entropy_change(dW, dG, Wc))
-        m = kr.cluster_counts(ginv, alive, dup, c)[0] if use_unit else kcl
-        kr.store_scores(rows, ginv, dh, m, use_unit, val)
+        ginv, kk = self.ginv, self.kk
+        m = kr.cluster_counts(ginv, self.alive, self.dup, self.c)[0] if use_unit else self.kcl
+        neg_dim = -float(self.dim)
 
-    rescore(np.ones(c, dtype=bool))
-    rnd = 0
-    while max_rounds is None or rnd < max_rounds:
-        # ties: canonical index (the input order, not the grouped one)
-        sel = _round_selection(g, alive, val, order, nbx, n_alive, rule, threshold, target, coverage, kk, r1,
-                               starts)
-        if len(sel) == 0:
-            break
-        touched = np.zeros(c, dtype=bool)
-        kr.drop_rows(sel, alive, val, kk, r1, nbx, ginv, touched)
-        n_alive -= len(sel)
-        rnd += 1
-        report(len(sel))
+        def part(i, c0, c1, a, b):
+            rows = ks.scored_rows(touched, ginv, kk, a, b)  # kk > 0: alive, distinct, in a scored cluster
+            if len(rows) == 0:
+                return
+            # the terms of .entropy.entropy_terms, with numpy's log and exp
+            lw, lw1 = ks.log_weights(rows, ginv, c0, c1, np.log(self.rk[rows]), np.log(self.rk1[rows]), neg_dim)
+            dW, dG, Wc = ks.entropy_deltas(rows, ginv, c0, c1, kk, self.nbx, np.exp(lw), np.exp(lw1), lw, lw1,
+                                           self.acc_w, self.acc_g)
+            ks.store_scores(rows, ginv, np.abs(entropy_change(dW, dG, Wc)), m, use_unit, self.val)
 
-        m, copies = kr.cluster_counts(ginv, alive, dup, c)
-        k_new = neighbour_count(m, k0, k_min)
-        whole = touched & ((copies > 0) | (m < k_new + 2))
-        part = touched & ~whole
-        # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
-        q_part = kr.repack_lists(g, ginv, kk, rk, rk1, r1, nbx, part, k_new, sel)
-        kcl[part] = k_new[part]
-        q_whole = query(whole)
-        logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",
-                     rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part), len(q_whole))
-        run(np.union1d(q_part, q_whole) if len(q_whole) else q_part)
-        rescore(touched)
-    out = np.empty(n, dtype=bool)
-    out[order] = alive
-    return out
+        self.chunks.map(part)
 
 
 def _covered(P, nb, cand, coverage, kk=None):
@@ -299,5 +370,5 @@ def _covered(P, nb, cand, coverage, kk=None):
     """
     nb = np.asarray(nb, dtype=np.int64)
     kk = np.full(len(P), nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
-    return kr.covered_mask(np.ascontiguousarray(P, dtype=np.float64), nb, kk,
-                           np.asarray(cand, dtype=np.int64), float(coverage))
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    return kr.covered_mask(nb, kk, kl.spacings(P, nb, kk), np.asarray(cand, dtype=np.int64), float(coverage))
