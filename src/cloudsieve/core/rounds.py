@@ -127,19 +127,15 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
     n = len(P)
     if kk is None:
         kk = np.full(n, nb.shape[1], dtype=np.int64)
-    ok = np.zeros(0, dtype=bool)
-    if rule == "coverage":
-        if r1 is None:
-            r1 = kl.spacings(P, nb, kk)
-        ok = np.zeros(n, dtype=bool)
-        if chunked is None:
-            kr.covered_rows(nb, kk, r1, float(coverage), 0, n, ok)
-        else:
-            chunked.map(lambda i, c0, c1, a, b: kr.covered_rows(nb, kk, r1, float(coverage), a, b, ok))
+    use_cov = rule == "coverage"
+    if use_cov and r1 is None:
+        r1 = kl.spacings(P, nb, kk)
     limit = -1 if target is None else n_alive - target
     if chunked is not None:
+        r1c = r1 if use_cov else np.zeros(0)
         sel = np.concatenate(chunked.map(lambda i, c0, c1, a, b: kr.select_clusters(
-            chunked.starts, c0, c1, alive, val, float(threshold), target is not None, tie, nb, kk, ok)))
+            chunked.starts, c0, c1, alive, val, float(threshold), target is not None, tie, nb, kk, r1c,
+            float(coverage))))
         if 0 <= limit < len(sel):  # the first ``limit`` in priority order
             keys = val[sel]
             o = np.argsort(keys)
@@ -147,6 +143,10 @@ def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, c
             kr.break_ties(sel, keys[o], tie)
             sel = sel[:limit]
     else:
+        ok = np.zeros(0, dtype=bool)
+        if use_cov:
+            ok = np.zeros(n, dtype=bool)
+            kr.covered_rows(nb, kk, r1, float(coverage), 0, n, ok)
         pool, keys = kr.candidates(alive, val, float(threshold), target is not None)
         o = np.argsort(keys)
         cand = pool[o]

@@ -164,75 +164,6 @@ def select_round(cand, nb, kk, ok, limit):
     return out[:t]
 
 
-@njit(cache=True, nogil=True)
-def select_clusters(starts, c0, c1, alive, val, threshold, any_finite, tie, nb, kk, ok):
-    """The greedy independent sets of one round when every list stays inside its cluster.
-
-    Rows are grouped by cluster (cluster j: rows starts[j] to starts[j + 1]);
-    here the clusters c0 to c1 - 1. The candidates (alive, val <= threshold, or finite val with
-    ``any_finite``) are taken in the order (val, tie) as in
-    :func:`select_round`; since no list leaves its cluster, a row's fate
-    depends only on the candidates of its cluster before it, so each cluster
-    is ordered and run on its own (small sorts, memory at hand). Returns the
-    rows taken (int64, cluster by cluster): the whole set of
-    :func:`select_round` without limit, in another order.
-    """
-    n = len(kk)
-    K = nb.shape[1]
-    test = len(ok) > 0
-    base = starts[c0]
-    M = 1
-    for c in range(c0, c1):
-        M = max(M, starts[c + 1] - starts[c])
-    cand = np.empty(M, dtype=np.int64)
-    keys = np.empty(M)
-    kb = np.empty(M, dtype=np.uint64)
-    kb2 = np.empty(M, dtype=np.uint64)
-    ib = np.empty(M, dtype=np.int64)
-    ib2 = np.empty(M, dtype=np.int64)
-    count = np.zeros(256, dtype=np.int64)
-    srt = np.empty(M, dtype=np.int64)
-    skeys = np.empty(M)
-    state = np.zeros(starts[c1] - base, dtype=np.uint8)  # 0 free, 1 taken, 2 in a taken row's list
-    out = np.empty(starts[c1] - base, dtype=np.int64)
-    t = 0
-    for c in range(c0, c1):
-        m = 0
-        for i in range(starts[c], starts[c + 1]):
-            if alive[i] and (np.isfinite(val[i]) if any_finite else val[i] <= threshold):
-                cand[m] = i
-                keys[m] = val[i]
-                m += 1
-        if m == 0:
-            continue
-        o = _radix_order(keys, m, kb, kb2, ib, ib2, count)
-        for i in range(m):
-            srt[i] = cand[o[i]]
-            skeys[i] = keys[o[i]]
-        break_ties(srt[:m], skeys[:m], tie)
-        for i in range(m):
-            y = srt[i]
-            if state[y - base] != 0 or (test and not ok[y]):
-                continue
-            ky = min(kk[y], K)
-            free = True
-            for j in range(ky):
-                x = nb[y, j]
-                if 0 <= x < n and state[x - base] == 1:
-                    free = False
-                    break
-            if not free:
-                continue
-            state[y - base] = 1
-            out[t] = y
-            t += 1
-            for j in range(ky):
-                x = nb[y, j]
-                if 0 <= x < n and state[x - base] == 0:
-                    state[x - base] = 2
-    return out[:t].copy()
-
-
 _HALF_MAX = np.finfo(np.float64).max / 2
 
 
@@ -313,6 +244,78 @@ def covered_mask(nb, kk, r1, cand, coverage):
     for i in range(len(cand)):
         ok[i] = _is_covered(nb, kk, r1, cand[i], coverage, vals)
     return ok
+
+
+@njit(cache=True, nogil=True)
+def select_clusters(starts, c0, c1, alive, val, threshold, any_finite, tie, nb, kk, r1, coverage):
+    """The greedy independent sets of one round when every list stays inside its cluster.
+
+    Rows are grouped by cluster (cluster j: rows starts[j] to starts[j + 1]);
+    here the clusters c0 to c1 - 1. The candidates (alive, val <= threshold, or finite val with
+    ``any_finite``) are taken in the order (val, tie) as in
+    :func:`select_round`; since no list leaves its cluster, a row's fate
+    depends only on the candidates of its cluster before it, so each cluster
+    is ordered and run on its own (small sorts, memory at hand). With ``r1``
+    not empty, a candidate must also pass the coverage test (:func:`_is_covered`,
+    on the lists as they are at the start of the round), tested only when it
+    could be taken. Returns the rows taken (int64, cluster by cluster): the
+    whole set of :func:`select_round` without limit, in another order.
+    """
+    n = len(kk)
+    K = nb.shape[1]
+    test = len(r1) > 0
+    vals = np.empty(max(K, 1))
+    base = starts[c0]
+    M = 1
+    for c in range(c0, c1):
+        M = max(M, starts[c + 1] - starts[c])
+    cand = np.empty(M, dtype=np.int64)
+    keys = np.empty(M)
+    kb = np.empty(M, dtype=np.uint64)
+    kb2 = np.empty(M, dtype=np.uint64)
+    ib = np.empty(M, dtype=np.int64)
+    ib2 = np.empty(M, dtype=np.int64)
+    count = np.zeros(256, dtype=np.int64)
+    srt = np.empty(M, dtype=np.int64)
+    skeys = np.empty(M)
+    state = np.zeros(starts[c1] - base, dtype=np.uint8)  # 0 free, 1 taken, 2 in a taken row's list
+    out = np.empty(starts[c1] - base, dtype=np.int64)
+    t = 0
+    for c in range(c0, c1):
+        m = 0
+        for i in range(starts[c], starts[c + 1]):
+            if alive[i] and (np.isfinite(val[i]) if any_finite else val[i] <= threshold):
+                cand[m] = i
+                keys[m] = val[i]
+                m += 1
+        if m == 0:
+            continue
+        o = _radix_order(keys, m, kb, kb2, ib, ib2, count)
+        for i in range(m):
+            srt[i] = cand[o[i]]
+            skeys[i] = keys[o[i]]
+        break_ties(srt[:m], skeys[:m], tie)
+        for i in range(m):
+            y = srt[i]
+            if state[y - base] != 0:
+                continue
+            ky = min(kk[y], K)
+            free = True
+            for j in range(ky):
+                x = nb[y, j]
+                if 0 <= x < n and state[x - base] == 1:
+                    free = False
+                    break
+            if not free or (test and not _is_covered(nb, kk, r1, y, coverage, vals)):
+                continue
+            state[y - base] = 1
+            out[t] = y
+            t += 1
+            for j in range(ky):
+                x = nb[y, j]
+                if 0 <= x < n and state[x - base] == 0:
+                    state[x - base] = 2
+    return out[:t].copy()
 
 
 @njit(cache=True, nogil=True)
