@@ -26,7 +26,7 @@ from .entropy import entropy_change, score_unchecked
 from .kernels import lists as kl
 from .kernels import rescore as ks
 from .kernels import rounds as kr
-from .knn import group, knn_clusters, knn_query, mark_duplicates
+from .knn import group, knn_query, mark_duplicates
 
 __all__ = ["prune_in_rounds"]
 
@@ -222,29 +222,90 @@ class _Local:
         self.threads = threads
         n = self.n = len(P)
         inv, self.order, sizes = group(P, L)
-        g = self.g = P[self.order]
-        ginv = self.ginv = inv[self.order]
+        self.g = P[self.order]
+        self.ginv = inv[self.order]
         c = self.c = len(sizes)
         starts = np.zeros(c + 1, dtype=np.int64)  # cluster j: rows starts[j] to starts[j + 1]
         np.cumsum(sizes, out=starts[1:])
         self.chunks = _Chunks(starts, threads, pool)
-        groups, self.dup = knn_clusters(g, ginv, sizes, self.k0, self.k_min, threads, extra=_SPARE)
-        K = max((grp[0] for grp in groups), default=0)
+        self.dup = np.zeros(n, dtype=bool)
         self.kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
         self.rk = np.ones(n)
         self.rk1 = np.ones(n)
         self.r1 = np.full(n, np.inf)  # r_1 of the rows with a list (kk > 0), +inf for the others
+        K = int(neighbour_count(sizes.max(initial=0), self.k0, self.k_min))
         idt = np.int32 if n < 2**31 - 1 else np.int64  # half the memory traffic of the kernels
         self.nbx = np.full((n, K + 1 + _SPARE), n, dtype=idt)  # nearest first (grouped positions), n after
         self.kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
         self.alive = np.ones(n, dtype=bool)
+        self.first_lists(sizes)
         self.val = np.full(n, np.inf)
         self.val[self.dup] = 0.0
         self.acc_w = np.zeros(n)  # scratch of kernels.rescore.entropy_deltas
         self.acc_g = np.zeros(n)
-        self.store(groups)
-        for k, r, _, _, _ in groups:
-            self.kcl[ginv[r]] = k
+
+    def first_lists(self, sizes):
+        """The lists of every point, as :func:`.knn.knn_clusters` (``extra=_SPARE``) gives them:
+        its copies marked in ``dup``, the lists by :meth:`lists`, the k-d tree queries of
+        knn_clusters asked only for rows with tied distances (or all of them when a zero
+        distance appears where knn_clusters would not expect one)."""
+        g, ginv, dup, c = self.g, self.ginv, self.dup, self.c
+        kc = neighbour_count(sizes, self.k0, self.k_min)
+        ok = sizes >= kc + 2
+        okr = ok[ginv]
+        small = np.flatnonzero(~okr & (sizes[ginv] > 1))
+        if len(small):  # never scored, but their copies still score 0
+            mark_duplicates(g, ginv, small, dup)
+        rows = np.flatnonzero(okr)
+        if len(rows) == 0:
+            return
+        # knn_clusters' first tree: all the rows of the clusters large enough, copies included
+        res, status = self.lists(rows, okr, np.zeros(self.n, dtype=bool), np.where(ok, kc, 0))
+        flagged = np.zeros(c, dtype=bool)  # clusters with copies (a zero distance), done again below
+        flagged[ginv[rows[status == 2]]] = True
+        self.store_lists(rows, res, ~flagged[ginv[rows]])
+        tied = rows[(status == 1) & ~flagged[ginv[rows]]]
+        if len(tied):
+            self.store(knn_query(g, ginv, rows, kc, self.threads, query=np.searchsorted(rows, tied), extra=_SPARE)[0])
+        if flagged.any():  # the distinct points of these clusters (m and k follow)
+            distinct = mark_duplicates(g, ginv, np.flatnonzero(flagged[ginv]), dup)
+            m2 = np.bincount(ginv[distinct], minlength=c)
+            k2 = neighbour_count(m2, self.k0, self.k_min)
+            rows2 = distinct[(m2 >= k2 + 2)[ginv[distinct]]]
+            if len(rows2):
+                member = np.zeros(self.n, dtype=bool)
+                member[rows2] = True
+                res, status = self.lists(rows2, member, np.zeros(self.n, dtype=bool), np.where(m2 >= k2 + 2, k2, 0))
+                if (status == 2).any():
+                    self.store(knn_query(g, ginv, rows2, k2, self.threads, extra=_SPARE)[0])
+                else:
+                    self.store_lists(rows2, res, np.ones(len(rows2), dtype=bool))
+                    tied = rows2[status == 1]
+                    if len(tied):
+                        self.store(knn_query(g, ginv, rows2, k2, self.threads, query=np.searchsorted(rows2, tied),
+                                             extra=_SPARE)[0])
+        has = self.kk > 0
+        self.kcl[ginv[has]] = self.kk[has]
+        logger.debug("first k-NN lists for %d points (%d asked of the k-d tree); %d clusters with copies",
+                     int(has.sum()), len(tied), int(flagged.sum()))
+
+    def lists(self, q, member, dup, kcl):
+        """The lists of the rows q (ascending) among the ``member`` rows of their cluster that are not
+        ``dup``, k = kcl of the cluster (:func:`.kernels.lists.refresh_lists`, on the threads):
+        (the results of each range, with the range's q), status (len(q),) int8."""
+        cut = np.searchsorted(q, [r[3] for r in self.chunks.ranges] + [self.n])  # q of each range
+        res = self.chunks.map(lambda i, c0, c1, a, b: (q[cut[i] : cut[i + 1]],) + kl.refresh_lists(
+            self.g, self.ginv, self.chunks.starts, member, dup, q[cut[i] : cut[i + 1]], kcl, _SPARE,
+            self.nbx.shape[1]))
+        return res, np.concatenate([r[6] for r in res])
+
+    def store_lists(self, q, res, keep):
+        """Write the lists of :meth:`lists` with status 0 and ``keep`` (len(q),) into the state."""
+        off = 0
+        for qs, ls, kq, a, b, d1, st in res:
+            st = np.where(keep[off : off + len(qs)], st, 1)
+            off += len(qs)
+            kl.store_refreshed(qs, st, ls, kq, a, b, d1, self.kk, self.rk, self.rk1, self.r1, self.nbx)
 
     def store(self, grps):
         """Write the k-NN results of :func:`.knn.knn_query` into the state."""
@@ -309,26 +370,17 @@ class _Local:
         return distinct[ok[ginv[distinct]]]
 
     def refresh(self, q):
-        """New k-NN lists for the rows q (ascending): by brute force inside the cluster
-        (:func:`.kernels.lists.refresh_lists`), by the k-d tree for rows whose list has tied
-        distances (so their tie order is the tree's, as with a query of all of q)."""
+        """New k-NN lists for the rows q (ascending) among the remaining points: by :meth:`lists`,
+        by the k-d tree for rows whose list has tied distances (the tree of a query of all of q,
+        so their tie order is the tree's)."""
         if len(q) == 0:
             return
-        ginv, starts = self.ginv, self.chunks.starts
-        cut = np.searchsorted(q, [r[3] for r in self.chunks.ranges] + [self.n])  # q of each range
-
-        def part(i, c0, c1, a, b):
-            return kl.refresh_lists(self.g, ginv, starts, self.alive, self.dup, q[cut[i] : cut[i + 1]], self.kcl,
-                                    _SPARE, self.nbx.shape[1])
-
-        res = self.chunks.map(part)
-        status = np.concatenate([r[5] for r in res])
+        ginv = self.ginv
+        res, status = self.lists(q, self.alive, self.dup, self.kcl)
         if (status == 2).any():
             tree_q = q  # a zero distance: the tree's cluster flag decides, query them all
         else:
-            for i, (ls, kq, a, b, d1, st) in enumerate(res):
-                kl.store_refreshed(q[cut[i] : cut[i + 1]], st, ls, kq, a, b, d1, self.kk, self.rk, self.rk1, self.r1,
-                                   self.nbx)
+            self.store_lists(q, res, np.ones(len(q), dtype=bool))
             tree_q = q[status == 1]
         if len(tree_q):
             need = np.zeros(self.c, dtype=bool)

@@ -194,8 +194,8 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
                 for a in range(m):
                     dd = cd - cols[d, a]
                     sq[a] += dd * dd
-            # the L + 1 smallest (itself excluded): a threshold t with L + 1 to ~2 (L + 1) values
-            # <= t (counted without branches, t from the previous row's), those values ranked
+            # the L + 1 smallest (itself excluded): a threshold t with L + 1 to L + 5 values <= t
+            # (counted without branches; t from the previous row's), those values ranked
             sp = ipos[y - starts[j]]
             sq[sp] = np.inf
             need = min(L + 1, m - 1)
@@ -208,22 +208,26 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
                         if sq[a] < np.inf:
                             tot += sq[a]
                     t = tot / m * (need + 1) / m * 2.0
-                lo = 0.0
+                lo = 0.0  # bisection of t: count(<= lo) < need, count(<= hi) > need + 4
                 hi = np.inf
-                for _ in range(200):
+                good = np.inf  # a t known to hold >= need values
+                for _ in range(64):
                     cnt = 0
                     for a in range(m):
                         cnt += (sq[a] <= t) & (a != sp)
-                    if cnt < need:
-                        lo = t
-                        t = t * 2.0 if hi == np.inf else (t + hi) / 2
-                    elif cnt > 2 * need + 4:
+                    if cnt >= need:
+                        good = t
+                        if cnt <= need + 4:
+                            break
                         hi = t
-                        t = (lo + t) / 2
+                        t2 = (lo + t) / 2
                     else:
+                        lo = t
+                        t2 = t * 2.0 if hi == np.inf else (t + hi) / 2
+                    if not (lo < t2 < hi):  # no value between (ties, or t = 0): settle
                         break
-                if cnt < need:  # t did not settle (huge spread): take every value
-                    t = np.inf
+                    t = t2
+                t = good
                 cnt = 0
                 for a in range(m):
                     v = sq[a]
@@ -240,7 +244,7 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
                         bs[rank] = v
                         bi[rank] = idx[ci[x]]
                 nbuf = min(cnt, L + 1)
-                t = bs[need - 1] * 1.25
+                t = bs[need - 1] * 1.1
             st = 0
             if nbuf == 0 or bs[0] == 0.0:
                 st = 2
