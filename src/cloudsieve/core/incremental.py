@@ -44,9 +44,13 @@ def rounds_incremental(P, L, rule, threshold, target, score, coverage, max_round
     cluster's new k) they are still the k' + 1 nearest among the remaining
     points (removing points brings none closer): r_k' and r_(k'+1) are then
     the distances to its k'-th and (k'+1)-th entries, computed as the k-d
-    tree does. Only shorter lists are made again (:func:`.kernels.lists.refresh_lists`,
-    or the k-d tree when distances tie). Then W, A and every score of a
-    touched cluster are recomputed in O(m k). A cluster with exact copies is
+    tree does. Only shorter lists are made again. The lists (the first ones
+    too) come from :func:`.kernels.lists.refresh_lists`, the brute force inside
+    the cluster, which returns the k-d tree's list whenever it is unique; a
+    row whose nearest distances tie is asked of the k-d tree of
+    :func:`.knn.knn_query` (built on the same points as before, so it
+    answers with the same order of tied points). Then W, A and every score of
+    a touched cluster are recomputed in O(m k). A cluster with exact copies is
     scored again whole. The scores are those of a full rescoring (the same
     formulas on the same distances; sums may differ in the last bit from
     :func:`.entropy.score_points`, which orders the points of a cluster
@@ -95,9 +99,10 @@ class _Local:
 
     def first_lists(self, sizes):
         """The lists of every point, as :func:`.knn.knn_clusters` (``extra=SPARE``) gives them:
-        its copies marked in ``dup``, the lists by :meth:`lists`, the k-d tree queries of
-        knn_clusters asked only for rows with tied distances (or all of them when a zero
-        distance appears where knn_clusters would not expect one)."""
+        the same copies marked in ``dup`` (clusters with a zero distance are done again on
+        their distinct points), the lists by :meth:`lists`, and knn_clusters' k-d tree queries
+        asked only for the rows with tied distances (for all the distinct points of those
+        clusters if one of them still has a zero distance)."""
         g, ginv, dup, c = self.g, self.ginv, self.dup, self.c
         kc = neighbour_count(sizes, self.k0, self.k_min)
         ok = sizes >= kc + 2
