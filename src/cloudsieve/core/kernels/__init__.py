@@ -1,1 +1,1 @@
-"""Compiled (numba) kernels of the core's hot loops; private: inputs are assumed valid."""
+"""Compiled (numba) kernels for the per-point loops of the method (issue 11)."""
