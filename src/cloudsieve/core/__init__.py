@@ -9,7 +9,10 @@ One module per stage, found by its name:
 - :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
 - :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
 - :mod:`.rules` (:func:`prune`: threshold, target, and the rounds of :mod:`.rounds`:
-  iterative, coverage);
+  iterative, coverage; one round's choice in :mod:`.selection`, the rounds without
+  context in :mod:`.incremental`, their threads in :mod:`.chunks`);
+- :mod:`.kernels`: the compiled (numba) loops (:mod:`.kernels.rounds`,
+  :mod:`.kernels.lists`, :mod:`.kernels.rescore` for the rounds);
 - :mod:`.simplify`: :func:`simplify_points`, all of it.
 
 Public functions validate their input once and run kernels that assume valid input.

@@ -6,8 +6,10 @@ k-NN graph (no two points dropped in one round are k-NN neighbours, either
 way); ``coverage`` first keeps only the candidates whose nearest-neighbour
 distance is at most the median of their neighbours' (:func:`_covered`). The
 remaining points are rescored between rounds: incrementally without context
-(only the clusters that lost a point, from the kept k-NN lists), by a full
-rescoring with context. See :mod:`.rules` for the rules' contracts.
+(only the clusters that lost a point, from the kept k-NN lists:
+:mod:`.incremental`), by a full rescoring with context (here). One round's
+choice is :func:`.selection.round_selection`. See :mod:`.rules` for the
+rules' contracts.
 
 Public: :func:`prune_in_rounds`, on validated input (called by
 :func:`.rules.prune_unchecked`).
@@ -16,13 +18,15 @@ Public: :func:`prune_in_rounds`, on validated input (called by
 from __future__ import annotations
 
 import logging
-import os
 
 import numpy as np
 
 from ._validation import neighbour_count
-from .entropy import entropy_change, entropy_terms, score_unchecked
-from .knn import group, knn_clusters, knn_query, mark_duplicates
+from .entropy import score_unchecked
+from .incremental import rounds_incremental
+from .kernels import lists as kl
+from .kernels import rounds as kr
+from .selection import round_selection
 
 __all__ = ["prune_in_rounds"]
 
@@ -48,41 +52,15 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray 
     the selected candidates in priority order (with ``kk``, row i holds k =
     kk[i] neighbours, the columns after them are ignored): exactly what a
     sequential pass keeps (take a candidate unless one of its neighbours, or a
-    point having it as a neighbour, was taken before), computed by rounds of
-    local minima of the rank: a candidate is taken when no undecided candidate
-    of lower rank points to it or is pointed to by it. Each round works on the
-    (candidates x K) rank matrix of the undecided ones, row-wise (no sort, no
-    ufunc.at).
+    point having it as a neighbour, was taken before), computed by that pass
+    (:func:`.kernels.rounds.select_round`).
     """
-    nc = len(cand)
-    if nc == 0:
+    cand = np.asarray(cand, dtype=np.int64)
+    nb = np.asarray(nb, dtype=np.int64)
+    if len(cand) == 0:
         return cand
-    idt = np.int32 if nc < 2**31 - 1 else np.int64  # half the memory traffic of the rounds below
-    pos = np.full(n + 1, nc, dtype=idt)  # nc: not a candidate, or padding
-    pos[cand] = np.arange(nc, dtype=idt)  # a candidate's local id is its rank
-    dst = nb[cand]
-    if kk is not None:
-        dst = np.where(np.arange(nb.shape[1]) < kk[cand, None], dst, -1)
-    D = pos[np.where((dst < 0) | (dst >= n), n, dst)]  # (nc, K): ranks of the neighbours, nc for none
-    state = np.zeros(nc + 1, dtype=np.int8)  # 0 undecided, 1 taken, 2 out; slot nc (none): out
-    state[nc] = 2
-    und = np.arange(nc, dtype=idt)
-    blocked = np.zeros(nc + 1, dtype=bool)
-    while len(und):
-        live = state[D] == 0
-        me = und[:, None]
-        lower_out = (live & (D < me)).any(axis=1)  # points to a lower undecided candidate
-        higher = D[live & (D > me)]
-        blocked[higher] = True  # pointed to by a lower undecided candidate
-        win = ~lower_out & ~blocked[und]
-        blocked[higher] = False
-        state[und[win]] = 1
-        dw = D[win]
-        state[dw[state[dw] == 0]] = 2  # the winners' neighbours
-        state[und[(state[D] == 1).any(axis=1) & (state[und] == 0)]] = 2  # points having a winner as neighbour
-        keep = state[und] == 0
-        und, D = und[keep], D[keep]
-    return cand[np.flatnonzero(state[:nc] == 1)]
+    kk = np.full(n, nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
+    return kr.select_round(cand, nb, kk, np.zeros(0, dtype=bool), -1)
 
 
 def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
@@ -92,10 +70,10 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
     called with the count dropped in each round; ``kw`` the scoring arguments
     of :func:`.entropy.score_unchecked` (k0, k_min, dim, ctx, threads). With
     context every remaining point is rescored between rounds; without, only
-    the touched clusters (:func:`_rounds_local`).
+    the touched clusters (:func:`.incremental.rounds_incremental`).
     """
     if kw["ctx"] is None:
-        return _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
+        return rounds_incremental(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
     n = len(P)
     alive = np.ones(n, dtype=bool)
     n_alive = n
@@ -115,7 +93,7 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
     rescore(np.arange(n))
     rnd = 0
     while max_rounds is None or rnd < max_rounds:
-        sel = _round_selection(P, alive, val, np.arange(n), nb, n_alive, rule, threshold, target, coverage)
+        sel = round_selection(P, alive, val, np.arange(n), nb, n_alive, rule, threshold, target, coverage)
         if len(sel) == 0:
             break
         alive[sel] = False
@@ -131,197 +109,6 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
     return alive
 
 
-def _round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None) -> np.ndarray:
-    """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
-
-    Candidates are the alive points with val <= threshold (with a target: any
-    finite val), lowest val first, ties by ``tie``; ``coverage`` keeps those
-    that pass :func:`_covered`; then a greedy independent set in the k-NN
-    graph ``nb``, cut at the target.
-    """
-    if target is not None and n_alive <= target:
-        return np.zeros(0, dtype=np.int64)
-    pool = np.flatnonzero(alive & (val <= threshold if target is None else np.isfinite(val)))
-    cand = pool[np.lexsort((tie[pool], val[pool]))]
-    if rule == "coverage" and len(cand):
-        cand = cand[_covered(P, nb, cand, coverage, kk)]
-    if len(cand) == 0:
-        if target is not None:
-            logger.warning("rule %s stopped at %d points, target %d: no point qualifies", rule, n_alive, target)
-        return cand
-    sel = _first_independent(cand, nb, len(P), kk)
-    return sel if target is None else sel[: n_alive - target]
-
-
-# Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
-# after losing more than this many of its k + 1 + _SPARE nearest (or k + 1 - k' when k falls).
-_SPARE = 4
-
-
-def _rounds_local(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
-    """The iterative/coverage rules without context: incremental rescoring.
-
-    Without context a cluster's scores depend on its own points only, so after
-    a round only the clusters that lost a point change. Every point keeps its
-    k + 1 + e nearest (e <= _SPARE spares), nearest first; a dropped point
-    leaves the lists, and as long as a list keeps k' + 1 points (k' the
-    cluster's new k) they are still the k' + 1 nearest among the remaining
-    points (removing points brings none closer): r_k' and r_(k'+1) are then
-    the distances to its k'-th and (k'+1)-th entries, computed as the k-d
-    tree does. Only shorter lists need a new k-d tree query. Then W, A and
-    every score of a touched cluster are recomputed in O(m k). A cluster with
-    exact copies is scored again whole. The scores are those of a full
-    rescoring (the same formulas on the same distances; sums may differ in
-    the last bit from :func:`.entropy.score_points`, which orders the points of a
-    cluster differently).
-
-    All the state is kept in the grouped order of :func:`.knn.group`
-    (ties between candidates are still broken by canonical index).
-    """
-    k0, k_min, dim = kw["k0"], kw["k_min"], kw["dim"]
-    threads = int(kw["threads"] or os.cpu_count() or 1)
-    n, p = P.shape
-    inv, order, sizes = group(P, L)
-    g = P[order]
-    ginv = inv[order]
-    c = len(sizes)
-    groups, dup = knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=_SPARE)
-    K = max((grp[0] for grp in groups), default=0)
-    kk = np.zeros(n, dtype=np.int64)  # k of a scored point, 0 otherwise
-    rk = np.ones(n)
-    rk1 = np.ones(n)
-    nbx = np.full((n, K + 1 + _SPARE), n, dtype=np.int64)  # nearest first (grouped positions), n after
-    kcl = np.zeros(c, dtype=np.int64)  # k of a scored cluster, 0 otherwise
-    alive = np.ones(n, dtype=bool)
-    val = np.full(n, np.inf)
-    val[dup] = 0.0
-
-    def store(grps):
-        for k, r, a, b, x in grps:
-            kk[r] = k
-            rk[r] = a
-            rk1[r] = b
-            nbx[r, : x.shape[1]] = x
-            nbx[r, x.shape[1] :] = n
-
-    def query(whole):
-        """Find the copies in the whole clusters again, then m, k; the rows to query."""
-        wrows = np.flatnonzero(alive & whole[ginv])
-        if len(wrows) == 0:
-            return wrows
-        kk[wrows] = 0
-        nbx[wrows] = n
-        val[wrows] = np.inf
-        distinct = mark_duplicates(g, ginv, wrows, dup)
-        val[wrows[dup[wrows]]] = 0.0
-        m = np.bincount(ginv[distinct], minlength=c)
-        k2 = neighbour_count(m, k0, k_min)
-        ok = whole & (m >= k2 + 2)
-        kcl[whole] = np.where(ok, k2, 0)[whole]
-        return distinct[ok[ginv[distinct]]]
-
-    def run(q):
-        if len(q):
-            need = np.zeros(c, dtype=bool)
-            need[ginv[q]] = True
-            trows = np.flatnonzero(alive & ~dup & need[ginv])
-            store(knn_query(g, ginv, trows, kcl, threads, query=np.searchsorted(trows, q), extra=_SPARE)[0])
-
-    store(groups)
-    for k, r, _, _, _ in groups:
-        kcl[ginv[r]] = k
-    del groups
-    n_alive = n
-    use_unit = target is not None or score == "unit_free"
-
-    def rescore(touched):
-        """Scores of the scored points of the touched clusters, from the kept k-NN data."""
-        rows = np.flatnonzero(touched[ginv] & (kk > 0))  # kk > 0: alive, distinct, in a scored cluster
-        if len(rows) == 0:
-            return
-        cl = ginv[rows]
-        w, gw, Wc, dw_x, dg_x = entropy_terms(cl, c, rk[rows], rk1[rows], dim)
-        kr = kk[rows]
-        acc_w = np.zeros(n)
-        acc_g = np.zeros(n)
-        for k in np.unique(kr):  # x's change goes to its k nearest (a cluster has one k)
-            k = int(k)
-            at = np.flatnonzero(kr == k)
-            tgt = nbx[rows[at], :k].ravel()
-            acc_w += np.bincount(tgt, weights=np.repeat(dw_x[at], k), minlength=n)
-            acc_g += np.bincount(tgt, weights=np.repeat(dg_x[at], k), minlength=n)
-        dh = np.abs(entropy_change(acc_w[rows] - w, acc_g[rows] - gw, Wc))
-        if use_unit:
-            m = np.bincount(ginv[alive & ~dup], minlength=c)
-            dh = dh * m[cl]
-        val[rows] = dh
-
-    def dist(a, b):
-        """|g[a] - g[b]| summed in the k-d tree's order (so r_k is the same as a query's)."""
-        d = g[a] - g[b]
-        s = d[:, 0] * d[:, 0]
-        for j in range(1, p):
-            s += d[:, j] * d[:, j]
-        return np.sqrt(s)
-
-    rescore(np.ones(c, dtype=bool))
-    removed = np.zeros(n + 1, dtype=bool)  # slot n: the padding
-    rnd = 0
-    while max_rounds is None or rnd < max_rounds:
-        nbk = nbx[:, : int(kk.max(initial=1))]  # the columns that can hold one of the k nearest
-        # ties: canonical index (the input order, not the grouped one)
-        sel = _round_selection(g, alive, val, order, nbk, n_alive, rule, threshold, target, coverage, kk)
-        if len(sel) == 0:
-            break
-        alive[sel] = False
-        n_alive -= len(sel)
-        val[sel] = np.inf
-        kk[sel] = 0
-        nbx[sel] = n
-        rnd += 1
-        report(len(sel))
-
-        touched = np.zeros(c, dtype=bool)
-        touched[ginv[sel]] = True
-        m = np.bincount(ginv[alive & ~dup], minlength=c)
-        k_new = neighbour_count(m, k0, k_min)
-        copies = np.zeros(c, dtype=bool)
-        copies[ginv[alive & dup]] = True
-        whole = touched & (copies | (m < k_new + 2))
-        part = touched & ~whole
-        # part: drop the removed points from the lists; a list still holding k' + 1 points gives r_k'
-        rows = np.flatnonzero(part[ginv] & (kk > 0))
-        removed[sel] = True
-        x = nbx[rows]
-        gone = removed[x]
-        kn = k_new[ginv[rows]]
-        hit = gone.any(axis=1) | (kk[rows] != kn)
-        rows, x, gone, kn = rows[hit], x[hit], gone[hit], kn[hit]
-        removed[sel] = False
-        stay = (x < n) & ~gone
-        col = np.cumsum(stay, axis=1) - 1
-        packed = np.full_like(x, n)
-        r_i, c_i = np.nonzero(stay)
-        packed[r_i, col[r_i, c_i]] = x[r_i, c_i]
-        nbx[rows] = packed
-        enough = stay.sum(axis=1) >= kn + 1
-        ok = rows[enough]
-        kk[ok] = kn[enough]
-        pk = packed[enough]
-        rk[ok] = dist(ok, np.take_along_axis(pk, (kn[enough] - 1)[:, None], axis=1)[:, 0])
-        rk1[ok] = dist(ok, np.take_along_axis(pk, kn[enough][:, None], axis=1)[:, 0])
-        kcl[part] = k_new[part]
-        q_part = rows[~enough]
-        q_whole = query(whole)
-        logger.debug("round %d: dropped %d, %d left; %d clusters touched (%d whole), k-NN query for %d + %d points",
-                     rnd, len(sel), n_alive, touched.sum(), whole.sum(), len(q_part), len(q_whole))
-        run(np.union1d(q_part, q_whole))
-        rescore(touched)
-    out = np.empty(n, dtype=bool)
-    out[order] = alive
-    return out
-
-
 def _covered(P, nb, cand, coverage, kk=None):
     """Which candidates may go without opening a gap wider than the local spacing.
 
@@ -329,28 +116,11 @@ def _covered(P, nb, cand, coverage, kk=None):
     r_1(y) <= coverage * median of r_1 over y's k nearest: y sits where points
     are at least as dense as around it. An isolated point (outlier, edge of a
     thin part), whose nearest neighbour is far compared with its neighbours'
-    spacing, stays, whatever its entropy score.
+    spacing, stays, whatever its entropy score. ``nb`` (n, K) padded with -1
+    (or n); with ``kk`` (n,), row i holds kk[i] neighbours. Returns a bool
+    mask (len(cand),) (:func:`.kernels.rounds.covered_mask`).
     """
-    n = len(P)
-    has = nb[:, 0] >= 0
-    if kk is not None:  # row i holds kk[i] neighbours
-        has &= kk > 0
-    r1 = np.full(n, np.inf)
-    r1[has] = np.sqrt(((P[has] - P[nb[has, 0]]) ** 2).sum(axis=1))
-    c = cand[has[cand]]
-    nbc = nb[c]
-    ok_col = nbc >= 0
-    if kk is not None:
-        ok_col &= np.arange(nb.shape[1]) < kk[c, None]
-    vals = np.where(ok_col, r1[np.where(ok_col, nbc, 0)], np.nan)
-    # row medians ignoring NaN, as np.nanmedian (mean of the two middle values) but with one
-    # row sort (NaN last) instead of its masked-array path (measured 3x slower on 200k rows)
-    cnt = ok_col.sum(axis=1)
-    vals.sort(axis=1)
-    lo = np.take_along_axis(vals, np.maximum((cnt - 1) // 2, 0)[:, None], axis=1)[:, 0]
-    hi = np.take_along_axis(vals, (cnt // 2)[:, None], axis=1)[:, 0]
-    with np.errstate(invalid="ignore"):
-        med = np.where(cnt > 0, (lo + hi) / 2, np.nan)
-    ok = np.zeros(len(cand), dtype=bool)
-    ok[has[cand]] = r1[c] <= coverage * med
-    return ok
+    nb = np.asarray(nb, dtype=np.int64)
+    kk = np.full(len(P), nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)
+    P = np.ascontiguousarray(P, dtype=np.float64)
+    return kr.covered_mask(nb, kk, kl.spacings(P, nb, kk), np.asarray(cand, dtype=np.int64), float(coverage))

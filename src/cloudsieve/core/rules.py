@@ -135,7 +135,8 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
     progress : callable, optional
         Called with the number of points dropped in each round.
     threads : int, optional
-        Threads for the k-d tree queries (None: all cores); the mask does not depend on it.
+        Threads for the k-d tree queries and the kernels of the rounds (None: all
+        cores); the mask does not depend on it.
 
     Returns
     -------

@@ -46,8 +46,8 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     labels : array_like of shape (n,), int, optional
         Use these clusters instead of refining.
     threads : int, optional
-        Threads for the k-d tree queries of clustering and scoring (None: all
-        cores); the result does not depend on it.
+        Threads for the k-d tree queries of clustering and scoring and for the
+        kernels of the rounds (None: all cores); the result does not depend on it.
 
     Returns
     -------
