@@ -1,0 +1,251 @@
+"""Compiled kernels of K-means (numba; private: inputs are assumed valid).
+
+- :func:`pairwise_sum`: numpy's summation of a row;
+- :func:`cluster_sums`: per-cluster coordinate sums and counts;
+- :func:`stale_bounds`, :func:`assign_pass`, :func:`apply_moves`: one Lloyd
+  iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`.
+
+Every kernel does its floating-point operations in the order of the numpy
+code it replaced, so its results are the same bit for bit: a squared
+distance is summed over the coordinates in order from 0 (as
+``np.add`` column by column, and as scipy's ``cKDTree``); a sum over a
+row of a 2-D array (``a.sum(axis=1)``) follows numpy's pairwise summation
+(:func:`pairwise_sum`); per-cluster sums add the points in index order (as
+``np.bincount`` with weights). The per-point kernels take a range of rows
+so that callers can run disjoint ranges on threads (``nogil``); the result
+does not depend on the ranges.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .centres import sqdist
+
+__all__ = ["pairwise_sum", "cluster_sums", "cluster_max", "stale_bounds",
+           "assign_pass", "apply_moves"]
+
+_PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] for n <= 128 (its unrolled base case)."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sum(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] (1-D float64), bit for bit.
+
+    ``x.sum(axis=1)`` on a C-contiguous 2-D float64 array is ``0.0 +`` this
+    over each row. Above 128 terms numpy recurses on halves (cut at a
+    multiple of 8) and adds the two sums; done here with an explicit stack
+    (numba's cache does not keep recursive functions reliably).
+    """
+    if n <= _PW_BLOCK:
+        return _pairwise_block(a, lo, n)
+    # post-order walk of numpy's recursion: (lo, n, visited) frames and a stack of partial sums
+    flo = np.empty(128, dtype=np.int64)
+    fn = np.empty(128, dtype=np.int64)
+    fv = np.zeros(128, dtype=np.uint8)
+    vals = np.empty(128)
+    top = 0
+    nv = 0
+    flo[0], fn[0], fv[0] = lo, n, 0
+    while top >= 0:
+        m = fn[top]
+        if m <= _PW_BLOCK:
+            vals[nv] = _pairwise_block(a, flo[top], m)
+            nv += 1
+            top -= 1
+        elif fv[top] == 0:
+            fv[top] = 1
+            m2 = m // 2
+            m2 -= m2 % 8
+            b = flo[top]
+            flo[top + 1], fn[top + 1], fv[top + 1] = b + m2, m - m2, 0  # right, done second
+            flo[top + 2], fn[top + 2], fv[top + 2] = b, m2, 0  # left, done first
+            top += 2
+        else:  # both halves done: left + right
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            top -= 1
+    return vals[0]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rowsumsqdist(X, i, C, t, buf):
+    """``((X[i] - C[t]) ** 2).sum()`` as numpy computes it for one row of a 2-D array."""
+    p = X.shape[1]
+    if p < 8:  # numpy: 0.0 + (-0.0 + s_0 + s_1 + ...), the same as the sum in order
+        return sqdist(X, i, C, t)
+    for j in range(p):
+        diff = X[i, j] - C[t, j]
+        buf[j] = diff * diff
+    return 0.0 + pairwise_sum(buf, 0, p)
+
+
+@njit(cache=True, nogil=True)
+def cluster_sums(X, a, c):
+    """Per-cluster sums S (c, p) and counts (c,) float64 of the rows of X by label a.
+
+    Each sum adds the points in index order from 0.0, as
+    ``np.bincount(a, weights=X[:, j], minlength=c)``.
+    """
+    n, p = X.shape
+    S = np.zeros((c, p))
+    cnt = np.zeros(c)
+    for i in range(n):
+        g = a[i]
+        cnt[g] += 1.0
+        for j in range(p):
+            S[g, j] += X[i, j]
+    return S, cnt
+
+
+@njit(cache=True, nogil=True)
+def cluster_max(a, v, out):
+    """out[a[i]] = max(out[a[i]], v[i]) for every i (``np.maximum.at``)."""
+    for i in range(len(a)):
+        if v[i] > out[a[i]]:
+            out[a[i]] = v[i]
+
+
+@njit(cache=True, nogil=True)
+def stale_bounds(a, L, R, cumD, cumM, T, near, s, e, umax):
+    """Rows s..e-1: the bounds of every point brought to bounds over all centres
+    before the neighbour lists are re-made (see ``lloyd``).
+
+    With U = L - R, ub = U + cumD[a] and lb = max(min(L - cumM[a], T[a] - ub),
+    near[a] - ub): L = lb, R = lb - ub, and umax[g] (zeros on entry) the
+    largest ub of cluster g among these rows.
+    """
+    for i in range(s, e):
+        g = a[i]
+        ub = (L[i] - R[i]) + cumD[g]
+        lb = min(L[i] - cumM[g], T[g] - ub)
+        lb = max(lb, near[g] - ub)
+        L[i] = lb
+        R[i] = lb - ub
+        if ub > umax[g]:
+            umax[g] = ub
+
+
+@njit(cache=True, nogil=True)
+def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, state, na, d1o, lowo):
+    """Rows s..e-1 of one Lloyd iteration with bounds (see ``lloyd``).
+
+    A point with R > Q[a] keeps its label untouched (state 0). Otherwise its
+    distance u to its centre and the bound low = max(min(L - cumM[a], T[a] - u),
+    near[a] - u) are computed; if u < low it keeps its label with L = low +
+    cumM[a], R = low - u + cumD[a] + cumM[a] (state 0). Otherwise its nearest
+    among its centre and the centre's neighbours nb[a] (the first on a tie)
+    is found, with d1 its distance and low = min(second distance, T[a] - u):
+    exact when d1 < T[a] - u (state 1: na, d1o, lowo written), else the point
+    needs a query over all centres (state 2).
+
+    Returns
+    -------
+    int
+        Rows of state 1 or 2.
+    """
+    K = nb.shape[1]
+    buf = np.empty(X.shape[1])
+    D = np.empty(K + 1)
+    todo = 0
+    for i in range(s, e):
+        g = a[i]
+        if R[i] > Q[g]:
+            state[i] = 0
+            continue
+        u = math.sqrt(_rowsumsqdist(X, i, C, g, buf))
+        low = max(min(L[i] - cumM[g], T[g] - u), near[g] - u)
+        if u < low:
+            L[i] = low + cumM[g]
+            R[i] = ((low - u) + cumD[g]) + cumM[g]
+            state[i] = 0
+            continue
+        todo += 1
+        D[0] = sqdist(X, i, C, g)
+        k1 = 0
+        for q in range(K):
+            D[q + 1] = sqdist(X, i, C, nb[g, q])
+            if D[q + 1] < D[k1]:
+                k1 = q + 1
+        second = np.inf
+        for q in range(K + 1):
+            if q != k1 and D[q] < second:
+                second = D[q]
+        d1 = math.sqrt(D[k1])
+        far = T[g] - u
+        if d1 < far:
+            state[i] = 1
+            na[i] = g if k1 == 0 else nb[g, k1 - 1]
+            d1o[i] = d1
+            lowo[i] = min(math.sqrt(second), far)
+        else:
+            state[i] = 2
+    return todo
+
+
+@njit(cache=True, nogil=True)
+def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt_out, cnt_in):
+    """The reassigned rows (ascending) take their new labels na, in order.
+
+    L = low + cumM[na], R = low - d1 + cumD[na] + cumM[na], umax[na] =
+    max(umax[na], d1 - cumD[na]); the points that changed cluster are added
+    to out / cnt_out of their old cluster and inn / cnt_in of the new one,
+    in index order from zero (``np.bincount`` over the moved points).
+
+    Returns
+    -------
+    int
+        Points that changed cluster.
+    """
+    p = X.shape[1]
+    moved = 0
+    for r in range(len(rows)):
+        i = rows[r]
+        old = a[i]
+        g = na[i]
+        if g != old:
+            moved += 1
+            cnt_out[old] += 1.0
+            cnt_in[g] += 1.0
+            for j in range(p):
+                out[old, j] += X[i, j]
+                inn[g, j] += X[i, j]
+        a[i] = g
+        cD = cumD[g]
+        L[i] = lowo[i] + cumM[g]
+        R[i] = ((lowo[i] - d1o[i]) + cD) + cumM[g]
+        v = d1o[i] - cD
+        if v > umax[g]:
+            umax[g] = v
+    return moved
