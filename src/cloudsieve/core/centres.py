@@ -104,7 +104,7 @@ def ring_grid(C: np.ndarray, h: float) -> tuple:
 def no_lists(p: int) -> tuple:
     """The ``lists`` tuple of :mod:`.kernels.centres` that holds no lists (ring search only)."""
     z = np.zeros(0, dtype=np.int64)
-    return np.zeros(3), 1.0, np.ones(3, dtype=np.int64), z, z, z, np.zeros((0, p))
+    return np.zeros(3), 1.0, np.ones(3, dtype=np.int64), z, z, z.astype(np.int32), np.zeros((0, p))
 
 
 _FINE = 4  # fine cells per grid cell along an axis, at most
@@ -140,7 +140,7 @@ def candidate_lists(X, rows, C, ring, k, chunks) -> tuple:
     cellpos[cells] = np.arange(len(cells))
     lstart = np.zeros(len(cells) + 1, dtype=np.int64)
     np.cumsum(counts, out=lstart[1:])
-    return lo, float(s), fdims, cellpos, lstart, lids, np.ascontiguousarray(C[lids])
+    return lo, float(s), fdims, cellpos, lstart, lids.astype(np.int32), C
 
 
 _LIST_MIN_ROWS_PER_CENTRE = 16  # fewer query points than this per centre: rings only

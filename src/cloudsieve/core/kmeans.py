@@ -199,10 +199,8 @@ def _lloyd(Xs, C, max_iter, tol, chunks):
     kk.cluster_max(a, np.ascontiguousarray(d[:, 0]), Umax)
     del d
     S, cnt = kk.cluster_sums(Xs, a, c)
-    state = np.empty(n, dtype=np.uint8)  # per iteration: 0 kept, 1 reassigned, 2 needs a query
-    na = np.empty(n, dtype=np.int64)
-    d1 = np.empty(n)
-    low = np.empty(n)
+    na = np.empty(n, dtype=np.int64)  # per iteration: the new label of a listed point (-1: query it)
+    listed = np.empty(n, dtype=np.int64)  # each chunk [s, e) lists its points at listed[s:]
     limit = tol * n
     conv = False
     it = 0
@@ -227,17 +225,24 @@ def _lloyd(Xs, C, max_iter, tol, chunks):
             cumM[:] = 0.0
         Q = cumD + cumM
         Q[2.0 * (Umax + cumD) >= T] = np.inf  # far centres might come close: check every point
-        todo = sum(chunks.map(lambda s, e: kk.assign_pass(Xs, a, L, R, Q, C, cumD, cumM, T, near, neigh.nb,
-                                                          s, e, state, na, d1, low), n))
+        def assign(s, e, T=T, near=near, Q=Q, C=C):
+            um = np.zeros(c)
+            cnt, _ = kk.assign_pass(Xs, a, L, R, Q, C, cumD, cumM, T, near, neigh.nb, s, e, na, um, listed)
+            return s, cnt, um
+        parts = chunks.map(assign, n)
+        for _, _, um in parts:
+            np.maximum(Umax, um, out=Umax)
+        rows = np.concatenate([listed[s : s + cnt] for s, cnt, _ in parts])
         n_changed = 0
-        if todo:
-            rows = np.flatnonzero(state)
-            bad = rows[state[rows] == 2]
-            if len(bad):  # the nearest may be outside the neighbour list: all centres
-                db, ib = nearest_centres(Xs, C, 2, chunks, h, bad)
-                na[bad] = ib[:, 0]
-                d1[bad] = db[:, 0]
-                low[bad] = db[:, 1]
+        if len(rows):
+            q = np.flatnonzero(na[rows] < 0)
+            d1 = np.full(len(rows), -1.0)
+            low = np.empty(len(rows))
+            if len(q):  # the nearest may be outside the neighbour list: all centres
+                db, ib = nearest_centres(Xs, C, 2, chunks, h, rows[q])
+                na[rows[q]] = ib[:, 0]
+                d1[q] = db[:, 0]
+                low[q] = db[:, 1]
             out, inn = np.zeros((c, p)), np.zeros((c, p))
             cnt_out, cnt_in = np.zeros(c), np.zeros(c)
             n_changed = kk.apply_moves(Xs, rows, a, na, d1, low, L, R, cumD, cumM, Umax, out, inn, cnt_out, cnt_in)

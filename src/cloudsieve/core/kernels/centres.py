@@ -17,10 +17,10 @@ Grid tuples, as made by :mod:`cloudsieve.core.centres`:
 ``ring = (Cg, gid, start, lo, h, dims, margin)``: the centres in cell order
 (c, p), their indices (c,), the CSR offsets of the cells (n_cells + 1,), the
 origin (3,), the side, the cells per axis (3,) and the slack;
-``lists = (flo, s, fdims, cellpos, lstart, lids, lC)``: the fine grid's
+``lists = (flo, s, fdims, cellpos, lstart, lids, C)``: the fine grid's
 origin, side and cells per axis, the position of each fine cell's list
-(-1: none; length 0: no lists at all), the CSR offsets of the lists, and
-the listed centres' indices and coordinates.
+(-1: none; length 0: no lists at all), the CSR offsets of the lists, the
+listed centres' indices (int32: lists that fit in cache) and the centres.
 """
 
 from __future__ import annotations
@@ -268,12 +268,12 @@ def cell_candidates(cells, a, b, ring, flo, s, fdims, k):
     return counts, out[:used].copy()
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def knn_row(X, i, ring, lists, k, bd, bi):
     """The k nearest centres of X[i] into bd (squared distances, ascending) and
     bi (indices): from its fine cell's list when there is one, else by rings.
     Returns 1 when two of the k distances are equal, else 0."""
-    flo, s, fdims, cellpos, lstart, lids, lC = lists
+    flo, s, fdims, cellpos, lstart, lids, lC = lists  # lC: the centres (c, p)
     pos = -1
     if len(cellpos):
         g = _fine_cell(X, i, flo, s, fdims)
@@ -282,15 +282,15 @@ def knn_row(X, i, ring, lists, k, bd, bi):
     if pos >= 0:
         cnt = 0
         for t in range(lstart[pos], lstart[pos + 1]):
-            cnt = _insert(bd, bi, cnt, k, sqdist(X, i, lC, t), t)
-        for j in range(k):
-            bi[j] = lids[bi[j]]
+            g = lids[t]
+            cnt = _insert(bd, bi, cnt, k, sqdist(X, i, lC, g), g)
     else:
         ring_search(X, i, ring, k, bd, bi)
+    tie = 0
     for j in range(1, k):
         if bd[j] == bd[j - 1]:
-            return 1
-    return 0
+            tie = 1
+    return tie
 
 
 @njit(cache=True, nogil=True)

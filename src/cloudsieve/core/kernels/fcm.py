@@ -93,7 +93,7 @@ def max_change(idx0, U0, idx1, U1):
     return best
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
     """The end of row i's update, its new centres Ib (sorted) and squared
     distances D2 known: memberships, their change (returned), the hard label
@@ -101,8 +101,8 @@ def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
     L = len(Ib)
     memberships(D2, e, ub, r)
     ch = 0.0
+    same = have
     if have:
-        same = True
         for q in range(L):
             if Ib[q] != idx[i, q]:
                 same = False
@@ -125,8 +125,10 @@ def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
             relabel = 1
         hard[i] = hb
     for q in range(L):
-        idx[i, q] = Ib[q]
         U[i, q] = ub[q]
+    if not same:
+        for q in range(L):
+            idx[i, q] = Ib[q]
     return ch, relabel
 
 
@@ -145,9 +147,9 @@ def _sort_small(keys, vals, n):
         vals[b] = v
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, inline="always")
 def _sort_by_index(Ib, D2, L):
-    """Ib[:L] ascending (distinct indices), D2 carried along."""
+    """Ib[:L] ascending (distinct indices), D2 carried along (insertion sort: L is small)."""
     for a in range(1, L):
         k = Ib[a]
         v = D2[a]
@@ -241,7 +243,7 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
                 reach[i] = math.sqrt(qd[L + E])
             for q in range(L):
                 Ib[q] = qi[q]
-            Ib.sort()
+            _sort_by_index(Ib, D2, L)
             for q in range(E):
                 ring[i, q] = qi[L + q]
             for q in range(L):
@@ -272,7 +274,7 @@ def finish_rows(X, C, rows, qd, qi, idx, ring, U, reach, hard, have, e):
             reach[i] = qd[t, L + E]
         for q in range(L):
             Ib[q] = qi[t, q]
-        Ib.sort()
+        _sort_by_index(Ib, D2, L)
         for q in range(E):
             ring[i, q] = qi[t, L + q]
         for q in range(L):

@@ -3,7 +3,9 @@
 - :func:`pairwise_sum`: numpy's summation of a row;
 - :func:`cluster_sums`: per-cluster coordinate sums and counts;
 - :func:`stale_bounds`, :func:`assign_pass`, :func:`apply_moves`: one Lloyd
-  iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`.
+  iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`;
+- :func:`kmeanspp_steps`: the k-means++ seeding's draws and updates;
+- :func:`take_rows`, :func:`put_rows`: rows into and out of the canonical order.
 
 Every kernel does its floating-point operations in the order of the numpy
 code it replaced, so its results are the same bit for bit: a squared
@@ -25,8 +27,8 @@ from numba import njit
 
 from .centres import sqdist
 
-__all__ = ["pairwise_sum", "cluster_sums", "cluster_max", "stale_bounds",
-           "assign_pass", "apply_moves"]
+__all__ = ["pairwise_sum", "cluster_sums", "cluster_max", "stale_bounds", "assign_pass", "apply_moves",
+           "kmeanspp_steps", "take_rows", "put_rows"]
 
 _PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
 
@@ -100,7 +102,7 @@ def pairwise_sum(a, lo, n):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _rowsumsqdist(X, i, C, t, buf):
+def _rowsum_sqdist(X, i, C, t, buf):
     """``((X[i] - C[t]) ** 2).sum()`` as numpy computes it for one row of a 2-D array."""
     p = X.shape[1]
     if p < 8:  # numpy: 0.0 + (-0.0 + s_0 + s_1 + ...), the same as the sum in order
@@ -158,38 +160,46 @@ def stale_bounds(a, L, R, cumD, cumM, T, near, s, e, umax):
 
 
 @njit(cache=True, nogil=True)
-def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, state, na, d1o, lowo):
+def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, na, umax, rows):
     """Rows s..e-1 of one Lloyd iteration with bounds (see ``lloyd``).
 
-    A point with R > Q[a] keeps its label untouched (state 0). Otherwise its
-    distance u to its centre and the bound low = max(min(L - cumM[a], T[a] - u),
-    near[a] - u) are computed; if u < low it keeps its label with L = low +
-    cumM[a], R = low - u + cumD[a] + cumM[a] (state 0). Otherwise its nearest
-    among its centre and the centre's neighbours nb[a] (the first on a tie)
-    is found, with d1 its distance and low = min(second distance, T[a] - u):
-    exact when d1 < T[a] - u (state 1: na, d1o, lowo written), else the point
-    needs a query over all centres (state 2).
+    A point with R > Q[a] keeps its label untouched. Otherwise its distance u
+    to its centre and the bound low = max(min(L - cumM[a], T[a] - u), near[a]
+    - u) are computed; if u < low it keeps its label with L = low + cumM[a],
+    R = low - u + cumD[a] + cumM[a]. Otherwise its nearest among its centre
+    and the centre's neighbours nb[a] (the first on a tie) is found, with d1
+    its distance and low = min(second distance, T[a] - u), which is exact when
+    d1 < T[a] - u: then L = low + cumM[na], R = low - d1 + cumD[na] + cumM[na]
+    and umax[na] = max(umax[na], d1 - cumD[na]) (umax: this range's own
+    array, zeros on entry); a point whose label changes is listed with na
+    (its label stays for :func:`apply_moves`, which also updates the sums in
+    index order). A point whose nearest may be outside the list is listed
+    with na = -1 (a query over all centres, then :func:`apply_moves`).
+
+    Parameters
+    ----------
+    rows : ndarray of shape (n,), int64
+        The listed rows are written, ascending, at rows[s:s + count].
 
     Returns
     -------
-    int
-        Rows of state 1 or 2.
+    (int, int)
+        count, and the number of points reassigned among the lists.
     """
     K = nb.shape[1]
     buf = np.empty(X.shape[1])
     D = np.empty(K + 1)
     todo = 0
+    count = 0
     for i in range(s, e):
         g = a[i]
         if R[i] > Q[g]:
-            state[i] = 0
             continue
-        u = math.sqrt(_rowsumsqdist(X, i, C, g, buf))
+        u = math.sqrt(_rowsum_sqdist(X, i, C, g, buf))
         low = max(min(L[i] - cumM[g], T[g] - u), near[g] - u)
         if u < low:
             L[i] = low + cumM[g]
             R[i] = ((low - u) + cumD[g]) + cumM[g]
-            state[i] = 0
             continue
         todo += 1
         D[0] = sqdist(X, i, C, g)
@@ -205,23 +215,39 @@ def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, state, na, d1o,
         d1 = math.sqrt(D[k1])
         far = T[g] - u
         if d1 < far:
-            state[i] = 1
-            na[i] = g if k1 == 0 else nb[g, k1 - 1]
-            d1o[i] = d1
-            lowo[i] = min(math.sqrt(second), far)
+            h = g if k1 == 0 else nb[g, k1 - 1]
+            low = min(math.sqrt(second), far)
+            L[i] = low + cumM[h]
+            R[i] = ((low - d1) + cumD[h]) + cumM[h]
+            v = d1 - cumD[h]
+            if v > umax[h]:
+                umax[h] = v
+            if h != g:
+                rows[s + count] = i
+                na[i] = h
+                count += 1
         else:
-            state[i] = 2
-    return todo
+            rows[s + count] = i
+            na[i] = -1
+            count += 1
+    return count, todo
 
 
 @njit(cache=True, nogil=True)
 def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt_out, cnt_in):
-    """The reassigned rows (ascending) take their new labels na, in order.
+    """The listed rows (ascending) of :func:`assign_pass` take their labels, in order.
 
-    L = low + cumM[na], R = low - d1 + cumD[na] + cumM[na], umax[na] =
-    max(umax[na], d1 - cumD[na]); the points that changed cluster are added
-    to out / cnt_out of their old cluster and inn / cnt_in of the new one,
-    in index order from zero (``np.bincount`` over the moved points).
+    A row queried over all centres (na set from the query, its distance d1o
+    and second distance lowo) first gets L = low + cumM[na], R = low - d1 +
+    cumD[na] + cumM[na] and umax[na] = max(umax[na], d1 - cumD[na]). The
+    points that change cluster are added to out / cnt_out of their old
+    cluster and inn / cnt_in of the new one, in index order from zero (as
+    ``np.bincount`` over the moved points).
+
+    Parameters
+    ----------
+    d1o, lowo : ndarray of shape (len(rows),)
+        For the queried rows, at their position in ``rows``.
 
     Returns
     -------
@@ -234,6 +260,13 @@ def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt
         i = rows[r]
         old = a[i]
         g = na[i]
+        if d1o[r] >= 0:  # queried
+            cD = cumD[g]
+            L[i] = lowo[r] + cumM[g]
+            R[i] = ((lowo[r] - d1o[r]) + cD) + cumM[g]
+            v = d1o[r] - cD
+            if v > umax[g]:
+                umax[g] = v
         if g != old:
             moved += 1
             cnt_out[old] += 1.0
@@ -241,11 +274,136 @@ def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt
             for j in range(p):
                 out[old, j] += X[i, j]
                 inn[g, j] += X[i, j]
-        a[i] = g
-        cD = cumD[g]
-        L[i] = lowo[i] + cumM[g]
-        R[i] = ((lowo[i] - d1o[i]) + cD) + cumM[g]
-        v = d1o[i] - cD
-        if v > umax[g]:
-            umax[g] = v
+            a[i] = g
     return moved
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _search_right(a, lo, n, v):
+    """np.searchsorted(a[lo:lo + n], v, side="right") for ascending a."""
+    b, e = 0, n
+    while b < e:
+        m = (b + e) // 2
+        if a[lo + m] <= v:
+            b = m + 1
+        else:
+            e = m
+    return b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _search_left(a, n, v):
+    """np.searchsorted(a[:n], v, side="left") for ascending a."""
+    b, e = 0, n
+    while b < e:
+        m = (b + e) // 2
+        if a[m] < v:
+            b = m + 1
+        else:
+            e = m
+    return b
+
+
+@njit(cache=True, nogil=True)
+def kmeanspp_steps(S, d2, bsum, bmax, chosen, k, u, forced, B):
+    """Steps k, k+1, ... of the k-means++ seeding of ``cluster._kmeanspp``.
+
+    S (s, p) is the sample sorted on its first coordinate; d2 (nb * B,) the
+    squared distance of each sample point to its nearest chosen centre (zero
+    padded), bsum / bmax (nb,) its sums (numpy's pairwise sum of each block)
+    and maxima per block of B; chosen (c,) the picks. A step draws a point
+    with probability d2 / sum(d2) with the next uniform of u (the sum of all
+    blocks by a cumulative sum, then within the block), or takes ``forced``
+    (>= 0) at step k, then lowers d2 in the window of points that can be
+    nearer to the new centre than their max(d2) (found by binary search on
+    the first coordinate) and updates the window's blocks.
+
+    Returns
+    -------
+    (int, int)
+        The step reached (len(chosen) when done, or a step whose d2 is all
+        zero: the caller draws that pick with ``rng.integers``) and the
+        uniforms used.
+    """
+    s, p = S.shape
+    nb = len(bsum)
+    c = len(chosen)
+    cum = np.empty(nb)
+    used = 0
+    for t in range(k, c):
+        if t == k and forced >= 0:
+            nxt = forced
+        else:
+            anypos = False
+            for b in range(nb):
+                if bsum[b] > 0:
+                    anypos = True
+                    break
+            if not anypos:
+                return t, used
+            acc = bsum[0]
+            cum[0] = acc
+            for b in range(1, nb):
+                acc += bsum[b]
+                cum[b] = acc
+            r = u[used] * cum[nb - 1]
+            used += 1
+            b = min(_search_right(cum, 0, nb, r), nb - 1)
+            if b:
+                r -= cum[b - 1]
+            else:
+                r -= 0.0
+            # the cumulative sum within block b, searched from its start
+            acc = 0.0
+            w = B - 1
+            for q in range(B):
+                acc = d2[b * B] if q == 0 else acc + d2[b * B + q]
+                if acc > r:
+                    w = q
+                    break
+            nxt = b * B + w
+            while nxt >= s or d2[nxt] == 0:
+                nxt -= 1
+        chosen[t] = nxt
+        big = bmax[0]
+        for b in range(1, nb):
+            if bmax[b] > big:
+                big = bmax[b]
+        reach = math.sqrt(big)
+        lo = _search_left(S[:, 0], s, S[nxt, 0] - reach)
+        hi = _search_right(S[:, 0], 0, s, S[nxt, 0] + reach)
+        lo = (lo // B) * B
+        hi = min(-(-hi // B) * B, s)
+        for i in range(lo, hi):
+            dn = 0.0
+            for j in range(p):
+                diff = S[i, j] - S[nxt, j]
+                dn += diff * diff
+            if dn < d2[i]:
+                d2[i] = dn
+        for b in range(lo // B, -(-hi // B)):
+            bsum[b] = 0.0 + pairwise_sum(d2, b * B, B)
+            m = d2[b * B]
+            for q in range(1, B):
+                if d2[b * B + q] > m:
+                    m = d2[b * B + q]
+            bmax[b] = m
+    return c, used
+
+
+@njit(cache=True, nogil=True)
+def take_rows(src, order, dst, s, e):
+    """dst[i] = src[order[i]] for i in s..e-1 (2-D arrays, rows)."""
+    for i in range(s, e):
+        o = order[i]
+        for j in range(src.shape[1]):
+            dst[i, j] = src[o, j]
+
+
+@njit(cache=True, nogil=True)
+def put_rows(src, order, dst, s, e):
+    """dst[order[i]] = src[i] for i in s..e-1 (2-D arrays, rows)."""
+    for i in range(s, e):
+        o = order[i]
+        for j in range(src.shape[1]):
+            dst[o, j] = src[i, j]
