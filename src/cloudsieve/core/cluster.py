@@ -192,7 +192,8 @@ class CentroidClustering:
     def fit(self, points, threads: int | None = None):
         """Cluster ``points`` (array_like of shape (n, p)); returns self.
 
-        ``threads``: threads of the k-d tree queries (None: all cores); the result does not depend on it.
+        ``threads``: threads of the compiled passes over the points (None: all cores); the result
+        does not depend on it.
         """
         X = check_points(points)
         self.check_params(*X.shape)
