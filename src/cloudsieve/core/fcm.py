@@ -171,11 +171,12 @@ def _fcm_run(Xs, C, L, m, tol, max_iter, chunks, label_tol):
     c = len(C)
     E = min(_FCM_RING, c - L)
     K = L + E + (1 if L + E < c else 0)  # neighbours per query
-    idx = np.zeros((n, L), dtype=np.int64)
-    ring = np.zeros((n, E), dtype=np.int64)
+    ix = np.int32 if c < 2**31 else np.int64  # centre indices: int32 halves the memory traffic of the updates
+    idx = np.zeros((n, L), dtype=ix)
+    ring = np.zeros((n, E), dtype=ix)
     U = np.zeros((n, L))
     reach = np.full(n, np.inf)  # R - D (inf: the ring holds every other centre)
-    hard = np.full(n if label_tol is not None else 0, -1, dtype=np.int64)
+    hard = np.full(n if label_tol is not None else 0, -1, dtype=ix)
     flag = np.empty(n, dtype=np.uint8)  # a query with tied distances, left to the tree
     e = 1.0 / (m - 1.0)
     h = cell_size(C, K)
@@ -217,4 +218,4 @@ def _fcm_run(Xs, C, L, m, tol, max_iter, chunks, label_tol):
         reach -= np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
         C = Cn
     chunks.map(lambda s, t: kf.nearest_first(Xs, C, idx, U, s, t), n)  # nearest first, as documented
-    return idx, U, C, it, conv
+    return idx.astype(np.int64), U, C, it, conv

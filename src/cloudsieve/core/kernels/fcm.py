@@ -12,6 +12,12 @@
 As in :mod:`.kmeans`, every floating-point operation is the one of the numpy
 code these replaced (:mod:`cloudsieve.core.fcm` before the kernels), in the
 same order, so memberships, centres and labels are the same bit for bit.
+(For m != 2, the powers are libm's ``pow``; numpy's own may differ in the
+last bit on some CPUs, so memberships and centres may differ there.)
+
+These kernels compile in functions of :mod:`.centres` and :mod:`.kmeans`;
+numba's on-disk cache (``cache=True``) checks only a function's own file, so
+after editing those files delete this package's ``__pycache__``.
 """
 
 from __future__ import annotations

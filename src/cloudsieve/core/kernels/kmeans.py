@@ -16,6 +16,10 @@ row of a 2-D array (``a.sum(axis=1)``) follows numpy's pairwise summation
 ``np.bincount`` with weights). The per-point kernels take a range of rows
 so that callers can run disjoint ranges on threads (``nogil``); the result
 does not depend on the ranges.
+
+These kernels compile in :func:`.centres.sqdist`; numba's on-disk cache
+(``cache=True``) checks only a function's own file, so after editing
+:mod:`.centres` delete this package's ``__pycache__``.
 """
 
 from __future__ import annotations
