@@ -108,7 +108,8 @@ def no_lists(p: int) -> tuple:
 
 
 _FINE = 4  # fine cells per grid cell along an axis, at most
-_MIN_POINTS_PER_LIST = 48  # fewer points per occupied fine cell: coarser fine grid
+_MIN_POINTS_PER_LIST = 16  # fewer points per occupied fine cell: a coarser fine grid (16, 48: alike on surfaces;
+# 16 faster in volumes, measured)
 
 
 def candidate_lists(X, rows, C, ring, k, chunks) -> tuple:
