@@ -283,3 +283,98 @@ def test_truncated_fcm_equals_brute_force_nearest_centres(monkeypatch, L, c):
     np.testing.assert_array_equal(f.membership_indices_, idx)  # nearest first
     np.testing.assert_allclose(f.memberships_, U, rtol=1e-9)
     np.testing.assert_array_equal(f.labels_, idx[np.arange(len(idx)), U.argmax(1)])
+
+
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")
+@pytest.mark.parametrize("est", [KMeans, FuzzyCMeans])
+def test_same_result_whatever_the_thread_count(est):
+    """The compiled passes run in chunks on threads: bit-identical fits for 1, 2 and 3 threads."""
+    rng = np.random.default_rng(12)
+    u = rng.random((60_000, 2)) * 60.0
+    pts = np.c_[u, 2.0 * np.sin(u[:, 0] / 4.0) + 0.01 * rng.standard_normal(60_000)]
+    kw = {"tol": 0.01} if est is KMeans else {"max_iter": 12, "label_tol": 0.01}
+    fits = [est(150, seed=4, **kw).fit(pts, threads=t) for t in (1, 2, 3)]
+    for f in fits[1:]:
+        assert f.n_iter_ == fits[0].n_iter_ and f.converged_ == fits[0].converged_
+        np.testing.assert_array_equal(f.labels_, fits[0].labels_)
+        np.testing.assert_array_equal(f.cluster_centers_, fits[0].cluster_centers_)
+        if est is FuzzyCMeans:
+            np.testing.assert_array_equal(f.memberships_, fits[0].memberships_)
+            np.testing.assert_array_equal(f.membership_indices_, fits[0].membership_indices_)
+
+
+def kmeanspp_oracle(X, c, rng, B=64):
+    """k-means++ as numpy code, one draw at a time (the code the compiled steps replaced)."""
+    n = len(X)
+    s = min(n, max(1000, 4 * c))
+    S = X if s >= n else X[np.sort(rng.choice(n, s, replace=False))]
+    S = S[np.argsort(S[:, 0], kind="stable")]
+    s, p = S.shape
+    nb = -(-s // B)
+    x = S[:, 0].copy()
+    d2 = np.zeros(nb * B)
+    chosen = np.empty(c, dtype=np.int64)
+    chosen[0] = rng.integers(s)
+    d2[:s] = sum((S[:, j] - S[chosen[0], j]) ** 2 for j in range(p))
+    bsum = d2.reshape(nb, B).sum(axis=1)
+    bmax = d2.reshape(nb, B).max(axis=1)
+    for k in range(1, c):
+        if bsum.sum() > 0:
+            cum = np.cumsum(bsum)
+            r = rng.random() * cum[-1]
+            b = min(int(np.searchsorted(cum, r, side="right")), nb - 1)
+            r -= cum[b - 1] if b else 0.0
+            within = np.cumsum(d2[b * B : (b + 1) * B])
+            nxt = b * B + min(int(np.searchsorted(within, r, side="right")), B - 1)
+            while nxt >= s or d2[nxt] == 0:
+                nxt -= 1
+        else:
+            nxt = int(rng.integers(s))
+        chosen[k] = nxt
+        reach = np.sqrt(bmax.max())
+        lo = int(np.searchsorted(x, x[nxt] - reach, side="left"))
+        hi = int(np.searchsorted(x, x[nxt] + reach, side="right"))
+        lo, hi = (lo // B) * B, min(-(-hi // B) * B, s)
+        dn = sum((S[lo:hi, j] - S[nxt, j]) ** 2 for j in range(p))
+        np.minimum(d2[lo:hi], dn, out=d2[lo:hi])
+        blo, bhi = lo // B, -(-hi // B)
+        part = d2[blo * B : bhi * B].reshape(-1, B)
+        bsum[blo:bhi] = part.sum(axis=1)
+        bmax[blo:bhi] = part.max(axis=1)
+    return S[chosen]
+
+
+@pytest.mark.parametrize("case", ["surface", "few distinct points"])
+def test_kmeanspp_equals_the_numpy_oracle(case):
+    """Same centres bit for bit, and the generator left in the same state (the
+    compiled steps draw their uniforms ahead); with few distinct points the
+    draws run out of positive D^2 and fall back to rng.integers."""
+    import cloudsieve.core.cluster as cl
+
+    rng = np.random.default_rng(8)
+    if case == "surface":
+        u = rng.random((30_000, 2)) * 20.0
+        X, c = np.c_[u, np.sin(u[:, 0]) + 0.01 * rng.standard_normal(30_000)], 300
+    else:
+        X, c = np.repeat(rng.random((50, 3)), 20, axis=0), 80
+    X = X[np.lexsort(X.T[::-1])]
+    r1, r2 = np.random.default_rng(3), np.random.default_rng(3)
+    got = cl.initial_centres(X, c, "k-means++", r1)
+    want = kmeanspp_oracle(X, c, r2)
+    np.testing.assert_array_equal(got, want)
+    assert r1.random() == r2.random()
+
+
+@pytest.mark.parametrize("m", [1.5, 3.0])
+def test_fcm_with_another_fuzzifier_equals_dense(m):
+    rng = np.random.default_rng(13)
+    pts = rng.random((500, 3))
+    c = 6
+    C0 = pts[rng.choice(500, c, replace=False)] + 1e-3
+    f = FuzzyCMeans(c, m=m, n_nearest=c, init=C0, tol=1e-6, max_iter=1000).fit(pts)
+    U, C, it = dense_fcm(pts, C0.copy(), m, 1e-6, 1000)
+    assert f.converged_ and f.n_iter_ == it
+    np.testing.assert_allclose(f.cluster_centers_, C, rtol=1e-10)
+    dense = np.zeros((500, c))
+    np.put_along_axis(dense, f.membership_indices_, f.memberships_, 1)
+    np.testing.assert_allclose(dense, U, rtol=1e-9, atol=1e-12)

@@ -5,7 +5,8 @@ One module per stage, found by its name:
 - :mod:`._validation`: the input checks and the one k formula (:func:`neighbour_count`);
 - :mod:`.knn`: point orders, grouping by cluster, the k nearest inside clusters;
 - :mod:`.cluster` (the shared base and seeding), :mod:`.kmeans` (:class:`KMeans`),
-  :mod:`.fcm` (:class:`FuzzyCMeans`);
+  :mod:`.fcm` (:class:`FuzzyCMeans`), :mod:`.centres` (their nearest-centre queries and threads);
+- :mod:`.kernels`: the compiled (numba) kernels the stages call;
 - :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
 - :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
 - :mod:`.rules` (:func:`prune`: threshold, target, and the rounds of :mod:`.rounds`:

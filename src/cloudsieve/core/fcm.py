@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cluster import CentroidClustering, centre_tree, rowwise
+from .centres import Chunks, cell_size, centre_tree, no_lists, candidate_lists, ring_grid
+from .cluster import CentroidClustering
+from .kernels import fcm as kf
 from .kmeans import lloyd
 from ..errors import InvalidParameterError
 
@@ -124,185 +126,96 @@ def _max_change(idx0, U0, idx1, U1, c=None):
     """
     if len(idx0) == 0:
         return 0.0
-    s0 = np.argsort(idx0, axis=1)
-    s1 = np.argsort(idx1, axis=1)
-    i0 = np.take_along_axis(idx0, s0, 1)
-    i1 = np.take_along_axis(idx1, s1, 1)
-    same = (i0 == i1).all(axis=1)
-    best = 0.0
-    if same.any():  # the usual case: same centres, maybe in another order
-        best = float(np.abs(np.take_along_axis(U1[same], s1[same], 1) - np.take_along_axis(U0[same], s0[same], 1)).max())
-    if same.all():
-        return best
-    idx0, U0, idx1, U1 = idx0[~same], U0[~same], idx1[~same], U1[~same]
-    eq = idx1[:, :, None] == idx0[:, None, :]  # (n, L1, L0)
-    matched0 = (eq * U0[:, None, :]).sum(axis=2)  # U0 at the new entries
-    best = max(best, float(np.abs(U1 - matched0).max()))
-    gone = ~eq.any(axis=1)  # old entries absent from the new set
-    if gone.any():
-        best = max(best, float(U0[gone].max()))
-    return best
+    return float(kf.max_change(np.ascontiguousarray(idx0, dtype=np.int64), np.ascontiguousarray(U0, dtype=np.float64),
+                               np.ascontiguousarray(idx1, dtype=np.int64), np.ascontiguousarray(U1, dtype=np.float64)))
 
 
 _FCM_KM_ITERS = 5  # Lloyd iterations before FCM when init="k-means++"
-_BLOCK = 1 << 17  # rows per block in FCM: bounds the temporaries to O(block * L)
+_BLOCK = 1 << 17  # rows per block of FCM's centre sums (the order of the additions)
 _FCM_RING = 8  # centres beyond the L nearest whose distances FCM keeps exact (see _fcm)
 
 
-def _dist_to(Xs, C, idx):
-    """Distances from each row of Xs to the centres idx of that row (n, L)."""
-    return np.sqrt(_sqdist_to(Xs, C, idx))
-
-
-def _sqdist_to(Xs, C, idx):
-    """Squared distances, one coordinate at a time (no (n, L, p) temporary)."""
-    D2 = np.zeros(idx.shape)
-    for j in range(Xs.shape[1]):
-        diff = Xs[:, j : j + 1] - np.take(C[:, j], idx)
-        D2 += diff * diff
-    return D2
-
-
 def _fcm(Xs, C, L, m, tol, max_iter, threads, label_tol=None):
-    """FCM iterations, in blocks of points (memory O(n L) for the memberships
-    plus O(block L) temporaries). Stops when the membership change is below
-    ``tol`` or, with ``label_tol``, when at most ``label_tol * n`` hard labels
-    changed (the hard label in a row sorted by index: the first largest
-    membership, which is the nearest centre, lowest index on a tie, as in
-    :meth:`FuzzyCMeans.fit`).
+    """FCM iterations (memory O(n (L + E)) for the memberships and the rings).
+    Stops when the membership change is below ``tol`` or, with ``label_tol``,
+    when at most ``label_tol * n`` hard labels changed (the hard label in a
+    row sorted by index: the first largest membership, which is the nearest
+    centre, lowest index on a tie, as in :meth:`FuzzyCMeans.fit`).
 
-    The k-d tree query of a point returns its L nearest centres (the set S)
-    and the E = min(_FCM_RING, c - L) next ones (the ring Q), whose exact
-    distances are computed again at every update (cheaper than a query): a
-    ring centre that came closer than a member of S swaps in, so S stays the
-    L nearest of S and Q. With R the (L+E+1)-th nearest distance at the last
-    query and D the sum, over the updates since, of the largest move of any
-    centre, every centre outside S and Q is still >= R - D away; the point is
+    A query of a point returns its L nearest centres (the set S) and the E =
+    min(_FCM_RING, c - L) next ones (the ring Q), whose exact distances are
+    computed again at every update (cheaper than a query): a ring centre
+    that came closer than a member of S swaps in, so S stays the L nearest
+    of S and Q. With R the (L+E+1)-th nearest distance at the last query and
+    D the sum, over the updates since, of the largest move of any centre,
+    every centre outside S and Q is still >= R - D away; the point is
     queried again only when its L-th nearest distance reaches R - D (with
     the ring, R is far beyond the L-th nearest, so this is rare; without it,
     R was the (L+1)-th and 43% of the points were queried again at every
     update, measured at 1 M points into 2,500 clusters). Each row of S is
     kept sorted by index, so an unchanged set is an equal row and the
-    membership change is a plain difference."""
+    membership change is a plain difference.
+
+    The per-point work is compiled (:mod:`.kernels.fcm`; queries on the grid
+    of :mod:`.centres`) and runs in chunks of points on
+    ``threads`` threads; the centre sums are made per block of ``_BLOCK``
+    points (each block's sums from zero, in index order, blocks added in
+    order), so nothing depends on the thread count.
+    """
+    with Chunks(threads) as chunks:
+        return _fcm_run(Xs, C, L, m, tol, max_iter, chunks, label_tol)
+
+
+def _fcm_run(Xs, C, L, m, tol, max_iter, chunks, label_tol):
     n, p = Xs.shape
     c = len(C)
-    extra = L < c
     E = min(_FCM_RING, c - L)
     K = L + E + (1 if L + E < c else 0)  # neighbours per query
-    idx = np.zeros((n, L), dtype=np.int64)
-    ring = np.zeros((n, E), dtype=np.int64)
+    ix = np.int32 if c < 2**31 else np.int64  # centre indices: int32 halves the memory traffic of the updates
+    idx = np.zeros((n, L), dtype=ix)
+    ring = np.zeros((n, E), dtype=ix)
     U = np.zeros((n, L))
     reach = np.full(n, np.inf)  # R - D (inf: the ring holds every other centre)
-    hard = np.full(n, -1, dtype=np.int64) if label_tol is not None else None
+    hard = np.full(n if label_tol is not None else 0, -1, dtype=ix)
+    flag = np.empty(n, dtype=np.uint8)  # a query with tied distances, left to the tree
+    e = 1.0 / (m - 1.0)
+    h = cell_size(C, K)
+    block = int(_BLOCK)
     have = False
     conv = False
     it = 0
     for it in range(1, max_iter + 1):
-        tree = None
-        ch = 0.0
-        relabelled = 0
-        num = np.zeros((c, p))
-        den = np.zeros(c)
-        for s in range(0, n, _BLOCK):
-            e = min(n, s + _BLOCK)
-            Xb = Xs[s:e]
-            Qb = ring[s:e]
-            if not have:
-                Ib = np.empty((e - s, L), dtype=np.int64)
-                D2 = None
-                redo = np.arange(e - s)
-                swap = redo[:0]
-            else:
-                Ib = idx[s:e].copy()
-                D2 = _sqdist_to(Xb, C, Ib)
-                redo = swap = np.zeros(0, dtype=np.int64)
-                if extra:
-                    D2q = _sqdist_to(Xb, C, Qb)
-                    top = rowwise(np.maximum, D2)
-                    swap = np.flatnonzero(rowwise(np.minimum, D2q) < top)
-                    if len(swap):  # a ring centre came closer than a member: the L nearest of S and Q
-                        cand = np.concatenate([Ib[swap], Qb[swap]], axis=1)
-                        dc = np.concatenate([D2[swap], D2q[swap]], axis=1)
-                        o = np.argsort(dc, axis=1, kind="stable")
-                        cand = np.take_along_axis(cand, o, 1)
-                        dc = np.take_along_axis(dc, o, 1)
-                        so = np.argsort(cand[:, :L], axis=1)
-                        Ib[swap] = np.take_along_axis(cand[:, :L], so, 1)
-                        D2[swap] = np.take_along_axis(dc[:, :L], so, 1)
-                        Qb[swap] = cand[:, L:]
-                        top[swap] = dc[:, L - 1]
-                    rb = reach[s:e]
-                    redo = np.flatnonzero(~(top < np.where(rb > 0, rb * rb, -1.0)))
-            if len(redo):
-                if tree is None:
-                    tree = centre_tree(C)
-                w = threads if len(redo) >= 20_000 else 1
-                Xr = np.take(Xb, redo, axis=0)
-                d, i = tree.query(Xr, k=K, workers=w)
-                if d.ndim == 1:
-                    d, i = d[:, None], i[:, None]
-                if K > L + E:
-                    reach[s + redo] = d[:, L + E]
-                Ib[redo] = np.sort(i[:, :L], axis=1)
-                Qb[redo] = i[:, L : L + E]
-                if D2 is None:
-                    D2 = _sqdist_to(Xb, C, Ib)
-                else:
-                    D2[redo] = _sqdist_to(Xr, C, Ib[redo])
-            Ub = _memberships_sq(D2, m)
-            if have:
-                rows = np.union1d(redo, swap)
-                moved = rows[~(np.take(Ib, rows, axis=0) == np.take(idx[s:e], rows, axis=0)).all(axis=1)]
-                if len(moved):
-                    ch = max(ch, _max_change(idx[s + moved], U[s + moved], Ib[moved], Ub[moved]))
-                    Ub_same = Ub.copy()
-                    Ub_same[moved] = U[s + moved]  # their change is counted above
-                    ch = max(ch, float(np.abs(Ub_same - U[s:e]).max()))
-                else:
-                    ch = max(ch, float(np.abs(Ub - U[s:e]).max()))
-            if hard is not None:
-                hb = np.take_along_axis(Ib, np.argmax(Ub, axis=1)[:, None], 1)[:, 0]
-                relabelled += int(np.count_nonzero(hb != hard[s:e]))
-                hard[s:e] = hb
-            idx[s:e] = Ib
-            U[s:e] = Ub
-            W = Ub * Ub if m == 2.0 else Ub**m
-            flat = Ib.ravel()
-            den += np.bincount(flat, weights=W.ravel(), minlength=c)
-            for j in range(p):
-                num[:, j] += np.bincount(flat, weights=(W * Xb[:, j : j + 1]).ravel(), minlength=c)
+        grid = ring_grid(C, h)
+        # the first update queries every point: per-cell candidate lists; later ones query few: rings
+        lists = no_lists(p)
+        if not have and p <= 3:
+            lists = candidate_lists(Xs, np.arange(n, dtype=np.int64), C, grid, K, chunks)
+        res = chunks.map(lambda s, t: kf.update_rows(Xs, C, idx, ring, U, reach, hard, have, e, s, t, K, grid, lists,
+                                                     flag), n, min_chunk=1024)
+        ch = max(r[0] for r in res)
+        relabelled = sum(r[1] for r in res)
+        tied = np.flatnonzero(flag)
+        if len(tied):
+            d, i = centre_tree(C).query(Xs[tied], k=K, workers=chunks.threads if len(tied) >= 20_000 else 1)
+            c1, c2 = kf.finish_rows(Xs, C, tied, d.reshape(len(tied), K), i.reshape(len(tied), K), idx, ring, U,
+                                    reach, hard, have, e)
+            ch = max(ch, c1)
+            relabelled += c2
         if have and (ch < tol or (label_tol is not None and relabelled <= label_tol * n)):
             conv = True
             break
         have = True
         if it == max_iter:
             break
+        num = np.zeros((c, p))
+        den = np.zeros(c)
+        for bn, bd in chunks.each(lambda s: kf.block_sums(Xs, idx, U, m, s, min(n, s + block), c), range(0, n, block)):
+            den += bd
+            num += bn
         Cn = C.copy()
         ok = den > 0
         Cn[ok] = num[ok] / den[ok, None]
         reach -= np.sqrt(((Cn - C) ** 2).sum(axis=1)).max()
         C = Cn
-    # nearest first, as documented
-    for s in range(0, n, _BLOCK):
-        e = min(n, s + _BLOCK)
-        o = np.argsort(_dist_to(Xs[s:e], C, idx[s:e]), axis=1, kind="stable")
-        idx[s:e] = np.take_along_axis(idx[s:e], o, 1)
-        U[s:e] = np.take_along_axis(U[s:e], o, 1)
-    return idx, U, C, it, conv
-
-
-def _memberships_sq(d2: np.ndarray, m: float) -> np.ndarray:
-    """u over the columns of the squared distances d2 (any order):
-    u_ij = 1 / sum_l (d_ij / d_il)^(2/(m-1)) = 1 / sum_l (d2_ij / d2_il)^(1/(m-1))."""
-    e = 1.0 / (m - 1.0)
-    dmin = rowwise(np.minimum, d2)[:, None]
-    zero = dmin[:, 0] == 0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = dmin / d2
-        if e != 1.0:
-            r **= e
-    U = r / r.sum(axis=1, keepdims=True)
-    if zero.any():
-        z = d2[zero] == 0
-        U[zero] = z / z.sum(axis=1, keepdims=True)
-    return U
+    chunks.map(lambda s, t: kf.nearest_first(Xs, C, idx, U, s, t), n)  # nearest first, as documented
+    return idx.astype(np.int64), U, C, it, conv

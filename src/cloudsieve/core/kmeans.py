@@ -1,4 +1,4 @@
-"""K-means into many small clusters: Lloyd's iterations with k-d tree assignment and Hamerly's bounds.
+"""K-means into many small clusters: Lloyd's iterations with grid assignment and Hamerly's bounds.
 
 See :mod:`.cluster` for the conventions shared with fuzzy C-means (seeding,
 canonical order, the convergence warning); :func:`lloyd` is also FCM's warm
@@ -9,14 +9,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cluster import CentroidClustering, centre_tree, rowwise
+from .centres import Chunks, cell_size, centre_tree, nearest_centres
+from .cluster import CentroidClustering
+from .kernels import kmeans as kk
 from ..errors import InvalidParameterError
 
 __all__ = ["KMeans", "lloyd"]
 
 
 class KMeans(CentroidClustering):
-    """Lloyd's K-means with k-d tree assignment and Hamerly's bounds.
+    """Lloyd's K-means with grid assignment and Hamerly's bounds.
 
     Stops when no point changes cluster (the paper) or after ``max_iter``
     iterations (then a :class:`~cloudsieve.errors.ConvergenceWarning`). An
@@ -69,12 +71,6 @@ class KMeans(CentroidClustering):
     def _unconverged(self, n: int, c: int) -> str:
         return (f"KMeans stopped at max_iter={self.max_iter} with points still changing cluster "
                 f"(n={n}, n_clusters={c})")
-
-
-def _sums(Xs, a, c):
-    cnt = np.bincount(a, minlength=c).astype(np.float64)
-    S = np.stack([np.bincount(a, weights=Xs[:, j], minlength=c) for j in range(Xs.shape[1])], axis=1)
-    return S, cnt
 
 
 _NEIGH = 8  # other centres each centre keeps as neighbours (bounds and cheap reassignment)
@@ -148,7 +144,13 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
     get their exact u and l = max(min(L - M_a, T_a - u), h_a - u) (h_a the
     distance from a to its nearest other centre); those still failing are
     reassigned among their centre's list (exact when the best found is closer
-    than T_a - u) or, failing that, by a k-d tree query over all centres.
+    than T_a - u) or, failing that, by a query over all centres
+    (:func:`.centres.nearest_centres`).
+
+    The passes over the points are compiled (:mod:`.kernels.kmeans`) and run
+    in chunks of points on ``threads`` threads; every floating-point operation
+    is the one of the numpy code they replaced, in the same order, so labels,
+    centres and iteration counts do not depend on the thread count.
 
     Stops when at most tol * n points changed cluster (tol = 0: none, the
     paper's test) or at max_iter.
@@ -161,7 +163,7 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
         Initial centres.
     max_iter : int
     threads : int
-        Threads of the k-d tree queries.
+        Threads of the passes over the points.
     tol : float
 
     Returns
@@ -176,18 +178,29 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
     c = len(C)
     if c == 1:
         return np.zeros(n, dtype=np.int64), Xs.mean(axis=0, keepdims=True), 1, True
+    with Chunks(threads) as chunks:
+        return _lloyd(Xs, C, max_iter, tol, chunks)
+
+
+def _lloyd(Xs, C, max_iter, tol, chunks):
+    """:func:`lloyd` with c >= 2, its passes over the points run on ``chunks``."""
+    n, p = Xs.shape
+    c = len(C)
     neigh = _Neighbours(C, min(_NEIGH, c - 1))
-    d, i = centre_tree(C).query(Xs, k=2, workers=threads)
-    a = i[:, 0].astype(np.int64)
+    h = cell_size(C, 2)
+    d, i = nearest_centres(Xs, C, 2, chunks, h)
+    a = i[:, 0].copy()
     del i
     cumD = np.zeros(c)  # own moves since the lists were made
     cumM = np.zeros(c)  # largest moves over the lists since then
     L = d[:, 1].copy()  # l + cumM[a]
     R = d[:, 1] - d[:, 0]  # L - U with U = u - cumD[a]
     Umax = np.zeros(c)  # an upper bound on U over each cluster
-    np.maximum.at(Umax, a, d[:, 0])
+    kk.cluster_max(a, np.ascontiguousarray(d[:, 0]), Umax)
     del d
-    S, cnt = _sums(Xs, a, c)
+    S, cnt = kk.cluster_sums(Xs, a, c)
+    na = np.empty(n, dtype=np.int64)  # per iteration: the new label of a listed point (-1: query it)
+    listed = np.empty(n, dtype=np.int64)  # each chunk [s, e) lists its points at listed[s:]
     limit = tol * n
     conv = False
     it = 0
@@ -201,93 +214,51 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
         cumD += delta
         cumM += np.take(delta, neigh.nb).max(axis=1)
         if stale:  # bounds over all centres now, then new lists (cumulated moves from 0)
-            U = L - R
-            ub = U + np.take(cumD, a)
-            lb = np.maximum(np.minimum(L - np.take(cumM, a), np.take(T, a) - ub), np.take(near, a) - ub)
+            def bring(s, e, T=T, near=near):
+                um = np.zeros(c)
+                kk.stale_bounds(a, L, R, cumD, cumM, T, near, s, e, um)
+                return um
+            Umax = np.maximum.reduce(chunks.map(bring, n))
             neigh.refresh(C)
             T, near, _ = neigh.at(C)
             cumD[:] = 0.0
             cumM[:] = 0.0
-            L = lb
-            R = lb - ub
-            Umax[:] = 0.0
-            np.maximum.at(Umax, a, ub)
         Q = cumD + cumM
         Q[2.0 * (Umax + cumD) >= T] = np.inf  # far centres might come close: check every point
-        act = np.flatnonzero(~(R > np.take(Q, a)))
+        def assign(s, e, T=T, near=near, Q=Q, C=C):
+            um = np.zeros(c)
+            cnt, _ = kk.assign_pass(Xs, a, L, R, Q, C, cumD, cumM, T, near, neigh.nb, s, e, na, um, listed)
+            return s, cnt, um
+        parts = chunks.map(assign, n)
+        for _, _, um in parts:
+            np.maximum(Umax, um, out=Umax)
+        rows = np.concatenate([listed[s : s + cnt] for s, cnt, _ in parts])
         n_changed = 0
-        if len(act):
-            aa = np.take(a, act)
-            Xa = np.take(Xs, act, axis=0)
-            u = np.sqrt(((Xa - np.take(C, aa, axis=0)) ** 2).sum(axis=1))
-            low = np.maximum(np.minimum(np.take(L, act) - np.take(cumM, aa), np.take(T, aa) - u),
-                             np.take(near, aa) - u)
-            ok = u < low
-            done = act[ok]
-            aok = aa[ok]
-            L[done] = low[ok] + np.take(cumM, aok)
-            R[done] = low[ok] - u[ok] + np.take(cumD, aok) + np.take(cumM, aok)
-            todo = np.flatnonzero(~ok)
-            act, aa, Xa, u = act[todo], aa[todo], np.take(Xa, todo, axis=0), u[todo]
-        if len(act):
-            na, d1, d2 = _reassign(Xa, aa, u, C, neigh.nb, T, threads)
-            moved = np.flatnonzero(na != aa)
-            n_changed = len(moved)
+        if len(rows):
+            q = np.flatnonzero(na[rows] < 0)
+            d1 = np.full(len(rows), -1.0)
+            low = np.empty(len(rows))
+            if len(q):  # the nearest may be outside the neighbour list: all centres
+                db, ib = nearest_centres(Xs, C, 2, chunks, h, rows[q])
+                na[rows[q]] = ib[:, 0]
+                d1[q] = db[:, 0]
+                low[q] = db[:, 1]
+            out, inn = np.zeros((c, p)), np.zeros((c, p))
+            cnt_out, cnt_in = np.zeros(c), np.zeros(c)
+            n_changed = kk.apply_moves(Xs, rows, a, na, d1, low, L, R, cumD, cumM, Umax, out, inn, cnt_out, cnt_in)
             if n_changed:
-                old = aa[moved]
-                new = na[moved]
-                Xc = np.take(Xa, moved, axis=0)
-                for j in range(p):
-                    S[:, j] -= np.bincount(old, weights=Xc[:, j], minlength=c)
-                    S[:, j] += np.bincount(new, weights=Xc[:, j], minlength=c)
-                cnt -= np.bincount(old, minlength=c)
-                cnt += np.bincount(new, minlength=c)
-            a[act] = na
-            cD = np.take(cumD, na)
-            L[act] = d2 + np.take(cumM, na)
-            R[act] = d2 - d1 + cD + np.take(cumM, na)
-            np.maximum.at(Umax, na, d1 - cD)
+                S -= out
+                S += inn
+                cnt -= cnt_out
+                cnt += cnt_in
         if n_changed <= limit:
             conv = True
             break
         if it % 20 == 0:  # refresh the running sums (no drift from +/- updates)
-            S, cnt = _sums(Xs, a, c)
+            S, cnt = kk.cluster_sums(Xs, a, c)
     # centres are the means of the final clusters
-    S, cnt = _sums(Xs, a, c)
+    S, cnt = kk.cluster_sums(Xs, a, c)
     ne = cnt > 0
     C = C.copy()
     C[ne] = S[ne] / cnt[ne, None]
     return a, C, it, conv
-
-
-def _reassign(Xa, aa, u, C, nb, T, threads):
-    """Nearest centre of each row of Xa (own centre aa at distance u) and a
-    lower bound on the distance to every other centre: (labels, d1, l).
-
-    First among the own centre and its K neighbours (a gather, cheaper than a
-    tree query); that answer is exact when the best distance found is below
-    T_a - u, the distance below which no non-neighbour centre can be. The
-    rest go to a k-d tree over all centres."""
-    cand = np.concatenate([aa[:, None], np.take(nb, aa, axis=0)], axis=1)  # (m, K + 1)
-    D = np.zeros(cand.shape)  # squared distances
-    for j in range(Xa.shape[1]):
-        diff = np.take(np.ascontiguousarray(C[:, j]), cand)
-        np.subtract(Xa[:, j : j + 1], diff, out=diff)
-        np.multiply(diff, diff, out=diff)
-        D += diff
-    rows = np.arange(len(D))
-    k1 = np.argmin(D, axis=1)
-    d1 = np.sqrt(D[rows, k1])
-    D[rows, k1] = np.inf
-    d2 = np.sqrt(rowwise(np.minimum, D))
-    far = np.take(T, aa) - u
-    na = cand[rows, k1]
-    low = np.minimum(d2, far)
-    bad = np.flatnonzero(~(d1 < far))
-    if len(bad):
-        w = threads if len(bad) >= 20_000 else 1  # threads cost more than they save on small queries
-        d, i = centre_tree(C).query(np.take(Xa, bad, axis=0), k=2, workers=w)
-        na[bad] = i[:, 0]
-        d1[bad] = d[:, 0]
-        low[bad] = d[:, 1]
-    return na, d1, low

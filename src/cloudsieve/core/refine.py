@@ -77,7 +77,7 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
         in an update (default ``REFINE_LABEL_TOL`` = 0.01, KM's default test);
         None for the paper's membership test alone.
     threads : int, optional
-        Threads for the k-d tree queries (None: all cores). The labels do not
+        Threads of the refinement's compiled passes (None: all cores). The labels do not
         depend on it.
 
     Returns

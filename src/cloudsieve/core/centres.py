@@ -1,0 +1,186 @@
+"""The k nearest centres of points, for K-means and fuzzy C-means (DESIGN.md stage 3), and their threads.
+
+:func:`nearest_centres` answers what ``centre_tree(C).query(X, k)`` (scipy's
+``cKDTree``) answers, the same arrays bit for bit, with the compiled grid
+search of :mod:`.kernels.centres`: rings of cells for a few points, per-cell
+candidate lists for many. Rows whose k distances include two equal ones
+(where the order among equals is the tree's own) are asked of the tree.
+
+:class:`Chunks` runs a compiled kernel over ranges of points on threads (the
+kernels release the GIL); every kernel writes only its own rows, so results
+do not depend on the thread count.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from .kernels import centres as kc
+
+__all__ = ["Chunks", "centre_tree", "cell_size", "ring_grid", "candidate_lists", "no_lists", "nearest_centres"]
+
+
+class Chunks:
+    """Runs a function of a row range over [0, n) in chunks on ``threads`` threads.
+
+    Use as a context manager (the pool is closed on exit); with one thread
+    the chunks run in the caller's thread.
+    """
+
+    def __init__(self, threads: int):
+        self.threads = max(1, int(threads))
+        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if self._pool is not None:
+            self._pool.shutdown()
+
+    def map(self, fn, n: int, min_chunk: int = 4096) -> list:
+        """[fn(s, e) for consecutive ranges covering [0, n)], in range order."""
+        if self._pool is None or n <= min_chunk:
+            return [fn(0, n)]
+        step = max(min_chunk, -(-n // (4 * self.threads)))
+        return self.each(lambda s: fn(s, min(n, s + step)), range(0, n, step))
+
+    def each(self, fn, items) -> list:
+        """[fn(x) for x in items], in order, on the threads."""
+        if self._pool is None:
+            return [fn(x) for x in items]
+        return list(self._pool.map(fn, items))
+
+
+def centre_tree(C: np.ndarray) -> cKDTree:
+    """The k-d tree over centres C (c, p): the reference of :func:`nearest_centres`."""
+    return cKDTree(C, balanced_tree=False, compact_nodes=False)
+
+
+def cell_size(C: np.ndarray, k: int) -> float:
+    """The grid side for queries of k centres among C (c, p): the median
+    distance from a centre to its k-th nearest other centre (a sample of 512
+    centres), so that the k nearest are mostly within the 27 cells around a
+    point. Only the speed depends on it."""
+    c = len(C)
+    S = C[:: max(1, c // 512)]
+    d = centre_tree(C).query(S, k=min(k + 1, c))[0]
+    h = float(np.median(d.reshape(len(S), -1)[:, -1]))
+    if not h > 0:  # duplicate centres: the extent shared among them
+        ext = np.ptp(C[:, :3], axis=0)
+        ext = ext[ext > 0]
+        h = float(np.prod(ext) ** (1 / len(ext)) * c ** (-1 / len(ext))) if len(ext) else 1.0
+    return h
+
+
+_MAX_CELLS_PER_CENTRE = 8
+
+
+def ring_grid(C: np.ndarray, h: float) -> tuple:
+    """The grid over centres C (c, p) of side about h (larger when the centres'
+    extent would need more than ``_MAX_CELLS_PER_CENTRE * c`` cells): the ``ring``
+    tuple of :mod:`.kernels.centres`."""
+    c, p = C.shape
+    q = min(p, 3)
+    lo = np.zeros(3)
+    lo[:q] = C[:, :q].min(axis=0)
+    ext = np.zeros(3)
+    ext[:q] = C[:, :q].max(axis=0) - lo[:q]
+    while True:
+        dims = (np.floor(ext / h) + 1).astype(np.int64)
+        if float(np.prod(dims.astype(np.float64))) <= _MAX_CELLS_PER_CENTRE * c + 64:
+            break
+        h *= 1.5
+    cell = kc.grid_cells(C, lo, h, dims)
+    order = np.argsort(cell, kind="stable")
+    start = np.searchsorted(cell[order], np.arange(int(np.prod(dims)) + 1)).astype(np.int64)
+    margin = 1e-12 * (float(np.abs(lo).max()) + float((dims * h).max()))
+    return np.ascontiguousarray(C[order]), order.astype(np.int64), start, lo, float(h), dims, margin
+
+
+def no_lists(p: int) -> tuple:
+    """The ``lists`` tuple of :mod:`.kernels.centres` that holds no lists (ring search only)."""
+    z = np.zeros(0, dtype=np.int64)
+    return np.zeros(3), 1.0, np.ones(3, dtype=np.int64), z, z, z.astype(np.int32), np.zeros((0, p))
+
+
+_FINE = 4  # fine cells per grid cell along an axis, at most
+_MIN_POINTS_PER_LIST = 16  # fewer points per occupied fine cell: a coarser fine grid (16, 48: alike on surfaces;
+# 16 faster in volumes, measured)
+
+
+def candidate_lists(X, rows, C, ring, k, chunks) -> tuple:
+    """The candidate lists of the fine cells holding the points X[rows], for
+    queries of k centres among C: the ``lists`` tuple of :mod:`.kernels.centres`.
+
+    The fine side is h / M with M = ``_FINE``, halved while the points per
+    occupied fine cell are fewer than ``_MIN_POINTS_PER_LIST`` (a list costs
+    about as much as a few dozen queries). Only the speed depends on M.
+    """
+    lo, h, dims = ring[3], ring[4], ring[5]
+    m = len(rows)
+    M = _FINE
+    while True:
+        fdims = dims * M
+        n_cells = int(np.prod(fdims))
+        if n_cells <= 4 * m + 4096 or M == 1:
+            occupied = np.zeros(n_cells, dtype=np.uint8)
+            s = h / M
+            chunks.map(lambda a, b: kc.fine_cells(X, rows, a, b, lo, s, fdims, occupied), m)
+            cells = np.flatnonzero(occupied).astype(np.int64)
+            if M == 1 or m >= _MIN_POINTS_PER_LIST * len(cells):
+                break
+        M //= 2
+    parts = chunks.map(lambda a, b: kc.cell_candidates(cells, a, b, ring, lo, s, fdims, k), len(cells), min_chunk=256)
+    counts = np.concatenate([c for c, _ in parts])
+    lids = np.concatenate([i for _, i in parts])
+    cellpos = np.full(n_cells, -1, dtype=np.int64)
+    cellpos[cells] = np.arange(len(cells))
+    lstart = np.zeros(len(cells) + 1, dtype=np.int64)
+    np.cumsum(counts, out=lstart[1:])
+    return lo, float(s), fdims, cellpos, lstart, lids.astype(np.int32), C
+
+
+_LIST_MIN_ROWS_PER_CENTRE = 16  # fewer query points than this per centre: rings only
+
+
+def nearest_centres(X, C, k, chunks, h, rows=None):
+    """The k nearest centres of X[rows] (all rows when None): (distances, indices),
+    each of shape (m, k), ascending; the same arrays as
+    ``centre_tree(C).query(X[rows], k=k)``, except the index in the last
+    column where its distance equals that of a centre not returned (either
+    is a k-th nearest; K-means and FCM use only that column's distance).
+
+    Parameters
+    ----------
+    X : ndarray of shape (n, p), float64
+    C : ndarray of shape (c, p), float64
+    k : int
+        1 <= k <= c.
+    chunks : Chunks
+    h : float
+        The grid side (:func:`cell_size`); only the speed depends on it.
+    rows : ndarray of shape (m,), int64, optional
+    """
+    if rows is None:
+        rows = np.arange(len(X), dtype=np.int64)
+    m = len(rows)
+    d = np.empty((m, k))
+    i = np.empty((m, k), dtype=np.int64)
+    tie = np.empty(m, dtype=np.uint8)
+    if m == 0:
+        return d, i
+    ring = ring_grid(C, h)
+    use_lists = X.shape[1] <= 3 and m >= _LIST_MIN_ROWS_PER_CENTRE * len(C)
+    lists = candidate_lists(X, rows, C, ring, k, chunks) if use_lists else no_lists(X.shape[1])
+    chunks.map(lambda s, e: kc.nearest_centres(X, rows, s, e, ring, lists, k, d, i, tie), m, min_chunk=1024)
+    t = np.flatnonzero(tie)
+    if len(t):
+        w = chunks.threads if len(t) >= 20_000 else 1
+        dt, it = centre_tree(C).query(X[rows[t]], k=k, workers=w)
+        d[t] = dt.reshape(len(t), k)
+        i[t] = it.reshape(len(t), k)
+    return d, i

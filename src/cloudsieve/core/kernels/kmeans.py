@@ -1,0 +1,413 @@
+"""Compiled kernels of K-means (numba; private: inputs are assumed valid).
+
+- :func:`pairwise_sum`: numpy's summation of a row;
+- :func:`cluster_sums`: per-cluster coordinate sums and counts;
+- :func:`stale_bounds`, :func:`assign_pass`, :func:`apply_moves`: one Lloyd
+  iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`;
+- :func:`kmeanspp_steps`: the k-means++ seeding's draws and updates;
+- :func:`take_rows`, :func:`put_rows`: rows into and out of the canonical order.
+
+Every kernel does its floating-point operations in the order of the numpy
+code it replaced, so its results are the same bit for bit: a squared
+distance is summed over the coordinates in order from 0 (as
+``np.add`` column by column, and as scipy's ``cKDTree``); a sum over a
+row of a 2-D array (``a.sum(axis=1)``) follows numpy's pairwise summation
+(:func:`pairwise_sum`); per-cluster sums add the points in index order (as
+``np.bincount`` with weights). The per-point kernels take a range of rows
+so that callers can run disjoint ranges on threads (``nogil``); the result
+does not depend on the ranges.
+
+These kernels compile in :func:`.centres.sqdist`; numba's on-disk cache
+(``cache=True``) checks only a function's own file, so after editing
+:mod:`.centres` delete this package's ``__pycache__``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from .centres import sqdist
+
+__all__ = ["pairwise_sum", "cluster_sums", "cluster_max", "stale_bounds", "assign_pass", "apply_moves",
+           "kmeanspp_steps", "take_rows", "put_rows"]
+
+_PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
+
+
+@njit(cache=True, nogil=True)
+def _pairwise_block(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] for n <= 128 (its unrolled base case)."""
+    if n < 8:
+        res = -0.0
+        for i in range(lo, lo + n):
+            res += a[i]
+        return res
+    r0, r1, r2, r3 = a[lo], a[lo + 1], a[lo + 2], a[lo + 3]
+    r4, r5, r6, r7 = a[lo + 4], a[lo + 5], a[lo + 6], a[lo + 7]
+    i = 8
+    while i < n - (n % 8):
+        r0 += a[lo + i]
+        r1 += a[lo + i + 1]
+        r2 += a[lo + i + 2]
+        r3 += a[lo + i + 3]
+        r4 += a[lo + i + 4]
+        r5 += a[lo + i + 5]
+        r6 += a[lo + i + 6]
+        r7 += a[lo + i + 7]
+        i += 8
+    res = ((r0 + r1) + (r2 + r3)) + ((r4 + r5) + (r6 + r7))
+    while i < n:
+        res += a[lo + i]
+        i += 1
+    return res
+
+
+@njit(cache=True, nogil=True)
+def pairwise_sum(a, lo, n):
+    """numpy's pairwise sum of a[lo:lo + n] (1-D float64), bit for bit.
+
+    ``x.sum(axis=1)`` on a C-contiguous 2-D float64 array is ``0.0 +`` this
+    over each row. Above 128 terms numpy recurses on halves (cut at a
+    multiple of 8) and adds the two sums; done here with an explicit stack
+    (numba's cache does not keep recursive functions reliably).
+    """
+    if n <= _PW_BLOCK:
+        return _pairwise_block(a, lo, n)
+    # post-order walk of numpy's recursion: (lo, n, visited) frames and a stack of partial sums
+    flo = np.empty(128, dtype=np.int64)
+    fn = np.empty(128, dtype=np.int64)
+    fv = np.zeros(128, dtype=np.uint8)
+    vals = np.empty(128)
+    top = 0
+    nv = 0
+    flo[0], fn[0], fv[0] = lo, n, 0
+    while top >= 0:
+        m = fn[top]
+        if m <= _PW_BLOCK:
+            vals[nv] = _pairwise_block(a, flo[top], m)
+            nv += 1
+            top -= 1
+        elif fv[top] == 0:
+            fv[top] = 1
+            m2 = m // 2
+            m2 -= m2 % 8
+            b = flo[top]
+            flo[top + 1], fn[top + 1], fv[top + 1] = b + m2, m - m2, 0  # right, done second
+            flo[top + 2], fn[top + 2], fv[top + 2] = b, m2, 0  # left, done first
+            top += 2
+        else:  # both halves done: left + right
+            vals[nv - 2] = vals[nv - 2] + vals[nv - 1]
+            nv -= 1
+            top -= 1
+    return vals[0]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rowsum_sqdist(X, i, C, t, buf):
+    """``((X[i] - C[t]) ** 2).sum()`` as numpy computes it for one row of a 2-D array."""
+    p = X.shape[1]
+    if p < 8:  # numpy: 0.0 + (-0.0 + s_0 + s_1 + ...), the same as the sum in order
+        return sqdist(X, i, C, t)
+    for j in range(p):
+        diff = X[i, j] - C[t, j]
+        buf[j] = diff * diff
+    return 0.0 + pairwise_sum(buf, 0, p)
+
+
+@njit(cache=True, nogil=True)
+def cluster_sums(X, a, c):
+    """Per-cluster sums S (c, p) and counts (c,) float64 of the rows of X by label a.
+
+    Each sum adds the points in index order from 0.0, as
+    ``np.bincount(a, weights=X[:, j], minlength=c)``.
+    """
+    n, p = X.shape
+    S = np.zeros((c, p))
+    cnt = np.zeros(c)
+    for i in range(n):
+        g = a[i]
+        cnt[g] += 1.0
+        for j in range(p):
+            S[g, j] += X[i, j]
+    return S, cnt
+
+
+@njit(cache=True, nogil=True)
+def cluster_max(a, v, out):
+    """out[a[i]] = max(out[a[i]], v[i]) for every i (``np.maximum.at``)."""
+    for i in range(len(a)):
+        if v[i] > out[a[i]]:
+            out[a[i]] = v[i]
+
+
+@njit(cache=True, nogil=True)
+def stale_bounds(a, L, R, cumD, cumM, T, near, s, e, umax):
+    """Rows s..e-1: the bounds of every point brought to bounds over all centres
+    before the neighbour lists are re-made (see ``lloyd``).
+
+    With U = L - R, ub = U + cumD[a] and lb = max(min(L - cumM[a], T[a] - ub),
+    near[a] - ub): L = lb, R = lb - ub, and umax[g] (zeros on entry) the
+    largest ub of cluster g among these rows.
+    """
+    for i in range(s, e):
+        g = a[i]
+        ub = (L[i] - R[i]) + cumD[g]
+        lb = min(L[i] - cumM[g], T[g] - ub)
+        lb = max(lb, near[g] - ub)
+        L[i] = lb
+        R[i] = lb - ub
+        if ub > umax[g]:
+            umax[g] = ub
+
+
+@njit(cache=True, nogil=True)
+def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, na, umax, rows):
+    """Rows s..e-1 of one Lloyd iteration with bounds (see ``lloyd``).
+
+    A point with R > Q[a] keeps its label untouched. Otherwise its distance u
+    to its centre and the bound low = max(min(L - cumM[a], T[a] - u), near[a]
+    - u) are computed; if u < low it keeps its label with L = low + cumM[a],
+    R = low - u + cumD[a] + cumM[a]. Otherwise its nearest among its centre
+    and the centre's neighbours nb[a] (the first on a tie) is found, with d1
+    its distance and low = min(second distance, T[a] - u), which is exact when
+    d1 < T[a] - u: then L = low + cumM[na], R = low - d1 + cumD[na] + cumM[na]
+    and umax[na] = max(umax[na], d1 - cumD[na]) (umax: this range's own
+    array, zeros on entry); a point whose label changes is listed with na
+    (its label stays for :func:`apply_moves`, which also updates the sums in
+    index order). A point whose nearest may be outside the list is listed
+    with na = -1 (a query over all centres, then :func:`apply_moves`).
+
+    Parameters
+    ----------
+    rows : ndarray of shape (n,), int64
+        The listed rows are written, ascending, at rows[s:s + count].
+
+    Returns
+    -------
+    (int, int)
+        count, and the number of points reassigned among the lists.
+    """
+    K = nb.shape[1]
+    buf = np.empty(X.shape[1])
+    D = np.empty(K + 1)
+    todo = 0
+    count = 0
+    for i in range(s, e):
+        g = a[i]
+        if R[i] > Q[g]:
+            continue
+        u = math.sqrt(_rowsum_sqdist(X, i, C, g, buf))
+        low = max(min(L[i] - cumM[g], T[g] - u), near[g] - u)
+        if u < low:
+            L[i] = low + cumM[g]
+            R[i] = ((low - u) + cumD[g]) + cumM[g]
+            continue
+        todo += 1
+        D[0] = sqdist(X, i, C, g)
+        k1 = 0
+        for q in range(K):
+            D[q + 1] = sqdist(X, i, C, nb[g, q])
+            if D[q + 1] < D[k1]:
+                k1 = q + 1
+        second = np.inf
+        for q in range(K + 1):
+            if q != k1 and D[q] < second:
+                second = D[q]
+        d1 = math.sqrt(D[k1])
+        far = T[g] - u
+        if d1 < far:
+            h = g if k1 == 0 else nb[g, k1 - 1]
+            low = min(math.sqrt(second), far)
+            L[i] = low + cumM[h]
+            R[i] = ((low - d1) + cumD[h]) + cumM[h]
+            v = d1 - cumD[h]
+            if v > umax[h]:
+                umax[h] = v
+            if h != g:
+                rows[s + count] = i
+                na[i] = h
+                count += 1
+        else:
+            rows[s + count] = i
+            na[i] = -1
+            count += 1
+    return count, todo
+
+
+@njit(cache=True, nogil=True)
+def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt_out, cnt_in):
+    """The listed rows (ascending) of :func:`assign_pass` take their labels, in order.
+
+    A row queried over all centres (na set from the query, its distance d1o
+    and second distance lowo) first gets L = low + cumM[na], R = low - d1 +
+    cumD[na] + cumM[na] and umax[na] = max(umax[na], d1 - cumD[na]). The
+    points that change cluster are added to out / cnt_out of their old
+    cluster and inn / cnt_in of the new one, in index order from zero (as
+    ``np.bincount`` over the moved points).
+
+    Parameters
+    ----------
+    d1o, lowo : ndarray of shape (len(rows),)
+        For the queried rows, at their position in ``rows``.
+
+    Returns
+    -------
+    int
+        Points that changed cluster.
+    """
+    p = X.shape[1]
+    moved = 0
+    for r in range(len(rows)):
+        i = rows[r]
+        old = a[i]
+        g = na[i]
+        if d1o[r] >= 0:  # queried
+            cD = cumD[g]
+            L[i] = lowo[r] + cumM[g]
+            R[i] = ((lowo[r] - d1o[r]) + cD) + cumM[g]
+            v = d1o[r] - cD
+            if v > umax[g]:
+                umax[g] = v
+        if g != old:
+            moved += 1
+            cnt_out[old] += 1.0
+            cnt_in[g] += 1.0
+            for j in range(p):
+                out[old, j] += X[i, j]
+                inn[g, j] += X[i, j]
+            a[i] = g
+    return moved
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _search_right(a, lo, n, v):
+    """np.searchsorted(a[lo:lo + n], v, side="right") for ascending a."""
+    b, e = 0, n
+    while b < e:
+        m = (b + e) // 2
+        if a[lo + m] <= v:
+            b = m + 1
+        else:
+            e = m
+    return b
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _search_left(a, n, v):
+    """np.searchsorted(a[:n], v, side="left") for ascending a."""
+    b, e = 0, n
+    while b < e:
+        m = (b + e) // 2
+        if a[m] < v:
+            b = m + 1
+        else:
+            e = m
+    return b
+
+
+@njit(cache=True, nogil=True)
+def kmeanspp_steps(S, d2, bsum, bmax, chosen, k, u, forced, B):
+    """Steps k, k+1, ... of the k-means++ seeding of ``cluster._kmeanspp``.
+
+    S (s, p) is the sample sorted on its first coordinate; d2 (nb * B,) the
+    squared distance of each sample point to its nearest chosen centre (zero
+    padded), bsum / bmax (nb,) its sums (numpy's pairwise sum of each block)
+    and maxima per block of B; chosen (c,) the picks. A step draws a point
+    with probability d2 / sum(d2) with the next uniform of u (the sum of all
+    blocks by a cumulative sum, then within the block), or takes ``forced``
+    (>= 0) at step k, then lowers d2 in the window of points that can be
+    nearer to the new centre than their max(d2) (found by binary search on
+    the first coordinate) and updates the window's blocks.
+
+    Returns
+    -------
+    (int, int)
+        The step reached (len(chosen) when done, or a step whose d2 is all
+        zero: the caller draws that pick with ``rng.integers``) and the
+        uniforms used.
+    """
+    s, p = S.shape
+    nb = len(bsum)
+    c = len(chosen)
+    cum = np.empty(nb)
+    used = 0
+    for t in range(k, c):
+        if t == k and forced >= 0:
+            nxt = forced
+        else:
+            anypos = False
+            for b in range(nb):
+                if bsum[b] > 0:
+                    anypos = True
+                    break
+            if not anypos:
+                return t, used
+            acc = bsum[0]
+            cum[0] = acc
+            for b in range(1, nb):
+                acc += bsum[b]
+                cum[b] = acc
+            r = u[used] * cum[nb - 1]
+            used += 1
+            b = min(_search_right(cum, 0, nb, r), nb - 1)
+            if b:
+                r -= cum[b - 1]
+            else:
+                r -= 0.0
+            # the cumulative sum within block b, searched from its start
+            acc = 0.0
+            w = B - 1
+            for q in range(B):
+                acc = d2[b * B] if q == 0 else acc + d2[b * B + q]
+                if acc > r:
+                    w = q
+                    break
+            nxt = b * B + w
+            while nxt >= s or d2[nxt] == 0:
+                nxt -= 1
+        chosen[t] = nxt
+        big = bmax[0]
+        for b in range(1, nb):
+            if bmax[b] > big:
+                big = bmax[b]
+        reach = math.sqrt(big)
+        lo = _search_left(S[:, 0], s, S[nxt, 0] - reach)
+        hi = _search_right(S[:, 0], 0, s, S[nxt, 0] + reach)
+        lo = (lo // B) * B
+        hi = min(-(-hi // B) * B, s)
+        for i in range(lo, hi):
+            dn = 0.0
+            for j in range(p):
+                diff = S[i, j] - S[nxt, j]
+                dn += diff * diff
+            if dn < d2[i]:
+                d2[i] = dn
+        for b in range(lo // B, -(-hi // B)):
+            bsum[b] = 0.0 + pairwise_sum(d2, b * B, B)
+            m = d2[b * B]
+            for q in range(1, B):
+                if d2[b * B + q] > m:
+                    m = d2[b * B + q]
+            bmax[b] = m
+    return c, used
+
+
+@njit(cache=True, nogil=True)
+def take_rows(src, order, dst, s, e):
+    """dst[i] = src[order[i]] for i in s..e-1 (2-D arrays, rows)."""
+    for i in range(s, e):
+        o = order[i]
+        for j in range(src.shape[1]):
+            dst[i, j] = src[o, j]
+
+
+@njit(cache=True, nogil=True)
+def put_rows(src, order, dst, s, e):
+    """dst[order[i]] = src[i] for i in s..e-1 (2-D arrays, rows)."""
+    for i in range(s, e):
+        o = order[i]
+        for j in range(src.shape[1]):
+            dst[o, j] = src[i, j]
