@@ -104,9 +104,10 @@ def check_destination(path: str, overwrite: bool) -> None:
     """
     if os.path.isdir(path):
         if not overwrite:
-            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True (--overwrite) to replace it")
+            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
     elif os.path.lexists(path) and not overwrite:
-        raise DestinationExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.exists(parent):
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
