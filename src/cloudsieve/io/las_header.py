@@ -6,8 +6,8 @@ data in base64), CRS, and the identification fields. :func:`header_from_dict`
 rebuilds a ``laspy.LasHeader`` from it so a LAS source comes back with the
 same header; laspy updates counts and bounds. Compression-specific records
 are not carried: the LASzip VLR is made afresh by laspy, and the COPC records
-(user id "copc": the info VLR and the hierarchy EVLR) are dropped with a log
-message, because they describe the octree layout of the source file and
+(user id "copc": the info VLR and the hierarchy EVLR) are dropped with a
+warning, because they describe the octree layout of the source file and
 would be wrong in any other file.
 
 Non-LAS sources (PLY, E57, XYZ) get a fresh header (:func:`build_header`):
@@ -181,8 +181,8 @@ def _point_format(d: dict) -> laspy.PointFormat:
 def _is_dropped(v: dict, path: str) -> bool:
     if v["user_id"] == LASZIP_USER_ID:
         return True  # laspy writes its own LASzip VLR for LAZ
-    if v["user_id"] == COPC_USER_ID:
-        logger.info(
+    if v["user_id"] == COPC_USER_ID:  # a warning: shown without -v, the output is no longer COPC
+        logger.warning(
             "%s: dropping COPC record (user_id 'copc', record_id %d): it describes the source's octree layout "
             "and is not valid in a re-ordered or plain LAS/LAZ file",
             path,
