@@ -49,6 +49,7 @@ class Source:
     def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False):
         self.chunk_size = int(chunk_size)
         self.drop_invalid = bool(drop_invalid)
+        self._warned = False  # the dropped count is logged on the first whole pass only
         self._array = None
         self._store = None
         self._path = None
@@ -103,10 +104,11 @@ class Source:
             from ..io import open_reader
             from ..io.valid import ValidPoints
 
-            valid = ValidPoints(self._path, self.drop_invalid)
+            valid = ValidPoints(self._path, self.drop_invalid, warn=not self._warned)
             with open_reader(self._path, chunk_size=self.chunk_size) as reader:
                 for start, arrays in valid.chunks(reader.chunks()):
                     yield Chunk(start, {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
+            self._warned = True
 
     def known_bounds(self) -> np.ndarray | None:
         """Bounds ``[[min], [max]]`` of shape (2, 3) known without a scan (store, array, LAS header), else None."""

@@ -44,6 +44,8 @@ class ValidPoints:
     drop_invalid : bool
         Drop such points (their count is logged as a warning) instead of
         refusing the file.
+    warn : bool
+        Log that warning (False for a second pass over the same file).
 
     Attributes
     ----------
@@ -57,9 +59,10 @@ class ValidPoints:
         Points passed on.
     """
 
-    def __init__(self, path: str, drop_invalid: bool = False) -> None:
+    def __init__(self, path: str, drop_invalid: bool = False, warn: bool = True) -> None:
         self.path = str(path)
         self.drop_invalid = bool(drop_invalid)
+        self.warn = bool(warn)
         self.read = 0
         self.invalid = 0
         self.first_invalid: int | None = None
@@ -115,5 +118,5 @@ class ValidPoints:
         if self.read and not self.kept:
             raise EmptyInputError(
                 f"{self.path} holds no valid points: all {self.read} have NaN or infinite coordinates")
-        if self.invalid:
+        if self.invalid and self.warn:
             logger.warning("%s: dropped %d points with NaN or infinite coordinates", self.path, self.invalid)
