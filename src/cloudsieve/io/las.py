@@ -14,11 +14,7 @@ E57, XYZ sources).
 
 from __future__ import annotations
 
-import contextlib
-import io
-import logging
 import os
-import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -30,6 +26,7 @@ from laspy.vlrs.vlrlist import VLRList
 from ..errors import CorruptInputError, InputFormatError
 from ..store.chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
+from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
 
 __all__ = ["LasReader", "LasWriter"]
@@ -40,143 +37,6 @@ _XYZ = ("X", "Y", "Z")
 def _laz_backend():
     backends = laspy.LazBackend.detect_available()
     return backends if backends else None
-
-
-class _QuietReads(logging.Filter):
-    """Drops laspy's reader log records while cloudsieve reads a file.
-
-    laspy logs a failed decompression (``ERROR laspy.lasreader: IoError:
-    failed to fill whole buffer``, once per LAZ backend) and then raises; the
-    reader raises :class:`CorruptInputError` with that text and the point
-    where decoding failed, so the raw lines would only repeat it. Counted,
-    not per thread: ingest reads in a background thread.
-    """
-
-    def __init__(self) -> None:
-        super().__init__()
-        self.active = 0
-        self._lock = threading.Lock()
-
-    def filter(self, record: logging.LogRecord) -> bool:
-        return self.active == 0
-
-    @contextlib.contextmanager
-    def reading(self):
-        with self._lock:
-            self.active += 1
-        try:
-            yield
-        finally:
-            with self._lock:
-                self.active -= 1
-
-
-_QUIET = _QuietReads()
-logging.getLogger("laspy.lasreader").addFilter(_QUIET)
-
-
-class _ChunkTableView(io.RawIOBase):
-    """A LAZ file seen with an empty chunk table appended (read-only, nothing written).
-
-    A truncated LAZ file has lost its chunk table (stored at the end), so
-    lazrs cannot open it. With fixed-size chunks the table is not needed to
-    decode in order: this view points the table offset (the 8 bytes at the
-    start of the point data) past the end of the file, where it shows an
-    empty table (version 0, no chunk).
-    """
-
-    def __init__(self, path: str, offset_to_points: int) -> None:
-        self._file = open(path, "rb")  # noqa: SIM115 - closed in close()
-        self._size = os.path.getsize(path)
-        self._patches = [(offset_to_points, self._size.to_bytes(8, "little", signed=True)), (self._size, bytes(8))]
-        self._end = self._size + 8
-        self._pos = 0
-
-    def readable(self) -> bool:
-        return True
-
-    def seekable(self) -> bool:
-        return True
-
-    def tell(self) -> int:
-        return self._pos
-
-    def seek(self, offset: int, whence: int = 0) -> int:
-        self._pos = {0: 0, 1: self._pos, 2: self._end}[whence] + offset
-        return self._pos
-
-    def readinto(self, buffer) -> int:
-        n = min(len(buffer), max(self._end - self._pos, 0))
-        if n <= 0:
-            return 0
-        self._file.seek(self._pos)
-        data = bytearray(self._file.read(min(n, max(self._size - self._pos, 0))))
-        data.extend(bytes(n - len(data)))
-        for start, patch in self._patches:
-            lo, hi = max(start, self._pos), min(start + len(patch), self._pos + n)
-            if lo < hi:
-                data[lo - self._pos : hi - self._pos] = patch[lo - start : hi - start]
-        buffer[:n] = data
-        self._pos += n
-        return n
-
-    def close(self) -> None:
-        self._file.close()
-        super().close()
-
-
-def _decodable_points(path: str) -> int | None:
-    """How many points of the truncated LAZ file *path* decode in order before its data ends.
-
-    Error path only: decodes the file again from its first point with lazrs
-    alone (no chunk table needed, see :class:`_ChunkTableView`), LAZ chunk by
-    LAZ chunk, then one point at a time within the chunk that fails (at most
-    one LAZ chunk, 50,000 points by default). None when it cannot tell: the
-    file is not truncated (its chunk table is in place: corrupt data may
-    decode to garbage before it fails, so the failing chunk is all that is
-    known), its chunks have variable sizes (COPC: they need the lost table),
-    or lazrs is missing.
-    """
-    try:
-        import lazrs
-
-        with laspy.open(path) as f:
-            h = f.header
-            vlr = next(v for v in h.vlrs if v.user_id == "laszip encoded")
-        with open(path, "rb") as fh:
-            fh.seek(h.offset_to_point_data)
-            table = int.from_bytes(fh.read(8), "little", signed=True)
-        if table <= os.path.getsize(path) - 8:  # the chunk table is in the file: not truncated
-            return None
-        laz = lazrs.LazVlr(vlr.record_data)
-        if laz.uses_variable_size_chunks():
-            return None
-        step, psize, count = int(laz.chunk_size()), h.point_format.size, int(h.point_count)
-    except Exception:  # the header itself is unreadable: nothing to tell
-        return None
-    buffer = memoryview(bytearray(step * psize))
-
-    def decoded(limit: int, one_by_one_after: int | None) -> int:
-        with _ChunkTableView(path, h.offset_to_point_data) as view:
-            view.seek(h.offset_to_point_data)
-            decoder = lazrs.LasZipDecompressor(view, vlr.record_data)
-            done = 0
-            while done < limit:
-                k = 1 if one_by_one_after is not None and done >= one_by_one_after else min(step, limit - done)
-                try:
-                    decoder.decompress_many(buffer[: k * psize])
-                except Exception:
-                    return done
-                done += k
-            return done
-
-    try:
-        good = decoded(count, None)  # whole LAZ chunks: the failing chunk starts at *good*
-        if good >= count:
-            return count
-        return decoded(min(good + step, count), good)
-    except Exception:  # lazrs refuses the view: nothing to tell
-        return None
 
 
 # --------------------------------------------------------------------- reader
@@ -210,11 +70,15 @@ class LasReader(Reader):
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         backend = options.get("laz_backend", _laz_backend())
+        check_layout(path)
         try:
             self._las = laspy.open(path, mode="r", laz_backend=backend)
         except (laspy.LaspyException, OSError, ValueError, EOFError, IndexError) as exc:
             raise CorruptInputError(f"{path}: not a valid LAS/LAZ file ({exc})") from exc
         h = self._las.header
+        if h.version.major != 1 or h.version.minor > 4:
+            self._las.close()
+            raise CorruptInputError(f"{path}: the header says LAS version {h.version}, not 1.0 to 1.4 (corrupt header)")
         try:
             evlrs = list(self._las.evlrs or []) if h.version.minor >= 4 else []
         except Exception as exc:
@@ -262,7 +126,7 @@ class LasReader(Reader):
         it = self._las.chunk_iterator(self.chunk_size)
         while True:
             try:
-                with _QUIET.reading():
+                with QUIET_READS.reading():
                     points = next(it)
             except StopIteration:
                 break
@@ -293,9 +157,9 @@ class LasReader(Reader):
         """The error for the chunk of points from *done* on that fails to decode: it names the first point that fails.
 
         For LAZ with fixed-size chunks the point is exact (see
-        :func:`_decodable_points`); otherwise the message gives the chunk read.
+        :func:`.las_checks.decodable_points`); otherwise the message gives the chunk read.
         """
-        decodable = _decodable_points(self.path) if self._las.header.are_points_compressed else None
+        decodable = decodable_points(self.path) if self._las.header.are_points_compressed else None
         if decodable is not None and decodable >= self.count:
             return CorruptInputError(
                 f"{self.path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")

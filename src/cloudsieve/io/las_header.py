@@ -192,13 +192,29 @@ def _is_dropped(v: dict, path: str) -> bool:
     return False
 
 
+def _writable_version(version: str, point_format: int, path: str) -> str:
+    """*version* when laspy writes it with *point_format*, else the lowest version that does (with a warning).
+
+    LAS 1.0 files are read but laspy does not write 1.0; their points go out as 1.1 or 1.2.
+    """
+    from laspy.point.dims import VERSION_TO_POINT_FMT
+
+    if point_format in VERSION_TO_POINT_FMT.get(str(version), ()):
+        return str(version)
+    chosen = min((v for v, formats in VERSION_TO_POINT_FMT.items() if point_format in formats), key=float)
+    logger.warning("%s: LAS %s with point format %d cannot be written; writing LAS %s", path, version, point_format,
+                   chosen)
+    return chosen
+
+
 def header_from_dict(d: dict, path: str = "") -> tuple[laspy.LasHeader, list]:
     """Rebuild a ``laspy.LasHeader`` (and the EVLR list) from :func:`header_to_dict`.
 
     Counts and bounds are reset (the writer fills them); LASzip and COPC
     records are left out (see the module docstring).
     """
-    header = laspy.LasHeader(version=d["version"], point_format=_point_format(d))
+    point_format = _point_format(d)
+    header = laspy.LasHeader(version=_writable_version(d["version"], point_format.id, path), point_format=point_format)
     header.scales = np.asarray(d["scales"], dtype=np.float64)
     header.offsets = np.asarray(d["offsets"], dtype=np.float64)
     header.file_source_id = int(d.get("file_source_id", 0))

@@ -74,7 +74,8 @@ def read_ply_header(path: str) -> dict:
     with open(path, "rb") as fh:
         first = fh.readline()
         if first.strip() != b"ply":
-            raise CorruptInputError(f"{path}: not a PLY file (first line {first[:20]!r}, expected 'ply')")
+            shown = first.rstrip(b"\r\n")[:20]
+            raise CorruptInputError(f"{path}: not a PLY file (first line {shown!r}, expected 'ply')")
         nlines = 1
         while True:
             raw = fh.readline()
