@@ -60,9 +60,15 @@ def _vlr_to_dict(vlr: Any) -> dict:
     }
 
 
+def _ascii(text: str) -> str:
+    """*text* as laspy can write it (ASCII): a byte that did not decode (U+FFFD) becomes "?"."""
+    return text.encode("ascii", errors="replace").decode("ascii")
+
+
 def vlr_from_dict(d: dict) -> Any:
     """A laspy VLR (the known record type where laspy has one) from its :func:`header_to_dict` entry."""
-    raw = laspy.VLR(d["user_id"], int(d["record_id"]), d.get("description", ""), base64.b64decode(d["data"]))
+    raw = laspy.VLR(_ascii(d["user_id"]), int(d["record_id"]), _ascii(d.get("description", "")),
+                    base64.b64decode(d["data"]))
     return vlr_factory(raw)
 
 
@@ -171,7 +177,7 @@ def _point_format(d: dict) -> laspy.PointFormat:
                 num_bits=int(e["num_bits"]),
                 num_elements=int(e["num_elements"]),
                 is_standard=False,
-                description=e.get("description", ""),
+                description=_ascii(e.get("description", "")),
                 **opt,
             )
         )
