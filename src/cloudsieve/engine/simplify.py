@@ -75,8 +75,8 @@ class Summary:
         Peak resident memory of this process and its children (bytes), sampled.
     scheduler : str
     source, destination : str
-    store : str or None
-        The work store, None when it was removed (the default store, after success).
+    store : str
+        The work store, "" when it was removed (the default store, after success).
     """
 
     points_in: int = 0
@@ -91,7 +91,7 @@ class Summary:
     scheduler: str = ""
     source: str = ""
     destination: str = ""
-    store: str | None = ""
+    store: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -357,6 +357,6 @@ def simplify(
     workstore.record_summary(st, summary.to_dict())
     if default_store:
         delete_store(store_path)
-        summary.store = None
+        summary.store = ""
     logger.info("simplify %s -> %s: %d of %d points kept", src, dst, summary.kept, summary.points_in)
     return summary
