@@ -159,7 +159,8 @@ def test_every_option_is_accepted_and_refused_alike_everywhere(command, name, tm
     option = params.COMMANDS[command][name]
     good, bad = good_and_bad(option, command)
     in_pipeline = command in ("simplify", "evaluate", "compare") and not (
-        command == "simplify" and name in ("format", "overwrite"))  # the writer's options
+        command == "simplify" and name in ("format", "overwrite")) and (  # the writer's options
+        name != "drop_invalid")  # the reader's option (test_pipeline_reader_takes_drop_invalid)
     for expected, values in [(True, good), (False, bad)]:
         for value in values:
             options = {name: value, **context(command, name, value)}

@@ -36,7 +36,24 @@ __all__ = [
 
 
 class CloudsieveError(Exception):
-    """Root of every error cloudsieve raises on purpose."""
+    """Root of every error cloudsieve raises on purpose.
+
+    Parameters
+    ----------
+    *args
+        The message (as for any exception).
+    advice : mapping of str to object, optional
+        The options the message advises, by name, with the value it advises
+        (``{"overwrite": True}``). The message words them as the API does,
+        ``overwrite=True``; the command line rewrites exactly those words as
+        its own (``--overwrite``, or a pipeline stage's key under
+        ``cloudsieve run``). Kept in the exception's ``__dict__``, so it
+        survives pickling (errors raised in dask workers).
+    """
+
+    def __init__(self, *args: object, advice: dict | None = None) -> None:
+        super().__init__(*args)
+        self.advice = dict(advice or {})
 
 
 class InputNotFoundError(CloudsieveError, FileNotFoundError):

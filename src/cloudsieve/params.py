@@ -202,13 +202,13 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        extra=(_OUTPUT_FORMAT,)),
+        "drop_invalid", extra=(_OUTPUT_FORMAT,)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
-        "error_points", "metro_samples"),
+        "error_points", "metro_samples", "drop_invalid"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
-        "surface", "seed", "metro_samples", "k0", "k_min", extra=(_RULE_LIST,)),
+        "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", extra=(_INPUT_FORMAT,)),
     "export": _command("mask", "chunk_size", "overwrite", extra=(_OUTPUT_FORMAT,)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys

@@ -17,17 +17,19 @@ Stages, in this order:
     ``readers.las``, ``readers.copc``, ``readers.ply``, ``readers.e57``,
     ``readers.text`` or ``readers.store`` (a cloudsieve point store).
     ``filename`` may be a glob; the pipeline then runs once per matching file.
+    ``drop_invalid`` (default false): drop the points with NaN or infinite
+    coordinates instead of refusing the file, in every stage that reads it.
     A bare string stands for a reader chosen by extension (as in PDAL).
 ``filters.entropy`` (at most one)
     The simplification; its options are those of :func:`cloudsieve.simplify`
     (``method``, ``rule``, ``threshold``, ``ratio``, ``count``,
     ``cluster_size``, ``cell_size``, ``seed``, ``halo_context``, ...) but
-    ``format`` and ``overwrite`` (the writer's).
+    ``format`` and ``overwrite`` (the writer's) and ``drop_invalid`` (the reader's).
 ``writers.*`` (one, required after ``filters.entropy``)
     ``writers.las`` (also LAZ, by extension), ``writers.ply``, ``writers.text``.
     ``filename`` may use ``{stem}`` (the input's name without extensions) and
     ``{name}`` (its file name); it must use one of them when the reader's glob
-    matches several files.
+    matches several files. ``overwrite`` (default false) replaces an existing file.
 ``evaluate`` (optional, after the writer)
     Evaluates the written cloud against the input; options are the keyword
     arguments of :func:`cloudsieve.evaluate` (``report_dir``, ``sample``, ...).
@@ -42,7 +44,10 @@ Every option is checked when the file is loaded, as the API checks it (names,
 types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
 so a bad value fails before any stage runs, naming the stage. Relative paths are relative to the working
 folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
-environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``). Any option can be overridden from the command line with
+environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``); a variable
+that is not set is an error. :func:`check_inputs` (``cloudsieve run --check``,
+and :func:`run_pipeline` before any stage) checks that every input can be
+read by the reader. Any option can be overridden from the command line with
 ``--set STAGE.OPTION=VALUE`` (``--set readers.las.filename=scan.laz``).
 """
 
@@ -53,14 +58,15 @@ import glob
 import json
 import logging
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from .errors import InvalidParameterError, PipelineError
+from .errors import CloudsieveError, InvalidParameterError, PipelineError, UnknownFormatError
 from .params import COMMANDS, check, validate
 
-__all__ = ["Pipeline", "load_pipeline", "run_pipeline"]
+__all__ = ["Pipeline", "load_pipeline", "check_inputs", "run_pipeline", "stage_options"]
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +81,11 @@ READERS = {
 WRITERS = {"writers.las": None, "writers.ply": "ply", "writers.text": "xyz"}
 TOP_LEVEL = {"pipeline", "scheduler", "workers"}
 PATH_OPTIONS = {"filename", "report_dir", "store"}
+#: the options of a reader stage and of a writer stage
+READER_OPTIONS = {"filename", "drop_invalid"}
+WRITER_OPTIONS = {"filename", "overwrite"}
+#: a variable left in a path after expansion: not set in the environment
+_UNSET_VARIABLE = re.compile(r"\$(?:\{(\w+)\}|(\w+))")
 
 
 @dataclass
@@ -112,25 +123,36 @@ def _stage_functions() -> dict[str, Any]:
 
 #: stage type -> its command in :data:`cloudsieve.params.COMMANDS`
 STAGE_COMMANDS = {"filters.entropy": "simplify", "evaluate": "evaluate", "compare": "compare"}
-#: options a stage does not take: the writer gives the destination's format and overwrite
+#: options a stage does not take: the writer gives the destination's format and overwrite, the reader drop_invalid
 _FROM_WRITER = {"format", "overwrite"}
+_FROM_READER = {"drop_invalid"}
 
 
-def _accepted(kind: str) -> set[str]:
+def stage_options(kind: str) -> set[str]:
     """The options of stage type *kind*, from the parameter spec."""
+    if kind in READERS:
+        return READER_OPTIONS
     if kind in WRITERS:
-        return {"filename", "overwrite"}
-    return set(COMMANDS[STAGE_COMMANDS[kind]]) - _FROM_WRITER
+        return WRITER_OPTIONS
+    return set(COMMANDS[STAGE_COMMANDS[kind]]) - _FROM_WRITER - _FROM_READER
 
 
 def _check_values(stage: dict, run_options: dict, label: str) -> None:
     """Validate a stage's option values (types, ranges, together) as the API will; PipelineError naming the stage."""
     kind = stage["type"]
-    values = {k: v for k, v in stage.items() if k != "type"}
+    extra = set(stage) - stage_options(kind) - {"type"}
+    if extra:
+        raise PipelineError(f"{label}: unknown option(s) {sorted(extra)}; accepted: {sorted(stage_options(kind))}")
+    if kind in READERS or kind in WRITERS:
+        if "filename" not in stage:
+            raise PipelineError(f"{label}: a {'reader' if kind in READERS else 'writer'} needs a \"filename\"")
+        if not isinstance(stage["filename"], str) or not stage["filename"]:
+            raise PipelineError(f"{label}: filename must be a path, got {stage['filename']!r}")
+    values = {k: v for k, v in stage.items() if k not in ("type", "filename")}
     try:
-        if kind in WRITERS:
-            if "overwrite" in values:
-                check("overwrite", values["overwrite"])
+        if kind in READERS or kind in WRITERS:
+            for name, value in values.items():  # overwrite, drop_invalid
+                check(name, value)
         else:
             if kind == "filters.entropy":
                 values = {**run_options, **values}
@@ -158,8 +180,17 @@ def _apply_override(doc: dict, item: str, where: str) -> None:
         stage[option] = parsed
 
 
-def _expand(value: Any) -> Any:
-    return os.path.expandvars(value) if isinstance(value, str) else value
+def _expand(stage: dict, label: str) -> None:
+    """Expand ``$VAR`` / ``${VAR}`` in the stage's paths; PipelineError naming a variable that is not set."""
+    for key in sorted(PATH_OPTIONS & set(stage)):
+        if not isinstance(stage[key], str):
+            continue
+        value = os.path.expandvars(stage[key])
+        unset = _UNSET_VARIABLE.search(value)
+        if unset:
+            raise PipelineError(
+                f"{label}: {key} {stage[key]!r} uses the environment variable {unset[1] or unset[2]}, which is not set")
+        stage[key] = value
 
 
 def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tuple = ()) -> Pipeline:
@@ -222,6 +253,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
     except InvalidParameterError as exc:
         raise PipelineError(f"{where}: {exc}") from None
     run_options = {k: v for k, v in run_options.items() if k in doc}
+    _check_values(reader, run_options, f"{where}: stage 1 ({reader['type']})")
     seen: list[str] = []
     for i, stage in enumerate(rest, 2):
         kind = stage["type"]
@@ -231,13 +263,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
         if kind not in WRITERS and kind not in STAGE_COMMANDS:
             known = ", ".join([*WRITERS, *STAGE_COMMANDS])
             raise PipelineError(f"{label}: unknown stage type; known after the reader: {known}")
-        allowed = _accepted(kind)
-        extra = set(stage) - allowed - {"type"}
-        if extra:
-            raise PipelineError(f"{label}: unknown option(s) {sorted(extra)}; accepted: {sorted(allowed)}")
         _check_values(stage, run_options, label)
-        if kind in WRITERS and "filename" not in stage:
-            raise PipelineError(f"{label}: a writer needs a \"filename\"")
         family = "writer" if kind in WRITERS else kind
         if family in seen:
             raise PipelineError(f"{label}: only one {family} stage is allowed")
@@ -251,11 +277,8 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
     if not seen:
         raise PipelineError(f"{where}: the pipeline only reads; add filters.entropy and a writer, or compare")
 
-    for stage in stages:
-        for key in PATH_OPTIONS & set(stage):
-            stage[key] = _expand(stage[key])
-    if "filename" not in reader:
-        raise PipelineError(f"{where}: stage 1 ({reader['type']}) needs a \"filename\"")
+    for i, stage in enumerate(stages, 1):
+        _expand(stage, f"{where}: stage {i} ({stage['type']})")
     pattern = reader["filename"]
     inputs = sorted(glob.glob(pattern)) if glob.has_magic(pattern) else [pattern]
     if not inputs:
@@ -280,28 +303,54 @@ def _fill(value: Any, src: str) -> Any:
     return value.replace("{stem}", stem).replace("{name}", name)
 
 
-def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, progress: Any) -> None:
+def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, progress: Any,
+             drop_invalid: bool = False) -> None:
     """A pipeline with a writer and no filter: a plain conversion, streamed through a temporary store."""
     import tempfile
 
     from .store import export, ingest
 
     with tempfile.TemporaryDirectory(prefix="cloudsieve-convert-") as tmp:
-        store = ingest(src, os.path.join(tmp, "store.zarr"), progress=progress)
+        store = ingest(src, os.path.join(tmp, "store.zarr"), progress=progress, drop_invalid=drop_invalid)
         export(store, dst, format=out_format, overwrite=overwrite, progress=progress)
 
 
-def _check_reader(pipeline: Pipeline) -> None:
-    from .io import detect_format
+def check_inputs(pipeline: Pipeline) -> None:
+    """Raise unless the reader can read every input of *pipeline*; nothing is read but the file system.
+
+    Each input exists, is a file (a point store for ``readers.store``), is
+    not empty, can be opened, and its extension is one the reader reads.
+
+    Raises
+    ------
+    PipelineError
+        Naming the pipeline, stage 1 and the input:
+        ``"simplify.json: stage 1 (readers.las): input.laz: no such file"``.
+    """
+    from .io import check_readable, detect_format
+    from .store import is_store
 
     kind = pipeline.reader["type"]
+    label = f"{pipeline.source}: stage 1 ({kind})"
     accepted = {"readers.las": ("las", "laz", "copc")}.get(kind, (READERS[kind],))
     for path in pipeline.inputs:
-        if kind == "readers.store":
-            continue
-        found = detect_format(path)
+        try:
+            if kind == "readers.store":
+                check_readable(path)
+                if not is_store(path):
+                    raise PipelineError(f"{label}: {path} is not a point store")
+                continue
+            check_readable(path, format=accepted[0])  # exists, a file, not empty, readable
+            found = detect_format(path)
+        except UnknownFormatError:
+            ext = os.path.splitext(os.path.basename(path.rstrip("/")))[1] or "(none)"
+            raise PipelineError(f"{label} cannot read {path}: unknown extension {ext}") from None
+        except PipelineError:
+            raise
+        except CloudsieveError as exc:
+            raise PipelineError(f"{label}: {exc}") from None
         if found not in accepted:
-            raise PipelineError(f"{pipeline.source}: stage 1 ({kind}) cannot read {path}: its extension says {found}")
+            raise PipelineError(f"{label} cannot read {path}: its extension says {found}")
 
 
 def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None) -> list[dict]:
@@ -314,7 +363,8 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         "summary": ..., "report": ...}``.
     """
     functions = _stage_functions()
-    _check_reader(pipeline)
+    check_inputs(pipeline)
+    drop_invalid = bool(pipeline.reader.get("drop_invalid", False))
     results = []
     for src in pipeline.inputs:
         entry: dict[str, Any] = {"input": src, "output": None, "summary": None, "report": None}
@@ -328,20 +378,21 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
             overwrite = bool(writer.get("overwrite", False))
             log.info("pipeline %s: %s -> %s", pipeline.source, src, dst)
             if filt is None:
-                entry["summary"] = _convert(src, dst, out_format, overwrite, progress)
+                entry["summary"] = _convert(src, dst, out_format, overwrite, progress, drop_invalid)
             else:
                 params = {k: _fill(v, src) for k, v in filt.items() if k != "type"}
                 for key, value in run_opts.items():
                     params.setdefault(key, value)
                 entry["summary"] = functions["filters.entropy"](
-                    src, dst, format=out_format, overwrite=overwrite, client=client, progress=progress, **params
+                    src, dst, format=out_format, overwrite=overwrite, client=client, progress=progress,
+                    drop_invalid=drop_invalid, **params
                 )
             entry["output"] = dst
         for stage in pipeline.stages:
             params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
             if stage["type"] == "evaluate":
-                entry["report"] = functions["evaluate"](src, entry["output"], **params)
+                entry["report"] = functions["evaluate"](src, entry["output"], drop_invalid=drop_invalid, **params)
             elif stage["type"] == "compare":
-                entry["report"] = functions["compare"](src, **params)
+                entry["report"] = functions["compare"](src, drop_invalid=drop_invalid, **params)
         results.append(entry)
     return results

@@ -99,17 +99,16 @@ def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAU
     name beside *path* and renamed when complete. Returns *path*.
     """
     import os
-    import tempfile
 
     import laspy
+
+    from .io._base import make_temp_path
 
     header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.array([0.0, 0.0, -10.0])
     header.generating_software = "cloudsieve synthetic scene"
-    folder = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=os.path.basename(path), dir=folder)
-    os.close(fd)
+    tmp = make_temp_path(path)  # the umask's mode, as every output
     try:
         with laspy.open(tmp, mode="w", header=header, do_compress=path.lower().endswith(".laz")) as writer:
             for chunk in scene_chunks(n, seed=seed, chunk_size=chunk_size):

@@ -55,7 +55,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except CloudsieveError as exc:
-        print(f"cloudsieve {args.command}: error: {exc}", file=sys.stderr)
+        from ._common import cli_message, flag_wording
+
+        # a subcommand may set args.wording (run: a pipeline stage's key instead of a flag)
+        message = cli_message(exc, getattr(args, "wording", flag_wording))
+        print(f"cloudsieve {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"cloudsieve {args.command}: interrupted", file=sys.stderr)

@@ -9,12 +9,13 @@ pipelines and the API refuse the same values with the same message.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
 from .. import params
+from ..errors import CloudsieveError
 
-__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int"]
+__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int", "flag_wording", "cli_message"]
 
 
 def parse_int(text: str) -> int | float:
@@ -97,3 +98,26 @@ def option_values(args: argparse.Namespace, command: str, names: Iterable[str] |
         values = {n: normalised[n] for n in values}
     return values
 
+
+
+def flag_wording(name: str, value: Any) -> str:
+    """The command line's words for option *name* set to *value*: ``--overwrite``, ``--no-strict``, ``--seed 3``."""
+    option = params.OPTIONS[name]
+    dashed = name.replace("_", "-")
+    if option.kind == params.BOOL and isinstance(value, bool):
+        return f"--{dashed}" if value else f"--no-{dashed}"
+    return f"--{dashed} {value}"
+
+
+def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_wording) -> str:
+    """The message of *exc* with the options it advises worded for the command line.
+
+    The library words an advised option as the API does (``overwrite=True``,
+    listed in ``exc.advice``); exactly those words are replaced by
+    ``wording(name, value)``: a flag by default, a pipeline stage's key under
+    ``cloudsieve run``.
+    """
+    message = str(exc)
+    for name, value in getattr(exc, "advice", {}).items():
+        message = message.replace(f"{name}={value!r}", wording(name, value))
+    return message

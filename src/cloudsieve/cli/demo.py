@@ -23,8 +23,26 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--points", type=positive_int, default=200_000, help="points in the example scan (default: 200000)")
     p.add_argument("--out", default="cloudsieve-demo", help="output folder (default: ./cloudsieve-demo)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="write into an existing, non-empty --out folder (its demo files are replaced, others kept)")
     add_options(p, "simplify", ["method", "rule", "ratio", "scheduler", "seed"], defaults={"method": "km", "ratio": 0.5})
     p.set_defaults(func=run)
+
+
+def _prepare_folder(out: str, overwrite: bool) -> None:
+    """Create the output folder; refuse a non-empty one unless *overwrite*, and a path that is not a folder."""
+    from ..errors import DestinationExistsError, DestinationNotWritableError
+
+    if os.path.lexists(out) and not os.path.isdir(out):
+        raise DestinationNotWritableError(f"cannot write into {out}: it is not a folder")
+    if os.path.isdir(out) and os.listdir(out) and not overwrite:
+        raise DestinationExistsError(
+            f"{out} exists and is not empty ({len(os.listdir(out))} entries); pass --overwrite to write the demo "
+            f"into it anyway (its demo files are replaced, others kept), or choose another --out")
+    try:
+        os.makedirs(out, exist_ok=True)
+    except OSError as exc:
+        raise DestinationNotWritableError(f"cannot create {out}: {exc.strerror or exc}") from None
 
 
 def run(args: argparse.Namespace) -> int:
@@ -34,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     from ..synthetic import write_scene_laz
 
     options = option_values(args, "simplify", check=True)  # before anything is written
-    os.makedirs(args.out, exist_ok=True)
+    options.pop("overwrite", None)  # demo's --overwrite is about its folder; its own files are always replaced
+    _prepare_folder(args.out, args.overwrite)
     src = os.path.join(args.out, "scene.laz")
     dst = os.path.join(args.out, "scene-simplified.laz")
     report = os.path.join(args.out, "report")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 
 import numpy as np
@@ -54,6 +55,23 @@ def _describe_store(path: str) -> dict:
         "chunk_size": store.chunk_size,
         "derived_arrays": derived,
     }
+
+
+def coordinate_text(value: float, scale: float | None = None) -> str:
+    """A bound as text with every digit it has: ``1816492.71``, not ``1.81649e+06``.
+
+    With the LAS *scale* (0.01), the decimals the scale gives (``848899.70``);
+    otherwise the fewest digits that read back to the same number, in
+    float32 for a value that is one (PLY ``float``: ``-0.09469``, not
+    ``-0.09469000250101089``).
+    """
+    value = float(value)
+    if scale is not None and scale > 0:
+        return f"{value:.{max(0, math.ceil(-math.log10(scale) - 1e-9))}f}"
+    single = np.float32(value)
+    if np.isfinite(single) and float(single) == value:
+        return str(single)
+    return repr(value)
 
 
 def _dtype_text(dtype, shape) -> str:
@@ -130,8 +148,9 @@ def run(args: argparse.Namespace) -> int:
     print(f"  points      {info['count']:,}" if info["count"] is not None else "  points      unknown")
     if info["bounds"]:
         lo, hi = info["bounds"]
-        for axis, a, b in zip("xyz", lo, hi):
-            print(f"  {axis}           {a:.6g} .. {b:.6g}")
+        scales = info["header"].get("scales") or [None] * 3
+        for axis, a, b, scale in zip("xyz", lo, hi, scales):
+            print(f"  {axis}           {coordinate_text(a, scale)} .. {coordinate_text(b, scale)}")
     print(f"  CRS         {info['crs'] or 'none'}")
     print("  attributes  " + (", ".join(f"{k} ({v})" for k, v in info["attributes"].items()) or "none"))
     for k, v in info["header"].items():

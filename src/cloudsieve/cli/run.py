@@ -25,16 +25,41 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         metavar="STAGE.OPTION=VALUE",
         help="override an option, e.g. --set readers.las.filename=scan.laz (repeatable; VALUE parsed as JSON when it is)",
     )
-    p.add_argument("--check", action="store_true", help="validate the pipeline and list its inputs, run nothing")
-    p.set_defaults(func=run)
+    p.add_argument("--check", action="store_true",
+                   help="validate the pipeline and check that its inputs can be read; run nothing")
+    p.set_defaults(func=run, wording=stage_wording(None))
+
+
+def stage_wording(pipeline):
+    """How ``cloudsieve run`` words an option an error advises: the stage key that sets it, and its ``--set``.
+
+    ``overwrite=True`` -> ``"overwrite": true in the writers.las stage (or
+    --set writers.las.overwrite=true)``; the reader holds drop_invalid, the
+    writer overwrite, the other stages their own options.
+    """
+    def wording(name, value):
+        import json
+
+        from ..pipeline import stage_options
+
+        stages = [] if pipeline is None else [pipeline.reader, *pipeline.stages]
+        owner = next((s["type"] for s in stages if name in stage_options(s["type"])), None)
+        text = json.dumps(value)
+        if owner is None:
+            return f'"{name}": {text} in its stage'
+        return f'"{name}": {text} in the {owner} stage (or --set {owner}.{name}={text})'
+
+    return wording
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..pipeline import load_pipeline, run_pipeline
+    from ..pipeline import check_inputs, load_pipeline, run_pipeline
     from ..progress import bar
 
     pipeline = load_pipeline(args.pipeline, overrides=args.overrides)
+    args.wording = stage_wording(pipeline)
     if args.check:
+        check_inputs(pipeline)
         print(f"{args.pipeline}: valid; {len(pipeline.inputs)} input(s)")
         for path in pipeline.inputs:
             print(f"  {path}")

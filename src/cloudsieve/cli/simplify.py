@@ -44,7 +44,9 @@ def run(args: argparse.Namespace) -> int:
 
     summary = simplify(args.src, args.dst, **option_values(args, "simplify"), bars=bars, notify=notify)
     if args.json:
-        print(json.dumps(summary.to_dict(), indent=2))
+        record = summary.to_dict()
+        record["store"] = record["store"] or None  # null, not "", when the work store was removed
+        print(json.dumps(record, indent=2))
     else:
         print(f"cloudsieve simplify: {args.src} -> {args.dst}")
         print(summary)

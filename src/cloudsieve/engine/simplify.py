@@ -74,7 +74,9 @@ class Summary:
     peak_memory : int
         Peak resident memory of this process and its children (bytes), sampled.
     scheduler : str
-    source, destination, store : str
+    source, destination : str
+    store : str
+        The work store, "" when it was removed (the default store, after success).
     """
 
     points_in: int = 0
@@ -146,6 +148,7 @@ def simplify(
     halo_context: bool = False,
     k0: float = 1.0,
     k_min: int = 4,
+    drop_invalid: bool = False,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -224,6 +227,11 @@ def simplify(
         the pass-1 decisions, see :func:`cloudsieve.engine.cells.thinned_halo`; 0.91 unthinned).
     k0, k_min : float, int
         The k-NN rule k = max(k_min, round(k0 * sqrt(m))).
+    drop_invalid : bool
+        Drop the points of a file SRC whose coordinates are NaN or infinite
+        (logged with their count) instead of refusing SRC
+        (:class:`~cloudsieve.errors.InvalidPointsError`). A point store never
+        holds such points.
 
     Returns
     -------
@@ -244,8 +252,11 @@ def simplify(
         Nothing answers at the *scheduler* address (5 s connect timeout).
     ResumeMismatchError
         The work store holds a run with other parameters or another source.
+    InvalidPointsError
+        SRC has points with NaN or infinite coordinates and *drop_invalid* is
+        False (found while SRC is ingested; nothing is left behind).
     """
-    from ..store import export, local_path
+    from ..store import export, local_path, same_path
 
     t_start = time.perf_counter()
     src, dst = os.fspath(src), os.fspath(dst)
@@ -254,16 +265,17 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
+        "drop_invalid": drop_invalid,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     context = opts["halo_context"]
     update = callback(progress)
     summary = Summary(source=src, destination=dst)
     dst_local = local_path(dst)
-    if dst_local is not None and os.path.exists(dst_local) and not overwrite:
-        raise DestinationExistsError(f"{dst} exists (pass overwrite=True / --overwrite to replace it)")
-    if local_path(src) is not None and dst_local is not None and os.path.abspath(local_path(src)) == dst_local:
+    if same_path(src, dst):  # first: overwriting would not help, so it is not suggested
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
+    if dst_local is not None and os.path.exists(dst_local) and not overwrite:
+        raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     check_readable(src)
     check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
     if client is None and scheduler is not None and "://" in scheduler:
@@ -292,7 +304,8 @@ def simplify(
             st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
             if st is None:
                 with stage_bar(bars, "ingest", None, "pt") as bar:
-                    st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar))
+                    st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
+                                                 drop_invalid=drop_invalid)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0

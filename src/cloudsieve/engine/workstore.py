@@ -112,14 +112,18 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
         raise ResumeMismatchError(
             f"work store {store_path} was ingested from {rec['path']} "
             f"({rec['size']} bytes, mtime {rec['mtime_ns']}), not from {src} "
-            f"({identity['size']} bytes, mtime {identity['mtime_ns']}); pass overwrite=True (--overwrite) to start again"
+            f"({identity['size']} bytes, mtime {identity['mtime_ns']}); pass overwrite=True to start again",
+            advice={"overwrite": True},
         )
     logger.info("reusing the ingest in %s", store_path)
     return st
 
 
-def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None):
+def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, drop_invalid: bool = False):
     """Ingest the file *src* into a new work store at *store_path* and record the source's identity.
+
+    *drop_invalid* drops the points with NaN or infinite coordinates (see
+    :func:`cloudsieve.store.ingest`) instead of refusing the file.
 
     Returns
     -------
@@ -129,7 +133,7 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None):
     from ..store import PointStore, ingest
 
     identity = source_identity(src)
-    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress)
+    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, drop_invalid=drop_invalid)
     st = PointStore.open(store_path, "r+")
     st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
     return st
@@ -155,7 +159,8 @@ def record_params(store, params: dict, overwrite: bool) -> None:
             raise ResumeMismatchError(
                 f"store {store.path} holds a run with other parameters "
                 + ", ".join(f"{k}: stored {a!r}, asked {b!r}" for k, (a, b) in diff.items())
-                + "; pass overwrite=True (--overwrite) to discard it"
+                + "; pass overwrite=True to discard it",
+                advice={"overwrite": True},
             )
         old = None
     if old is None:

@@ -5,7 +5,9 @@ The original cloud may be huge: it is only ever *streamed* chunk by chunk
 a :class:`cloudsieve.store.PointStore` (or its path) or any file the IO layer
 reads (``open_reader(...).chunks()``). The simplified cloud is
 assumed to fit in memory (it is the smaller one) and is loaded whole by
-:func:`load_points`.
+:func:`load_points`. A file's points with NaN or infinite coordinates are
+refused, or dropped with *drop_invalid* (:class:`cloudsieve.io.valid.ValidPoints`,
+as ingest does).
 """
 
 from __future__ import annotations
@@ -38,10 +40,16 @@ class Source:
         The source header (``{}`` for arrays).
     format : str
         ``"array"``, ``"store"`` or the IO layer's format name.
+    drop_invalid : bool
+        Drop a file's points with NaN or infinite coordinates (they are
+        refused otherwise); the count of such a file is then unknown (None)
+        until it is read.
     """
 
-    def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE):
+    def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False):
         self.chunk_size = int(chunk_size)
+        self.drop_invalid = bool(drop_invalid)
+        self._warned = False  # the dropped count is logged on the first whole pass only
         self._array = None
         self._store = None
         self._path = None
@@ -76,7 +84,7 @@ class Source:
                 self._path = str(path)
                 with open_reader(self._path, chunk_size=self.chunk_size) as reader:
                     self.format = reader.format
-                    self.count = reader.count
+                    self.count = None if self.drop_invalid else reader.count
                     self.header = dict(reader.header or {})
 
     @property
@@ -94,10 +102,13 @@ class Source:
                 yield Chunk(int(start), {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
         else:
             from ..io import open_reader
+            from ..io.valid import ValidPoints
 
+            valid = ValidPoints(self._path, self.drop_invalid, warn=not self._warned)
             with open_reader(self._path, chunk_size=self.chunk_size) as reader:
-                for start, arrays in reader.chunks():
+                for start, arrays in valid.chunks(reader.chunks()):
                     yield Chunk(start, {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
+            self._warned = True
 
     def known_bounds(self) -> np.ndarray | None:
         """Bounds ``[[min], [max]]`` of shape (2, 3) known without a scan (store, array, LAS header), else None."""
@@ -118,31 +129,31 @@ class Source:
         return int(self.count)
 
 
-def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE) -> Source:
+def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False) -> Source:
     """Wrap an array, a PointStore, a store path or a file path as a :class:`Source`."""
     if isinstance(obj, Source):
         return obj
-    return Source(obj, chunk_size=chunk_size)
+    return Source(obj, chunk_size=chunk_size, drop_invalid=drop_invalid)
 
 
-def load_points(obj: Any, *, what: str = "simplified cloud") -> tuple[np.ndarray, dict, str]:
+def load_points(obj: Any, *, what: str = "simplified cloud", drop_invalid: bool = False) -> tuple[np.ndarray, dict, str]:
     """Load a (small) cloud whole: ``(xyz (n,3) float64, header, name)``.
 
     Raises
     ------
     EmptyInputError
         When the cloud holds no point.
+    InvalidPointsError
+        A file with NaN or infinite coordinates, unless *drop_invalid*.
     """
-    src = open_source(obj)
+    src = open_source(obj, drop_invalid=drop_invalid)
     if src._array is not None:
         xyz = src._array
     elif src._store is not None:
         xyz = np.asarray(src._store.read("xyz"), dtype=np.float64)
     else:
-        from ..io import read_cloud
-
-        xyz, _ = read_cloud(src._path)
-        xyz = np.asarray(xyz, dtype=np.float64)
+        parts = [chunk.xyz for chunk in src.chunks()]
+        xyz = np.concatenate(parts) if parts else np.empty((0, 3))
     if len(xyz) == 0:
         raise EmptyInputError(f"the {what} is empty (0 points): {src.name}")
     return np.ascontiguousarray(xyz), src.header, src.name

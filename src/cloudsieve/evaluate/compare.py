@@ -83,7 +83,7 @@ def _share(v: Any) -> str:
 def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] = "iterative",
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
-            metro_samples: int | None = None, progress=None, **entropy_options) -> dict:
+            metro_samples: int | None = None, progress=None, drop_invalid: bool = False, **entropy_options) -> dict:
     """Run *methods* on *source* to the same count, evaluate each, one table.
 
     Parameters
@@ -109,6 +109,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         Seeds every method and the evaluation.
     progress : callable, optional
         Called with 1 per method done.
+    drop_invalid : bool
+        Drop the source's points with NaN or infinite coordinates (a warning
+        gives their count) instead of refusing it.
     **entropy_options
         Passed to :func:`cloudsieve.prune.simplify_points`: ``threshold``,
         ``cluster_size``, ``k0``, ``k_min`` (:mod:`cloudsieve.params`).
@@ -129,13 +132,13 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     opts = validate("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, **entropy_options,
+        "metro_samples": metro_samples, "drop_invalid": drop_invalid, **entropy_options,
     })
     if report_dir is not None:
         check_folder(report_dir)
     methods, rules = opts["methods"], opts["rule"]
     entropy_options = {k: opts[k] for k in entropy_options}
-    xyz, _header, name = load_points(source, what="source cloud")
+    xyz, _header, name = load_points(source, what="source cloud", drop_invalid=drop_invalid)
     n = len(xyz)
     if ratio is not None:
         count = max(1, int(round(ratio * n)))

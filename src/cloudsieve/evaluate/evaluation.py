@@ -113,7 +113,8 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
                 f"diagonal {sdiag:.6g})")
     for p in problems:
         if strict:
-            raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False / --force to compare anyway)")
+            raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False to compare anyway)",
+                                          advice={"strict": False})
         warnings.warn(p, UserWarning, stacklevel=4)  # the caller of evaluate() (or of compare())
         msgs.append(p)
     for m in msgs:
@@ -124,7 +125,7 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
 def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
-             metro_samples: int | None = None, client: Any = None, progress=None) -> dict:
+             metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -161,6 +162,9 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Run the point-level chunk tasks on this dask cluster.
     progress : callable, optional
         Called with the number of original points done (point level).
+    drop_invalid : bool
+        Drop the points of either file whose coordinates are NaN or infinite
+        (a warning gives their count) instead of refusing the file.
 
     Returns
     -------
@@ -175,24 +179,28 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Either cloud has no point.
     IncompatibleCloudsError, NotASubsetError
         See *strict* and *subset*.
+    InvalidPointsError
+        A file has NaN or infinite coordinates and *drop_invalid* is False.
     """
     validate("evaluate", {
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
-        "chunk_size": chunk_size, "metro_samples": metro_samples,
+        "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
     })
     if report_dir is not None:
         check_folder(report_dir)
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
-                          chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress)
+                          chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
+                          drop_invalid=drop_invalid)
 
 
 def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
                    tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
                    report_dir: str | None = None, error_points: int = 2_000_000,
                    chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
-                   progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None) -> dict:
+                   progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
+                   drop_invalid: bool = False) -> dict:
     """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
 
     Parameters
@@ -207,8 +215,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         simplified clouds of one original).
     """
     t0 = time.perf_counter()
-    src = open_source(original, chunk_size=chunk_size)
-    simp, simp_header, simp_name = load_points(simplified, what="simplified cloud")
+    src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)
+    simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=drop_invalid)
     warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
                             names=(str(src.name), str(simp_name)), strict=strict)
     if names is not None:

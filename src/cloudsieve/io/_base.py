@@ -22,7 +22,7 @@ import numpy as np
 from ..errors import DestinationExistsError, DestinationNotWritableError
 from ..store.chunk import DEFAULT_CHUNK_SIZE, Chunk
 
-__all__ = ["Reader", "Writer", "check_destination"]
+__all__ = ["Reader", "Writer", "check_destination", "make_temp_path", "current_umask", "replace", "remove"]
 
 logger = logging.getLogger(__name__)
 
@@ -104,9 +104,10 @@ def check_destination(path: str, overwrite: bool) -> None:
     """
     if os.path.isdir(path):
         if not overwrite:
-            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True (--overwrite) to replace it")
+            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
     elif os.path.lexists(path) and not overwrite:
-        raise DestinationExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+        raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.exists(parent):
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
@@ -114,15 +115,39 @@ def check_destination(path: str, overwrite: bool) -> None:
         raise DestinationNotWritableError(f"cannot write {path}: {parent} is not a folder")
 
 
+def current_umask() -> int:
+    """The process's umask (read from /proc where it can be, so it is never changed, even for a moment)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # pragma: no cover - no /proc (macOS): set and restore
+    os.umask(mask)  # pragma: no cover
+    return mask  # pragma: no cover
+
+
 def make_temp_path(path: str, *, directory: bool = False) -> str:
-    """Create (and return) a temporary file or folder beside *path*."""
+    """Create (and return) a temporary file or folder beside *path*, with the mode a new file gets.
+
+    ``mkstemp``/``mkdtemp`` create 0600/0700 (private); the output renamed
+    from it gets what ``open()`` or ``mkdir`` would give under the umask
+    (0644/0755 under umask 022), as every other tool's outputs do.
+    """
     parent = os.path.dirname(os.path.abspath(path))
     prefix = "." + os.path.basename(path) + "."
     try:
         if directory:
-            return tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent)
+            tmp = tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent)
+            os.chmod(tmp, 0o777 & ~current_umask())
+            return tmp
         fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=parent)
-        os.close(fd)
+        try:
+            os.fchmod(fd, 0o666 & ~current_umask())
+        finally:
+            os.close(fd)
         return tmp
     except OSError as exc:
         raise DestinationNotWritableError(f"cannot write {path}: {exc.strerror or exc}") from exc

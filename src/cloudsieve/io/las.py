@@ -26,6 +26,7 @@ from laspy.vlrs.vlrlist import VLRList
 from ..errors import CorruptInputError, InputFormatError
 from ..store.chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
+from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
 
 __all__ = ["LasReader", "LasWriter"]
@@ -36,7 +37,6 @@ _XYZ = ("X", "Y", "Z")
 def _laz_backend():
     backends = laspy.LazBackend.detect_available()
     return backends if backends else None
-
 
 
 # --------------------------------------------------------------------- reader
@@ -70,11 +70,15 @@ class LasReader(Reader):
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
         backend = options.get("laz_backend", _laz_backend())
+        check_layout(path)
         try:
             self._las = laspy.open(path, mode="r", laz_backend=backend)
         except (laspy.LaspyException, OSError, ValueError, EOFError, IndexError) as exc:
             raise CorruptInputError(f"{path}: not a valid LAS/LAZ file ({exc})") from exc
         h = self._las.header
+        if h.version.major != 1 or h.version.minor > 4:
+            self._las.close()
+            raise CorruptInputError(f"{path}: the header says LAS version {h.version}, not 1.0 to 1.4 (corrupt header)")
         try:
             evlrs = list(self._las.evlrs or []) if h.version.minor >= 4 else []
         except Exception as exc:
@@ -122,14 +126,12 @@ class LasReader(Reader):
         it = self._las.chunk_iterator(self.chunk_size)
         while True:
             try:
-                points = next(it)
+                with QUIET_READS.reading():
+                    points = next(it)
             except StopIteration:
                 break
             except Exception as exc:
-                raise CorruptInputError(
-                    f"{self.path}: cannot decode points after point {done} of {self.count} ({exc}); "
-                    f"truncated or corrupt"
-                ) from exc
+                raise self._decode_error(done, exc) from exc
             n = len(points)
             if n == 0:
                 break
@@ -150,6 +152,24 @@ class LasReader(Reader):
             raise CorruptInputError(
                 f"{self.path}: header says {self.count} points but only {done} could be read (truncated or corrupt)"
             )
+
+    def _decode_error(self, done: int, exc: Exception) -> CorruptInputError:
+        """The error for the chunk of points from *done* on that fails to decode: it names the first point that fails.
+
+        For LAZ with fixed-size chunks the point is exact (see
+        :func:`.las_checks.decodable_points`); otherwise the message gives the chunk read.
+        """
+        decodable = decodable_points(self.path) if self._las.header.are_points_compressed else None
+        if decodable is not None and decodable >= self.count:
+            return CorruptInputError(
+                f"{self.path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
+        if decodable is not None and decodable >= done:
+            decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
+            return CorruptInputError(
+                f"{self.path}: cannot decode point {decodable} of {self.count} ({decoded}{exc}); truncated or corrupt")
+        last = min(done + self.chunk_size, self.count) - 1
+        return CorruptInputError(
+            f"{self.path}: cannot decode points {done} to {last} of {self.count} ({exc}); truncated or corrupt")
 
     def close(self) -> None:
         las = getattr(self, "_las", None)

@@ -6,8 +6,8 @@ data in base64), CRS, and the identification fields. :func:`header_from_dict`
 rebuilds a ``laspy.LasHeader`` from it so a LAS source comes back with the
 same header; laspy updates counts and bounds. Compression-specific records
 are not carried: the LASzip VLR is made afresh by laspy, and the COPC records
-(user id "copc": the info VLR and the hierarchy EVLR) are dropped with a log
-message, because they describe the octree layout of the source file and
+(user id "copc": the info VLR and the hierarchy EVLR) are dropped with a
+warning, because they describe the octree layout of the source file and
 would be wrong in any other file.
 
 Non-LAS sources (PLY, E57, XYZ) get a fresh header (:func:`build_header`):
@@ -60,9 +60,15 @@ def _vlr_to_dict(vlr: Any) -> dict:
     }
 
 
+def _ascii(text: str) -> str:
+    """*text* as laspy can write it (ASCII): a byte that did not decode (U+FFFD) becomes "?"."""
+    return text.encode("ascii", errors="replace").decode("ascii")
+
+
 def vlr_from_dict(d: dict) -> Any:
     """A laspy VLR (the known record type where laspy has one) from its :func:`header_to_dict` entry."""
-    raw = laspy.VLR(d["user_id"], int(d["record_id"]), d.get("description", ""), base64.b64decode(d["data"]))
+    raw = laspy.VLR(_ascii(d["user_id"]), int(d["record_id"]), _ascii(d.get("description", "")),
+                    base64.b64decode(d["data"]))
     return vlr_factory(raw)
 
 
@@ -171,7 +177,7 @@ def _point_format(d: dict) -> laspy.PointFormat:
                 num_bits=int(e["num_bits"]),
                 num_elements=int(e["num_elements"]),
                 is_standard=False,
-                description=e.get("description", ""),
+                description=_ascii(e.get("description", "")),
                 **opt,
             )
         )
@@ -181,8 +187,8 @@ def _point_format(d: dict) -> laspy.PointFormat:
 def _is_dropped(v: dict, path: str) -> bool:
     if v["user_id"] == LASZIP_USER_ID:
         return True  # laspy writes its own LASzip VLR for LAZ
-    if v["user_id"] == COPC_USER_ID:
-        logger.info(
+    if v["user_id"] == COPC_USER_ID:  # a warning: shown without -v, the output is no longer COPC
+        logger.warning(
             "%s: dropping COPC record (user_id 'copc', record_id %d): it describes the source's octree layout "
             "and is not valid in a re-ordered or plain LAS/LAZ file",
             path,
@@ -192,13 +198,29 @@ def _is_dropped(v: dict, path: str) -> bool:
     return False
 
 
+def _writable_version(version: str, point_format: int, path: str) -> str:
+    """*version* when laspy writes it with *point_format*, else the lowest version that does (with a warning).
+
+    LAS 1.0 files are read but laspy does not write 1.0; their points go out as 1.1 or 1.2.
+    """
+    from laspy.point.dims import VERSION_TO_POINT_FMT
+
+    if point_format in VERSION_TO_POINT_FMT.get(str(version), ()):
+        return str(version)
+    chosen = min((v for v, formats in VERSION_TO_POINT_FMT.items() if point_format in formats), key=float)
+    logger.warning("%s: LAS %s with point format %d cannot be written; writing LAS %s", path, version, point_format,
+                   chosen)
+    return chosen
+
+
 def header_from_dict(d: dict, path: str = "") -> tuple[laspy.LasHeader, list]:
     """Rebuild a ``laspy.LasHeader`` (and the EVLR list) from :func:`header_to_dict`.
 
     Counts and bounds are reset (the writer fills them); LASzip and COPC
     records are left out (see the module docstring).
     """
-    header = laspy.LasHeader(version=d["version"], point_format=_point_format(d))
+    point_format = _point_format(d)
+    header = laspy.LasHeader(version=_writable_version(d["version"], point_format.id, path), point_format=point_format)
     header.scales = np.asarray(d["scales"], dtype=np.float64)
     header.offsets = np.asarray(d["offsets"], dtype=np.float64)
     header.file_source_id = int(d.get("file_source_id", 0))

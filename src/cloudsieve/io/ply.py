@@ -7,8 +7,11 @@ it needs ``x``, ``y``, ``z``. A binary body is memory-mapped
 ASCII body is parsed in blocks of lines. The header dict keeps the format,
 comments and the element/property layout.
 
-The writer writes binary little-endian PLY, streamed: "xyz" as double
-``x, y, z`` and every attribute as a vertex property of its type ((n, k)
+The writer writes binary little-endian PLY, streamed: "xyz" as ``x, y, z``
+``float`` when the source was a binary PLY with ``float`` x, y, z (exact:
+the values were read from float32), else as double (an ASCII body is
+parsed to double, so its digits are kept), and every attribute as a vertex
+property of its type ((n, k)
 attributes as ``name_0 .. name_{k-1}``). 64-bit integers, which PLY has no
 type for, are written as double (a warning names them). The vertex count is
 a fixed-width field patched when the file is complete.
@@ -71,7 +74,8 @@ def read_ply_header(path: str) -> dict:
     with open(path, "rb") as fh:
         first = fh.readline()
         if first.strip() != b"ply":
-            raise CorruptInputError(f"{path}: not a PLY file (first line {first[:20]!r}, expected 'ply')")
+            shown = first.rstrip(b"\r\n")[:20]
+            raise CorruptInputError(f"{path}: not a PLY file (first line {shown!r}, expected 'ply')")
         nlines = 1
         while True:
             raw = fh.readline()
@@ -230,11 +234,25 @@ class PlyReader(Reader):
                 yield self._emit({name: values[:, i] for i, name in enumerate(names)})
 
 
+def _source_xyz_code(header: dict) -> str:
+    """"f4" when *header* is a binary PLY header whose vertex x, y, z are all ``float``/``float32``, else "f8"."""
+    if not str(header.get("format", "")).startswith("binary"):
+        return "f8"
+    for element in header.get("elements") or []:
+        if isinstance(element, dict) and element.get("name") == "vertex":
+            types = {p[0]: p[1] for p in element.get("properties", []) if len(p) == 2}
+            if all(PLY_TYPES.get(types.get(axis)) == "f4" for axis in "xyz"):
+                return "f4"
+    return "f8"
+
+
 class PlyWriter(Writer):
     """Binary little-endian PLY writer, streamed in chunks."""
 
     def _open(self) -> None:
-        fields: list[tuple[str, str, str, int | None]] = [("x", "f8", "xyz", 0), ("y", "f8", "xyz", 1), ("z", "f8", "xyz", 2)]
+        code = _source_xyz_code(self.header) if self.source_format in (None, "ply") else "f8"
+        fields: list[tuple[str, str, str, int | None]] = [("x", code, "xyz", 0), ("y", code, "xyz", 1),
+                                                          ("z", code, "xyz", 2)]
         widened = []
         for name, (dtype, shape) in self.dtypes.items():
             if name == "xyz":

@@ -26,7 +26,6 @@ from .. import progress as _progress
 from ..errors import (
     EmptyInputError,
     InvalidParameterError,
-    InvalidPointsError,
     SameSourceDestinationError,
 )
 from .paths import local_path, same_path
@@ -226,6 +225,7 @@ def ingest(
     # so either package can be imported first
     from ..io import open_reader
     from ..io._base import check_destination, make_temp_path, remove, replace
+    from ..io.valid import ValidPoints
 
     src, store = os.fspath(src), os.fspath(store)
     if same_path(src, store):
@@ -251,45 +251,18 @@ def ingest(
             filler = _StoreFiller(new.group, list(reader.dtypes), chunk_size, reader.count or 0)
             lo = np.full(3, np.inf)
             hi = np.full(3, -np.inf)
-            read = invalid = 0
-            first_invalid = None
+            # NaN/infinite coordinates refused or dropped (InvalidPointsError, EmptyInputError at the end)
+            valid = ValidPoints(src, drop_invalid)
             prefetched = _prefetch(reader.chunks())
-            for _, chunk in prefetched:
+            for _, chunk in valid.chunks(prefetched, progress=update):
                 xyz = chunk["xyz"]
-                n = len(xyz)
-                if np.isfinite(xyz).all():  # fast path: one flat reduction
-                    bad = 0
-                else:
-                    finite = np.isfinite(xyz).all(axis=1)
-                    bad = n - int(np.count_nonzero(finite))
-                if bad:
-                    if first_invalid is None:
-                        first_invalid = read + int(np.argmin(finite))
-                    invalid += bad
-                    if drop_invalid:
-                        chunk = {k: v[finite] for k, v in chunk.items()}
-                        xyz = chunk["xyz"]
-                read += n
-                update(n)
-                if invalid and not drop_invalid:
-                    continue  # keep counting, to name how many
-                if len(xyz):
-                    # per column: a 1-D strided reduction is ~10x faster than xyz.min(axis=0) on (n, 3)
-                    lo = np.minimum(lo, [xyz[:, i].min() for i in range(3)])
-                    hi = np.maximum(hi, [xyz[:, i].max() for i in range(3)])
-                    filler.add(chunk)
-            if invalid and not drop_invalid:
-                raise InvalidPointsError(
-                    f"{src}: {invalid} of {read} points have NaN or infinite coordinates (first: point {first_invalid}); "
-                    f"pass drop_invalid=True (--drop-invalid) to drop them"
-                )
-            if read == 0:
+                # per column: a 1-D strided reduction is ~10x faster than xyz.min(axis=0) on (n, 3)
+                lo = np.minimum(lo, [xyz[:, i].min() for i in range(3)])
+                hi = np.maximum(hi, [xyz[:, i].max() for i in range(3)])
+                filler.add(chunk)
+            if valid.read == 0:
                 raise EmptyInputError(f"{src} holds no points")
             filler.flush()
-            if filler.written == 0:
-                raise EmptyInputError(f"{src} holds no valid points: all {read} have NaN or infinite coordinates")
-            if invalid:
-                logger.warning("%s: dropped %d points with NaN or infinite coordinates", src, invalid)
             meta = {
                 "count": int(filler.written),
                 "bounds": [lo.tolist(), hi.tolist()],
@@ -298,7 +271,7 @@ def ingest(
                 "dimensions": list(reader.dtypes),
                 "chunk_size": chunk_size,
                 "source": os.path.abspath(src),
-                "dropped_invalid": int(invalid),
+                "dropped_invalid": int(valid.invalid),
             }
             new.finish(meta)
         except BaseException:

@@ -203,7 +203,7 @@ class PointStore:
         """
         path = os.fspath(path)
         if not overwrite and path_exists(path):
-            raise DestinationExistsError(f"{path} exists; pass overwrite=True (--overwrite) to replace it")
+            raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
         for name, (dtype, shape) in dtypes.items():
             group.create_array(
