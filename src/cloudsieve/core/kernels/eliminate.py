@@ -1,0 +1,451 @@
+"""Compiled kernels of weighted sample elimination (numba; private, inputs assumed valid).
+
+The caller (:mod:`cloudsieve.core.eliminate`) puts the points in a canonical
+internal order (by grid cell along a Z-order curve, then by coordinates) and
+passes, in that order:
+
+- ``P`` (n, 3) float64, ``cell`` (n,) int64 the cell of each point, ``cstart``
+  (C + 1,) the first point of each cell, ``nstart``/``ncells`` the CSR list of
+  the occupied cells among the 27 around each cell (cells are at least as
+  wide as every search radius);
+- ``state`` (n,) uint8: 0 absent (removed, or an exact copy), 1 alive and
+  removable, 2 alive and fixed (weighs on the others, never removed);
+- ``scale`` (n,) float64 > 0: the information multiplier of each weight;
+- ``tie`` (n,) int64 distinct ids: equal keys go lower id first.
+
+Key of an alive point x (larger goes first)::
+
+    key(x) = scale[x] * w(x) * f(x)
+    w(x) = sum over alive y != x with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
+    f(x) = g(e(x)) / (1 + lam * c(x) / r_max**2)          (1 without the coverage terms)
+
+where x represents itself and every removed point whose nearest remaining
+point it is, e(x) is the largest distance from one of them to its nearest
+other remaining point, c(x) the sum of the squared distances they would gain,
+g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
+
+Every factor only decreases as points go (fewer neighbours; represented sets
+grow; nearest other points only get farther), so a stored key is an upper
+bound of the current key and a lazy max-heap is exact: pop the top, recompute
+its key (always from scratch and in the same summation order, never by
+subtraction, so no rounding drift), equal to the stored key -> it is the
+heaviest point, remove it; lower -> store the new key and sift it down. The
+order is the one of an eager heap recomputing every key after each removal.
+The heap is two-level (a heap per block of 1024 consecutive points, and a
+heap of the blocks' tops) so that sifts stay in cache.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+BLOCK = 1024
+_M1 = np.int64(0x1F00000000FFFF)
+_M2 = np.int64(0x1F0000FF0000FF)
+_M3 = np.int64(0x100F00F00F00F00F)
+_M4 = np.int64(0x10C30C30C30C30C3)
+_M5 = np.int64(0x1249249249249249)
+
+
+@njit(cache=True)
+def _spread(v):
+    v &= 0x1FFFFF
+    v = (v | (v << 32)) & _M1
+    v = (v | (v << 16)) & _M2
+    v = (v | (v << 8)) & _M3
+    v = (v | (v << 4)) & _M4
+    v = (v | (v << 2)) & _M5
+    return v
+
+
+@njit(cache=True, parallel=True)
+def cell_codes(P, lo, h):
+    """Z-order code (n,) int64 of each point's grid cell (cells of size h from lo, < 2^21 per axis)."""
+    n = len(P)
+    out = np.empty(n, dtype=np.int64)
+    for i in prange(n):
+        c = np.int64(0)
+        for j in range(3):
+            q = min(np.int64((P[i, j] - lo[j]) / h), np.int64(0x1FFFFF))
+            c |= _spread(q) << j
+        out[i] = c
+    return out
+
+
+@njit(cache=True)
+def _less(P, a, b):
+    for j in range(3):
+        if P[a, j] != P[b, j]:
+            return P[a, j] < P[b, j]
+    return a < b
+
+
+@njit(cache=True)
+def sort_cells(P, codes, order):
+    """Inside each run of equal codes in ``order``, sort by coordinates then index (insertion sort, in place)."""
+    n = len(order)
+    s = 0
+    while s < n:
+        e = s + 1
+        while e < n and codes[order[e]] == codes[order[s]]:
+            e += 1
+        for i in range(s + 1, e):
+            v = order[i]
+            j = i - 1
+            while j >= s and _less(P, v, order[j]):
+                order[j + 1] = order[j]
+                j -= 1
+            order[j + 1] = v
+        s = e
+
+
+@njit(cache=True)
+def _compact(v):
+    v &= _M5
+    v = (v | (v >> 2)) & _M4
+    v = (v | (v >> 4)) & _M3
+    v = (v | (v >> 8)) & _M2
+    v = (v | (v >> 16)) & _M1
+    v = (v | (v >> 32)) & 0x1FFFFF
+    return v
+
+
+@njit(cache=True)
+def cell_neighbours(ukeys):
+    """CSR (nstart (C + 1,), ncells) of the occupied cells among the 27 around each cell (codes ``ukeys``, sorted)."""
+    C = len(ukeys)
+    size = 1
+    while size < 2 * C + 2:
+        size *= 2
+    table = np.full(size, -1, dtype=np.int64)
+    mask = np.uint64(size - 1)
+    mult = np.uint64(0x9E3779B97F4A7C15)
+    for c in range(C):
+        s = np.int64((np.uint64(ukeys[c]) * mult) >> np.uint64(20)) & np.int64(size - 1)
+        while table[s] >= 0:
+            s = (s + 1) & np.int64(size - 1)
+        table[s] = c
+    nstart = np.zeros(C + 1, dtype=np.int64)
+    out = np.empty(27 * C, dtype=np.int64)
+    t = 0
+    for c in range(C):
+        q0 = _compact(ukeys[c])
+        q1 = _compact(ukeys[c] >> 1)
+        q2 = _compact(ukeys[c] >> 2)
+        for dx in range(-1, 2):
+            for dy in range(-1, 2):
+                for dz in range(-1, 2):
+                    a, b, d = q0 + dx, q1 + dy, q2 + dz
+                    if a < 0 or b < 0 or d < 0 or a > 0x1FFFFF or b > 0x1FFFFF or d > 0x1FFFFF:
+                        continue
+                    key = _spread(a) | (_spread(b) << 1) | (_spread(d) << 2)
+                    s = np.int64((np.uint64(key) * mult) >> np.uint64(20)) & np.int64(mask)
+                    while table[s] >= 0:
+                        if ukeys[table[s]] == key:
+                            out[t] = table[s]
+                            t += 1
+                            break
+                        s = (s + 1) & np.int64(mask)
+        nstart[c + 1] = t
+    return nstart, out[:t].copy()
+
+
+@njit(cache=True)
+def _ipow(u, alpha, ialpha):
+    """u ** alpha; by repeated squaring when alpha is a small integer (ialpha >= 0)."""
+    if ialpha < 0:
+        return u**alpha
+    r = 1.0
+    e = ialpha
+    while e > 0:
+        if e & 1:
+            r *= u
+        u *= u
+        e >>= 1
+    return r
+
+
+@njit(cache=True)
+def _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha):
+    """Crowding sum of point i over its alive neighbours (before the scale)."""
+    c = cell[i]
+    w = 0.0
+    for t in range(nstart[c], nstart[c + 1]):
+        cc = ncells[t]
+        for j in range(cstart[cc], cstart[cc + 1]):
+            if j == i or state[j] == 0:
+                continue
+            dx = P[j, 0] - P[i, 0]
+            dy = P[j, 1] - P[i, 1]
+            dz = P[j, 2] - P[i, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < r2:
+                w += _ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
+    return w
+
+
+@njit(cache=True, parallel=True)
+def initial_weights(P, cell, cstart, nstart, ncells, state, scale, two_r, alpha, ialpha):
+    """scale * w (n,) of every removable point (0.0 for the others)."""
+    n = len(P)
+    out = np.zeros(n)
+    for i in prange(n):
+        if state[i] == 1:
+            out[i] = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, two_r * two_r, 1.0 / two_r,
+                                        alpha, ialpha)
+    return out
+
+
+@njit(cache=True)
+def _nearest(p, x, P, cell, cstart, nstart, ncells, state):
+    """Nearest alive point to p other than x (lowest index among equals), squared distance; (-1, inf) if none."""
+    c = cell[p]
+    best = -1
+    bd = np.inf
+    for t in range(nstart[c], nstart[c + 1]):
+        cc = ncells[t]
+        for j in range(cstart[cc], cstart[cc + 1]):
+            if j == x or state[j] == 0:
+                continue
+            dx = P[j, 0] - P[p, 0]
+            dy = P[j, 1] - P[p, 1]
+            dz = P[j, 2] - P[p, 2]
+            d2 = dx * dx + dy * dy + dz * dz
+            if d2 < bd:
+                bd = d2
+                best = j
+    return best, bd
+
+
+@njit(cache=True)
+def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2, stats):
+    """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
+    e2 = 0.0
+    c2 = 0.0
+    p = head[x]
+    while p >= 0:
+        a = alt[p]
+        if a < 0 or state[a] == 0:
+            stats[3] += 1
+            a, d2 = _nearest(p, x, P, cell, cstart, nstart, ncells, state)
+            alt[p] = a
+            altd2[p] = d2
+        if a < 0:
+            return 0.0
+        d2 = altd2[p]
+        e2 = max(e2, d2)
+        dx = P[p, 0] - P[x, 0]
+        dy = P[p, 1] - P[x, 1]
+        dz = P[p, 2] - P[x, 2]
+        c2 += d2 - (dx * dx + dy * dy + dz * dz)
+        p = nxt[p]
+    f = 1.0
+    if rc2 > 0 and e2 > rc2:
+        f = (rc2 / e2) ** (0.5 * gamma)
+    return f / (1.0 + lam * c2 * inv_r2)
+
+
+@njit(cache=True)
+def _sift(hk, hi, tie, base, size, pos):
+    """Sift entry ``pos`` of the heap hk/hi[base:base + size] down (larger key first, then lower tie)."""
+    k = hk[base + pos]
+    i = hi[base + pos]
+    while True:
+        c = 2 * pos + 1
+        if c >= size:
+            break
+        a = base + c
+        if c + 1 < size and (hk[a + 1] > hk[a] or (hk[a + 1] == hk[a] and tie[hi[a + 1]] < tie[hi[a]])):
+            c += 1
+            a += 1
+        if not (hk[a] > k or (hk[a] == k and tie[hi[a]] < tie[i])):
+            break
+        hk[base + pos] = hk[a]
+        hi[base + pos] = hi[a]
+        pos = c
+    hk[base + pos] = k
+    hi[base + pos] = i
+
+
+@njit(cache=True)
+def eliminate(P, cell, cstart, nstart, ncells, state, scale, w, tie, two_r, alpha, ialpha, r_cov, gamma, lam,
+              floor):
+    """Remove removable points, largest key first, until ``floor`` of them remain.
+
+    ``w`` is :func:`initial_weights`. Returns priority (n,): the key of each
+    point when it was removed (non-increasing along the removals); the points
+    left get their stored keys (upper bounds, still <= every removed key);
+    NaN for points that were not removable. ``state`` is consumed. Also
+    returns counts (4,): pops, stale pops, coverage evaluations, nearest searches.
+    """
+    n = len(P)
+    r2 = two_r * two_r
+    inv2r = 1.0 / two_r
+    inv_r2 = 4.0 * inv2r * inv2r
+    cover = r_cov > 0 or lam > 0
+    head = np.full(n, -1, dtype=np.int64)
+    nxt = np.full(n, -1, dtype=np.int64)
+    alt = np.full(n, -1, dtype=np.int64)
+    altd2 = np.full(n, np.inf)
+    fac = np.ones(n)
+    for i in range(n):
+        if state[i] != 0:
+            head[i] = i
+    nb = (n + BLOCK - 1) // BLOCK
+    hk = np.empty(n)
+    hi = np.empty(n, dtype=np.int64)
+    bsize = np.zeros(nb, dtype=np.int64)
+    for i in range(n):
+        if state[i] == 1:
+            b = i // BLOCK
+            hk[b * BLOCK + bsize[b]] = w[i]
+            hi[b * BLOCK + bsize[b]] = i
+            bsize[b] += 1
+    tk = np.empty(nb)  # heap of the blocks' tops: key, then the block (tie through its top point)
+    tb = np.empty(nb, dtype=np.int64)
+    btie = np.empty(nb, dtype=np.int64)
+    ts = 0
+    for b in range(nb):
+        for pos in range(bsize[b] // 2 - 1, -1, -1):
+            _sift(hk, hi, tie, b * BLOCK, bsize[b], pos)
+        if bsize[b] > 0:
+            tk[ts] = hk[b * BLOCK]
+            tb[ts] = b
+            btie[b] = tie[hi[b * BLOCK]]
+            ts += 1
+    for pos in range(ts // 2 - 1, -1, -1):
+        _sift(tk, tb, btie, 0, ts, pos)
+    prio = np.full(n, np.nan)
+    stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
+    left = 0
+    for b in range(nb):
+        left += bsize[b]
+    while left > floor:
+        b = tb[0]
+        base = b * BLOCK
+        i = hi[base]
+        key = hk[base]
+        stats[0] += 1
+        cur = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha)
+        if cover:
+            if cur * fac[i] >= key:
+                stats[2] += 1
+                f = _coverage(i, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, r_cov * r_cov,
+                              gamma, lam, inv_r2, stats)
+                fac[i] = min(fac[i], f)
+            cur = cur * fac[i]
+        if cur < key:  # stale: store the current key
+            stats[1] += 1
+            hk[base] = cur
+        else:
+            prio[i] = key
+            state[i] = 0
+            left -= 1
+            if cover:  # the points i represented move to their nearest other point
+                p = head[i]
+                while p >= 0:
+                    q = nxt[p]
+                    a = alt[p]
+                    if a >= 0:
+                        nxt[p] = head[a]
+                        head[a] = p
+                    alt[p] = -1
+                    p = q
+                head[i] = -1
+            bsize[b] -= 1
+            if bsize[b] > 0:
+                hk[base] = hk[base + bsize[b]]
+                hi[base] = hi[base + bsize[b]]
+        if bsize[b] > 0:
+            _sift(hk, hi, tie, base, bsize[b], 0)
+            tk[0] = hk[base]
+            btie[b] = tie[hi[base]]
+        else:
+            ts -= 1
+            tk[0] = tk[ts]
+            tb[0] = tb[ts]
+        _sift(tk, tb, btie, 0, ts, 0)
+    for b in range(nb):
+        for pos in range(bsize[b]):
+            prio[hi[b * BLOCK + pos]] = hk[b * BLOCK + pos]
+    return prio, stats
+
+
+@njit(cache=True, parallel=True)
+def nearest_kept(P, cell, cstart, nstart, ncells, kept):
+    """Nearest kept point (kept != 0) of every point, -1 when none is in its 27 cells."""
+    n = len(P)
+    out = np.empty(n, dtype=np.int64)
+    for p in prange(n):
+        out[p] = _nearest(p, -1, P, cell, cstart, nstart, ncells, kept)[0]
+    return out
+
+
+@njit(cache=True)
+def relocate(P, near, kept, movable, rcon2):
+    """One restricted Lloyd step: each movable kept point k moves to the point of its Voronoi region
+    (points whose ``near`` is k, movable ones only) nearest the region's centroid, unless that
+    would take some point of the region farther than max(its current farthest, sqrt(rcon2)).
+    Returns the new kept flags (uint8)."""
+    n = len(P)
+    cnt = np.zeros(n)
+    cen = np.zeros((n, 3))
+    far = np.zeros(n)
+    for p in range(n):
+        k = near[p]
+        if k < 0:
+            continue
+        cnt[k] += 1.0
+        for j in range(3):
+            cen[k, j] += P[p, j]
+        d2 = (P[p, 0] - P[k, 0]) ** 2 + (P[p, 1] - P[k, 1]) ** 2 + (P[p, 2] - P[k, 2]) ** 2
+        far[k] = max(far[k], d2)
+    best = np.full(n, -1, dtype=np.int64)
+    bd = np.full(n, np.inf)
+    for p in range(n):
+        k = near[p]
+        if k < 0 or movable[p] == 0 or movable[k] == 0:
+            continue
+        d2 = 0.0
+        for j in range(3):
+            d2 += (P[p, j] - cen[k, j] / cnt[k]) ** 2
+        if d2 < bd[k]:
+            bd[k] = d2
+            best[k] = p
+    worst = np.zeros(n)
+    for p in range(n):
+        k = near[p]
+        if k >= 0 and best[k] >= 0:
+            b = best[k]
+            d2 = (P[p, 0] - P[b, 0]) ** 2 + (P[p, 1] - P[b, 1]) ** 2 + (P[p, 2] - P[b, 2]) ** 2
+            worst[k] = max(worst[k], d2)
+    out = kept.copy()
+    for k in range(n):
+        b = best[k]
+        if b >= 0 and b != k and worst[k] <= max(far[k], rcon2):
+            out[k] = 0
+            out[b] = 1
+    return out
+
+
+@njit(cache=True, parallel=True)
+def ball_counts(P, cell, cstart, nstart, ncells, state, radius):
+    """Alive points within ``radius`` of each alive point, itself included (0 for the others)."""
+    n = len(P)
+    out = np.zeros(n, dtype=np.int64)
+    rr = radius * radius
+    for i in prange(n):
+        if state[i] == 0:
+            continue
+        c = cell[i]
+        cnt = 0
+        for t in range(nstart[c], nstart[c + 1]):
+            cc = ncells[t]
+            for j in range(cstart[cc], cstart[cc + 1]):
+                if state[j] != 0 and (P[j, 0] - P[i, 0]) ** 2 + (P[j, 1] - P[i, 1]) ** 2 + (P[j, 2] - P[i, 2]) ** 2 <= rr:
+                    cnt += 1
+        out[i] = cnt
+    return out
