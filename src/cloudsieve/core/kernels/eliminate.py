@@ -221,7 +221,7 @@ def _nearest(p, x, P, cell, cstart, nstart, ncells, state):
 
 
 @njit(cache=True)
-def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2, stats):
+def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats):
     """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
     e2 = 0.0
     c2 = 0.0
@@ -242,6 +242,8 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, 
         dz = P[p, 2] - P[x, 2]
         c2 += d2 - (dx * dx + dy * dy + dz * dz)
         p = nxt[p]
+    e2 *= max(imp2[x], 1.0)
+    c2 *= imp2[x]
     f = 1.0
     if rc2 > 0 and e2 > rc2:
         f = (rc2 / e2) ** (0.5 * gamma)
@@ -271,11 +273,13 @@ def _sift(hk, hi, tie, base, size, pos):
 
 
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, state, scale, w, tie, two_r, alpha, ialpha, r_cov, gamma, lam,
-              floor):
+def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r, alpha, ialpha, r_cov, gamma,
+              lam, floor):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``w`` is :func:`initial_weights`. Returns priority (n,): the key of each
+    ``w`` is :func:`initial_weights`; ``imp2`` (n,) the squared importance
+    of each point: its coverage and squared-error terms are measured in
+    distances times its importance. Returns priority (n,): the key of each
     point when it was removed (non-increasing along the removals); the points
     left get their stored keys (upper bounds, still <= every removed key);
     NaN for points that were not removable. ``state`` is consumed. Also
@@ -334,7 +338,7 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, w, tie, two_r, alph
             if cur * fac[i] >= key:
                 stats[2] += 1
                 f = _coverage(i, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, r_cov * r_cov,
-                              gamma, lam, inv_r2, stats)
+                              gamma, lam, inv_r2, imp2, stats)
                 fac[i] = min(fac[i], f)
             cur = cur * fac[i]
         if cur < key:  # stale: store the current key
