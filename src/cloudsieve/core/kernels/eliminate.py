@@ -11,18 +11,19 @@ passes, in that order:
 - ``state`` (n,) uint8: 0 absent (removed, or an exact copy), 1 alive and
   removable, 2 alive and fixed (weighs on the others, never removed);
 - ``scale`` (n,) float64 > 0: the information multiplier of each weight;
+- ``imp2`` (n,) float64 > 0: the squared importance m^2 of each point;
 - ``tie`` (n,) int64 distinct ids: equal keys go lower id first.
 
 Key of an alive point x (larger goes first)::
 
     key(x) = scale[x] * w(x) * f(x)
     w(x) = sum over alive y != x with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
-    f(x) = g(e(x)) / (1 + lam * c(x) / r_max**2)          (1 without the coverage terms)
+    f(x) = g(max(1, m) e(x)) / (1 + lam m^2 c(x) / r_max^2)     (1 without the coverage terms)
 
 where x represents itself and every removed point whose nearest remaining
 point it is, e(x) is the largest distance from one of them to its nearest
-other remaining point, c(x) the sum of the squared distances they would gain,
-g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
+other remaining point, c(x) the sum of the squared distances they would gain
+if x went, g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
 
 Every factor only decreases as points go (fewer neighbours; represented sets
 grow; nearest other points only get farther), so a stored key is an upper
@@ -33,6 +34,8 @@ heaviest point, remove it; lower -> store the new key and sift it down. The
 order is the one of an eager heap recomputing every key after each removal.
 The heap is two-level (a heap per block of 1024 consecutive points, and a
 heap of the blocks' tops) so that sifts stay in cache.
+
+Grid arguments as in :mod:`.grid`.
 """
 
 from __future__ import annotations
@@ -42,115 +45,9 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .grid import nearest
+
 BLOCK = 1024
-_M1 = np.int64(0x1F00000000FFFF)
-_M2 = np.int64(0x1F0000FF0000FF)
-_M3 = np.int64(0x100F00F00F00F00F)
-_M4 = np.int64(0x10C30C30C30C30C3)
-_M5 = np.int64(0x1249249249249249)
-
-
-@njit(cache=True)
-def _spread(v):
-    v &= 0x1FFFFF
-    v = (v | (v << 32)) & _M1
-    v = (v | (v << 16)) & _M2
-    v = (v | (v << 8)) & _M3
-    v = (v | (v << 4)) & _M4
-    v = (v | (v << 2)) & _M5
-    return v
-
-
-@njit(cache=True, parallel=True)
-def cell_codes(P, lo, h):
-    """Z-order code (n,) int64 of each point's grid cell (cells of size h from lo, < 2^21 per axis)."""
-    n = len(P)
-    out = np.empty(n, dtype=np.int64)
-    for i in prange(n):
-        c = np.int64(0)
-        for j in range(3):
-            q = min(np.int64((P[i, j] - lo[j]) / h), np.int64(0x1FFFFF))
-            c |= _spread(q) << j
-        out[i] = c
-    return out
-
-
-@njit(cache=True)
-def _less(P, a, b):
-    for j in range(3):
-        if P[a, j] != P[b, j]:
-            return P[a, j] < P[b, j]
-    return a < b
-
-
-@njit(cache=True)
-def sort_cells(P, codes, order):
-    """Inside each run of equal codes in ``order``, sort by coordinates then index (insertion sort, in place)."""
-    n = len(order)
-    s = 0
-    while s < n:
-        e = s + 1
-        while e < n and codes[order[e]] == codes[order[s]]:
-            e += 1
-        for i in range(s + 1, e):
-            v = order[i]
-            j = i - 1
-            while j >= s and _less(P, v, order[j]):
-                order[j + 1] = order[j]
-                j -= 1
-            order[j + 1] = v
-        s = e
-
-
-@njit(cache=True)
-def _compact(v):
-    v &= _M5
-    v = (v | (v >> 2)) & _M4
-    v = (v | (v >> 4)) & _M3
-    v = (v | (v >> 8)) & _M2
-    v = (v | (v >> 16)) & _M1
-    v = (v | (v >> 32)) & 0x1FFFFF
-    return v
-
-
-@njit(cache=True)
-def cell_neighbours(ukeys):
-    """CSR (nstart (C + 1,), ncells) of the occupied cells among the 27 around each cell (codes ``ukeys``, sorted)."""
-    C = len(ukeys)
-    size = 1
-    while size < 2 * C + 2:
-        size *= 2
-    table = np.full(size, -1, dtype=np.int64)
-    mask = np.uint64(size - 1)
-    mult = np.uint64(0x9E3779B97F4A7C15)
-    for c in range(C):
-        s = np.int64((np.uint64(ukeys[c]) * mult) >> np.uint64(20)) & np.int64(size - 1)
-        while table[s] >= 0:
-            s = (s + 1) & np.int64(size - 1)
-        table[s] = c
-    nstart = np.zeros(C + 1, dtype=np.int64)
-    out = np.empty(27 * C, dtype=np.int64)
-    t = 0
-    for c in range(C):
-        q0 = _compact(ukeys[c])
-        q1 = _compact(ukeys[c] >> 1)
-        q2 = _compact(ukeys[c] >> 2)
-        for dx in range(-1, 2):
-            for dy in range(-1, 2):
-                for dz in range(-1, 2):
-                    a, b, d = q0 + dx, q1 + dy, q2 + dz
-                    if a < 0 or b < 0 or d < 0 or a > 0x1FFFFF or b > 0x1FFFFF or d > 0x1FFFFF:
-                        continue
-                    key = _spread(a) | (_spread(b) << 1) | (_spread(d) << 2)
-                    s = np.int64((np.uint64(key) * mult) >> np.uint64(20)) & np.int64(mask)
-                    while table[s] >= 0:
-                        if ukeys[table[s]] == key:
-                            out[t] = table[s]
-                            t += 1
-                            break
-                        s = (s + 1) & np.int64(mask)
-        nstart[c + 1] = t
-    return nstart, out[:t].copy()
 
 
 @njit(cache=True)
@@ -200,28 +97,8 @@ def initial_weights(P, cell, cstart, nstart, ncells, state, scale, two_r, alpha,
 
 
 @njit(cache=True)
-def _nearest(p, x, P, cell, cstart, nstart, ncells, state):
-    """Nearest alive point to p other than x (lowest index among equals), squared distance; (-1, inf) if none."""
-    c = cell[p]
-    best = -1
-    bd = np.inf
-    for t in range(nstart[c], nstart[c + 1]):
-        cc = ncells[t]
-        for j in range(cstart[cc], cstart[cc + 1]):
-            if j == x or state[j] == 0:
-                continue
-            dx = P[j, 0] - P[p, 0]
-            dy = P[j, 1] - P[p, 1]
-            dz = P[j, 2] - P[p, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 < bd:
-                bd = d2
-                best = j
-    return best, bd
-
-
-@njit(cache=True)
-def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats):
+def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2,
+              imp2, stats):
     """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
     e2 = 0.0
     c2 = 0.0
@@ -230,7 +107,7 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, 
         a = alt[p]
         if a < 0 or state[a] == 0:
             stats[3] += 1
-            a, d2 = _nearest(p, x, P, cell, cstart, nstart, ncells, state)
+            a, d2 = nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
             alt[p] = a
             altd2[p] = d2
         if a < 0:
@@ -337,7 +214,7 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r
         if cover:
             if cur * fac[i] >= key:
                 stats[2] += 1
-                f = _coverage(i, P, cell, cstart, nstart, ncells, state, head, nxt, alt, altd2, r_cov * r_cov,
+                f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, r_cov * r_cov,
                               gamma, lam, inv_r2, imp2, stats)
                 fac[i] = min(fac[i], f)
             cur = cur * fac[i]
@@ -378,22 +255,12 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r
     return prio, stats
 
 
-@njit(cache=True, parallel=True)
-def nearest_kept(P, cell, cstart, nstart, ncells, kept):
-    """Nearest kept point (kept != 0) of every point, -1 when none is in its 27 cells."""
-    n = len(P)
-    out = np.empty(n, dtype=np.int64)
-    for p in prange(n):
-        out[p] = _nearest(p, -1, P, cell, cstart, nstart, ncells, kept)[0]
-    return out
-
-
 @njit(cache=True)
-def relocate(P, near, kept, movable, rcon2):
-    """One restricted Lloyd step: each movable kept point k moves to the point of its Voronoi region
-    (points whose ``near`` is k, movable ones only) nearest the region's centroid, unless that
-    would take some point of the region farther than max(its current farthest, sqrt(rcon2)).
-    Returns the new kept flags (uint8)."""
+def relocate(P, near, kept, movable, tie, rcon2):
+    """One restricted Lloyd step: each movable kept point k moves to the movable point of its Voronoi
+    region (the points whose ``near`` is k) nearest the region's centroid, unless that would take some
+    point of the region farther than max(the region's current farthest, sqrt(rcon2)). Near-ties
+    (relative 1e-9) keep k, then the lower ``tie``, so rounding never decides. Returns the new flags."""
     n = len(P)
     cnt = np.zeros(n)
     cen = np.zeros((n, 3))
@@ -405,51 +272,41 @@ def relocate(P, near, kept, movable, rcon2):
         cnt[k] += 1.0
         for j in range(3):
             cen[k, j] += P[p, j]
-        d2 = (P[p, 0] - P[k, 0]) ** 2 + (P[p, 1] - P[k, 1]) ** 2 + (P[p, 2] - P[k, 2]) ** 2
-        far[k] = max(far[k], d2)
+        far[k] = max(far[k], (P[p, 0] - P[k, 0]) ** 2 + (P[p, 1] - P[k, 1]) ** 2 + (P[p, 2] - P[k, 2]) ** 2)
+    for k in range(n):
+        if cnt[k] > 0:
+            for j in range(3):
+                cen[k, j] /= cnt[k]
     best = np.full(n, -1, dtype=np.int64)
     bd = np.full(n, np.inf)
+    for k in range(n):
+        if cnt[k] > 0 and movable[k] != 0:
+            best[k] = k
+            bd[k] = (P[k, 0] - cen[k, 0]) ** 2 + (P[k, 1] - cen[k, 1]) ** 2 + (P[k, 2] - cen[k, 2]) ** 2
+    slack = 1.0 - 1e-9
     for p in range(n):
         k = near[p]
-        if k < 0 or movable[p] == 0 or movable[k] == 0:
+        if k < 0 or p == k or movable[p] == 0 or best[k] < 0:
             continue
-        d2 = 0.0
-        for j in range(3):
-            d2 += (P[p, j] - cen[k, j] / cnt[k]) ** 2
-        if d2 < bd[k]:
-            bd[k] = d2
+        d2 = (P[p, 0] - cen[k, 0]) ** 2 + (P[p, 1] - cen[k, 1]) ** 2 + (P[p, 2] - cen[k, 2]) ** 2
+        b = best[k]
+        if b == k:
+            if d2 < bd[k] * slack:
+                best[k] = p
+                bd[k] = d2
+        elif d2 < bd[k] * slack or (d2 <= bd[k] / slack and tie[p] < tie[b]):
             best[k] = p
+            bd[k] = min(d2, bd[k])
     worst = np.zeros(n)
     for p in range(n):
         k = near[p]
-        if k >= 0 and best[k] >= 0:
+        if k >= 0 and best[k] >= 0 and best[k] != k:
             b = best[k]
-            d2 = (P[p, 0] - P[b, 0]) ** 2 + (P[p, 1] - P[b, 1]) ** 2 + (P[p, 2] - P[b, 2]) ** 2
-            worst[k] = max(worst[k], d2)
+            worst[k] = max(worst[k], (P[p, 0] - P[b, 0]) ** 2 + (P[p, 1] - P[b, 1]) ** 2 + (P[p, 2] - P[b, 2]) ** 2)
     out = kept.copy()
     for k in range(n):
         b = best[k]
-        if b >= 0 and b != k and worst[k] <= max(far[k], rcon2):
+        if b >= 0 and b != k and worst[k] <= max(far[k], rcon2) * (1.0 + 1e-9):
             out[k] = 0
             out[b] = 1
-    return out
-
-
-@njit(cache=True, parallel=True)
-def ball_counts(P, cell, cstart, nstart, ncells, state, radius):
-    """Alive points within ``radius`` of each alive point, itself included (0 for the others)."""
-    n = len(P)
-    out = np.zeros(n, dtype=np.int64)
-    rr = radius * radius
-    for i in prange(n):
-        if state[i] == 0:
-            continue
-        c = cell[i]
-        cnt = 0
-        for t in range(nstart[c], nstart[c + 1]):
-            cc = ncells[t]
-            for j in range(cstart[cc], cstart[cc + 1]):
-                if state[j] != 0 and (P[j, 0] - P[i, 0]) ** 2 + (P[j, 1] - P[i, 1]) ** 2 + (P[j, 2] - P[i, 2]) ** 2 <= rr:
-                    cnt += 1
-        out[i] = cnt
     return out
