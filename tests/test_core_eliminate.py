@@ -244,6 +244,9 @@ def test_radius_formula():
     b = np.r_[a, np.full(10, 1e9)]
     assert elimination_radius(b, 110) == pytest.approx(elimination_radius(a, 100))
     assert elimination_radius(a, 1000) == math.inf
+    # two cells' areas with their own weights, as a driver puts them together
+    two = elimination_radius(np.r_[a[:500], a[:250]], 100, weight=np.r_[np.ones(500), np.full(250, 2.0)])
+    assert two == pytest.approx(elimination_radius(a, 100))
 
 
 def test_bad_input():

@@ -92,8 +92,8 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, w
     return np.pi * np.square(d) / k * rate, n / m  # the sample is thinner by `rate`
 
 
-def elimination_radius(areas, count: int, *, weight: float = 1.0) -> float:
-    """r_max for ``count`` kept points: the r solving N = weight * sum_i min(1, a_i / (2 sqrt(3) r^2)).
+def elimination_radius(areas, count: int, *, weight=1.0) -> float:
+    """r_max for ``count`` kept points: the r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
 
     On a uniformly sampled surface of area A this is Yuksel's
     r_max = sqrt(A / (2 sqrt(3) N)); a point whose own area exceeds
@@ -103,31 +103,60 @@ def elimination_radius(areas, count: int, *, weight: float = 1.0) -> float:
     Parameters
     ----------
     areas : array_like of shape (m,), float >= 0 (inf allowed)
-        Area per point (:func:`point_areas`), of all points or of a uniform
-        sample of them (then ``weight`` = points / sample size).
+        Area per point (:func:`point_areas`), of all points or of uniform
+        samples of them.
     count : int
         Kept points, >= 1.
-    weight : float
-        Points each area stands for.
+    weight : float or array_like of shape (m,), float > 0
+        Points each area stands for (the ``weight`` of :func:`point_areas`;
+        per area when the areas of several cells are put together).
 
     Returns
     -------
     float
-        r_max; inf when every point is kept (count >= weight * m) or every
-        point is isolated.
+        r_max; inf when every point is kept (count >= sum of the weights) or
+        every point is isolated.
     """
     a = np.asarray(areas, dtype=np.float64).ravel()
     if a.size and (np.isnan(a).any() or a.min() < 0):
         raise InvalidParameterError("areas must be numbers >= 0")
     if int(count) != count or count < 1:
         raise InvalidParameterError(f"count must be an integer >= 1, got {count!r}")
-    if not (np.isfinite(weight) and weight > 0):
-        raise InvalidParameterError(f"weight must be a positive number, got {weight!r}")
-    return radius_of(a, int(count), float(weight))
+    w = np.broadcast_to(np.asarray(weight, dtype=np.float64), a.shape) if np.ndim(weight) else \
+        np.full(a.shape, float(weight))
+    if w.shape != a.shape or not (np.isfinite(w).all() and (w > 0).all()):
+        raise InvalidParameterError(f"weight must be positive numbers, one or one per area ({a.size}), "
+                                    f"got shape {np.shape(weight)}")
+    return radius_of(a, int(count), w)
 
 
-def radius_of(a: np.ndarray, count: int, weight: float) -> float:
-    """:func:`elimination_radius` on valid input."""
+def radius_of(a: np.ndarray, count: int, weight) -> float:
+    """:func:`elimination_radius` on valid input (weight: a number or one per area)."""
+    m = len(a)
+    if np.ndim(weight) == 0:
+        return _radius_uniform(a, count, float(weight))
+    w = np.asarray(weight, dtype=np.float64)
+    if m == 0 or count >= w.sum():
+        return math.inf
+    o = np.argsort(-a, kind="stable")  # largest first; with the j largest counted as 1 each:
+    a, w = a[o], w[o]  # N = sum(w[:j]) + sum(w[j:] a[j:]) / (HEX r^2)
+    head = np.r_[0.0, np.cumsum(w)]
+    wa = w * a
+    tail = np.r_[np.cumsum(np.where(np.isfinite(wa), wa, 0.0)[::-1])[::-1], 0.0]
+    for j in range(m):
+        rest = count - head[j]
+        if rest <= 0:
+            break
+        if not math.isfinite(a[j]) or not tail[j] > 0:
+            continue
+        r2 = tail[j] / (HEX * rest)
+        if a[j] <= HEX * r2 and (j == 0 or a[j - 1] >= HEX * r2):
+            return math.sqrt(r2)
+    return math.inf
+
+
+def _radius_uniform(a: np.ndarray, count: int, weight: float) -> float:
+    """radius_of with one weight for every area."""
     m = len(a)
     if m == 0 or count >= weight * m:
         return math.inf
