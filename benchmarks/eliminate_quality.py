@@ -1,0 +1,148 @@
+"""Quality of the ``eliminate`` rule against voxel, Poisson disk and farthest point at equal count (issue 12).
+
+Run: ``.venv/bin/python benchmarks/eliminate_quality.py [--ratios 0.5,0.2,0.1] [--cache FILE] [FILES...]``
+
+For every scan of ../shared/data with at least 10,000 points (default:
+bun_zipper.ply, maxplanck.ply, autzen_trim.laz, Megaplot.laz, append-bug.laz,
+vegetation_1_3.las, pumpAVisualReferenceImage.e57) and every ratio, the
+baselines of :mod:`cloudsieve.evaluate.baselines` (voxel_subset,
+poisson_subset, fps_subset; voxel and Poisson land within 0.5% of the count,
+farthest point on it) and the rule (:func:`cloudsieve.core.eliminate.eliminate`)
+in each variant:
+
+- ``off``: the default (coverage and squared-error terms, no information term);
+- ``entropy``: dH of each point in KM clusters of ~400 points (seed 0), rank
+  weight 0.5;
+- ``geometric``: surface variation importance 0.2 (with ``--geometric``).
+
+Figures, from :func:`cloudsieve.evaluate.evaluate` (``subset=True``): point
+RMS and max (original -> simplified, % of the bounding-box diagonal) and the
+Metro mean (surface level, % of the diagonal).
+
+Equal count, each baseline at its own count: the rule is run at the count of
+every baseline, and a point ratio is the largest over the three baselines of
+rule / baseline; the Metro ratio is rule / the baseline with the lowest Metro
+mean, the rule at that baseline's count. Goals: point RMS <= 1.00, point max
+<= 1.25, Metro mean <= 1.00 (<= 0.90 on bun_zipper and maxplanck).
+
+Prints a Markdown table (absolute figures of the best baseline, then the
+ratios per variant, and the rule's seconds at the first count). Baseline
+results go to ``--cache`` (JSON) and are reused on the next run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+from cloudsieve.core import refine_labels
+from cloudsieve.core.eliminate import eliminate
+from cloudsieve.evaluate import evaluate
+from cloudsieve.evaluate.baselines import fps_subset, poisson_subset, voxel_subset
+from cloudsieve.io import read_cloud
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SCANS = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.laz", "append-bug.laz",
+         "vegetation_1_3.las", "pumpAVisualReferenceImage.e57"]
+BASELINES = {"voxel": voxel_subset, "poisson": poisson_subset, "fps": fps_subset}
+
+
+def figures(P: np.ndarray, idx: np.ndarray, cache: dict, surface: bool = True) -> dict:
+    rep = evaluate(P, P[idx], subset=True, surface=surface, _surface_cache=cache)
+    out = {"count": int(len(idx)), "rms": rep["point"]["forward"]["rms_pct"],
+           "max": rep["point"]["forward"]["max_pct"]}
+    if surface:
+        out["metro"] = rep["surface"]["mean_pct"]
+    return out
+
+
+def variants(P: np.ndarray, geometric: bool) -> dict:
+    out = {"off": {}}
+    out["entropy"] = {"labels": refine_labels(P, "km", 400, 0), "entropy": 0.5}
+    if geometric:
+        out["geometric"] = {"geometric": 0.2}
+    return out
+
+
+def run(files, ratios, cache_path, geometric: bool) -> list[dict]:
+    store = json.loads(Path(cache_path).read_text()) if cache_path and Path(cache_path).is_file() else {}
+    rows = []
+    for name in files:
+        path = Path(name) if Path(name).is_file() else DATA / name
+        P = read_cloud(str(path))[0]
+        surf: dict = {}
+        vs = variants(P, geometric)
+        for ratio in ratios:
+            count = int(round(ratio * len(P)))
+            key = f"{path.name}:{ratio}"
+            if key not in store:
+                store[key] = {b: figures(P, fn(P, count), surf) for b, fn in BASELINES.items()}
+                if cache_path:
+                    Path(cache_path).write_text(json.dumps(store, indent=1))
+            base = store[key]
+            best_metro = min(base, key=lambda b: base[b]["metro"])
+            row = {"scan": path.name, "points": len(P), "ratio": ratio, "count": count,
+                   "best": {m: min(base[b][m] for b in base) for m in ("rms", "max", "metro")}, "variants": {}}
+            for v, opts in vs.items():
+                rms = mx = 0.0
+                metro = None
+                seconds = None
+                for b, fig in base.items():
+                    t = time.perf_counter()
+                    keep = eliminate(P, fig["count"], **opts)
+                    seconds = seconds if seconds is not None else time.perf_counter() - t
+                    mine = figures(P, keep, surf, surface=(b == best_metro))
+                    rms = max(rms, mine["rms"] / fig["rms"])
+                    mx = max(mx, mine["max"] / fig["max"])
+                    if b == best_metro:
+                        metro = mine["metro"] / fig["metro"]
+                row["variants"][v] = {"rms": rms, "max": mx, "metro": metro, "seconds": seconds}
+            rows.append(row)
+            print(f"done {path.name} {ratio}", file=sys.stderr, flush=True)
+    return rows
+
+
+def markdown(rows: list[dict]) -> str:
+    vs = list(rows[0]["variants"]) if rows else []
+    head = "| scan | kept | best RMS % | best max % | best Metro % | " + " | ".join(
+        f"{v}: RMS x | {v}: max x | {v}: Metro x | {v}: s" for v in vs) + " |"
+    lines = [head, "|" + "---|" * (5 + 4 * len(vs))]
+    for r in rows:
+        cells = [f"{r['scan']}", f"{r['ratio']:.0%}", f"{r['best']['rms']:.4f}", f"{r['best']['max']:.4f}",
+                 f"{r['best']['metro']:.5f}"]
+        for v in vs:
+            x = r["variants"][v]
+            cells += [f"{x['rms']:.3f}", f"{x['max']:.3f}", f"{x['metro']:.3f}", f"{x['seconds']:.2f}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("files", nargs="*", default=SCANS)
+    ap.add_argument("--ratios", default="0.5,0.2,0.1")
+    ap.add_argument("--cache", default=None, help="JSON file of the baselines' figures (read and written)")
+    ap.add_argument("--geometric", action="store_true", help="also the geometric variant")
+    ap.add_argument("--json", default=None, help="write the rows there too")
+    a = ap.parse_args(argv)
+    logging.disable(logging.WARNING)
+    warnings.filterwarnings("ignore")
+    rows = run(a.files, [float(x) for x in a.ratios.split(",")], a.cache, a.geometric)
+    if a.json:
+        Path(a.json).write_text(json.dumps(rows, indent=1))
+    print("## eliminate / best of voxel, Poisson, farthest point at equal count\n")
+    print("Point ratios: the largest over the three baselines, the rule at each one's count. Metro ratio: "
+          "against the baseline of lowest Metro mean, at its count. % of the bounding-box diagonal.\n")
+    print(markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

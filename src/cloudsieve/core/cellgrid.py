@@ -1,0 +1,88 @@
+"""The uniform grid the ``eliminate`` rule searches, and its input checks.
+
+:class:`CellGrid` puts points in the canonical internal order of the compiled
+kernels (:mod:`.kernels.grid`): by grid cell along a Z-order curve (nearby
+cells nearby in memory), inside a cell by coordinates, exact copies by their
+position. The order depends on the coordinates only, not on the input order,
+so sums over neighbours come out bit for bit the same for any permutation of
+the points.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidParameterError, InvalidPointsError
+from .kernels import grid as _kg
+
+__all__ = ["CellGrid", "check_points"]
+
+_RUN = 64  # longest run of one cell sorted by insertion; longer: one lexsort
+
+
+def check_points(points, name: str = "points") -> np.ndarray:
+    """Contiguous float64 array of shape (n, 3), or InvalidParameterError/InvalidPointsError."""
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise InvalidParameterError(f"{name} must have shape (n, 3), got shape {pts.shape}")
+    if not np.issubdtype(pts.dtype, np.number) or np.iscomplexobj(pts):
+        raise InvalidParameterError(f"{name} must be real numbers, got dtype {pts.dtype}")
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    bad = ~np.isfinite(pts).all(axis=1)
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        raise InvalidPointsError(f"{name} has {int(bad.sum())} non-finite rows, the first at index {first}: "
+                                 f"{pts[first].tolist()}")
+    return pts
+
+
+class CellGrid:
+    """Points sorted into cubic cells of side >= ``h`` (the widest search radius).
+
+    Parameters
+    ----------
+    points : ndarray of shape (n, 3), float64, finite (not checked)
+    h : float > 0
+        Cell side; raised so that no axis has 2^21 cells or more.
+
+    Attributes
+    ----------
+    order : ndarray of shape (n,), int64
+        Row i of the internal order is ``points[order[i]]``.
+    P : ndarray of shape (n, 3)
+        The points in internal order.
+    cell, cstart, nstart, ncells : ndarray of int64
+        Cell of each row, first row of each cell, and the CSR list of the
+        occupied cells among the 27 around each cell.
+    copy : ndarray of shape (n,), bool
+        Rows equal to the previous row (exact copies; the first of each group is not a copy).
+    h : float
+        The cell side used.
+    """
+
+    def __init__(self, points: np.ndarray, h: float):
+        lo = points.min(axis=0) if len(points) else np.zeros(3)
+        span = float((points.max(axis=0) - lo).max()) if len(points) else 0.0
+        h = max(float(h), span / (2.0**21 - 2), 1e-300)
+        codes = _kg.cell_codes(points, lo, h)
+        order = np.argsort(codes, kind="stable")
+        sc = codes[order]
+        new = np.ones(len(sc), dtype=bool)
+        new[1:] = sc[1:] != sc[:-1]
+        cstart = np.append(np.flatnonzero(new), len(sc)).astype(np.int64)
+        if np.diff(cstart).max(initial=0) > _RUN:
+            order = np.lexsort((np.arange(len(sc)), points[:, 2], points[:, 1], points[:, 0], codes))
+        else:
+            _kg.sort_cells(points, codes, order)
+        self.order = order.astype(np.int64)
+        self.P = np.ascontiguousarray(points[order])
+        self.cell = (np.cumsum(new) - 1).astype(np.int64)
+        self.cstart = cstart
+        self.nstart, self.ncells = _kg.cell_neighbours(sc[new])
+        self.h = h
+        self.copy = np.zeros(len(sc), dtype=bool)
+        self.copy[1:] = ~new[1:] & (self.P[1:] == self.P[:-1]).all(axis=1)
+
+    def args(self) -> tuple:
+        """(P, cell, cstart, nstart, ncells): the grid arguments of every kernel."""
+        return self.P, self.cell, self.cstart, self.nstart, self.ncells

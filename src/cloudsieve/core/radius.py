@@ -1,0 +1,174 @@
+"""The elimination radius r_max of the ``eliminate`` rule, from the area around each point.
+
+Yuksel 2015: N disks of radius r_max packed hexagonally cover an area
+A = 2 sqrt(3) N r_max^2. The cloud is a 2-D manifold in 3-D, so A is the area
+of the sampled surface, estimated from the points (:func:`point_areas`), not
+the bounding box (CGAL's ``poisson_eliminate`` divides the box's *volume* by
+N). An isolated point (an outlier, a far return) is kept whatever r_max is and
+covers nobody else's area, so it counts as one kept point, not as its k-NN
+area over 2 sqrt(3) r_max^2 of them (:func:`elimination_radius`): a few far
+points no longer inflate r_max (append-bug.laz: one point in 100 is isolated
+and the plain sum gave r_max 13x too large).
+
+Both steps are sums over points, so a driver can run :func:`point_areas` per
+cell (with the halo as context) and solve :func:`elimination_radius` once on
+the areas of all cells for the one global r_max.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ..errors import InvalidParameterError
+from .cellgrid import check_points
+
+__all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
+
+AREA_K = 8  # k of the k-NN area estimate
+AREA_SAMPLE = 50_000  # points of the seeded sample the areas are estimated on
+HEX = 2.0 * math.sqrt(3.0)  # area of the hexagon around a disk of radius 1 in a hexagonal packing
+
+
+def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAMPLE, seed: int = 0,
+                workers: int | None = None) -> tuple[np.ndarray, float]:
+    """Area around each point of the sampled surface: pi r_k^2 / k.
+
+    r_k is the distance to the k-th nearest other point; pi r_k^2 / k is an
+    unbiased estimate of the area per point of a uniform random sample of a
+    plane. Above ``sample`` points (with the context), the areas are those of
+    a seeded uniform sample of that many points, neighbours among the sample
+    only (then scaled by the sampling rate).
+
+    Parameters
+    ----------
+    points : array_like of shape (n, 3), float
+    context : array_like of shape (q, 3), optional
+        Neighbours whose areas are not returned (a cell's halo: no border effect).
+    k : int
+    sample : int
+        At least k + 1.
+    seed : int
+    workers : int, optional
+        Threads of the k-d tree query (the result does not depend on it).
+
+    Returns
+    -------
+    areas : ndarray of shape (m,), float64
+        Areas of the m sampled points (all n without sampling); inf when
+        fewer than k + 1 points in all.
+    weight : float
+        Points each area stands for (n / m), as :func:`elimination_radius` takes it.
+    """
+    pts = check_points(points)
+    ctx = np.zeros((0, 3)) if context is None else check_points(context, "context")
+    if int(k) != k or k < 1:
+        raise InvalidParameterError(f"k must be an integer >= 1, got {k!r}")
+    if int(sample) != sample or sample < k + 1:
+        raise InvalidParameterError(f"sample must be an integer >= k + 1 = {k + 1}, got {sample!r}")
+    return areas_of(pts, ctx, int(k), int(sample), seed, workers or -1)
+
+
+def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, workers: int):
+    """:func:`point_areas` on valid arrays."""
+    n, q = len(pts), len(ctx)
+    if n + q > sample:
+        pick = np.sort(np.random.default_rng(seed).choice(n + q, sample, replace=False))
+        own = pick[pick < n]
+        allp = np.concatenate([pts[own], ctx[pick[pick >= n] - n]])
+        rate = sample / (n + q)
+    else:
+        allp = np.concatenate([pts, ctx]) if q else pts
+        own = np.arange(n)
+        rate = 1.0
+    m = len(own)
+    if m == 0:
+        return np.zeros(0), 1.0
+    if len(allp) < k + 1:
+        return np.full(m, math.inf), n / m
+    d = cKDTree(allp).query(allp[:m], k=k + 1, workers=workers)[0][:, k]
+    return np.pi * np.square(d) / k * rate, n / m  # the sample is thinner by `rate`
+
+
+def elimination_radius(areas, count: int, *, weight=1.0) -> float:
+    """r_max for ``count`` kept points: the r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
+
+    On a uniformly sampled surface of area A this is Yuksel's
+    r_max = sqrt(A / (2 sqrt(3) N)); a point whose own area exceeds
+    2 sqrt(3) r^2 counts as one kept point (module docstring). Solved
+    exactly over the sorted areas.
+
+    Parameters
+    ----------
+    areas : array_like of shape (m,), float >= 0 (inf allowed)
+        Area per point (:func:`point_areas`), of all points or of uniform
+        samples of them.
+    count : int
+        Kept points, >= 1.
+    weight : float or array_like of shape (m,), float > 0
+        Points each area stands for (the ``weight`` of :func:`point_areas`;
+        per area when the areas of several cells are put together).
+
+    Returns
+    -------
+    float
+        r_max; inf when every point is kept (count >= sum of the weights) or
+        every point is isolated.
+    """
+    a = np.asarray(areas, dtype=np.float64).ravel()
+    if a.size and (np.isnan(a).any() or a.min() < 0):
+        raise InvalidParameterError("areas must be numbers >= 0")
+    if int(count) != count or count < 1:
+        raise InvalidParameterError(f"count must be an integer >= 1, got {count!r}")
+    w = np.broadcast_to(np.asarray(weight, dtype=np.float64), a.shape) if np.ndim(weight) else \
+        np.full(a.shape, float(weight))
+    if w.shape != a.shape or not (np.isfinite(w).all() and (w > 0).all()):
+        raise InvalidParameterError(f"weight must be positive numbers, one or one per area ({a.size}), "
+                                    f"got shape {np.shape(weight)}")
+    return radius_of(a, int(count), w)
+
+
+def radius_of(a: np.ndarray, count: int, weight) -> float:
+    """:func:`elimination_radius` on valid input (weight: a number or one per area)."""
+    m = len(a)
+    if np.ndim(weight) == 0:
+        return _radius_uniform(a, count, float(weight))
+    w = np.asarray(weight, dtype=np.float64)
+    if m == 0 or count >= w.sum():
+        return math.inf
+    o = np.argsort(-a, kind="stable")  # largest first; with the j largest counted as 1 each:
+    a, w = a[o], w[o]  # N = sum(w[:j]) + sum(w[j:] a[j:]) / (HEX r^2)
+    head = np.r_[0.0, np.cumsum(w)]
+    wa = w * a
+    tail = np.r_[np.cumsum(np.where(np.isfinite(wa), wa, 0.0)[::-1])[::-1], 0.0]
+    for j in range(m):
+        rest = count - head[j]
+        if rest <= 0:
+            break
+        if not math.isfinite(a[j]) or not tail[j] > 0:
+            continue
+        r2 = tail[j] / (HEX * rest)
+        if a[j] <= HEX * r2 and (j == 0 or a[j - 1] >= HEX * r2):
+            return math.sqrt(r2)
+    return math.inf
+
+
+def _radius_uniform(a: np.ndarray, count: int, weight: float) -> float:
+    """radius_of with one weight for every area."""
+    m = len(a)
+    if m == 0 or count >= weight * m:
+        return math.inf
+    a = np.sort(a)[::-1]  # largest first; with the j largest counted as 1 each:
+    tail = np.cumsum(a[::-1])[::-1]  # N / weight = j + tail[j] / (HEX r^2), tail[j] = sum of a[j:]
+    for j in range(m):
+        rest = count / weight - j
+        if rest <= 0 or not tail[j] > 0:
+            break
+        if not math.isfinite(tail[j]):
+            continue
+        r2 = tail[j] / (HEX * rest)
+        if a[j] <= HEX * r2 and (j == 0 or a[j - 1] >= HEX * r2):
+            return math.sqrt(r2)
+    return math.inf

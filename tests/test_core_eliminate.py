@@ -1,0 +1,279 @@
+"""The ``eliminate`` rule in memory: exact counts, a brute-force oracle, invariances, halo and fixed points."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from cloudsieve.core.eliminate import (
+    COVER_GAMMA,
+    COVER_LAMBDA,
+    COVER_RADIUS,
+    eliminate,
+    eliminate_order,
+    keep_lowest,
+    relocate,
+)
+from cloudsieve.core.radius import elimination_radius, point_areas
+from cloudsieve.errors import InvalidParameterError, InvalidPointsError
+
+
+def sheet(n, seed=0, thick=0.02):
+    """n random points on a gently curved unit sheet."""
+    rng = np.random.default_rng(seed)
+    u = rng.random((n, 2))
+    z = 0.1 * np.sin(3 * u[:, 0]) + thick * rng.random(n)
+    return np.c_[u, z]
+
+
+def removal_order(prio):
+    """Indices in removal order: priority descending, ties lower index first."""
+    return np.lexsort((np.arange(len(prio)), -prio))
+
+
+def oracle(P, r_max, alpha, coverage, floor=0):
+    """Brute force: every key recomputed from scratch after every removal (plain numpy).
+
+    Returns the removal order, the keys at removal and the largest distance
+    from a point to its nearest other remaining point that a coverage key used.
+    """
+    n = len(P)
+    D = np.sqrt(((P[:, None, :] - P[None, :, :]) ** 2).sum(-1))
+    two_r = 2 * r_max
+    C = np.where(D < two_r, (1 - D / two_r) ** alpha, 0.0)
+    np.fill_diagonal(C, 0.0)
+    alive = np.ones(n, bool)
+    order, keys, reach = [], [], 0.0
+    while alive.sum() > floor:
+        key = C[:, alive].sum(axis=1)
+        if coverage:
+            Da = np.where(alive[None, :], D, np.inf)
+            near = np.argsort(Da, axis=1, kind="stable")
+            a1, a2 = near[:, 0], near[:, 1]  # nearest remaining point, and the next
+            d_alt = D[np.arange(n), a2]
+            e = np.zeros(n)
+            c = np.zeros(n)
+            np.maximum.at(e, a1, d_alt)
+            np.add.at(c, a1, d_alt**2 - D[np.arange(n), a1] ** 2)
+            reach = max(reach, float(d_alt.max()))
+            rc = COVER_RADIUS * r_max
+            g = np.where(e <= rc, 1.0, (rc / np.maximum(e, rc)) ** COVER_GAMMA)
+            key = key * g / (1 + COVER_LAMBDA * c / r_max**2)
+        key[~alive] = -1.0
+        i = int(np.flatnonzero(key == key.max())[0])
+        order.append(i)
+        keys.append(key[i])
+        alive[i] = False
+    return np.array(order), np.array(keys), reach
+
+
+@pytest.mark.parametrize("alpha", [8.0, 1.0])
+def test_plain_order_equals_brute_force(alpha):
+    P = sheet(300, seed=1)
+    r = 0.04
+    prio = eliminate_order(P, r_max=r, alpha=alpha, coverage=False)
+    order, keys, _ = oracle(P, r, alpha, coverage=False)
+    assert np.array_equal(removal_order(prio), order)
+    np.testing.assert_allclose(prio[order], keys, rtol=1e-12, atol=1e-15)
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_coverage_order_equals_brute_force(seed):
+    P = sheet(250, seed=seed)
+    r = 0.08
+    prio = eliminate_order(P, r_max=r, floor=150)
+    order, keys, reach = oracle(P, r, 1.0, coverage=True, floor=150)
+    assert reach < 2 * r  # every nearest other point was inside the kernel's search reach
+    assert np.array_equal(removal_order(prio)[: len(order)], order)
+    np.testing.assert_allclose(prio[order], keys, rtol=1e-12, atol=1e-15)
+
+
+def test_priorities_non_increasing_and_prefix():
+    P = sheet(2000, seed=4)
+    prio = eliminate_order(P, ratio=0.3)
+    assert np.isfinite(prio).all() and (prio >= 0).all()
+    # the removal order is priority descending: stopping at any count is a prefix of it
+    o = removal_order(prio)
+    assert (np.diff(prio[o]) <= 0).all()
+    keep = keep_lowest(prio, 600)
+    assert keep.sum() == 600 and not keep[o[:1400]].any()
+    # stopping the elimination at the count gives the same kept set
+    r = elimination_radius(point_areas(P)[0], 600, weight=point_areas(P)[1])
+    assert r > 0
+    floor = eliminate_order(P, r_max=r, floor=600)
+    assert np.array_equal(keep_lowest(floor, 600), keep_lowest(eliminate_order(P, r_max=r), 600))
+
+
+@pytest.mark.parametrize("ratio", [1.0, 0.5, 0.2, 0.1, 0.013])
+def test_exact_count_for_ratio(ratio):
+    P = sheet(3001, seed=5)
+    keep = eliminate(P, ratio=ratio)
+    assert len(keep) == round(ratio * 3001)
+    assert np.array_equal(keep, np.unique(keep))
+
+
+@pytest.mark.parametrize("count", [0, 1, 2, 777, 2999, 3000])
+def test_exact_count_for_count(count):
+    P = sheet(3000, seed=6)
+    assert len(eliminate(P, count)) == count
+    assert len(eliminate(P, count, relocate_steps=0, coverage=False)) == count
+
+
+def test_point_order_does_not_matter():
+    P = sheet(3000, seed=7)
+    perm = np.random.default_rng(0).permutation(len(P))
+    a = eliminate_order(P, ratio=0.2)
+    b = eliminate_order(P[perm], ratio=0.2)
+    assert np.array_equal(a[perm], b)  # bit for bit
+    ka = eliminate(P, ratio=0.2)
+    kb = eliminate(P[perm], ratio=0.2)
+    assert np.array_equal(np.sort(perm[kb]), ka)
+
+
+def test_unit_scale_does_not_matter():
+    P = sheet(3000, seed=8) + [10.0, -3.0, 2.0]
+    a = eliminate(P, ratio=0.25)
+    b = eliminate(P * 1000.0, ratio=0.25)
+    assert np.array_equal(a, b)
+    pa = eliminate_order(P, ratio=0.25)
+    pb = eliminate_order(P * 1000.0, ratio=0.25)
+    np.testing.assert_allclose(pa, pb, rtol=1e-9, atol=1e-12)
+
+
+def test_threads_do_not_matter():
+    P = sheet(5000, seed=9)
+    a = eliminate_order(P, ratio=0.2, threads=1, geometric=0.2)
+    b = eliminate_order(P, ratio=0.2, threads=2, geometric=0.2)
+    assert np.array_equal(a, b)
+
+
+def test_duplicates_go_first_and_are_kept_once():
+    P = sheet(1000, seed=10)
+    dup = np.concatenate([P, P[:200], P[:50]])  # 250 copies of earlier points
+    prio = eliminate_order(dup, ratio=0.5)
+    assert np.isinf(prio[1000:]).all() and np.isfinite(prio[:1000]).all()
+    keep = eliminate(dup, 600)
+    assert len(keep) == 600 and keep.max() < 1000  # copies are never kept while distinct points remain
+    keep = eliminate(dup, 1100)  # more than the distinct points: the count still holds
+    assert len(keep) == 1100
+    assert len(np.unique(dup[keep], axis=0)) == 1000
+
+
+def test_collinear_and_planar_input():
+    t = np.linspace(0.0, 1.0, 1001)
+    line = np.c_[t, 2 * t, -t]
+    keep = eliminate(line, 101)
+    assert len(keep) == 101
+    gaps = np.diff(t[keep])
+    assert gaps.max() <= 3 * gaps.mean()  # no hole: the line stays covered
+    rng = np.random.default_rng(11)
+    plane = np.c_[rng.random((4000, 2)), np.zeros(4000)]
+    keep = eliminate(plane, ratio=0.1)
+    assert len(keep) == 400
+    d = cKDTree(plane[keep]).query(plane)[0]
+    assert d.max() < 2.5 * math.sqrt(1.0 / 400)
+    grid = np.stack(np.meshgrid(np.arange(40.0), np.arange(40.0), [0.0]), -1).reshape(-1, 3)
+    assert len(eliminate(grid, ratio=0.25)) == 400  # a regular grid: ties everywhere, still exact
+
+
+def test_fixed_points_weigh_but_are_never_removed():
+    P = sheet(2000, seed=12)
+    fixed = sheet(500, seed=13) * [0.5, 1.0, 1.0]  # denser on the left half
+    prio = eliminate_order(P, ratio=0.3, fixed=fixed)
+    base = eliminate_order(P, ratio=0.3)
+    assert prio.shape == (2000,)
+    left = P[:, 0] < 0.45
+    # the fixed points crowd the left half: its points go earlier (higher priority)
+    k = keep_lowest(prio, 600)
+    kb = keep_lowest(base, 600)
+    assert k[left].sum() < kb[left].sum()
+    keep = eliminate(P, 600, fixed=fixed)
+    assert len(keep) == 600
+
+
+def test_halo_cells_have_no_seam():
+    """Two cells with halos, one global threshold: kept density near the border as inside."""
+    rng = np.random.default_rng(14)
+    P = np.c_[rng.random((40000, 2)) * [2.0, 1.0], 0.01 * rng.random(40000)]
+    n_keep = 4000
+    r = elimination_radius(point_areas(P)[0], n_keep, weight=point_areas(P)[1])
+    margin = 8 * r
+    left = P[:, 0] < 1.0
+    prio = np.empty(len(P))
+    for cell in (left, ~left):
+        near = ~cell & (np.abs(P[:, 0] - 1.0) < margin)
+        prio[cell] = eliminate_order(P[cell], r_max=r, halo=P[near])
+    keep = keep_lowest(prio, n_keep)
+    assert keep.sum() == n_keep
+    x = P[keep, 0]
+    border = np.abs(x - 1.0) < 4 * r
+    inside = (np.abs(x - 0.5) < 4 * r) | (np.abs(x - 1.5) < 4 * r)
+    ratio = border.sum() / (inside.sum() / 2)
+    assert 0.95 <= ratio <= 1.05, ratio
+
+
+def test_relocate_keeps_count_and_lowers_error():
+    P = sheet(5000, seed=15)
+    r = elimination_radius(point_areas(P)[0], 500, weight=point_areas(P)[1])
+    keep = keep_lowest(eliminate_order(P, r_max=r), 500)
+    moved = relocate(P, keep, r)
+    assert moved.sum() == 500
+    rms = [np.sqrt((cKDTree(P[k]).query(P)[0] ** 2).mean()) for k in (keep, moved)]
+    assert rms[1] <= rms[0]
+
+
+def test_entropy_term_needs_labels_and_changes_little():
+    P = sheet(3000, seed=16)
+    with pytest.raises(InvalidParameterError, match="labels or dh"):
+        eliminate_order(P, ratio=0.2, entropy=0.5)
+    labels = np.arange(3000) // 400
+    keep = eliminate(P, ratio=0.2, labels=labels, entropy=0.5)
+    base = eliminate(P, ratio=0.2)
+    assert len(keep) == 600
+    assert len(np.intersect1d(keep, base)) > 300  # a second key: most of the set stays
+
+
+def test_radius_formula():
+    a = np.full(1000, 2.0)
+    assert elimination_radius(a, 100) == pytest.approx(math.sqrt(2000 / (2 * math.sqrt(3) * 100)))
+    assert elimination_radius(a, 100, weight=10) == pytest.approx(math.sqrt(20000 / (2 * math.sqrt(3) * 100)))
+    # 10 isolated points count as one kept point each, not as their huge areas
+    b = np.r_[a, np.full(10, 1e9)]
+    assert elimination_radius(b, 110) == pytest.approx(elimination_radius(a, 100))
+    assert elimination_radius(a, 1000) == math.inf
+    # two cells' areas with their own weights, as a driver puts them together
+    two = elimination_radius(np.r_[a[:500], a[:250]], 100, weight=np.r_[np.ones(500), np.full(250, 2.0)])
+    assert two == pytest.approx(elimination_radius(a, 100))
+
+
+def test_bad_input():
+    P = sheet(100)
+    with pytest.raises(InvalidParameterError, match=r"shape \(n, 3\)"):
+        eliminate(P[:, :2], 10)
+    with pytest.raises(InvalidPointsError, match="index 3"):
+        eliminate(np.where(np.arange(100)[:, None] == 3, np.nan, P), 10)
+    with pytest.raises(InvalidParameterError, match="ratio or count, not both"):
+        eliminate(P, 10, ratio=0.1)
+    with pytest.raises(InvalidParameterError, match=r"count must be an integer in \[0, 100\].*101"):
+        eliminate(P, 101)
+    with pytest.raises(InvalidParameterError, match="needs a ratio or a count"):
+        eliminate_order(P)
+    with pytest.raises(InvalidParameterError, match="r_max must be a positive number"):
+        eliminate_order(P, r_max=-1.0)
+    with pytest.raises(InvalidParameterError, match=r"geometric must be in \[0, 1\)"):
+        eliminate_order(P, ratio=0.5, geometric=1.5)
+    with pytest.raises(InvalidParameterError, match="unexpected options"):
+        eliminate(P, 10, halo=P)
+    with pytest.raises(ValueError):  # the built-in still catches it
+        eliminate(P, -1)
+
+
+def test_empty_and_tiny():
+    assert eliminate(np.zeros((0, 3)), 0).shape == (0,)
+    assert eliminate_order(np.zeros((0, 3)), count=0).shape == (0,)
+    one = np.zeros((1, 3))
+    assert np.array_equal(eliminate(one, 1), [0])
+    assert len(eliminate(one, 0)) == 0
