@@ -209,7 +209,7 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     rank = None
     if entropy > 0:
         if dh is None:
-            dh = score_points(pts, lab, workers=threads).delta_h
+            dh = score_points(pts, lab, threads=threads).delta_h
         rank = _ranks(dh, np.zeros(n, dtype=np.int64) if lab is None else lab.astype(np.int64))
     with _threads(threads):
         return _order(pts, hal, fix, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
