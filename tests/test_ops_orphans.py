@@ -81,3 +81,29 @@ def test_sigkill_of_the_driver_leaves_no_process(tmp_path: Path):
     done = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert dst.exists()
+
+
+def test_ctrl_c_says_how_to_resume_and_the_run_resumes(tmp_path: Path):
+    """Issue 13, item 7: Ctrl-C (SIGINT) ends with status 130, names --resume, and the rerun finishes."""
+    src = write_scene_laz(str(tmp_path / "scene.laz"), 300_000, seed=4)
+    dst = tmp_path / "out.laz"
+    store = tmp_path / "work.zarr"
+    cmd = [sys.executable, "-m", "cloudsieve", "simplify", src, str(dst), "--rule", "threshold",
+           "--cell-size", "20000", "--workers", "2", "--store", str(store), "--no-progress"]
+    driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline and driver.poll() is None and not (store / "simplify").exists():
+            time.sleep(0.2)
+        assert driver.poll() is None, "the run ended before it could be interrupted: make the input larger"
+        os.kill(driver.pid, signal.SIGINT)
+        _, err = driver.communicate(timeout=120)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert driver.returncode == 130, err
+    assert "cloudsieve simplify: interrupted; the work store is kept: run the same command again (or add --resume) to continue" in err
+    assert not dst.exists()
+    done = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert dst.exists()

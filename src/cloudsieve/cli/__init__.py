@@ -62,7 +62,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"cloudsieve {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"cloudsieve {args.command}: interrupted", file=sys.stderr)
+        hint = ""
+        if args.command == "simplify":  # the work store survives: say how to continue
+            hint = "; the work store is kept: run the same command again (or add --resume) to continue"
+        print(f"cloudsieve {args.command}: interrupted{hint}", file=sys.stderr)
         return 130
 
 
