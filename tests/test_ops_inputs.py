@@ -333,3 +333,24 @@ def test_demo_refuses_a_non_empty_folder_unless_overwrite(tmp_path, capsys):
     rc, stdout, _ = run([*argv, "--overwrite"], capsys)
     assert rc == 0 and "kept 1,500 of 3,000 points" in stdout
     assert (out / "notes.txt").read_text() == "mine" and (out / "scene-simplified.laz").exists()
+
+
+def test_a_missed_count_is_said(tmp_path, caplog):
+    """Issue 13, item 4: a ratio or count that cannot be met is a warning naming requested and delivered counts."""
+    import logging
+
+    from cloudsieve import simplify
+    from conftest import shared_file
+
+    src = shared_file("simple.las")
+    with caplog.at_level(logging.WARNING, logger="cloudsieve.engine.simplify"):
+        s = simplify(src, tmp_path / "o.las", rule="target", count=5000, scheduler="sync")
+    assert s.kept == 1065
+    assert f"{src}: asked to keep 5,000 points, kept 1,065: the input holds only 1,065 points" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="cloudsieve.engine.simplify"):
+        s = simplify(src, tmp_path / "p.las", rule="target", ratio=0.5, scheduler="sync")
+    if s.kept != 532:  # 0.5 * 1065 rounds to 532: said whenever missed
+        assert f"asked to keep 532 points, kept {s.kept:,}" in caplog.text
+    else:
+        assert "asked to keep" not in caplog.text

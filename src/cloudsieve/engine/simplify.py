@@ -54,6 +54,21 @@ logger = logging.getLogger(__name__)
 # ---------------------------------------------------------------- summary
 
 
+def _say_if_missed(src: str, ratio, count, n: int, kept: int) -> None:
+    """A warning when a ratio or count was asked and the kept count differs (issue 13, item 4)."""
+    if ratio is None and count is None:
+        return
+    asked = int(round(float(ratio) * n)) if ratio is not None else int(count)
+    if kept == asked:
+        return
+    if asked > n:
+        why = f"the input holds only {n:,} points"
+    else:
+        why = ("points with equal scores at the global threshold go or stay together, exact duplicates "
+               "count once, and clusters too small to thin are kept whole")
+    logger.warning("%s: asked to keep %s points, kept %s: %s", src, f"{asked:,}", f"{kept:,}", why)
+
+
 @dataclass
 class Summary:
     """What a :func:`simplify` run did.
@@ -343,6 +358,7 @@ def simplify(
             workstore.ensure_keep_array(st)
             summary.kept = merge.run_merge(st, runner)
             summary.removed = summary.points_in - summary.kept
+            _say_if_missed(src, ratio, count, summary.points_in, summary.kept)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
 
