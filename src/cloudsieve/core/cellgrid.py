@@ -12,7 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidParameterError, InvalidPointsError
+from ..errors import InvalidParameterError
+from ._validation import check_points as core_check_points
 from .kernels import grid as _kg
 
 __all__ = ["CellGrid", "check_points"]
@@ -21,19 +22,14 @@ _RUN = 64  # longest run of one cell sorted by insertion; longer: one lexsort
 
 
 def check_points(points, name: str = "points") -> np.ndarray:
-    """Contiguous float64 array of shape (n, 3), or InvalidParameterError/InvalidPointsError."""
+    """Contiguous float64 array of shape (n, 3), or InvalidParameterError/InvalidPointsError.
+
+    The core's point check (:func:`._validation.check_points`) plus the 3 columns the grid needs.
+    """
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InvalidParameterError(f"{name} must have shape (n, 3), got shape {pts.shape}")
-    if not np.issubdtype(pts.dtype, np.number) or np.iscomplexobj(pts):
-        raise InvalidParameterError(f"{name} must be real numbers, got dtype {pts.dtype}")
-    pts = np.ascontiguousarray(pts, dtype=np.float64)
-    bad = ~np.isfinite(pts).all(axis=1)
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        raise InvalidPointsError(f"{name} has {int(bad.sum())} non-finite rows, the first at index {first}: "
-                                 f"{pts[first].tolist()}")
-    return pts
+    return core_check_points(pts, name)
 
 
 class CellGrid:

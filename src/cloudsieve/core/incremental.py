@@ -22,7 +22,7 @@ from .entropy import entropy_change
 from .kernels import lists as kl
 from .kernels import rescore as ks
 from .kernels import rounds as kr
-from .knn import group, knn_query, mark_duplicates
+from .knn import group, knn_query, mark_duplicates, scorable_rows
 from .selection import round_selection
 
 __all__ = ["rounds_incremental", "SPARE"]
@@ -104,13 +104,7 @@ class _Local:
         asked only for the rows with tied distances (for all the distinct points of those
         clusters if one of them still has a zero distance)."""
         g, ginv, dup, c = self.g, self.ginv, self.dup, self.c
-        kc = neighbour_count(sizes, self.k0, self.k_min)
-        ok = sizes >= kc + 2
-        okr = ok[ginv]
-        small = np.flatnonzero(~okr & (sizes[ginv] > 1))
-        if len(small):  # never scored, but their copies still score 0
-            mark_duplicates(g, ginv, small, dup)
-        rows = np.flatnonzero(okr)
+        kc, ok, okr, rows = scorable_rows(g, ginv, sizes, self.k0, self.k_min, dup)
         if len(rows) == 0:
             return
         # knn_clusters' first tree: all the rows of the clusters large enough, copies included

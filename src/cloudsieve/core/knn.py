@@ -26,6 +26,7 @@ from ._validation import neighbour_count
 from .kernels.knn import knn_unchecked, take_neighbours
 
 __all__ = [
+    "scorable_rows",
     "canonical_order",
     "group",
     "mark_duplicates",
@@ -299,6 +300,25 @@ def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
     return groups, flagged
 
 
+def scorable_rows(g, ginv, sizes, k0, k_min, dup):
+    """k per cluster and the rows that get scores: those of clusters of at least k + 2 points.
+
+    The copies in the smaller clusters (never scored, but their copies still
+    score 0) are marked in *dup* (n,) bool, in place.
+
+    Returns
+    -------
+    kc (c,), ok (c,) bool, okr (n,) bool, rows (M,) int
+    """
+    kc = neighbour_count(sizes, k0, k_min)
+    ok = sizes >= kc + 2
+    okr = ok[ginv]
+    small = np.flatnonzero(~okr & (sizes[ginv] > 1))
+    if len(small):
+        mark_duplicates(g, ginv, small, dup)
+    return kc, ok, okr, np.flatnonzero(okr)
+
+
 def knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=0):
     """k-NN of every point inside its own cluster (points g grouped by cluster, ids ginv).
 
@@ -309,13 +329,7 @@ def knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=0):
     """
     n = len(g)
     dup = np.zeros(n, dtype=bool)
-    kc = neighbour_count(sizes, k0, k_min)
-    ok = sizes >= kc + 2
-    okr = ok[ginv]
-    small = np.flatnonzero(~okr & (sizes[ginv] > 1))
-    if len(small):  # never scored, but their copies still score 0
-        mark_duplicates(g, ginv, small, dup)
-    rows = np.flatnonzero(okr)
+    kc, ok, okr, rows = scorable_rows(g, ginv, sizes, k0, k_min, dup)
     if len(rows) == 0:
         return [], dup
     groups, flagged = knn_query(g, ginv, rows, kc, threads, extra=extra)
