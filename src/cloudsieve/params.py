@@ -58,7 +58,7 @@ COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
 #: dask's local schedulers ("synchronous" is dask's own name for "sync")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count
-TARGET_RULES = ("target", "coverage")
+TARGET_RULES = ("target", "coverage", "eliminate")
 
 _READABLE = tuple(name for name, f in FORMATS.items() if f["reader"] is not None)
 _WRITABLE = tuple(name for name, f in FORMATS.items() if f["writer"] is not None)
@@ -130,8 +130,10 @@ class Option:
 
 _OPTIONS = [
     # -- the method
-    Option("method", CHOICE, "km", "refinement into small clusters: K-means (default) or fuzzy C-means", choices=METHODS),
-    Option("rule", CHOICE, "iterative", "pruning rule (target and coverage need --ratio or --count)", choices=RULES),
+    Option("method", CHOICE, "km", "refinement into small clusters: K-means (default) or fuzzy C-means; unused by --rule eliminate "
+           "(no clusters)", choices=METHODS),
+    Option("rule", CHOICE, "iterative", "pruning rule (target, coverage and eliminate need --ratio or --count; eliminate: "
+           "weighted sample elimination, an exact count)", choices=RULES),
     Option("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
            metavar="S"),
     Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1%", low=0.0, low_open=True,

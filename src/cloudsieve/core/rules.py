@@ -36,6 +36,10 @@ iterative (default)
 target
     One pass on the unit-free score: drop the n - target points of lowest
     m*dH (ties: canonical order), so the count is exact.
+eliminate (cloudsieve's, issue 12)
+    Weighted sample elimination with a coverage term, exactly ``target``
+    points kept (:func:`cloudsieve.core.eliminate.eliminate`; its entropy and
+    geometric terms are off here, so the labels and scores are not used).
 coverage (cloudsieve's, not the paper's)
     ``iterative`` (with S, or with a target) where a candidate y also needs
     r_1(y) <= coverage * median of r_1 over y's k nearest (r_1: distance to
@@ -63,6 +67,7 @@ import math
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
+from .eliminate import eliminate
 from .entropy import score_points, score_unchecked
 from .knn import canonical_order
 from .rounds import prune_in_rounds
@@ -73,7 +78,7 @@ __all__ = ["RULES", "prune", "unit_free_scores", "threshold_for_count", "check_r
 
 logger = logging.getLogger(__name__)
 
-RULES = ("iterative", "threshold", "target", "coverage")
+RULES = ("iterative", "threshold", "target", "coverage", "eliminate")
 
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
@@ -119,11 +124,11 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e
     points : array_like of shape (n, p), float
     labels : array_like of shape (n,), int, optional
         Clusters (None: one cluster).
-    rule : {"iterative", "threshold", "target", "coverage"}
+    rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
     threshold : float
         S, compared with ``score`` (rules threshold and iterative without a target).
     ratio, count : float, int, optional
-        Kept fraction or kept count (rule target; iterative/coverage with a target).
+        Kept fraction or kept count (rules target and eliminate; iterative/coverage with a target).
         The coverage rule may stop short of a target when no remaining
         candidate passes its test (logged).
     score : {"delta_h", "unit_free"}
@@ -173,8 +178,8 @@ def check_rule_args(n: int, rule, threshold, ratio, count, score) -> int | None:
     if score not in ("delta_h", "unit_free"):
         raise InvalidParameterError(f"score must be 'delta_h' or 'unit_free', got {score!r}")
     target = _target_count(n, ratio, count)
-    if rule == "target" and target is None:
-        raise InvalidParameterError("rule='target' needs ratio= (kept fraction) or count= (kept points)")
+    if rule in ("target", "eliminate") and target is None:
+        raise InvalidParameterError(f"rule={rule!r} needs ratio= (kept fraction) or count= (kept points)")
     if rule == "threshold" and target is not None:
         raise InvalidParameterError(
             f"rule='threshold' takes threshold= only, not ratio={ratio!r}/count={count!r}: use rule='target'")
@@ -196,6 +201,11 @@ def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim,
     report = callback(progress)
     keep = np.ones(n, dtype=bool)
     if n == 0:
+        return keep
+    if rule == "eliminate":  # does not depend on the input order itself; no labels, no scores
+        keep[:] = False
+        keep[eliminate(pts, count=target, threads=threads)] = True
+        report(n - target)
         return keep
     order = canonical_order(pts)
     P = pts[order]

@@ -31,12 +31,13 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     method : {"km", "fcm"}
         Refinement into c = ceil(n / cluster_size) clusters (ignored when
         ``labels`` is given).
-    rule : {"iterative", "threshold", "target", "coverage"}
-        See :mod:`.rules`.
+    rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
+        See :mod:`.rules`. ``eliminate`` needs no clusters: ``method``,
+        ``labels`` and the entropy options are then unused (no KM/FCM runs).
     threshold : float
         S on dH (0.001, the paper).
     ratio, count : optional
-        Kept fraction / kept count (rules target, coverage; iterative with a target).
+        Kept fraction / kept count (rules target, coverage, eliminate; iterative with a target).
     cluster_size : int
         >= k_min + 2.
     seed : int
@@ -73,7 +74,9 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     check_density_params(k0, k_min, 3)
     target = check_rule_args(n, rule, threshold, ratio, count, score)
     ctx = check_context(context, p)
-    if labels is None:
+    if rule == "eliminate":  # weighted sample elimination: no clusters needed
+        lab = np.zeros(n, dtype=np.int64)
+    elif labels is None:
         order = canonical_order(pts)
         lab_c = refine_unchecked(pts[order], est, threads)
         lab = np.empty(n, dtype=np.int64)

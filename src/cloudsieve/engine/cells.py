@@ -95,18 +95,22 @@ def cell_seed(seed: int, cell: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(cell)]).generate_state(1, np.uint32)[0])
 
 
-def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: int = 1) -> list[CellTask]:
+def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: int = 1,
+               halo: bool | None = None) -> list[CellTask]:
     """The tasks of *cells*, in the order given.
 
     *params* gets the tasks' k-d tree thread count under "threads" (not part
     of the parameters recorded for resume: the results do not depend on it).
+    The tasks list their halo sources when *halo* is True (None: with a
+    density context, ``params["context"]``).
     """
     c = part.centers
     params = {**params, "threads": int(threads)}
+    with_halo = params["context"] if halo is None else halo
     out = []
     for j in cells:
         j = int(j)
-        halo = {int(s): int(regions[s]) for s in part.halo_sources(j)} if params["context"] else {}
+        halo = {int(s): int(regions[s]) for s in part.halo_sources(j)} if with_halo else {}
         centers = {j: c[j], **{s: c[s] for s in halo}}
         out.append(CellTask(store.path, j, halo, centers, part.margin, int(regions[j]), params))
     return out

@@ -36,7 +36,11 @@ Halo (:mod:`cloudsieve.engine.halo`): the points of other cells within
 times r_k, k the entropy neighbourhood size of a cluster of ``cluster_size``
 points), r_k estimated on the sample and scaled to full density with the
 sample's intrinsic dimension. Halo points are density context only, never
-pruned.
+pruned. For the ``eliminate`` rule (``eliminate_target``), the one global
+elimination radius r_max is solved on the same sample
+(:func:`cloudsieve.engine.eliminate.global_radius`), recorded as ``r_max``,
+and the margin is at least ``ELIMINATE_RADII`` r_max (the elimination and the
+relocation reach 2 r_max).
 """
 
 from __future__ import annotations
@@ -72,6 +76,8 @@ PARTITION_ATTR = "cloudsieve_partition"
 PARTITION_VERSION = 2  # 2: sparse run tables (chunk_runs/cell_runs); 1 had a dense counts table
 #: halo margin, in k-NN radii of the full-density cloud
 HALO_RADII = 3.0
+#: halo margin of the eliminate rule, in elimination radii r_max (its reach is 2 r_max)
+ELIMINATE_RADII = 2.2
 #: inner chunk of the sharded ``partition/xyz`` rows (points)
 INNER_CHUNK = 16384
 
@@ -180,6 +186,9 @@ class Partition:
     margin : float
     chunk_size : int
         Points per input chunk.
+    r_max : float or None
+        The global elimination radius of the eliminate rule (inf: every point
+        kept), None for the other rules.
     n_chunks, n_runs : int
         Input chunks; nonzero (chunk, cell) runs.
     group : zarr.Group
@@ -194,6 +203,7 @@ class Partition:
     chunk_size: int
     n_chunks: int
     n_runs: int
+    r_max: float | None = None
     group: object = field(repr=False, default=None)
 
     @property
@@ -239,6 +249,7 @@ class Partition:
             chunk_size=int(meta["chunk_size"]),
             n_chunks=int(meta["n_chunks"]),
             n_runs=int(meta["n_runs"]),
+            r_max=None if meta.get("r_max") is None else float(meta["r_max"]),
             group=g,
         )
 
@@ -255,7 +266,8 @@ def row_layout(chunk_size: int) -> tuple[int, int]:
 
 
 def build_partition(
-    store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True
+    store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True,
+    eliminate_target: int | None = None,
 ) -> Partition:
     """Partition *store* into cells (stage 2) and record it in the store.
 
@@ -275,6 +287,9 @@ def build_partition(
         List the halo sources of every cell (needed by cell tasks that use a
         density context); False leaves them empty and labels faster. Recorded
         as ``"halo"`` in the partition's attributes.
+    eliminate_target : int, optional
+        The kept count of an ``eliminate`` run: r_max is solved on the sample
+        for it and recorded, and the margin is at least ``ELIMINATE_RADII`` r_max.
 
     Returns
     -------
@@ -297,6 +312,15 @@ def build_partition(
     centers = fit_centers(sample, p, seed, origin)
     k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
     r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+    r_max = None
+    if eliminate_target is not None:
+        from .eliminate import global_radius
+
+        r_max = global_radius(sample, n, int(eliminate_target))
+        if math.isfinite(r_max):
+            margin = max(margin, ELIMINATE_RADII * r_max)
+        logger.info("partition: eliminate %d of %d points, r_max %.4g, margin %.4g", eliminate_target, n, r_max,
+                    margin)
     logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)
 
     for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src", "label_runs",
@@ -339,21 +363,27 @@ def build_partition(
         "r_k": r_k,
         "dimension": dim,
         "margin": margin,
+        "eliminate_target": None if eliminate_target is None else int(eliminate_target),
+        "r_max": None if r_max is None else (float(r_max) if math.isfinite(r_max) else "inf"),
         "complete": True,
     }
     store.group.attrs.update({PARTITION_ATTR: meta})
     return Partition.load(store)
 
 
-def reusable_partition(store, *, cell_size: int, cluster_size: int, seed: int, halo: bool) -> Partition | None:
+def reusable_partition(store, *, cell_size: int, cluster_size: int, seed: int, halo: bool,
+                       eliminate_target: int | None = None) -> Partition | None:
     """The partition recorded in *store* if a run with these parameters can reuse it, else None.
 
     It must be complete, in this version's layout (an older layout is
     rebuilt, with a log message), made with the same cell size, cluster
-    size and seed, and list halo sources when *halo* is needed.
+    size and seed, list halo sources when *halo* is needed, and have been
+    made for the same *eliminate_target* (None: not for the eliminate rule;
+    its r_max and margin depend on the count).
     """
     meta = store.attrs.get(PARTITION_ATTR)
-    want = {"cell_size": int(cell_size), "cluster_size": int(cluster_size), "seed": int(seed)}
+    want = {"cell_size": int(cell_size), "cluster_size": int(cluster_size), "seed": int(seed),
+            "eliminate_target": None if eliminate_target is None else int(eliminate_target)}
     complete = isinstance(meta, dict) and meta.get("complete")
     if complete and meta.get("version") != PARTITION_VERSION:
         # an older layout (version 1: a dense chunks x cells table): rebuilt, with the cells

@@ -42,6 +42,7 @@ from ..scheduler import check_scheduler
 from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
+from .eliminate import run_eliminate
 from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner, stage_bar
 from .workstore import ENGINE_VERSION
@@ -82,7 +83,8 @@ class Summary:
         Cells computed in this run, and cells found done in the store (resume).
     threshold : float or None
         The global threshold on the unit-free score chosen for a ratio/count
-        (None otherwise).
+        (None otherwise); for the eliminate rule the elimination priority at
+        the cut (the points above it went).
     seconds : dict str -> float
         Wall time per stage ("ingest", "partition", "cells", "merge",
         "export") and "total".
@@ -122,7 +124,7 @@ class Summary:
             f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
         ]
         if s.threshold is not None:
-            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
+            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH; eliminate: the priority at the cut)")
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  (this process and its children)")
@@ -179,14 +181,17 @@ def simplify(
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
         Refinement into small clusters: K-means (the default: as good as FCM and 1.26x faster end to end) or fuzzy C-means.
-    rule : {"iterative", "threshold", "target", "coverage"}
-        Pruning rule (see :mod:`cloudsieve.prune`).
+    rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
+        Pruning rule (see :mod:`cloudsieve.prune`). ``eliminate``: weighted
+        sample elimination (:mod:`cloudsieve.engine.eliminate`), exactly the
+        requested count; it uses no clusters (``method``, ``cluster_size``
+        and ``halo_context`` are unused).
     threshold : float
         S, the entropy-change threshold of the threshold/iterative rules.
     ratio, count : float in (0, 1] or int >= 1, optional
         Keep this share / number of the input points instead of using S
-        (one of them; required by ``rule="target"``). The total lands within
-        1% of the request.
+        (one of them; required by the rules target, coverage and eliminate).
+        The total lands within 1% of the request (exactly on it with eliminate).
     cluster_size : int
         Points per small cluster (c = ceil(n / cluster_size) per cell), at
         least ``k_min + 2``.
@@ -327,12 +332,18 @@ def simplify(
             workstore.record_params(st, params, overwrite)
 
             t0 = time.perf_counter()
-            part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=bool(context))
+            target = None
+            if ratio is not None or count is not None:
+                target = int(round(float(ratio) * st.count)) if ratio is not None else min(int(count), st.count)
+            elim = target if rule == "eliminate" else None  # its r_max and margin come with the partition
+            halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
+            part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
+                                      eliminate_target=elim)
             if part is None:
                 workstore.clear_derived(st)
                 part = build_partition(
                     st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
-                    halo=bool(context),  # the halo sources are only read with a density context
+                    halo=halo, eliminate_target=elim,
                 )
             update(st.count)
             summary.cells = part.n_cells
@@ -342,11 +353,13 @@ def simplify(
             block = workstore.region_block(cell_size)
             regions, total = workstore.regions(part.cell_counts, block)
             workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions)
-            if ratio is None and count is None:
+            if target is None:
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
                 update(points)
+            elif elim is not None:
+                computed, reused, points, summary.threshold = run_eliminate(st, part, regions, params, runner, target)
+                update(points)
             else:
-                target = int(round(float(ratio) * st.count)) if ratio is not None else min(int(count), st.count)
                 reused, points = cells.run_score(st, part, regions, params, runner)
                 update(points)
                 summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
