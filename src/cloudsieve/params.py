@@ -136,9 +136,10 @@ _OPTIONS = [
            "weighted sample elimination, an exact count)", choices=RULES),
     Option("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
            metavar="S"),
-    Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1%", low=0.0, low_open=True,
+    Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1% (exactly with --rule "
+           "eliminate)", low=0.0, low_open=True,
            high=1.0, metavar="R"),
-    Option("count", INT, None, "keep this many points, within 1%", low=1, metavar="N"),
+    Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 100_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),

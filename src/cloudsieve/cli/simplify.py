@@ -42,6 +42,13 @@ def run(args: argparse.Namespace) -> int:
     def notify(message: str) -> None:
         print(message, file=sys.stderr)
 
+    if args.rule == "eliminate" and args.ratio is None and args.count is None:
+        from ..errors import InvalidParameterError
+        from ..params import OPTIONS
+
+        given = args.threshold != OPTIONS["threshold"].default
+        raise InvalidParameterError("--rule eliminate needs --ratio or --count"
+                                    + (f" (it takes no --threshold: got --threshold {args.threshold:g})" if given else ""))
     summary = simplify(args.src, args.dst, **option_values(args, "simplify"), bars=bars, notify=notify)
     if args.json:
         record = summary.to_dict()

@@ -115,7 +115,7 @@ class Cut:
     removed: int
 
 
-def exact_cut(store, part, regions: np.ndarray, runner, remove: int) -> Cut:
+def exact_cut(store, part, regions: np.ndarray, runner, remove: int, gather_max: int = GATHER_MAX) -> Cut:
     """The cut that removes exactly *remove* points (all when *remove* >= N) of lowest stored score.
 
     Parameters
@@ -126,6 +126,9 @@ def exact_cut(store, part, regions: np.ndarray, runner, remove: int) -> Cut:
         Start of each cell's region in ``simplify/score_cells``.
     runner : Runner
     remove : int
+    gather_max : int
+        Gather the scores of T's bin once it holds at most this many (0:
+        histograms down to the last bit).
 
     Returns
     -------
@@ -155,7 +158,7 @@ def exact_cut(store, part, regions: np.ndarray, runner, remove: int) -> Cut:
         if used == 64:  # every score of the bin is T
             key, eq = prefix, hists[:, b]
             break
-        if int(hists[:, b].sum()) <= GATHER_MAX:
+        if int(hists[:, b].sum()) <= gather_max:
             parts = runner(keys_task, args(prefix, used), "cells: cut")
             inside = np.sort(np.concatenate(parts))
             key = int(inside[remove - below - 1])
