@@ -7,6 +7,7 @@ import pytest
 
 from cloudsieve.core import prune, refine_labels, score_points, threshold_for_count, unit_free_scores
 from cloudsieve.core.rounds import _first_independent, _padded
+from cloudsieve.errors import InvalidParameterError
 
 
 def surface(n, seed=0):
@@ -185,3 +186,30 @@ def test_first_independent_with_row_lengths():
     np.testing.assert_array_equal(_first_independent(cand, nb, n, kk), _first_independent(cand, cut, n))
     padded_n = np.where(cut < 0, n, cut)  # padding n works like -1
     np.testing.assert_array_equal(_first_independent(cand, padded_n, n), _first_independent(cand, cut, n))
+
+
+# ----------------------------------------------------------------- eliminate (issue 12)
+
+
+def test_eliminate_rule_is_the_core_eliminate_with_an_exact_count():
+    from cloudsieve.core import simplify_points
+    from cloudsieve.core.eliminate import eliminate
+
+    rng = np.random.default_rng(5)
+    pts = np.c_[rng.random((3_000, 2)) * 10, rng.normal(0, 0.01, 3_000)]
+    kept = simplify_points(pts, rule="eliminate", ratio=0.25, method="fcm", cluster_size=50)
+    assert len(kept) == 750
+    assert np.array_equal(kept, eliminate(pts, ratio=0.25))
+    assert np.array_equal(simplify_points(pts, rule="eliminate", count=750), kept)
+    mask = prune(pts, rule="eliminate", count=750)
+    assert np.array_equal(np.flatnonzero(mask), kept)
+
+
+def test_eliminate_rule_needs_a_ratio_or_a_count():
+    from cloudsieve.core import simplify_points
+
+    pts = np.random.default_rng(0).random((100, 3))
+    with pytest.raises(InvalidParameterError, match="rule='eliminate' needs ratio="):
+        simplify_points(pts, rule="eliminate")
+    with pytest.raises(InvalidParameterError, match="rule='eliminate' needs ratio="):
+        prune(pts, rule="eliminate")

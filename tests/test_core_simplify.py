@@ -52,7 +52,7 @@ def test_bad_input_messages():
         simplify_points(bad)
     with pytest.raises(ValueError, match=r"shape \(n, d\), got shape \(300,\)"):
         simplify_points(pts.ravel())
-    with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, got 'x'"):
+    with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, eliminate, got 'x'"):
         simplify_points(pts, rule="x")
     with pytest.raises(ValueError, match=r"method must be 'fcm' or 'km', got 'dbscan'"):
         simplify_points(pts, method="dbscan")

@@ -110,3 +110,15 @@ def test_compare_bad_arguments_are_clear(crop, capsys):
     assert main(["compare", str(shared_file("simple.las")), "--methods", "random,bogus", "--ratio", "0.5",
                  "--no-progress"]) == 2
     assert "unknown method(s) ['bogus']" in capsys.readouterr().err
+
+
+def test_compare_runs_the_eliminate_rule_at_the_exact_count(crop, tmp_path, capsys):
+    path = tmp_path / "crop.ply"
+    with open_writer(path, header={}, dtypes={"xyz": (np.dtype("float64"), (3,))}, format="ply") as w:
+        w.write({"xyz": crop})
+    rc = main(["compare", str(path), "--methods", "km,voxel", "--rule", "eliminate", "--ratio", "0.2", "--no-surface",
+               "--no-progress"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    row = next(line for line in out.splitlines() if line.startswith("| km "))
+    assert row.split("|")[2].strip() == "1,200"
