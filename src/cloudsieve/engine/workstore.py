@@ -17,7 +17,7 @@ through :class:`~cloudsieve.store.PointStore`)::
 
     keep_cells   bool    (T,)  keep mask, cell-ordered: cell j's points at
                                regions[j]:regions[j] + n_j (T: the padded total)
-    score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
+    score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count); -priority (eliminate)
     label_cells  int32   (T,)  pass-1 small-cluster labels (ratio/count)
     done, scored uint8   (P,)  one zarr chunk per cell: concurrent tasks never share one
     regions      int64   (P,)  start of each cell's region
