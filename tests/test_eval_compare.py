@@ -120,5 +120,14 @@ def test_compare_runs_the_eliminate_rule_at_the_exact_count(crop, tmp_path, caps
                "--no-progress"])
     out = capsys.readouterr().out
     assert rc == 0
-    row = next(line for line in out.splitlines() if line.startswith("| km "))
+    row = next(line for line in out.splitlines() if line.startswith("| eliminate "))
     assert row.split("|")[2].strip() == "1,200"
+    assert not any(line.startswith("| km") for line in out.splitlines())  # no clusters: one row, not one per method
+
+
+def test_compare_runs_eliminate_once_whatever_the_methods():
+    from cloudsieve.evaluate.compare import compare_runs
+
+    assert compare_runs(["km", "fcm", "voxel"], ["coverage", "eliminate"]) == [
+        ("km (coverage)", "km", "coverage"), ("eliminate", "km", "eliminate"), ("fcm (coverage)", "fcm", "coverage"),
+        ("voxel", "voxel", None)]

@@ -31,10 +31,12 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import params, progress
     from ..evaluate import compare
+    from ..evaluate.compare import compare_runs
 
     values = option_values(args, "compare")
     methods = params.check(params.COMMANDS["compare"]["methods"], values.pop("methods"))
-    with progress.bar("methods", len(methods), unit="method", enabled=not args.no_progress) as tick:
+    runs = len(compare_runs(methods, params.check(params.COMMANDS["compare"]["rule"], values["rule"])))
+    with progress.bar("methods", runs, unit="method", enabled=not args.no_progress) as tick:
         result = compare(args.src, methods=methods, **values, progress=tick)
     print(result["markdown"])
     return 0

@@ -34,7 +34,7 @@ from .report import fmt, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["compare", "compare_markdown", "METHODS"]
+__all__ = ["compare", "compare_runs", "compare_markdown", "METHODS"]
 
 METHODS = COMPARE_METHODS
 
@@ -78,6 +78,28 @@ def compare_markdown(result: dict) -> str:
 
 def _share(v: Any) -> str:
     return "-" if v is None else f"{100.0 * float(v):.2f}%"
+
+
+def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
+    """The rows of a comparison: (row name, method, rule or None), entropy methods first.
+
+    Each rule runs once per entropy method (km, fcm), except ``eliminate``,
+    which uses no clusters: it runs once, as the row "eliminate".
+    """
+    runs = []
+    first = next((m for m in methods if m in ("km", "fcm")), None)
+    for m in methods:
+        if m in ("km", "fcm"):
+            for r in rules:
+                if r == "eliminate":
+                    if m == first:
+                        runs.append(("eliminate", m, r))
+                    continue
+                runs.append((m if len(rules) == 1 else f"{m} ({r})", m, r))
+        else:
+            runs.append((m, m, None))
+    runs.sort(key=lambda x: x[2] is None)  # entropy methods first: without a count they set it
+    return runs
 
 
 def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] = "iterative",
@@ -146,13 +168,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         raise InvalidParameterError(f"count must be in [1, {n}] (the points of {name}), got {count}")
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
-    runs = []  # (row name, method, rule)
-    for m in methods:
-        if m in ("km", "fcm"):
-            runs += [(m if len(rules) == 1 else f"{m} ({r})", m, r) for r in rules]
-        else:
-            runs.append((m, m, None))
-    runs.sort(key=lambda x: x[2] is None)  # entropy methods first: without a count they set it
+    runs = compare_runs(methods, rules)
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
     rows, reports, hists, points_h = [], {}, {}, {}
