@@ -10,6 +10,9 @@
   each point inside its own cluster, from the compiled kernel
   :func:`.kernels.knn.knn_unchecked` (points of more than 3 coordinates: one
   k-d tree over all the clusters, :func:`with_cluster_coordinate`);
+- :func:`knn_scored_clusters`: the lists :func:`knn_clusters` gives, in
+  one array laid out per cluster, straight from the points in input order
+  (the path of the scores without context);
 - :func:`knn_context`: the same among all the points and extra context
   points (a cell's halo), from scipy's cKDTree (the neighbours are not
   confined to a cluster, so the kernel does not apply).
@@ -23,7 +26,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ._validation import neighbour_count
-from .kernels.knn import knn_unchecked, take_neighbours
+from .kernels.knn import knn_scored, knn_unchecked, take_neighbours
+from .kernels.order import grouped_order
 
 __all__ = [
     "scorable_rows",
@@ -34,6 +38,8 @@ __all__ = [
     "knn_query",
     "knn_clusters",
     "knn_context",
+    "knn_scored_clusters",
+    "groups_to_lists",
 ]
 
 
@@ -97,39 +103,17 @@ def _dense_labels(lab: np.ndarray):
     return inv.reshape(-1).astype(np.int64), len(u)
 
 
-_SPREAD = [(32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-           (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)]
-
-
-def _morton(pts: np.ndarray, bits: int) -> np.ndarray:
-    """Z-order code (uint64) of the first three coordinates, ``bits`` <= 21 bits each over the bounding box.
-
-    Only a row order for memory locality (hand-written: numpy has no Morton
-    code); results do not depend on it.
-    """
-    q = min(pts.shape[1], 3)
-    code = np.zeros(len(pts), dtype=np.uint64)
-    lo = pts[:, :q].min(axis=0)
-    span = float((pts[:, :q].max(axis=0) - lo).max())
-    if not (np.isfinite(span) and span > 0):
-        return code
-    scale = ((1 << bits) - 1) / span
-    for j in range(q):
-        x = ((pts[:, j] - lo[j]) * scale).astype(np.uint64)
-        for s, mask in _SPREAD:
-            x |= x << np.uint64(s)
-            x &= np.uint64(mask)
-        x <<= np.uint64(j)
-        code |= x
-    return code
-
-
 def group(pts: np.ndarray, labels: np.ndarray):
     """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
 
     Inside a cluster the rows follow a Z-order curve (exact copies keep their
     input order), so that consecutive k-d tree queries touch the same memory:
-    the queries of 1 M points are ~1.5-2x faster than in input order.
+    the queries of 1 M points are ~1.5-2x faster than in input order. The
+    order is ``np.argsort(code | id << 3 * bits, kind="stable")``, code the
+    Morton code of the first three coordinates quantised to ``bits`` bits
+    each over the bounding box, computed by
+    :func:`.kernels.order.grouped_order` (a counting sort by cluster and
+    small sorts per cluster).
 
     Parameters
     ----------
@@ -146,10 +130,8 @@ def group(pts: np.ndarray, labels: np.ndarray):
     """
     inv, c = _dense_labels(labels)
     bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
-    key = _morton(pts, bits)
-    key |= inv.astype(np.uint64) << np.uint64(3 * bits)
-    order = np.argsort(key, kind="stable")
-    return inv, order, np.bincount(inv, minlength=c)
+    order, indptr = grouped_order(pts, inv, c, bits)
+    return inv, order, np.diff(indptr)
 
 
 def mark_duplicates(g, ginv, rows, dup):
@@ -374,3 +356,94 @@ def knn_context(g, ginv, c, ctx, k0, k_min, threads):
         d, i = tree.query(upool[pos_in_u[sel]], k=list(range(2, k + 3)), workers=threads)  # without itself
         groups.append((k, sel, d[:, k - 1].copy(), d[:, k].copy(), pool_to_g[i]))
     return groups, dup
+
+
+def _cluster_of(indptr, rows):
+    """Cluster id of grouped positions ``rows``."""
+    return np.searchsorted(indptr, rows, side="right") - 1
+
+
+def _copies(pts, order, indptr, rows, dup):
+    """:func:`mark_duplicates` of the grouped positions ``rows`` (ascending), the
+    points taken from pts through order (no grouped copy of all the points)."""
+    sub = np.ascontiguousarray(pts[order[rows]])
+    local = np.zeros(len(rows), dtype=bool)
+    first = mark_duplicates(sub, _cluster_of(indptr, rows), np.arange(len(rows)), local)
+    dup[rows] = local
+    return rows[first]
+
+
+def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
+    """k-NN of every point inside its own cluster as scoring needs it, the points
+    given in input order with their grouped order (points of 1 to 3 coordinates).
+
+    The same lists and distances as :func:`knn_clusters`, in one layout per
+    cluster instead of groups by k: from the compiled kernel
+    :func:`.kernels.knn.knn_scored` (no grouped copy of the points); the
+    clusters with exact copies again through :func:`knn_query` on their
+    distinct points, as knn_clusters does.
+
+    Parameters
+    ----------
+    pts : ndarray of shape (n, p), float64, 1 <= p <= 3
+    order, indptr : ndarray of int64
+        From :func:`group`: input indices in grouped order, cluster starts (c + 1,).
+    k0, k_min, threads
+        As in :func:`knn_clusters`.
+
+    Returns
+    -------
+    rk, rk1 : ndarray of shape (n,), float64
+        r_k and r_(k+1) per grouped position (1.0 where not scored).
+    kcl : ndarray of shape (c,), int64
+        k of each cluster, 0 for the clusters not scored.
+    koff : ndarray of shape (c + 1,), int64
+    scored : ndarray of shape (n,), bool
+        The grouped positions scored (kcl of their cluster > 0, not a copy).
+    nb : ndarray of int64
+        The k nearest of the scored position p of cluster j (grouped
+        positions, nearest first) at ``nb[koff[j] + (p - indptr[j]) * k]``, k entries.
+    dup : ndarray of shape (n,), bool
+        The exact copies (grouped positions).
+    """
+    n = len(order)
+    sizes = np.diff(indptr)
+    kc = neighbour_count(sizes, k0, k_min)
+    ok = sizes >= kc + 2
+    dup = np.zeros(n, dtype=bool)
+    small = np.flatnonzero(~ok & (sizes > 1))
+    if len(small):  # their copies score 0, the other points +inf
+        _copies(pts, order, indptr, np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in small]), dup)
+    kcl = np.where(ok, kc, 0).astype(np.int64)
+    koff = np.zeros(len(sizes) + 1, dtype=np.int64)
+    np.cumsum(sizes * kcl, out=koff[1:])
+    rk, rk1, nb, flag = knn_scored(pts, order, indptr, kcl, koff, threads)
+    if flag.any():  # score the distinct points of these clusters (m and k follow)
+        kcl[flag] = 0
+        fl = np.flatnonzero(flag)
+        rows = np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in fl])
+        distinct = _copies(pts, order, indptr, rows, dup)
+        cl = _cluster_of(indptr, distinct)
+        m2 = np.bincount(cl, minlength=len(sizes))
+        k2 = neighbour_count(m2, k0, k_min)
+        rows2 = distinct[(m2 >= k2 + 2)[cl]]
+        if len(rows2):
+            sub = np.ascontiguousarray(pts[order[rows2]])
+            groups = knn_query(sub, _cluster_of(indptr, rows2), np.arange(len(rows2)), k2, threads)[0]
+            groups = [(k, rows2[r], a, b, rows2[i]) for k, r, a, b, i in groups]
+            groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb)
+    scored = (kcl > 0)[np.repeat(np.arange(len(sizes)), sizes)] & ~dup
+    return rk, rk1, kcl, koff, scored, nb, dup
+
+
+def groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb):
+    """Write groups as :func:`knn_clusters` gives them (positions as grouped
+    positions) into the layout of :func:`knn_scored_clusters`, in place; kcl
+    gets each group's k for its clusters."""
+    for k, r, a, b, nbx in groups:
+        cl = _cluster_of(indptr, r)
+        kcl[cl] = k
+        rk[r] = a
+        rk1[r] = b
+        at = koff[cl] + (r - indptr[cl]) * k
+        nb[at[:, None] + np.arange(k)] = nbx[:, :k]
