@@ -10,7 +10,8 @@ from test_core_entropy import oracle
 from cloudsieve.core.kernels.entropy import entropy_gain, entropy_weights, reverse_sums
 from cloudsieve.core.kernels.knn import knn_in_clusters
 from cloudsieve.core.kernels.radius import within_radius
-from cloudsieve.core.knn import group, knn_clusters, knn_scored_clusters
+from cloudsieve.core.kernels.order import stable_argsort
+from cloudsieve.core.knn import canonical_order, group, knn_clusters, knn_scored_clusters
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 KINDS = ["random", "grid", "duplicates", "collinear", "planar"]
@@ -315,3 +316,16 @@ def test_scored_lists_match_knn_clusters(dim, kind):
             np.testing.assert_array_equal(rk1[sc], b)
             at = koff[cl] + (sc - indptr[cl]) * k
             np.testing.assert_array_equal(nb[at[:, None] + np.arange(k)], nbx[:, :k])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stable_argsort_and_canonical_order(seed):
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(5000) * 10.0 ** rng.integers(-300, 300)
+    x[rng.integers(0, 5000, 800)] = x[rng.integers(0, 5000, 800)]  # ties
+    x[:50] = np.r_[0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324][rng.integers(0, 6, 50)]
+    np.testing.assert_array_equal(stable_argsort(x), np.argsort(x, kind="stable"))
+    X = np.round(rng.random((4000, 3)) * 5) * np.where(rng.random((4000, 3)) < 0.5, -1.0, 1.0)  # -0.0 and 0.0
+    X[::9] = X[0]
+    np.testing.assert_array_equal(canonical_order(X), np.lexsort(X.T[::-1]))
+    np.testing.assert_array_equal(canonical_order(X.astype(np.float32)), np.lexsort(X.T[::-1]))

@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 
 from ._validation import neighbour_count
 from .kernels.knn import knn_scored, knn_unchecked, take_neighbours
-from .kernels.order import grouped_order
+from .kernels.order import grouped_order, stable_argsort
 
 __all__ = [
     "scorable_rows",
@@ -47,8 +47,9 @@ def canonical_order(X: np.ndarray) -> np.ndarray:
     """Lexicographic order of the rows (first column first): input order never matters.
 
     Same result as ``np.lexsort(X.T[::-1])`` (ties kept in input order), but a
-    stable sort on the first column and a lexsort of the rows tied there only
-    (lexsort's three passes over every row cost ~5x more on 1 M points).
+    stable sort on the first column (:func:`.kernels.order.stable_argsort`
+    for float64) and a lexsort of the rows tied there only (lexsort's three
+    passes over every row cost ~5x more on 1 M points).
 
     Parameters
     ----------
@@ -61,8 +62,12 @@ def canonical_order(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X)
     if X.ndim != 2 or len(X) < 2 or X.shape[1] < 2:
         return np.lexsort(X.T[::-1]) if X.ndim == 2 and X.shape[1] else np.arange(len(X))
-    o = np.argsort(X[:, 0], kind="stable")
-    x = X[o, 0]
+    x = X[:, 0]
+    if x.dtype == np.float64 and not np.isnan(x).any():
+        o = stable_argsort(x)  # compiled radix sort, ~3x faster than numpy's stable sort on 1 M
+    else:
+        o = np.argsort(x, kind="stable")
+    x = x[o]
     tie = x[1:] == x[:-1]
     if tie.any():
         t = np.zeros(len(x), dtype=bool)

