@@ -248,8 +248,8 @@ def check_grouped(points, indptr, query):
         P = np.ascontiguousarray(P, dtype=np.float64)
     else:
         P = np.column_stack([P.astype(np.float64), np.zeros((n, 3 - P.shape[1]))])
-    bad = ~np.isfinite(P).all(axis=1)
-    if bad.any():
+    if not np.isfinite(P).all():  # one flat pass; the rows only to name them
+        bad = ~np.isfinite(P).all(axis=1)
         i = int(np.flatnonzero(bad)[0])
         raise InvalidPointsError(f"points has {int(bad.sum())} non-finite rows, the first at index {i}: {P[i].tolist()}")
     ip = np.asarray(indptr)
