@@ -11,7 +11,8 @@ from cloudsieve.core.kernels.entropy import entropy_gain, entropy_weights, rever
 from cloudsieve.core.kernels.knn import knn_in_clusters
 from cloudsieve.core.kernels.radius import within_radius
 from cloudsieve.core.kernels.order import stable_argsort
-from cloudsieve.core.knn import canonical_order, group, knn_clusters, knn_scored_clusters
+from cloudsieve.core.knn import canonical_order, group, knn_clusters
+from cloudsieve.core.scored_knn import knn_scored_clusters
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 KINDS = ["random", "grid", "duplicates", "collinear", "planar"]

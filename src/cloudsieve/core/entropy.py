@@ -47,7 +47,7 @@ sums from :mod:`.kernels.entropy` (the same values, bit for bit, as the
 numpy code they replace). With a context, the neighbours come from scipy's
 cKDTree over the points and the context.
 
-(:mod:`.knn` holds the k-NN queries.)
+(:mod:`.knn` and :mod:`.scored_knn` hold the k-NN queries.)
 
 Public names: :func:`entropy_scores` (dH per point), :func:`score_points`
 (a :class:`Scores` record with dH, the unit-free score m*dH used to pick one
@@ -68,7 +68,8 @@ import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
 from .kernels.entropy import entropy_weights, grouped_gain, graph_to_input, scores_to_input
-from .knn import group, groups_to_lists, knn_clusters, knn_context, knn_scored_clusters
+from .knn import group, knn_clusters, knn_context
+from .scored_knn import groups_to_lists, knn_scored_clusters
 
 __all__ = ["entropy_scores", "score_points", "Scores", "score_unchecked", "entropy_terms", "entropy_change"]
 
@@ -112,7 +113,7 @@ class Scores:
     k: np.ndarray
     duplicate: np.ndarray
     gain: np.ndarray
-    # (order, indptr, kcl, koff, scored, nb) of .knn.knn_scored_clusters: order maps grouped
+    # (order, indptr, kcl, koff, scored, nb) of .scored_knn.knn_scored_clusters: order maps grouped
     # positions to input indices; nb holds the k nearest of the scored positions (n for context)
     _graph: tuple | None = field(default=None, repr=False)
 

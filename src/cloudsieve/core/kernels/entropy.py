@@ -165,7 +165,7 @@ def _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc):
 
 def grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, dim):
     """H(R - y) - H(R) of every scored point, its cluster's points grouped (see
-    :func:`cloudsieve.core.knn.knn_scored_clusters` for the layout).
+    :func:`cloudsieve.core.scored_knn.knn_scored_clusters` for the layout).
 
     Parameters
     ----------
