@@ -10,6 +10,9 @@ from test_core_entropy import oracle
 from cloudsieve.core.kernels.entropy import entropy_gain, entropy_weights, reverse_sums
 from cloudsieve.core.kernels.knn import knn_in_clusters
 from cloudsieve.core.kernels.radius import within_radius
+from cloudsieve.core.kernels.order import stable_argsort
+from cloudsieve.core.knn import canonical_order, group, knn_clusters
+from cloudsieve.core.scored_knn import knn_scored_clusters
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 
 KINDS = ["random", "grid", "duplicates", "collinear", "planar"]
@@ -251,3 +254,79 @@ def test_within_radius_query_and_bad_radius():
         within_radius(P, [0, 100, 300], [0.1, -1.0])
     with pytest.raises(InvalidParameterError, match=r"radius must be a number or 2 numbers"):
         within_radius(P, [0, 100, 300], [0.1, 0.2, 0.3])
+
+
+def _morton_reference(pts, bits):
+    """The Z-order codes of the numpy code grouped_order replaced (three coordinates at most)."""
+    q = min(pts.shape[1], 3)
+    code = np.zeros(len(pts), dtype=np.uint64)
+    lo = pts[:, :q].min(axis=0)
+    span = float((pts[:, :q].max(axis=0) - lo).max())
+    if not (np.isfinite(span) and span > 0):
+        return code
+    scale = ((1 << bits) - 1) / span
+    for j in range(q):
+        x = ((pts[:, j] - lo[j]) * scale).astype(np.uint64)
+        for s, mask in [(32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
+                        (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)]:
+            x |= x << np.uint64(s)
+            x &= np.uint64(mask)
+        code |= x << np.uint64(j)
+    return code
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_grouped_order_is_the_stable_argsort_of_the_morton_keys(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 3000))
+    dim = int(rng.integers(1, 6))
+    pts = _cloud(rng, KINDS[seed % len(KINDS)], n, dim)
+    if seed == 5:
+        pts[:] = 1.5  # one point repeated: every code 0
+    lab = rng.integers(-3, int(rng.integers(1, 60)), n)
+    inv, order, sizes = group(pts, lab)
+    c = len(sizes)
+    bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
+    key = _morton_reference(pts, bits) | (inv.astype(np.uint64) << np.uint64(3 * bits))
+    np.testing.assert_array_equal(order, np.argsort(key, kind="stable"))
+    np.testing.assert_array_equal(sizes, np.bincount(inv))
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+@pytest.mark.parametrize("kind", KINDS)
+def test_scored_lists_match_knn_clusters(dim, kind):
+    """knn_scored_clusters: the distances and lists of knn_clusters, per cluster, copies included."""
+    rng = np.random.default_rng(dim * 10 + len(kind))
+    n = 2500
+    pts = _cloud(rng, kind, n, dim)
+    pts[rng.integers(0, n, 40)] = pts[rng.integers(0, n, 40)]  # copies in some clusters
+    lab = rng.integers(0, 14, n)
+    lab[:9] = 99  # a small cluster
+    inv, order, sizes = group(pts, lab)
+    indptr = np.r_[0, np.cumsum(sizes)]
+    g, ginv = pts[order], inv[order]
+    for threads in (1, 3):
+        rk, rk1, kcl, koff, scored, nb, dup = knn_scored_clusters(pts, order, indptr, 1.0, 4, threads)
+        groups, dup0 = knn_clusters(g, ginv, sizes, 1.0, 4, threads)
+        np.testing.assert_array_equal(dup, dup0)
+        assert scored.sum() == sum(len(grp[1]) for grp in groups)
+        for k, sc, a, b, nbx in groups:
+            cl = ginv[sc]
+            assert (kcl[cl] == k).all() and scored[sc].all()
+            np.testing.assert_array_equal(rk[sc], a)
+            np.testing.assert_array_equal(rk1[sc], b)
+            at = koff[cl] + (sc - indptr[cl]) * k
+            np.testing.assert_array_equal(nb[at[:, None] + np.arange(k)], nbx[:, :k])
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_stable_argsort_and_canonical_order(seed):
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(5000) * 10.0 ** rng.integers(-300, 300)
+    x[rng.integers(0, 5000, 800)] = x[rng.integers(0, 5000, 800)]  # ties
+    x[:50] = np.r_[0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324][rng.integers(0, 6, 50)]
+    np.testing.assert_array_equal(stable_argsort(x), np.argsort(x, kind="stable"))
+    X = np.round(rng.random((4000, 3)) * 5) * np.where(rng.random((4000, 3)) < 0.5, -1.0, 1.0)  # -0.0 and 0.0
+    X[::9] = X[0]
+    np.testing.assert_array_equal(canonical_order(X), np.lexsort(X.T[::-1]))
+    np.testing.assert_array_equal(canonical_order(X.astype(np.float32)), np.lexsort(X.T[::-1]))

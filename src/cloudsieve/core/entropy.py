@@ -47,7 +47,7 @@ sums from :mod:`.kernels.entropy` (the same values, bit for bit, as the
 numpy code they replace). With a context, the neighbours come from scipy's
 cKDTree over the points and the context.
 
-(:mod:`.knn` holds the k-NN queries.)
+(:mod:`.knn` and :mod:`.scored_knn` hold the k-NN queries.)
 
 Public names: :func:`entropy_scores` (dH per point), :func:`score_points`
 (a :class:`Scores` record with dH, the unit-free score m*dH used to pick one
@@ -67,8 +67,9 @@ from functools import cached_property
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
-from .kernels.entropy import entropy_weights, reverse_sums
+from .kernels.entropy import entropy_weights, grouped_gain, graph_to_input, scores_to_input
 from .knn import group, knn_clusters, knn_context
+from .scored_knn import groups_to_lists, knn_scored_clusters
 
 __all__ = ["entropy_scores", "score_points", "Scores", "score_unchecked", "entropy_terms", "entropy_change"]
 
@@ -112,9 +113,9 @@ class Scores:
     k: np.ndarray
     duplicate: np.ndarray
     gain: np.ndarray
-    # (order, groups): order maps grouped positions to input indices; groups holds
-    # (k, scored grouped positions (M,), neighbours (M, k+1) as grouped positions, n for context)
-    _graph: tuple = field(default=(np.zeros(0, dtype=np.int64), ()), repr=False)
+    # (order, indptr, kcl, koff, scored, nb) of .scored_knn.knn_scored_clusters: order maps grouped
+    # positions to input indices; nb holds the k nearest of the scored positions (n for context)
+    _graph: tuple | None = field(default=None, repr=False)
 
     @property
     def n_duplicates(self) -> int:
@@ -122,17 +123,10 @@ class Scores:
 
     @cached_property
     def neighbours(self) -> np.ndarray:
-        n = len(self.delta_h)
-        out = np.full((n, self.k.max(initial=0)), -1, dtype=np.int64)
-        self._graph_into(out, np.arange(n))
-        return out
-
-    def _graph_into(self, out: np.ndarray, rows: np.ndarray) -> None:
-        """Write the graph into out[rows] (already -1), mapping every index i to rows[i]."""
-        order, groups = self._graph
-        to = np.append(rows[order], -1)  # grouped position -> rows; n (context) -> -1
-        for k, sc, nbx in groups:
-            out[to[sc], :k] = to[nbx[:, :k]]
+        width = self.k.max(initial=0)
+        if self._graph is None:
+            return np.full((len(self.delta_h), width), -1, dtype=np.int64)
+        return graph_to_input(*self._graph, width)
 
     @property
     def indptr(self) -> np.ndarray:
@@ -201,64 +195,41 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
         return Scores(z, z.copy(), zi, zi.copy(), np.zeros(0, bool), z.copy())
 
     inv, order, sizes = group(pts, lab)
-    g = pts[order]  # grouped by cluster
-    ginv = inv[order]
     c = len(sizes)
-    if ctx is None:
-        groups, dup = knn_clusters(g, ginv, sizes, k0, k_min, threads)
+    indptr = np.zeros(c + 1, dtype=np.int64)
+    np.cumsum(sizes, out=indptr[1:])
+    if ctx is None and pts.shape[1] <= 3:
+        rk, rk1, kcl, koff, scored, nb, dup = knn_scored_clusters(pts, order, indptr, k0, k_min, threads)
     else:
-        groups, dup = knn_context(g, ginv, c, ctx, k0, k_min, threads)
-    # groups: list of (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), the k+1 nearest
-    # (M, k+1) as positions in g, n for a context point)
-    msize = np.bincount(ginv[~dup], minlength=c)  # distinct points per cluster
-
-    dh = np.full(n, np.inf)
-    dh[dup] = 0.0
-    sg = dh.copy()
-    k_in = np.zeros(n, dtype=np.int64)
-    if groups:
-        scored = np.concatenate([grp[1] for grp in groups])
-        rk = np.concatenate([grp[2] for grp in groups])
-        rk1 = np.concatenate([grp[3] for grp in groups])
-        cl = ginv[scored]
-        w, gw, Wc, dw_x, dg_x = entropy_weights(cl, c, rk, rk1, dim)
-        acc_w = np.zeros(n)
-        acc_g = np.zeros(n)
-        tcl = None if ctx is None else ginv  # with a context, only neighbours of the same cluster count
-        off = 0
-        for k, sc, _, _, nbx in groups:
-            M = len(sc)
-            part = slice(off, off + M)
-            # x's change goes to its k nearest; a point's reverse neighbours are all in its
-            # cluster's group, so each sum is the one of the rows in order (as np.bincount)
-            aw, ag = reverse_sums(nbx, np.full(M, k, dtype=np.int64), dw_x[part], dg_x[part], n,
-                                  tcl, None if tcl is None else cl[part])
-            acc_w += aw
-            acc_g += ag
-            del aw, ag
-            k_in[order[sc]] = k
-            off += M
-        dH = entropy_change(acc_w[scored] - w, acc_g[scored] - gw, Wc)
-        dh[scored] = np.abs(dH)
-        sg[scored] = dH
-
-    # back to input order
-    out_dh = np.empty(n)
-    out_dh[order] = dh
-    out_sg = np.empty(n)
-    out_sg[order] = sg
-    dup_in = np.empty(n, dtype=bool)
-    dup_in[order] = dup
-    out_m = np.empty(n, dtype=np.int64)
-    out_m[order] = msize[ginv]
-    with np.errstate(invalid="ignore"):
-        unit = out_dh * out_m
-    unit[dup_in] = 0.0
-    nd = int(dup_in.sum())
+        g = pts[order]  # grouped by cluster
+        ginv = inv[order]
+        if ctx is None:
+            groups, dup = knn_clusters(g, ginv, sizes, k0, k_min, threads)
+        else:
+            groups, dup = knn_context(g, ginv, c, ctx, k0, k_min, threads)
+        del g
+        # groups: (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), the k+1 nearest (M, k+1)
+        # as positions in g, n for a context point); one k per cluster
+        kcl = np.zeros(c, dtype=np.int64)
+        scored = np.zeros(n, dtype=bool)
+        for grp in groups:
+            kcl[ginv[grp[1]]] = grp[0]
+            scored[grp[1]] = True
+        koff = np.zeros(c + 1, dtype=np.int64)
+        np.cumsum(sizes * kcl, out=koff[1:])
+        rk = np.ones(n)
+        rk1 = np.ones(n)
+        nb = np.empty(int(koff[-1]), dtype=np.int64)
+        groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb)
+        del groups
+    gain = grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, dim)
+    del rk, rk1
+    msize = sizes - np.bincount(np.searchsorted(indptr, np.flatnonzero(dup), side="right") - 1, minlength=c)
+    dh, unit, sg, m_in, k_in, dup_in = scores_to_input(order, indptr, kcl, scored, dup, msize, gain)
+    nd = int(dup.sum())
     if nd:
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
-    graph = (order, tuple((grp[0], grp[1], grp[4]) for grp in groups))
-    return Scores(out_dh, unit, out_m, k_in, dup_in, out_sg, graph)
+    return Scores(dh, unit, m_in, k_in, dup_in, sg, (order, indptr, kcl, koff, scored, nb))
 
 
 def entropy_terms(cl, c, rk, rk1, dim):

@@ -24,6 +24,7 @@ from scipy.spatial import cKDTree
 
 from ._validation import neighbour_count
 from .kernels.knn import knn_unchecked, take_neighbours
+from .kernels.order import grouped_order, stable_argsort
 
 __all__ = [
     "scorable_rows",
@@ -41,8 +42,9 @@ def canonical_order(X: np.ndarray) -> np.ndarray:
     """Lexicographic order of the rows (first column first): input order never matters.
 
     Same result as ``np.lexsort(X.T[::-1])`` (ties kept in input order), but a
-    stable sort on the first column and a lexsort of the rows tied there only
-    (lexsort's three passes over every row cost ~5x more on 1 M points).
+    stable sort on the first column (:func:`.kernels.order.stable_argsort`
+    for float64) and a lexsort of the rows tied there only (lexsort's three
+    passes over every row cost ~5x more on 1 M points).
 
     Parameters
     ----------
@@ -55,8 +57,12 @@ def canonical_order(X: np.ndarray) -> np.ndarray:
     X = np.asarray(X)
     if X.ndim != 2 or len(X) < 2 or X.shape[1] < 2:
         return np.lexsort(X.T[::-1]) if X.ndim == 2 and X.shape[1] else np.arange(len(X))
-    o = np.argsort(X[:, 0], kind="stable")
-    x = X[o, 0]
+    x = X[:, 0]
+    if x.dtype == np.float64 and not np.isnan(x).any():
+        o = stable_argsort(x)  # compiled radix sort, ~3x faster than numpy's stable sort on 1 M
+    else:
+        o = np.argsort(x, kind="stable")
+    x = x[o]
     tie = x[1:] == x[:-1]
     if tie.any():
         t = np.zeros(len(x), dtype=bool)
@@ -97,39 +103,17 @@ def _dense_labels(lab: np.ndarray):
     return inv.reshape(-1).astype(np.int64), len(u)
 
 
-_SPREAD = [(32, 0x1F00000000FFFF), (16, 0x1F0000FF0000FF), (8, 0x100F00F00F00F00F),
-           (4, 0x10C30C30C30C30C3), (2, 0x1249249249249249)]
-
-
-def _morton(pts: np.ndarray, bits: int) -> np.ndarray:
-    """Z-order code (uint64) of the first three coordinates, ``bits`` <= 21 bits each over the bounding box.
-
-    Only a row order for memory locality (hand-written: numpy has no Morton
-    code); results do not depend on it.
-    """
-    q = min(pts.shape[1], 3)
-    code = np.zeros(len(pts), dtype=np.uint64)
-    lo = pts[:, :q].min(axis=0)
-    span = float((pts[:, :q].max(axis=0) - lo).max())
-    if not (np.isfinite(span) and span > 0):
-        return code
-    scale = ((1 << bits) - 1) / span
-    for j in range(q):
-        x = ((pts[:, j] - lo[j]) * scale).astype(np.uint64)
-        for s, mask in _SPREAD:
-            x |= x << np.uint64(s)
-            x &= np.uint64(mask)
-        x <<= np.uint64(j)
-        code |= x
-    return code
-
-
 def group(pts: np.ndarray, labels: np.ndarray):
     """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
 
     Inside a cluster the rows follow a Z-order curve (exact copies keep their
     input order), so that consecutive k-d tree queries touch the same memory:
-    the queries of 1 M points are ~1.5-2x faster than in input order.
+    the queries of 1 M points are ~1.5-2x faster than in input order. The
+    order is ``np.argsort(code | id << 3 * bits, kind="stable")``, code the
+    Morton code of the first three coordinates quantised to ``bits`` bits
+    each over the bounding box, computed by
+    :func:`.kernels.order.grouped_order` (a counting sort by cluster and
+    small sorts per cluster).
 
     Parameters
     ----------
@@ -146,10 +130,8 @@ def group(pts: np.ndarray, labels: np.ndarray):
     """
     inv, c = _dense_labels(labels)
     bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
-    key = _morton(pts, bits)
-    key |= inv.astype(np.uint64) << np.uint64(3 * bits)
-    order = np.argsort(key, kind="stable")
-    return inv, order, np.bincount(inv, minlength=c)
+    order, indptr = grouped_order(pts, inv, c, bits)
+    return inv, order, np.diff(indptr)
 
 
 def mark_duplicates(g, ginv, rows, dup):
@@ -374,3 +356,4 @@ def knn_context(g, ginv, c, ctx, k0, k_min, threads):
         d, i = tree.query(upool[pos_in_u[sel]], k=list(range(2, k + 3)), workers=threads)  # without itself
         groups.append((k, sel, d[:, k - 1].copy(), d[:, k].copy(), pool_to_g[i]))
     return groups, dup
+

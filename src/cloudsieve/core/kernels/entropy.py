@@ -27,7 +27,7 @@ from numba import njit
 
 from ...errors import InvalidParameterError
 
-__all__ = ["entropy_gain", "entropy_weights", "reverse_sums"]
+__all__ = ["entropy_gain", "entropy_weights", "reverse_sums", "grouped_gain", "scores_to_input", "graph_to_input"]
 
 
 @njit(cache=True, nogil=True)
@@ -98,6 +98,183 @@ def _reverse_sums(nbr, kr, dw, dg, tcl, cl, n):
             acc_w[y] += a
             acc_g[y] += b
     return acc_w, acc_g
+
+
+@njit(cache=True, nogil=True)
+def _grouped_log_weights(lr, lr1, indptr, kcl, scored, dim, lw, lw1):
+    """lw, lw1 of :func:`_log_weights` per cluster (shift: the cluster's min of log r_k)."""
+    nd = -dim
+    for c in range(len(kcl)):
+        if kcl[c] <= 0:
+            continue
+        sh = np.inf
+        for p in range(indptr[c], indptr[c + 1]):
+            if scored[p] and lr[p] < sh:
+                sh = lr[p]
+        for p in range(indptr[c], indptr[c + 1]):
+            if scored[p]:
+                lw[p] = nd * (lr[p] - sh)
+                lw1[p] = nd * (lr1[p] - sh)
+
+
+@njit(cache=True, nogil=True)
+def _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc):
+    """Per cluster: W, A, the terms of :func:`_terms` and the reverse sums of
+    :func:`_reverse_sums` (neighbours outside the cluster skipped), all in the
+    same order; then dW = acc_w - w, dG = acc_g - g and W per scored point."""
+    mmax = 1
+    for c in range(len(kcl)):
+        mmax = max(mmax, indptr[c + 1] - indptr[c])
+    acc_w = np.empty(mmax)
+    acc_g = np.empty(mmax)
+    for c in range(len(kcl)):
+        k = kcl[c]
+        if k <= 0:
+            continue
+        s = indptr[c]
+        e = indptr[c + 1]
+        W = 0.0
+        A = 0.0
+        for p in range(s, e):
+            if scored[p]:
+                W += w[p]
+                A += w[p] * lw[p]
+        L = A / W if W != 0.0 else np.nan
+        for t in range(e - s):
+            acc_w[t] = 0.0
+            acc_g[t] = 0.0
+        for p in range(s, e):
+            if not scored[p]:
+                continue
+            g = w[p] * (lw[p] - L)
+            g1 = w1[p] * (lw1[p] - L)
+            a = w1[p] - w[p]
+            b = g1 - g
+            o = koff[c] + (p - s) * k
+            for j in range(k):
+                y = nb[o + j]
+                if s <= y < e:
+                    acc_w[y - s] += a
+                    acc_g[y - s] += b
+        for p in range(s, e):
+            if scored[p]:
+                dW[p] = acc_w[p - s] - w[p]
+                dG[p] = acc_g[p - s] - w[p] * (lw[p] - L)
+                Wc[p] = W
+
+
+def grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, dim):
+    """H(R - y) - H(R) of every scored point, its cluster's points grouped (see
+    :func:`cloudsieve.core.scored_knn.knn_scored_clusters` for the layout).
+
+    Parameters
+    ----------
+    rk, rk1 : ndarray of shape (n,), float64
+        r_k and r_(k+1) per grouped position (> 0 where scored).
+    indptr : ndarray of shape (c + 1,), int64
+    kcl : ndarray of shape (c,), int64
+        k of each cluster, 0 for a cluster not scored.
+    koff : ndarray of shape (c + 1,), int64
+    scored : ndarray of shape (n,), bool
+    nb : ndarray of shape (koff[-1],), int64
+        The k nearest of each scored point (grouped positions, or others,
+        e.g. n for a context point, which are skipped), from koff[j] + (p - indptr[j]) * k.
+    dim : float
+
+    Returns
+    -------
+    ndarray of shape (n,), float64
+        The gain at the scored positions (0.0 elsewhere), bit for bit the
+        value of :func:`entropy_gain`: the same operations, with numpy's log,
+        exp and log1p.
+    """
+    n = len(rk)
+    lr = np.log(rk)  # numpy's log and exp (see the module docstring)
+    lr1 = np.log(rk1)
+    lw = np.zeros(n)
+    lw1 = np.zeros(n)
+    _grouped_log_weights(lr, lr1, indptr, kcl, scored, float(dim), lw, lw1)
+    del lr, lr1
+    w = np.exp(lw)
+    w1 = np.exp(lw1)
+    dW = np.zeros(n)
+    dG = np.zeros(n)
+    Wc = np.ones(n)
+    _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc)
+    del w, w1, lw, lw1
+    # log1p(dW / W) - dG / (W + dW), as entropy_change, in place
+    gain = np.divide(dW, Wc)
+    np.log1p(gain, out=gain)
+    np.add(Wc, dW, out=Wc)
+    np.divide(dG, Wc, out=dG)
+    np.subtract(gain, dG, out=gain)
+    return gain
+
+
+@njit(cache=True, nogil=True)
+def _to_input(order, indptr, kcl, scored, dup, msize, gain, dh, sg, unit, m_in, k_in, dup_in):
+    for c in range(len(kcl)):
+        m = msize[c]
+        fm = np.float64(m)
+        for p in range(indptr[c], indptr[c + 1]):
+            i = order[p]
+            if scored[p]:
+                v = gain[p]
+                a = abs(v)
+                k_in[i] = kcl[c]
+            elif dup[p]:
+                v = 0.0
+                a = 0.0
+                k_in[i] = 0
+            else:
+                v = np.inf
+                a = np.inf
+                k_in[i] = 0
+            dh[i] = a
+            sg[i] = v
+            unit[i] = 0.0 if dup[p] else a * fm
+            m_in[i] = m
+            dup_in[i] = dup[p]
+
+
+def scores_to_input(order, indptr, kcl, scored, dup, msize, gain):
+    """The fields of a Scores record in input order, from the grouped values.
+
+    Returns dh, unit (m dH, 0 for copies), sg (the gain; +inf unscored, 0 for
+    copies), m, k (0 unscored) and dup, each of shape (n,).
+    """
+    n = len(order)
+    dh = np.empty(n)
+    sg = np.empty(n)
+    unit = np.empty(n)
+    m_in = np.empty(n, dtype=np.int64)
+    k_in = np.empty(n, dtype=np.int64)
+    dup_in = np.empty(n, dtype=bool)
+    _to_input(order, indptr, kcl, scored, dup, msize, gain, dh, sg, unit, m_in, k_in, dup_in)
+    return dh, unit, sg, m_in, k_in, dup_in
+
+
+@njit(cache=True, nogil=True)
+def _graph(order, indptr, kcl, koff, scored, nb, out):
+    n = len(order)
+    for c in range(len(kcl)):
+        k = kcl[c]
+        s = indptr[c]
+        for p in range(s, indptr[c + 1]):
+            if scored[p]:
+                i = order[p]
+                o = koff[c] + (p - s) * k
+                for j in range(k):
+                    y = nb[o + j]
+                    out[i, j] = order[y] if 0 <= y < n else -1
+
+
+def graph_to_input(order, indptr, kcl, koff, scored, nb, width):
+    """The k-NN graph in input order: (n, width) int64, row i the k nearest of
+    point i (input indices, nearest first), -1 after them and for the rows not scored."""
+    out = np.full((len(order), int(width)), -1, dtype=np.int64)
+    _graph(order, indptr, kcl, koff, scored, nb, out)
+    return out
 
 
 def entropy_weights(cl, c, rk, rk1, dim):

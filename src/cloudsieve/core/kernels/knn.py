@@ -43,7 +43,7 @@ from numba import njit
 from ...errors import InvalidParameterError, InvalidPointsError
 from .kdtree import box_gap2, build_tree, dist2, gather, kth_smallest
 
-__all__ = ["knn_in_clusters", "knn_unchecked", "check_grouped", "run_chunks", "take_neighbours"]
+__all__ = ["knn_in_clusters", "knn_unchecked", "knn_scored", "check_grouped", "run_chunks", "take_neighbours"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
@@ -174,6 +174,66 @@ def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, tr
         _cluster(P, s, indptr[c + 1] - s, kc[c], K, query, leaf, bound_node, trim, out_d, out_i, w)
 
 
+@njit(cache=True, nogil=True)
+def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bound_node, trim, rk, rk1, nb, flag):
+    """Clusters c0..c1-1 with kcl > 0, their points pts[order[indptr[c]:indptr[c + 1]]]: r_k, r_(k+1)
+    and the k nearest (grouped positions) of each point, or flag[c] when a point has a copy."""
+    mmax = 1
+    kmax = 1
+    for c in range(c0, c1):
+        if kcl[c] > 0:
+            mmax = max(mmax, indptr[c + 1] - indptr[c])
+            kmax = max(kmax, kcl[c])
+    lmax = max(leaf_min, kmax + 1 + leaf_extra)
+    w = (
+        np.empty(mmax, np.int64),  # perm
+        np.empty((3, mmax)),  # X
+        np.empty((2 * mmax + 1, 4), np.int64),  # node
+        np.empty((2 * mmax + 1, 6)),  # box
+        np.empty(256, np.int64),  # stack
+        np.empty((3, mmax)),  # C
+        np.empty(mmax, np.int64),  # cj
+        np.empty(mmax),  # tmp
+        np.empty(mmax),  # cd
+        np.empty(mmax, np.int64),  # ci
+        np.empty(mmax),  # s0
+        np.empty(mmax),  # s1
+        np.empty(mmax, np.int64),  # si
+        np.empty(lmax),  # t0
+        np.empty(mmax, np.int64),  # rank
+    )
+    Pc = np.zeros((mmax, 3))  # zero columns for 1- and 2-D points
+    q = np.ones(mmax, np.bool_)
+    od = np.empty((mmax, kmax + 1))
+    oi = np.empty((mmax, kmax + 1), np.int64)
+    p = min(pts.shape[1], 3)
+    for c in range(c0, c1):
+        k = kcl[c]
+        if k <= 0:
+            continue
+        s = indptr[c]
+        m = indptr[c + 1] - s
+        for t in range(m):
+            i = order[s + t]
+            for d in range(p):
+                Pc[t, d] = pts[i, d]
+        leaf = max(leaf_min, k + 1 + leaf_extra)
+        _cluster(Pc, 0, m, k + 1, k + 1, q, leaf, bound_node, trim, od, oi, w)
+        z = False
+        for t in range(m):
+            z |= od[t, 0] == 0.0
+        if z:
+            flag[c] = True
+            continue
+        o = koff[c]
+        for t in range(m):
+            rk[s + t] = od[t, k - 1]
+            rk1[s + t] = od[t, k]
+            for j in range(k):
+                nb[o + j] = s + oi[t, j]
+            o += k
+
+
 def check_grouped(points, indptr, query):
     """Validate points grouped by cluster: (P (n, 3) float64 C-contiguous, 1- and 2-D points
     padded with zero columns, which add exactly 0.0 to every squared distance; indptr (c + 1,)
@@ -188,8 +248,8 @@ def check_grouped(points, indptr, query):
         P = np.ascontiguousarray(P, dtype=np.float64)
     else:
         P = np.column_stack([P.astype(np.float64), np.zeros((n, 3 - P.shape[1]))])
-    bad = ~np.isfinite(P).all(axis=1)
-    if bad.any():
+    if not np.isfinite(P).all():  # one flat pass; the rows only to name them
+        bad = ~np.isfinite(P).all(axis=1)
         i = int(np.flatnonzero(bad)[0])
         raise InvalidPointsError(f"points has {int(bad.sum())} non-finite rows, the first at index {i}: {P[i].tolist()}")
     ip = np.asarray(indptr)
@@ -285,6 +345,46 @@ def knn_unchecked(P, indptr, kc, query, threads=None):
     if K and len(indptr) > 1:
         run_chunks(_chunk, indptr, threads, P, indptr, kc, K, query, LEAF_MIN, LEAF_EXTRA, BOUND_NODE, TRIM, out_d, out_i)
     return out_d, out_i
+
+
+def knn_scored(pts, order, indptr, kcl, koff, threads=None):
+    """The k + 1 nearest inside each cluster of grouped points, for the scores (on checked input).
+
+    Parameters
+    ----------
+    pts : ndarray of shape (n, p), float64, 1 <= p <= 3
+        The points in input order.
+    order : ndarray of shape (n,), int64
+        Input indices in grouped order (cluster j: ``order[indptr[j]:indptr[j + 1]]``).
+    indptr : ndarray of shape (c + 1,), int64
+    kcl : ndarray of shape (c,), int64
+        k of each cluster, 0 to skip it; a cluster with k > 0 has >= k + 2 points.
+    koff : ndarray of shape (c + 1,), int64
+        Start of each cluster's lists in ``nb``: the lists of cluster j,
+        k = kcl[j] entries per point, from koff[j].
+    threads : int, optional
+
+    Returns
+    -------
+    rk, rk1 : ndarray of shape (n,), float64
+        r_k and r_(k+1) of each grouped position (1.0 where not computed).
+    nb : ndarray of shape (koff[-1],), int64
+        The k nearest of each point of the clusters computed, nearest first
+        (grouped positions; ties: the lower position first), the same as
+        :func:`knn_unchecked` gives.
+    flag : ndarray of shape (c,), bool
+        Clusters left out because a point has an exact copy (their rk, rk1,
+        nb are not written).
+    """
+    n = len(order)
+    rk = np.ones(n)
+    rk1 = np.ones(n)
+    nb = np.empty(int(koff[-1]), dtype=np.int64)
+    flag = np.zeros(len(kcl), dtype=bool)
+    if n and len(kcl):
+        run_chunks(_score_chunk, indptr, threads, pts, order, indptr, kcl, koff, LEAF_MIN, LEAF_EXTRA, BOUND_NODE,
+                   TRIM, rk, rk1, nb, flag)
+    return rk, rk1, nb, flag
 
 
 @njit(cache=True, nogil=True)

@@ -16,8 +16,9 @@ import time
 
 import numpy as np
 
-from .entropy import entropy_gain, reverse_sums
-from .knn import knn_unchecked, take_neighbours
+from .entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
+from .knn import knn_scored, knn_unchecked, take_neighbours
+from .order import grouped_order
 
 __all__ = ["warm_up"]
 
@@ -40,4 +41,13 @@ def warm_up() -> float:
     entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24)
     entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24, target_cluster=cl)
     reverse_sums(nbr, kr, d[:, 0].copy(), d[:, 1].copy(), 24)
+    # the path of the scores without context (entropy.score_unchecked)
+    order, indptr = grouped_order(P, cl, 2, 17)
+    kcl = np.array([4, 4], dtype=np.int64)
+    koff = np.array([0, 48, 96], dtype=np.int64)
+    rk, rk1, nb, _ = knn_scored(P, order, indptr, kcl, koff, 1)
+    scored = np.ones(24, dtype=bool)
+    gain = grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, 3.0)
+    scores_to_input(order, indptr, kcl, scored, ~scored, np.array([12, 12]), gain)
+    graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
     return time.perf_counter() - t0

@@ -1,0 +1,111 @@
+"""The k nearest inside clusters as the scores without context need them (DESIGN.md stage 4's k-NN).
+
+:func:`knn_scored_clusters` gives the lists and distances of
+:func:`.knn.knn_clusters` in one array laid out per cluster (not grouped by
+k), straight from the points in input order and their grouped order (no
+grouped copy of the points), from the compiled kernel
+:func:`.kernels.knn.knn_scored`; :func:`groups_to_lists` writes
+knn_clusters' groups into that layout (the paths with a context or more than
+3 coordinates). On valid input (see :mod:`._validation`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ._validation import neighbour_count
+from .kernels.knn import knn_scored
+from .knn import knn_query, mark_duplicates
+
+__all__ = ["knn_scored_clusters", "groups_to_lists"]
+
+
+def _cluster_of(indptr, rows):
+    """Cluster id of grouped positions ``rows``."""
+    return np.searchsorted(indptr, rows, side="right") - 1
+
+
+def _copies(pts, order, indptr, rows, dup):
+    """:func:`.knn.mark_duplicates` of the grouped positions ``rows`` (ascending), the
+    points taken from pts through order (no grouped copy of all the points)."""
+    sub = np.ascontiguousarray(pts[order[rows]])
+    local = np.zeros(len(rows), dtype=bool)
+    first = mark_duplicates(sub, _cluster_of(indptr, rows), np.arange(len(rows)), local)
+    dup[rows] = local
+    return rows[first]
+
+
+def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
+    """k-NN of every point inside its own cluster as scoring needs it, the points
+    given in input order with their grouped order (points of 1 to 3 coordinates).
+
+    The same lists and distances as :func:`.knn.knn_clusters`, in one layout per
+    cluster instead of groups by k: from the compiled kernel
+    :func:`.kernels.knn.knn_scored` (no grouped copy of the points); the
+    clusters with exact copies again through :func:`.knn.knn_query` on their
+    distinct points, as knn_clusters does.
+
+    Parameters
+    ----------
+    pts : ndarray of shape (n, p), float64, 1 <= p <= 3
+    order, indptr : ndarray of int64
+        From :func:`.knn.group`: input indices in grouped order, cluster starts (c + 1,).
+    k0, k_min, threads
+        As in :func:`.knn.knn_clusters`.
+
+    Returns
+    -------
+    rk, rk1 : ndarray of shape (n,), float64
+        r_k and r_(k+1) per grouped position (1.0 where not scored).
+    kcl : ndarray of shape (c,), int64
+        k of each cluster, 0 for the clusters not scored.
+    koff : ndarray of shape (c + 1,), int64
+    scored : ndarray of shape (n,), bool
+        The grouped positions scored (kcl of their cluster > 0, not a copy).
+    nb : ndarray of int64
+        The k nearest of the scored position p of cluster j (grouped
+        positions, nearest first) at ``nb[koff[j] + (p - indptr[j]) * k]``, k entries.
+    dup : ndarray of shape (n,), bool
+        The exact copies (grouped positions).
+    """
+    n = len(order)
+    sizes = np.diff(indptr)
+    kc = neighbour_count(sizes, k0, k_min)
+    ok = sizes >= kc + 2
+    dup = np.zeros(n, dtype=bool)
+    small = np.flatnonzero(~ok & (sizes > 1))
+    if len(small):  # their copies score 0, the other points +inf
+        _copies(pts, order, indptr, np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in small]), dup)
+    kcl = np.where(ok, kc, 0).astype(np.int64)
+    koff = np.zeros(len(sizes) + 1, dtype=np.int64)
+    np.cumsum(sizes * kcl, out=koff[1:])
+    rk, rk1, nb, flag = knn_scored(pts, order, indptr, kcl, koff, threads)
+    if flag.any():  # score the distinct points of these clusters (m and k follow)
+        kcl[flag] = 0
+        fl = np.flatnonzero(flag)
+        rows = np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in fl])
+        distinct = _copies(pts, order, indptr, rows, dup)
+        cl = _cluster_of(indptr, distinct)
+        m2 = np.bincount(cl, minlength=len(sizes))
+        k2 = neighbour_count(m2, k0, k_min)
+        rows2 = distinct[(m2 >= k2 + 2)[cl]]
+        if len(rows2):
+            sub = np.ascontiguousarray(pts[order[rows2]])
+            groups = knn_query(sub, _cluster_of(indptr, rows2), np.arange(len(rows2)), k2, threads)[0]
+            groups = [(k, rows2[r], a, b, rows2[i]) for k, r, a, b, i in groups]
+            groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb)
+    scored = (kcl > 0)[np.repeat(np.arange(len(sizes)), sizes)] & ~dup
+    return rk, rk1, kcl, koff, scored, nb, dup
+
+
+def groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb):
+    """Write groups as :func:`.knn.knn_clusters` gives them (positions as grouped
+    positions) into the layout of :func:`knn_scored_clusters`, in place; kcl
+    gets each group's k for its clusters."""
+    for k, r, a, b, nbx in groups:
+        cl = _cluster_of(indptr, r)
+        kcl[cl] = k
+        rk[r] = a
+        rk1[r] = b
+        at = koff[cl] + (r - indptr[cl]) * k
+        nb[at[:, None] + np.arange(k)] = nbx[:, :k]
