@@ -61,10 +61,21 @@ def good_and_bad(option: params.Option, command: str) -> tuple[list, list]:
 
 
 def context(command: str, name: str, value) -> dict:
-    """Other options a value needs to be valid together (rule target needs a ratio)."""
-    if command == "simplify" and name == "rule" and value in params.TARGET_RULES:
+    """Other options a value needs to be valid together (rule target needs a ratio).
+
+    simplify and compare need a rule that can run: the default, eliminate,
+    needs a ratio or a count, so the other options are walked with the
+    paper's rule iterative (which needs neither).
+    """
+    if command == "simplify" and name == "rule" and (value is None or value in params.TARGET_RULES):
         return {"ratio": 0.5}
-    return {}
+    if command == "compare" and name == "rule" and value is None:
+        return {"ratio": 0.5}
+    if command not in ("simplify", "compare") or name == "rule":
+        return {}
+    if name in ("ratio", "count", "threshold") and value is not None:
+        return {}
+    return {"rule": "iterative"}
 
 
 # ----------------------------------------------------------------- the three ways in
@@ -134,7 +145,7 @@ def pipeline(command, tmp_path, values) -> str | None:
     if command == "simplify":
         doc = {"pipeline": [reader, {"type": "filters.entropy", **values}, writer]}
     elif command == "evaluate":
-        doc = {"pipeline": [reader, {"type": "filters.entropy"}, writer, {"type": "evaluate", **values}]}
+        doc = {"pipeline": [reader, {"type": "filters.entropy", "ratio": 0.5}, writer, {"type": "evaluate", **values}]}
     else:
         doc = {"pipeline": [reader, {"type": "compare", **values}]}
     try:
@@ -225,11 +236,12 @@ def test_count_is_an_integer_at_least_1_in_the_api(tmp_path):
 
 def test_cluster_size_is_at_least_k_min_plus_2():
     with pytest.raises(InvalidParameterError) as exc:
-        params.validate("simplify", {"cluster_size": 11, "k_min": 10})
+        params.validate("simplify", {"cluster_size": 11, "k_min": 10, "rule": "iterative"})
     assert str(exc.value) == "cluster_size=11 is too small: a cluster needs at least k_min+2=12 points"
-    assert params.validate("simplify", {"cluster_size": 12, "k_min": 10, "cell_size": 12})["cluster_size"] == 12
+    assert params.validate("simplify", {"cluster_size": 12, "k_min": 10, "cell_size": 12, "rule": "iterative"}
+                           )["cluster_size"] == 12
     with pytest.raises(InvalidParameterError, match=r"k_min\+2=6"):
-        params.validate("compare", {"cluster_size": 5})
+        params.validate("compare", {"cluster_size": 5, "rule": "iterative"})
 
 
 def test_unknown_options_are_named():
@@ -242,7 +254,7 @@ def test_unknown_options_are_named():
 
 def test_the_work_store_record_keeps_its_keys():
     """Work stores of earlier runs resume: the recorded options keep their names (halo_context as "context")."""
-    record = params.run_record(params.validate("simplify", {"halo_context": True, "ratio": 0.5}))
+    record = params.run_record(params.validate("simplify", {"halo_context": True, "ratio": 0.5, "rule": "iterative"}))
     assert record == {"method": "km", "rule": "iterative", "threshold": 0.001, "ratio": 0.5, "count": None,
                       "cluster_size": 400, "cell_size": 100_000, "seed": 0, "context": True, "k0": 1.0, "k_min": 4}
 

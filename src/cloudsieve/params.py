@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .core import METHODS, RULES
+from .core import METHODS, PAPER_THRESHOLD, RULES
 from .errors import InvalidParameterError
 from .io import FORMATS
 from .scheduler import host_port
@@ -45,6 +45,8 @@ __all__ = [
     "COMPARE_METHODS",
     "LOCAL_SCHEDULERS",
     "TARGET_RULES",
+    "DEFAULT_RULE",
+    "Metavar",
     "check",
     "validate",
     "run_record",
@@ -59,6 +61,8 @@ COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count
 TARGET_RULES = ("target", "coverage", "eliminate")
+#: the rule when none is given and a ratio or a count is (README "Rules"); with a threshold alone: "threshold"
+DEFAULT_RULE = "eliminate"
 
 _READABLE = tuple(name for name, f in FORMATS.items() if f["reader"] is not None)
 _WRITABLE = tuple(name for name, f in FORMATS.items() if f["writer"] is not None)
@@ -132,9 +136,11 @@ _OPTIONS = [
     # -- the method
     Option("method", CHOICE, "km", "refinement into small clusters: K-means (default) or fuzzy C-means; unused by --rule eliminate "
            "(no clusters)", choices=METHODS),
-    Option("rule", CHOICE, "iterative", "pruning rule (target, coverage and eliminate need --ratio or --count; eliminate: "
-           "weighted sample elimination, an exact count)", choices=RULES),
-    Option("threshold", FLOAT, 1e-3, "entropy-change threshold S of the threshold/iterative rules", low=0.0,
+    Option("rule", CHOICE, None, "pruning rule (default: eliminate, weighted sample elimination, exactly --ratio or "
+           "--count points; with --threshold alone: threshold, the paper's one-pass rule); target, coverage and "
+           "eliminate need --ratio or --count", choices=RULES),
+    Option("threshold", FLOAT, None, "entropy-change threshold S of the threshold/iterative rules (default "
+           f"{PAPER_THRESHOLD:g} with those rules); given alone, it selects the threshold rule", low=0.0,
            metavar="S"),
     Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1% (exactly with --rule "
            "eliminate)", low=0.0, low_open=True,
@@ -190,7 +196,8 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-_RULE_LIST = Option("rule", CHOICES, ("iterative",), "entropy rule(s), comma-separated; each runs once per method",
+_RULE_LIST = Option("rule", CHOICES, None, "entropy rule(s), comma-separated; each runs once per method (eliminate: "
+                    "once, no clusters) (default: eliminate, with --ratio or --count; with --threshold alone: threshold)",
                     choices=RULES, metavar="RULES")
 
 
@@ -328,6 +335,52 @@ def check(option: Option | str, value: Any) -> Any:
 # ---------------------------------------------------------------- a command's options
 
 
+class Metavar(str):
+    """A value an error advises without choosing it (``R``, ``N``, ``S``); its repr is itself.
+
+    In ``InvalidParameterError(..., advice={"ratio": Metavar("R")})`` the
+    message words it as the API does, ``ratio=R``; the command line rewrites
+    that as ``--ratio R``.
+    """
+
+    __slots__ = ()
+
+    def __repr__(self) -> str:
+        return str(self)
+
+
+def _resolve_rule(command: str, o: dict, caller: str) -> None:
+    """Resolve the default rule (None: not given) and threshold (None: not given), once, in place.
+
+    No rule: ``eliminate`` with a ratio or a count; ``threshold`` with a
+    threshold alone; neither is an error. The threshold becomes
+    :data:`PAPER_THRESHOLD` when not given (what the work store records).
+    """
+    has_target = o["ratio"] is not None or o["count"] is not None
+    given = o["threshold"] is not None
+    entropy = command == "simplify" or any(m in METHODS for m in o["methods"])
+    if o["rule"] is None and not entropy:  # compare's baselines alone: no rule runs (compare wants a count)
+        o["rule"] = [DEFAULT_RULE]
+    if o["rule"] is None:
+        if not has_target and not given:
+            words = {name: Metavar(OPTIONS[name].metavar) for name in ("ratio", "count", "threshold")}
+            raise InvalidParameterError(
+                f"{caller} needs ratio={words['ratio']!r} or count={words['count']!r} (the default rule, "
+                f"{DEFAULT_RULE}, keeps exactly that many points), or threshold={words['threshold']!r} for the "
+                "paper's threshold rule", advice=words)
+        if has_target and given:
+            name = "ratio" if o["ratio"] is not None else "count"
+            raise InvalidParameterError(
+                f"threshold={o['threshold']!r} is the S of the paper's rules threshold and iterative, but with "
+                f"{name}={o[name]!r} the default rule is {DEFAULT_RULE}, which takes no threshold: add rule='iterative' "
+                "to use both, or leave the threshold out",
+                advice={"threshold": o["threshold"], name: o[name], "rule": "iterative"})
+        rule = DEFAULT_RULE if has_target else "threshold"
+        o["rule"] = rule if command == "simplify" else [rule]
+    if not given:
+        o["threshold"] = PAPER_THRESHOLD
+
+
 def _target(o: dict) -> None:
     if o["ratio"] is not None and o["count"] is not None:
         raise InvalidParameterError(f"give ratio or count, not both (got ratio={o['ratio']}, count={o['count']})")
@@ -341,7 +394,6 @@ def _cluster_size(o: dict) -> None:
 
 
 def _simplify(o: dict) -> None:
-    _target(o)
     rule, has_target = o["rule"], o["ratio"] is not None or o["count"] is not None
     if rule in TARGET_RULES and not has_target:
         raise InvalidParameterError(f"rule {rule!r} needs a ratio or a count")
@@ -359,15 +411,21 @@ def _simplify(o: dict) -> None:
 
 
 def _compare(o: dict) -> None:
-    _target(o)
     _cluster_size(o)
 
 
 _CROSS = {"simplify": _simplify, "compare": _compare}
 
 
-def validate(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
+def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
     """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together.
+
+    For ``simplify`` and ``compare`` the rule is resolved here, once: no
+    rule given -> :data:`DEFAULT_RULE` (``eliminate``) with a ratio or a
+    count, ``threshold`` with a threshold alone, an error with neither (or
+    with a threshold beside a ratio/count); a threshold not given becomes
+    :data:`PAPER_THRESHOLD`. The result holds the resolved values, so
+    validating it again gives it back.
 
     Parameters
     ----------
@@ -376,6 +434,9 @@ def validate(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
         ``pipeline`` (a pipeline's top-level keys).
     values : mapping of str to object
         Some of the command's options; the others take their defaults.
+    caller : str, optional
+        The name an error gives the call (default ``cloudsieve.<command>``;
+        the command line passes ``cloudsieve simplify``).
 
     Returns
     -------
@@ -386,7 +447,8 @@ def validate(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
     ------
     InvalidParameterError
         An unknown option, a value out of its range, or options that
-        contradict each other (ratio and count; rule target without either;
+        contradict each other (ratio and count; no rule and neither a ratio, a
+        count nor a threshold; rule target without a ratio or a count;
         cluster_size < k_min + 2; cell_size < cluster_size; ...).
     """
     spec = COMMANDS[command]
@@ -395,6 +457,8 @@ def validate(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
         raise InvalidParameterError(f"{command}: unknown option(s) {unknown}; accepted: {sorted(spec)}")
     out = {name: check(opt, values.get(name, opt.default)) for name, opt in spec.items()}
     if command in _CROSS:
+        _target(out)
+        _resolve_rule(command, out, caller or f"cloudsieve.{command}")
         _CROSS[command](out)
     return out
 

@@ -25,6 +25,9 @@ Stages, in this order:
     (``method``, ``rule``, ``threshold``, ``ratio``, ``count``,
     ``cluster_size``, ``cell_size``, ``seed``, ``halo_context``, ...) but
     ``format`` and ``overwrite`` (the writer's) and ``drop_invalid`` (the reader's).
+    Without ``rule``, ``ratio`` or ``count`` selects ``eliminate`` (exactly
+    that many points) and ``threshold`` alone the paper's ``threshold`` rule;
+    with none of them the stage is refused when the file is loaded.
 ``writers.*`` (one, required after ``filters.entropy``)
     ``writers.las`` (also LAZ, by extension), ``writers.ply``, ``writers.text``.
     ``filename`` may use ``{stem}`` (the input's name without extensions) and
@@ -64,7 +67,7 @@ from pathlib import Path
 from typing import Any
 
 from .errors import CloudsieveError, InvalidParameterError, PipelineError, UnknownFormatError
-from .params import COMMANDS, check, validate
+from .params import COMMANDS, Metavar, check, validate
 
 __all__ = ["Pipeline", "load_pipeline", "check_inputs", "run_pipeline", "stage_options"]
 
@@ -156,9 +159,11 @@ def _check_values(stage: dict, run_options: dict, label: str) -> None:
         else:
             if kind == "filters.entropy":
                 values = {**run_options, **values}
-            validate(STAGE_COMMANDS[kind], values)
+            validate(STAGE_COMMANDS[kind], values, caller=kind)
     except InvalidParameterError as exc:
-        raise PipelineError(f"{label}: {exc}") from None
+        # the label names the stage: only the values left to the user are reworded (ratio=R -> "ratio")
+        advice = {k: v for k, v in exc.advice.items() if isinstance(v, Metavar)}
+        raise PipelineError(f"{label}: {exc}", advice=advice) from None
 
 
 def _apply_override(doc: dict, item: str, where: str) -> None:

@@ -13,13 +13,15 @@ ORDER = 60
 def add_parser(subparsers) -> None:
     p = subparsers.add_parser(
         "compare",
-        help="compare KM/FCM entropy simplification with baselines at the same output count",
+        help="compare entropy simplification (default rule eliminate) with baselines at the same output count",
         description=(
             "Run each method on SRC to the same number of kept points, evaluate each (point errors, "
             "ball-pivoting meshes, Metro, compactness) and print one Markdown table. Methods: km, fcm "
             "(entropy), random, voxel (the point nearest each voxel centroid), poisson (Poisson-disk "
             "subsample), fps (farthest point; small clouds only). SRC is loaded into memory: compare "
-            "is for choosing a method on a model, a sample or a tile."
+            "is for choosing a method on a model, a sample or a tile. The default rule, eliminate, runs once "
+            "(it uses no clusters) and needs --ratio or --count; --rule iterative (or --threshold S alone: "
+            "threshold) runs the paper's rules once per entropy method."
         ),
     )
     p.add_argument("src", metavar="SRC", help="cloud (LAS/LAZ/COPC/PLY/E57/XYZ file or point store), loaded into memory")
@@ -34,8 +36,10 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate.compare import compare_runs
 
     values = option_values(args, "compare")
-    methods = params.check(params.COMMANDS["compare"]["methods"], values.pop("methods"))
-    runs = len(compare_runs(methods, params.check(params.COMMANDS["compare"]["rule"], values["rule"])))
+    opts = params.validate("compare", values, caller="cloudsieve compare")  # the rule resolved, as the API will
+    methods = opts["methods"]
+    values.pop("methods")
+    runs = len(compare_runs(methods, opts["rule"]))
     with progress.bar("methods", runs, unit="method", enabled=not args.no_progress) as tick:
         result = compare(args.src, methods=methods, **values, progress=tick)
     print(result["markdown"])

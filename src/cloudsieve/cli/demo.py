@@ -17,8 +17,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         help="simplify and evaluate a generated example scan (no data needed)",
         description=(
             "Generate an example aerial scan (terrain, buildings, trees; LAS 1.4 point format 7 "
-            "with intensity, classification, GPS time, RGB), simplify it with the entropy method "
-            "on dask, and evaluate what was lost. Writes everything into --out."
+            "with intensity, classification, GPS time, RGB), simplify it on dask (default: rule "
+            "eliminate, --ratio 0.5), and evaluate what was lost. Writes everything into --out."
         ),
     )
     p.add_argument("--points", type=positive_int, default=200_000, help="points in the example scan (default: 200000)")
@@ -65,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     summary = simplify(src, dst, **options, overwrite=True, bars=bar, notify=print)
     print(
         f"2/3 simplified -> {dst}: kept {summary.kept:,} of {summary.points_in:,} points "
-        f"({time.perf_counter() - t0:.1f} s, method {args.method}, rule {args.rule})"
+        f"({time.perf_counter() - t0:.1f} s, rule {options['rule']}"
+        + (")" if options["rule"] == "eliminate" else f", method {options['method']})")
     )
 
     t0 = time.perf_counter()

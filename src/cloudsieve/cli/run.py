@@ -40,7 +40,11 @@ def stage_wording(pipeline):
     def wording(name, value):
         import json
 
+        from ..params import Metavar
         from ..pipeline import stage_options
+
+        if isinstance(value, Metavar):  # a value left to the user: the key alone
+            return f'"{name}"'
 
         stages = [] if pipeline is None else [pipeline.reader, *pipeline.stages]
         owner = next((s["type"] for s in stages if name in stage_options(s["type"])), None)

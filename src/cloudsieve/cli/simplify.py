@@ -20,7 +20,9 @@ def add_parser(subparsers) -> None:
             "Simplify SRC into DST by entropy estimation (Mahdaoui et al. 2017): the cloud is "
             "ingested into a zarr point store, cut into coarse cells (dask tasks), each cell "
             "refined into small KM/FCM clusters, scored and pruned, and the kept points written "
-            "with every attribute. Same seed, same bytes, on any scheduler. Every option, SRC, "
+            "with every attribute. Same seed, same bytes, on any scheduler. The default rule, eliminate "
+            "(weighted sample elimination, no clusters), keeps exactly --ratio R or --count N points; "
+            "--threshold S alone runs the paper's threshold rule; --rule picks any rule. Every option, SRC, "
             "DST's format and folder and the scheduler are checked before any work starts."
         ),
     )
@@ -35,6 +37,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..engine import simplify
+    from ..params import validate
 
     def bars(stage, total, unit):
         return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
@@ -44,12 +47,13 @@ def run(args: argparse.Namespace) -> int:
 
     if args.rule == "eliminate" and args.ratio is None and args.count is None:
         from ..errors import InvalidParameterError
-        from ..params import OPTIONS
 
-        given = args.threshold != OPTIONS["threshold"].default
+        given = args.threshold is not None
         raise InvalidParameterError("--rule eliminate needs --ratio or --count"
                                     + (f" (it takes no --threshold: got --threshold {args.threshold:g})" if given else ""))
-    summary = simplify(args.src, args.dst, **option_values(args, "simplify"), bars=bars, notify=notify)
+    values = option_values(args, "simplify")
+    validate("simplify", values, caller="cloudsieve simplify")  # the API checks again; this words the call's name
+    summary = simplify(args.src, args.dst, **values, bars=bars, notify=notify)
     if args.json:
         record = summary.to_dict()
         record["store"] = record["store"] or None  # null, not "", when the work store was removed

@@ -24,7 +24,7 @@ from .entropy import Scores, entropy_scores, score_points
 from .fcm import FuzzyCMeans
 from .kmeans import KMeans
 from .refine import METHODS, refine_labels
-from .rules import RULES, prune, threshold_for_count, unit_free_scores
+from .rules import PAPER_THRESHOLD, RULES, prune, threshold_for_count, unit_free_scores
 from .simplify import simplify_points
 from ..errors import ConvergenceWarning
 
@@ -38,6 +38,7 @@ __all__ = [
     "score_points",
     "METHODS",
     "RULES",
+    "PAPER_THRESHOLD",
     "prune",
     "refine_labels",
     "simplify_points",

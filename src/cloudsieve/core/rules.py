@@ -74,11 +74,13 @@ from .rounds import prune_in_rounds
 from ..errors import InvalidParameterError
 from ..progress import callback
 
-__all__ = ["RULES", "prune", "unit_free_scores", "threshold_for_count", "check_rule_args", "prune_unchecked"]
+__all__ = ["RULES", "PAPER_THRESHOLD", "prune", "unit_free_scores", "threshold_for_count", "check_rule_args", "prune_unchecked"]
 
 logger = logging.getLogger(__name__)
 
 RULES = ("iterative", "threshold", "target", "coverage", "eliminate")
+#: S of the paper (Mahdaoui et al. 2017): the threshold of the rules threshold and iterative when none is given
+PAPER_THRESHOLD = 1e-3
 
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
@@ -113,7 +115,7 @@ def _target_count(n, ratio, count):
     return None
 
 
-def prune(points, labels=None, *, rule: str = "iterative", threshold: float = 1e-3, ratio=None, count=None,
+def prune(points, labels=None, *, rule: str = "iterative", threshold: float = PAPER_THRESHOLD, ratio=None, count=None,
           score: str = "delta_h", k0: float = 1.0, k_min: int = 4, dim: float = 3, context=None,
           coverage: float = 1.0, max_rounds: int | None = None, progress=None,
           threads: int | None = None) -> np.ndarray:

@@ -13,12 +13,12 @@ import numpy as np
 from ._validation import check_cluster_size, check_context, check_density_params, check_labels, check_points
 from .knn import canonical_order
 from .refine import check_method, make_estimator, refine_unchecked
-from .rules import check_rule_args, prune_unchecked
+from .rules import PAPER_THRESHOLD, check_rule_args, prune_unchecked
 
 __all__ = ["simplify_points"]
 
 
-def simplify_points(points, *, method: str = "km", rule: str = "iterative", threshold: float = 1e-3,
+def simplify_points(points, *, method: str = "km", rule: str = "iterative", threshold: float = PAPER_THRESHOLD,
                     ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
                     k_min: int = 4, context=None, labels=None, score: str = "delta_h",
                     n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
@@ -34,8 +34,13 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
         See :mod:`.rules`. ``eliminate`` needs no clusters: ``method``,
         ``labels`` and the entropy options are then unused (no KM/FCM runs).
+        The default stays ``iterative`` here (the paper's in-memory method,
+        which needs no ratio or count), while :func:`cloudsieve.simplify`,
+        :func:`cloudsieve.compare`, the CLI and the pipelines default to
+        ``eliminate`` (it needs ``ratio`` or ``count``; see
+        :mod:`cloudsieve.params`).
     threshold : float
-        S on dH (0.001, the paper).
+        S on dH (0.001, the paper: :data:`.rules.PAPER_THRESHOLD`).
     ratio, count : optional
         Kept fraction / kept count (rules target, coverage, eliminate; iterative with a target).
     cluster_size : int

@@ -144,8 +144,8 @@ def simplify(
     dst: str | os.PathLike,
     *,
     method: str = "km",
-    rule: str = "iterative",
-    threshold: float = 1e-3,
+    rule: str | None = None,
+    threshold: float | None = None,
     ratio: float | None = None,
     count: int | None = None,
     cluster_size: int = 400,
@@ -182,13 +182,17 @@ def simplify(
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
         Refinement into small clusters: K-means (the default: as good as FCM and 1.26x faster end to end) or fuzzy C-means.
-    rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
+    rule : {"eliminate", "iterative", "threshold", "target", "coverage"}, optional
         Pruning rule (see :mod:`cloudsieve.prune`). ``eliminate``: weighted
         sample elimination (:mod:`cloudsieve.engine.eliminate`), exactly the
         requested count; it uses no clusters (``method``, ``cluster_size``
-        and ``halo_context`` are unused).
-    threshold : float
-        S, the entropy-change threshold of the threshold/iterative rules.
+        and ``halo_context`` are unused). Default (None): ``eliminate`` when
+        *ratio* or *count* is given, ``threshold`` (the paper's one-pass
+        rule) when only *threshold* is; with none of the three,
+        InvalidParameterError. The resolved rule is the one recorded.
+    threshold : float, optional
+        S, the entropy-change threshold of the threshold/iterative rules
+        (default 1e-3, the paper's, with those rules).
     ratio, count : float in (0, 1] or int >= 1, optional
         Keep this share / number of the input points instead of using S
         (one of them; required by the rules target, coverage and eliminate).
@@ -289,6 +293,7 @@ def simplify(
         "drop_invalid": drop_invalid,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
+    rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     context = opts["halo_context"]
     update = callback(progress)
     summary = Summary(source=src, destination=dst)

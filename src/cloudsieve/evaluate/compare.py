@@ -10,9 +10,11 @@ Metro mean/max/RMS (% of the diagonal, the larger of both directions),
 compactness >= 0.6 (share of the simplified mesh's triangles).
 
 The count comes from ``count``, or ``ratio`` x n (the entropy rules
-``iterative``, ``target`` and ``coverage`` stop at it); with the paper's
-``threshold`` rule, or neither given, the first entropy method decides the
-count and the others follow it. Several rules may be given: each entropy
+``eliminate``, the default, ``iterative``, ``target`` and ``coverage`` stop
+at it); with the paper's ``threshold`` rule, or ``iterative`` and neither
+given, the first entropy method decides the count and the others follow it.
+Without a rule, a ratio or count selects ``eliminate`` and a threshold alone
+``threshold`` (:func:`cloudsieve.params.validate`). Several rules may be given: each entropy
 method then runs once per rule (rows "km (target)", ...).
 """
 
@@ -102,7 +104,7 @@ def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
     return runs
 
 
-def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] = "iterative",
+def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] | None = None,
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
             metro_samples: int | None = None, progress=None, drop_invalid: bool = False, **entropy_options) -> dict:
@@ -115,13 +117,17 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     methods : sequence of str
         Among ``km``, ``fcm`` (entropy simplification), ``random``, ``voxel``,
         ``poisson``, ``fps`` (baselines, :mod:`.baselines`).
-    rule : str or list of str
-        Rule(s) of the entropy methods (``iterative``, the default,
+    rule : str or list of str, optional
+        Rule(s) of the entropy methods (``eliminate``, ``iterative``,
         ``target``, ``coverage``, ``threshold``); a comma-separated string or
-        a list runs each entropy method once per rule.
+        a list runs each entropy method once per rule (``eliminate`` once: it
+        uses no clusters). Default (None): ``eliminate`` when *ratio* or
+        *count* is given, ``threshold`` when only ``threshold=`` is; an
+        entropy method with none of the three is an InvalidParameterError.
     ratio, count : optional
-        Kept share or kept count (one of them; required with ``rule="target"``
-        unless no entropy method runs).
+        Kept share or kept count (one of them; required by the default rule
+        and by ``target``, ``coverage`` and ``eliminate`` unless no entropy
+        method runs).
     report_dir : path, optional
         Writes report.md, report.json, compactness.png, point_errors.png and
         one evaluation report per method in a sub-folder.
