@@ -38,18 +38,18 @@ WRITABLE = "las (.las), laz (.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
 CASES = [
     # id                          command line                                                      exit  message (after "cloudsieve COMMAND: error: ")
     # -- the input
-    ("missing-file",              "simplify {in}/missing.laz {out}/o.laz",                            2, "{in}/missing.laz: no such file"),
-    ("directory-given",           "simplify {in}/folder.las {out}/o.laz",                             2, "{in}/folder.las is a directory, not a point cloud file or point store"),
+    ("missing-file",              "simplify {in}/missing.laz {out}/o.laz --ratio 0.5",                            2, "{in}/missing.laz: no such file"),
+    ("directory-given",           "simplify {in}/folder.las {out}/o.laz --ratio 0.5",                             2, "{in}/folder.las is a directory, not a point cloud file or point store"),
     ("unknown-extension",         "ingest {in}/scan.foo {out}/s.zarr",                                2, "{in}/scan.foo: unknown point cloud format (extension .foo)"),
     ("truncated-las",             "ingest {in}/cut.las {out}/s.zarr",                                 2, "{in}/cut.las: header says 1065 points but the file holds data for only 581 (truncated or corrupt)"),
     ("truncated-las-header",      "ingest {in}/header.las {out}/s.zarr",                              2, "{in}/header.las: not a valid LAS/LAZ file"),
     ("corrupt-las-signature",     "ingest {in}/signature.las {out}/s.zarr",                           2, "{in}/signature.las: not a valid LAS/LAZ file"),
     ("las-count-disagrees",       "ingest {in}/count.las {out}/s.zarr",                               2, "{in}/count.las: header says 1075 points but the file holds data for only 1065"),
-    ("truncated-laz",             "simplify {in}/cut.laz {out}/o.laz --scheduler sync",               2, "{in}/cut.laz: cannot decode point 434 of 1065 (points 0 to 433 decode; IoError: failed to fill whole buffer); truncated or corrupt"),
+    ("truncated-laz",             "simplify {in}/cut.laz {out}/o.laz --scheduler sync --ratio 0.5",               2, "{in}/cut.laz: cannot decode point 434 of 1065 (points 0 to 433 decode; IoError: failed to fill whole buffer); truncated or corrupt"),
     ("truncated-ply",             "ingest {in}/cut.ply {out}/s.zarr",                                 2, "{in}/cut.ply: header says 500 vertices but the file holds data for only 323 (truncated)"),
     ("not-a-ply",                 "ingest {in}/text.ply {out}/s.zarr",                                2, "{in}/text.ply: not a PLY file (first line b'hello', expected 'ply')"),
     ("ply-without-xyz",           "ingest {in}/noxyz.ply {out}/s.zarr",                               2, "{in}/noxyz.ply: PLY vertex element has no x/y/z properties (found: x, y)"),
-    ("nan-coordinates",           "simplify {in}/nan.xyz {out}/o.laz --scheduler sync",               2, "{in}/nan.xyz: 2 of 300 points have NaN or infinite coordinates (first: point 5); pass --drop-invalid to drop them"),
+    ("nan-coordinates",           "simplify {in}/nan.xyz {out}/o.laz --scheduler sync --ratio 0.5",               2, "{in}/nan.xyz: 2 of 300 points have NaN or infinite coordinates (first: point 5); pass --drop-invalid to drop them"),
     ("nan-coordinates-evaluate",  "evaluate {in}/nan.xyz {in}/nan.xyz --no-surface",                  2, "{in}/nan.xyz: 2 of 300 points have NaN or infinite coordinates (first: point 5); pass --drop-invalid to drop them"),
     ("empty-file",                "ingest {in}/empty.laz {out}/s.zarr",                               2, "{in}/empty.laz is empty (0 bytes)"),
     ("no-points",                 "ingest {in}/header-only.xyz {out}/s.zarr",                         2, "{in}/header-only.xyz holds no points"),
@@ -57,16 +57,16 @@ CASES = [
     ("missing-mask-array",        "export {in}/s.zarr {out}/o.las --mask simplify/keep",              2, "{in}/s.zarr has no array 'simplify/keep'"),
     ("incompatible-clouds",       "evaluate {data}/simple.las {in}/feet.xyz --no-surface",            2, "(pass --no-strict to compare anyway)"),
     # -- the destination
-    ("destination-exists",        "simplify {data}/simple.las {in}/exists.las --scheduler sync",      2, "{in}/exists.las exists; pass --overwrite to replace it"),
+    ("destination-exists",        "simplify {data}/simple.las {in}/exists.las --scheduler sync --ratio 0.5",      2, "{in}/exists.las exists; pass --overwrite to replace it"),
     ("store-exists",              "ingest {data}/simple.las {in}/s.zarr",                             2, "{in}/s.zarr exists (a folder); pass --overwrite to replace it"),
-    ("destination-is-source",     "simplify {in}/exists.las {in}/exists.las --overwrite",             2, "{in}/exists.las is the source: cloudsieve never overwrites its input"),
+    ("destination-is-source",     "simplify {in}/exists.las {in}/exists.las --overwrite --ratio 0.5",             2, "{in}/exists.las is the source: cloudsieve never overwrites its input"),
     ("store-is-source",           "export {in}/s.zarr {in}/s.zarr --format las --overwrite",          2, "destination {in}/s.zarr is the source {in}/s.zarr: cloudsieve never overwrites its input"),
-    ("folder-missing",            "simplify {data}/simple.las {out}/nowhere/o.laz",                   2, "cannot write {out}/nowhere/o.laz: folder {out}/nowhere does not exist"),
+    ("folder-missing",            "simplify {data}/simple.las {out}/nowhere/o.laz --ratio 0.5",                   2, "cannot write {out}/nowhere/o.laz: folder {out}/nowhere does not exist"),
     ("folder-is-a-file",          "export {in}/s.zarr {in}/afile/o.las",                              2, "cannot write {in}/afile/o.las: {in}/afile is not a folder"),
     ("folder-not-writable",       "export {in}/s.zarr /proc/cloudsieve-test.las",                     2, "cannot write /proc/cloudsieve-test.las:"),
     ("report-folder-is-a-file",   "evaluate {data}/simple.las {data}/simple.laz --report {in}/afile/r", 2, "cannot write {in}/afile/r: {in}/afile is not a folder"),
-    ("format-not-writable-e57",   "simplify {data}/simple.las {out}/o.e57",                           2, f"{{out}}/o.e57: writing e57 files is not supported; formats that can be written: {WRITABLE}"),
-    ("format-not-writable-copc",  "simplify {data}/simple.las {out}/o.copc.laz",                      2, "{out}/o.copc.laz: writing copc files is not supported (write .laz: a COPC file needs an octree order)"),
+    ("format-not-writable-e57",   "simplify {data}/simple.las {out}/o.e57 --ratio 0.5",                           2, f"{{out}}/o.e57: writing e57 files is not supported; formats that can be written: {WRITABLE}"),
+    ("format-not-writable-copc",  "simplify {data}/simple.las {out}/o.copc.laz --ratio 0.5",                      2, "{out}/o.copc.laz: writing copc files is not supported (write .laz: a COPC file needs an octree order)"),
     ("format-unknown",            "export {in}/s.zarr {out}/o.foo",                                   2, "{out}/o.foo: unknown point cloud format (extension .foo)"),
     ("demo-folder-not-empty",     "demo --out {in} --points 1000",                                    2, "{in} exists and is not empty"),
     # -- the options
@@ -74,9 +74,9 @@ CASES = [
     ("count-zero",                "simplify {data}/simple.las {out}/o.laz --count 0",                 2, "count must be an integer >= 1, got 0"),
     ("ratio-and-count",           "simplify {data}/simple.las {out}/o.laz --ratio 0.5 --count 10",    2, "give ratio or count, not both (got ratio=0.5, count=10)"),
     ("target-without-ratio",      "simplify {data}/simple.las {out}/o.laz --rule target",             2, "rule 'target' needs a ratio or a count"),
-    ("cluster-size-too-small",    "simplify {data}/simple.las {out}/o.laz --cluster-size 5",          2, "cluster_size=5 is too small: a cluster needs at least k_min+2=6 points"),
+    ("cluster-size-too-small",    "simplify {data}/simple.las {out}/o.laz --cluster-size 5 --ratio 0.5",          2, "cluster_size=5 is too small: a cluster needs at least k_min+2=6 points"),
     ("unknown-scheduler",         "simplify {data}/simple.las {out}/o.laz --scheduler fast",          2, "unknown scheduler 'fast': use sync, threads, processes or a tcp://host:port address"),
-    ("unreachable-scheduler",     "simplify {data}/simple.las {out}/o.laz --scheduler tcp://127.0.0.1:1", 2, "cannot reach the dask scheduler at tcp://127.0.0.1:1: Connection refused (connect timeout 5 s)"),
+    ("unreachable-scheduler",     "simplify {data}/simple.las {out}/o.laz --scheduler tcp://127.0.0.1:1 --ratio 0.5", 2, "cannot reach the dask scheduler at tcp://127.0.0.1:1: Connection refused (connect timeout 5 s)"),
     ("compare-unknown-method",    "compare {data}/simple.las --methods km,grid",                      2, "unknown method(s) ['grid']; choose among km, fcm, random, voxel, poisson, fps"),
     # -- pipelines
     ("pipeline-missing",          "run {in}/nope.json",                                               2, "{in}/nope.json: no such pipeline file"),
@@ -133,7 +133,7 @@ def inputs(tmp_path_factory):
     simple, _ = read_cloud(shared_file("simple.las"))
     np.savetxt(d / "feet.xyz", simple[::2] * 1000.0, fmt="%.3f")
     reader = {"type": "readers.las", "filename": str(shared_file("simple.las"))}
-    entropy, writer = {"type": "filters.entropy"}, {"type": "writers.las", "filename": str(d / "o.las")}
+    entropy, writer = {"type": "filters.entropy", "ratio": 0.5}, {"type": "writers.las", "filename": str(d / "o.las")}
     pipelines = {
         "not-json": '{"pipeline": [,]}',
         "no-stages": {"pipeline": []},
@@ -141,7 +141,7 @@ def inputs(tmp_path_factory):
         "typo": {"pipeline": [{"type": "readers.las", "filenme": "scan.las"}, entropy, writer]},
         "bad-value": {"pipeline": [reader, {"type": "filters.entropy", "rule": "target", "ratio": 2}, writer]},
         "unset-variable": {"pipeline": [{"type": "readers.ply", "filename": "$CLOUDSIEVE_TEST_UNSET/bun.ply"},
-                                        {"type": "compare"}]},
+                                        {"type": "compare", "ratio": 0.5}]},
         "missing-input": {"pipeline": [{"type": "readers.las", "filename": str(d / "missing.laz")}, entropy, writer]},
         "exists": {"scheduler": "sync",
                    "pipeline": [reader, entropy, {"type": "writers.las", "filename": str(d / "exists.las")}]},

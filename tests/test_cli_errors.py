@@ -45,7 +45,7 @@ def src():
 
 def test_missing_source(tmp_path, capsys):
     missing, out = tmp_path / "missing.laz", tmp_path / "out.laz"
-    rc, err, seconds = run(["simplify", missing, out], capsys)
+    rc, err, seconds = run(["simplify", missing, out, "--ratio", "0.5"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: {missing}: no such file\n"
     assert listing(tmp_path) == []
@@ -59,7 +59,7 @@ def test_missing_source(tmp_path, capsys):
 ])
 def test_destination_format_not_writable(tmp_path, capsys, src, name, message):
     out = tmp_path / name
-    rc, err, seconds = run(["simplify", src, out, "--scheduler", "sync"], capsys)
+    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: {out}: {message}; formats that can be written: {WRITABLE}\n"
     assert listing(tmp_path) == []
@@ -70,7 +70,7 @@ def test_destination_folder_is_a_file(tmp_path, capsys, src):
     afile = tmp_path / "afile"
     afile.write_bytes(b"")
     out, store = afile / "out.laz", tmp_path / "elsewhere.zarr"
-    rc, err, seconds = run(["simplify", src, out, "--store", store, "--scheduler", "sync"], capsys)
+    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: cannot write {out}: {afile} is not a folder\n"
     assert listing(tmp_path) == ["afile"]
@@ -79,7 +79,7 @@ def test_destination_folder_is_a_file(tmp_path, capsys, src):
 
 def test_destination_folder_missing(tmp_path, capsys, src):
     out, store = tmp_path / "nowhere" / "out.laz", tmp_path / "elsewhere.zarr"
-    rc, err, seconds = run(["simplify", src, out, "--store", store, "--scheduler", "sync"], capsys)
+    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: cannot write {out}: folder {out.parent} does not exist\n"
     assert listing(tmp_path) == []
@@ -88,7 +88,7 @@ def test_destination_folder_missing(tmp_path, capsys, src):
 
 def test_scheduler_unreachable(tmp_path, capsys, src):
     out = tmp_path / "out.laz"
-    rc, err, seconds = run(["simplify", src, out, "--scheduler", "tcp://127.0.0.1:1"], capsys)
+    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "tcp://127.0.0.1:1"], capsys)
     assert rc == 2
     assert err == ("cloudsieve simplify: error: cannot reach the dask scheduler at tcp://127.0.0.1:1: "
                    "Connection refused (connect timeout 5 s)\n")
@@ -141,8 +141,8 @@ def test_missing_source_as_a_command_no_traceback(tmp_path):
     """The installed entry point: one line on stderr, exit 2 (it was a FileNotFoundError traceback, exit 1)."""
     missing = tmp_path / "missing.laz"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run([sys.executable, "-m", "cloudsieve", "simplify", str(missing), str(tmp_path / "out.laz")],
-                          capture_output=True, text=True, env=env, cwd=tmp_path)
+    proc = subprocess.run([sys.executable, "-m", "cloudsieve", "simplify", str(missing), str(tmp_path / "out.laz"),
+                           "--ratio", "0.5"], capture_output=True, text=True, env=env, cwd=tmp_path)
     assert proc.returncode == 2
     assert proc.stderr == f"cloudsieve simplify: error: {missing}: no such file\n"
     assert listing(tmp_path) == []

@@ -391,7 +391,7 @@ def test_cli_prints_the_summary(tmp_path, capsys):
     assert rc == 0
     out = capsys.readouterr().out
     assert "points in" in out and "kept" in out and "cells" in out and "peak memory" in out
-    rc = main(["simplify", str(src), str(tmp_path / "o.laz"), "--scheduler", "sync"])
+    rc = main(["simplify", str(src), str(tmp_path / "o.laz"), "--rule", "threshold", "--scheduler", "sync"])
     assert rc == 2
     assert "exists" in capsys.readouterr().err
 
@@ -405,4 +405,4 @@ def test_bad_parameters_are_refused(tmp_path):
     with pytest.raises(InvalidParameterError, match="unknown scheduler 'fast'"):
         simplify(src, tmp_path / "o.laz", scheduler="fast", method="km")
     with pytest.raises(InvalidParameterError, match=r"cell_size \(100\) must be >= cluster_size \(400\)"):
-        simplify(src, tmp_path / "o.laz", cell_size=100)
+        simplify(src, tmp_path / "o.laz", cell_size=100, rule="iterative")

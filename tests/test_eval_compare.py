@@ -72,7 +72,8 @@ def test_compare_cli_equal_counts_and_report(tmp_path, crop):
     with open_writer(src, header={}, dtypes={"xyz": (np.dtype("float64"), (3,))}, format="ply") as w:
         w.write({"xyz": crop})
     out = tmp_path / "cmp"
-    assert main(["compare", str(src), "--ratio", "0.5", "--report", str(out), "--no-progress"]) == 0
+    assert main(["compare", str(src), "--ratio", "0.5", "--rule", "iterative", "--report", str(out),
+                 "--no-progress"]) == 0
     rep = json.loads((out / "report.json").read_text())
     rows = {r["method"]: r for r in rep["rows"]}
     assert set(rows) == {"km", "fcm", "random", "voxel", "poisson", "fps"}

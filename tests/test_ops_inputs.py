@@ -69,7 +69,7 @@ def test_nan_advice_is_drop_invalid_for_simplify_evaluate_compare(tmp_path, caps
     np.savetxt(good, np.random.default_rng(1).random((100, 3)), fmt="%.6f")
     before = listing(tmp_path)
     commands = {
-        "simplify": ["simplify", src, tmp_path / "out.las", "--scheduler", "sync", "--no-progress"],
+        "simplify": ["simplify", src, tmp_path / "out.las", "--ratio", "0.5", "--scheduler", "sync", "--no-progress"],
         "evaluate": ["evaluate", src, good, "--no-surface", "--no-progress"],
         "compare": ["compare", src, "--methods", "random,voxel", "--ratio", "0.5", "--no-surface", "--no-progress"],
     }
@@ -90,7 +90,7 @@ def test_nan_advice_is_drop_invalid_for_simplify_evaluate_compare(tmp_path, caps
 def test_nan_advice_in_the_api_is_drop_invalid_true(tmp_path):
     src = write_nan_xyz(tmp_path / "nan.xyz")
     calls = [
-        lambda **kw: cloudsieve.simplify(src, tmp_path / "out.las", scheduler="sync", **kw),
+        lambda **kw: cloudsieve.simplify(src, tmp_path / "out.las", ratio=0.5, scheduler="sync", **kw),
         lambda **kw: cloudsieve.evaluate(src, src, surface=False, **kw),
         lambda **kw: cloudsieve.compare(src, methods=["random"], ratio=0.5, surface=False, **kw),
     ]
@@ -100,14 +100,15 @@ def test_nan_advice_in_the_api_is_drop_invalid_true(tmp_path):
         assert str(info.value) == nan_message(src, "drop_invalid=True")
         assert info.value.advice == {"drop_invalid": True}
     assert listing(tmp_path) == ["nan.xyz"]
-    assert cloudsieve.simplify(src, tmp_path / "out.las", scheduler="sync", drop_invalid=True).points_in == 298
+    summary = cloudsieve.simplify(src, tmp_path / "out.las", ratio=0.5, scheduler="sync", drop_invalid=True)
+    assert summary.points_in == 298
 
 
 def test_nan_advice_in_a_pipeline_is_the_reader_key(tmp_path, capsys):
     src = write_nan_xyz(tmp_path / "nan.xyz")
     out = tmp_path / "out.las"
     doc = {"scheduler": "sync", "pipeline": [
-        {"type": "readers.text", "filename": str(src)}, {"type": "filters.entropy"},
+        {"type": "readers.text", "filename": str(src)}, {"type": "filters.entropy", "ratio": 0.5},
         {"type": "writers.las", "filename": str(out)}]}
     (tmp_path / "p.json").write_text(json.dumps(doc))
     rc, _, err = run(["run", tmp_path / "p.json"], capsys)
@@ -122,13 +123,13 @@ def test_nan_advice_in_a_pipeline_is_the_reader_key(tmp_path, capsys):
 def test_pipeline_reader_takes_drop_invalid(tmp_path):
     """drop_invalid is the reader's option: checked as the API checks it, refused in the other stages."""
     reader = {"type": "readers.las", "filename": "a.las"}
-    rest = [{"type": "filters.entropy"}, {"type": "writers.las", "filename": "b.las"}]
+    rest = [{"type": "filters.entropy", "ratio": 0.5}, {"type": "writers.las", "filename": "b.las"}]
     assert load_pipeline({"pipeline": [{**reader, "drop_invalid": True}, *rest]}).reader["drop_invalid"] is True
     with pytest.raises(PipelineError) as info:
         load_pipeline({"pipeline": [{**reader, "drop_invalid": "yes"}, *rest]})
     assert str(info.value) == "<pipeline>: stage 1 (readers.las): drop_invalid must be true or false, got 'yes'"
     with pytest.raises(PipelineError, match=r"stage 2 \(filters.entropy\): unknown option\(s\) \['drop_invalid'\]"):
-        load_pipeline({"pipeline": [reader, {"type": "filters.entropy", "drop_invalid": True}, rest[1]]})
+        load_pipeline({"pipeline": [reader, {"type": "filters.entropy", "ratio": 0.5, "drop_invalid": True}, rest[1]]})
 
 
 def test_overwrite_advice_api_cli_and_run(tmp_path, capsys):
@@ -136,15 +137,15 @@ def test_overwrite_advice_api_cli_and_run(tmp_path, capsys):
     dst = tmp_path / "out.las"
     dst.write_bytes(b"precious")
     with pytest.raises(DestinationExistsError) as info:
-        cloudsieve.simplify(src, dst, scheduler="sync")
+        cloudsieve.simplify(src, dst, ratio=0.5, scheduler="sync")
     assert str(info.value) == f"{dst} exists; pass overwrite=True to replace it"
-    rc, _, err = run(["simplify", src, dst, "--scheduler", "sync", "--no-progress"], capsys)
+    rc, _, err = run(["simplify", src, dst, "--ratio", "0.5", "--scheduler", "sync", "--no-progress"], capsys)
     assert (rc, err) == (2, f"cloudsieve simplify: error: {dst} exists; pass --overwrite to replace it\n")
     store = tmp_path / "s.zarr"
     store.mkdir()
     rc, _, err = run(["ingest", src, store, "--no-progress"], capsys)
     assert (rc, err) == (2, f"cloudsieve ingest: error: {store} exists (a folder); pass --overwrite to replace it\n")
-    doc = {"scheduler": "sync", "pipeline": [str(src), {"type": "filters.entropy"},
+    doc = {"scheduler": "sync", "pipeline": [str(src), {"type": "filters.entropy", "ratio": 0.5},
                                              {"type": "writers.las", "filename": str(dst)}]}
     (tmp_path / "p.json").write_text(json.dumps(doc))
     rc, _, err = run(["run", tmp_path / "p.json"], capsys)
@@ -160,7 +161,8 @@ def test_destination_is_source_never_suggests_overwrite(tmp_path, capsys):
     src = tmp_path / "scan.las"
     src.write_bytes(shared_file("simple.las").read_bytes())
     for extra in ([], ["--overwrite"]):
-        rc, _, err = run(["simplify", src, src, "--scheduler", "sync", "--no-progress", *extra], capsys)
+        rc, _, err = run(["simplify", src, src, "--ratio", "0.5", "--scheduler", "sync", "--no-progress", *extra],
+                         capsys)
         assert (rc, err) == (2, f"cloudsieve simplify: error: {src} is the source: cloudsieve never overwrites its input\n")
     assert listing(tmp_path) == ["scan.las"]
     assert src.read_bytes() == shared_file("simple.las").read_bytes()
@@ -168,7 +170,7 @@ def test_destination_is_source_never_suggests_overwrite(tmp_path, capsys):
 
 def test_resume_mismatch_and_strict_advice_in_cli_words(tmp_path, capsys):
     src, out, store = shared_file("simple.las"), tmp_path / "out.las", tmp_path / "work.zarr"
-    base = ["simplify", src, out, "--store", store, "--scheduler", "sync", "--no-progress"]
+    base = ["simplify", src, out, "--rule", "iterative", "--store", store, "--scheduler", "sync", "--no-progress"]
     assert run(base, capsys)[0] == 0
     out.unlink()  # the work store stays (an explicit --store is kept)
     rc, _, err = run([*base, "--threshold", "0.002"], capsys)
@@ -213,14 +215,15 @@ def test_check_fails_on_an_unset_variable(tmp_path, capsys, monkeypatch):
 
 def test_check_names_an_unknown_reader_key_and_the_accepted_ones(tmp_path, capsys):
     path = tmp_path / "p.json"
-    path.write_text(json.dumps({"pipeline": [{"type": "readers.las", "filenme": "scan.las"}, {"type": "filters.entropy"},
+    path.write_text(json.dumps({"pipeline": [{"type": "readers.las", "filenme": "scan.las"},
+                                             {"type": "filters.entropy", "ratio": 0.5},
                                              {"type": "writers.las", "filename": "out.las"}]}))
     rc, _, err = run(["run", path, "--check"], capsys)
     assert rc == 2
     assert err == (f"cloudsieve run: error: {path}: stage 1 (readers.las): unknown option(s) ['filenme']; "
                    "accepted: ['drop_invalid', 'filename']\n")
     path.write_text(json.dumps({"pipeline": [{"type": "readers.las", "filename": str(shared_file("bun_zipper.ply"))},
-                                             {"type": "filters.entropy"},
+                                             {"type": "filters.entropy", "ratio": 0.5},
                                              {"type": "writers.las", "filename": "out.las"}]}))
     rc, _, err = run(["run", path, "--check"], capsys)
     assert rc == 2
@@ -250,7 +253,7 @@ def test_outputs_get_the_umask_mode(tmp_path, umask):
     for ext in (".las", ".laz", ".ply", ".xyz"):
         export(store, tmp_path / f"out{ext}")
         assert mode(tmp_path / f"out{ext}") == 0o644, ext
-    cloudsieve.simplify(store.path, tmp_path / "small.laz", scheduler="sync")
+    cloudsieve.simplify(store.path, tmp_path / "small.laz", ratio=0.5, scheduler="sync")
     assert mode(tmp_path / "small.laz") == 0o644
     umask(0o027)
     export(store, tmp_path / "private.las")
@@ -312,11 +315,12 @@ def test_info_prints_bounds_with_every_digit(capsys):
 
 def test_simplify_json_store_is_null_when_removed(tmp_path, capsys):
     src = shared_file("simple.las")
-    rc, out, _ = run(["simplify", src, tmp_path / "a.las", "--scheduler", "sync", "--no-progress", "--json"], capsys)
+    rc, out, _ = run(["simplify", src, tmp_path / "a.las", "--ratio", "0.5", "--scheduler", "sync", "--no-progress",
+                      "--json"], capsys)
     assert rc == 0 and json.loads(out)["store"] is None
     kept = tmp_path / "kept.zarr"
-    rc, out, _ = run(["simplify", src, tmp_path / "b.las", "--store", kept, "--scheduler", "sync", "--no-progress",
-                      "--json"], capsys)
+    rc, out, _ = run(["simplify", src, tmp_path / "b.las", "--ratio", "0.5", "--store", kept, "--scheduler", "sync",
+                      "--no-progress", "--json"], capsys)
     assert rc == 0 and json.loads(out)["store"] == str(kept)
 
 

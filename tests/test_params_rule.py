@@ -183,3 +183,13 @@ def test_pipeline_runs_with_the_default_rule(tmp_path):
     doc = _doc(tmp_path, {"type": "filters.entropy", "count": 500, "scheduler": "sync"})
     (entry,) = cloudsieve.run_pipeline(load_pipeline(doc))
     assert entry["input"] == str(src) and entry["summary"].kept == 500
+
+
+def test_compare_default_table_is_eliminate_and_the_baselines(tmp_path, capsys):
+    src = write_laz(tmp_path / "p.laz", plane(2_000, side=20.0))
+    result = cloudsieve.compare(src, count=500, surface=False)
+    assert [r["method"] for r in result["rows"]] == ["eliminate", "random", "voxel", "poisson", "fps"]
+    assert result["rule"] == "eliminate" and result["rows"][0]["kept"] == 500
+    assert main(["compare", str(src), "--count", "500", "--no-surface", "--no-progress", "--methods", "km,voxel"]) == 0
+    out = capsys.readouterr().out
+    assert "rule `eliminate`" in out and "| eliminate | 500 |" in out and "| voxel |" in out

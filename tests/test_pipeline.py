@@ -60,7 +60,7 @@ def test_unknown_option_lists_the_accepted_ones(tmp_path):
 
 
 def test_entropy_needs_a_writer(tmp_path):
-    doc = {"pipeline": [{"type": "readers.las", "filename": "a.las"}, {"type": "filters.entropy"}]}
+    doc = {"pipeline": [{"type": "readers.las", "filename": "a.las"}, {"type": "filters.entropy", "ratio": 0.5}]}
     with pytest.raises(PipelineError, match=r"filters.entropy needs a writers\.\* stage"):
         load_pipeline(write(tmp_path, doc))
 
@@ -74,10 +74,10 @@ def test_evaluate_needs_a_writer_before_it(tmp_path):
 def test_glob_over_several_files_needs_stem(tmp_path):
     for name in ("a.las", "b.las"):
         (tmp_path / name).write_bytes(b"")
-    doc = simple_pipeline(tmp_path / "*.las", tmp_path / "out.las")
+    doc = simple_pipeline(tmp_path / "*.las", tmp_path / "out.las", ratio=0.5)
     with pytest.raises(PipelineError, match=r"must contain \{stem\} or \{name\} because the reader matches 2 files"):
         load_pipeline(write(tmp_path, doc))
-    doc = simple_pipeline(tmp_path / "*.las", tmp_path / "out" / "{stem}.laz")
+    doc = simple_pipeline(tmp_path / "*.las", tmp_path / "out" / "{stem}.laz", ratio=0.5)
     assert [p.rsplit("/", 1)[1] for p in load_pipeline(write(tmp_path, doc)).inputs] == ["a.las", "b.las"]
 
 
@@ -102,7 +102,7 @@ def test_shipped_pipelines_parse(monkeypatch):
 
 def test_cli_check_and_error_exit(tmp_path, capsys):
     src = shared_file("simple.laz")
-    path = write(tmp_path, simple_pipeline(src, tmp_path / "out.laz"))
+    path = write(tmp_path, simple_pipeline(src, tmp_path / "out.laz", ratio=0.5))
     assert main(["run", str(path), "--check"]) == 0
     assert "valid; 1 input(s)" in capsys.readouterr().out
     bad = write(tmp_path, {"pipeline": []}, "bad.json")
