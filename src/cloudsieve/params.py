@@ -35,6 +35,7 @@ import numpy as np
 
 from .core import METHODS, PAPER_THRESHOLD, RULES
 from .errors import InvalidParameterError
+from .rule_default import DEFAULT_RULE, Metavar, resolve_rule
 from .io import FORMATS
 from .scheduler import host_port
 
@@ -61,8 +62,6 @@ COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count
 TARGET_RULES = ("target", "coverage", "eliminate")
-#: the rule when none is given and a ratio or a count is (README "Rules"); with a threshold alone: "threshold"
-DEFAULT_RULE = "eliminate"
 
 _READABLE = tuple(name for name, f in FORMATS.items() if f["reader"] is not None)
 _WRITABLE = tuple(name for name, f in FORMATS.items() if f["writer"] is not None)
@@ -335,52 +334,6 @@ def check(option: Option | str, value: Any) -> Any:
 # ---------------------------------------------------------------- a command's options
 
 
-class Metavar(str):
-    """A value an error advises without choosing it (``R``, ``N``, ``S``); its repr is itself.
-
-    In ``InvalidParameterError(..., advice={"ratio": Metavar("R")})`` the
-    message words it as the API does, ``ratio=R``; the command line rewrites
-    that as ``--ratio R``.
-    """
-
-    __slots__ = ()
-
-    def __repr__(self) -> str:
-        return str(self)
-
-
-def _resolve_rule(command: str, o: dict, caller: str) -> None:
-    """Resolve the default rule (None: not given) and threshold (None: not given), once, in place.
-
-    No rule: ``eliminate`` with a ratio or a count; ``threshold`` with a
-    threshold alone; neither is an error. The threshold becomes
-    :data:`PAPER_THRESHOLD` when not given (what the work store records).
-    """
-    has_target = o["ratio"] is not None or o["count"] is not None
-    given = o["threshold"] is not None
-    entropy = command == "simplify" or any(m in METHODS for m in o["methods"])
-    if o["rule"] is None and not entropy:  # compare's baselines alone: no rule runs (compare wants a count)
-        o["rule"] = [DEFAULT_RULE]
-    if o["rule"] is None:
-        if not has_target and not given:
-            words = {name: Metavar(OPTIONS[name].metavar) for name in ("ratio", "count", "threshold")}
-            raise InvalidParameterError(
-                f"{caller} needs ratio={words['ratio']!r} or count={words['count']!r} (the default rule, "
-                f"{DEFAULT_RULE}, keeps exactly that many points), or threshold={words['threshold']!r} for the "
-                "paper's threshold rule", advice=words)
-        if has_target and given:
-            name = "ratio" if o["ratio"] is not None else "count"
-            raise InvalidParameterError(
-                f"threshold={o['threshold']!r} is the S of the paper's rules threshold and iterative, but with "
-                f"{name}={o[name]!r} the default rule is {DEFAULT_RULE}, which takes no threshold: add rule='iterative' "
-                "to use both, or leave the threshold out",
-                advice={"threshold": o["threshold"], name: o[name], "rule": "iterative"})
-        rule = DEFAULT_RULE if has_target else "threshold"
-        o["rule"] = rule if command == "simplify" else [rule]
-    if not given:
-        o["threshold"] = PAPER_THRESHOLD
-
-
 def _target(o: dict) -> None:
     if o["ratio"] is not None and o["count"] is not None:
         raise InvalidParameterError(f"give ratio or count, not both (got ratio={o['ratio']}, count={o['count']})")
@@ -458,7 +411,8 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     out = {name: check(opt, values.get(name, opt.default)) for name, opt in spec.items()}
     if command in _CROSS:
         _target(out)
-        _resolve_rule(command, out, caller or f"cloudsieve.{command}")
+        resolve_rule(command, out, caller or f"cloudsieve.{command}",
+                     {name: OPTIONS[name].metavar for name in ("ratio", "count", "threshold")})
         _CROSS[command](out)
     return out
 

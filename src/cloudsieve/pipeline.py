@@ -67,7 +67,8 @@ from pathlib import Path
 from typing import Any
 
 from .errors import CloudsieveError, InvalidParameterError, PipelineError, UnknownFormatError
-from .params import COMMANDS, Metavar, check, validate
+from .params import COMMANDS, check, validate
+from .rule_default import Metavar
 
 __all__ = ["Pipeline", "load_pipeline", "check_inputs", "run_pipeline", "stage_options"]
 

@@ -40,7 +40,7 @@ def stage_wording(pipeline):
     def wording(name, value):
         import json
 
-        from ..params import Metavar
+        from ..rule_default import Metavar
         from ..pipeline import stage_options
 
         if isinstance(value, Metavar):  # a value left to the user: the key alone
