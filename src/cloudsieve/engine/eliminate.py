@@ -23,13 +23,15 @@ The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core:
    halo never share a colour; one runner call per colour, its cells in
    parallel): each cell keeps exactly its count under the cut, q_j (score >
    T, and its ties after its quota). A cell of colour 0 keeps those points;
-   a cell of a higher colour runs the elimination again with the FINAL kept
-   points of its lower-colour neighbours as fixed points (they weigh, never
-   go) and the points of its higher-colour neighbours as halo, and keeps the
-   q_j points removed last. Without this both sides of a border remove
-   their border points, each expecting the other's to stay: holes at the
-   borders (autzen_trim at 50% in 14 cells: point max 0.387% of the
-   diagonal against 0.161% in memory; 0.176% with the colours). Then one
+   a cell of a higher colour runs the elimination again with the FINAL
+   decisions of its lower-colour neighbours (their kept points fixed: they
+   weigh, never go; their removed points gone: represented by their nearest
+   point, so the coverage term sees the area they leave) and the points of
+   its higher-colour neighbours as halo, and keeps the q_j points removed
+   last. Without this both sides of a border remove their border points,
+   each expecting the other's to stay: holes at the borders (autzen_trim at
+   50% in 14 cells: point max 0.387% of the diagonal against 0.161% in
+   memory; 0.176% with fixed points only, 0.161% with the gone ones). Then one
    restricted Lloyd step, :func:`~cloudsieve.core.eliminate.relocate`, with
    the halo's points kept as decided: the final masks of the lower colours,
    the cut's decisions of the higher ones. The count does not change.
@@ -171,11 +173,12 @@ def apply_task(task: CellTask, threshold: float, ties: dict, colours: dict | Non
     The cut gives the cell its count q (score > T, and its ties after its
     quota). A cell with no halo source of a lower colour keeps those points
     (its pass-1 order is the one it would compute again). Otherwise the
-    elimination runs again with the final kept points of the lower colours
-    as fixed points (they weigh, never go) and the points of the higher
+    elimination runs again with the final decisions of the lower colours
+    (kept: fixed points, they weigh, never go; removed: gone) and the points of the higher
     colours as halo (thinned with the cell), and keeps the q points removed
-    last: a neighbour's border point that already went is seen as gone, so
-    the two sides of a border do not both open a hole there.
+    last: a neighbour's removed points are given as ``gone`` (represented by
+    their nearest point), so the two sides of a border do not both open a
+    hole there.
 
     Parameters
     ----------
@@ -211,7 +214,7 @@ def apply_task(task: CellTask, threshold: float, ties: dict, colours: dict | Non
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
             if rerun:
                 prio = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
-                                       threads=_threads(task))
+                                       gone=halo[fixed & ~halo_keep], threads=_threads(task))
                 keep = keep_lowest(prio, int(keep.sum()))
         keep = relocate(core, keep, r_max, halo=halo, halo_keep=halo_keep, threads=_threads(task))
     g["simplify/keep_cells"][task.region : task.region + n] = keep
