@@ -194,6 +194,24 @@ def test_fixed_points_weigh_but_are_never_removed():
     assert len(keep) == 600
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gone_points_continue_the_elimination_where_it_stopped(seed):
+    """Stopped at m points, the m left with the removed ones as ``gone`` go on in the same order, same keys."""
+    P = sheet(400, seed=20 + seed)
+    r_max = 0.04
+    full = eliminate_order(P, r_max=r_max)
+    order = removal_order(full)
+    gone, left = np.sort(order[:250]), np.sort(order[250:])
+    prio = eliminate_order(P[left], r_max=r_max, gone=P[gone])
+    assert np.array_equal(removal_order(prio), removal_order(full[left]))
+    np.testing.assert_allclose(prio, full[left], rtol=1e-12)
+    # without them the coverage term does not see the holes they left: another order
+    assert not np.array_equal(removal_order(eliminate_order(P[left], r_max=r_max)), removal_order(full[left]))
+    # no coverage term: the gone points change nothing
+    plain = eliminate_order(P[left], r_max=r_max, coverage=False)
+    assert np.array_equal(eliminate_order(P[left], r_max=r_max, gone=P[gone], coverage=False), plain)
+
+
 def test_halo_cells_have_no_seam():
     """Two cells with halos, one global threshold: kept density near the border as inside."""
     rng = np.random.default_rng(14)

@@ -133,7 +133,7 @@ class _threads:
 
 
 def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, dh=None, halo=None,
-                    fixed=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
+                    fixed=None, gone=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
                     entropy: float = 0.0, floor: int = 0, threads: int | None = None) -> np.ndarray:
     """Priority of every point in the elimination order (larger goes first).
 
@@ -157,6 +157,11 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         border sees the density it will have) but given no priority.
     fixed : array_like of shape (f, 3), optional
         Points that weigh on the others and are never removed.
+    gone : array_like of shape (g, 3), optional
+        Points already removed (a neighbouring cell's): they do not weigh,
+        but each is represented from the start by its nearest point (of
+        ``points``, ``halo``, ``fixed``; within 2 r_max), as if it had just
+        gone, so the coverage term sees the area they leave uncovered.
     alpha : float
         Exponent of the crowding weight, > 0.
     coverage : bool
@@ -182,6 +187,7 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     n = len(pts)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
     fix = np.zeros((0, 3)) if fixed is None else check_points(fixed, "fixed")
+    gon = np.zeros((0, 3)) if gone is None else check_points(gone, "gone")
     if not (isinstance(alpha, (int, float, np.integer, np.floating)) and math.isfinite(alpha) and alpha > 0):
         raise InvalidParameterError(f"alpha must be a positive number, got {alpha!r}")
     geometric = _strength(geometric, "geometric")
@@ -212,7 +218,7 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
             dh = score_points(pts, lab, threads=threads).delta_h
         rank = _ranks(dh, np.zeros(n, dtype=np.int64) if lab is None else lab.astype(np.int64))
     with _threads(threads):
-        return _order(pts, hal, fix, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
+        return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
 
 
 def _ranks(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -235,14 +241,15 @@ def _importance(sigma: np.ndarray, state: np.ndarray, beta: float) -> np.ndarray
     return np.clip((np.maximum(sigma, 1e-12) / med) ** beta, 1.0 / IMPORTANCE_SPAN, IMPORTANCE_SPAN)
 
 
-def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floor) -> np.ndarray:
-    n, nh = len(pts), len(hal)
-    allp = np.concatenate([pts, hal, fix]) if nh or len(fix) else pts
+def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy, floor) -> np.ndarray:
+    n, nh, nf = len(pts), len(hal), len(fix)
     if not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody
+        allp = np.concatenate([pts, hal, fix]) if nh or nf else pts
         grid = CellGrid(allp, 0.0)
         out = np.zeros(len(allp))
         out[grid.order[grid.copy]] = np.inf
         return out[:n]
+    allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
     two_r = rho = 2.0 * r_max
     if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
         areas = areas_of(pts, hal, AREA_K, AREA_SAMPLE, 0, -1)[0]
@@ -250,8 +257,12 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
             rho = max(two_r, math.sqrt(GEOMETRIC_POINTS * float(np.median(areas)) / math.pi))
     grid = CellGrid(allp, rho)
     src = grid.order  # internal row -> position in allp
-    state = np.where(src < n + nh, 1, 2).astype(np.uint8)
+    state = np.where(src < n + nh, 1, np.where(src < n + nh + nf, 2, 0)).astype(np.uint8)
     state[grid.copy] = 0
+    rep = np.full(len(allp), -1, dtype=np.int64)
+    if len(gon) and coverage:  # the gone points: represented by their nearest alive point
+        rows = np.flatnonzero(src >= n + nh + nf)
+        rep[rows] = _kg.nearest_kept(*grid.args(), (state != 0).astype(np.uint8), src)[rows]
     scale = np.ones(len(allp))
     imp2 = np.ones(len(allp))
     if geometric > 0:
@@ -265,9 +276,9 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
     prio, stats = _ke.eliminate(*grid.args(), state, scale, imp2, w, src, two_r, alpha, ialpha, r_cov,
-                                COVER_GAMMA, lam, left)
-    logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
-                 n, nh, len(fix), *stats)
+                                COVER_GAMMA, lam, left, rep)
+    logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
+                 n, nh, nf, len(gon), *stats)
     out = np.empty(len(allp))
     out[src] = prio
     out = out[:n]

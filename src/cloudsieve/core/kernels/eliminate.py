@@ -151,7 +151,7 @@ def _sift(hk, hi, tie, base, size, pos):
 
 @njit(cache=True)
 def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r, alpha, ialpha, r_cov, gamma,
-              lam, floor):
+              lam, floor, rep):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
     ``w`` is :func:`initial_weights`; ``imp2`` (n,) the squared importance
@@ -175,6 +175,10 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r
     for i in range(n):
         if state[i] != 0:
             head[i] = i
+    for i in range(n):  # points already gone: in the list of the point representing them
+        if rep[i] >= 0:
+            nxt[i] = head[rep[i]]
+            head[rep[i]] = i
     nb = (n + BLOCK - 1) // BLOCK
     hk = np.empty(n)
     hi = np.empty(n, dtype=np.int64)
