@@ -54,7 +54,8 @@ logger = logging.getLogger(__name__)
 # ---------------------------------------------------------------- summary
 
 
-def _say_if_missed(src: str, ratio, count, n: int, kept: int) -> None:
+def _say_if_missed(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
+                   keep_duplicates: bool = False) -> None:
     """A warning when a ratio or count was asked and the kept count differs (issue 13, item 4)."""
     if ratio is None and count is None:
         return
@@ -63,6 +64,10 @@ def _say_if_missed(src: str, ratio, count, n: int, kept: int) -> None:
         return
     if asked > n:
         why = f"the input holds only {n:,} points"
+    elif duplicates and keep_duplicates and kept > asked:
+        why = "the exact copies of kept points are kept too (keep_duplicates)"
+    elif duplicates and asked > n - duplicates:
+        why = f"{duplicates:,} of the {n:,} points are exact duplicates, kept once (keep_duplicates keeps them)"
     else:
         why = ("points with equal scores at the global threshold go or stay together, exact duplicates "
                "count once, and clusters too small to thin are kept whole")
@@ -80,6 +85,11 @@ class Summary:
         Number of cells P.
     cells_computed, cells_reused : int
         Cells computed in this run, and cells found done in the store (resume).
+    duplicates : int
+        Exact duplicate points (copies of an earlier point with the same x, y,
+        z): removed, or kept with their first copy when ``keep_duplicates``.
+    duplicates_kept : bool
+        Whether they were kept (``keep_duplicates``).
     threshold : float or None
         The global threshold on the unit-free score chosen for a ratio/count
         (None otherwise).
@@ -100,6 +110,8 @@ class Summary:
     cells: int = 0
     cells_computed: int = 0
     cells_reused: int = 0
+    duplicates: int = 0
+    duplicates_kept: bool = False
     threshold: float | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
@@ -120,6 +132,7 @@ class Summary:
             f"kept          {s.kept:>14,}  ({pct:.2f}%)",
             f"removed       {s.removed:>14,}",
             f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
+            f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
         ]
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
@@ -164,6 +177,7 @@ def simplify(
     k0: float = 1.0,
     k_min: int = 4,
     drop_invalid: bool = False,
+    keep_duplicates: bool = False,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -247,6 +261,10 @@ def simplify(
         (logged with their count) instead of refusing SRC
         (:class:`~cloudsieve.errors.InvalidPointsError`). A point store never
         holds such points.
+    keep_duplicates : bool
+        Keep every exact copy (same x, y, z) of a kept point. Default: exact
+        duplicates are scored once and kept once (a ratio or count then counts
+        distinct points); their number is in :attr:`Summary.duplicates` and logged.
 
     Returns
     -------
@@ -280,12 +298,12 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     context = opts["halo_context"]
     update = callback(progress)
-    summary = Summary(source=src, destination=dst)
+    summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     dst_local = local_path(dst)
     if same_path(src, dst):  # first: overwriting would not help, so it is not suggested
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
@@ -352,13 +370,17 @@ def simplify(
                 summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
+            summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
+            if summary.duplicates:
+                logger.info("%d exact duplicates %s", summary.duplicates,
+                            "kept (keep_duplicates)" if keep_duplicates else "removed")
             summary.seconds["cells"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
             summary.kept = merge.run_merge(st, runner)
             summary.removed = summary.points_in - summary.kept
-            _say_if_missed(src, ratio, count, summary.points_in, summary.kept)
+            _say_if_missed(src, ratio, count, summary.points_in, summary.kept, summary.duplicates, keep_duplicates)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
 
