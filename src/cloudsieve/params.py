@@ -190,6 +190,9 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
+#: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
+_STRICT_COUNT = Option("strict", BOOL, False,
+                       "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
 _RULE_LIST = Option("rule", CHOICES, ("iterative",), "entropy rule(s), comma-separated; each runs once per method",
                     choices=RULES, metavar="RULES")
 
@@ -205,7 +208,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", "keep_duplicates", extra=(_OUTPUT_FORMAT,)),
+        "drop_invalid", "keep_duplicates", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "drop_invalid"),
