@@ -240,6 +240,8 @@ def simplify(
     with PeakMemory() as peak:
         runner = Runner(scheduler, workers, memory_limit, client, bars)
         summary.scheduler = runner.name
+        if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
+            peak.watch_workers(runner.remote_client)
         if runner.dashboard_link:
             logger.info("dask dashboard: %s", runner.dashboard_link)
             if notify is not None:
@@ -279,7 +281,8 @@ def simplify(
                 target = int(round(float(ratio) * st.count)) if ratio is not None else min(int(count), st.count)
                 reused, points = cells.run_score(st, part, regions, params, runner)
                 update(points)
-                summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
+                with runner.stage("cells: threshold"):  # its histogram rounds: one bar
+                    summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
             summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
@@ -312,7 +315,7 @@ def simplify(
         finally:
             runner.close()
     summary.seconds["total"] = time.perf_counter() - t_start
-    summary.peak_memory = int(peak.peak)
+    summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
     workstore.record_summary(st, summary.to_dict())
     if default_store:
         delete_store(store_path)

@@ -60,7 +60,12 @@ class Summary:
         Wall time per stage ("ingest", "partition", "cells", "merge",
         "export") and "total".
     peak_memory : int
-        Peak resident memory of this process and its children (bytes), sampled.
+        Peak resident memory (bytes), sampled: of this process and its
+        children, or, on a dask.distributed cluster, the peak of the sum over
+        its workers (each asked for its own; see :mod:`.memory`).
+    peak_memory_of : str
+        What *peak_memory* covers: ``"this process and its children"`` or
+        ``"N dask workers (sum of their resident memory)"``.
     scheduler : str
     source, destination : str
     store : str
@@ -78,6 +83,7 @@ class Summary:
     threshold: float | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
+    peak_memory_of: str = "this process and its children"
     scheduler: str = ""
     source: str = ""
     destination: str = ""
@@ -101,6 +107,6 @@ class Summary:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
-        lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  (this process and its children)")
+        lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
         lines.append(f"scheduler     {s.scheduler}")
         return "\n".join(lines)
