@@ -202,7 +202,7 @@ def cell_task(task: CellTask) -> dict[str, Any]:
 
     Returns
     -------
-    dict with "cell", "n", "kept", "halo", "seconds" (small).
+    dict with "cell", "n", "kept", "halo", "duplicates", "seconds" (small).
     """
     from ..core import exact_copies, simplify_points
 
@@ -293,7 +293,8 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     labels = np.asarray(g["simplify/label_cells"][region : region + n]).astype(np.int64)
     copy = labels < 0  # exact copies (pass 1)
     keep = (s > threshold) & ~copy
-    core = read_cell(g, runs) if n and (params["rule"] != "target" or (copy.any() and _keep_duplicates(params))) else None
+    need_points = params["rule"] != "target" or (copy.any() and _keep_duplicates(params))
+    core = read_cell(g, runs) if n and need_points else None
     if params["rule"] == "target" and core is not None:  # copies follow their first point
         keep = keep[first_copies(core)]
     elif params["rule"] != "target" and n:
