@@ -64,6 +64,7 @@ from .entropy import score_points
 from .kernels import eliminate as _ke
 from .kernels import geometry as _kgeo
 from .kernels import grid as _kg
+from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
 
 __all__ = ["eliminate_order", "eliminate", "keep_lowest", "relocate"]
@@ -260,11 +261,12 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
         inner = src < n
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-    w = _ke.initial_weights(*grid.args(), state, scale, two_r, alpha, ialpha)
+    nptr, nbr, term = _lists(grid, state, two_r, alpha, ialpha)
+    w = _kn.list_weights(nptr, nbr, term, state, scale)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
-    prio, stats = _ke.eliminate(*grid.args(), state, scale, imp2, w, src, two_r, alpha, ialpha, r_cov,
+    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, term, state, scale, imp2, w, src, two_r, r_cov,
                                 COVER_GAMMA, lam, left)
     logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, len(fix), *stats)
@@ -273,6 +275,17 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
     return out
+
+
+def _lists(grid: CellGrid, state: np.ndarray, two_r: float, alpha: float, ialpha: int):
+    """CSR neighbour lists within ``two_r`` of every alive row and their crowding terms (:mod:`.kernels.neighbours`)."""
+    counts = _kn.count_lists(*grid.args(), state, two_r)
+    nptr = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=nptr[1:])
+    nbr = np.empty(int(nptr[-1]), dtype=np.int32 if len(counts) < 2**31 else np.int64)
+    term = np.empty(int(nptr[-1]))
+    _kn.fill_lists(*grid.args(), state, two_r, alpha, ialpha, nptr, nbr, term)
+    return nptr, nbr, term
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:

@@ -45,60 +45,14 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from .grid import nearest
+from .neighbours import list_nearest, list_weight
 
 BLOCK = 1024
 
 
 @njit(cache=True)
-def _ipow(u, alpha, ialpha):
-    """u ** alpha; by repeated squaring when alpha is a small integer (ialpha >= 0)."""
-    if ialpha < 0:
-        return u**alpha
-    r = 1.0
-    e = ialpha
-    while e > 0:
-        if e & 1:
-            r *= u
-        u *= u
-        e >>= 1
-    return r
-
-
-@njit(cache=True)
-def _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha):
-    """Crowding sum of point i over its alive neighbours (before the scale)."""
-    c = cell[i]
-    w = 0.0
-    for t in range(nstart[c], nstart[c + 1]):
-        cc = ncells[t]
-        for j in range(cstart[cc], cstart[cc + 1]):
-            if j == i or state[j] == 0:
-                continue
-            dx = P[j, 0] - P[i, 0]
-            dy = P[j, 1] - P[i, 1]
-            dz = P[j, 2] - P[i, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 < r2:
-                w += _ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
-    return w
-
-
-@njit(cache=True, parallel=True)
-def initial_weights(P, cell, cstart, nstart, ncells, state, scale, two_r, alpha, ialpha):
-    """scale * w (n,) of every removable point (0.0 for the others)."""
-    n = len(P)
-    out = np.zeros(n)
-    for i in prange(n):
-        if state[i] == 1:
-            out[i] = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, two_r * two_r, 1.0 / two_r,
-                                        alpha, ialpha)
-    return out
-
-
-@njit(cache=True)
-def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2,
-              imp2, stats):
+def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2, rc2, gamma,
+              lam, inv_r2, imp2, stats):
     """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
     e2 = 0.0
     c2 = 0.0
@@ -107,7 +61,7 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, al
         a = alt[p]
         if a < 0 or state[a] == 0:
             stats[3] += 1
-            a, d2 = nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
+            a, d2 = list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)
             alt[p] = a
             altd2[p] = d2
         if a < 0:
@@ -150,11 +104,12 @@ def _sift(hk, hi, tie, base, size, pos):
 
 
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r, alpha, ialpha, r_cov, gamma,
+def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, term, state, scale, imp2, w, tie, two_r, r_cov, gamma,
               lam, floor):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``w`` is :func:`initial_weights`; ``imp2`` (n,) the squared importance
+    ``nptr``/``nbr``/``term`` the neighbour lists and ``w`` the weights of
+    :mod:`.neighbours`; ``imp2`` (n,) the squared importance
     of each point: its coverage and squared-error terms are measured in
     distances times its importance. Returns priority (n,): the key of each
     point when it was removed (non-increasing along the removals); the points
@@ -163,7 +118,6 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r
     returns counts (4,): pops, stale pops, coverage evaluations, nearest searches.
     """
     n = len(P)
-    r2 = two_r * two_r
     inv2r = 1.0 / two_r
     inv_r2 = 4.0 * inv2r * inv2r
     cover = r_cov > 0 or lam > 0
@@ -210,12 +164,12 @@ def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r
         i = hi[base]
         key = hk[base]
         stats[0] += 1
-        cur = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha)
+        cur = scale[i] * list_weight(i, nptr, nbr, term, state)
         if cover:
             if cur * fac[i] >= key:
                 stats[2] += 1
-                f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, r_cov * r_cov,
-                              gamma, lam, inv_r2, imp2, stats)
+                f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2,
+                              r_cov * r_cov, gamma, lam, inv_r2, imp2, stats)
                 fac[i] = min(fac[i], f)
             cur = cur * fac[i]
         if cur < key:  # stale: store the current key
