@@ -166,8 +166,8 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Strength of the information terms (0: off).
     floor : int
         Stop when this many of the points are left (about as large a share of
-        the halo too); the points left keep their last stored keys, upper
-        bounds <= every removed key. 0: a full order. Without halo, keeping
+        the halo too); the points left get their keys at the stop (the keys
+        they would be removed with next, <= every removed key). 0: a full order. Without halo, keeping
         the ``floor`` lowest is exactly the elimination stopped there.
     threads : int, optional
         numba threads of the parallel passes (None: numba's setting); the
@@ -262,7 +262,7 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
     nptr, nbr, term = _lists(grid, state, two_r, alpha, ialpha)
-    w = _kn.list_weights(nptr, nbr, term, state, scale)
+    w = _kn.list_weights(nptr, nbr, term, state)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points

@@ -26,14 +26,18 @@ other remaining point, c(x) the sum of the squared distances they would gain
 if x went, g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
 
 Every factor only decreases as points go (fewer neighbours; represented sets
-grow; nearest other points only get farther), so a stored key is an upper
-bound of the current key and a lazy max-heap is exact: pop the top, recompute
-its key (always from scratch and in the same summation order, never by
-subtraction, so no rounding drift), equal to the stored key -> it is the
-heaviest point, remove it; lower -> store the new key and sift it down. The
-order is the one of an eager heap recomputing every key after each removal.
-The heap is two-level (a heap per block of 1024 consecutive points, and a
-heap of the blocks' tops) so that sifts stay in cache.
+grow; nearest other points only get farther; each is computed from scratch
+in a fixed summation order, so this holds in floating point too), so the
+removal order "largest key first, ties lower id first" can be found with
+upper bounds: a winner tree over the points holds a bound of each key; the
+top's exact key is recomputed and compared with the next largest bound (the
+best of the matches the top won): ahead of it -> it is the heaviest point;
+else its exact key is stored and the tree replayed (a stale pop). On a
+removal the neighbours' bounds fall at once (a running crowding sum by
+subtraction plus a margin larger than the rounding of both sums), so stale
+pops come only from the coverage factor. The priorities are the exact keys
+at removal, the ones an eager heap recomputing every key after each removal
+would give.
 
 Grid arguments as in :mod:`.grid`.
 """
@@ -47,26 +51,28 @@ from numba import njit, prange
 
 from .neighbours import list_nearest, list_weight
 
-BLOCK = 1024
 
 
 @njit(cache=True)
 def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2, rc2, gamma,
-              lam, inv_r2, imp2, stats):
-    """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
+              lam, inv_r2, imp2, refresh, stats):
+    """f(x) of the module docstring; with ``refresh``, stores the nearest other point it finds for the
+    points x represents (a cache that stays exact while that point is alive)."""
     e2 = 0.0
     c2 = 0.0
     p = head[x]
     while p >= 0:
         a = alt[p]
-        if a < 0 or state[a] == 0:
+        if a >= 0 and state[a] != 0:
+            d2 = altd2[p]
+        else:
             stats[3] += 1
             a, d2 = list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)
-            alt[p] = a
-            altd2[p] = d2
+            if refresh:
+                alt[p] = a
+                altd2[p] = d2
         if a < 0:
             return 0.0
-        d2 = altd2[p]
         e2 = max(e2, d2)
         dx = P[p, 0] - P[x, 0]
         dy = P[p, 1] - P[x, 1]
@@ -81,26 +87,24 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
     return f / (1.0 + lam * c2 * inv_r2)
 
 
-@njit(cache=True)
-def _sift(hk, hi, tie, base, size, pos):
-    """Sift entry ``pos`` of the heap hk/hi[base:base + size] down (larger key first, then lower tie)."""
-    k = hk[base + pos]
-    i = hi[base + pos]
-    while True:
-        c = 2 * pos + 1
-        if c >= size:
-            break
-        a = base + c
-        if c + 1 < size and (hk[a + 1] > hk[a] or (hk[a + 1] == hk[a] and tie[hi[a + 1]] < tie[hi[a]])):
-            c += 1
-            a += 1
-        if not (hk[a] > k or (hk[a] == k and tie[hi[a]] < tie[i])):
-            break
-        hk[base + pos] = hk[a]
-        hi[base + pos] = hi[a]
-        pos = c
-    hk[base + pos] = k
-    hi[base + pos] = i
+@njit(cache=True, inline="always")
+def _better(a, b, key, tie):
+    """The entry that goes first of points a and b (-1: none): larger key, then lower tie."""
+    if a < 0:
+        return b
+    if b < 0:
+        return a
+    if key[a] > key[b] or (key[a] == key[b] and tie[a] < tie[b]):
+        return a
+    return b
+
+
+@njit(cache=True, inline="always")
+def _replay(win, v, i, key, tie):
+    """After the key of point i fell (or i left), replay the matches above node v that i had won."""
+    while v >= 1 and win[v] == i:
+        win[v] = _better(win[2 * v], win[2 * v + 1], key, tie)
+        v >>= 1
 
 
 @njit(cache=True)
@@ -108,104 +112,111 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, term, state, scale, im
               lam, floor):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``nptr``/``nbr``/``term`` the neighbour lists and ``w`` the weights of
-    :mod:`.neighbours`; ``imp2`` (n,) the squared importance
-    of each point: its coverage and squared-error terms are measured in
-    distances times its importance. Returns priority (n,): the key of each
-    point when it was removed (non-increasing along the removals); the points
-    left get their stored keys (upper bounds, still <= every removed key);
-    NaN for points that were not removable. ``state`` is consumed. Also
-    returns counts (4,): pops, stale pops, coverage evaluations, nearest searches.
+    ``nptr``/``nbr``/``term`` are the neighbour lists and ``w`` (n,) the
+    crowding sums of :mod:`.neighbours` (before the scale); ``imp2`` (n,)
+    the squared importance of each point: its coverage and squared-error
+    terms are measured in distances times its importance. Returns priority
+    (n,): the key of each point when it was removed (non-increasing along the
+    removals), for the points left their keys at the stop (<= every removed
+    key), NaN for points that were not removable; ``state`` is consumed.
+    Also returns counts (4,): pops, stale pops, coverage evaluations,
+    nearest searches.
+
+    The points a removed point represented move to their nearest remaining
+    point (searched again when the cached one is gone).
     """
     n = len(P)
     inv2r = 1.0 / two_r
     inv_r2 = 4.0 * inv2r * inv2r
+    rc2 = r_cov * r_cov
     cover = r_cov > 0 or lam > 0
     head = np.full(n, -1, dtype=np.int64)
     nxt = np.full(n, -1, dtype=np.int64)
     alt = np.full(n, -1, dtype=np.int64)
     altd2 = np.full(n, np.inf)
     fac = np.ones(n)
+    run = w.copy()  # running crowding sums (by subtraction): the bounds only
+    margin = np.empty(n)
     for i in range(n):
         if state[i] != 0:
             head[i] = i
-    nb = (n + BLOCK - 1) // BLOCK
-    hk = np.empty(n)
-    hi = np.empty(n, dtype=np.int64)
-    bsize = np.zeros(nb, dtype=np.int64)
+        margin[i] = (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
+    m = 1
+    while m < n:
+        m *= 2
+    key = np.full(n, -1.0)  # the stored bounds, and the winner tree over them (leaves m .. m + n)
+    win = np.full(2 * m, -1, dtype=np.int64)
+    left = 0
     for i in range(n):
         if state[i] == 1:
-            b = i // BLOCK
-            hk[b * BLOCK + bsize[b]] = w[i]
-            hi[b * BLOCK + bsize[b]] = i
-            bsize[b] += 1
-    tk = np.empty(nb)  # heap of the blocks' tops: key, then the block (tie through its top point)
-    tb = np.empty(nb, dtype=np.int64)
-    btie = np.empty(nb, dtype=np.int64)
-    ts = 0
-    for b in range(nb):
-        for pos in range(bsize[b] // 2 - 1, -1, -1):
-            _sift(hk, hi, tie, b * BLOCK, bsize[b], pos)
-        if bsize[b] > 0:
-            tk[ts] = hk[b * BLOCK]
-            tb[ts] = b
-            btie[b] = tie[hi[b * BLOCK]]
-            ts += 1
-    for pos in range(ts // 2 - 1, -1, -1):
-        _sift(tk, tb, btie, 0, ts, pos)
+            key[i] = scale[i] * w[i]
+            win[m + i] = i
+            left += 1
+    for v in range(m - 1, 0, -1):
+        win[v] = _better(win[2 * v], win[2 * v + 1], key, tie)
     prio = np.full(n, np.nan)
     stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
-    left = 0
-    for b in range(nb):
-        left += bsize[b]
     while left > floor:
-        b = tb[0]
-        base = b * BLOCK
-        i = hi[base]
-        key = hk[base]
+        i = win[1]
+        ti = tie[i]
         stats[0] += 1
-        cur = scale[i] * list_weight(i, nptr, nbr, term, state)
+        r = -1  # the next largest bound: the best of the matches i won
+        v = m + i
+        while v > 1:
+            r = _better(r, win[v ^ 1], key, tie)
+            v >>= 1
+        k2 = key[r] if r >= 0 else -1.0
+        t2 = tie[r] if r >= 0 else 0
+        wi = list_weight(i, nptr, nbr, term, state)
+        run[i] = wi
+        cur = scale[i] * wi
         if cover:
-            if cur * fac[i] >= key:
+            if cur * fac[i] > k2 or (cur * fac[i] == k2 and ti < t2):
                 stats[2] += 1
                 f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2,
-                              r_cov * r_cov, gamma, lam, inv_r2, imp2, stats)
+                              rc2, gamma, lam, inv_r2, imp2, True, stats)
                 fac[i] = min(fac[i], f)
             cur = cur * fac[i]
-        if cur < key:  # stale: store the current key
+        if not (cur > k2 or (cur == k2 and ti < t2)):  # stale: store the exact key
             stats[1] += 1
-            hk[base] = cur
-        else:
-            prio[i] = key
-            state[i] = 0
-            left -= 1
-            if cover:  # the points i represented move to their nearest other point
-                p = head[i]
-                while p >= 0:
-                    q = nxt[p]
-                    a = alt[p]
-                    if a >= 0:
-                        nxt[p] = head[a]
-                        head[a] = p
-                    alt[p] = -1
-                    p = q
-                head[i] = -1
-            bsize[b] -= 1
-            if bsize[b] > 0:
-                hk[base] = hk[base + bsize[b]]
-                hi[base] = hi[base + bsize[b]]
-        if bsize[b] > 0:
-            _sift(hk, hi, tie, base, bsize[b], 0)
-            tk[0] = hk[base]
-            btie[b] = tie[hi[base]]
-        else:
-            ts -= 1
-            tk[0] = tk[ts]
-            tb[0] = tb[ts]
-        _sift(tk, tb, btie, 0, ts, 0)
-    for b in range(nb):
-        for pos in range(bsize[b]):
-            prio[hi[b * BLOCK + pos]] = hk[b * BLOCK + pos]
+            key[i] = cur
+            _replay(win, (m + i) >> 1, i, key, tie)
+            continue
+        prio[i] = cur
+        state[i] = 0
+        left -= 1
+        win[m + i] = -1
+        _replay(win, (m + i) >> 1, i, key, tie)
+        if cover:  # the points i represented move to their nearest remaining point
+            p = head[i]
+            while p >= 0:
+                q = nxt[p]
+                a = alt[p]
+                if a < 0 or state[a] == 0:
+                    stats[3] += 1
+                    a = list_nearest(p, i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)[0]
+                if a >= 0:
+                    nxt[p] = head[a]
+                    head[a] = p
+                alt[p] = -1
+                p = q
+            head[i] = -1
+        for t in range(nptr[i], nptr[i + 1]):  # the neighbours' bounds fall
+            j = nbr[t]
+            if state[j] != 1:
+                continue
+            run[j] -= term[t]
+            bound = scale[j] * (run[j] + margin[j]) * fac[j]
+            if bound < key[j]:
+                key[j] = bound
+                _replay(win, (m + j) >> 1, j, key, tie)
+    for i in range(n):  # the points left: their keys at the stop
+        if state[i] == 1:
+            cur = scale[i] * list_weight(i, nptr, nbr, term, state)
+            if cover and cur > 0:
+                cur *= min(fac[i], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
+                                            alt, altd2, rc2, gamma, lam, inv_r2, imp2, False, stats))
+            prio[i] = cur
     return prio, stats
 
 

@@ -98,13 +98,13 @@ def list_weight(i, nptr, nbr, term, state):
 
 
 @njit(cache=True, parallel=True)
-def list_weights(nptr, nbr, term, state, scale):
-    """scale * w (n,) of every removable point (state 1; 0.0 for the others)."""
+def list_weights(nptr, nbr, term, state):
+    """Crowding sum w (n,) of every removable point (state 1; 0.0 for the others)."""
     n = len(state)
     out = np.zeros(n)
     for i in prange(n):
         if state[i] == 1:
-            out[i] = scale[i] * list_weight(i, nptr, nbr, term, state)
+            out[i] = list_weight(i, nptr, nbr, term, state)
     return out
 
 
