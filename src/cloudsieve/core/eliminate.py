@@ -266,7 +266,8 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
-    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, term, state, scale, imp2, w, src, two_r, r_cov,
+    snb = _kn.sort_lists(grid.P, nptr, nbr, src) if coverage else nbr
+    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, snb, term, state, scale, imp2, w, src, two_r, r_cov,
                                 COVER_GAMMA, lam, left)
     logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, len(fix), *stats)

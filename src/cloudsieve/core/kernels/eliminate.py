@@ -49,6 +49,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
+from .cover import add_gain, fbound, gain, link, next_alt, unlink
 from .neighbours import list_nearest, list_weight
 
 
@@ -88,42 +89,53 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
 
 
 @njit(cache=True, inline="always")
-def _better(a, b, key, tie):
-    """The entry that goes first of points a and b (-1: none): larger key, then lower tie."""
+def _better(a, b, rec, tie):
+    """The entry that goes first of points a and b (-1: none): larger stored key rec[., 3], then lower tie."""
     if a < 0:
         return b
     if b < 0:
         return a
-    if key[a] > key[b] or (key[a] == key[b] and tie[a] < tie[b]):
+    if rec[a, 3] > rec[b, 3] or (rec[a, 3] == rec[b, 3] and tie[a] < tie[b]):
         return a
     return b
 
 
 @njit(cache=True, inline="always")
-def _replay(win, v, i, key, tie):
+def _replay(win, v, i, rec, tie):
     """After the key of point i fell (or i left), replay the matches above node v that i had won."""
     while v >= 1 and win[v] == i:
-        win[v] = _better(win[2 * v], win[2 * v + 1], key, tie)
+        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
         v >>= 1
 
 
+@njit(cache=True, inline="always")
+def _fall(y, rec, win, m, tie):
+    """Store the bound scale * (running sum + margin) * factor of point y if lower, and replay the tree."""
+    bd = rec[y, 1] * rec[y, 0] * rec[y, 2]
+    if bd < rec[y, 3]:
+        rec[y, 3] = bd
+        _replay(win, (m + y) >> 1, y, rec, tie)
+
+
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, term, state, scale, imp2, w, tie, two_r, r_cov, gamma,
-              lam, floor):
+def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scale, imp2, w, tie, two_r, r_cov,
+              gamma, lam, floor):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``nptr``/``nbr``/``term`` are the neighbour lists and ``w`` (n,) the
-    crowding sums of :mod:`.neighbours` (before the scale); ``imp2`` (n,)
-    the squared importance of each point: its coverage and squared-error
-    terms are measured in distances times its importance. Returns priority
-    (n,): the key of each point when it was removed (non-increasing along the
-    removals), for the points left their keys at the stop (<= every removed
-    key), NaN for points that were not removable; ``state`` is consumed.
-    Also returns counts (4,): pops, stale pops, coverage evaluations,
-    nearest searches.
+    ``nptr``/``nbr``/``term`` are the neighbour lists, ``snb`` the sorted
+    lists and ``w`` (n,) the crowding sums of :mod:`.neighbours` (before
+    the scale); ``imp2`` (n,) the squared importance of each point: its
+    coverage and squared-error terms are measured in distances times its
+    importance. Returns priority (n,): the key of each point when it was
+    removed (non-increasing along the removals), for the points left their
+    keys at the stop (<= every removed key), NaN for points that were not
+    removable; ``state`` is consumed. Also returns counts (4,): pops, stale
+    pops, coverage evaluations, nearest searches.
 
-    The points a removed point represented move to their nearest remaining
-    point (searched again when the cached one is gone).
+    On a removal, the points it represented move to their alt, the points
+    whose alt it was get the next one (:mod:`.cover`), and the bounds of the
+    points concerned (the neighbours, the new reps, the reps of the points
+    whose alt changed) fall at once.
     """
     n = len(P)
     inv2r = 1.0 / two_r
@@ -132,30 +144,55 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, term, state, scale, im
     cover = r_cov > 0 or lam > 0
     head = np.full(n, -1, dtype=np.int64)
     nxt = np.full(n, -1, dtype=np.int64)
+    rep = np.full(n, -1, dtype=np.int64)
     alt = np.full(n, -1, dtype=np.int64)
     altd2 = np.full(n, np.inf)
-    fac = np.ones(n)
-    run = w.copy()  # running crowding sums (by subtraction): the bounds only
-    margin = np.empty(n)
+    sp = np.zeros(n, dtype=np.int64)
+    ahead = np.full(n, -1, dtype=np.int64)
+    anext = np.full(n, -1, dtype=np.int64)
+    aprev = np.full(n, -1, dtype=np.int64)
+    e2b = np.zeros(n)
+    c2b = np.zeros(n)
+    cerr = np.zeros(n)
+    nmem = np.zeros(n, dtype=np.int64)
+    nmiss = np.zeros(n, dtype=np.int64)
+    # per point, in one row: running crowding sum (by subtraction) plus a margin above the rounding of it
+    # and of the exact sum, scale, coverage factor bound, stored key bound (the winner tree's key)
+    rec = np.empty((n, 4))
+    stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
     for i in range(n):
-        if state[i] != 0:
+        rec[i, 0] = w[i] + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
+        rec[i, 1] = scale[i]
+        rec[i, 2] = 1.0
+        rec[i, 3] = -1.0
+        if state[i] != 0 and cover:
             head[i] = i
-        margin[i] = (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
+            rep[i] = i
+            nmem[i] = 1
+            a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, snb)
+            alt[i] = a
+            altd2[i] = d2
+            if a >= 0:
+                link(i, a, ahead, anext, aprev)
+                e2b[i] = d2
+                add_gain(i, gain(i, i, d2, P), c2b, cerr)
+            else:
+                nmiss[i] = 1
     m = 1
     while m < n:
         m *= 2
-    key = np.full(n, -1.0)  # the stored bounds, and the winner tree over them (leaves m .. m + n)
-    win = np.full(2 * m, -1, dtype=np.int64)
+    win = np.full(2 * m, -1, dtype=np.int64)  # the winner tree over the stored keys (leaves m .. m + n)
     left = 0
     for i in range(n):
         if state[i] == 1:
-            key[i] = scale[i] * w[i]
+            if cover:
+                rec[i, 2] = fbound(i, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2)
+            rec[i, 3] = rec[i, 1] * rec[i, 0] * rec[i, 2]
             win[m + i] = i
             left += 1
     for v in range(m - 1, 0, -1):
-        win[v] = _better(win[2 * v], win[2 * v + 1], key, tie)
+        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
     prio = np.full(n, np.nan)
-    stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
     while left > floor:
         i = win[1]
         ti = tie[i]
@@ -163,58 +200,93 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, term, state, scale, im
         r = -1  # the next largest bound: the best of the matches i won
         v = m + i
         while v > 1:
-            r = _better(r, win[v ^ 1], key, tie)
+            r = _better(r, win[v ^ 1], rec, tie)
             v >>= 1
-        k2 = key[r] if r >= 0 else -1.0
+        k2 = rec[r, 3] if r >= 0 else -1.0
         t2 = tie[r] if r >= 0 else 0
         wi = list_weight(i, nptr, nbr, term, state)
-        run[i] = wi
+        rec[i, 0] = wi + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
         cur = scale[i] * wi
         if cover:
-            if cur * fac[i] > k2 or (cur * fac[i] == k2 and ti < t2):
+            if cur * rec[i, 2] > k2 or (cur * rec[i, 2] == k2 and ti < t2):
                 stats[2] += 1
                 f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2,
-                              rc2, gamma, lam, inv_r2, imp2, True, stats)
-                fac[i] = min(fac[i], f)
-            cur = cur * fac[i]
+                              rc2, gamma, lam, inv_r2, imp2, False, stats)
+                rec[i, 2] = min(rec[i, 2], f)
+            cur = cur * rec[i, 2]
         if not (cur > k2 or (cur == k2 and ti < t2)):  # stale: store the exact key
             stats[1] += 1
-            key[i] = cur
-            _replay(win, (m + i) >> 1, i, key, tie)
+            rec[i, 3] = cur
+            _replay(win, (m + i) >> 1, i, rec, tie)
             continue
         prio[i] = cur
         state[i] = 0
         left -= 1
         win[m + i] = -1
-        _replay(win, (m + i) >> 1, i, key, tie)
-        if cover:  # the points i represented move to their nearest remaining point
-            p = head[i]
+        _replay(win, (m + i) >> 1, i, rec, tie)
+        if cover:
+            p = head[i]  # the points i represented move to their alt
             while p >= 0:
                 q = nxt[p]
                 a = alt[p]
-                if a < 0 or state[a] == 0:
-                    stats[3] += 1
-                    a = list_nearest(p, i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)[0]
-                if a >= 0:
+                if a < 0:
+                    rep[p] = -1
+                else:
+                    unlink(p, a, ahead, anext, aprev)
                     nxt[p] = head[a]
                     head[a] = p
-                alt[p] = -1
+                    rep[p] = a
+                    nmem[a] += 1
+                    stats[3] += 1
+                    b, d2, sp[p] = next_alt(p, a, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
+                                            nstart, ncells, state, tie, nptr, snb)
+                    alt[p] = b
+                    altd2[p] = d2
+                    if b >= 0:
+                        link(p, b, ahead, anext, aprev)
+                        e2b[a] = max(e2b[a], d2)
+                        add_gain(a, gain(p, a, d2, P), c2b, cerr)
+                    else:
+                        nmiss[a] += 1
+                    if state[a] == 1:
+                        rec[a, 2] = min(rec[a, 2], fbound(a, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
+                                                           inv_r2))
+                        _fall(a, rec, win, m, tie)
                 p = q
             head[i] = -1
+            p = ahead[i]  # the points whose alt was i get the next one
+            while p >= 0:
+                q = anext[p]
+                x = rep[p]
+                stats[3] += 1
+                b, d2, sp[p] = next_alt(p, x, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
+                                        nstart, ncells, state, tie, nptr, snb)
+                add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)
+                alt[p] = b
+                altd2[p] = d2
+                if b >= 0:
+                    link(p, b, ahead, anext, aprev)
+                    e2b[x] = max(e2b[x], d2)
+                    add_gain(x, gain(p, x, d2, P), c2b, cerr)
+                else:
+                    nmiss[x] += 1
+                if state[x] == 1:
+                    rec[x, 2] = min(rec[x, 2], fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
+                                                       inv_r2))
+                    _fall(x, rec, win, m, tie)
+                p = q
+            ahead[i] = -1
         for t in range(nptr[i], nptr[i + 1]):  # the neighbours' bounds fall
             j = nbr[t]
             if state[j] != 1:
                 continue
-            run[j] -= term[t]
-            bound = scale[j] * (run[j] + margin[j]) * fac[j]
-            if bound < key[j]:
-                key[j] = bound
-                _replay(win, (m + j) >> 1, j, key, tie)
+            rec[j, 0] -= term[t]
+            _fall(j, rec, win, m, tie)
     for i in range(n):  # the points left: their keys at the stop
         if state[i] == 1:
             cur = scale[i] * list_weight(i, nptr, nbr, term, state)
             if cover and cur > 0:
-                cur *= min(fac[i], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
+                cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
                                             alt, altd2, rc2, gamma, lam, inv_r2, imp2, False, stats))
             prio[i] = cur
     return prio, stats

@@ -129,3 +129,38 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     if best < 0:
         return nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
     return best, bd
+
+
+@njit(cache=True, parallel=True)
+def sort_lists(P, nptr, nbr, tie):
+    """Each list's rows sorted by (squared distance, tie): the nearest first (same dtype as ``nbr``)."""
+    n = len(nptr) - 1
+    out = np.empty_like(nbr)
+    for p in prange(n):
+        s, e = nptr[p], nptr[p + 1]
+        if e == s:
+            continue
+        d2 = np.empty(e - s)
+        for t in range(s, e):
+            j = nbr[t]
+            dx = P[j, 0] - P[p, 0]
+            dy = P[j, 1] - P[p, 1]
+            dz = P[j, 2] - P[p, 2]
+            d2[t - s] = dx * dx + dy * dy + dz * dz
+        o = np.argsort(d2, kind="mergesort")
+        a = 0
+        while a < e - s:  # runs of equal distances: by tie (insertion sort; runs are short)
+            b = a + 1
+            while b < e - s and d2[o[b]] == d2[o[a]]:
+                b += 1
+            for u in range(a + 1, b):
+                v = o[u]
+                k = u - 1
+                while k >= a and tie[nbr[s + o[k]]] > tie[nbr[s + v]]:
+                    o[k + 1] = o[k]
+                    k -= 1
+                o[k + 1] = v
+            a = b
+        for t in range(e - s):
+            out[s + t] = nbr[s + o[t]]
+    return out
