@@ -179,6 +179,13 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Key at removal: +inf for exact copies of a lower-index point, >= 0
         otherwise. Removal order: priority descending, ties lower index first.
     """
+    return _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric,
+                            entropy, floor, threads)[0]
+
+
+def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric, entropy,
+                     floor, threads) -> tuple:
+    """:func:`eliminate_order`, and the grid of its points (None when there is none)."""
     pts = check_points(points)
     n = len(pts)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
@@ -206,7 +213,7 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     else:
         r_max = _check_r_max(r_max)
     if n == 0:
-        return np.zeros(0)
+        return np.zeros(0), None
     rank = None
     if entropy > 0:
         if dh is None:
@@ -243,7 +250,7 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
         grid = CellGrid(allp, 0.0)
         out = np.zeros(len(allp))
         out[grid.order[grid.copy]] = np.inf
-        return out[:n]
+        return out[:n], None
     two_r = rho = 2.0 * r_max
     if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
         areas = areas_of(pts, hal, AREA_K, AREA_SAMPLE, 0, -1)[0]
@@ -275,7 +282,7 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     out[src] = prio
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out
+    return out, (grid if nh == 0 and len(fix) == 0 and rho == two_r else None)
 
 
 def _lists(grid: CellGrid, state: np.ndarray, two_r: float, alpha: float, ialpha: int):
@@ -352,10 +359,11 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
         return _relocate(pts, kp, hal, hk, r_max, int(iterations))
 
 
-def _relocate(pts, kp, hal, hk, r_max, iterations) -> np.ndarray:
+def _relocate(pts, kp, hal, hk, r_max, iterations, grid=None) -> np.ndarray:
     n = len(pts)
     allp = np.concatenate([pts, hal]) if len(hal) else pts
-    grid = CellGrid(allp, 2.0 * r_max)
+    if grid is None:  # else the grid the elimination built on the same points and cell side
+        grid = CellGrid(allp, 2.0 * r_max)
     src = grid.order
     kept = np.concatenate([kp, hk])[src].astype(np.uint8)
     movable = (src < n).astype(np.uint8)
@@ -399,8 +407,12 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     if int(relocate_steps) != relocate_steps or relocate_steps < 0:
         raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
     r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else _check_r_max(r_max)
-    prio = eliminate_order(pts, r_max=r_max, floor=target, threads=threads, **options)
+    opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
+            "entropy": 0.0} | options
+    prio, grid = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
+                                  opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target, threads)
     keep = keep_lowest(prio, target)
     if relocate_steps and math.isfinite(r_max) and target:
-        keep = relocate(pts, keep, r_max, iterations=relocate_steps, threads=threads)
+        with _threads(threads):
+            keep = _relocate(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
     return np.flatnonzero(keep).astype(np.int64)

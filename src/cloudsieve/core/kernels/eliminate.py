@@ -142,20 +142,13 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
     inv_r2 = 4.0 * inv2r * inv2r
     rc2 = r_cov * r_cov
     cover = r_cov > 0 or lam > 0
-    head = np.full(n, -1, dtype=np.int64)
-    nxt = np.full(n, -1, dtype=np.int64)
-    rep = np.full(n, -1, dtype=np.int64)
-    alt = np.full(n, -1, dtype=np.int64)
-    altd2 = np.full(n, np.inf)
-    sp = np.zeros(n, dtype=np.int64)
-    ahead = np.full(n, -1, dtype=np.int64)
-    anext = np.full(n, -1, dtype=np.int64)
-    aprev = np.full(n, -1, dtype=np.int64)
-    e2b = np.zeros(n)
-    c2b = np.zeros(n)
-    cerr = np.zeros(n)
-    nmem = np.zeros(n, dtype=np.int64)
-    nmiss = np.zeros(n, dtype=np.int64)
+    # the coverage data of each point in two rows (one cache line each): links, and distances and counts
+    ci = np.full((n, 8), -1, dtype=np.int64)
+    cf = np.zeros((n, 8))
+    head, nxt, rep, alt, sp, ahead, anext, aprev = ci[:, 0], ci[:, 1], ci[:, 2], ci[:, 3], ci[:, 4], ci[:, 5], \
+        ci[:, 6], ci[:, 7]
+    altd2, e2b, c2b, cerr, nmem, nmiss = cf[:, 0], cf[:, 1], cf[:, 2], cf[:, 3], cf[:, 4], cf[:, 5]
+    altd2[:] = np.inf
     # per point, in one row: running crowding sum (by subtraction) plus a margin above the rounding of it
     # and of the exact sum, scale, coverage factor bound, stored key bound (the winner tree's key)
     rec = np.empty((n, 4))
@@ -168,7 +161,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
         if state[i] != 0 and cover:
             head[i] = i
             rep[i] = i
-            nmem[i] = 1
+            nmem[i] = 1.0
             a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, snb)
             alt[i] = a
             altd2[i] = d2
@@ -177,7 +170,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                 e2b[i] = d2
                 add_gain(i, gain(i, i, d2, P), c2b, cerr)
             else:
-                nmiss[i] = 1
+                nmiss[i] = 1.0
     m = 1
     while m < n:
         m *= 2
@@ -236,7 +229,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                     nxt[p] = head[a]
                     head[a] = p
                     rep[p] = a
-                    nmem[a] += 1
+                    nmem[a] += 1.0
                     stats[3] += 1
                     b, d2, sp[p] = next_alt(p, a, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
                                             nstart, ncells, state, tie, nptr, snb)
@@ -247,7 +240,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                         e2b[a] = max(e2b[a], d2)
                         add_gain(a, gain(p, a, d2, P), c2b, cerr)
                     else:
-                        nmiss[a] += 1
+                        nmiss[a] += 1.0
                     if state[a] == 1:
                         rec[a, 2] = min(rec[a, 2], fbound(a, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                            inv_r2))
@@ -269,7 +262,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                     e2b[x] = max(e2b[x], d2)
                     add_gain(x, gain(p, x, d2, P), c2b, cerr)
                 else:
-                    nmiss[x] += 1
+                    nmiss[x] += 1.0
                 if state[x] == 1:
                     rec[x, 2] = min(rec[x, 2], fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                        inv_r2))
