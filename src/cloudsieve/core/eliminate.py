@@ -167,8 +167,9 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     floor : int
         Stop when this many of the points are left (about as large a share of
         the halo too); the points left get their keys at the stop (the keys
-        they would be removed with next, <= every removed key). 0: a full order. Without halo, keeping
-        the ``floor`` lowest is exactly the elimination stopped there.
+        they would be removed with next, <= every removed key). 0: a full
+        order. Without halo, keeping the ``floor`` lowest is exactly the
+        elimination stopped there.
     threads : int, optional
         numba threads of the parallel passes (None: numba's setting); the
         result does not depend on it.

@@ -17,7 +17,6 @@ distances its points would gain, and a bound of its rounding error),
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
 from .grid import nearest

@@ -33,32 +33,32 @@ upper bounds: a winner tree over the points holds a bound of each key; the
 top's exact key is recomputed and compared with the next largest bound (the
 best of the matches the top won): ahead of it -> it is the heaviest point;
 else its exact key is stored and the tree replayed (a stale pop). On a
-removal the neighbours' bounds fall at once (a running crowding sum by
-subtraction plus a margin larger than the rounding of both sums), so stale
-pops come only from the coverage factor. The priorities are the exact keys
-at removal, the ones an eager heap recomputing every key after each removal
-would give.
+removal the bounds of the points concerned fall at once: the neighbours'
+(a running crowding sum by subtraction plus a margin larger than the
+rounding of both sums) and those whose coverage factor changed (per-point
+sums kept current by :mod:`.cover`, lowered below their rounding), so stale
+pops come only from ties and from the margins. The priorities are the exact
+keys at removal, the ones an eager heap recomputing every key after each
+removal would give. Neighbour lists (:mod:`.neighbours`) replace the grid
+walks; the grid is walked only for a nearest point beyond 2 r_max.
 
 Grid arguments as in :mod:`.grid`.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .cover import add_gain, fbound, gain, link, next_alt, unlink
 from .neighbours import list_nearest, list_weight
 
 
-
 @njit(cache=True)
 def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2, rc2, gamma,
-              lam, inv_r2, imp2, refresh, stats):
-    """f(x) of the module docstring; with ``refresh``, stores the nearest other point it finds for the
-    points x represents (a cache that stays exact while that point is alive)."""
+              lam, inv_r2, imp2, stats):
+    """f(x) of the module docstring from scratch, in the order of x's list of represented points (their
+    alts are current: the search only finds again that there is none)."""
     e2 = 0.0
     c2 = 0.0
     p = head[x]
@@ -69,9 +69,6 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
         else:
             stats[3] += 1
             a, d2 = list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)
-            if refresh:
-                alt[p] = a
-                altd2[p] = d2
         if a < 0:
             return 0.0
         e2 = max(e2, d2)
@@ -204,7 +201,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
             if cur * rec[i, 2] > k2 or (cur * rec[i, 2] == k2 and ti < t2):
                 stats[2] += 1
                 f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2,
-                              rc2, gamma, lam, inv_r2, imp2, False, stats)
+                              rc2, gamma, lam, inv_r2, imp2, stats)
                 rec[i, 2] = min(rec[i, 2], f)
             cur = cur * rec[i, 2]
         if not (cur > k2 or (cur == k2 and ti < t2)):  # stale: store the exact key
@@ -280,7 +277,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
             cur = scale[i] * list_weight(i, nptr, nbr, term, state)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
-                                            alt, altd2, rc2, gamma, lam, inv_r2, imp2, False, stats))
+                                            alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats))
             prio[i] = cur
     return prio, stats
 
