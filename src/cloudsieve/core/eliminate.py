@@ -275,8 +275,9 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
     snb = _kn.sort_lists(grid.P, nptr, nbr, src) if coverage else nbr
+    links = np.full((len(allp), 8), -1, dtype=_index_type(len(allp), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, snb, term, state, scale, imp2, w, src, two_r, r_cov,
-                                COVER_GAMMA, lam, left)
+                                COVER_GAMMA, lam, left, links)
     logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, len(fix), *stats)
     out = np.empty(len(allp))
@@ -286,12 +287,17 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     return out, (grid if nh == 0 and len(fix) == 0 and rho == two_r else None)
 
 
+def _index_type(*sizes) -> type:
+    """int32 when every index fits, else int64 (half the memory of the links)."""
+    return np.int32 if max(int(s) for s in sizes) < 2**31 else np.int64
+
+
 def _lists(grid: CellGrid, state: np.ndarray, two_r: float, alpha: float, ialpha: int):
     """CSR neighbour lists within ``two_r`` of every alive row and their crowding terms (:mod:`.kernels.neighbours`)."""
     counts = _kn.count_lists(*grid.args(), state, two_r)
     nptr = np.zeros(len(counts) + 1, dtype=np.int64)
     np.cumsum(counts, out=nptr[1:])
-    nbr = np.empty(int(nptr[-1]), dtype=np.int32 if len(counts) < 2**31 else np.int64)
+    nbr = np.empty(int(nptr[-1]), dtype=_index_type(len(counts)))
     term = np.empty(int(nptr[-1]))
     _kn.fill_lists(*grid.args(), state, two_r, alpha, ialpha, nptr, nbr, term)
     return nptr, nbr, term

@@ -116,7 +116,7 @@ def _fall(y, rec, win, m, tie):
 
 @njit(cache=True)
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scale, imp2, w, tie, two_r, r_cov,
-              gamma, lam, floor):
+              gamma, lam, floor, ci):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
     ``nptr``/``nbr``/``term`` are the neighbour lists, ``snb`` the sorted
@@ -126,8 +126,10 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
     importance. Returns priority (n,): the key of each point when it was
     removed (non-increasing along the removals), for the points left their
     keys at the stop (<= every removed key), NaN for points that were not
-    removable; ``state`` is consumed. Also returns counts (4,): pops, stale
-    pops, coverage evaluations, nearest searches.
+    removable; ``state`` and ``ci`` (n, 8), all -1, int32 when the lists
+    hold fewer than 2^31 entries (the links of the coverage data) are
+    consumed. Also returns counts (4,): pops, stale pops, coverage
+    evaluations, nearest searches.
 
     On a removal, the points it represented move to their alt, the points
     whose alt it was get the next one (:mod:`.cover`), and the bounds of the
@@ -140,7 +142,6 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
     rc2 = r_cov * r_cov
     cover = r_cov > 0 or lam > 0
     # the coverage data of each point in two rows (one cache line each): links, and distances and counts
-    ci = np.full((n, 8), -1, dtype=np.int64)
     cf = np.zeros((n, 8))
     head, nxt, rep, alt, sp, ahead, anext, aprev = ci[:, 0], ci[:, 1], ci[:, 2], ci[:, 3], ci[:, 4], ci[:, 5], \
         ci[:, 6], ci[:, 7]
@@ -171,7 +172,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
     m = 1
     while m < n:
         m *= 2
-    win = np.full(2 * m, -1, dtype=np.int64)  # the winner tree over the stored keys (leaves m .. m + n)
+    win = np.full(2 * m, -1, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
     left = 0
     for i in range(n):
         if state[i] == 1:
