@@ -5,7 +5,7 @@ while it remains, else the remaining point nearest to it), ``alt[p]`` is the
 nearest remaining point other than the rep and ``altd2[p]`` the squared
 distance to it (-1 / inf: none within the grid's reach). They are found by
 resuming a scan of p's neighbour list sorted by (distance, tie)
-(:func:`.neighbours.sort_lists`) at ``sp[p]``, where the last one was found:
+(``soff`` of :mod:`.neighbours`) at ``sp[p]``, where the last one was found:
 points only go, so the scan only moves forward; past the list (nothing left
 within 2 r_max), the grid walk of :func:`.grid.nearest`. The points whose alt
 is a are a doubly linked list (``ahead``/``anext``/``aprev``), so a removal
@@ -23,12 +23,13 @@ from .grid import nearest
 
 
 @njit(cache=True)
-def next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, snb):
-    """Nearest remaining point to p other than x from position ``start`` of p's sorted list, its
-    squared distance and position (the list's end when found by the grid walk, or none)."""
+def next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff):
+    """Nearest remaining point to p other than x from position ``start`` of p's list in nearest-first
+    order, its squared distance and position (the list's end when found by the grid walk, or none)."""
     end = nptr[p + 1]
+    s = nptr[p]
     for t in range(start, end):
-        j = snb[t]
+        j = nbr[s + soff[t]]
         if j != x and state[j] != 0:
             dx = P[j, 0] - P[p, 0]
             dy = P[j, 1] - P[p, 1]

@@ -115,15 +115,14 @@ def _fall(y, rec, win, m, tie):
 
 
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scale, imp2, w, tie, two_r, r_cov,
-              gamma, lam, floor, ci):
+def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scale, imp2, w, tie, two_r, alpha,
+              ialpha, r_cov, gamma, lam, floor, ci):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``nptr``/``nbr``/``term`` are the neighbour lists, ``snb`` the sorted
-    lists and ``w`` (n,) the crowding sums of :mod:`.neighbours` (before
-    the scale); ``imp2`` (n,) the squared importance of each point: its
-    coverage and squared-error terms are measured in distances times its
-    importance. Returns priority (n,): the key of each point when it was
+    ``nptr``/``nbr``/``low``/``soff`` are the neighbour lists and ``w``
+    (n,) the crowding sums of :mod:`.neighbours` (before the scale);
+    ``imp2`` (n,) the squared importance of each point: its coverage and
+    squared-error terms are measured in distances times its importance. Returns priority (n,): the key of each point when it was
     removed (non-increasing along the removals), for the points left their
     keys at the stop (<= every removed key), NaN for points that were not
     removable; ``state`` and ``ci`` (n, 8), all -1, int32 when the lists
@@ -160,7 +159,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
             head[i] = i
             rep[i] = i
             nmem[i] = 1.0
-            a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, snb)
+            a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
             alt[i] = a
             altd2[i] = d2
             if a >= 0:
@@ -195,7 +194,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
             v >>= 1
         k2 = rec[r, 3] if r >= 0 else -1.0
         t2 = tie[r] if r >= 0 else 0
-        wi = list_weight(i, nptr, nbr, term, state)
+        wi = list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
         rec[i, 0] = wi + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
         cur = scale[i] * wi
         if cover:
@@ -230,7 +229,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                     nmem[a] += 1.0
                     stats[3] += 1
                     b, d2, sp[p] = next_alt(p, a, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
-                                            nstart, ncells, state, tie, nptr, snb)
+                                            nstart, ncells, state, tie, nptr, nbr, soff)
                     alt[p] = b
                     altd2[p] = d2
                     if b >= 0:
@@ -251,7 +250,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
                 x = rep[p]
                 stats[3] += 1
                 b, d2, sp[p] = next_alt(p, x, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
-                                        nstart, ncells, state, tie, nptr, snb)
+                                        nstart, ncells, state, tie, nptr, nbr, soff)
                 add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)
                 alt[p] = b
                 altd2[p] = d2
@@ -271,11 +270,11 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, snb, term, state, scal
             j = nbr[t]
             if state[j] != 1:
                 continue
-            rec[j, 0] -= term[t]
+            rec[j, 0] -= low[t]
             _fall(j, rec, win, m, tie)
     for i in range(n):  # the points left: their keys at the stop
         if state[i] == 1:
-            cur = scale[i] * list_weight(i, nptr, nbr, term, state)
+            cur = scale[i] * list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
                                             alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats))

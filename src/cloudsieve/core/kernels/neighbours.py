@@ -1,14 +1,16 @@
 """Compiled kernels of the elimination's neighbour lists (numba; private, inputs assumed valid).
 
 The neighbours of a point within 2 r_max are listed once, in parallel, as a
-CSR (``nptr`` (n + 1,), ``nbr`` the neighbour rows, ``term`` their crowding
-terms), so the sequential elimination loop never walks the grid again. A
+CSR (``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
+walk of :mod:`.grid` (cells in ``ncells`` order, rows ascending inside a
+cell), with ``low`` (float32) a lower bound of each one's crowding term
+(1 - d / (2 r_max)) ** alpha (enough for the upper bounds of the keys the
+elimination keeps) and ``soff`` each list's positions sorted nearest first
+(by squared distance, then tie; uint8/uint16 when the lists are short). A
 point's list holds every other alive point (``state`` != 0) at squared
-distance < (2 r_max)^2 in the order of the grid walk of :mod:`.grid` (cells
-in ``ncells`` order, rows ascending inside a cell): a sum over the list in
-list order is the sum the grid walk made, bit for bit. Grid arguments as in
-:mod:`.grid`.
-"""
+distance < (2 r_max)^2, so the exact crowding sum over the list in list
+order (:func:`list_weight`) is the one over the grid walk, bit for bit.
+Grid arguments as in :mod:`.grid"""
 
 from __future__ import annotations
 
@@ -18,6 +20,9 @@ import numpy as np
 from numba import njit, prange
 
 from .grid import nearest
+
+SHRINK = 1.0 - 2.0**-23  # a float64 times this, rounded to float32, is below it
+TINY = 1e-30  # terms below it are bounded by 0
 
 
 @njit(cache=True)
@@ -33,6 +38,20 @@ def ipow(u, alpha, ialpha):
         u *= u
         e >>= 1
     return r
+
+
+@njit(cache=True)
+def list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha):
+    """Crowding sum of point i over its alive neighbours (the grid walk's sum, bit for bit)."""
+    w = 0.0
+    for t in range(nptr[i], nptr[i + 1]):
+        j = nbr[t]
+        if state[j] != 0:
+            dx = P[j, 0] - P[i, 0]
+            dy = P[j, 1] - P[i, 1]
+            dz = P[j, 2] - P[i, 2]
+            w += ipow(1.0 - math.sqrt(dx * dx + dy * dy + dz * dz) * inv2r, alpha, ialpha)
+    return w
 
 
 @njit(cache=True, parallel=True)
@@ -61,9 +80,9 @@ def count_lists(P, cell, cstart, nstart, ncells, state, two_r):
 
 
 @njit(cache=True, parallel=True)
-def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, term):
-    """Fill ``nbr``/``term`` (nptr[-1],) of the lists counted by :func:`count_lists`:
-    term = (1 - d / (2 r_max)) ** alpha, computed as the grid walk did."""
+def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w):
+    """Fill ``nbr``/``low`` (nptr[-1],) of the lists counted by :func:`count_lists`, in grid walk order,
+    and ``w`` (n,) with each alive point's exact crowding sum (:func:`list_weight`'s, bit for bit)."""
     n = len(P)
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
@@ -72,6 +91,7 @@ def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, npt
             continue
         c = cell[i]
         k = nptr[i]
+        s = 0.0
         for t in range(nstart[c], nstart[c + 1]):
             cc = ncells[t]
             for j in range(cstart[cc], cstart[cc + 1]):
@@ -82,30 +102,46 @@ def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, npt
                 dz = P[j, 2] - P[i, 2]
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 < r2:
+                    u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
+                    s += u
                     nbr[k] = j
-                    term[k] = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
+                    low[k] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
                     k += 1
-
-
-@njit(cache=True)
-def list_weight(i, nptr, nbr, term, state):
-    """Crowding sum of point i over its alive neighbours (the grid walk's sum, bit for bit)."""
-    w = 0.0
-    for t in range(nptr[i], nptr[i + 1]):
-        if state[nbr[t]] != 0:
-            w += term[t]
-    return w
+        w[i] = s
 
 
 @njit(cache=True, parallel=True)
-def list_weights(nptr, nbr, term, state):
-    """Crowding sum w (n,) of every removable point (state 1; 0.0 for the others)."""
-    n = len(state)
-    out = np.zeros(n)
-    for i in prange(n):
-        if state[i] == 1:
-            out[i] = list_weight(i, nptr, nbr, term, state)
-    return out
+def sort_lists(P, nptr, nbr, tie, soff):
+    """Fill ``soff`` (nptr[-1],) with each list's positions sorted by (squared distance, tie): nearest first."""
+    n = len(nptr) - 1
+    for p in prange(n):
+        s, e = nptr[p], nptr[p + 1]
+        k = e - s
+        if k == 0:
+            continue
+        d2 = np.empty(k)
+        for t in range(k):
+            j = nbr[s + t]
+            dx = P[j, 0] - P[p, 0]
+            dy = P[j, 1] - P[p, 1]
+            dz = P[j, 2] - P[p, 2]
+            d2[t] = dx * dx + dy * dy + dz * dz
+        o = np.argsort(d2, kind="mergesort")
+        a = 0
+        while a < k:  # runs of equal distances: by tie (insertion sort; runs are short)
+            b = a + 1
+            while b < k and d2[o[b]] == d2[o[a]]:
+                b += 1
+            for u in range(a + 1, b):
+                v = o[u]
+                q = u - 1
+                while q >= a and tie[nbr[s + o[q]]] > tie[nbr[s + v]]:
+                    o[q + 1] = o[q]
+                    q -= 1
+                o[q + 1] = v
+            a = b
+        for t in range(k):
+            soff[s + t] = o[t]
 
 
 @njit(cache=True)
@@ -129,38 +165,3 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     if best < 0:
         return nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
     return best, bd
-
-
-@njit(cache=True, parallel=True)
-def sort_lists(P, nptr, nbr, tie):
-    """Each list's rows sorted by (squared distance, tie): the nearest first (same dtype as ``nbr``)."""
-    n = len(nptr) - 1
-    out = np.empty_like(nbr)
-    for p in prange(n):
-        s, e = nptr[p], nptr[p + 1]
-        if e == s:
-            continue
-        d2 = np.empty(e - s)
-        for t in range(s, e):
-            j = nbr[t]
-            dx = P[j, 0] - P[p, 0]
-            dy = P[j, 1] - P[p, 1]
-            dz = P[j, 2] - P[p, 2]
-            d2[t - s] = dx * dx + dy * dy + dz * dz
-        o = np.argsort(d2, kind="mergesort")
-        a = 0
-        while a < e - s:  # runs of equal distances: by tie (insertion sort; runs are short)
-            b = a + 1
-            while b < e - s and d2[o[b]] == d2[o[a]]:
-                b += 1
-            for u in range(a + 1, b):
-                v = o[u]
-                k = u - 1
-                while k >= a and tie[nbr[s + o[k]]] > tie[nbr[s + v]]:
-                    o[k + 1] = o[k]
-                    k -= 1
-                o[k + 1] = v
-            a = b
-        for t in range(e - s):
-            out[s + t] = nbr[s + o[t]]
-    return out
