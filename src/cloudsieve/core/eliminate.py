@@ -269,11 +269,11 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
         inner = src < n
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-    nptr, nbr, low, soff, w = _lists(grid, state, two_r, alpha, ialpha, coverage)
+    nptr, nbr, low, soff, w = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
-    links = np.full((len(allp), 8), -1, dtype=_index_type(len(allp), nptr[-1]))
+    links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, soff, state, scale, imp2, w, src, two_r, alpha,
                                 ialpha, r_cov, COVER_GAMMA, lam, left, links)
     logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
@@ -283,30 +283,6 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
     return out, (grid if nh == 0 and len(fix) == 0 and rho == two_r else None)
-
-
-def _index_type(*sizes) -> type:
-    """int32 when every index fits, else int64 (half the memory of the links)."""
-    return np.int32 if max(int(s) for s in sizes) < 2**31 else np.int64
-
-
-def _lists(grid: CellGrid, state: np.ndarray, two_r: float, alpha: float, ialpha: int, nearest_first: bool):
-    """Neighbour lists within ``two_r`` of every alive row, lower bounds of their crowding terms, their
-    positions nearest first (if ``nearest_first``: the coverage term's searches need them) and the exact
-    crowding sums (:mod:`.kernels.neighbours`)."""
-    counts = _kn.count_lists(*grid.args(), state, two_r)
-    nptr = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(counts, out=nptr[1:])
-    nbr = np.empty(int(nptr[-1]), dtype=_index_type(len(counts)))
-    low = np.empty(int(nptr[-1]), dtype=np.float32)
-    w = np.zeros(len(counts))
-    _kn.fill_lists(*grid.args(), state, two_r, alpha, ialpha, nptr, nbr, low, w)
-    longest = int(counts.max(initial=0))
-    soff = np.zeros(int(nptr[-1]) if nearest_first else 1,
-                    dtype=np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64)
-    if nearest_first:
-        _kn.sort_lists(grid.P, nptr, nbr, grid.order, soff)
-    return nptr, nbr, low, soff, w
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:

@@ -165,3 +165,27 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     if best < 0:
         return nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
     return best, bd
+
+
+def index_type(*sizes) -> type:
+    """int32 when every index fits, else int64."""
+    return np.int32 if max(int(s) for s in sizes) < 2**31 else np.int64
+
+
+def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first):
+    """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
+    nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
+    exact crowding sums w (n,). ``order``: the grid's rows' ids (the tie of equal distances)."""
+    counts = count_lists(P, cell, cstart, nstart, ncells, state, two_r)
+    nptr = np.zeros(len(counts) + 1, dtype=np.int64)
+    np.cumsum(counts, out=nptr[1:])
+    nbr = np.empty(int(nptr[-1]), dtype=index_type(len(counts)))
+    low = np.empty(int(nptr[-1]), dtype=np.float32)
+    w = np.zeros(len(counts))
+    fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w)
+    longest = int(counts.max(initial=0))
+    soff = np.zeros(int(nptr[-1]) if nearest_first else 1,
+                    dtype=np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64)
+    if nearest_first:
+        sort_lists(P, nptr, nbr, order, soff)
+    return nptr, nbr, low, soff, w
