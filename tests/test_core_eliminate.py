@@ -194,6 +194,24 @@ def test_fixed_points_weigh_but_are_never_removed():
     assert len(keep) == 600
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_gone_points_continue_the_elimination_where_it_stopped(seed):
+    """Stopped at m points, the m left with the removed ones as ``gone`` go on in the same order, same keys."""
+    P = sheet(400, seed=20 + seed)
+    r_max = 0.04
+    full = eliminate_order(P, r_max=r_max)
+    order = removal_order(full)
+    gone, left = np.sort(order[:250]), np.sort(order[250:])
+    prio = eliminate_order(P[left], r_max=r_max, gone=P[gone])
+    assert np.array_equal(removal_order(prio), removal_order(full[left]))
+    np.testing.assert_allclose(prio, full[left], rtol=1e-12)
+    # without them the coverage term does not see the holes they left: another order
+    assert not np.array_equal(removal_order(eliminate_order(P[left], r_max=r_max)), removal_order(full[left]))
+    # no coverage term: the gone points change nothing
+    plain = eliminate_order(P[left], r_max=r_max, coverage=False)
+    assert np.array_equal(eliminate_order(P[left], r_max=r_max, gone=P[gone], coverage=False), plain)
+
+
 def test_halo_cells_have_no_seam():
     """Two cells with halos, one global threshold: kept density near the border as inside."""
     rng = np.random.default_rng(14)
@@ -277,3 +295,41 @@ def test_empty_and_tiny():
     one = np.zeros((1, 3))
     assert np.array_equal(eliminate(one, 1), [0])
     assert len(eliminate(one, 0)) == 0
+
+
+# sha256 of the priorities (float64 bytes) and of the removal order (int64 bytes) of bun_zipper.ply at the
+# r_max of 20% kept, full order, computed with the grid-walk kernel before the neighbour lists, the winner
+# tree and the eager coverage bookkeeping (the same priorities bit for bit since)
+BUN20_PRIO = "f3bf2aaf5b4787d3261f7d809a8efc93ea354b59a0c86c81ce5e15e4bc550261"
+BUN20_ORDER = "ffa20db1df751afa2c0b634d16b116d6355745bbaa3c52fc40de981aad1710e7"
+
+
+def test_priorities_pinned_on_a_real_scan():
+    import hashlib
+
+    from conftest import shared_file
+
+    from cloudsieve.io import read_cloud
+
+    P = read_cloud(shared_file("bun_zipper.ply"))[0]
+    areas, weight = point_areas(P)
+    prio = eliminate_order(P, r_max=elimination_radius(areas, round(0.2 * len(P)), weight=weight))
+    assert hashlib.sha256(removal_order(prio).astype(np.int64).tobytes()).hexdigest() == BUN20_ORDER
+    assert hashlib.sha256(prio.tobytes()).hexdigest() == BUN20_PRIO
+
+
+@pytest.mark.parametrize("coverage", [True, False])
+def test_floor_keys_are_the_keys_at_the_stop(coverage):
+    """Stopped at a floor, the points left get their current keys: the largest is the next removal's."""
+    P = sheet(3000, seed=17)
+    r = elimination_radius(point_areas(P)[0], 900, weight=point_areas(P)[1])
+    full = eliminate_order(P, r_max=r, coverage=coverage)
+    part = eliminate_order(P, r_max=r, coverage=coverage, floor=900)
+    order = removal_order(full)
+    gone = order[:2100]
+    assert np.array_equal(part[gone], full[gone])  # the removals: same keys bit for bit
+    left = order[2100:]
+    assert part[left].max() <= full[gone].min()
+    assert removal_order(part)[2100] == order[2100]  # the next removal: the largest key left (ties lower index)
+    assert part[order[2100]] == full[order[2100]]
+    assert (part[left] >= full[left]).all()  # keys only fall as points go

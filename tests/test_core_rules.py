@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.core import prune, refine_labels, score_points, threshold_for_count, unit_free_scores
+from cloudsieve.core import exact_copies, prune, refine_labels, score_points, threshold_for_count, unit_free_scores
 from cloudsieve.core.rounds import _first_independent, _padded
 from cloudsieve.errors import InvalidParameterError
 
@@ -130,13 +130,16 @@ def test_coverage_with_threshold_is_a_subset_rule(cloud):
 
 
 def _reference_rounds(pts, labels, rule, S=1e-3, target=None, coverage=1.0):
-    """The iterative/coverage rules by full rescoring of the remaining points every round."""
+    """The iterative/coverage rules by full rescoring of the remaining points every round.
+
+    Exact copies go first, as in every rule (issue 13, item 3: the rules run on the distinct points).
+    """
     from cloudsieve.core.knn import canonical_order
     from cloudsieve.core.rounds import _covered
 
     order = canonical_order(pts)
     P, L = pts[order], labels[order]
-    alive = np.arange(len(pts))
+    alive = np.flatnonzero(~exact_copies(P))  # canonical order: the first of each copy group stays
     while target is None or len(alive) > target:
         s = score_points(P[alive], L[alive])
         val = s.delta_h if target is None else s.unit_free

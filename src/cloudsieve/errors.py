@@ -31,6 +31,7 @@ __all__ = [
     "ArrayNotFoundError",
     "PartitionLayoutError",
     "MissingDependencyError",
+    "TargetNotMetError",
     "ConvergenceWarning",
 ]
 
@@ -141,6 +142,10 @@ class PartitionLayoutError(CloudsieveError, ValueError):
 
 class MissingDependencyError(CloudsieveError, ImportError):
     """An optional package needed for this input or evaluation is not installed."""
+
+
+class TargetNotMetError(CloudsieveError, ValueError):
+    """A ratio or count that could not be met, with ``strict`` (otherwise a logged warning)."""
 
 
 class ConvergenceWarning(UserWarning):

@@ -153,6 +153,9 @@ _OPTIONS = [
     Option("k0", FLOAT, 1.0, "k-NN rule k = max(k_min, round(k0 * sqrt(m)))", low=0.0, low_open=True),
     Option("k_min", INT, 4, "smallest k of the k-NN rule", low=1),
     Option("seed", INT, 0, "one seed for everything: same seed, same bytes", low=0),
+    Option("keep_duplicates", BOOL, False,
+           "keep every exact copy (same x, y, z) of a kept point; default: exact duplicates are scored once and "
+           "kept once"),
     # -- the run
     Option("scheduler", SCHEDULER, None,
            "sync, threads, processes or a dask.distributed address tcp://host:port (default: local, no set-up)",
@@ -195,6 +198,9 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
+#: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
+_STRICT_COUNT = Option("strict", BOOL, False,
+                       "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
 _RULE_LIST = Option("rule", CHOICES, None, "entropy rule(s), comma-separated; each runs once per method (eliminate: "
                     "once, no clusters) (default: eliminate, with --ratio or --count; with --threshold alone: threshold)",
                     choices=RULES, metavar="RULES")
@@ -211,13 +217,13 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", extra=(_OUTPUT_FORMAT,)),
+        "drop_invalid", "keep_duplicates", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "drop_invalid"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
-        "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", extra=(_RULE_LIST,)),
+        "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", "keep_duplicates", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", extra=(_INPUT_FORMAT,)),
     "export": _command("mask", "chunk_size", "overwrite", extra=(_OUTPUT_FORMAT,)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
@@ -421,9 +427,12 @@ def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options that define a simplification, as recorded in its work store (resume compares them).
 
     The halo_context option is recorded under its version-1 key ``"context"``,
-    so work stores left by earlier runs still resume.
+    and keep_duplicates only when True, so work stores left by earlier runs
+    still resume.
     """
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
+    if options.get("keep_duplicates"):
+        record["keep_duplicates"] = True
     return record

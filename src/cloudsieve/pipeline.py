@@ -359,8 +359,12 @@ def check_inputs(pipeline: Pipeline) -> None:
             raise PipelineError(f"{label} cannot read {path}: its extension says {found}")
 
 
-def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None) -> list[dict]:
+def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None, bars: Any = None) -> list[dict]:
     """Run a pipeline, once per input file.
+
+    *progress* ``(n)`` is called as points are done; *bars* ``(stage, total,
+    unit)`` gives each stage of the simplification and the evaluation its own
+    bar (see :func:`cloudsieve.progress.bar`).
 
     Returns
     -------
@@ -391,13 +395,14 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
                     params.setdefault(key, value)
                 entry["summary"] = functions["filters.entropy"](
                     src, dst, format=out_format, overwrite=overwrite, client=client, progress=progress,
-                    drop_invalid=drop_invalid, **params
+                    drop_invalid=drop_invalid, bars=bars, **params
                 )
             entry["output"] = dst
         for stage in pipeline.stages:
             params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
             if stage["type"] == "evaluate":
-                entry["report"] = functions["evaluate"](src, entry["output"], drop_invalid=drop_invalid, **params)
+                entry["report"] = functions["evaluate"](src, entry["output"], drop_invalid=drop_invalid, bars=bars,
+                                                        **params)
             elif stage["type"] == "compare":
                 entry["report"] = functions["compare"](src, drop_invalid=drop_invalid, **params)
         results.append(entry)

@@ -1,15 +1,32 @@
-"""Progress reporting: library code takes a callback, the CLI shows a bar.
+"""Progress reporting: library code takes a callback, the CLI shows a bar or a log line.
 
 Library functions accept ``progress=None`` or a callable ``progress(n)`` called
-with the number of points (or tasks) just finished; they never print. The CLI
-builds the callable from a tqdm bar with :func:`bar`.
+with the number of points (or tasks) just finished, or ``bars`` (one
+:func:`bar` per stage); they never print. The CLI builds them with :func:`bar`:
+in a terminal a tqdm bar on stderr (redrawn every second, so a long stage
+shows its elapsed time even between updates); without a terminal (stderr
+piped to a file or a CI log) one INFO line per stage on the
+``cloudsieve.progress`` logger when it ends, with its count and seconds::
+
+    INFO cloudsieve.progress: cells: 12 tasks in 3.4 s
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import sys
+import threading
+import time
 from collections.abc import Callable, Iterator
+
+logger = logging.getLogger(__name__)
+
+#: seconds between redraws of a terminal bar (its elapsed time moves between updates)
+REDRAW_SECONDS = 1.0
+#: the words of the units in the log lines: (one, several)
+_UNITS = {"pt": ("point", "points"), "task": ("task", "tasks"), "tile": ("tile", "tiles"),
+          "method": ("method", "methods")}
 
 ProgressCallback = Callable[[int], None]
 
@@ -23,16 +40,67 @@ def callback(progress: ProgressCallback | None) -> ProgressCallback:
     return progress if progress is not None else _noop
 
 
+def both(*progress: ProgressCallback | None) -> ProgressCallback:
+    """One callback calling each of the given ones (None ignored)."""
+    calls = [p for p in progress if p is not None]
+
+    def update(n: int) -> None:
+        for p in calls:
+            p(n)
+
+    return update
+
+
+@contextlib.contextmanager
+def stage_line(desc: str, unit: str = "pt") -> Iterator[ProgressCallback]:
+    """Count a stage's updates; when it ends (without an error) log one INFO line with the count and seconds."""
+    done = [0]
+
+    def update(n: int) -> None:
+        done[0] += int(n)
+
+    t0 = time.perf_counter()
+    yield update
+    word = _UNITS.get(unit, (unit, unit))[done[0] != 1]
+    logger.info("%s: %s %s in %.1f s", desc, f"{done[0]:,}", word, time.perf_counter() - t0)
+
+
+@contextlib.contextmanager
+def _redrawn(t) -> Iterator[None]:
+    """Redraw tqdm bar *t* every :data:`REDRAW_SECONDS` (elapsed time and rate) until the block ends."""
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.wait(REDRAW_SECONDS):
+            t.refresh()
+
+    thread = threading.Thread(target=loop, name="cloudsieve-progress", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
+
+
 @contextlib.contextmanager
 def bar(desc: str, total: int | None, unit: str = "pt", enabled: bool = True) -> Iterator[ProgressCallback]:
-    """A tqdm progress bar on stderr, yielded as an ``update(n)`` callback.
+    """A stage's progress, yielded as an ``update(n)`` callback.
 
-    Disabled (a no-op) when *enabled* is False or stderr is not a terminal.
+    In a terminal, a tqdm bar on stderr (a counter with elapsed time when
+    *total* is None), redrawn every second; when stderr is not a terminal, one
+    log line when the stage ends (:func:`stage_line`). A no-op when *enabled*
+    is False.
     """
-    if not enabled or not sys.stderr.isatty():
+    if not enabled:
         yield _noop
+        return
+    if not sys.stderr.isatty():
+        with stage_line(desc, unit) as update:
+            yield update
         return
     from tqdm import tqdm
 
     with tqdm(total=total, desc=desc, unit=unit, unit_scale=True, file=sys.stderr, dynamic_ncols=True) as t:
-        yield t.update
+        with _redrawn(t):
+            yield t.update

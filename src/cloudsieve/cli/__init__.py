@@ -52,6 +52,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
+    # without a terminal, each stage's progress is one INFO line of this logger (--no-progress: none)
+    logging.getLogger("cloudsieve.progress").setLevel(min(level, logging.INFO))
     try:
         return int(args.func(args) or 0)
     except CloudsieveError as exc:

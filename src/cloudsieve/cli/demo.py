@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     )
 
     t0 = time.perf_counter()
-    result = evaluate(src, dst, report_dir=report, tiles=2, tile_points=50_000)
+    result = evaluate(src, dst, report_dir=report, tiles=2, tile_points=50_000, bars=bar)
     fwd = result["point"]["forward"]
     surf = result.get("surface") or {}
     print(

@@ -37,8 +37,10 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate
     from ..evaluate.report import fmt, json_ready
 
-    with progress.bar("point errors", None, enabled=not args.no_progress) as tick:
-        report = evaluate(args.original, args.simplified, **option_values(args, "evaluate"), progress=tick)
+    def bars(stage, total, unit):
+        return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
+
+    report = evaluate(args.original, args.simplified, **option_values(args, "evaluate"), bars=bars)
     if args.json:
         print(json.dumps(json_ready(report), indent=1))
         return 0

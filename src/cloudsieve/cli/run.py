@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         print("stages: " + " -> ".join([pipeline.reader["type"], *(s["type"] for s in pipeline.stages)]))
         return 0
     with bar("pipeline", None) as progress:
-        results = run_pipeline(pipeline, progress=progress)
+        results = run_pipeline(pipeline, progress=progress, bars=bar)
     for entry in results:
         line = f"{entry['input']}"
         summary, report = entry["summary"], entry["report"]

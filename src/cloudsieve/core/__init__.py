@@ -4,6 +4,7 @@ One module per stage, found by its name:
 
 - :mod:`._validation`: the input checks and the one k formula (:func:`neighbour_count`);
 - :mod:`.knn`: point orders, grouping by cluster, the k nearest inside clusters;
+- :mod:`.duplicates`: exact copies (:func:`exact_copies`), the one policy of every rule;
 - :mod:`.cluster` (the shared base and seeding), :mod:`.kmeans` (:class:`KMeans`),
   :mod:`.fcm` (:class:`FuzzyCMeans`), :mod:`.centres` (their nearest-centre queries and threads);
 - :mod:`.kernels`: the compiled (numba) kernels the stages call;
@@ -20,6 +21,7 @@ Public functions validate their input once and run kernels that assume valid inp
 """
 
 from ._validation import neighbour_count
+from .duplicates import exact_copies, first_copies
 from .entropy import Scores, entropy_scores, score_points
 from .fcm import FuzzyCMeans
 from .kmeans import KMeans
@@ -34,6 +36,8 @@ __all__ = [
     "ConvergenceWarning",
     "Scores",
     "entropy_scores",
+    "exact_copies",
+    "first_copies",
     "neighbour_count",
     "score_points",
     "METHODS",

@@ -64,6 +64,7 @@ from .entropy import score_points
 from .kernels import eliminate as _ke
 from .kernels import geometry as _kgeo
 from .kernels import grid as _kg
+from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
 
 __all__ = ["eliminate_order", "eliminate", "keep_lowest", "relocate"]
@@ -133,7 +134,7 @@ class _threads:
 
 
 def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, dh=None, halo=None,
-                    fixed=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
+                    fixed=None, gone=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
                     entropy: float = 0.0, floor: int = 0, threads: int | None = None) -> np.ndarray:
     """Priority of every point in the elimination order (larger goes first).
 
@@ -157,6 +158,11 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         border sees the density it will have) but given no priority.
     fixed : array_like of shape (f, 3), optional
         Points that weigh on the others and are never removed.
+    gone : array_like of shape (g, 3), optional
+        Points already removed (a neighbouring cell's): they do not weigh,
+        but each is represented from the start by its nearest point (of
+        ``points``, ``halo``, ``fixed``; within 2 r_max), as if it had just
+        gone, so the coverage term sees the area they leave uncovered.
     alpha : float
         Exponent of the crowding weight, > 0.
     coverage : bool
@@ -165,9 +171,10 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Strength of the information terms (0: off).
     floor : int
         Stop when this many of the points are left (about as large a share of
-        the halo too); the points left keep their last stored keys, upper
-        bounds <= every removed key. 0: a full order. Without halo, keeping
-        the ``floor`` lowest is exactly the elimination stopped there.
+        the halo too); the points left get their keys at the stop (the keys
+        they would be removed with next, <= every removed key). 0: a full
+        order. Without halo, keeping the ``floor`` lowest is exactly the
+        elimination stopped there.
     threads : int, optional
         numba threads of the parallel passes (None: numba's setting); the
         result does not depend on it.
@@ -178,10 +185,18 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Key at removal: +inf for exact copies of a lower-index point, >= 0
         otherwise. Removal order: priority descending, ties lower index first.
     """
+    return _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric,
+                            entropy, floor, threads, gone)[0]
+
+
+def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric, entropy,
+                     floor, threads, gone=None) -> tuple:
+    """:func:`eliminate_order`, and the grid of its points (None when there is none)."""
     pts = check_points(points)
     n = len(pts)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
     fix = np.zeros((0, 3)) if fixed is None else check_points(fixed, "fixed")
+    gon = np.zeros((0, 3)) if gone is None else check_points(gone, "gone")
     if not (isinstance(alpha, (int, float, np.integer, np.floating)) and math.isfinite(alpha) and alpha > 0):
         raise InvalidParameterError(f"alpha must be a positive number, got {alpha!r}")
     geometric = _strength(geometric, "geometric")
@@ -205,14 +220,14 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     else:
         r_max = _check_r_max(r_max)
     if n == 0:
-        return np.zeros(0)
+        return np.zeros(0), None
     rank = None
     if entropy > 0:
         if dh is None:
             dh = score_points(pts, lab, threads=threads).delta_h
         rank = _ranks(dh, np.zeros(n, dtype=np.int64) if lab is None else lab.astype(np.int64))
     with _threads(threads):
-        return _order(pts, hal, fix, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
+        return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
 
 
 def _ranks(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
@@ -235,14 +250,15 @@ def _importance(sigma: np.ndarray, state: np.ndarray, beta: float) -> np.ndarray
     return np.clip((np.maximum(sigma, 1e-12) / med) ** beta, 1.0 / IMPORTANCE_SPAN, IMPORTANCE_SPAN)
 
 
-def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floor) -> np.ndarray:
-    n, nh = len(pts), len(hal)
-    allp = np.concatenate([pts, hal, fix]) if nh or len(fix) else pts
+def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy, floor) -> tuple:
+    n, nh, nf = len(pts), len(hal), len(fix)
     if not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody
+        allp = np.concatenate([pts, hal, fix]) if nh or nf else pts
         grid = CellGrid(allp, 0.0)
         out = np.zeros(len(allp))
         out[grid.order[grid.copy]] = np.inf
-        return out[:n]
+        return out[:n], None
+    allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
     two_r = rho = 2.0 * r_max
     if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
         areas = areas_of(pts, hal, AREA_K, AREA_SAMPLE, 0, -1)[0]
@@ -250,8 +266,12 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
             rho = max(two_r, math.sqrt(GEOMETRIC_POINTS * float(np.median(areas)) / math.pi))
     grid = CellGrid(allp, rho)
     src = grid.order  # internal row -> position in allp
-    state = np.where(src < n + nh, 1, 2).astype(np.uint8)
+    state = np.where(src < n + nh, 1, np.where(src < n + nh + nf, 2, 0)).astype(np.uint8)
     state[grid.copy] = 0
+    gone_rep = np.full(len(allp), -1, dtype=np.int64)
+    if len(gon) and coverage:  # the gone points: represented by their nearest alive point
+        rows = np.flatnonzero(src >= n + nh + nf)
+        gone_rep[rows] = _kg.nearest_kept(*grid.args(), (state != 0).astype(np.uint8), src)[rows]
     scale = np.ones(len(allp))
     imp2 = np.ones(len(allp))
     if geometric > 0:
@@ -260,19 +280,20 @@ def _order(pts, hal, fix, r_max, alpha, coverage, geometric, rank, entropy, floo
         inner = src < n
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-    w = _ke.initial_weights(*grid.args(), state, scale, two_r, alpha, ialpha)
+    nptr, nbr, low, soff, w = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     halo_left = int(((state == 1) & (src >= n)).sum())
     left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
-    prio, stats = _ke.eliminate(*grid.args(), state, scale, imp2, w, src, two_r, alpha, ialpha, r_cov,
-                                COVER_GAMMA, lam, left)
-    logger.debug("eliminate: %d points, %d halo, %d fixed; pops %d, stale %d, coverage %d, searches %d",
-                 n, nh, len(fix), *stats)
+    links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
+    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, soff, state, scale, imp2, w, src, two_r, alpha,
+                                ialpha, r_cov, COVER_GAMMA, lam, left, links, gone_rep)
+    logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
+                 n, nh, nf, len(gon), *stats)
     out = np.empty(len(allp))
     out[src] = prio
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out
+    return out, (grid if nh == 0 and nf == 0 and len(gon) == 0 and rho == two_r else None)
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
@@ -338,10 +359,11 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
         return _relocate(pts, kp, hal, hk, r_max, int(iterations))
 
 
-def _relocate(pts, kp, hal, hk, r_max, iterations) -> np.ndarray:
+def _relocate(pts, kp, hal, hk, r_max, iterations, grid=None) -> np.ndarray:
     n = len(pts)
     allp = np.concatenate([pts, hal]) if len(hal) else pts
-    grid = CellGrid(allp, 2.0 * r_max)
+    if grid is None:  # else the grid the elimination built on the same points and cell side
+        grid = CellGrid(allp, 2.0 * r_max)
     src = grid.order
     kept = np.concatenate([kp, hk])[src].astype(np.uint8)
     movable = (src < n).astype(np.uint8)
@@ -385,8 +407,12 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     if int(relocate_steps) != relocate_steps or relocate_steps < 0:
         raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
     r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else _check_r_max(r_max)
-    prio = eliminate_order(pts, r_max=r_max, floor=target, threads=threads, **options)
+    opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
+            "entropy": 0.0} | options
+    prio, grid = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
+                                  opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target, threads)
     keep = keep_lowest(prio, target)
     if relocate_steps and math.isfinite(r_max) and target:
-        keep = relocate(pts, keep, r_max, iterations=relocate_steps, threads=threads)
+        with _threads(threads):
+            keep = _relocate(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
     return np.flatnonzero(keep).astype(np.int64)

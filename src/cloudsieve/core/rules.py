@@ -51,8 +51,10 @@ coverage (cloudsieve's, not the paper's)
     bun_zipper, maxplanck and autzen_trim (and the max error by 2-4x).
 
 Scores: ``score="delta_h"`` (dH, the paper's S = 0.001) or ``"unit_free"``
-(m*dH). Duplicates score 0 (dropped by every rule); clusters smaller than
-k + 2 points score +inf (always kept).
+(m*dH). Exact duplicates (:mod:`.duplicates`): every rule runs on the
+distinct points (the first copy of each, scored once); the other copies go,
+or, with ``keep_duplicates``, stay exactly when their first copy stays.
+Clusters smaller than k + 2 points score +inf (always kept).
 
 Determinism: inputs are put in a canonical order (lexicographic by
 coordinates) first, so the kept set does not depend on input order; it does
@@ -67,6 +69,7 @@ import math
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
+from .duplicates import sorted_copies
 from .eliminate import eliminate
 from .entropy import score_points, score_unchecked
 from .knn import canonical_order
@@ -118,7 +121,7 @@ def _target_count(n, ratio, count):
 def prune(points, labels=None, *, rule: str = "iterative", threshold: float = PAPER_THRESHOLD, ratio=None, count=None,
           score: str = "delta_h", k0: float = 1.0, k_min: int = 4, dim: float = 3, context=None,
           coverage: float = 1.0, max_rounds: int | None = None, progress=None,
-          threads: int | None = None) -> np.ndarray:
+          threads: int | None = None, keep_duplicates: bool = False) -> np.ndarray:
     """Apply a pruning rule to clustered points: the keep mask.
 
     Parameters
@@ -144,6 +147,11 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = PA
     threads : int, optional
         Threads for the k-d tree queries and the kernels of the rounds (None: all
         cores); the mask does not depend on it.
+    keep_duplicates : bool
+        False (default): an exact copy of an earlier point (same coordinates,
+        lower index) is never kept; a target then counts distinct points and
+        may not be met when it exceeds them. True: every copy of a kept point
+        is kept too (the rule still sees each point once).
 
     Returns
     -------
@@ -162,7 +170,7 @@ def prune(points, labels=None, *, rule: str = "iterative", threshold: float = PA
     ctx = check_context(context, pts.shape[1])
     return prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
                            k_min=k_min, dim=dim, ctx=ctx, coverage=coverage, max_rounds=max_rounds,
-                           progress=progress, threads=threads)
+                           progress=progress, threads=threads, keep_duplicates=bool(keep_duplicates))
 
 
 def check_rule_args(n: int, rule, threshold, ratio, count, score) -> int | None:
@@ -191,28 +199,53 @@ def check_rule_args(n: int, rule, threshold, ratio, count, score) -> int | None:
 
 
 def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim, ctx, coverage, max_rounds,
-                    progress, threads) -> np.ndarray:
+                    progress, threads, keep_duplicates=False) -> np.ndarray:
     """:func:`prune` on validated input: the keep mask (n,) bool.
 
     ``pts`` (n, p) float64 and ``lab`` (n,) int64 as from
     :func:`._validation.check_points` / ``check_labels``, ``target`` from
     :func:`check_rule_args`, ``ctx`` from ``check_context``; no checks, no
-    copy of the input.
+    copy of the input. The rule runs on the distinct points only
+    (:mod:`.duplicates`).
     """
     n = len(pts)
-    report = callback(progress)
     keep = np.ones(n, dtype=bool)
     if n == 0:
         return keep
-    if rule == "eliminate":  # does not depend on the input order itself; no labels, no scores
+    if rule == "eliminate":  # no labels, no scores; exact copies go first (priority +inf) and never weigh
         keep[:] = False
+        target = min(target, n - int(sorted_copies(pts[canonical_order(pts)]).sum()))  # copies kept at most once
         keep[eliminate(pts, count=target, threads=threads)] = True
-        report(n - target)
+        callback(progress)(n - target)
         return keep
     order = canonical_order(pts)
     P = pts[order]
-    L = np.unique(lab[order], return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
-    kw = dict(k0=k0, k_min=k_min, dim=dim, ctx=ctx, threads=threads)
+    L = lab[order]
+    copy = sorted_copies(P)
+    n_copies = int(copy.sum())
+    if n_copies:  # the rule sees each point once; target counts distinct points
+        logger.info("%d exact duplicate points %s", n_copies,
+                    "kept with their first copy" if keep_duplicates else "removed")
+        P, L = P[~copy], L[~copy]
+        if target is not None:
+            target = min(target, len(P))
+    report = callback(progress)
+    if n_copies and not keep_duplicates:
+        report(n_copies)
+    keep_c = _rule_mask(P, L, rule, threshold, target, score, coverage, max_rounds, report,
+                        dict(k0=k0, k_min=k_min, dim=dim, ctx=ctx, threads=threads))
+    if n_copies:
+        first = np.cumsum(~copy) - 1  # each row's distinct point
+        keep_c = keep_c[first] if keep_duplicates else np.where(copy, False, keep_c[first])
+    out = np.empty(n, dtype=bool)
+    out[order] = keep_c
+    return out
+
+
+def _rule_mask(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw) -> np.ndarray:
+    """The keep mask (n,) of the rule on canonically ordered points P (labels L, any ints)."""
+    n = len(P)
+    L = np.unique(L, return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
 
     if rule == "threshold":
         s = score_unchecked(P, L, **kw)
@@ -232,9 +265,7 @@ def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim,
         report(len(drop))
     else:
         keep_c = prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
-    out = np.empty(n, dtype=bool)
-    out[order] = keep_c
-    return out
+    return keep_c
 
 
 def _ranked(values: np.ndarray, idx: np.ndarray) -> np.ndarray:

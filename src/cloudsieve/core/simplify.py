@@ -22,7 +22,7 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
                     ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
                     k_min: int = 4, context=None, labels=None, score: str = "delta_h",
                     n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
-                    progress=None, threads: int | None = None) -> np.ndarray:
+                    progress=None, threads: int | None = None, keep_duplicates: bool = False) -> np.ndarray:
     """Simplify a cloud in memory: refine into clusters, score, prune.
 
     Parameters
@@ -54,6 +54,9 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     threads : int, optional
         Threads for the k-d tree queries of clustering and scoring and for the
         kernels of the rounds (None: all cores); the result does not depend on it.
+    keep_duplicates : bool
+        Keep every exact copy of a kept point (default: an exact duplicate
+        of an earlier point is never kept; see :mod:`.duplicates`).
 
     Returns
     -------
@@ -88,5 +91,5 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
         lab[order] = lab_c
     keep = prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
                            k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
-                           threads=threads)
+                           threads=threads, keep_duplicates=bool(keep_duplicates))
     return np.flatnonzero(keep).astype(np.int64)

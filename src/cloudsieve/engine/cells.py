@@ -185,6 +185,15 @@ def _mark_done(g, name: str, cell: int) -> None:
     g[name][cell : cell + 1] = np.ones(1, dtype=np.uint8)
 
 
+def _record_duplicates(g, cell: int, n_copies: int) -> None:
+    """The cell's count of exact duplicate points, in ``simplify/duplicates`` (summed by the summary)."""
+    g["simplify/duplicates"][cell : cell + 1] = np.full(1, n_copies, dtype=np.int64)
+
+
+def _keep_duplicates(params: dict) -> bool:
+    return bool(params.get("keep_duplicates", False))
+
+
 # ---------------------------------------------------------------- the tasks
 
 
@@ -197,16 +206,18 @@ def cell_task(task: CellTask) -> dict[str, Any]:
 
     Returns
     -------
-    dict with "cell", "n", "kept", "halo", "seconds" (small).
+    dict with "cell", "n", "kept", "halo", "duplicates", "seconds" (small).
     """
-    from ..core import simplify_points
+    from ..core import exact_copies, simplify_points
 
     t0 = time.perf_counter()
     params, cell, region = task.params, task.cell, task.region
     g, core, halo = _open_cell(task)
     n = len(core)
     keep = np.zeros(n, dtype=bool)
+    n_copies = 0
     if n:
+        n_copies = int(exact_copies(core).sum())
         kept = simplify_points(
             core,
             method=params["method"],
@@ -215,12 +226,15 @@ def cell_task(task: CellTask) -> dict[str, Any]:
             cluster_size=params["cluster_size"],
             seed=cell_seed(params["seed"], cell),
             context=_context(params, halo),
+            keep_duplicates=_keep_duplicates(params),
             **_core_kwargs(params),
         )
         keep[np.asarray(kept, dtype=np.int64)] = True
     g["simplify/keep_cells"][region : region + n] = keep
+    _record_duplicates(g, cell, n_copies)
     _mark_done(g, "simplify/done", cell)
-    return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "halo": int(len(halo)), "seconds": time.perf_counter() - t0}
+    return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "halo": int(len(halo)),
+            "duplicates": n_copies, "seconds": time.perf_counter() - t0}
 
 
 def score_task(task: CellTask) -> dict[str, Any]:
@@ -235,7 +249,7 @@ def score_task(task: CellTask) -> dict[str, Any]:
     -------
     dict with "cell", "n", "halo", "seconds" (small).
     """
-    from ..core import refine_labels, unit_free_scores
+    from ..core import exact_copies, refine_labels, unit_free_scores
 
     t0 = time.perf_counter()
     params, cell, region = task.params, task.cell, task.region
@@ -251,6 +265,7 @@ def score_task(task: CellTask) -> dict[str, Any]:
         scores = np.asarray(
             unit_free_scores(core, labels, context=_context(params, halo), **_core_kwargs(params)), dtype=np.float64
         )
+        labels[exact_copies(core)] = -1  # pass 2 drops them (or keeps them with their first copy)
     g["simplify/score_cells"][region : region + n] = scores
     g["simplify/label_cells"][region : region + n] = labels.astype(np.int32)
     _mark_done(g, "simplify/scored", cell)
@@ -270,7 +285,7 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
-    from ..core import simplify_points
+    from ..core import first_copies, simplify_points
     from ..store import PointStore
 
     t0 = time.perf_counter()
@@ -279,11 +294,15 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     runs = cell_runs(g, cell)
     n = int(runs[:, 2].sum() - runs[:, 1].sum()) if len(runs) else 0
     s = np.asarray(g["simplify/score_cells"][region : region + n])
-    keep = s > threshold
-    if params["rule"] != "target" and n:
-        core = read_cell(g, runs)
+    labels = np.asarray(g["simplify/label_cells"][region : region + n]).astype(np.int64)
+    copy = labels < 0  # exact copies (pass 1)
+    keep = (s > threshold) & ~copy
+    need_points = params["rule"] != "target" or (copy.any() and _keep_duplicates(params))
+    core = read_cell(g, runs) if n and need_points else None
+    if params["rule"] == "target" and core is not None:  # copies follow their first point
+        keep = keep[first_copies(core)]
+    elif params["rule"] != "target" and n:
         halo = thinned_halo(g, task, threshold) if params["context"] else None
-        labels = np.asarray(g["simplify/label_cells"][region : region + n]).astype(np.int64)
         kept = simplify_points(
             core,
             method=params["method"],
@@ -293,11 +312,13 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
             seed=cell_seed(params["seed"], cell),
             labels=labels,
             context=_context(params, halo),
+            keep_duplicates=_keep_duplicates(params),
             **_core_kwargs(params),
         )
         keep = np.zeros(n, dtype=bool)
         keep[np.asarray(kept, dtype=np.int64)] = True
     g["simplify/keep_cells"][region : region + n] = keep
+    _record_duplicates(g, cell, int(copy.sum()))
     _mark_done(g, "simplify/done", cell)
     return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 

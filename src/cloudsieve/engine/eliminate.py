@@ -18,17 +18,30 @@ The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core:
    goes first: exact copies -inf), then ``simplify/scored[cell]``.
 3. **the cut** (:func:`cloudsieve.engine.cut.exact_cut`): T and the tie
    quotas that remove exactly N - target points, ties by cell then by index.
-4. **pass 2** (:func:`apply_task`): keep score > T (and the ties after the
-   cell's quota), then one restricted Lloyd step,
-   :func:`~cloudsieve.core.eliminate.relocate`, with the halo's points kept
-   as their own cells decide under the same cut (the decisions before their
-   own relocation: they do not depend on the order the cells run in). The
-   count does not change. Writes ``simplify/keep_cells``, then
-   ``simplify/done[cell]``.
+4. **pass 2** (:func:`apply_task`), colour by colour
+   (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
+   halo never share a colour; one runner call per colour, its cells in
+   parallel): each cell keeps exactly its count under the cut, q_j (score >
+   T, and its ties after its quota). A cell of colour 0 keeps those points;
+   a cell of a higher colour runs the elimination again with the FINAL
+   decisions of its lower-colour neighbours (their kept points fixed: they
+   weigh, never go; their removed points gone: represented by their nearest
+   point, so the coverage term sees the area they leave) and the points of
+   its higher-colour neighbours as halo, and keeps the q_j points removed
+   last. Without this both sides of a border remove their border points,
+   each expecting the other's to stay: holes at the borders (autzen_trim at
+   50% in 14 cells: point max 0.387% of the diagonal against 0.161% in
+   memory; 0.176% with fixed points only, 0.161% with the gone ones). Then one
+   restricted Lloyd step, :func:`~cloudsieve.core.eliminate.relocate`, with
+   the halo's points kept as decided: the final masks of the lower colours,
+   the cut's decisions of the higher ones. The count does not change.
+   Writes ``simplify/keep_cells``, then ``simplify/done[cell]``.
 
 A crash anywhere resumes from the markers: cells scored or done are not
 scored again, the cut is recomputed from the stored scores (the same), and
-only the cells not done are applied.
+only the cells not done are applied, colour by colour (the colours are a
+pure function of the partition; a cell reads only lower colours' results,
+all done before its colour starts).
 
 No clusters are needed (the entropy and geometric terms are off): ``method``
 and ``cluster_size`` are unused by this rule, and so is ``halo_context``
@@ -44,6 +57,7 @@ from typing import Any
 import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
+from .colours import cell_colours
 from .cut import exact_cut, keep_mask
 from .halo import read_halo
 from .runs import cell_runs, read_cell
@@ -142,8 +156,29 @@ def _halo_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, threshold:
     return keep
 
 
-def apply_task(task: CellTask, threshold: float, ties: dict) -> dict[str, Any]:
-    """Pass 2: keep the cell's points the cut keeps, relocate once, write the keep mask (a task).
+def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) -> np.ndarray:
+    """The final keep decisions (``simplify/keep_cells``) of the halo points of cells *sources*."""
+    kc = g["simplify/keep_cells"]
+    keep = np.zeros(len(cells), dtype=bool)
+    for s in sources:
+        sel = np.flatnonzero(cells == s)
+        if len(sel):
+            keep[sel] = np.asarray(kc.get_orthogonal_selection((task.halo[s] + pos[sel],)))
+    return keep
+
+
+def apply_task(task: CellTask, threshold: float, ties: dict, colours: dict | None = None) -> dict[str, Any]:
+    """Pass 2: keep as many of the cell's points as the cut keeps, relocate once, write the keep mask (a task).
+
+    The cut gives the cell its count q (score > T, and its ties after its
+    quota). A cell with no halo source of a lower colour keeps those points
+    (its pass-1 order is the one it would compute again). Otherwise the
+    elimination runs again with the final decisions of the lower colours
+    (kept: fixed points, they weigh, never go; removed: gone) and the points of the higher
+    colours as halo (thinned with the cell), and keeps the q points removed
+    last: a neighbour's removed points are given as ``gone`` (represented by
+    their nearest point), so the two sides of a border do not both open a
+    hole there.
 
     Parameters
     ----------
@@ -152,12 +187,16 @@ def apply_task(task: CellTask, threshold: float, ties: dict) -> dict[str, Any]:
         T of the :class:`~cloudsieve.engine.cut.Cut`.
     ties : dict int -> (int, int)
         (quota, equal) of the cut for the cell and each of its halo sources.
+    colours : dict int -> int, optional
+        Colour (:func:`~cloudsieve.engine.colours.cell_colours`) of the cell
+        and of each of its halo sources; cells of lower colours must be done.
+        None: every cell one colour (the cut's decisions, no re-run).
 
     Returns
     -------
-    dict with "cell", "n", "kept", "seconds" (small).
+    dict with "cell", "n", "kept", "rerun", "seconds" (small).
     """
-    from ..core.eliminate import relocate
+    from ..core.eliminate import eliminate_order, keep_lowest, relocate
 
     t0 = time.perf_counter()
     r_max = float(task.params["r_max"])
@@ -165,12 +204,23 @@ def apply_task(task: CellTask, threshold: float, ties: dict) -> dict[str, Any]:
     n = len(core)
     keep = keep_mask(np.asarray(g["simplify/score_cells"][task.region : task.region + n]), threshold,
                      ties[task.cell][0])
+    mine = 0 if colours is None else colours[task.cell]
+    earlier = [s for s in task.halo if colours is not None and colours[s] < mine]
+    rerun = bool(earlier) and n > 0 and 0 < keep.sum() < n and math.isfinite(r_max)
     if n and keep.any() and math.isfinite(r_max):
-        halo_keep = _halo_keep(g, task, cells, pos, threshold, ties)
+        halo_keep = _halo_keep(g, task, cells, pos, threshold, ties)  # the later colours: their pass-1 decisions
+        if earlier:
+            fixed = np.isin(cells, earlier)
+            halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
+            if rerun:
+                prio = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
+                                       gone=halo[fixed & ~halo_keep], threads=_threads(task))
+                keep = keep_lowest(prio, int(keep.sum()))
         keep = relocate(core, keep, r_max, halo=halo, halo_keep=halo_keep, threads=_threads(task))
     g["simplify/keep_cells"][task.region : task.region + n] = keep
     g["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
-    return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
+    return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "rerun": rerun,
+            "seconds": time.perf_counter() - t0}
 
 
 # ---------------------------------------------------------------- the stage
@@ -204,11 +254,14 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads, halo=True)
     results = runner(score_task, [(t,) for t in tasks], "cells: score")
     cut = exact_cut(store, part, regions, runner, store.count - int(target))
-    todo = largest_first(part, [j for j in range(part.n_cells) if not done[j]])
-    tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads, halo=True)
-    args = []
-    for t in tasks:
-        ties = {int(c): (int(cut.quotas[c]), int(cut.equal[c])) for c in (t.cell, *t.halo)}
-        args.append((t, cut.threshold, ties))
-    runner(apply_task, args, "cells: apply")
+    todo = [j for j in range(part.n_cells) if not done[j]]
+    colours = cell_colours(part.halo_ptr, part.halo_src)
+    for c in range(int(colours.max()) + 1 if len(colours) else 0):  # a colour reads the lower ones' results
+        tasks = cell_tasks(store, part, regions, largest_first(part, [j for j in todo if colours[j] == c]), params,
+                           runner.task_threads, halo=True)
+        args = []
+        for t in tasks:
+            ties = {int(s): (int(cut.quotas[s]), int(cut.equal[s])) for s in (t.cell, *t.halo)}
+            args.append((t, cut.threshold, ties, {int(s): int(colours[s]) for s in (t.cell, *t.halo)}))
+        runner(apply_task, args, "cells: apply")
     return len(todo), int(done.sum()), int(sum(r["n"] for r in results)), -cut.threshold

@@ -21,6 +21,7 @@ from typing import Any
 
 from ..errors import CloudsieveError, InvalidParameterError
 from ..progress import callback
+from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
 from .lifeline import die_with_parent
 
 __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "worker_context", "stage_bar", "imap", "forked"]
@@ -39,50 +40,6 @@ _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.co
             "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.kernels.warmup",
             # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
-
-
-class PeakMemory:
-    """Samples the resident memory of this process and its children in a thread.
-
-    Use as a context manager; ``peak`` holds the largest sample (bytes).
-    """
-
-    def __init__(self, interval: float = 0.1) -> None:
-        self.interval = interval
-        self.peak = 0
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
-
-    def sample(self) -> int:
-        """Resident memory of this process and its children now (bytes)."""
-        try:
-            import psutil
-        except ImportError:  # pragma: no cover
-            import resource
-
-            return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-        proc = psutil.Process()
-        total = 0
-        for p in [proc, *proc.children(recursive=True)]:
-            with contextlib.suppress(Exception):
-                total += p.memory_info().rss
-        return total
-
-    def _loop(self) -> None:
-        while not self._stop.wait(self.interval):
-            self.peak = max(self.peak, self.sample())
-
-    def __enter__(self) -> PeakMemory:
-        self.peak = self.sample()
-        self._thread = threading.Thread(target=self._loop, daemon=True, name="cloudsieve-peak-memory")
-        self._thread.start()
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join()
-        self.peak = max(self.peak, self.sample())
 
 
 def worker_context():
@@ -151,6 +108,7 @@ class Runner:
         self._cluster = None
         self.workers = workers
         self.bars = bars
+        self._stages: dict[str, Callable[[int], None]] = {}  # stages opened by :meth:`stage`
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
             return
@@ -221,6 +179,12 @@ class Runner:
         return max(1, cores // int(self.workers or cores))
 
     @property
+    def remote_client(self):
+        """The client of a dask.distributed cluster this runner did not start (its workers live
+        elsewhere: their memory is not this process's children's), or None."""
+        return self.client if self.client is not None and self._cluster is None else None
+
+    @property
     def dashboard_link(self) -> str | None:
         """The dask dashboard of a distributed run, or None."""
         if self.client is None:
@@ -239,15 +203,35 @@ class Runner:
         if self._cluster is not None:
             self._cluster.close()
 
+    @contextlib.contextmanager
+    def stage(self, stage: str, unit: str = "task") -> Iterator[None]:
+        """One bar (or log line) for every batch of stage *stage* run inside the block.
+
+        A stage of several batches (the rounds of the global threshold's
+        histograms) is then shown once, counting all their tasks, not once
+        per batch.
+        """
+        with stage_bar(self.bars, stage, None, unit) as update:
+            self._stages[stage] = update
+            try:
+                yield
+            finally:
+                del self._stages[stage]
+
     def __call__(self, func: Callable, args: Sequence[tuple], stage: str, unit: str = "task") -> list:
         """``[func(*a) for a in args]`` as tasks of stage *stage*, results in argument order."""
         args = list(args)
         if not args:
             return []
+        if stage in self._stages:  # inside :meth:`stage`: its bar counts these tasks too
+            return self._run(func, args, stage, self._stages[stage])
         with stage_bar(self.bars, stage, len(args), unit) as update:
-            if self.client is not None:
-                return self._distributed(func, args, stage, update)
-            return self._local(func, args, update)
+            return self._run(func, args, stage, update)
+
+    def _run(self, func, args, stage, update) -> list:
+        if self.client is not None:
+            return self._distributed(func, args, stage, update)
+        return self._local(func, args, update)
 
     def _distributed(self, func, args, stage, update) -> list:
         from distributed import as_completed

@@ -11,7 +11,8 @@ and each in its own module:
 3. **cells** (:mod:`.cells`): one task per cell runs the in-memory method on
    its points and writes its keep mask; with a ratio/count, two passes around
    one global threshold (:mod:`.threshold`); the eliminate rule: its own two
-   passes around an exact cut (:mod:`.eliminate`, :mod:`.cut`);
+   passes around an exact cut (:mod:`.eliminate`, :mod:`.cut`), the second
+   colour by colour (:mod:`.colours`);
 4. **merge** (:mod:`.merge`): one task per input chunk scatters the keep
    masks back to input order as ``simplify/keep``;
 5. **export** of the kept points, every attribute and the header
@@ -32,10 +33,8 @@ import logging
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any
 
-from ..errors import DestinationExistsError, SameSourceDestinationError
+from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
 from ..io import check_readable, check_writable
 from ..params import run_record, validate
 from ..progress import callback
@@ -46,94 +45,12 @@ from . import threshold as thresholds  # "threshold" is a parameter of simplify(
 from .eliminate import run_eliminate
 from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner, stage_bar
+from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
 
 __all__ = ["simplify", "Summary"]
 
 logger = logging.getLogger(__name__)
-
-
-# ---------------------------------------------------------------- summary
-
-
-def _say_if_missed(src: str, ratio, count, n: int, kept: int) -> None:
-    """A warning when a ratio or count was asked and the kept count differs (issue 13, item 4)."""
-    if ratio is None and count is None:
-        return
-    asked = int(round(float(ratio) * n)) if ratio is not None else int(count)
-    if kept == asked:
-        return
-    if asked > n:
-        why = f"the input holds only {n:,} points"
-    else:
-        why = ("points with equal scores at the global threshold go or stay together, exact duplicates "
-               "count once, and clusters too small to thin are kept whole")
-    logger.warning("%s: asked to keep %s points, kept %s: %s", src, f"{asked:,}", f"{kept:,}", why)
-
-
-@dataclass
-class Summary:
-    """What a :func:`simplify` run did.
-
-    Attributes
-    ----------
-    points_in, kept, removed : int
-    cells : int
-        Number of cells P.
-    cells_computed, cells_reused : int
-        Cells computed in this run, and cells found done in the store (resume).
-    threshold : float or None
-        The global threshold on the unit-free score chosen for a ratio/count
-        (None otherwise); for the eliminate rule the elimination priority at
-        the cut (the points above it went).
-    seconds : dict str -> float
-        Wall time per stage ("ingest", "partition", "cells", "merge",
-        "export") and "total".
-    peak_memory : int
-        Peak resident memory of this process and its children (bytes), sampled.
-    scheduler : str
-    source, destination : str
-    store : str
-        The work store, "" when it was removed (the default store, after success).
-    """
-
-    points_in: int = 0
-    kept: int = 0
-    removed: int = 0
-    cells: int = 0
-    cells_computed: int = 0
-    cells_reused: int = 0
-    threshold: float | None = None
-    seconds: dict[str, float] = field(default_factory=dict)
-    peak_memory: int = 0
-    scheduler: str = ""
-    source: str = ""
-    destination: str = ""
-    store: str = ""
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    def __str__(self) -> str:
-        s = self
-        pct = 100.0 * s.kept / s.points_in if s.points_in else 0.0
-        rate = s.points_in / s.seconds["total"] if s.seconds.get("total") else 0.0
-        lines = [
-            f"points in     {s.points_in:>14,}",
-            f"kept          {s.kept:>14,}  ({pct:.2f}%)",
-            f"removed       {s.removed:>14,}",
-            f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
-        ]
-        if s.threshold is not None:
-            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH; eliminate: the priority at the cut)")
-        stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
-        lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
-        lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  (this process and its children)")
-        lines.append(f"scheduler     {s.scheduler}")
-        return "\n".join(lines)
-
-
-# ---------------------------------------------------------------- parameters
 
 
 # ---------------------------------------------------------------- simplify
@@ -167,6 +84,8 @@ def simplify(
     k0: float = 1.0,
     k_min: int = 4,
     drop_invalid: bool = False,
+    keep_duplicates: bool = False,
+    strict: bool = False,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -257,6 +176,15 @@ def simplify(
         (logged with their count) instead of refusing SRC
         (:class:`~cloudsieve.errors.InvalidPointsError`). A point store never
         holds such points.
+    keep_duplicates : bool
+        Keep every exact copy (same x, y, z) of a kept point. Default: exact
+        duplicates are scored once and kept once (a ratio or count then counts
+        distinct points); their number is in :attr:`Summary.duplicates` and logged.
+    strict : bool
+        A ratio or count that cannot be met exactly is an error
+        (:class:`~cloudsieve.errors.TargetNotMetError`, raised before DST is
+        written; the default work store is removed) instead of a logged
+        warning. Both name the requested and delivered counts and why.
 
     Returns
     -------
@@ -280,6 +208,8 @@ def simplify(
     InvalidPointsError
         SRC has points with NaN or infinite coordinates and *drop_invalid* is
         False (found while SRC is ingested; nothing is left behind).
+    TargetNotMetError
+        *strict* and the kept count differs from the ratio or count asked.
     """
     from ..store import export, local_path, same_path
 
@@ -290,13 +220,13 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     context = opts["halo_context"]
     update = callback(progress)
-    summary = Summary(source=src, destination=dst)
+    summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     dst_local = local_path(dst)
     if same_path(src, dst):  # first: overwriting would not help, so it is not suggested
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
@@ -321,6 +251,8 @@ def simplify(
     with PeakMemory() as peak:
         runner = Runner(scheduler, workers, memory_limit, client, bars)
         summary.scheduler = runner.name
+        if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
+            peak.watch_workers(runner.remote_client)
         if runner.dashboard_link:
             logger.info("dask dashboard: %s", runner.dashboard_link)
             if notify is not None:
@@ -368,16 +300,26 @@ def simplify(
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
                 update(points)
-                summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
+                with runner.stage("cells: threshold"):  # its histogram rounds: one bar
+                    summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
+            summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
+            if summary.duplicates:
+                logger.info("%d exact duplicates %s", summary.duplicates,
+                            "kept (keep_duplicates)" if keep_duplicates else "removed")
             summary.seconds["cells"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
             summary.kept = merge.run_merge(st, runner)
             summary.removed = summary.points_in - summary.kept
-            _say_if_missed(src, ratio, count, summary.points_in, summary.kept)
+            missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
+                                   keep_duplicates)
+            if missed and strict:
+                raise TargetNotMetError(missed)
+            if missed:
+                logger.warning("%s", missed)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
 
@@ -385,10 +327,14 @@ def simplify(
             with stage_bar(bars, "export", st.count, "pt") as bar:
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
             summary.seconds["export"] = time.perf_counter() - t0
+        except TargetNotMetError:
+            if default_store:  # the run is complete and would end the same: nothing is left behind
+                delete_store(store_path)
+            raise
         finally:
             runner.close()
     summary.seconds["total"] = time.perf_counter() - t_start
-    summary.peak_memory = int(peak.peak)
+    summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
     workstore.record_summary(st, summary.to_dict())
     if default_store:
         delete_store(store_path)

@@ -46,7 +46,9 @@ import numpy as np
 
 from ..errors import IncompatibleCloudsError
 from ..io import check_folder
+from ..engine.runner import stage_bar
 from ..params import validate
+from ..progress import both
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
 from .points import point_errors
@@ -125,7 +127,8 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
 def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
-             metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False) -> dict:
+             metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False,
+             bars=None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -165,6 +168,10 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     drop_invalid : bool
         Drop the points of either file whose coordinates are NaN or infinite
         (a warning gives their count) instead of refusing the file.
+    bars : callable, optional
+        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
+        (e.g. :func:`cloudsieve.progress.bar`): one per stage, "point errors"
+        (points) and "surface" (tiles).
 
     Returns
     -------
@@ -192,7 +199,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
                           chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
-                          drop_invalid=drop_invalid)
+                          drop_invalid=drop_invalid, bars=bars)
 
 
 def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
@@ -200,7 +207,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
                    report_dir: str | None = None, error_points: int = 2_000_000,
                    chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
                    progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
-                   drop_invalid: bool = False) -> dict:
+                   drop_invalid: bool = False, bars=None) -> dict:
     """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
 
     Parameters
@@ -233,9 +240,10 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
     }
     ply_parts: list[tuple[np.ndarray, np.ndarray]] = []
     t = time.perf_counter()
-    p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
-                     error_points=error_points if report_dir else 0,
-                     on_error_points=lambda x, e: ply_parts.append((x, e)), progress=progress)
+    with stage_bar(bars, "point errors", src.count, "pt") as bar:
+        p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
+                         error_points=error_points if report_dir else 0,
+                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress))
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p
     report["diagonal"] = p["diagonal"]
@@ -244,9 +252,10 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         logger.info("%d simplified points are not original points", p["not_in_original"])
     if surface:
         t = time.perf_counter()
-        report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
-                                           diagonal=p["diagonal"], samples=metro_samples,
-                                           cache=surface_cache)
+        with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
+            report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
+                                               diagonal=p["diagonal"], samples=metro_samples,
+                                               cache=surface_cache, progress=bar)
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:

@@ -26,93 +26,51 @@ other remaining point, c(x) the sum of the squared distances they would gain
 if x went, g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
 
 Every factor only decreases as points go (fewer neighbours; represented sets
-grow; nearest other points only get farther), so a stored key is an upper
-bound of the current key and a lazy max-heap is exact: pop the top, recompute
-its key (always from scratch and in the same summation order, never by
-subtraction, so no rounding drift), equal to the stored key -> it is the
-heaviest point, remove it; lower -> store the new key and sift it down. The
-order is the one of an eager heap recomputing every key after each removal.
-The heap is two-level (a heap per block of 1024 consecutive points, and a
-heap of the blocks' tops) so that sifts stay in cache.
+grow; nearest other points only get farther; each is computed from scratch
+in a fixed summation order, so this holds in floating point too), so the
+removal order "largest key first, ties lower id first" can be found with
+upper bounds: a winner tree over the points holds a bound of each key; the
+top's exact key is recomputed and compared with the next largest bound (the
+best of the matches the top won): ahead of it -> it is the heaviest point;
+else its exact key is stored and the tree replayed (a stale pop). On a
+removal the bounds of the points concerned fall at once: the neighbours'
+(a running crowding sum by subtraction plus a margin larger than the
+rounding of both sums) and those whose coverage factor changed (per-point
+sums kept current by :mod:`.cover`, lowered below their rounding), so stale
+pops come only from ties and from the margins. The priorities are the exact
+keys at removal, the ones an eager heap recomputing every key after each
+removal would give. Neighbour lists (:mod:`.neighbours`) replace the grid
+walks; the grid is walked only for a nearest point beyond 2 r_max.
 
 Grid arguments as in :mod:`.grid`.
 """
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
-from .grid import nearest
-
-BLOCK = 1024
-
-
-@njit(cache=True)
-def _ipow(u, alpha, ialpha):
-    """u ** alpha; by repeated squaring when alpha is a small integer (ialpha >= 0)."""
-    if ialpha < 0:
-        return u**alpha
-    r = 1.0
-    e = ialpha
-    while e > 0:
-        if e & 1:
-            r *= u
-        u *= u
-        e >>= 1
-    return r
+from .cover import add_gain, fbound, gain, link, next_alt, unlink
+from .neighbours import list_nearest, list_weight
 
 
 @njit(cache=True)
-def _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha):
-    """Crowding sum of point i over its alive neighbours (before the scale)."""
-    c = cell[i]
-    w = 0.0
-    for t in range(nstart[c], nstart[c + 1]):
-        cc = ncells[t]
-        for j in range(cstart[cc], cstart[cc + 1]):
-            if j == i or state[j] == 0:
-                continue
-            dx = P[j, 0] - P[i, 0]
-            dy = P[j, 1] - P[i, 1]
-            dz = P[j, 2] - P[i, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            if d2 < r2:
-                w += _ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
-    return w
-
-
-@njit(cache=True, parallel=True)
-def initial_weights(P, cell, cstart, nstart, ncells, state, scale, two_r, alpha, ialpha):
-    """scale * w (n,) of every removable point (0.0 for the others)."""
-    n = len(P)
-    out = np.zeros(n)
-    for i in prange(n):
-        if state[i] == 1:
-            out[i] = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, two_r * two_r, 1.0 / two_r,
-                                        alpha, ialpha)
-    return out
-
-
-@njit(cache=True)
-def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, rc2, gamma, lam, inv_r2,
-              imp2, stats):
-    """f(x) of the module docstring; refreshes the cached nearest other point of the points x represents."""
+def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2, rc2, gamma,
+              lam, inv_r2, imp2, stats):
+    """f(x) of the module docstring from scratch, in the order of x's list of represented points (their
+    alts are current: the search only finds again that there is none)."""
     e2 = 0.0
     c2 = 0.0
     p = head[x]
     while p >= 0:
         a = alt[p]
-        if a < 0 or state[a] == 0:
+        if a >= 0 and state[a] != 0:
+            d2 = altd2[p]
+        else:
             stats[3] += 1
-            a, d2 = nearest(p, x, P, cell, cstart, nstart, ncells, state, tie)
-            alt[p] = a
-            altd2[p] = d2
+            a, d2 = list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr)
         if a < 0:
             return 0.0
-        d2 = altd2[p]
         e2 = max(e2, d2)
         dx = P[p, 0] - P[x, 0]
         dy = P[p, 1] - P[x, 1]
@@ -127,131 +85,217 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, al
     return f / (1.0 + lam * c2 * inv_r2)
 
 
-@njit(cache=True)
-def _sift(hk, hi, tie, base, size, pos):
-    """Sift entry ``pos`` of the heap hk/hi[base:base + size] down (larger key first, then lower tie)."""
-    k = hk[base + pos]
-    i = hi[base + pos]
-    while True:
-        c = 2 * pos + 1
-        if c >= size:
-            break
-        a = base + c
-        if c + 1 < size and (hk[a + 1] > hk[a] or (hk[a + 1] == hk[a] and tie[hi[a + 1]] < tie[hi[a]])):
-            c += 1
-            a += 1
-        if not (hk[a] > k or (hk[a] == k and tie[hi[a]] < tie[i])):
-            break
-        hk[base + pos] = hk[a]
-        hi[base + pos] = hi[a]
-        pos = c
-    hk[base + pos] = k
-    hi[base + pos] = i
+@njit(cache=True, inline="always")
+def _better(a, b, rec, tie):
+    """The entry that goes first of points a and b (-1: none): larger stored key rec[., 3], then lower tie."""
+    if a < 0:
+        return b
+    if b < 0:
+        return a
+    if rec[a, 3] > rec[b, 3] or (rec[a, 3] == rec[b, 3] and tie[a] < tie[b]):
+        return a
+    return b
+
+
+@njit(cache=True, inline="always")
+def _replay(win, v, i, rec, tie):
+    """After the key of point i fell (or i left), replay the matches above node v that i had won."""
+    while v >= 1 and win[v] == i:
+        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
+        v >>= 1
+
+
+@njit(cache=True, inline="always")
+def _fall(y, rec, win, m, tie):
+    """Store the bound scale * (running sum + margin) * factor of point y if lower, and replay the tree."""
+    bd = rec[y, 1] * rec[y, 0] * rec[y, 2]
+    if bd < rec[y, 3]:
+        rec[y, 3] = bd
+        _replay(win, (m + y) >> 1, y, rec, tie)
 
 
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, state, scale, imp2, w, tie, two_r, alpha, ialpha, r_cov, gamma,
-              lam, floor):
+def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scale, imp2, w, tie, two_r, alpha,
+              ialpha, r_cov, gamma, lam, floor, ci, gone_rep):
     """Remove removable points, largest key first, until ``floor`` of them remain.
 
-    ``w`` is :func:`initial_weights`; ``imp2`` (n,) the squared importance
-    of each point: its coverage and squared-error terms are measured in
-    distances times its importance. Returns priority (n,): the key of each
-    point when it was removed (non-increasing along the removals); the points
-    left get their stored keys (upper bounds, still <= every removed key);
-    NaN for points that were not removable. ``state`` is consumed. Also
-    returns counts (4,): pops, stale pops, coverage evaluations, nearest searches.
+    ``nptr``/``nbr``/``low``/``soff`` are the neighbour lists and ``w``
+    (n,) the crowding sums of :mod:`.neighbours` (before the scale);
+    ``imp2`` (n,) the squared importance of each point: its coverage and
+    squared-error terms are measured in distances times its importance. Returns priority (n,): the key of each point when it was
+    removed (non-increasing along the removals), for the points left their
+    keys at the stop (<= every removed key), NaN for points that were not
+    removable; ``gone_rep`` (n,) the alive point representing each point
+    already gone from the start (-1: none); ``state`` and ``ci`` (n, 8), all -1, int32 when the lists
+    hold fewer than 2^31 entries (the links of the coverage data) are
+    consumed. Also returns counts (4,): pops, stale pops, coverage
+    evaluations, nearest searches.
+
+    On a removal, the points it represented move to their alt, the points
+    whose alt it was get the next one (:mod:`.cover`), and the bounds of the
+    points concerned (the neighbours, the new reps, the reps of the points
+    whose alt changed) fall at once.
     """
     n = len(P)
-    r2 = two_r * two_r
     inv2r = 1.0 / two_r
     inv_r2 = 4.0 * inv2r * inv2r
+    rc2 = r_cov * r_cov
     cover = r_cov > 0 or lam > 0
-    head = np.full(n, -1, dtype=np.int64)
-    nxt = np.full(n, -1, dtype=np.int64)
-    alt = np.full(n, -1, dtype=np.int64)
-    altd2 = np.full(n, np.inf)
-    fac = np.ones(n)
+    # the coverage data of each point in two rows (one cache line each): links, and distances and counts
+    cf = np.zeros((n, 8))
+    head, nxt, rep, alt, sp, ahead, anext, aprev = ci[:, 0], ci[:, 1], ci[:, 2], ci[:, 3], ci[:, 4], ci[:, 5], \
+        ci[:, 6], ci[:, 7]
+    altd2, e2b, c2b, cerr, nmem, nmiss = cf[:, 0], cf[:, 1], cf[:, 2], cf[:, 3], cf[:, 4], cf[:, 5]
+    altd2[:] = np.inf
+    # per point, in one row: running crowding sum (by subtraction) plus a margin above the rounding of it
+    # and of the exact sum, scale, coverage factor bound, stored key bound (the winner tree's key)
+    rec = np.empty((n, 4))
+    stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
     for i in range(n):
-        if state[i] != 0:
+        rec[i, 0] = w[i] + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
+        rec[i, 1] = scale[i]
+        rec[i, 2] = 1.0
+        rec[i, 3] = -1.0
+        if state[i] != 0 and cover:
             head[i] = i
-    nb = (n + BLOCK - 1) // BLOCK
-    hk = np.empty(n)
-    hi = np.empty(n, dtype=np.int64)
-    bsize = np.zeros(nb, dtype=np.int64)
+            rep[i] = i
+            nmem[i] = 1.0
+            a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
+            alt[i] = a
+            altd2[i] = d2
+            if a >= 0:
+                link(i, a, ahead, anext, aprev)
+                e2b[i] = d2
+                add_gain(i, gain(i, i, d2, P), c2b, cerr)
+            else:
+                nmiss[i] = 1.0
+    for p in range(n):  # points already gone (a neighbouring cell's): represented by their nearest alive point
+        a = gone_rep[p]
+        if a >= 0 and cover:
+            nxt[p] = head[a]
+            head[a] = p
+            rep[p] = a
+            nmem[a] += 1.0
+            b, d2, sp[p] = next_alt(p, a, nptr[p], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
+            alt[p] = b
+            altd2[p] = d2
+            if b >= 0:
+                link(p, b, ahead, anext, aprev)
+                e2b[a] = max(e2b[a], d2)
+                add_gain(a, gain(p, a, d2, P), c2b, cerr)
+            else:
+                nmiss[a] += 1.0
+    m = 1
+    while m < n:
+        m *= 2
+    win = np.full(2 * m, -1, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
+    left = 0
     for i in range(n):
         if state[i] == 1:
-            b = i // BLOCK
-            hk[b * BLOCK + bsize[b]] = w[i]
-            hi[b * BLOCK + bsize[b]] = i
-            bsize[b] += 1
-    tk = np.empty(nb)  # heap of the blocks' tops: key, then the block (tie through its top point)
-    tb = np.empty(nb, dtype=np.int64)
-    btie = np.empty(nb, dtype=np.int64)
-    ts = 0
-    for b in range(nb):
-        for pos in range(bsize[b] // 2 - 1, -1, -1):
-            _sift(hk, hi, tie, b * BLOCK, bsize[b], pos)
-        if bsize[b] > 0:
-            tk[ts] = hk[b * BLOCK]
-            tb[ts] = b
-            btie[b] = tie[hi[b * BLOCK]]
-            ts += 1
-    for pos in range(ts // 2 - 1, -1, -1):
-        _sift(tk, tb, btie, 0, ts, pos)
+            if cover:
+                rec[i, 2] = fbound(i, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2)
+            rec[i, 3] = rec[i, 1] * rec[i, 0] * rec[i, 2]
+            win[m + i] = i
+            left += 1
+    for v in range(m - 1, 0, -1):
+        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
     prio = np.full(n, np.nan)
-    stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
-    left = 0
-    for b in range(nb):
-        left += bsize[b]
     while left > floor:
-        b = tb[0]
-        base = b * BLOCK
-        i = hi[base]
-        key = hk[base]
+        i = win[1]
+        ti = tie[i]
         stats[0] += 1
-        cur = scale[i] * _weight(i, P, cell, cstart, nstart, ncells, state, r2, inv2r, alpha, ialpha)
+        r = -1  # the next largest bound: the best of the matches i won
+        v = m + i
+        while v > 1:
+            r = _better(r, win[v ^ 1], rec, tie)
+            v >>= 1
+        k2 = rec[r, 3] if r >= 0 else -1.0
+        t2 = tie[r] if r >= 0 else 0
+        wi = list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
+        rec[i, 0] = wi + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
+        cur = scale[i] * wi
         if cover:
-            if cur * fac[i] >= key:
+            if cur * rec[i, 2] > k2 or (cur * rec[i, 2] == k2 and ti < t2):
                 stats[2] += 1
-                f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, head, nxt, alt, altd2, r_cov * r_cov,
-                              gamma, lam, inv_r2, imp2, stats)
-                fac[i] = min(fac[i], f)
-            cur = cur * fac[i]
-        if cur < key:  # stale: store the current key
+                f = _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2,
+                              rc2, gamma, lam, inv_r2, imp2, stats)
+                rec[i, 2] = min(rec[i, 2], f)
+            cur = cur * rec[i, 2]
+        if not (cur > k2 or (cur == k2 and ti < t2)):  # stale: store the exact key
             stats[1] += 1
-            hk[base] = cur
-        else:
-            prio[i] = key
-            state[i] = 0
-            left -= 1
-            if cover:  # the points i represented move to their nearest other point
-                p = head[i]
-                while p >= 0:
-                    q = nxt[p]
-                    a = alt[p]
-                    if a >= 0:
-                        nxt[p] = head[a]
-                        head[a] = p
-                    alt[p] = -1
-                    p = q
-                head[i] = -1
-            bsize[b] -= 1
-            if bsize[b] > 0:
-                hk[base] = hk[base + bsize[b]]
-                hi[base] = hi[base + bsize[b]]
-        if bsize[b] > 0:
-            _sift(hk, hi, tie, base, bsize[b], 0)
-            tk[0] = hk[base]
-            btie[b] = tie[hi[base]]
-        else:
-            ts -= 1
-            tk[0] = tk[ts]
-            tb[0] = tb[ts]
-        _sift(tk, tb, btie, 0, ts, 0)
-    for b in range(nb):
-        for pos in range(bsize[b]):
-            prio[hi[b * BLOCK + pos]] = hk[b * BLOCK + pos]
+            rec[i, 3] = cur
+            _replay(win, (m + i) >> 1, i, rec, tie)
+            continue
+        prio[i] = cur
+        state[i] = 0
+        left -= 1
+        win[m + i] = -1
+        _replay(win, (m + i) >> 1, i, rec, tie)
+        if cover:
+            p = head[i]  # the points i represented move to their alt
+            while p >= 0:
+                q = nxt[p]
+                a = alt[p]
+                if a < 0:
+                    rep[p] = -1
+                else:
+                    unlink(p, a, ahead, anext, aprev)
+                    nxt[p] = head[a]
+                    head[a] = p
+                    rep[p] = a
+                    nmem[a] += 1.0
+                    stats[3] += 1
+                    b, d2, sp[p] = next_alt(p, a, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
+                                            nstart, ncells, state, tie, nptr, nbr, soff)
+                    alt[p] = b
+                    altd2[p] = d2
+                    if b >= 0:
+                        link(p, b, ahead, anext, aprev)
+                        e2b[a] = max(e2b[a], d2)
+                        add_gain(a, gain(p, a, d2, P), c2b, cerr)
+                    else:
+                        nmiss[a] += 1.0
+                    if state[a] == 1:
+                        rec[a, 2] = min(rec[a, 2], fbound(a, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
+                                                           inv_r2))
+                        _fall(a, rec, win, m, tie)
+                p = q
+            head[i] = -1
+            p = ahead[i]  # the points whose alt was i get the next one
+            while p >= 0:
+                q = anext[p]
+                x = rep[p]
+                stats[3] += 1
+                b, d2, sp[p] = next_alt(p, x, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
+                                        nstart, ncells, state, tie, nptr, nbr, soff)
+                add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)
+                alt[p] = b
+                altd2[p] = d2
+                if b >= 0:
+                    link(p, b, ahead, anext, aprev)
+                    e2b[x] = max(e2b[x], d2)
+                    add_gain(x, gain(p, x, d2, P), c2b, cerr)
+                else:
+                    nmiss[x] += 1.0
+                if state[x] == 1:
+                    rec[x, 2] = min(rec[x, 2], fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
+                                                       inv_r2))
+                    _fall(x, rec, win, m, tie)
+                p = q
+            ahead[i] = -1
+        for t in range(nptr[i], nptr[i + 1]):  # the neighbours' bounds fall
+            j = nbr[t]
+            if state[j] != 1:
+                continue
+            rec[j, 0] -= low[t]
+            _fall(j, rec, win, m, tie)
+    for i in range(n):  # the points left: their keys at the stop
+        if state[i] == 1:
+            cur = scale[i] * list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
+            if cover and cur > 0:
+                cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
+                                            alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats))
+            prio[i] = cur
     return prio, stats
 
 

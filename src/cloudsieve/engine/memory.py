@@ -1,0 +1,121 @@
+"""Peak memory of a run: this process and its children, or the workers of a dask cluster.
+
+:class:`PeakMemory` samples in a thread. A local run (every scheduler that
+starts its workers here, a LocalCluster included) measures the resident
+memory of this process and all its children. A run on a dask.distributed
+cluster whose workers live elsewhere (``--scheduler tcp://...`` or a given
+client) measures the workers instead: each worker reports its own resident
+memory (psutil, through ``client.run``), and the peak of their sum is
+reported, labelled with the number of workers (:attr:`PeakMemory.scope`); the
+client's own memory is not part of it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import threading
+
+__all__ = ["PeakMemory", "process_tree_rss", "worker_rss"]
+
+logger = logging.getLogger(__name__)
+
+#: what a local measure covers
+LOCAL_SCOPE = "this process and its children"
+
+
+def process_tree_rss() -> int:
+    """Resident memory of this process and its children now (bytes)."""
+    try:
+        import psutil
+    except ImportError:  # pragma: no cover
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    proc = psutil.Process()
+    total = 0
+    for p in [proc, *proc.children(recursive=True)]:
+        with contextlib.suppress(Exception):
+            total += p.memory_info().rss
+    return total
+
+
+def worker_rss() -> int:
+    """Resident memory of the calling process (bytes): run on each worker by ``client.run``."""
+    try:
+        import psutil
+
+        return int(psutil.Process().memory_info().rss)
+    except ImportError:  # pragma: no cover
+        import resource
+
+        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024)
+
+
+class PeakMemory:
+    """Samples resident memory in a thread; a context manager.
+
+    Attributes
+    ----------
+    peak : int
+        The largest sample (bytes): of this process and its children, or,
+        after :meth:`watch_workers`, of the sum over the cluster's workers.
+    workers : int
+        Workers in the largest sample (0: a local measure).
+    scope : str
+        What *peak* covers, for the summary: ``"this process and its
+        children"`` or ``"2 dask workers (sum of their resident memory)"``.
+    """
+
+    def __init__(self, interval: float = 0.1, worker_interval: float = 1.0) -> None:
+        self.interval = interval
+        self.worker_interval = worker_interval
+        self.peak = 0
+        self.workers = 0
+        self._client = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    @property
+    def scope(self) -> str:
+        if self._client is None:
+            return LOCAL_SCOPE
+        return f"{self.workers} dask worker{'s' if self.workers != 1 else ''} (sum of their resident memory)"
+
+    def watch_workers(self, client) -> None:
+        """Measure the workers of *client* from now on, instead of this process."""
+        self._client = client
+        self.peak = 0
+        self._sample()
+
+    def sample(self) -> int:
+        """Resident memory now (bytes): of this process and its children, or the workers' sum."""
+        if self._client is None:
+            return process_tree_rss()
+        try:
+            per_worker = self._client.run(worker_rss)
+        except Exception as exc:  # a worker leaving mid-run must not fail the run
+            logger.debug("worker memory not sampled: %s", exc)
+            return 0
+        if per_worker and sum(per_worker.values()) > self.peak:
+            self.workers = len(per_worker)
+        return int(sum(per_worker.values()))
+
+    def _sample(self) -> None:
+        self.peak = max(self.peak, self.sample())
+
+    def _loop(self) -> None:
+        while not self._stop.wait(self.interval if self._client is None else self.worker_interval):
+            self._sample()
+
+    def __enter__(self) -> PeakMemory:
+        self._sample()
+        self._thread = threading.Thread(target=self._loop, daemon=True, name="cloudsieve-peak-memory")
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
+        self._sample()

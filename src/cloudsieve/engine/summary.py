@@ -1,0 +1,113 @@
+"""What a :func:`~cloudsieve.engine.simplify` run reports: its :class:`Summary`, and
+:func:`missed_target`, the words for a ratio or count it could not meet."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+__all__ = ["Summary", "missed_target"]
+
+
+def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
+                  keep_duplicates: bool = False) -> str | None:
+    """What to say when a ratio or count was asked and the kept count differs (issue 13, item 4).
+
+    Returns
+    -------
+    str or None
+        ``"SRC: asked to keep A points, kept K: why"`` (logged as a warning,
+        or raised with ``strict``), None when the request was met or there
+        was none.
+    """
+    if ratio is None and count is None:
+        return None
+    asked = int(round(float(ratio) * n)) if ratio is not None else int(count)
+    if kept == asked:
+        return None
+    if asked > n:
+        why = f"the input holds only {n:,} points"
+    elif duplicates and keep_duplicates and kept > asked:
+        why = "the exact copies of kept points are kept too (keep_duplicates)"
+    elif duplicates and asked > n - duplicates:
+        why = f"{duplicates:,} of the {n:,} points are exact duplicates, kept once (keep_duplicates keeps them)"
+    else:
+        why = ("points with equal scores at the global threshold go or stay together, exact duplicates "
+               "count once, and clusters too small to thin are kept whole")
+    return f"{src}: asked to keep {asked:,} points, kept {kept:,}: {why}"
+
+
+@dataclass
+class Summary:
+    """What a :func:`simplify` run did.
+
+    Attributes
+    ----------
+    points_in, kept, removed : int
+    cells : int
+        Number of cells P.
+    cells_computed, cells_reused : int
+        Cells computed in this run, and cells found done in the store (resume).
+    duplicates : int
+        Exact duplicate points (copies of an earlier point with the same x, y,
+        z): removed, or kept with their first copy when ``keep_duplicates``.
+    duplicates_kept : bool
+        Whether they were kept (``keep_duplicates``).
+    threshold : float or None
+        The global threshold on the unit-free score chosen for a ratio/count
+        (for the eliminate rule: the elimination priority at the cut)
+        (None otherwise).
+    seconds : dict str -> float
+        Wall time per stage ("ingest", "partition", "cells", "merge",
+        "export") and "total".
+    peak_memory : int
+        Peak resident memory (bytes), sampled: of this process and its
+        children, or, on a dask.distributed cluster, the peak of the sum over
+        its workers (each asked for its own; see :mod:`.memory`).
+    peak_memory_of : str
+        What *peak_memory* covers: ``"this process and its children"`` or
+        ``"N dask workers (sum of their resident memory)"``.
+    scheduler : str
+    source, destination : str
+    store : str
+        The work store, "" when it was removed (the default store, after success).
+    """
+
+    points_in: int = 0
+    kept: int = 0
+    removed: int = 0
+    cells: int = 0
+    cells_computed: int = 0
+    cells_reused: int = 0
+    duplicates: int = 0
+    duplicates_kept: bool = False
+    threshold: float | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    peak_memory: int = 0
+    peak_memory_of: str = "this process and its children"
+    scheduler: str = ""
+    source: str = ""
+    destination: str = ""
+    store: str = ""
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def __str__(self) -> str:
+        s = self
+        pct = 100.0 * s.kept / s.points_in if s.points_in else 0.0
+        rate = s.points_in / s.seconds["total"] if s.seconds.get("total") else 0.0
+        lines = [
+            f"points in     {s.points_in:>14,}",
+            f"kept          {s.kept:>14,}  ({pct:.2f}%)",
+            f"removed       {s.removed:>14,}",
+            f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
+            f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
+        ]
+        if s.threshold is not None:
+            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH; eliminate: the priority at the cut)")
+        stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
+        lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
+        lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
+        lines.append(f"scheduler     {s.scheduler}")
+        return "\n".join(lines)

@@ -1,0 +1,64 @@
+"""Issue 13, item 8: a distributed run reports its workers' peak memory, not the client's.
+
+A real LocalCluster of two worker processes on loopback, reached through a
+given client (API) and through ``--scheduler tcp://...`` (CLI): each worker
+reports its own resident memory (``client.run``); the summary gives the peak
+of their sum, labelled with the number of workers.
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+
+import pytest
+
+from cloudsieve import simplify
+from cloudsieve.cli import main
+from cloudsieve.engine.memory import LOCAL_SCOPE, worker_rss
+from conftest import shared_file
+
+LABEL = "2 dask workers (sum of their resident memory)"
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    from distributed import Client, LocalCluster
+
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as c:
+        with Client(c) as client:
+            yield c, client
+
+
+def lifetime_peaks(client) -> int:
+    """The sum of the workers' own lifetime peak RSS (ru_maxrss, kB on Linux), in bytes."""
+    return sum(client.run(lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024).values())
+
+
+def test_a_distributed_run_reports_the_workers_peak(cluster, tmp_path):
+    _, client = cluster
+    s = simplify(shared_file("bun_zipper.ply"), tmp_path / "o.ply", ratio=0.5, client=client, cell_size=10_000)
+    now = client.run(worker_rss)
+    assert len(now) == 2
+    assert s.peak_memory_of == LABEL
+    # a sum of simultaneous samples of the workers: at most the sum of their own peaks, and above any one of them
+    assert min(now.values()) < s.peak_memory <= lifetime_peaks(client)
+    assert f"MiB  ({LABEL})" in str(s)
+
+
+def test_the_cli_on_a_scheduler_address_reports_the_workers(cluster, tmp_path, capsys):
+    c, client = cluster
+    capsys.readouterr()
+    rc = main(["simplify", str(shared_file("simple.las")), str(tmp_path / "o.las"), "--rule", "iterative",
+               "--scheduler", c.scheduler_address, "--json", "--no-progress"])
+    out = capsys.readouterr().out
+    assert rc == 0
+    record = json.loads(out)
+    assert record["peak_memory_of"] == LABEL
+    assert 0 < record["peak_memory"] <= lifetime_peaks(client)
+
+
+def test_a_local_run_reports_this_process_and_its_children(tmp_path):
+    s = simplify(shared_file("simple.las"), tmp_path / "o.las", rule="iterative", scheduler="sync")
+    assert s.peak_memory_of == LOCAL_SCOPE and s.peak_memory > 0
