@@ -170,11 +170,12 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     geometric, entropy : float in [0, 1)
         Strength of the information terms (0: off).
     floor : int
-        Stop when this many of the points are left (about as large a share of
-        the halo too); the points left get their keys at the stop (the keys
-        they would be removed with next, <= every removed key). 0: a full
-        order. Without halo, keeping the ``floor`` lowest is exactly the
-        elimination stopped there.
+        Stop when this many of the points are left (the halo's points are
+        eliminated along but do not count); the points left get their keys at
+        the stop (the keys they would be removed with next, <= every removed
+        key). 0: a full order. Keeping the ``floor`` lowest
+        (:func:`keep_lowest`) is exactly the elimination stopped at ``floor``
+        points, with or without halo.
     threads : int, optional
         numba threads of the parallel passes (None: numba's setting); the
         result does not depend on it.
@@ -282,11 +283,9 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
     nptr, nbr, low, soff, w = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
-    halo_left = int(((state == 1) & (src >= n)).sum())
-    left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
     links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, soff, state, scale, imp2, w, src, two_r, alpha,
-                                ialpha, r_cov, COVER_GAMMA, lam, left, links, gone_rep)
+                                ialpha, r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
     logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, nf, len(gon), *stats)
     out = np.empty(len(allp))
