@@ -245,11 +245,13 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     if 0 < count < n:
         earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
         fixed = np.isin(cells, earlier)
-        halo_keep = np.zeros(len(halo), dtype=bool)  # the higher colours have not decided
+        halo_keep = np.zeros(len(halo), dtype=bool)
         if earlier:
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
-        prio = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
-                               gone=halo[fixed & ~halo_keep], floor=int(count), threads=_threads(task))
+        prio, left = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
+                                     gone=halo[fixed & ~halo_keep], floor=int(count), threads=_threads(task),
+                                     halo_left=True)
+        halo_keep[~fixed] = left  # the higher colours have not decided: the points this elimination left
         keep = relocate(core, keep_lowest(prio, int(count)), r_max, halo=halo, halo_keep=halo_keep,
                         threads=_threads(task))
     g["simplify/keep_cells"][task.region : task.region + n] = keep
