@@ -107,6 +107,22 @@ def test_priorities_non_increasing_and_prefix():
     assert np.array_equal(keep_lowest(floor, 600), keep_lowest(eliminate_order(P, r_max=r), 600))
 
 
+def test_floor_counts_the_own_points_only_the_halo_goes_along():
+    """With halo, floor=q stops when q of the points are left: the points removed got the keys of the full
+    order (the same elimination up to the stop), and keep_lowest(q) keeps exactly the q points left."""
+    P = sheet(3000, seed=12)
+    core, halo = P[P[:, 0] < 0.6], P[P[:, 0] >= 0.6]
+    r = elimination_radius(point_areas(P)[0], 900, weight=point_areas(P)[1])
+    full = eliminate_order(core, r_max=r, halo=halo)
+    q = 500
+    part = eliminate_order(core, r_max=r, halo=halo, floor=q)
+    keep = keep_lowest(part, q)
+    assert keep.sum() == q
+    assert np.array_equal(part[~keep], full[~keep])
+    assert part[keep].max() <= part[~keep].min()
+    assert (part[keep] >= full[keep]).all()  # keys only fall as points go
+
+
 @pytest.mark.parametrize("ratio", [1.0, 0.5, 0.2, 0.1, 0.013])
 def test_exact_count_for_ratio(ratio):
     P = sheet(3001, seed=5)

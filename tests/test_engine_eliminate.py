@@ -1,4 +1,4 @@
-"""The eliminate rule out of core: exact counts, determinism, resume, seams, the exact cut, the CLI.
+"""The eliminate rule out of core: exact counts, determinism, resume, seams, the counts, the CLI.
 
 On the real scans of ../shared/data (skipped when absent) and generated
 planes; real zarr stores, dask's local schedulers and a real LocalCluster.
@@ -22,7 +22,7 @@ from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
 from cloudsieve.engine.colours import cell_colours
-from cloudsieve.engine.cut import exact_cut, key_value, keep_mask, sortable_keys
+from cloudsieve.engine.eliminate import kept_counts
 from cloudsieve.engine.runner import Runner
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.store import PointStore
@@ -105,7 +105,7 @@ def test_same_bytes_on_a_local_cluster_with_1_and_2_workers(reference, scan, tmp
 # ----------------------------------------------------------------- resume
 
 
-@pytest.mark.parametrize("crash", ["pass 1", "pass 2"])
+@pytest.mark.parametrize("crash", ["shares", "apply"])
 def test_resume_after_a_crash_mid_pass(reference, scan, tmp_path, crash):
     """A store as a crash leaves it (markers half set, the other cells' results garbage) resumes to the same bytes."""
     ref, ref_summary, ref_store = reference
@@ -116,19 +116,19 @@ def test_resume_after_a_crash_mid_pass(reference, scan, tmp_path, crash):
     half = np.arange(p) < p // 2
     regions = np.asarray(g["simplify/regions"][:])
     counts = np.asarray(g["partition/cell_count"][:])
-    g["simplify/done"][:] = half.astype(np.uint8) if crash == "pass 2" else np.zeros(p, np.uint8)
-    if crash == "pass 1":
+    g["simplify/done"][:] = half.astype(np.uint8) if crash == "apply" else np.zeros(p, np.uint8)
+    if crash == "shares":
         g["simplify/scored"][:] = half.astype(np.uint8)
     for j in np.flatnonzero(~half):  # results of the cells not marked: garbage
         a, n = int(regions[j]), int(counts[j])
         g["simplify/keep_cells"][a : a + n] = np.zeros(n, dtype=bool)
-        if crash == "pass 1":
-            g["simplify/score_cells"][a : a + n] = np.full(n, -1.0)
+        if crash == "shares":
+            g["simplify/share"][j : j + 1] = np.array([[-1.0, 0.0]])
     g["simplify/keep"][:] = np.zeros(g["simplify/keep"].shape, dtype=bool)
     out = tmp_path / "resumed.laz"
     s = simplify(scan, out, scheduler="threads", workers=2, ratio=0.2, store=store, resume=True, **KW)
     assert digest(out) == digest(ref)
-    done_before = int(half.sum()) if crash == "pass 2" else 0
+    done_before = int(half.sum()) if crash == "apply" else 0
     assert (s.cells_reused, s.cells_computed) == (done_before, p - done_before)
 
 
@@ -265,61 +265,29 @@ def test_no_seam_on_a_uniform_plane(tmp_path):
         assert abs(_near_over_interior(keep, near) - 1) <= 0.05, r
 
 
-# ----------------------------------------------------------------- the exact cut
+# ----------------------------------------------------------------- the counts
 
 
-def test_sortable_keys_keep_the_order_of_any_float():
-    v = np.array([-np.inf, -1e300, -2.5, -1e-300, -0.0, 0.0, 1e-300, 3.0, 1e300, np.inf])
-    k = sortable_keys(v)
-    assert np.all(k[1:-1] >= k[:-2]) and k[4] == k[5]
-    assert np.all(np.diff(k.astype(object)[[0, 1, 2, 3, 5, 6, 7, 8, 9]]) > 0)
-    assert [key_value(int(x)) for x in k] == [float(x) + 0.0 for x in v]
+def test_kept_counts_sum_exactly_to_the_target_within_each_cell():
+    rng = np.random.default_rng(3)
+    counts = rng.integers(0, 50, 40)
+    distinct = counts - rng.integers(0, 3, 40).clip(max=counts)
+    expected = rng.random(40) * counts
+    for target in (0, 1, 17, int(distinct.sum()) // 2, int(distinct.sum()) - 1, int(distinct.sum()),
+                   int(distinct.sum()) + 5, int(counts.sum()), int(counts.sum()) + 9):
+        q = kept_counts(expected, distinct, counts, target)
+        assert q.sum() == min(target, counts.sum()), target
+        assert (q >= 0).all() and (q <= counts).all()
+        assert (q <= distinct).all() or q.sum() > distinct.sum()
+        assert np.array_equal(q, kept_counts(expected, distinct, counts, target))
 
 
-def test_keep_mask_removes_the_first_ties_of_a_cell():
-    s = np.array([0.5, -1.0, -1.0, 2.0, -1.0, -3.0])
-    assert keep_mask(s, -1.0, 2).tolist() == [True, False, False, True, True, False]
-    assert keep_mask(s, -1.0, 0).tolist() == [True, True, True, True, True, False]
-    assert keep_mask(s, -np.inf, 0).all()
-
-
-@pytest.mark.parametrize("gather_max", [0, 200_000])
-def test_exact_cut_breaks_ties_by_cell_then_index(reference, tmp_path, gather_max):
-    """Scores rounded to force ties (and -inf, 0): the cut removes exactly the first points of the order
-    (score, cell, index in the cell), by histograms down to the last bit or by a gather."""
-    _, summary, ref_store = reference
-    store = tmp_path / "w.zarr"
-    shutil.copytree(ref_store, store)
-    st = PointStore.open(str(store), "r+")
-    g = st.group
-    part = P.Partition.load(st)
-    regions = np.asarray(g["simplify/regions"][:])
-    counts = part.cell_counts
-    rng = np.random.default_rng(0)
-    scores, cells, index = [], [], []
-    for j in range(part.n_cells):
-        a, n = int(regions[j]), int(counts[j])
-        sj = np.round(np.asarray(g["simplify/score_cells"][a : a + n]), 1)
-        sj[rng.random(n) < 0.01] = -np.inf
-        sj[rng.random(n) < 0.01] = 0.0
-        g["simplify/score_cells"][a : a + n] = sj
-        scores.append(sj), cells.append(np.full(n, j)), index.append(np.arange(n))
-    scores, cells, index = map(np.concatenate, (scores, cells, index))
-    order = np.lexsort((index, cells, scores))
-    runner = Runner("sync")
-    try:
-        for remove in (0, 1, 7, len(scores) // 3, len(scores) - 5, len(scores), len(scores) + 9):
-            cut = exact_cut(st, part, regions, runner, remove, gather_max=gather_max)
-            gone = np.zeros(len(scores), dtype=bool)
-            gone[order[: max(0, min(remove, len(scores)))]] = True
-            for j in range(part.n_cells):
-                sel = cells == j
-                assert np.array_equal(~keep_mask(scores[sel], cut.threshold, cut.quotas[j]), gone[sel]), (remove, j)
-    finally:
-        runner.close()
-
-
-# ----------------------------------------------------------------- errors
+def test_kept_counts_follow_the_shares_clip_and_break_ties_by_cell():
+    assert kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist() == [1, 1, 3]
+    assert kept_counts([1.0, 1.0, 1.0], [5, 5, 5], [5, 5, 5], 4).tolist() == [2, 1, 1]
+    assert kept_counts([9.0, 1.0, 1.0], [2, 9, 9], [2, 9, 9], 8).tolist() == [2, 3, 3]
+    assert kept_counts([0.0, 0.0], [3, 1], [3, 1], 2).tolist() == [2, 0]  # no share: by distinct points
+    assert kept_counts([0.0, 0.0], [3, 1], [4, 2], 6).tolist() == [4, 2]
 
 
 def test_cli_says_eliminate_needs_a_ratio_or_a_count(tmp_path, capsys):

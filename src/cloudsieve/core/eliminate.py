@@ -135,7 +135,7 @@ class _threads:
 
 def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, dh=None, halo=None,
                     fixed=None, gone=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
-                    entropy: float = 0.0, floor: int = 0, threads: int | None = None) -> np.ndarray:
+                    entropy: float = 0.0, floor: int = 0, threads: int | None = None, halo_left: bool = False):
     """Priority of every point in the elimination order (larger goes first).
 
     Parameters
@@ -170,28 +170,34 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     geometric, entropy : float in [0, 1)
         Strength of the information terms (0: off).
     floor : int
-        Stop when this many of the points are left (about as large a share of
-        the halo too); the points left get their keys at the stop (the keys
-        they would be removed with next, <= every removed key). 0: a full
-        order. Without halo, keeping the ``floor`` lowest is exactly the
-        elimination stopped there.
+        Stop when this many of the points are left (the halo's points are
+        eliminated along but do not count); the points left get their keys at
+        the stop (the keys they would be removed with next, <= every removed
+        key). 0: a full order. Keeping the ``floor`` lowest
+        (:func:`keep_lowest`) is exactly the elimination stopped at ``floor``
+        points, with or without halo.
     threads : int, optional
         numba threads of the parallel passes (None: numba's setting); the
         result does not depend on it.
+    halo_left : bool
+        Also return which halo points are left at the stop (``floor`` > 0).
 
     Returns
     -------
     ndarray of shape (n,), float64
         Key at removal: +inf for exact copies of a lower-index point, >= 0
         otherwise. Removal order: priority descending, ties lower index first.
+    left : ndarray of shape (h,), bool
+        Only with ``halo_left``: the halo points not removed (nor exact copies).
     """
-    return _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric,
-                            entropy, floor, threads, gone)[0]
+    out = _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric,
+                           entropy, floor, threads, gone, halo_left)
+    return (out[0], out[2]) if halo_left else out[0]
 
 
 def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric, entropy,
-                     floor, threads, gone=None) -> tuple:
-    """:func:`eliminate_order`, and the grid of its points (None when there is none)."""
+                     floor, threads, gone=None, halo_left=False) -> tuple:
+    """:func:`eliminate_order`, the grid of its points (None when there is none), the halo points left."""
     pts = check_points(points)
     n = len(pts)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
@@ -220,7 +226,7 @@ def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha
     else:
         r_max = _check_r_max(r_max)
     if n == 0:
-        return np.zeros(0), None
+        return np.zeros(0), None, np.ones(len(hal), dtype=bool)
     rank = None
     if entropy > 0:
         if dh is None:
@@ -257,7 +263,7 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
         grid = CellGrid(allp, 0.0)
         out = np.zeros(len(allp))
         out[grid.order[grid.copy]] = np.inf
-        return out[:n], None
+        return out[:n], None, np.isfinite(out[n : n + nh]) if nh else np.ones(0, dtype=bool)
     allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
     two_r = rho = 2.0 * r_max
     if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
@@ -282,18 +288,19 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
     nptr, nbr, low, soff, w = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
-    halo_left = int(((state == 1) & (src >= n)).sum())
-    left = floor + round(halo_left * floor / n) if floor else 0  # the halo thins about like the points
     links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, soff, state, scale, imp2, w, src, two_r, alpha,
-                                ialpha, r_cov, COVER_GAMMA, lam, left, links, gone_rep)
+                                ialpha, r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
     logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, nf, len(gon), *stats)
     out = np.empty(len(allp))
     out[src] = prio
+    copy = np.zeros(len(allp), dtype=bool)
+    copy[src[grid.copy]] = True
+    left = np.isnan(out[n : n + nh]) & ~copy[n : n + nh]
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out, (grid if nh == 0 and nf == 0 and len(gon) == 0 and rho == two_r else None)
+    return out, (grid if nh == 0 and nf == 0 and len(gon) == 0 and rho == two_r else None), left
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
@@ -409,7 +416,7 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else _check_r_max(r_max)
     opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
             "entropy": 0.0} | options
-    prio, grid = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
+    prio, grid, _ = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
                                   opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target, threads)
     keep = keep_lowest(prio, target)
     if relocate_steps and math.isfinite(r_max) and target:

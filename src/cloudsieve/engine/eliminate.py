@@ -1,6 +1,7 @@
 """The cells stage of the ``eliminate`` rule: weighted sample elimination across cells, exact count.
 
-The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core:
+The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core, one
+elimination per cell:
 
 1. **r_max** -- one global elimination radius, solved before the cells on
    the partition's uniform sample (:func:`global_radius`, called by
@@ -8,37 +9,35 @@ The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core:
    partition's attributes, so a resumed run uses the same one); the halo
    margin is at least 2.2 r_max (the elimination and the relocation reach
    2 r_max).
-2. **pass 1** (:func:`score_task`, one task per cell):
-   :func:`~cloudsieve.core.eliminate.eliminate_order` of the cell's points
-   with its halo (the neighbours' points within the margin, eliminated with
-   the cell but given no priority), the full order (no ``floor``: a cell's
-   early stop would only give upper bounds on the priorities of the points
-   it left, and nothing bounds where the global cut falls in a cell's
-   order). Stored as score = -priority in ``simplify/score_cells`` (lower
-   goes first: exact copies -inf), then ``simplify/scored[cell]``.
-3. **the cut** (:func:`cloudsieve.engine.cut.exact_cut`): T and the tie
-   quotas that remove exactly N - target points, ties by cell then by index.
-4. **pass 2** (:func:`apply_task`), colour by colour
+2. **the shares** (:func:`share_task`, one small task per cell): the kept
+   points the area model of r_max (:mod:`cloudsieve.core.radius`) expects
+   in the cell, sum over its distinct points of min(1, a_i / (2 sqrt(3)
+   r_max^2)), a_i the k-NN area with the halo as context; stored with the
+   cell's distinct point count in ``simplify/share`` (P, 2), then
+   ``simplify/scored[cell]``. The driver turns them into integer counts q_j
+   summing exactly to the target (:func:`kept_counts`: proportional,
+   clipped to each cell's distinct points, largest remainder, ties by cell
+   id; exact copies only when the distinct points do not suffice).
+3. **the elimination** (:func:`apply_task`), colour by colour
    (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
    halo never share a colour; one runner call per colour, its cells in
-   parallel): each cell keeps exactly its count under the cut, q_j (score >
-   T, and its ties after its quota). A cell of colour 0 keeps those points;
-   a cell of a higher colour runs the elimination again with the FINAL
-   decisions of its lower-colour neighbours (their kept points fixed: they
-   weigh, never go; their removed points gone: represented by their nearest
-   point, so the coverage term sees the area they leave) and the points of
-   its higher-colour neighbours as halo, and keeps the q_j points removed
-   last. Without this both sides of a border remove their border points,
-   each expecting the other's to stay: holes at the borders (autzen_trim at
-   50% in 14 cells: point max 0.387% of the diagonal against 0.161% in
-   memory; 0.176% with fixed points only, 0.161% with the gone ones). Then one
-   restricted Lloyd step, :func:`~cloudsieve.core.eliminate.relocate`, with
-   the halo's points kept as decided: the final masks of the lower colours,
-   the cut's decisions of the higher ones. The count does not change.
-   Writes ``simplify/keep_cells``, then ``simplify/done[cell]``.
+   parallel): each cell runs
+   :func:`~cloudsieve.core.eliminate.eliminate_order` stopped at q_j of its
+   own points (``floor``), with the FINAL decisions of its lower-colour
+   neighbours (their kept points fixed: they weigh, never go; their removed
+   points gone: represented by their nearest point, so the coverage term
+   sees the area they leave) and the points of its higher-colour neighbours
+   as halo (eliminated along, not counted), and keeps its q_j points left.
+   Without the lower colours' decisions both sides of a border remove their
+   border points, each expecting the other's to stay: holes at the borders
+   (autzen_trim at 50% in 14 cells). Then one restricted Lloyd step,
+   :func:`~cloudsieve.core.eliminate.relocate`, with the final masks of the
+   lower colours as the halo's kept points (the higher colours have not
+   decided: none of theirs). The count does not change. Writes
+   ``simplify/keep_cells``, then ``simplify/done[cell]``.
 
-A crash anywhere resumes from the markers: cells scored or done are not
-scored again, the cut is recomputed from the stored scores (the same), and
+A crash anywhere resumes from the markers: cells with a share are not read
+again, the counts are recomputed from the stored shares (the same), and
 only the cells not done are applied, colour by colour (the colours are a
 pure function of the partition; a cell reads only lower colours' results,
 all done before its colour starts).
@@ -58,11 +57,10 @@ import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
 from .colours import cell_colours
-from .cut import exact_cut, keep_mask
 from .halo import read_halo
 from .runs import cell_runs, read_cell
 
-__all__ = ["global_radius", "score_task", "apply_task", "run_eliminate"]
+__all__ = ["global_radius", "share_task", "kept_counts", "apply_task", "run_eliminate"]
 
 
 def global_radius(sample: np.ndarray, n: int, target: int) -> float:
@@ -115,45 +113,95 @@ def _read(task: CellTask, return_index: bool = False):
     return g, runs, read_cell(g, runs), halo
 
 
-def score_task(task: CellTask) -> dict[str, Any]:
-    """Pass 1: the elimination order of one cell with its halo, stored as score = -priority (a task).
+def share_task(task: CellTask) -> dict[str, Any]:
+    """The kept points the area model expects in one cell, and its distinct points (a task).
 
-    ``task.params["r_max"]`` is the global radius.
+    Writes ``simplify/share[cell]`` = (expected, distinct): expected = sum
+    over the cell's distinct points of min(1, a_i / (HEX r_max^2)), a_i their
+    :func:`~cloudsieve.core.radius.point_areas` with the halo as context (no
+    sampling); then ``simplify/scored[cell]``. ``task.params["r_max"]`` is
+    the global radius (inf: expected = distinct).
 
     Returns
     -------
     dict with "cell", "n", "halo", "seconds" (small).
     """
-    from ..core.eliminate import eliminate_order
+    from ..core.duplicates import exact_copies
+    from ..core.radius import AREA_K, HEX, point_areas
 
     t0 = time.perf_counter()
     g, _, core, halo = _read(task)
     n = len(core)
-    score = np.zeros(n)
-    if n:
-        prio = eliminate_order(core, r_max=float(task.params["r_max"]), halo=halo, threads=_threads(task))
-        score = np.negative(prio) + 0.0  # lower goes first; + 0.0: no -0.0
-    g["simplify/score_cells"][task.region : task.region + n] = score
+    r_max = float(task.params["r_max"])
+    own = core[~exact_copies(core)] if n else core
+    expected = float(len(own))
+    if len(own) and math.isfinite(r_max):
+        areas = point_areas(own, context=halo, sample=max(len(own) + len(halo), AREA_K + 1),
+                            workers=_threads(task))[0]
+        expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum())
+    g["simplify/share"][task.cell : task.cell + 1] = np.array([[expected, len(own)]])
     g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
     return {"cell": task.cell, "n": n, "halo": len(halo), "seconds": time.perf_counter() - t0}
 
 
-def _halo_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, threshold: float, ties: dict) -> np.ndarray:
-    """Which halo points their own cells keep under the cut (before their relocation)."""
-    sc = g["simplify/score_cells"]
-    keep = np.zeros(len(cells), dtype=bool)
-    for s, region in task.halo.items():
-        sel = np.flatnonzero(cells == s)
-        if not len(sel):
-            continue
-        quota, equal = ties[s]
-        if 0 < quota < equal:  # a tie split inside cell s: the ranks need the whole cell
-            n_s = int(pos[sel].max()) + 1
-            keep[sel] = keep_mask(np.asarray(sc[region : region + n_s]), threshold, quota)[pos[sel]]
-        else:
-            s_sel = np.asarray(sc.get_orthogonal_selection((region + pos[sel],)))
-            keep[sel] = (s_sel > threshold) | ((s_sel == threshold) & (quota == 0))
-    return keep
+def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
+    """Integer kept counts of the cells summing exactly to *target* (all points when fewer).
+
+    The shares *expected* scaled to the target, each clipped to its cell's
+    *distinct* points (the excess spread over the others, again in
+    proportion), then rounded by largest remainder (ties by cell id); the
+    exact copies (*counts* - *distinct*) are kept only when the distinct
+    points of all cells do not reach the target, by cell id. Deterministic.
+
+    Parameters
+    ----------
+    expected : array_like of shape (P,), float >= 0
+    distinct, counts : array_like of shape (P,), int
+        Distinct points and all points of each cell (distinct <= counts).
+    target : int
+
+    Returns
+    -------
+    ndarray of shape (P,), int64
+        q_j in [0, counts_j]; sum min(target, sum counts).
+
+    Examples
+    --------
+    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist()
+    [1, 1, 3]
+    """
+    e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
+    cap = np.asarray(distinct, dtype=np.int64)
+    n = np.asarray(counts, dtype=np.int64)
+    goal = min(int(target), int(cap.sum()))
+    x = np.zeros(len(cap))
+    full = cap <= 0
+    while goal > 0:  # at most P rounds: every round clips at least one more cell
+        if full.all():
+            x = cap.astype(np.float64)
+            break
+        w = np.where(full, 0.0, e)
+        if not w.sum() > 0:
+            w = np.where(full, 0.0, cap.astype(np.float64))
+        x = np.where(full, cap, w * ((goal - cap[full].sum()) / w.sum()))
+        over = ~full & (x >= cap)
+        if not over.any():
+            break
+        full |= over
+    q = np.minimum(np.floor(x).astype(np.int64), cap)
+    order = np.lexsort((np.arange(len(cap)), -(x - q)))  # largest remainder, ties by cell id
+    while q.sum() < goal:
+        room = order[q[order] < cap[order]]
+        q[room[: goal - int(q.sum())]] += 1
+    while q.sum() > goal:  # rounding of the scaled shares only
+        has = order[::-1][q[order[::-1]] > 0]
+        q[has[: int(q.sum()) - goal]] -= 1
+    extra = int(target) - int(q.sum())
+    if extra > 0:  # the distinct points do not suffice: exact copies, by cell id
+        copies = n - cap
+        before = np.cumsum(copies) - copies
+        q += np.clip(extra - before, 0, copies)
+    return q
 
 
 def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) -> np.ndarray:
@@ -167,34 +215,25 @@ def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) 
     return keep
 
 
-def apply_task(task: CellTask, threshold: float, ties: dict, colours: dict | None = None) -> dict[str, Any]:
-    """Pass 2: keep as many of the cell's points as the cut keeps, relocate once, write the keep mask (a task).
+def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
+    """The elimination of one cell stopped at *count* of its points, one relocation, its keep mask (a task).
 
-    The cut gives the cell its count q (score > T, and its ties after its
-    quota). A cell with no halo source of a lower colour keeps those points
-    (its pass-1 order is the one it would compute again). Otherwise the
-    elimination runs again with the final decisions of the lower colours
-    (kept: fixed points, they weigh, never go; removed: gone) and the points of the higher
-    colours as halo (thinned with the cell), and keeps the q points removed
-    last: a neighbour's removed points are given as ``gone`` (represented by
-    their nearest point), so the two sides of a border do not both open a
-    hole there.
+    The lower colours' final decisions are the cell's fixed (kept) and gone
+    (removed) points; the higher colours' points its halo, eliminated along
+    but not counted (module docstring).
 
     Parameters
     ----------
     task : CellTask
-    threshold : float
-        T of the :class:`~cloudsieve.engine.cut.Cut`.
-    ties : dict int -> (int, int)
-        (quota, equal) of the cut for the cell and each of its halo sources.
-    colours : dict int -> int, optional
+    count : int
+        q_j of :func:`kept_counts`, in [0, n].
+    colours : dict int -> int
         Colour (:func:`~cloudsieve.engine.colours.cell_colours`) of the cell
         and of each of its halo sources; cells of lower colours must be done.
-        None: every cell one colour (the cut's decisions, no re-run).
 
     Returns
     -------
-    dict with "cell", "n", "kept", "rerun", "seconds" (small).
+    dict with "cell", "n", "kept", "seconds" (small).
     """
     from ..core.eliminate import eliminate_order, keep_lowest, relocate
 
@@ -202,32 +241,29 @@ def apply_task(task: CellTask, threshold: float, ties: dict, colours: dict | Non
     r_max = float(task.params["r_max"])
     g, runs, core, (halo, cells, pos) = _read(task, return_index=True)
     n = len(core)
-    keep = keep_mask(np.asarray(g["simplify/score_cells"][task.region : task.region + n]), threshold,
-                     ties[task.cell][0])
-    mine = 0 if colours is None else colours[task.cell]
-    earlier = [s for s in task.halo if colours is not None and colours[s] < mine]
-    rerun = bool(earlier) and n > 0 and 0 < keep.sum() < n and math.isfinite(r_max)
-    if n and keep.any() and math.isfinite(r_max):
-        halo_keep = _halo_keep(g, task, cells, pos, threshold, ties)  # the later colours: their pass-1 decisions
+    keep = np.full(n, count >= n)
+    if 0 < count < n:
+        earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
+        fixed = np.isin(cells, earlier)
+        halo_keep = np.zeros(len(halo), dtype=bool)
         if earlier:
-            fixed = np.isin(cells, earlier)
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
-            if rerun:
-                prio = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
-                                       gone=halo[fixed & ~halo_keep], threads=_threads(task))
-                keep = keep_lowest(prio, int(keep.sum()))
-        keep = relocate(core, keep, r_max, halo=halo, halo_keep=halo_keep, threads=_threads(task))
+        prio, left = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
+                                     gone=halo[fixed & ~halo_keep], floor=int(count), threads=_threads(task),
+                                     halo_left=True)
+        halo_keep[~fixed] = left  # the higher colours have not decided: the points this elimination left
+        keep = relocate(core, keep_lowest(prio, int(count)), r_max, halo=halo, halo_keep=halo_keep,
+                        threads=_threads(task))
     g["simplify/keep_cells"][task.region : task.region + n] = keep
     g["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
-    return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "rerun": rerun,
-            "seconds": time.perf_counter() - t0}
+    return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 
 
 # ---------------------------------------------------------------- the stage
 
 
-def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target: int) -> tuple[int, int, int, float]:
-    """The cells stage of the eliminate rule: pass 1, the exact cut, pass 2 (resumable).
+def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target: int) -> tuple[int, int, int, None]:
+    """The cells stage of the eliminate rule: the shares, the counts, one elimination per cell (resumable).
 
     Parameters
     ----------
@@ -243,25 +279,23 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
 
     Returns
     -------
-    (computed, reused, points, priority) : cells applied now, cells found done, points scored now,
-        and the priority at the cut (points above it went; -T)
+    (computed, reused, points, None) : cells applied now, cells found done, points whose share was
+        computed now, and no threshold (the rule has none)
     """
     r_max = math.inf if part.r_max is None else float(part.r_max)
     params = {**params, "r_max": r_max}
     done = np.asarray(store.group["simplify/done"][:]).astype(bool)
     scored = np.asarray(store.group["simplify/scored"][:]).astype(bool)
-    todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j] and not done[j]])
+    todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads, halo=True)
-    results = runner(score_task, [(t,) for t in tasks], "cells: score")
-    cut = exact_cut(store, part, regions, runner, store.count - int(target))
+    results = runner(share_task, [(t,) for t in tasks], "cells: share")
+    share = np.asarray(store.group["simplify/share"][:])
+    q = kept_counts(share[:, 0], share[:, 1].astype(np.int64), part.cell_counts, int(target))
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
     for c in range(int(colours.max()) + 1 if len(colours) else 0):  # a colour reads the lower ones' results
         tasks = cell_tasks(store, part, regions, largest_first(part, [j for j in todo if colours[j] == c]), params,
                            runner.task_threads, halo=True)
-        args = []
-        for t in tasks:
-            ties = {int(s): (int(cut.quotas[s]), int(cut.equal[s])) for s in (t.cell, *t.halo)}
-            args.append((t, cut.threshold, ties, {int(s): int(colours[s]) for s in (t.cell, *t.halo)}))
+        args = [(t, int(q[t.cell]), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
         runner(apply_task, args, "cells: apply")
-    return len(todo), int(done.sum()), int(sum(r["n"] for r in results)), -cut.threshold
+    return len(todo), int(done.sum()), int(sum(r["n"] for r in results)), None

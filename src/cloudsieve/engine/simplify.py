@@ -10,9 +10,9 @@ and each in its own module:
    of core, with halos;
 3. **cells** (:mod:`.cells`): one task per cell runs the in-memory method on
    its points and writes its keep mask; with a ratio/count, two passes around
-   one global threshold (:mod:`.threshold`); the eliminate rule: its own two
-   passes around an exact cut (:mod:`.eliminate`, :mod:`.cut`), the second
-   colour by colour (:mod:`.colours`);
+   one global threshold (:mod:`.threshold`); the eliminate rule: per-cell
+   counts from the area model, then one elimination per cell
+   (:mod:`.eliminate`), colour by colour (:mod:`.colours`);
 4. **merge** (:mod:`.merge`): one task per input chunk scatters the keep
    masks back to input order as ``simplify/keep``;
 5. **export** of the kept points, every attribute and the header

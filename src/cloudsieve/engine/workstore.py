@@ -17,10 +17,11 @@ through :class:`~cloudsieve.store.PointStore`)::
 
     keep_cells   bool    (T,)  keep mask, cell-ordered: cell j's points at
                                regions[j]:regions[j] + n_j (T: the padded total)
-    score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count); -priority (eliminate)
+    score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
     label_cells  int32   (T,)  pass-1 small-cluster labels (ratio/count); -1: an exact copy
     done, scored uint8   (P,)  one zarr chunk per cell: concurrent tasks never share one
     duplicates   int64   (P,)  exact duplicate points of each cell (one chunk per cell)
+    share        float64 (P, 2) eliminate: kept points expected in each cell, its distinct points
     regions      int64   (P,)  start of each cell's region
     keep         bool    (N,)  keep mask in input order (the merge stage)
 
@@ -211,14 +212,21 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     if "simplify/keep_cells" in g and g["simplify/keep_cells"].shape == (total,) and "simplify/regions" in g:
         if "simplify/duplicates" not in g:  # a store of a version before the count (its done cells count 0)
             store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
+        if "simplify/share" not in g:  # a store of a version before the shares: its cells start again
+            store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
+            g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
+            g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
-    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates"):
+    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
+                 "share"):
         store.delete_array(f"simplify/{name}")
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
     store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     store.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0)
     store.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0)
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
+    # eliminate: kept points the area model expects in each cell, and its distinct points
+    store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
     # exact duplicate points of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
     # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)

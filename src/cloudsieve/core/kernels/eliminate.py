@@ -116,8 +116,11 @@ def _fall(y, rec, win, m, tie):
 
 @njit(cache=True)
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scale, imp2, w, tie, two_r, alpha,
-              ialpha, r_cov, gamma, lam, floor, ci, gone_rep):
-    """Remove removable points, largest key first, until ``floor`` of them remain.
+              ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep):
+    """Remove removable points, largest key first, until ``floor`` of the own ones remain.
+
+    Own points are those with ``tie`` < ``nown`` (the caller's points; the
+    halo's are removed along but do not count).
 
     ``nptr``/``nbr``/``low``/``soff`` are the neighbour lists and ``w``
     (n,) the crowding sums of :mod:`.neighbours` (before the scale);
@@ -196,7 +199,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
                 rec[i, 2] = fbound(i, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2)
             rec[i, 3] = rec[i, 1] * rec[i, 0] * rec[i, 2]
             win[m + i] = i
-            left += 1
+            if tie[i] < nown:
+                left += 1
     for v in range(m - 1, 0, -1):
         win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
     prio = np.full(n, np.nan)
@@ -228,7 +232,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
             continue
         prio[i] = cur
         state[i] = 0
-        left -= 1
+        if ti < nown:
+            left -= 1
         win[m + i] = -1
         _replay(win, (m + i) >> 1, i, rec, tie)
         if cover:
@@ -289,8 +294,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
                 continue
             rec[j, 0] -= low[t]
             _fall(j, rec, win, m, tie)
-    for i in range(n):  # the points left: their keys at the stop
-        if state[i] == 1:
+    for i in range(n):  # the own points left: their keys at the stop
+        if state[i] == 1 and tie[i] < nown:
             cur = scale[i] * list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
