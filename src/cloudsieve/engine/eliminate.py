@@ -63,6 +63,10 @@ from .runs import cell_runs, read_cell
 __all__ = ["global_radius", "share_task", "kept_counts", "apply_task", "run_eliminate"]
 
 
+#: points of the cell and its halo the expected kept count is estimated on (the k-NN areas)
+SHARE_SAMPLE = 20_000
+
+
 def global_radius(sample: np.ndarray, n: int, target: int) -> float:
     """The one r_max of a cloud of *n* points keeping *target*, from a uniform sample of it.
 
@@ -118,8 +122,9 @@ def share_task(task: CellTask) -> dict[str, Any]:
 
     Writes ``simplify/share[cell]`` = (expected, distinct): expected = sum
     over the cell's distinct points of min(1, a_i / (HEX r_max^2)), a_i their
-    :func:`~cloudsieve.core.radius.point_areas` with the halo as context (no
-    sampling); then ``simplify/scored[cell]``. ``task.params["r_max"]`` is
+    :func:`~cloudsieve.core.radius.point_areas` with the halo as context, on
+    a seeded sample of at most ``SHARE_SAMPLE`` points of the cell and its
+    halo (scaled up); then ``simplify/scored[cell]``. ``task.params["r_max"]`` is
     the global radius (inf: expected = distinct).
 
     Returns
@@ -136,9 +141,10 @@ def share_task(task: CellTask) -> dict[str, Any]:
     own = core[~exact_copies(core)] if n else core
     expected = float(len(own))
     if len(own) and math.isfinite(r_max):
-        areas = point_areas(own, context=halo, sample=max(len(own) + len(halo), AREA_K + 1),
-                            workers=_threads(task))[0]
-        expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum())
+        # a seeded uniform sample of the cell and its halo is enough: the shares only split an exact total
+        areas, weight = point_areas(own, context=halo, sample=max(SHARE_SAMPLE, AREA_K + 1), seed=task.cell,
+                                    workers=_threads(task))
+        expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum()) * weight
     g["simplify/share"][task.cell : task.cell + 1] = np.array([[expected, len(own)]])
     g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
     return {"cell": task.cell, "n": n, "halo": len(halo), "seconds": time.perf_counter() - t0}
