@@ -55,7 +55,7 @@ class Summary:
         Whether they were kept (``keep_duplicates``).
     threshold : float or None
         The global threshold on the unit-free score chosen for a ratio/count
-        (for the eliminate rule: the elimination priority at the cut)
+        (None for the eliminate rule, whose cells get exact counts instead)
         (None otherwise).
     seconds : dict str -> float
         Wall time per stage ("ingest", "partition", "cells", "merge",
@@ -105,7 +105,7 @@ class Summary:
             f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
         ]
         if s.threshold is not None:
-            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH; eliminate: the priority at the cut)")
+            lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
