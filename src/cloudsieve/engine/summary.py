@@ -55,8 +55,8 @@ class Summary:
         Whether they were kept (``keep_duplicates``).
     threshold : float or None
         The global threshold on the unit-free score chosen for a ratio/count
-        (None for the eliminate rule, whose cells get exact counts instead)
-        (None otherwise).
+        with the target, iterative or coverage rule; None otherwise (the
+        eliminate rule gives its cells exact counts instead).
     seconds : dict str -> float
         Wall time per stage ("ingest", "partition", "cells", "merge",
         "export") and "total".
