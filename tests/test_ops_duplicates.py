@@ -25,7 +25,7 @@ from conftest import shared_file
 from test_ops_inputs import run_command
 
 RULES = [("threshold", []), ("iterative", []), ("target", ["--ratio", "0.5"]), ("iterative", ["--ratio", "0.5"]),
-         ("coverage", ["--ratio", "0.5"])]
+         ("coverage", ["--ratio", "0.5"]), ("eliminate", ["--ratio", "0.5"])]
 N_COPIES = 10
 
 
@@ -156,7 +156,8 @@ def test_every_rule_drops_the_copies_only(rule, kw):
 
 @pytest.mark.parametrize("method", ["km", "fcm"])
 @pytest.mark.parametrize("rule,kw", [("threshold", {}), ("iterative", {}), ("target", {"ratio": 0.5}),
-                                     ("iterative", {"ratio": 0.5}), ("coverage", {"ratio": 0.5})])
+                                     ("iterative", {"ratio": 0.5}), ("coverage", {"ratio": 0.5}),
+                                     ("eliminate", {"ratio": 0.5})])
 def test_no_rule_keeps_two_copies(method, rule, kw):
     _, both, _ = _cloud_with_copies()
     kept = simplify_points(both, method=method, rule=rule, **kw)
@@ -177,3 +178,20 @@ def test_subset_check_counts_multiplicities():
                        r"held 2 times, the original holds it 1 time\), but a subset was claimed$"):
         point_errors(orig, simp, subset=True)
     assert point_errors(orig, simp)["not_in_original"] == 2
+
+
+def test_eliminate_with_keep_duplicates_keeps_the_copies_of_kept_points(scan_with_copies, tmp_path, capsys):
+    src, n = scan_with_copies
+    dst = tmp_path / "out.las"
+    rc, out, _ = run(["simplify", src, dst, "--ratio", "0.5", "--keep-duplicates", "--scheduler", "sync",
+                      "--no-progress", "--json"], capsys)
+    assert rc == 0
+    summary = json.loads(out)
+    assert summary["duplicates"] == N_COPIES and summary["duplicates_kept"] is True
+    xyz = read_cloud(dst)[0]
+    uniq, times = np.unique(xyz, axis=0, return_counts=True)
+    assert len(uniq) == round(0.5 * (n + N_COPIES))  # the count is met on distinct points
+    src_uniq, src_times = np.unique(read_cloud(src)[0], axis=0, return_counts=True)
+    doubled = {tuple(p) for p in src_uniq[src_times == 2]}
+    for p, t in zip(uniq, times):  # each kept point comes with all its copies
+        assert t == (2 if tuple(p) in doubled else 1)

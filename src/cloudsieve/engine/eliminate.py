@@ -145,19 +145,20 @@ def share_task(task: CellTask) -> dict[str, Any]:
         areas, weight = point_areas(own, context=halo, sample=max(SHARE_SAMPLE, AREA_K + 1), seed=task.cell,
                                     workers=_threads(task))
         expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum()) * weight
+    g["simplify/duplicates"][task.cell : task.cell + 1] = np.array([n - len(own)], dtype=np.int64)
     g["simplify/share"][task.cell : task.cell + 1] = np.array([[expected, len(own)]])
     g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
     return {"cell": task.cell, "n": n, "halo": len(halo), "seconds": time.perf_counter() - t0}
 
 
 def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
-    """Integer kept counts of the cells summing exactly to *target* (all points when fewer).
+    """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
 
     The shares *expected* scaled to the target, each clipped to its cell's
     *distinct* points (the excess spread over the others, again in
-    proportion), then rounded by largest remainder (ties by cell id); the
-    exact copies (*counts* - *distinct*) are kept only when the distinct
-    points of all cells do not reach the target, by cell id. Deterministic.
+    proportion), then rounded by largest remainder (ties by cell id). Exact
+    copies (*counts* - *distinct*) never count: a target above the distinct
+    points is not met (the run says so). Deterministic.
 
     Parameters
     ----------
@@ -169,7 +170,7 @@ def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
     Returns
     -------
     ndarray of shape (P,), int64
-        q_j in [0, counts_j]; sum min(target, sum counts).
+        q_j in [0, distinct_j]; sum min(target, sum distinct).
 
     Examples
     --------
@@ -202,12 +203,7 @@ def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
     while q.sum() > goal:  # rounding of the scaled shares only
         has = order[::-1][q[order[::-1]] > 0]
         q[has[: int(q.sum()) - goal]] -= 1
-    extra = int(target) - int(q.sum())
-    if extra > 0:  # the distinct points do not suffice: exact copies, by cell id
-        copies = n - cap
-        before = np.cumsum(copies) - copies
-        q += np.clip(extra - before, 0, copies)
-    return q
+    return q  # exact copies never fill a count (the duplicates policy): the run says when it is missed
 
 
 def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) -> np.ndarray:
@@ -260,6 +256,10 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
         halo_keep[~fixed] = left  # the higher colours have not decided: the points this elimination left
         keep = relocate(core, keep_lowest(prio, int(count)), r_max, halo=halo, halo_keep=halo_keep,
                         threads=_threads(task))
+    if task.params.get("keep_duplicates") and n:  # every copy of a kept point too
+        from ..core.duplicates import first_copies
+
+        keep = keep[first_copies(core)]
     g["simplify/keep_cells"][task.region : task.region + n] = keep
     g["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
