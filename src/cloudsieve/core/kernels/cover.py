@@ -88,3 +88,24 @@ def fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2):
     if rc2 > 0 and e2 > rc2:
         f = (rc2 / e2) ** (0.5 * gamma)
     return f / (1.0 + lam * c2 * inv_r2)
+
+
+@njit(cache=True)
+def resume_at(p, sp, nptr):
+    """Where the next search of p's alt starts: after the last one found, unless past p's list."""
+    return sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p]
+
+
+@njit(cache=True)
+def take_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff, alt, altd2, sp, ahead,
+             anext, aprev, e2b, c2b, cerr, nmiss):
+    """Give p (represented by x) its next alt from ``start`` of its list, and add it to x's coverage data."""
+    b, d2, sp[p] = next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
+    alt[p] = b
+    altd2[p] = d2
+    if b >= 0:
+        link(p, b, ahead, anext, aprev)
+        e2b[x] = max(e2b[x], d2)
+        add_gain(x, gain(p, x, d2, P), c2b, cerr)
+    else:
+        nmiss[x] += 1.0

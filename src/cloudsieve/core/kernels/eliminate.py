@@ -50,7 +50,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .cover import add_gain, fbound, gain, link, next_alt, unlink
+from .cover import add_gain, fbound, gain, resume_at, take_alt, unlink
 from .neighbours import list_nearest, list_weight
 
 
@@ -163,15 +163,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
             head[i] = i
             rep[i] = i
             nmem[i] = 1.0
-            a, d2, sp[i] = next_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
-            alt[i] = a
-            altd2[i] = d2
-            if a >= 0:
-                link(i, a, ahead, anext, aprev)
-                e2b[i] = d2
-                add_gain(i, gain(i, i, d2, P), c2b, cerr)
-            else:
-                nmiss[i] = 1.0
+            take_alt(i, i, nptr[i], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff, alt, altd2, sp,
+                     ahead, anext, aprev, e2b, c2b, cerr, nmiss)
     for p in range(n):  # points already gone (a neighbouring cell's): represented by their nearest alive point
         a = gone_rep[p]
         if a >= 0 and cover:
@@ -179,15 +172,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
             head[a] = p
             rep[p] = a
             nmem[a] += 1.0
-            b, d2, sp[p] = next_alt(p, a, nptr[p], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff)
-            alt[p] = b
-            altd2[p] = d2
-            if b >= 0:
-                link(p, b, ahead, anext, aprev)
-                e2b[a] = max(e2b[a], d2)
-                add_gain(a, gain(p, a, d2, P), c2b, cerr)
-            else:
-                nmiss[a] += 1.0
+            take_alt(p, a, nptr[p], P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff, alt, altd2, sp,
+                     ahead, anext, aprev, e2b, c2b, cerr, nmiss)
     m = 1
     while m < n:
         m *= 2
@@ -250,16 +236,8 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
                     rep[p] = a
                     nmem[a] += 1.0
                     stats[3] += 1
-                    b, d2, sp[p] = next_alt(p, a, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
-                                            nstart, ncells, state, tie, nptr, nbr, soff)
-                    alt[p] = b
-                    altd2[p] = d2
-                    if b >= 0:
-                        link(p, b, ahead, anext, aprev)
-                        e2b[a] = max(e2b[a], d2)
-                        add_gain(a, gain(p, a, d2, P), c2b, cerr)
-                    else:
-                        nmiss[a] += 1.0
+                    take_alt(p, a, resume_at(p, sp, nptr), P, cell, cstart, nstart, ncells, state, tie, nptr, nbr,
+                             soff, alt, altd2, sp, ahead, anext, aprev, e2b, c2b, cerr, nmiss)
                     if state[a] == 1:
                         rec[a, 2] = min(rec[a, 2], fbound(a, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                            inv_r2))
@@ -271,17 +249,9 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
                 q = anext[p]
                 x = rep[p]
                 stats[3] += 1
-                b, d2, sp[p] = next_alt(p, x, sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p], P, cell, cstart,
-                                        nstart, ncells, state, tie, nptr, nbr, soff)
-                add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)
-                alt[p] = b
-                altd2[p] = d2
-                if b >= 0:
-                    link(p, b, ahead, anext, aprev)
-                    e2b[x] = max(e2b[x], d2)
-                    add_gain(x, gain(p, x, d2, P), c2b, cerr)
-                else:
-                    nmiss[x] += 1.0
+                add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)  # its gain to the old alt goes
+                take_alt(p, x, resume_at(p, sp, nptr), P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff,
+                         alt, altd2, sp, ahead, anext, aprev, e2b, c2b, cerr, nmiss)
                 if state[x] == 1:
                     rec[x, 2] = min(rec[x, 2], fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                        inv_r2))
