@@ -143,15 +143,9 @@ def _cluster(P, s, m, kq, K, query, leaf, bound_node, trim, out_d, out_i, w):
 
 
 @njit(cache=True, nogil=True)
-def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, trim, out_d, out_i):
-    """Clusters c0..c1-1, with scratch arrays allocated once."""
-    mmax = 1
-    kmax = 1
-    for c in range(c0, c1):
-        mmax = max(mmax, indptr[c + 1] - indptr[c])
-        kmax = max(kmax, kc[c])
-    lmax = max(leaf_min, kmax + leaf_extra)
-    w = (
+def _scratch(mmax, lmax):
+    """Scratch arrays of :func:`_cluster` for clusters of <= mmax points and leaves of <= lmax points."""
+    return (
         np.empty(mmax, np.int64),  # perm
         np.empty((3, mmax)),  # X
         np.empty((2 * mmax + 1, 4), np.int64),  # node
@@ -168,6 +162,18 @@ def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, tr
         np.empty(lmax),  # t0
         np.empty(mmax, np.int64),  # rank
     )
+
+
+@njit(cache=True, nogil=True)
+def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, trim, out_d, out_i):
+    """Clusters c0..c1-1, with scratch arrays allocated once."""
+    mmax = 1
+    kmax = 1
+    for c in range(c0, c1):
+        mmax = max(mmax, indptr[c + 1] - indptr[c])
+        kmax = max(kmax, kc[c])
+    lmax = max(leaf_min, kmax + leaf_extra)
+    w = _scratch(mmax, lmax)
     for c in range(c0, c1):
         s = indptr[c]
         leaf = max(leaf_min, kc[c] + leaf_extra)
@@ -185,23 +191,7 @@ def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bo
             mmax = max(mmax, indptr[c + 1] - indptr[c])
             kmax = max(kmax, kcl[c])
     lmax = max(leaf_min, kmax + 1 + leaf_extra)
-    w = (
-        np.empty(mmax, np.int64),  # perm
-        np.empty((3, mmax)),  # X
-        np.empty((2 * mmax + 1, 4), np.int64),  # node
-        np.empty((2 * mmax + 1, 6)),  # box
-        np.empty(256, np.int64),  # stack
-        np.empty((3, mmax)),  # C
-        np.empty(mmax, np.int64),  # cj
-        np.empty(mmax),  # tmp
-        np.empty(mmax),  # cd
-        np.empty(mmax, np.int64),  # ci
-        np.empty(mmax),  # s0
-        np.empty(mmax),  # s1
-        np.empty(mmax, np.int64),  # si
-        np.empty(lmax),  # t0
-        np.empty(mmax, np.int64),  # rank
-    )
+    w = _scratch(mmax, lmax)
     Pc = np.zeros((mmax, 3))  # zero columns for 1- and 2-D points
     q = np.ones(mmax, np.bool_)
     od = np.empty((mmax, kmax + 1))
