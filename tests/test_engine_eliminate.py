@@ -23,6 +23,8 @@ from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
 from cloudsieve.engine.colours import cell_colours
 from cloudsieve.engine.eliminate import kept_counts
+from cloudsieve.engine.halo import read_band_halo, read_halo
+from cloudsieve.engine.runs import cell_runs
 from cloudsieve.engine.runner import Runner
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.store import PointStore
@@ -124,6 +126,7 @@ def test_resume_after_a_crash_mid_pass(reference, scan, tmp_path, crash):
         g["simplify/keep_cells"][a : a + n] = np.zeros(n, dtype=bool)
         if crash == "shares":
             g["simplify/share"][j : j + 1] = np.array([[-1.0, 0.0]])
+            g["simplify/band_count"][j : j + 1] = np.zeros(1, dtype=np.int64)
     g["simplify/keep"][:] = np.zeros(g["simplify/keep"].shape, dtype=bool)
     out = tmp_path / "resumed.laz"
     s = simplify(scan, out, scheduler="threads", workers=2, ratio=0.2, store=store, resume=True, **KW)
@@ -155,6 +158,25 @@ def test_resume_after_a_crash_mid_colour(reference, scan, tmp_path):
     s = simplify(scan, out, scheduler="processes", workers=2, ratio=0.2, store=store, resume=True, **KW)
     assert digest(out) == digest(ref)
     assert (s.cells_reused, s.cells_computed) == (int(done.sum()), int((~done).sum()))
+
+
+def test_the_stored_bands_give_the_halo_of_the_whole_cells(reference):
+    """read_band_halo (the sources' bands) returns read_halo's points, cells and positions, in its order."""
+    _, _, ref_store = reference
+    st = PointStore.open(str(ref_store), "r")
+    g = st.group
+    part = P.Partition.load(st)
+    regions = np.asarray(g["simplify/regions"][:])
+    counts = np.asarray(g["simplify/band_count"][:])
+    assert 0 < counts.sum() < part.cell_counts.sum() / 2
+    for j in range(part.n_cells):
+        src = [int(s) for s in part.halo_sources(j)]
+        centers = {j: part.centers[j], **{s: part.centers[s] for s in src}}
+        whole = read_halo(g, {s: cell_runs(g, s) for s in src}, centers, j, part.margin, return_index=True)
+        band = read_band_halo(g, {s: int(regions[s]) for s in src}, centers, j, part.margin)
+        assert len(whole[0]) > 0
+        for a, b in zip(whole, band):
+            np.testing.assert_array_equal(a, b)
 
 
 def test_a_partition_for_another_count_is_not_reused(reference, scan, tmp_path):

@@ -216,9 +216,13 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
+        if "simplify/band_count" not in g:  # a store of a version before the bands: its cells start again
+            _band_arrays(store, n_cells, total, block)
+            g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
+            g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
     for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
-                 "share"):
+                 "share", "band_xyz", "band_pos", "band_count"):
         store.delete_array(f"simplify/{name}")
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
     store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
@@ -227,12 +231,20 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     # eliminate: kept points the area model expects in each cell, and its distinct points
     store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
+    _band_arrays(store, n_cells, total, block)
     # exact duplicate points of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
     # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)
     store.create_array(
         "simplify/regions", data=np.asarray(starts, dtype=np.int64), chunks=(max(1, min(len(starts), 65536)),)
     )
+
+
+def _band_arrays(store, n_cells: int, total: int, block: int) -> None:
+    """eliminate: each cell's band (:func:`cloudsieve.engine.halo.band_mask`) at the start of its region."""
+    store.create_array("simplify/band_xyz", shape=(total, 3), dtype="float64", chunks=(block, 3), fill_value=0.0)
+    store.create_array("simplify/band_pos", shape=(total,), dtype="int64", chunks=(block,), fill_value=0)
+    store.create_array("simplify/band_count", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
 
 
 def ensure_keep_array(store) -> None:
