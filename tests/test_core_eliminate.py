@@ -13,6 +13,7 @@ from cloudsieve.core.eliminate import (
     COVER_LAMBDA,
     COVER_RADIUS,
     eliminate,
+    eliminate_cell,
     eliminate_order,
     keep_lowest,
     relocate,
@@ -349,3 +350,40 @@ def test_floor_keys_are_the_keys_at_the_stop(coverage):
     assert removal_order(part)[2100] == order[2100]  # the next removal: the largest key left (ties lower index)
     assert part[order[2100]] == full[order[2100]]
     assert (part[left] >= full[left]).all()  # keys only fall as points go
+
+
+@pytest.mark.parametrize("ratio", [0.5, 0.1])
+def test_eliminate_cell_is_the_elimination_then_relocation(ratio):
+    """One cell as the engine runs it: eliminate_order with the decided halo as fixed/gone points, keep_lowest,
+    relocate with every kept halo point; eliminate_cell does it on one grid with the same result."""
+    from conftest import shared_file
+
+    from cloudsieve.io import read_cloud
+
+    P = read_cloud(shared_file("autzen_trim.laz"))[0]
+    x = P[:, 0]
+    cut = np.quantile(x, 0.5)
+    areas, weight = point_areas(P)
+    r_max = float(elimination_radius(areas, int(round(ratio * len(P))), weight=weight))
+    core = P[x < cut]
+    halo = P[(x >= cut) & (x < cut + 2.2 * r_max)]
+    rng = np.random.default_rng(0)
+    decided = rng.random(len(halo)) < 0.5
+    halo_keep = decided & (rng.random(len(halo)) < ratio)
+    count = int(round(ratio * len(core)))
+    keep = eliminate_cell(core, count, r_max, halo=halo, decided=decided, halo_keep=halo_keep, threads=2)
+    prio, left = eliminate_order(core, r_max=r_max, halo=halo[~decided], fixed=halo[decided & halo_keep],
+                                 gone=halo[decided & ~halo_keep], floor=count, halo_left=True)
+    hk = halo_keep.copy()
+    hk[~decided] = left
+    ref = relocate(core, keep_lowest(prio, count), r_max, halo=halo, halo_keep=hk)
+    assert keep.sum() == count
+    np.testing.assert_array_equal(keep, ref)
+
+
+def test_eliminate_cell_checks_its_masks():
+    P = sheet(200)
+    with pytest.raises(InvalidParameterError, match=r"decided must be a bool mask of shape \(10,\)"):
+        eliminate_cell(P, 50, 0.1, halo=sheet(10, seed=1), decided=np.zeros(9, dtype=bool))
+    with pytest.raises(InvalidParameterError, match=r"count must be an integer in \[0, 200\]"):
+        eliminate_cell(P, 201, 0.1)

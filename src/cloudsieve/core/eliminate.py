@@ -67,7 +67,7 @@ from .kernels import grid as _kg
 from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
 
-__all__ = ["eliminate_order", "eliminate", "keep_lowest", "relocate"]
+__all__ = ["eliminate_order", "eliminate", "eliminate_cell", "keep_lowest", "relocate"]
 
 logger = logging.getLogger(__name__)
 
@@ -300,7 +300,7 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     left = np.isnan(out[n : n + nh]) & ~copy[n : n + nh]
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out, (grid if nh == 0 and nf == 0 and len(gon) == 0 and rho == two_r else None), left
+    return out, (grid if rho == two_r else None), left
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
@@ -419,7 +419,62 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     prio, grid, _ = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
                                   opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target, threads)
     keep = keep_lowest(prio, target)
+    if opts["fixed"] is not None:  # the grid holds the fixed points too: relocation runs without them
+        grid = None
     if relocate_steps and math.isfinite(r_max) and target:
         with _threads(threads):
             keep = _relocate(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
     return np.flatnonzero(keep).astype(np.int64)
+
+
+def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
+                   threads: int | None = None) -> np.ndarray:
+    """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
+
+    The halo points already ``decided`` (a neighbouring cell's final
+    result) weigh as fixed points when kept (``halo_keep``) and as gone
+    points when removed; the others are eliminated along (not counted).
+    Then :func:`relocate` with every kept halo point pulling on the
+    regions, on the same grid (one grid for both: the same points).
+
+    Parameters
+    ----------
+    points : array_like of shape (n, 3), float
+    count : int
+        Points of ``points`` kept, in [0, n].
+    r_max : float
+        The cloud's elimination radius.
+    halo : array_like of shape (h, 3), optional
+    decided, halo_keep : array_like of shape (h,), bool, optional
+        Which halo points are decided, and which of those are kept.
+    threads : int, optional
+
+    Returns
+    -------
+    ndarray of shape (n,), bool
+        Exactly ``count`` True.
+    """
+    pts = check_points(points)
+    n = len(pts)
+    if int(count) != count or not 0 <= count <= n:
+        raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
+    r_max = _check_r_max(r_max)
+    hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
+    dec = np.zeros(len(hal), dtype=bool) if decided is None else np.asarray(decided)
+    hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)
+    for name, a in (("decided", dec), ("halo_keep", hk)):
+        if a.shape != (len(hal),) or a.dtype != bool:
+            raise InvalidParameterError(f"{name} must be a bool mask of shape ({len(hal)},), got {a.dtype} {a.shape}")
+    if count == n or count == 0 or not math.isfinite(r_max):
+        return np.full(n, count == n)
+    # the halo in the elimination's order: free, decided and kept (fixed), decided and removed (gone)
+    perm = np.concatenate([np.flatnonzero(~dec), np.flatnonzero(dec & hk), np.flatnonzero(dec & ~hk)])
+    nfree = int((~dec).sum())
+    nfix = int((dec & hk).sum())
+    hp = hal[perm]
+    with _threads(threads):
+        prio, grid, left = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max, ALPHA,
+                                  True, 0.0, None, 0.0, int(count))
+        keep = keep_lowest(prio, int(count))
+        kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
+        return _relocate(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid)

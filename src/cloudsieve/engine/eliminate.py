@@ -26,7 +26,8 @@ elimination per cell:
    parallel): each cell reads its halo from its sources' bands
    (:func:`~cloudsieve.engine.halo.read_band_halo`: the same points as
    from the whole cells) and runs
-   :func:`~cloudsieve.core.eliminate.eliminate_order` stopped at q_j of its
+   :func:`~cloudsieve.core.eliminate.eliminate_cell`: the elimination
+   (:func:`~cloudsieve.core.eliminate.eliminate_order`) stopped at q_j of its
    own points (``floor``), with the FINAL decisions of its lower-colour
    neighbours (their kept points fixed: they weigh, never go; their removed
    points gone: represented by their nearest point, so the coverage term
@@ -263,7 +264,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
-    from ..core.eliminate import eliminate_order, keep_lowest, relocate
+    from ..core.eliminate import eliminate_cell
 
     t0 = time.perf_counter()
     r_max = float(task.params["r_max"])
@@ -276,12 +277,8 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
         halo_keep = np.zeros(len(halo), dtype=bool)
         if earlier:
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
-        prio, left = eliminate_order(core, r_max=r_max, halo=halo[~fixed], fixed=halo[fixed & halo_keep],
-                                     gone=halo[fixed & ~halo_keep], floor=int(count), threads=_threads(task),
-                                     halo_left=True)
-        halo_keep[~fixed] = left  # the higher colours have not decided: the points this elimination left
-        keep = relocate(core, keep_lowest(prio, int(count)), r_max, halo=halo, halo_keep=halo_keep,
-                        threads=_threads(task))
+        keep = eliminate_cell(core, int(count), r_max, halo=halo, decided=fixed, halo_keep=halo_keep,
+                              threads=_threads(task))
     if task.params.get("keep_duplicates") and n:  # every copy of a kept point too
         from ..core.duplicates import first_copies
 
