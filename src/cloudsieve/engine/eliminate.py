@@ -37,8 +37,9 @@ elimination per cell:
    border points, each expecting the other's to stay: holes at the borders
    (autzen_trim at 50% in 14 cells). Then one restricted Lloyd step,
    :func:`~cloudsieve.core.eliminate.relocate`, with the final masks of the
-   lower colours as the halo's kept points (the higher colours have not
-   decided: none of theirs). The count does not change. Writes
+   lower colours as the halo's kept points (for the higher colours, which
+   have not decided, the points this elimination left), on the same grid.
+   The count does not change. Writes
    ``simplify/keep_cells``, then ``simplify/done[cell]``.
 
 A crash anywhere resumes from the markers: cells with a share are not read
