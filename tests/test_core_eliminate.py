@@ -387,3 +387,16 @@ def test_eliminate_cell_checks_its_masks():
         eliminate_cell(P, 50, 0.1, halo=sheet(10, seed=1), decided=np.zeros(9, dtype=bool))
     with pytest.raises(InvalidParameterError, match=r"count must be an integer in \[0, 200\]"):
         eliminate_cell(P, 201, 0.1)
+
+
+def test_keep_lowest_is_the_lexsort_oracle_with_ties_and_copies():
+    """keep_lowest (a partition) keeps what sorting by (priority, -index) keeps: ties go to higher indices."""
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        n = int(rng.integers(1, 50))
+        p = rng.integers(0, 5, n).astype(float)
+        p[rng.random(n) < 0.2] = np.inf
+        for count in range(n + 1):
+            ref = np.zeros(n, dtype=bool)
+            ref[np.lexsort((-np.arange(n), p))[:count]] = True
+            np.testing.assert_array_equal(keep_lowest(p, count), ref)

@@ -316,7 +316,13 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     if int(count) != count or not 0 <= count <= n:
         raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
     keep = np.zeros(n, dtype=bool)
-    keep[np.lexsort((-np.arange(n), p))[: int(count)]] = True
+    k = int(count)
+    if k == 0:
+        return keep
+    v = np.partition(p, k - 1)[k - 1]  # the count-th lowest priority: below it all go in, at it the highest indices
+    keep[p < v] = True
+    tied = np.flatnonzero(p == v)
+    keep[tied[len(tied) - (k - int(keep.sum())) :]] = True
     return keep
 
 
