@@ -12,7 +12,8 @@ Run: ``.venv/bin/python benchmarks/core.py [--sizes 1e6,5e6] [--fcm-iters 20] [-
     stop; FCM for ``--fcm-iters`` iterations, also given per iteration, and
     to simplify's default stop), of one scoring pass, and of each
     rule on the KM clusters (points/s = input points / seconds of the whole
-    call; the round rules give their number of rounds); and the peak memory
+    call; the round rules give their number of rounds), and of ``eliminate``
+    (the default rule; no clusters) at 50% and 10%; and the peak memory
     of KM at 1 M points into 2,500 clusters (a fresh process, so the figure
     is the process's peak RSS).
 
@@ -40,6 +41,7 @@ import numpy as np
 from cloudsieve.core import ConvergenceWarning, FuzzyCMeans, KMeans
 from cloudsieve.core.entropy import score_points
 from cloudsieve.core import prune
+from cloudsieve.core.eliminate import eliminate
 from cloudsieve.core.refine import REFINE_FCM_MAX_ITER, REFINE_KM_TOL, REFINE_LABEL_TOL
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -151,6 +153,13 @@ def throughput_table(sizes, fcm_iters: int):
             label = rule + (" ratio 0.5" if kw else " S=0.001")
             note = f"; {len(rounds)} rounds" if rule in ("iterative", "coverage") else ""
             rows.append(f"| {n:,} | rule {label} | {t:.2f} | {n / t:,.0f} | kept {int(keep.sum()):,}{note} |")
+            yield from rows.take()
+        for ratio in (0.5, 0.1):  # the default rule (no clusters): weighted sample elimination + one relocation
+            t0 = time.perf_counter()
+            kept = eliminate(pts, ratio=ratio, threads=WORKERS)
+            t = time.perf_counter() - t0
+            rows.append(f"| {n:,} | rule eliminate ratio {ratio} (the default) | {t:.2f} | {n / t:,.0f} | "
+                        f"kept {len(kept):,} |")
             yield from rows.take()
 
 
