@@ -54,13 +54,6 @@ def test_every_preloaded_module_imports():
         importlib.import_module(name)
 
 
-def test_the_eliminate_warm_up_runs_the_cell_path():
-    """The fork server's warm-up of the eliminate kernels runs (a failure would only be logged there)."""
-    from cloudsieve.engine.forkserver_init import warm_up_eliminate
-
-    assert warm_up_eliminate() >= 0.0
-
-
 def test_imap_in_process_streams_in_order_with_shared_arguments():
     best = np.full(3, np.inf)
     items = (((np.full(3, float(v)),), {"scale": 2.0}) for v in (5, 3, 4))
