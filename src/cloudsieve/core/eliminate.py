@@ -286,10 +286,10 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
         inner = src < n
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
     ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-    nptr, nbr, low, soff, w = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
+    nptr, nbr, low, soff, w, term = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
-    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, soff, state, scale, imp2, w, src, two_r, alpha,
+    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,
                                 ialpha, r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
     logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
                  n, nh, nf, len(gon), *stats)

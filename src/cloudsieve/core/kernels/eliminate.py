@@ -51,7 +51,7 @@ import numpy as np
 from numba import njit
 
 from .cover import add_gain, fbound, gain, resume_at, take_alt, unlink
-from .neighbours import list_nearest, list_weight
+from .neighbours import list_nearest, term_weight
 
 
 @njit(cache=True)
@@ -115,7 +115,7 @@ def _fall(y, rec, win, m, tie):
 
 
 @njit(cache=True)
-def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scale, imp2, w, tie, two_r, alpha,
+def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep):
     """Remove removable points, largest key first, until ``floor`` of the own ones remain.
 
@@ -201,7 +201,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
             v >>= 1
         k2 = rec[r, 3] if r >= 0 else -1.0
         t2 = tie[r] if r >= 0 else 0
-        wi = list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
+        wi = term_weight(i, nptr, nbr, state, term)
         rec[i, 0] = wi + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
         cur = scale[i] * wi
         if cover:
@@ -266,7 +266,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, soff, state, scal
             _fall(j, rec, win, m, tie)
     for i in range(n):  # the own points left: their keys at the stop
         if state[i] == 1 and tie[i] < nown:
-            cur = scale[i] * list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha)
+            cur = scale[i] * term_weight(i, nptr, nbr, state, term)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
                                             alt, altd2, rc2, gamma, lam, inv_r2, imp2, stats))

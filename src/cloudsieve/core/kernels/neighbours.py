@@ -6,10 +6,12 @@ walk of :mod:`.grid` (cells in ``ncells`` order, rows ascending inside a
 cell), with ``low`` (float32) a lower bound of each one's crowding term
 (1 - d / (2 r_max)) ** alpha (enough for the upper bounds of the keys the
 elimination keeps) and ``soff`` each list's positions sorted nearest first
-(by squared distance, then tie; uint8/uint16 when the lists are short). A
-point's list holds every other alive point (``state`` != 0) at squared
-distance < (2 r_max)^2, so the exact crowding sum over the list in list
-order (:func:`list_weight`) is the one over the grid walk, bit for bit.
+(by squared distance, then tie; uint8/uint16 when the lists are short), and
+``term`` each one's exact crowding term (float64). A point's list holds
+every other alive point (``state`` != 0) at squared distance < (2 r_max)^2,
+so the exact crowding sum over the list in list order
+(:func:`term_weight`: the stored terms, no square roots, no neighbour
+coordinates read) is the one over the grid walk, bit for bit.
 Grid arguments as in :mod:`.grid"""
 
 from __future__ import annotations
@@ -41,16 +43,13 @@ def ipow(u, alpha, ialpha):
 
 
 @njit(cache=True)
-def list_weight(i, P, nptr, nbr, state, inv2r, alpha, ialpha):
-    """Crowding sum of point i over its alive neighbours (the grid walk's sum, bit for bit)."""
+def term_weight(i, nptr, nbr, state, term):
+    """Crowding sum of point i over its alive neighbours from the stored terms (the grid walk's sum, bit
+    for bit: the same terms in the same order)."""
     w = 0.0
     for t in range(nptr[i], nptr[i + 1]):
-        j = nbr[t]
-        if state[j] != 0:
-            dx = P[j, 0] - P[i, 0]
-            dy = P[j, 1] - P[i, 1]
-            dz = P[j, 2] - P[i, 2]
-            w += ipow(1.0 - math.sqrt(dx * dx + dy * dy + dz * dz) * inv2r, alpha, ialpha)
+        if state[nbr[t]] != 0:
+            w += term[t]
     return w
 
 
@@ -80,9 +79,9 @@ def count_lists(P, cell, cstart, nstart, ncells, state, two_r):
 
 
 @njit(cache=True, parallel=True)
-def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w):
+def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w, term):
     """Fill ``nbr``/``low`` (nptr[-1],) of the lists counted by :func:`count_lists`, in grid walk order,
-    and ``w`` (n,) with each alive point's exact crowding sum (:func:`list_weight`'s, bit for bit)."""
+    and ``w`` (n,) with each alive point's exact crowding sum (:func:`term_weight`'s, bit for bit), and ``term``."""
     n = len(P)
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
@@ -104,6 +103,7 @@ def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, npt
                 if d2 < r2:
                     u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
                     s += u
+                    term[k] = u
                     nbr[k] = j
                     low[k] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
                     k += 1
@@ -175,17 +175,18 @@ def index_type(*sizes) -> type:
 def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first):
     """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
     nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
-    exact crowding sums w (n,). ``order``: the grid's rows' ids (the tie of equal distances)."""
+    exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal distances)."""
     counts = count_lists(P, cell, cstart, nstart, ncells, state, two_r)
     nptr = np.zeros(len(counts) + 1, dtype=np.int64)
     np.cumsum(counts, out=nptr[1:])
     nbr = np.empty(int(nptr[-1]), dtype=index_type(len(counts)))
     low = np.empty(int(nptr[-1]), dtype=np.float32)
     w = np.zeros(len(counts))
-    fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w)
+    term = np.empty(int(nptr[-1]))
+    fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w, term)
     longest = int(counts.max(initial=0))
     soff = np.zeros(int(nptr[-1]) if nearest_first else 1,
                     dtype=np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64)
     if nearest_first:
         sort_lists(P, nptr, nbr, order, soff)
-    return nptr, nbr, low, soff, w
+    return nptr, nbr, low, soff, w, term
