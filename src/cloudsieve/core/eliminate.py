@@ -40,10 +40,11 @@ Across cells (each run with its halo, :func:`eliminate_order`) with one
 global r_max, one global threshold on all priorities removes a prefix of each
 cell's own order: an exact total count, ties by point index.
 
-After the count is reached, :func:`relocate` moves each kept point to the
-point of its Voronoi region nearest the region's centroid (one restricted
-Lloyd step; lower squared error, coverage kept); :func:`eliminate` does both
-for a whole cloud in memory.
+After the count is reached, :func:`.relocate.relocate` moves each kept
+point to the point of its Voronoi region nearest the region's centroid (one
+restricted Lloyd step; lower squared error, coverage kept); :func:`eliminate`
+does both for a whole cloud in memory, :func:`eliminate_cell` for one cell
+of a cloud with its halo.
 
 Exact duplicates (every copy of a lower-index point) get priority +inf: they
 go first and never weigh on the others. The result does not depend on the
@@ -66,6 +67,7 @@ from .kernels import geometry as _kgeo
 from .kernels import grid as _kg
 from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
+from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relocate_points
 
 __all__ = ["eliminate_order", "eliminate", "eliminate_cell", "keep_lowest", "relocate"]
 
@@ -77,7 +79,6 @@ COVER_GAMMA = 8.0  # exponent of the coverage factor
 COVER_LAMBDA = 10.0  # weight of the squared-error factor
 GEOMETRIC_POINTS = 16  # input points the covariance ball of the geometric term holds at least
 IMPORTANCE_SPAN = 4.0  # bounds of the geometric importance
-RELOCATE_STEPS = 1  # restricted Lloyd steps in eliminate() (more changed nothing measurable)
 
 
 def _target(n: int, ratio, count) -> int:
@@ -101,36 +102,11 @@ def _strength(value, name: str) -> float:
     return v
 
 
-def _check_r_max(r_max) -> float:
-    if not (isinstance(r_max, (int, float, np.integer, np.floating)) and r_max > 0):
-        raise InvalidParameterError(f"r_max must be a positive number (inf: keep all), got {r_max!r}")
-    return float(r_max)
-
-
 def _radius(pts: np.ndarray, ctx: np.ndarray, target: int) -> float:
     if target == 0:
         return math.inf  # nothing is kept: the order does not matter
     areas, weight = areas_of(pts, ctx, AREA_K, AREA_SAMPLE, 0, -1)
     return radius_of(areas, target, weight)
-
-
-class _threads:
-    """numba's thread count set to ``threads`` inside the block (None: unchanged)."""
-
-    def __init__(self, threads):
-        self.threads = threads
-
-    def __enter__(self):
-        import numba
-
-        self.old = numba.get_num_threads()
-        if self.threads is not None:
-            numba.set_num_threads(max(1, min(int(self.threads), numba.config.NUMBA_NUM_THREADS)))
-
-    def __exit__(self, *exc):
-        import numba
-
-        numba.set_num_threads(self.old)
 
 
 def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, dh=None, halo=None,
@@ -224,7 +200,7 @@ def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha
         target = _target(n, ratio, count)
         r_max = _radius(pts, hal, target)
     else:
-        r_max = _check_r_max(r_max)
+        r_max = check_r_max(r_max)
     if n == 0:
         return np.zeros(0), None, np.ones(len(hal), dtype=bool)
     rank = None
@@ -232,7 +208,7 @@ def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha
         if dh is None:
             dh = score_points(pts, lab, threads=threads).delta_h
         rank = _ranks(dh, np.zeros(n, dtype=np.int64) if lab is None else lab.astype(np.int64))
-    with _threads(threads):
+    with numba_threads(threads):
         return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
 
 
@@ -326,72 +302,6 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     return keep
 
 
-def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int = RELOCATE_STEPS,
-             threads: int | None = None) -> np.ndarray:
-    """Restricted Lloyd steps on a kept set: lower squared error, same count.
-
-    Each kept point moves to the point of its Voronoi region (the points
-    nearest to it, itself included) nearest the region's centroid, unless a
-    point of the region would end farther from it than both the region's
-    current farthest and r_max. Kept halo points pull on the regions but do
-    not move; only points (not halo) are chosen.
-
-    Parameters
-    ----------
-    points : array_like of shape (n, 3), float
-    keep : array_like of shape (n,), bool
-    r_max : float
-        The elimination radius; the search reaches 2 r_max.
-    halo : array_like of shape (h, 3), optional
-    halo_keep : array_like of shape (h,), bool, optional
-        Which halo points are kept (default none).
-    iterations : int
-        Steps (stops early when nothing moves).
-    threads : int, optional
-
-    Returns
-    -------
-    ndarray of shape (n,), bool
-        The new keep mask, as many points.
-    """
-    pts = check_points(points)
-    n = len(pts)
-    kp = np.asarray(keep)
-    if kp.shape != (n,) or kp.dtype != bool:
-        raise InvalidParameterError(f"keep must be a bool mask of shape ({n},), got {kp.dtype} {kp.shape}")
-    hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
-    hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)
-    if hk.shape != (len(hal),) or hk.dtype != bool:
-        raise InvalidParameterError(f"halo_keep must be a bool mask of shape ({len(hal)},), got {hk.dtype} {hk.shape}")
-    r_max = _check_r_max(r_max)
-    if int(iterations) != iterations or iterations < 0:
-        raise InvalidParameterError(f"iterations must be an integer >= 0, got {iterations!r}")
-    if n == 0 or not kp.any() or not math.isfinite(r_max) or iterations == 0:
-        return kp.copy()
-    with _threads(threads):
-        return _relocate(pts, kp, hal, hk, r_max, int(iterations))
-
-
-def _relocate(pts, kp, hal, hk, r_max, iterations, grid=None) -> np.ndarray:
-    n = len(pts)
-    allp = np.concatenate([pts, hal]) if len(hal) else pts
-    if grid is None:  # else the grid the elimination built on the same points and cell side
-        grid = CellGrid(allp, 2.0 * r_max)
-    src = grid.order
-    kept = np.concatenate([kp, hk])[src].astype(np.uint8)
-    movable = (src < n).astype(np.uint8)
-    movable[grid.copy] = 0
-    for _ in range(iterations):
-        near = _kg.nearest_kept(*grid.args(), kept, src)
-        new = _ke.relocate(grid.P, near, kept, movable, src, r_max * r_max)
-        if np.array_equal(new, kept):
-            break
-        kept = new
-    out = np.empty(len(allp), dtype=bool)
-    out[src] = kept.astype(bool)
-    return out[:n]
-
-
 _OPTIONS = {"labels", "dh", "fixed", "alpha", "coverage", "geometric", "entropy"}
 
 
@@ -419,7 +329,7 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
                                     "eliminate_order (cells)")
     if int(relocate_steps) != relocate_steps or relocate_steps < 0:
         raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
-    r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else _check_r_max(r_max)
+    r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else check_r_max(r_max)
     opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
             "entropy": 0.0} | options
     prio, grid, _ = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
@@ -428,8 +338,8 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     if opts["fixed"] is not None:  # the grid holds the fixed points too: relocation runs without them
         grid = None
     if relocate_steps and math.isfinite(r_max) and target:
-        with _threads(threads):
-            keep = _relocate(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
+        with numba_threads(threads):
+            keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
     return np.flatnonzero(keep).astype(np.int64)
 
 
@@ -464,7 +374,7 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     n = len(pts)
     if int(count) != count or not 0 <= count <= n:
         raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
-    r_max = _check_r_max(r_max)
+    r_max = check_r_max(r_max)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
     dec = np.zeros(len(hal), dtype=bool) if decided is None else np.asarray(decided)
     hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)
@@ -478,9 +388,9 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     nfree = int((~dec).sum())
     nfix = int((dec & hk).sum())
     hp = hal[perm]
-    with _threads(threads):
+    with numba_threads(threads):
         prio, grid, left = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max, ALPHA,
                                   True, 0.0, None, 0.0, int(count))
         keep = keep_lowest(prio, int(count))
         kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
-        return _relocate(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid)
+        return relocate_points(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid)
