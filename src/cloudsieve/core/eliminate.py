@@ -339,7 +339,8 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
         grid = None
     if relocate_steps and math.isfinite(r_max) and target:
         with numba_threads(threads):
-            keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps), grid)
+            keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps),
+                                   grid)
     return np.flatnonzero(keep).astype(np.int64)
 
 

@@ -16,10 +16,11 @@ elimination per cell:
    read); stored with the cell's distinct point count in ``simplify/share``
    (P, 2), with the cell's band (its points in the halos of the cells that
    list it, :func:`~cloudsieve.engine.halo.band_mask`) in
-   ``simplify/band_*``, then ``simplify/scored[cell]``. The driver turns them into integer counts q_j
-   summing exactly to the target (:func:`kept_counts`: proportional,
-   clipped to each cell's distinct points, largest remainder, ties by cell
-   id; exact copies only when the distinct points do not suffice).
+   ``simplify/band_*``, then ``simplify/scored[cell]``. The driver turns
+   them into integer counts q_j summing exactly to the target
+   (:func:`kept_counts`: proportional, clipped to each cell's distinct
+   points, largest remainder, ties by cell id; exact copies only when the
+   distinct points do not suffice).
 3. **the elimination** (:func:`apply_task`), colour by colour
    (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
    halo never share a colour; one runner call per colour, its cells in
@@ -36,7 +37,7 @@ elimination per cell:
    Without the lower colours' decisions both sides of a border remove their
    border points, each expecting the other's to stay: holes at the borders
    (autzen_trim at 50% in 14 cells). Then one restricted Lloyd step,
-   :func:`~cloudsieve.core.eliminate.relocate`, with the final masks of the
+   :func:`~cloudsieve.core.relocate.relocate`, with the final masks of the
    lower colours as the halo's kept points (for the higher colours, which
    have not decided, the points this elimination left), on the same grid.
    The count does not change. Writes
