@@ -34,6 +34,32 @@ def test_results_come_in_argument_order(scheduler, workers):
     assert seen[0] == ("stage: test", 40, "task") and seen[1:] == [1] * 40
 
 
+def _mark(i, folder, deps, wait):
+    """Write folder/i after *wait* seconds; True if the files of *deps* were all there when it started."""
+    import time
+    from pathlib import Path
+
+    ready = all((Path(folder) / str(j)).exists() for j in deps)
+    time.sleep(wait)
+    (Path(folder) / str(i)).write_text("done")
+    return ready
+
+
+@pytest.mark.parametrize("scheduler, workers, limit", [("sync", None, None), ("threads", 2, None),
+                                                        ("processes", 2, None), (None, 2, "1GB")])
+def test_a_task_starts_after_the_tasks_it_waits_for(tmp_path, scheduler, workers, limit):
+    """``after=``: the colours of the eliminate rule (a cell reads the results of lower-colour neighbours)."""
+    after = [[], [], [0], [0, 1], [], [2, 4]]
+    args = [(i, str(tmp_path), after[i], 0.5 if i == 0 else 0.0) for i in range(len(after))]
+    run = Runner(scheduler, workers, memory_limit=limit)
+    try:
+        assert run(_mark, args, "stage: test", after=after) == [True] * len(after)
+        with pytest.raises(InvalidParameterError, match="after must list, for each task, indices of earlier tasks"):
+            run(_mark, args[:2], "stage: test", after=[[1], []])
+    finally:
+        run.close()
+
+
 def test_unknown_scheduler_and_memory_limit_without_processes_are_refused():
     with pytest.raises(InvalidParameterError, match="unknown scheduler 'fast'"):
         Runner("fast")

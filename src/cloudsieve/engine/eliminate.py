@@ -23,8 +23,8 @@ elimination per cell:
    distinct points do not suffice).
 3. **the elimination** (:func:`apply_task`), colour by colour
    (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
-   halo never share a colour; one runner call per colour, its cells in
-   parallel): each cell reads its halo from its sources' bands
+   halo never share a colour; one runner call, in which each cell waits only
+   for the cells of lower colours in its halo): each cell reads its halo from its sources' bands
    (:func:`~cloudsieve.engine.halo.read_band_halo`: the same points as
    from the whole cells) and runs
    :func:`~cloudsieve.core.eliminate.eliminate_cell`: the elimination
@@ -47,7 +47,7 @@ A crash anywhere resumes from the markers: cells with a share are not read
 again, the counts are recomputed from the stored shares (the same), and
 only the cells not done are applied, colour by colour (the colours are a
 pure function of the partition; a cell reads only lower colours' results,
-all done before its colour starts).
+and starts after the cells it reads are done).
 
 No clusters are needed (the entropy and geometric terms are off): ``method``
 and ``cluster_size`` are unused by this rule, and so is ``halo_context``
@@ -330,9 +330,13 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     q = kept_counts(share[:, 0], share[:, 1].astype(np.int64), part.cell_counts, int(target))
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
-    for c in range(int(colours.max()) + 1 if len(colours) else 0):  # a colour reads the lower ones' results
-        tasks = cell_tasks(store, part, regions, largest_first(part, [j for j in todo if colours[j] == c]), params,
-                           runner.task_threads, halo=True)
-        args = [(t, int(q[t.cell]), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
-        runner(apply_task, args, "cells: apply")
+    # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it
+    # reads their results), not once the whole lower colours are: no worker waits at a colour's end
+    ordered = [j for c in range(int(colours.max()) + 1 if len(colours) else 0)
+               for j in largest_first(part, [j for j in todo if colours[j] == c])]
+    tasks = cell_tasks(store, part, regions, ordered, params, runner.task_threads, halo=True)
+    at = {t.cell: i for i, t in enumerate(tasks)}
+    args = [(t, int(q[t.cell]), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
+    after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
+    runner(apply_task, args, "cells: apply", after=after)
     return len(todo), int(done.sum()), int(sum(r["n"] for r in results)), None

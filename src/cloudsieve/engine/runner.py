@@ -218,29 +218,40 @@ class Runner:
             finally:
                 del self._stages[stage]
 
-    def __call__(self, func: Callable, args: Sequence[tuple], stage: str, unit: str = "task") -> list:
-        """``[func(*a) for a in args]`` as tasks of stage *stage*, results in argument order."""
+    def __call__(self, func: Callable, args: Sequence[tuple], stage: str, unit: str = "task",
+                 after: Sequence[Sequence[int]] | None = None) -> list:
+        """``[func(*a) for a in args]`` as tasks of stage *stage*, results in argument order.
+
+        *after*, one sequence per task: the tasks (indices into *args*, each
+        lower than the task's own) that must finish before it starts; the
+        others run in parallel. None: all in parallel.
+        """
         args = list(args)
         if not args:
             return []
+        deps = [()] * len(args) if after is None else [tuple(int(j) for j in a) for a in after]
+        if len(deps) != len(args) or any(not 0 <= j < i for i, d in enumerate(deps) for j in d):
+            raise InvalidParameterError("after must list, for each task, indices of earlier tasks only")
         if stage in self._stages:  # inside :meth:`stage`: its bar counts these tasks too
-            return self._run(func, args, stage, self._stages[stage])
+            return self._run(func, args, deps, stage, self._stages[stage])
         with stage_bar(self.bars, stage, len(args), unit) as update:
-            return self._run(func, args, stage, update)
+            return self._run(func, args, deps, stage, update)
 
-    def _run(self, func, args, stage, update) -> list:
+    def _run(self, func, args, deps, stage, update) -> list:
         if self.client is not None:
-            return self._distributed(func, args, stage, update)
-        return self._local(func, args, update)
+            return self._distributed(func, args, deps, stage, update)
+        return self._local(func, args, deps, update)
 
-    def _distributed(self, func, args, stage, update) -> list:
+    def _distributed(self, func, args, deps, stage, update) -> list:
         from distributed import as_completed
 
         token = uuid.uuid4().hex[:8]
         tag = stage.replace(" ", "").replace(":", "-")
-        futures = [
-            self.client.submit(func, *a, key=f"cloudsieve-{tag}-{i}-{token}", pure=False) for i, a in enumerate(args)
-        ]
+        futures: list = []
+        for i, a in enumerate(args):
+            extra = [futures[j] for j in deps[i]]  # the scheduler starts the task once these are done
+            call = (_after, func, len(a), *a, *extra) if extra else (func, *a)
+            futures.append(self.client.submit(*call, key=f"cloudsieve-{tag}-{i}-{token}", pure=False))
         try:
             for _ in as_completed(futures):
                 update(1)
@@ -249,7 +260,7 @@ class Runner:
             for f in futures:
                 f.release()
 
-    def _local(self, func, args, update) -> list:
+    def _local(self, func, args, deps, update) -> list:
         import dask
         from dask.callbacks import Callback
 
@@ -259,10 +270,12 @@ class Runner:
         # the largest cells first
         token = uuid.uuid4().hex[:8]
         last = len(args) - 1
-        tasks = [
-            dask.delayed(func, pure=False)(*a, dask_key_name=f"cloudsieve-{func.__name__}-{token}-{last - i:09d}")
-            for i, a in enumerate(args)
-        ]
+        tasks: list = []
+        for i, a in enumerate(args):
+            key = f"cloudsieve-{func.__name__}-{token}-{last - i:09d}"
+            extra = [tasks[j] for j in deps[i]]
+            call = (dask.delayed(_after, pure=False), func, len(a)) if extra else (dask.delayed(func, pure=False),)
+            tasks.append(call[0](*call[1:], *a, *extra, dask_key_name=key))
         keys = {t.key for t in tasks}
 
         class _Count(Callback):
@@ -278,6 +291,11 @@ class Runner:
             kwargs["chunksize"] = 1  # dask batches 6 tasks per submission by default: 6 cells on one worker
         with _Count():
             return list(dask.compute(*tasks, **kwargs))
+
+
+def _after(func: Callable, n: int, *args):
+    """``func(*args[:n])``: the rest are the results of the tasks it waited for (a task's extra inputs)."""
+    return func(*args[:n])
 
 
 def imap(func: Callable, items: Iterable[tuple[tuple, dict]], client: Any = None, shared: Sequence[Any] = (),
