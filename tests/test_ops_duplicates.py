@@ -138,6 +138,26 @@ def test_exact_copies_and_first_copies():
     assert not exact_copies(np.random.default_rng(0).random((100, 3))).any()
 
 
+@pytest.mark.parametrize("n, p", [(0, 3), (1, 3), (2000, 1), (20_000, 3), (5000, 4)])
+def test_first_copies_equal_the_sort_based_oracle(n, p):
+    """The hash table against the obvious grouping: sort the rows, equal neighbours share the first index."""
+    rng = np.random.default_rng(n + p)
+    pts = np.round(rng.random((n, p)) * 20, 1)  # quantised: many ties on every column, many copies
+    if n > 10:
+        pts[rng.integers(0, n, n // 5)] = pts[rng.integers(0, n, n // 5)]
+        pts[3] = -pts[2] * 0.0  # -0.0 equals 0.0
+        pts[2] = 0.0
+    order = np.lexsort((np.arange(n), *pts.T[::-1]))
+    same = np.r_[False, (pts[order][1:] == pts[order][:-1]).all(axis=1)] if n else np.zeros(0, dtype=bool)
+    head = order[np.maximum.accumulate(np.where(~same, np.arange(n), 0))] if n else order
+    expected = np.empty(n, dtype=np.int64)
+    expected[order] = head
+    assert first_copies(pts).tolist() == expected.tolist()
+    assert exact_copies(pts).tolist() == (expected != np.arange(n)).tolist()
+    if n > 10:
+        assert first_copies(pts)[3] == 2
+
+
 @pytest.mark.parametrize("rule,kw", [("threshold", {}), ("iterative", {}), ("target", {"count": 500}),
                                      ("iterative", {"count": 500}), ("coverage", {"count": 500})])
 def test_every_rule_drops_the_copies_only(rule, kw):

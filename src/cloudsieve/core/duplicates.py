@@ -8,7 +8,7 @@ point is kept too). Their count is reported by the engine's summary.
 
 - :func:`exact_copies`: which points are copies of an earlier one, and
   :func:`first_copies`: the first point equal to each point (public,
-  validate);
+  validate; a hash table over the rows, :mod:`.kernels.copies`);
 - :func:`sorted_copies`: the same on rows already in canonical
   (lexicographic, stable) order, where copies are adjacent (a kernel, no
   checks).
@@ -19,7 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import check_points
-from .knn import canonical_order
+from .kernels import copies as _kc
 
 __all__ = ["exact_copies", "first_copies", "sorted_copies"]
 
@@ -61,11 +61,8 @@ def exact_copies(points) -> np.ndarray:
     >>> exact_copies([[0, 0, 0], [1, 0, 0], [0, 0, 0]]).tolist()
     [False, False, True]
     """
-    pts = check_points(points)
-    order = canonical_order(pts)
-    out = np.empty(len(pts), dtype=bool)
-    out[order] = sorted_copies(pts[order])
-    return out
+    first = _first(check_points(points))
+    return first != np.arange(len(first))
 
 
 def first_copies(points) -> np.ndarray:
@@ -86,11 +83,11 @@ def first_copies(points) -> np.ndarray:
     >>> first_copies([[0, 0, 0], [1, 0, 0], [0, 0, 0]]).tolist()
     [0, 1, 0]
     """
-    pts = check_points(points)
-    order = canonical_order(pts)
-    copy = sorted_copies(pts[order])
-    run = np.cumsum(~copy) - 1  # the group of each sorted row
-    heads = order[~copy]  # its first point: ties are in input order, so the lowest index
-    out = np.empty(len(pts), dtype=np.int64)
-    out[order] = heads[run]
-    return out
+    return _first(check_points(points))
+
+
+def _first(pts: np.ndarray) -> np.ndarray:
+    """:func:`first_copies` of valid points: a hash table over the rows' bits (-0.0 as +0.0)."""
+    if len(pts) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return _kc.first_equal((pts + 0.0).view(np.uint64))

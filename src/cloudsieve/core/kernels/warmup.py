@@ -16,6 +16,7 @@ import time
 
 import numpy as np
 
+from .copies import first_equal
 from .entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
 from .knn import knn_scored, knn_unchecked, take_neighbours
 from .order import grouped_order
@@ -50,4 +51,5 @@ def warm_up() -> float:
     gain = grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, 3.0)
     scores_to_input(order, indptr, kcl, scored, ~scored, np.array([12, 12]), gain)
     graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
+    first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
     return time.perf_counter() - t0

@@ -1,0 +1,48 @@
+"""Compiled kernel of exact copies: the first row equal to each row, by hashing (numba; private).
+
+Written here because the sort-based grouping (a lexicographic order of the
+rows, then neighbours compared) costs a sort of every row, and on LAS data
+quantised to 1 cm most rows tie on x, so the sort of the ties is most of
+it (28 ms of a 100,000-point cell, measured; numpy has no hash grouping of
+rows). One pass over an open-addressing table of twice the rows: ~10x less.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def first_equal(B):
+    """Index of the first (lowest index) row equal to each row of ``B`` (n, p) uint64: the bits of
+    float64 rows with -0.0 made +0.0 (so bit equality is ``==`` on finite numbers)."""
+    n, p = B.shape
+    size = 1
+    while size < 2 * n:
+        size *= 2
+    mask = np.uint64(size - 1)
+    table = np.full(size, -1, dtype=np.int64)
+    first = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        h = np.uint64(0x9E3779B97F4A7C15)
+        for j in range(p):  # splitmix64-style mixing of each word
+            h = (h ^ B[i, j]) * np.uint64(0xBF58476D1CE4E5B9)
+            h ^= h >> np.uint64(31)
+        s = (h * np.uint64(0x94D049BB133111EB)) >> np.uint64(17)
+        while True:
+            e = table[np.int64(s & mask)]
+            if e < 0:
+                table[np.int64(s & mask)] = i
+                first[i] = i
+                break
+            same = True
+            for j in range(p):
+                if B[e, j] != B[i, j]:
+                    same = False
+                    break
+            if same:
+                first[i] = e
+                break
+            s += np.uint64(1)
+    return first
