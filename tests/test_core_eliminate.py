@@ -381,6 +381,25 @@ def test_eliminate_cell_is_the_elimination_then_relocation(ratio):
     np.testing.assert_array_equal(keep, ref)
 
 
+def test_eliminate_cell_with_copies_and_lone_points_is_the_elimination_then_relocation():
+    """The relocation starts from the elimination's reps (each point's nearest point left); exact copies and
+    points with no point left within reach have none and are searched: the same result as from scratch."""
+    P = sheet(4000, seed=23)
+    P = np.concatenate([P, P[::37], P[:5] + [50.0, 0.0, 0.0]])  # copies; five points far from the rest
+    r_max = float(elimination_radius(point_areas(P)[0], 1200, weight=point_areas(P)[1]))
+    core, halo = P[P[:, 0] < 0.6], P[P[:, 0] >= 0.6]
+    rng = np.random.default_rng(3)
+    decided = rng.random(len(halo)) < 0.5
+    halo_keep = decided & (rng.random(len(halo)) < 0.3)
+    count = 900
+    keep = eliminate_cell(core, count, r_max, halo=halo, decided=decided, halo_keep=halo_keep)
+    prio, left = eliminate_order(core, r_max=r_max, halo=halo[~decided], fixed=halo[decided & halo_keep],
+                                 gone=halo[decided & ~halo_keep], floor=count, halo_left=True)
+    hk = halo_keep.copy()
+    hk[~decided] = left
+    np.testing.assert_array_equal(keep, relocate(core, keep_lowest(prio, count), r_max, halo=halo, halo_keep=hk))
+
+
 def test_eliminate_cell_checks_its_masks():
     P = sheet(200)
     with pytest.raises(InvalidParameterError, match=r"decided must be a bool mask of shape \(10,\)"):

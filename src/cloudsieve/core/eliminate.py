@@ -173,7 +173,8 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
 
 def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric, entropy,
                      floor, threads, gone=None, halo_left=False) -> tuple:
-    """:func:`eliminate_order`, the grid of its points (None when there is none), the halo points left."""
+    """:func:`eliminate_order`, the grid of its points (None when there is none), the halo points left, each
+    grid row's nearest point left (-1: not known; None without the coverage term)."""
     pts = check_points(points)
     n = len(pts)
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
@@ -202,7 +203,7 @@ def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha
     else:
         r_max = check_r_max(r_max)
     if n == 0:
-        return np.zeros(0), None, np.ones(len(hal), dtype=bool)
+        return np.zeros(0), None, np.ones(len(hal), dtype=bool), None
     rank = None
     if entropy > 0:
         if dh is None:
@@ -239,7 +240,7 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
         grid = CellGrid(allp, 0.0)
         out = np.zeros(len(allp))
         out[grid.order[grid.copy]] = np.inf
-        return out[:n], None, np.isfinite(out[n : n + nh]) if nh else np.ones(0, dtype=bool)
+        return out[:n], None, np.isfinite(out[n : n + nh]) if nh else np.ones(0, dtype=bool), None
     allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
     two_r = rho = 2.0 * r_max
     if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
@@ -253,7 +254,7 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     gone_rep = np.full(len(allp), -1, dtype=np.int64)
     if len(gon) and coverage:  # the gone points: represented by their nearest alive point
         rows = np.flatnonzero(src >= n + nh + nf)
-        gone_rep[rows] = _kg.nearest_kept(*grid.args(), (state != 0).astype(np.uint8), src)[rows]
+        gone_rep[rows] = _kg.nearest_kept(*grid.args(), (state != 0).astype(np.uint8), src, rows)
     scale = np.ones(len(allp))
     imp2 = np.ones(len(allp))
     if geometric > 0:
@@ -276,7 +277,10 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     left = np.isnan(out[n : n + nh]) & ~copy[n : n + nh]
     out = out[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out, (grid if rho == two_r else None), left
+    # each grid row's rep at the stop: the nearest point left (module .kernels.cover), -1 for exact copies
+    # and points none was within reach of
+    rep = links[:, 2].astype(np.int64) if coverage else None
+    return out, (grid if rho == two_r else None), left, rep
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
@@ -332,15 +336,16 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else check_r_max(r_max)
     opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
             "entropy": 0.0} | options
-    prio, grid, _ = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
-                                  opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target, threads)
+    prio, grid, _, rep = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
+                                       opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target,
+                                       threads)
     keep = keep_lowest(prio, target)
     if opts["fixed"] is not None:  # the grid holds the fixed points too: relocation runs without them
         grid = None
     if relocate_steps and math.isfinite(r_max) and target:
         with numba_threads(threads):
             keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps),
-                                   grid)
+                                   grid, None if grid is None else rep)
     return np.flatnonzero(keep).astype(np.int64)
 
 
@@ -390,8 +395,9 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     nfix = int((dec & hk).sum())
     hp = hal[perm]
     with numba_threads(threads):
-        prio, grid, left = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max, ALPHA,
-                                  True, 0.0, None, 0.0, int(count))
+        prio, grid, left, rep = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max,
+                                       ALPHA, True, 0.0, None, 0.0, int(count))
         keep = keep_lowest(prio, int(count))
         kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
-        return relocate_points(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid)
+        # the points left are the kept ones: the reps are the relocation's first nearest kept points
+        return relocate_points(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid, rep)

@@ -96,10 +96,12 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
         return relocate_points(pts, kp, hal, hk, r_max, int(iterations))
 
 
-def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None) -> np.ndarray:
+def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None, near=None) -> np.ndarray:
     """:func:`relocate` on valid arrays (no checks): pts (n, 3), kp (n,) bool, hal (h, 3), hk (h,) bool,
     r_max > 0 finite; ``grid``: a :class:`.cellgrid.CellGrid` of ``[pts, hal]`` with cell side 2 r_max
-    (the elimination's), or None to build one."""
+    (the elimination's), or None to build one; ``near`` (with ``grid``): per grid row, its nearest kept
+    point as the elimination stopped with these kept points found it (:func:`.kernels.grid.nearest_kept`'s
+    answer), -1 where unknown (searched here)."""
     n = len(pts)
     allp = np.concatenate([pts, hal]) if len(hal) else pts
     if grid is None:  # else the grid the elimination built on the same points and cell side
@@ -108,8 +110,13 @@ def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None) -> np.ndarra
     kept = np.concatenate([kp, hk])[src].astype(np.uint8)
     movable = (src < n).astype(np.uint8)
     movable[grid.copy] = 0
-    for _ in range(iterations):
-        near = _kg.nearest_kept(*grid.args(), kept, src)
+    for step in range(iterations):
+        if step == 0 and near is not None:
+            near = near.copy()
+            rows = np.flatnonzero(near < 0)
+            near[rows] = _kg.nearest_kept(*grid.args(), kept, src, rows)
+        else:
+            near = _kg.nearest_kept(*grid.args(), kept, src, np.arange(len(src)))
         new = _ke.relocate(grid.P, near, kept, movable, src, r_max * r_max)
         if np.array_equal(new, kept):
             break

@@ -145,11 +145,10 @@ def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
 
 
 @njit(cache=True, parallel=True)
-def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie):
-    """Nearest kept point (kept != 0) of every point (equal distances: lower ``tie``), -1 when none is in
-    its 27 cells."""
-    n = len(P)
-    out = np.empty(n, dtype=np.int64)
-    for p in prange(n):
-        out[p] = nearest(p, -1, P, cell, cstart, nstart, ncells, kept, tie)[0]
+def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
+    """Nearest kept point (kept != 0) of each point of ``rows`` (equal distances: lower ``tie``), -1 when
+    none is in its 27 cells."""
+    out = np.empty(len(rows), dtype=np.int64)
+    for u in prange(len(rows)):
+        out[u] = nearest(rows[u], -1, P, cell, cstart, nstart, ncells, kept, tie)[0]
     return out
