@@ -185,8 +185,14 @@ def clear_derived(store) -> None:
 
 
 def region_block(cell_size: int) -> int:
-    """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 16."""
-    return 1 << max(10, min(16, int(math.log2(max(1, cell_size // 16)))))
+    """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 4, in [2^10, 2^16].
+
+    A cell's region is padded to whole chunks (unwritten chunks take no
+    space) and each chunk is a file: with cell_size / 16 (4,096 for cells of
+    100,000 points) writing a cell's keep mask took 16 ms for 27 files, with
+    cell_size / 4 (16,384) 5 ms for 7 (measured, lz4 blosc on local disk).
+    """
+    return 1 << max(10, min(16, int(math.log2(max(1, cell_size // 4)))))
 
 
 def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
