@@ -179,6 +179,25 @@ def test_the_stored_bands_give_the_halo_of_the_whole_cells(reference):
             np.testing.assert_array_equal(a, b)
 
 
+def test_band_mask_is_the_union_of_the_halo_masks():
+    """The compiled band (all bisector planes in one pass) against halo_mask plane by plane, with points
+    moved onto the margin of a plane."""
+    rng = np.random.default_rng(11)
+    for trial in range(100):
+        centers = {k: rng.random(3) * 100 for k in range(8)}
+        z = rng.random((int(rng.integers(0, 2000)), 3)) * 100
+        margin = float(rng.random() * 10)
+        deps = [int(d) for d in rng.choice(np.arange(1, 8), size=int(rng.integers(0, 7)), replace=False)]
+        if len(z) and deps:
+            u = (centers[0] - centers[deps[0]]) / np.linalg.norm(centers[0] - centers[deps[0]])
+            d = H.halo_distance(z[:50], centers[deps[0]], centers[0])
+            z[:50] -= np.outer(d - margin, u)
+        expected = np.zeros(len(z), dtype=bool)
+        for i in deps:
+            expected |= H.halo_mask(z, centers, i, 0, margin)
+        np.testing.assert_array_equal(H.band_mask(z, centers, 0, deps, margin), expected)
+
+
 def test_a_partition_for_another_count_is_not_reused(reference, scan, tmp_path):
     _, _, ref_store = reference
     store = tmp_path / "w.zarr"

@@ -121,10 +121,17 @@ def band_mask(z: np.ndarray, centers: dict, source: int, dependents, margin: flo
     -------
     ndarray of shape (n,), bool
     """
-    out = np.zeros(len(z), dtype=bool)
-    for i in dependents:
-        out |= halo_mask(z, centers, int(i), source, margin)
-    return out
+    from ..core.kernels.bisector import within_any
+
+    deps = [int(i) for i in dependents]
+    if not deps or not len(z):
+        return np.zeros(len(z), dtype=bool)
+    ci = np.array([centers[i] for i in deps], dtype=np.float64)
+    cj = np.asarray(centers[source], dtype=np.float64)
+    diff = cj - ci  # as halo_distance computes them, plane by plane
+    mid = (ci + cj) * 0.5
+    norm = np.sqrt((diff * diff).sum(axis=-1))
+    return within_any(np.ascontiguousarray(z, dtype=np.float64), mid, diff, norm, float(margin))
 
 
 def read_band_halo(group, sources: dict[int, int], centers, cell: int, margin: float, prefix: str = "simplify/band"):

@@ -1,0 +1,28 @@
+"""Compiled kernel of the eliminate rule's bands: distances to bisector planes (numba; private).
+
+Written here because numpy computes one plane at a time with two (n, 3)
+temporaries each (18 ms for a 100,000-point cell with its 6 readers,
+measured); one pass over the points does all planes (~1 ms). The arithmetic
+is :func:`cloudsieve.engine.halo.halo_distance`'s, in its order, so the
+masks are the same point for point.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+
+@njit(cache=True)
+def within_any(z, mid, diff, norm, margin):
+    """Which rows of z (n, 3) have ((z - mid[q]) . diff[q]) / norm[q] <= margin for some plane q."""
+    n = len(z)
+    out = np.zeros(n, dtype=np.bool_)
+    for i in range(n):
+        for q in range(len(norm)):
+            d = (z[i, 0] - mid[q, 0]) * diff[q, 0] + (z[i, 1] - mid[q, 1]) * diff[q, 1]
+            d = d + (z[i, 2] - mid[q, 2]) * diff[q, 2]
+            if d / norm[q] <= margin:
+                out[i] = True
+                break
+    return out
