@@ -135,6 +135,24 @@ def test_resume_after_a_crash_mid_pass(reference, scan, tmp_path, crash):
     assert (s.cells_reused, s.cells_computed) == (done_before, p - done_before)
 
 
+def test_resume_over_a_store_of_another_chunk_layout_starts_the_cells_again(reference, scan, tmp_path):
+    """A store whose cell-ordered arrays have another chunk (an earlier version's layout) is not trusted, even
+    with every cell marked done: the cells run again, to the same bytes."""
+    ref, ref_summary, ref_store = reference
+    store = tmp_path / "w.zarr"
+    shutil.copytree(ref_store, store)
+    st = PointStore.open(str(store), "r+")
+    kc = st.group["simplify/keep_cells"]
+    shape, chunk = kc.shape, kc.chunks[0]
+    st.delete_array("simplify/keep_cells")
+    st.create_array("simplify/keep_cells", shape=shape, dtype="bool", chunks=(2 * chunk,), fill_value=False)
+    st.group["simplify/done"][:] = np.ones(ref_summary.cells, dtype=np.uint8)
+    out = tmp_path / "resumed.laz"
+    s = simplify(scan, out, scheduler="sync", ratio=0.2, store=store, resume=True, **KW)
+    assert digest(out) == digest(ref)
+    assert (s.cells_reused, s.cells_computed) == (0, ref_summary.cells)
+
+
 def test_resume_after_a_crash_mid_colour(reference, scan, tmp_path):
     """Pass 2 crashed inside a colour: the lower colours done, half of this one; the rest reruns to the same bytes."""
     ref, ref_summary, ref_store = reference

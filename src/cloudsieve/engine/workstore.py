@@ -215,7 +215,11 @@ def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
 def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray) -> None:
     """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (a resumed run)."""
     g = store.group
-    if "simplify/keep_cells" in g and g["simplify/keep_cells"].shape == (total,) and "simplify/regions" in g:
+    # the same layout: length, chunk and regions (a store of a version with another chunk starts again)
+    same = ("simplify/keep_cells" in g and "simplify/regions" in g and g["simplify/keep_cells"].shape == (total,)
+            and tuple(g["simplify/keep_cells"].chunks) == (block,)
+            and np.array_equal(np.asarray(g["simplify/regions"][:]), np.asarray(starts, dtype=np.int64)))
+    if same:
         if "simplify/duplicates" not in g:  # a store of a version before the count (its done cells count 0)
             store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
         if "simplify/share" not in g:  # a store of a version before the shares: its cells start again
