@@ -24,7 +24,8 @@ elimination per cell:
 3. **the elimination** (:func:`apply_task`), colour by colour
    (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
    halo never share a colour; one runner call, in which each cell waits only
-   for the cells of lower colours in its halo): each cell reads its halo from its sources' bands
+   for the cells of lower colours in its halo): each cell reads its halo
+   from its sources' bands
    (:func:`~cloudsieve.engine.halo.read_band_halo`: the same points as
    from the whole cells) and runs
    :func:`~cloudsieve.core.eliminate.eliminate_cell`: the elimination
@@ -331,7 +332,7 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
     # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it
-    # reads their results), not once the whole lower colours are: no worker waits at a colour's end
+    # reads their results), not once the whole lower colours are
     ordered = [j for c in range(int(colours.max()) + 1 if len(colours) else 0)
                for j in largest_first(part, [j for j in todo if colours[j] == c])]
     tasks = cell_tasks(store, part, regions, ordered, params, runner.task_threads, halo=True)
