@@ -400,6 +400,26 @@ def test_eliminate_cell_with_copies_and_lone_points_is_the_elimination_then_relo
     np.testing.assert_array_equal(keep, relocate(core, keep_lowest(prio, count), r_max, halo=halo, halo_keep=hk))
 
 
+@pytest.mark.parametrize("n, q, sample", [(9, 0, 50), (2000, 0, 50_000), (3000, 400, 1000), (500, 300, 200)])
+def test_point_areas_are_those_of_the_kd_tree(n, q, sample):
+    """The areas come from the compiled k-NN kernel: pi r_8^2 / 8 with r_8 cKDTree's 9th distance (self
+    included), bit for bit, with copies, a context and sampling."""
+    rng = np.random.default_rng(n + q)
+    pts = np.round(rng.random((n, 3)) * [50, 50, 3], 1)
+    pts[rng.integers(0, n, n // 5)] = pts[rng.integers(0, n, n // 5)]  # exact copies
+    ctx = np.round(rng.random((q, 3)) * [50, 50, 3], 1)
+    areas, weight = point_areas(pts, context=ctx if q else None, sample=sample, seed=5)
+    if n + q > sample:  # the seeded sample point_areas documents
+        pick = np.sort(np.random.default_rng(5).choice(n + q, sample, replace=False))
+        own, rate = pick[pick < n], sample / (n + q)
+        allp = np.concatenate([pts[own], ctx[pick[pick >= n] - n]])
+    else:
+        own, rate, allp = np.arange(n), 1.0, np.concatenate([pts, ctx])
+    d = cKDTree(allp).query(allp[: len(own)], k=9)[0][:, 8]
+    assert areas.tolist() == (np.pi * np.square(d) / 8 * rate).tolist()
+    assert weight == n / len(own)
+
+
 def test_eliminate_cell_checks_its_masks():
     P = sheet(200)
     with pytest.raises(InvalidParameterError, match=r"decided must be a bool mask of shape \(10,\)"):

@@ -20,10 +20,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..errors import InvalidParameterError
 from .cellgrid import check_points
+from .kernels import knn as _kknn
 
 __all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
 
@@ -88,7 +88,12 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, w
         return np.zeros(0), 1.0
     if len(allp) < k + 1:
         return np.full(m, math.inf), n / m
-    d = cKDTree(allp).query(allp[:m], k=k + 1, workers=workers)[0][:, k]
+    # the k-th nearest other point: the compiled k-NN kernel (one cluster: the whole sample), the distances of
+    # cKDTree bit for bit (its k + 1-th, self included) in about two thirds of its time on one thread
+    query = np.zeros(len(allp), dtype=bool)
+    query[:m] = True
+    d = _kknn.knn_unchecked(np.ascontiguousarray(allp), np.array([0, len(allp)], dtype=np.int64),
+                            np.array([k], dtype=np.int64), query, None if workers < 0 else workers)[0][:m, k - 1]
     return np.pi * np.square(d) / k * rate, n / m  # the sample is thinner by `rate`
 
 
