@@ -37,10 +37,14 @@ def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
     -------
     ndarray of shape (n,), float64
     """
-    diff = cj - ci
-    mid = (ci + cj) * 0.5
-    norm = np.sqrt((diff * diff).sum(axis=-1))
+    mid, diff, norm = _bisector(ci, cj)
     return ((z - mid) * diff).sum(axis=-1) / norm
+
+
+def _bisector(ci, cj):
+    """Midpoint, normal c_j - c_i and its length of the bisector plane(s) of c_i and c_j (broadcast)."""
+    diff = cj - ci
+    return (ci + cj) * 0.5, diff, np.sqrt((diff * diff).sum(axis=-1))
 
 
 def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin: float) -> np.ndarray:
@@ -126,11 +130,8 @@ def band_mask(z: np.ndarray, centers: dict, source: int, dependents, margin: flo
     deps = [int(i) for i in dependents]
     if not deps or not len(z):
         return np.zeros(len(z), dtype=bool)
-    ci = np.array([centers[i] for i in deps], dtype=np.float64)
-    cj = np.asarray(centers[source], dtype=np.float64)
-    diff = cj - ci  # as halo_distance computes them, plane by plane
-    mid = (ci + cj) * 0.5
-    norm = np.sqrt((diff * diff).sum(axis=-1))
+    mid, diff, norm = _bisector(np.array([centers[i] for i in deps], dtype=np.float64),
+                                np.asarray(centers[source], dtype=np.float64))  # halo_distance's planes
     return within_any(np.ascontiguousarray(z, dtype=np.float64), mid, diff, norm, float(margin))
 
 
