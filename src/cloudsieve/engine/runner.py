@@ -249,9 +249,12 @@ class Runner:
         tag = stage.replace(" ", "").replace(":", "-")
         futures: list = []
         for i, a in enumerate(args):
-            extra = [futures[j] for j in deps[i]]  # the scheduler starts the task once these are done
-            call = (_after, func, len(a), *a, *extra) if extra else (func, *a)
-            futures.append(self.client.submit(*call, key=f"cloudsieve-{tag}-{i}-{token}", pure=False))
+            key = f"cloudsieve-{tag}-{i}-{token}"
+            if deps[i]:  # futures as arguments: the scheduler starts the task once they are done
+                f = self.client.submit(_after, func, len(a), *a, *[futures[j] for j in deps[i]], key=key, pure=False)
+            else:
+                f = self.client.submit(func, *a, key=key, pure=False)
+            futures.append(f)
         try:
             for _ in as_completed(futures):
                 update(1)
@@ -273,9 +276,11 @@ class Runner:
         tasks: list = []
         for i, a in enumerate(args):
             key = f"cloudsieve-{func.__name__}-{token}-{last - i:09d}"
-            extra = [tasks[j] for j in deps[i]]
-            call = (dask.delayed(_after, pure=False), func, len(a)) if extra else (dask.delayed(func, pure=False),)
-            tasks.append(call[0](*call[1:], *a, *extra, dask_key_name=key))
+            if deps[i]:  # delayed arguments: dependencies of the graph
+                t = dask.delayed(_after, pure=False)(func, len(a), *a, *[tasks[j] for j in deps[i]], dask_key_name=key)
+            else:
+                t = dask.delayed(func, pure=False)(*a, dask_key_name=key)
+            tasks.append(t)
         keys = {t.key for t in tasks}
 
         class _Count(Callback):
