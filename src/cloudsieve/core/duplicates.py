@@ -11,7 +11,8 @@ point is kept too). Their count is reported by the engine's summary.
   validate; a hash table over the rows, :mod:`.kernels.copies`);
 - :func:`sorted_copies`: the same on rows already in canonical
   (lexicographic, stable) order, where copies are adjacent (a kernel, no
-  checks).
+  checks), and :func:`first_rows`: :func:`first_copies` on valid points
+  (no checks).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 from ._validation import check_points
 from .kernels import copies as _kc
 
-__all__ = ["exact_copies", "first_copies", "sorted_copies"]
+__all__ = ["exact_copies", "first_copies", "first_rows", "sorted_copies"]
 
 
 def sorted_copies(P: np.ndarray) -> np.ndarray:
@@ -61,7 +62,7 @@ def exact_copies(points) -> np.ndarray:
     >>> exact_copies([[0, 0, 0], [1, 0, 0], [0, 0, 0]]).tolist()
     [False, False, True]
     """
-    first = _first(check_points(points))
+    first = first_rows(check_points(points))
     return first != np.arange(len(first))
 
 
@@ -83,10 +84,10 @@ def first_copies(points) -> np.ndarray:
     >>> first_copies([[0, 0, 0], [1, 0, 0], [0, 0, 0]]).tolist()
     [0, 1, 0]
     """
-    return _first(check_points(points))
+    return first_rows(check_points(points))
 
 
-def _first(pts: np.ndarray) -> np.ndarray:
+def first_rows(pts: np.ndarray) -> np.ndarray:
     """:func:`first_copies` of valid points: a hash table over the rows' bits (-0.0 as +0.0)."""
     if len(pts) == 0:
         return np.zeros(0, dtype=np.int64)
