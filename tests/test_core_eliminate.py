@@ -229,6 +229,18 @@ def test_gone_points_continue_the_elimination_where_it_stopped(seed):
     assert np.array_equal(eliminate_order(P[left], r_max=r_max, gone=P[gone], coverage=False), plain)
 
 
+def test_copies_of_gone_points_weigh_on_nobody():
+    """Exact copies of gone points are not represented (like copies among the points): a pile of copies of
+    gone points changes no priority. Represented, each copy added its squared distance to its rep's c(x)."""
+    P = sheet(400, seed=22)
+    r_max = 0.04
+    order = removal_order(eliminate_order(P, r_max=r_max))
+    gone, left = np.sort(order[:250]), np.sort(order[250:])
+    base = eliminate_order(P[left], r_max=r_max, gone=P[gone])
+    piles = np.concatenate([P[gone], np.repeat(P[gone[:5]], 300, axis=0), P[left[:20]]])
+    assert np.array_equal(eliminate_order(P[left], r_max=r_max, gone=piles), base)
+
+
 def test_halo_cells_have_no_seam():
     """Two cells with halos, one global threshold: kept density near the border as inside."""
     rng = np.random.default_rng(14)

@@ -18,7 +18,7 @@ from .kernels import grid as _kg
 
 __all__ = ["CellGrid", "check_points"]
 
-_RUN = 64  # longest run of one cell sorted by insertion; longer: one lexsort
+_RUN = 64  # longest run of one cell sorted by insertion; longer (piles of copies, dense spots): a lexsort each
 
 
 def check_points(points, name: str = "points") -> np.ndarray:
@@ -52,6 +52,8 @@ class CellGrid:
         occupied cells among the 27 around each cell.
     copy : ndarray of shape (n,), bool
         Rows equal to the previous row (exact copies; the first of each group is not a copy).
+    lead : ndarray of shape (n,), int64
+        The first row of each row's group of exact copies (the row itself when it is no copy).
     h : float
         The cell side used.
     """
@@ -66,10 +68,12 @@ class CellGrid:
         new = np.ones(len(sc), dtype=bool)
         new[1:] = sc[1:] != sc[:-1]
         cstart = np.append(np.flatnonzero(new), len(sc)).astype(np.int64)
-        if np.diff(cstart).max(initial=0) > _RUN:
-            order = np.lexsort((np.arange(len(sc)), points[:, 2], points[:, 1], points[:, 0], codes))
-        else:
-            _kg.sort_cells(points, codes, order)
+        _kg.sort_cells(points, codes, order, _RUN)  # the runs of at most _RUN points; the longer ones here
+        size = np.diff(cstart)
+        for a, b in zip(cstart[:-1][size > _RUN].tolist(), cstart[1:][size > _RUN].tolist()):
+            run = np.sort(order[a:b])  # by index, then (stable) by coordinates
+            q = points[run]
+            order[a:b] = run[np.lexsort((q[:, 2], q[:, 1], q[:, 0]))]
         self.order = order.astype(np.int64)
         self.P = np.ascontiguousarray(points[order])
         self.cell = (np.cumsum(new) - 1).astype(np.int64)
@@ -78,6 +82,22 @@ class CellGrid:
         self.h = h
         self.copy = np.zeros(len(sc), dtype=bool)
         self.copy[1:] = ~new[1:] & (self.P[1:] == self.P[:-1]).all(axis=1)
+        self.lead = np.maximum.accumulate(np.where(self.copy, 0, np.arange(len(sc), dtype=np.int64)))
+
+    def nearest_kept(self, kept: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """:func:`.kernels.grid.nearest_kept` of ascending ``rows``, searched once per group of exact copies.
+
+        The rows of a group have the same coordinates and so the same answer
+        (the search excludes no row); searched row by row, a pile of m copies
+        in one grid cell costs m^2 distances (autzen_trim holds piles of
+        thousands). kept (n,) uint8.
+        """
+        lead = self.lead[rows]
+        first = np.ones(len(lead), dtype=bool)  # lead is non-decreasing along ascending rows
+        first[1:] = lead[1:] != lead[:-1]
+        if first.all():
+            return _kg.nearest_kept(*self.args(), kept, self.order, rows)
+        return _kg.nearest_kept(*self.args(), kept, self.order, lead[first])[np.cumsum(first) - 1]
 
     def args(self) -> tuple:
         """(P, cell, cstart, nstart, ncells): the grid arguments of every kernel."""

@@ -64,7 +64,6 @@ from .cellgrid import CellGrid, check_points
 from .entropy import score_points
 from .kernels import eliminate as _ke
 from .kernels import geometry as _kgeo
-from .kernels import grid as _kg
 from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relocate_points
@@ -139,6 +138,8 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         but each is represented from the start by its nearest point (of
         ``points``, ``halo``, ``fixed``; within 2 r_max), as if it had just
         gone, so the coverage term sees the area they leave uncovered.
+        Exact copies of a point (of any of the four) are not: like the
+        copies among ``points``, they never weigh.
     alpha : float
         Exponent of the crowding weight, > 0.
     coverage : bool
@@ -252,9 +253,10 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     state = np.where(src < n + nh, 1, np.where(src < n + nh + nf, 2, 0)).astype(np.uint8)
     state[grid.copy] = 0
     gone_rep = np.full(len(allp), -1, dtype=np.int64)
-    if len(gon) and coverage:  # the gone points: represented by their nearest alive point
-        rows = np.flatnonzero(src >= n + nh + nf)
-        gone_rep[rows] = _kg.nearest_kept(*grid.args(), (state != 0).astype(np.uint8), src, rows)
+    if len(gon) and coverage:  # the gone points: represented by their nearest alive point; their exact
+        # copies are not (they weigh on nobody, as the cell that removed them counted them)
+        rows = np.flatnonzero((src >= n + nh + nf) & ~grid.copy)
+        gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)
     scale = np.ones(len(allp))
     imp2 = np.ones(len(allp))
     if geometric > 0:

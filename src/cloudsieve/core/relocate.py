@@ -17,7 +17,6 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .kernels import eliminate as _ke
-from .kernels import grid as _kg
 
 __all__ = ["RELOCATE_STEPS", "relocate", "relocate_points", "check_r_max", "numba_threads"]
 
@@ -114,9 +113,9 @@ def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None, near=None) -
         if step == 0 and near is not None:
             near = near.copy()
             rows = np.flatnonzero(near < 0)
-            near[rows] = _kg.nearest_kept(*grid.args(), kept, src, rows)
+            near[rows] = grid.nearest_kept(kept, rows)
         else:
-            near = _kg.nearest_kept(*grid.args(), kept, src, np.arange(len(src)))
+            near = grid.nearest_kept(kept, np.arange(len(src)))
         new = _ke.relocate(grid.P, near, kept, movable, src, r_max * r_max)
         if np.array_equal(new, kept):
             break

@@ -64,14 +64,18 @@ def _less(P, a, b):
 
 
 @njit(cache=True)
-def sort_cells(P, codes, order):
-    """Inside each run of equal codes in ``order``, sort by coordinates then index (insertion sort, in place)."""
+def sort_cells(P, codes, order, longest):
+    """Inside each run of equal codes in ``order`` of at most ``longest`` points, sort by coordinates then
+    index (insertion sort, in place); longer runs are left as they are."""
     n = len(order)
     s = 0
     while s < n:
         e = s + 1
         while e < n and codes[order[e]] == codes[order[s]]:
             e += 1
+        if e - s > longest:
+            s = e
+            continue
         for i in range(s + 1, e):
             v = order[i]
             j = i - 1
