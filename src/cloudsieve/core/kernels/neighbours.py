@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 from numba import njit, prange
 
@@ -110,6 +111,26 @@ def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, npt
         w[i] = s
 
 
+@njit(cache=True)
+def _ties_by_tie(o, d2, nbr, s, tie):
+    """In the positions o sorted by d2, order each run of equal distances by tie (insertion sort; runs are
+    short)."""
+    k = len(o)
+    a = 0
+    while a < k:
+        b = a + 1
+        while b < k and d2[o[b]] == d2[o[a]]:
+            b += 1
+        for u in range(a + 1, b):
+            v = o[u]
+            q = u - 1
+            while q >= a and tie[nbr[s + o[q]]] > tie[nbr[s + v]]:
+                o[q + 1] = o[q]
+                q -= 1
+            o[q + 1] = v
+        a = b
+
+
 @njit(cache=True, parallel=True)
 def sort_lists(P, nptr, nbr, tie, soff):
     """Fill ``soff`` (nptr[-1],) with each list's positions sorted by (squared distance, tie): nearest first."""
@@ -127,19 +148,7 @@ def sort_lists(P, nptr, nbr, tie, soff):
             dz = P[j, 2] - P[p, 2]
             d2[t] = dx * dx + dy * dy + dz * dz
         o = np.argsort(d2, kind="mergesort")
-        a = 0
-        while a < k:  # runs of equal distances: by tie (insertion sort; runs are short)
-            b = a + 1
-            while b < k and d2[o[b]] == d2[o[a]]:
-                b += 1
-            for u in range(a + 1, b):
-                v = o[u]
-                q = u - 1
-                while q >= a and tie[nbr[s + o[q]]] > tie[nbr[s + v]]:
-                    o[q + 1] = o[q]
-                    q -= 1
-                o[q + 1] = v
-            a = b
+        _ties_by_tie(o, d2, nbr, s, tie)
         for t in range(k):
             soff[s + t] = o[t]
 
@@ -167,6 +176,67 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     return best, bd
 
 
+@njit(cache=True)
+def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, tie, nearest_first, start, k, nptr,
+                   nbr, low, term, soff, dd, w):
+    """:func:`count_lists` + :func:`fill_lists` + :func:`sort_lists` in one sequential pass (one thread):
+    each distance computed once, each list sorted while its entries are at hand (insertion sort by
+    (squared distance, tie): the lists are short, 6 entries on average at 50% kept; longer than 32 as
+    :func:`sort_lists` does). The same arrays bit for bit. Fills rows from ``start``, entries from ``k``,
+    into buffers of one capacity (``dd`` the entries' squared distances, scratch; ``soff`` uint16) until a
+    row does not fit; returns (the first row not filled, its first entry). The caller grows the buffers
+    and goes on: growing them here makes every store slower."""
+    n = len(P)
+    cap = len(nbr)
+    r2 = two_r * two_r
+    inv2r = 1.0 / two_r
+    for i in range(start, n):
+        nptr[i] = k
+        if state[i] == 0:
+            continue
+        c = cell[i]
+        s = 0.0
+        for t in range(nstart[c], nstart[c + 1]):
+            cc = ncells[t]
+            for j in range(cstart[cc], cstart[cc + 1]):
+                if j == i or state[j] == 0:
+                    continue
+                dx = P[j, 0] - P[i, 0]
+                dy = P[j, 1] - P[i, 1]
+                dz = P[j, 2] - P[i, 2]
+                d2 = dx * dx + dy * dy + dz * dz
+                if d2 < r2:
+                    if k == cap:
+                        return i, nptr[i]
+                    u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
+                    s += u
+                    term[k] = u
+                    nbr[k] = j
+                    low[k] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
+                    dd[k] = d2
+                    k += 1
+        w[i] = s
+        b = nptr[i]
+        m = k - b
+        if not nearest_first or m == 0:
+            continue
+        if m > 32:  # long lists (dense spots): sort_lists' way
+            o = np.argsort(dd[b:k], kind="mergesort")
+            _ties_by_tie(o, dd[b:k], nbr, b, tie)
+            for t in range(m):
+                soff[b + t] = o[t]
+            continue
+        for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]
+            q = t - 1
+            while q >= 0 and (dd[b + soff[b + q]] > dd[b + t] or (dd[b + soff[b + q]] == dd[b + t]
+                                                                  and tie[nbr[b + soff[b + q]]] > tie[nbr[b + t]])):
+                soff[b + q + 1] = soff[b + q]
+                q -= 1
+            soff[b + q + 1] = t
+    nptr[n] = k
+    return n, k
+
+
 def index_type(*sizes) -> type:
     """int32 when every index fits, else int64."""
     return np.int32 if max(int(s) for s in sizes) < 2**31 else np.int64
@@ -176,6 +246,36 @@ def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ial
     """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
     nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
     exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal distances)."""
+    if numba.get_num_threads() == 1:  # one pass (the engine's cells run one thread each)
+        n = len(P)
+        nptr = np.zeros(n + 1, dtype=np.int64)
+        w = np.zeros(n)
+        cap = 8 * n + 64  # 6 entries a point at 50% kept; more at lower ratios: grown below
+        nbr = np.empty(cap, dtype=index_type(n))
+        low = np.empty(cap, dtype=np.float32)
+        term = np.empty(cap)
+        soff = np.empty(cap if nearest_first else 1, dtype=np.uint16)
+        dd = np.empty(cap)
+        row, k = 0, 0
+        while True:
+            row, k = lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, order,
+                                    nearest_first, row, k, nptr, nbr, low, term, soff, dd, w)
+            if row == n:
+                break
+            cap *= 2
+            nbr, low, term, dd = (np.resize(a, cap) for a in (nbr, low, term, dd))
+            if nearest_first:
+                soff = np.resize(soff, cap)
+        longest = int(np.diff(nptr).max(initial=0))
+        if longest <= 65536:
+            kind = np.uint8 if longest <= 256 else np.uint16
+            soff = soff[:k].astype(kind) if nearest_first else np.zeros(1, dtype=kind)
+            return nptr, nbr[:k].copy(), low[:k].copy(), soff, w, term[:k].copy()
+    return three_pass_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first)
+
+
+def three_pass_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first):
+    """:func:`build_lists` in three parallel passes (count, fill, sort), with several threads."""
     counts = count_lists(P, cell, cstart, nstart, ncells, state, two_r)
     nptr = np.zeros(len(counts) + 1, dtype=np.int64)
     np.cumsum(counts, out=nptr[1:])
