@@ -15,7 +15,8 @@ in each variant:
   weight 0.5;
 - ``geometric``: surface variation importance 0.2 (with ``--geometric``).
 
-Figures, from :func:`cloudsieve.evaluate.evaluate` (``subset=True``): point
+Figures, from :func:`cloudsieve.evaluate.evaluate` (``subset=True``; its ``run_evaluation``, which keeps the
+original's tile meshes between calls): point
 RMS and max (original -> simplified, % of the bounding-box diagonal) and the
 Metro mean (surface level, % of the diagonal).
 
@@ -44,7 +45,7 @@ import numpy as np
 
 from cloudsieve.core import refine_labels
 from cloudsieve.core.eliminate import eliminate
-from cloudsieve.evaluate import evaluate
+from cloudsieve.evaluate.evaluation import run_evaluation
 from cloudsieve.evaluate.baselines import fps_subset, poisson_subset, voxel_subset
 from cloudsieve.io import read_cloud
 
@@ -55,7 +56,7 @@ BASELINES = {"voxel": voxel_subset, "poisson": poisson_subset, "fps": fps_subset
 
 
 def figures(P: np.ndarray, idx: np.ndarray, cache: dict, surface: bool = True) -> dict:
-    rep = evaluate(P, P[idx], subset=True, surface=surface, _surface_cache=cache)
+    rep = run_evaluation(P, P[idx], subset=True, surface=surface, surface_cache=cache)
     out = {"count": int(len(idx)), "rms": rep["point"]["forward"]["rms_pct"],
            "max": rep["point"]["forward"]["max_pct"]}
     if surface:
