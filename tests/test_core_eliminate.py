@@ -412,13 +412,20 @@ def test_eliminate_cell_with_copies_and_lone_points_is_the_elimination_then_relo
     np.testing.assert_array_equal(keep, relocate(core, keep_lowest(prio, count), r_max, halo=halo, halo_keep=hk))
 
 
-@pytest.mark.parametrize("n, q, sample", [(9, 0, 50), (2000, 0, 50_000), (3000, 400, 1000), (500, 300, 200)])
-def test_point_areas_are_those_of_the_kd_tree(n, q, sample):
+@pytest.mark.parametrize("n, q, sample, piles", [(9, 0, 50, 0), (2000, 0, 50_000, 0), (3000, 400, 1000, 0),
+                                                  (500, 300, 200, 0), (3000, 0, 50_000, 1), (3000, 500, 2000, 1)])
+def test_point_areas_are_those_of_the_kd_tree(n, q, sample, piles):
     """The areas come from the compiled k-NN kernel: pi r_8^2 / 8 with r_8 cKDTree's 9th distance (self
-    included), bit for bit, with copies, a context and sampling."""
+    included), bit for bit, with copies (a pile of 600 at one spot, groups of 2 to 10 around it), a context
+    and sampling."""
     rng = np.random.default_rng(n + q)
     pts = np.round(rng.random((n, 3)) * [50, 50, 3], 1)
     pts[rng.integers(0, n, n // 5)] = pts[rng.integers(0, n, n // 5)]  # exact copies
+    if piles:  # searched once per distinct point: a pile, and copies fewer than, as many as, more than k
+        pts[:600] = pts[600]
+        for size in range(2, 11):
+            pts[700 + 20 * size : 700 + 20 * size + size] = pts[699 + 20 * size]
+        pts = pts[rng.permutation(n)]
     ctx = np.round(rng.random((q, 3)) * [50, 50, 3], 1)
     areas, weight = point_areas(pts, context=ctx if q else None, sample=sample, seed=5)
     if n + q > sample:  # the seeded sample point_areas documents
