@@ -294,14 +294,22 @@ def test_grouped_order_is_the_stable_argsort_of_the_morton_keys(seed):
 
 @pytest.mark.parametrize("dim", [1, 2, 3])
 @pytest.mark.parametrize("kind", KINDS)
-def test_scored_lists_match_knn_clusters(dim, kind):
-    """knn_scored_clusters: the distances and lists of knn_clusters, per cluster, copies included."""
+@pytest.mark.parametrize("large", [False, True])
+def test_scored_lists_match_knn_clusters(dim, kind, large):
+    """knn_scored_clusters: the distances and lists of knn_clusters, per cluster, copies included; large:
+    clusters above 2,048 points (their copies are looked for before the k-NN), one with a pile of 700
+    copies of one point, one with a few copies, one with none."""
     rng = np.random.default_rng(dim * 10 + len(kind))
-    n = 2500
+    n = 9000 if large else 2500
     pts = _cloud(rng, kind, n, dim)
     pts[rng.integers(0, n, 40)] = pts[rng.integers(0, n, 40)]  # copies in some clusters
-    lab = rng.integers(0, 14, n)
+    lab = rng.integers(0, 3 if large else 14, n)
     lab[:9] = 99  # a small cluster
+    if large:
+        pile = np.flatnonzero(lab == 0)[:700]
+        pts[pile] = pts[pile[0]]
+        two = np.flatnonzero(lab == 2)
+        pts[two] = _cloud(rng, kind, len(two), dim) + 5.0  # no copies
     inv, order, sizes = group(pts, lab)
     indptr = np.r_[0, np.cumsum(sizes)]
     g, ginv = pts[order], inv[order]

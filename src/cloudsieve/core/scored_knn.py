@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import neighbour_count
+from .duplicates import first_rows
 from .kernels.knn import knn_scored
 from .knn import knn_query, mark_duplicates
 
@@ -23,6 +24,9 @@ __all__ = ["knn_scored_clusters", "groups_to_lists"]
 def _cluster_of(indptr, rows):
     """Cluster id of grouped positions ``rows``."""
     return np.searchsorted(indptr, rows, side="right") - 1
+
+
+_LARGE = 2048  # points of a cluster above which its exact copies are looked for before its k-NN
 
 
 def _copies(pts, order, indptr, rows, dup):
@@ -79,7 +83,18 @@ def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
     kcl = np.where(ok, kc, 0).astype(np.int64)
     koff = np.zeros(len(sizes) + 1, dtype=np.int64)
     np.cumsum(sizes * kcl, out=koff[1:])
-    rk, rk1, nb, flag = knn_scored(pts, order, indptr, kcl, koff, threads)
+    # a cluster holding exact copies is flagged by the kernel after its k-NN search, in which a pile of m
+    # copies costs m^2 distances (60,000 points at one spot: minutes); the large clusters (any big pile is
+    # in one) are checked first, by hashing
+    big = np.flatnonzero((kcl > 0) & (sizes > _LARGE))
+    pre = np.zeros(len(sizes), dtype=bool)
+    if len(big):
+        rows = np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in big])
+        key = np.column_stack([pts[order[rows]], _cluster_of(indptr, rows).astype(np.float64)])
+        copy = first_rows(key) != np.arange(len(rows))
+        pre[np.unique(_cluster_of(indptr, rows[copy]))] = True
+    rk, rk1, nb, flag = knn_scored(pts, order, indptr, np.where(pre, 0, kcl), koff, threads)
+    flag |= pre
     if flag.any():  # score the distinct points of these clusters (m and k follow)
         kcl[flag] = 0
         fl = np.flatnonzero(flag)
