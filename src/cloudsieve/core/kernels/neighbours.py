@@ -1,7 +1,7 @@
 """Compiled kernels of the elimination's neighbour lists (numba; private, inputs assumed valid).
 
-The neighbours of a point within 2 r_max are listed once, in parallel, as a
-CSR (``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
+The neighbours of a point within 2 r_max are listed once (row ranges on
+threads, one pass each: :func:`build_lists`) as a CSR (``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
 walk of :mod:`.grid` (cells in ``ncells`` order, rows ascending inside a
 cell), with ``low`` (float32) a lower bound of each one's crowding term
 (1 - d / (2 r_max)) ** alpha (enough for the upper bounds of the keys the
@@ -20,7 +20,7 @@ import math
 
 import numba
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 from .grid import nearest
 
@@ -54,63 +54,6 @@ def term_weight(i, nptr, nbr, state, term):
     return w
 
 
-@njit(cache=True, parallel=True)
-def count_lists(P, cell, cstart, nstart, ncells, state, two_r):
-    """Length (n,) int64 of each alive point's list (0 for absent points)."""
-    n = len(P)
-    r2 = two_r * two_r
-    out = np.zeros(n, dtype=np.int64)
-    for i in prange(n):
-        if state[i] == 0:
-            continue
-        c = cell[i]
-        k = 0
-        for t in range(nstart[c], nstart[c + 1]):
-            cc = ncells[t]
-            for j in range(cstart[cc], cstart[cc + 1]):
-                if j == i or state[j] == 0:
-                    continue
-                dx = P[j, 0] - P[i, 0]
-                dy = P[j, 1] - P[i, 1]
-                dz = P[j, 2] - P[i, 2]
-                if dx * dx + dy * dy + dz * dz < r2:
-                    k += 1
-        out[i] = k
-    return out
-
-
-@njit(cache=True, parallel=True)
-def fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w, term):
-    """Fill ``nbr``/``low`` (nptr[-1],) of the lists counted by :func:`count_lists`, in grid walk order,
-    and ``w`` (n,) with each alive point's exact crowding sum (:func:`term_weight`'s, bit for bit), and ``term``."""
-    n = len(P)
-    r2 = two_r * two_r
-    inv2r = 1.0 / two_r
-    for i in prange(n):
-        if state[i] == 0:
-            continue
-        c = cell[i]
-        k = nptr[i]
-        s = 0.0
-        for t in range(nstart[c], nstart[c + 1]):
-            cc = ncells[t]
-            for j in range(cstart[cc], cstart[cc + 1]):
-                if j == i or state[j] == 0:
-                    continue
-                dx = P[j, 0] - P[i, 0]
-                dy = P[j, 1] - P[i, 1]
-                dz = P[j, 2] - P[i, 2]
-                d2 = dx * dx + dy * dy + dz * dz
-                if d2 < r2:
-                    u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
-                    s += u
-                    term[k] = u
-                    nbr[k] = j
-                    low[k] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
-                    k += 1
-        w[i] = s
-
-
 @njit(cache=True)
 def _ties_by_tie(o, d2, nbr, s, tie):
     """In the positions o sorted by d2, order each run of equal distances by tie (insertion sort; runs are
@@ -129,28 +72,6 @@ def _ties_by_tie(o, d2, nbr, s, tie):
                 q -= 1
             o[q + 1] = v
         a = b
-
-
-@njit(cache=True, parallel=True)
-def sort_lists(P, nptr, nbr, tie, soff):
-    """Fill ``soff`` (nptr[-1],) with each list's positions sorted by (squared distance, tie): nearest first."""
-    n = len(nptr) - 1
-    for p in prange(n):
-        s, e = nptr[p], nptr[p + 1]
-        k = e - s
-        if k == 0:
-            continue
-        d2 = np.empty(k)
-        for t in range(k):
-            j = nbr[s + t]
-            dx = P[j, 0] - P[p, 0]
-            dy = P[j, 1] - P[p, 1]
-            dz = P[j, 2] - P[p, 2]
-            d2[t] = dx * dx + dy * dy + dz * dz
-        o = np.argsort(d2, kind="mergesort")
-        _ties_by_tie(o, d2, nbr, s, tie)
-        for t in range(k):
-            soff[s + t] = o[t]
 
 
 @njit(cache=True)
@@ -176,22 +97,21 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     return best, bd
 
 
-@njit(cache=True)
-def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, tie, nearest_first, start, k, nptr,
-                   nbr, low, term, soff, dd, w):
-    """:func:`count_lists` + :func:`fill_lists` + :func:`sort_lists` in one sequential pass (one thread):
-    each distance computed once, each list sorted while its entries are at hand (insertion sort by
-    (squared distance, tie): the lists are short, 6 entries on average at 50% kept; longer than 32 as
-    :func:`sort_lists` does). The same arrays bit for bit. Fills rows from ``start``, entries from ``k``,
-    into buffers of one capacity (``dd`` the entries' squared distances, scratch; ``soff`` uint16) until a
-    row does not fit; returns (the first row not filled, its first entry). The caller grows the buffers
-    and goes on: growing them here makes every store slower."""
-    n = len(P)
+@njit(cache=True, nogil=True)
+def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, tie, nearest_first, lo, start, stop,
+                   k, nptr, nbr, low, term, soff, dd, w):
+    """The lists of rows [start, stop) in one pass: each distance computed once, each list sorted while its
+    entries are at hand (insertion sort by (squared distance, tie): the lists are short, 6 entries on
+    average at 50% kept; longer than 32: a merge sort, then ties by tie). Row r's list starts at entry
+    ``nptr[r - lo]`` of the buffers (``dd`` the entries' squared distances, scratch) from entry ``k``,
+    ``w[r]`` its crowding sum. Stops
+    at the first row that does not fit in the buffers: returns (that row, its first entry); the caller
+    grows them and goes on (growing them here made every store slower)."""
     cap = len(nbr)
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
-    for i in range(start, n):
-        nptr[i] = k
+    for i in range(start, stop):
+        nptr[i - lo] = k
         if state[i] == 0:
             continue
         c = cell[i]
@@ -207,7 +127,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                 d2 = dx * dx + dy * dy + dz * dz
                 if d2 < r2:
                     if k == cap:
-                        return i, nptr[i]
+                        return i, nptr[i - lo]
                     u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
                     s += u
                     term[k] = u
@@ -216,11 +136,11 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                     dd[k] = d2
                     k += 1
         w[i] = s
-        b = nptr[i]
+        b = nptr[i - lo]
         m = k - b
         if not nearest_first or m == 0:
             continue
-        if m > 32:  # long lists (dense spots): sort_lists' way
+        if m > 32:  # long lists (dense spots)
             o = np.argsort(dd[b:k], kind="mergesort")
             _ties_by_tie(o, dd[b:k], nbr, b, tie)
             for t in range(m):
@@ -233,8 +153,30 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                 soff[b + q + 1] = soff[b + q]
                 q -= 1
             soff[b + q + 1] = t
-    nptr[n] = k
-    return n, k
+    nptr[stop - lo] = k
+    return stop, k
+
+
+def _rows_lists(args, w, lo, hi, kind, nearest_first):
+    """The lists of rows [lo, hi) (:func:`lists_one_pass`, buffers grown until they fit): local nptr
+    (hi - lo + 1,), nbr, low, term, soff (int32), the longest list."""
+    cap = 8 * (hi - lo) + 64  # 6 entries a point at 50% kept; more at lower ratios: grown below
+    nptr = np.zeros(hi - lo + 1, dtype=np.int64)
+    nbr = np.empty(cap, dtype=kind)
+    low = np.empty(cap, dtype=np.float32)
+    term = np.empty(cap)
+    soff = np.empty(cap if nearest_first else 1, dtype=np.int32)
+    dd = np.empty(cap)
+    row, k = lo, 0
+    while True:
+        row, k = lists_one_pass(*args, nearest_first, lo, row, hi, k, nptr, nbr, low, term, soff, dd, w)
+        if row == hi:
+            break
+        cap *= 2
+        nbr, low, term, dd = (np.resize(a, cap) for a in (nbr, low, term, dd))
+        if nearest_first:
+            soff = np.resize(soff, cap)
+    return nptr, nbr[:k], low[:k], term[:k], soff[: k if nearest_first else 0], int(np.diff(nptr).max(initial=0))
 
 
 def index_type(*sizes) -> type:
@@ -242,51 +184,26 @@ def index_type(*sizes) -> type:
     return np.int32 if max(int(s) for s in sizes) < 2**31 else np.int64
 
 
-def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first):
+def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first, rows=16384):
     """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
     nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
-    exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal distances)."""
-    if numba.get_num_threads() == 1:  # one pass (the engine's cells run one thread each)
-        n = len(P)
-        nptr = np.zeros(n + 1, dtype=np.int64)
-        w = np.zeros(n)
-        cap = 8 * n + 64  # 6 entries a point at 50% kept; more at lower ratios: grown below
-        nbr = np.empty(cap, dtype=index_type(n))
-        low = np.empty(cap, dtype=np.float32)
-        term = np.empty(cap)
-        soff = np.empty(cap if nearest_first else 1, dtype=np.uint16)
-        dd = np.empty(cap)
-        row, k = 0, 0
-        while True:
-            row, k = lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, order,
-                                    nearest_first, row, k, nptr, nbr, low, term, soff, dd, w)
-            if row == n:
-                break
-            cap *= 2
-            nbr, low, term, dd = (np.resize(a, cap) for a in (nbr, low, term, dd))
-            if nearest_first:
-                soff = np.resize(soff, cap)
-        longest = int(np.diff(nptr).max(initial=0))
-        if longest <= 65536:
-            kind = np.uint8 if longest <= 256 else np.uint16
-            soff = soff[:k].astype(kind) if nearest_first else np.zeros(1, dtype=kind)
-            return nptr, nbr[:k].copy(), low[:k].copy(), soff, w, term[:k].copy()
-    return three_pass_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first)
+    exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal
+    distances). Ranges of at least ``rows`` rows run on numba's thread count (:class:`..centres.Chunks`;
+    each row's list depends on nothing else: the same arrays on any thread count)."""
+    from ..centres import Chunks
 
-
-def three_pass_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first):
-    """:func:`build_lists` in three parallel passes (count, fill, sort), with several threads."""
-    counts = count_lists(P, cell, cstart, nstart, ncells, state, two_r)
-    nptr = np.zeros(len(counts) + 1, dtype=np.int64)
-    np.cumsum(counts, out=nptr[1:])
-    nbr = np.empty(int(nptr[-1]), dtype=index_type(len(counts)))
-    low = np.empty(int(nptr[-1]), dtype=np.float32)
-    w = np.zeros(len(counts))
-    term = np.empty(int(nptr[-1]))
-    fill_lists(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, nptr, nbr, low, w, term)
-    longest = int(counts.max(initial=0))
-    soff = np.zeros(int(nptr[-1]) if nearest_first else 1,
-                    dtype=np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64)
-    if nearest_first:
-        sort_lists(P, nptr, nbr, order, soff)
-    return nptr, nbr, low, soff, w, term
+    n = len(P)
+    kind = index_type(n)
+    w = np.zeros(n)
+    args = (P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, order)
+    with Chunks(numba.get_num_threads()) as chunks:
+        parts = chunks.map(lambda a, b: _rows_lists(args, w, a, b, kind, nearest_first), n, min_chunk=rows)
+    sizes = np.array([len(p[1]) for p in parts], dtype=np.int64)
+    base = np.r_[0, np.cumsum(sizes)]
+    nptr = np.concatenate([p[0][:-1] + base[i] for i, p in enumerate(parts)] + [base[-1:]])
+    nbr, low, term = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
+    longest = max(p[5] for p in parts)
+    dtype = np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64
+    if not nearest_first:
+        return nptr, nbr, low, np.zeros(1, dtype=dtype), w, term
+    return nptr, nbr, low, np.concatenate([p[4] for p in parts]).astype(dtype), w, term
