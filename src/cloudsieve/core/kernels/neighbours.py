@@ -1,7 +1,8 @@
 """Compiled kernels of the elimination's neighbour lists (numba; private, inputs assumed valid).
 
-The neighbours of a point within 2 r_max are listed once (row ranges on
-threads, one pass each: :func:`build_lists`) as a CSR (``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
+The neighbours of a point within 2 r_max are listed once (one pass over
+each range of rows, the ranges on threads: :func:`build_lists`) as a CSR
+(``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
 walk of :mod:`.grid` (cells in ``ncells`` order, rows ascending inside a
 cell), with ``low`` (float32) a lower bound of each one's crowding term
 (1 - d / (2 r_max)) ** alpha (enough for the upper bounds of the keys the
@@ -104,9 +105,9 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
     entries are at hand (insertion sort by (squared distance, tie): the lists are short, 6 entries on
     average at 50% kept; longer than 32: a merge sort, then ties by tie). Row r's list starts at entry
     ``nptr[r - lo]`` of the buffers (``dd`` the entries' squared distances, scratch) from entry ``k``,
-    ``w[r]`` its crowding sum. Stops
-    at the first row that does not fit in the buffers: returns (that row, its first entry); the caller
-    grows them and goes on (growing them here made every store slower)."""
+    ``w[r]`` its crowding sum. Stops at the first row that does not fit in the buffers: returns (that
+    row, its first entry); the caller grows them and goes on (growing them here made every store
+    slower)."""
     cap = len(nbr)
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
