@@ -199,11 +199,14 @@ def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ial
     args = (P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, order)
     with Chunks(numba.get_num_threads()) as chunks:
         parts = chunks.map(lambda a, b: _rows_lists(args, w, a, b, kind, nearest_first), n, min_chunk=rows)
-    sizes = np.array([len(p[1]) for p in parts], dtype=np.int64)
-    base = np.r_[0, np.cumsum(sizes)]
-    nptr = np.concatenate([p[0][:-1] + base[i] for i, p in enumerate(parts)] + [base[-1:]])
-    nbr, low, term = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
     longest = max(p[5] for p in parts)
+    if len(parts) == 1:  # one range (one thread): its arrays as they are, no copy
+        nptr, nbr, low, term = parts[0][:4]
+    else:
+        sizes = np.array([len(p[1]) for p in parts], dtype=np.int64)
+        base = np.r_[0, np.cumsum(sizes)]
+        nptr = np.concatenate([p[0][:-1] + base[i] for i, p in enumerate(parts)] + [base[-1:]])
+        nbr, low, term = (np.concatenate([p[j] for p in parts]) for j in (1, 2, 3))
     dtype = np.uint8 if longest <= 256 else np.uint16 if longest <= 65536 else np.int64
     if not nearest_first:
         return nptr, nbr, low, np.zeros(1, dtype=dtype), w, term
