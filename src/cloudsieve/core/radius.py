@@ -88,8 +88,8 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, w
         return np.zeros(0), 1.0
     if len(allp) < k + 1:
         return np.full(m, math.inf), n / m
-    return np.pi * np.square(_kth_other(np.ascontiguousarray(allp), m, k, workers)) / k * rate, n / m  # the
-    # sample is thinner by `rate`
+    d = _kth_other(np.ascontiguousarray(allp), m, k, workers)
+    return np.pi * np.square(d) / k * rate, n / m  # the sample is thinner by `rate`
 
 
 def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
