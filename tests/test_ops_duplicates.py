@@ -215,3 +215,24 @@ def test_eliminate_with_keep_duplicates_keeps_the_copies_of_kept_points(scan_wit
     doubled = {tuple(p) for p in src_uniq[src_times == 2]}
     for p, t in zip(uniq, times):  # each kept point comes with all its copies
         assert t == (2 if tuple(p) in doubled else 1)
+
+
+@pytest.mark.parametrize("rule,extra", RULES, ids=[r + ("-ratio" if e else "") for r, e in RULES])
+def test_a_pile_of_copies_is_one_point_for_every_rule(tmp_path, rule, extra):
+    """A pile (4,000 points at one spot, as failed returns written at the origin) in a scan of several cells:
+    every rule keeps it at most once and meets the count. A pile searched point by point costs its size
+    squared (60,000 points at one spot took minutes before the searches went per group of copies)."""
+    from engine_data import plane, write_laz
+
+    from cloudsieve.engine import simplify
+
+    xyz = plane(20_000, seed=4)
+    xyz[:4_000] = xyz[4_000]  # the pile, at a point of the plane
+    src = write_laz(tmp_path / "pile.laz", xyz[np.random.default_rng(5).permutation(len(xyz))])
+    kw = {"ratio": 0.5} if extra else {}
+    s = simplify(src, tmp_path / "out.laz", rule=rule, cell_size=6_000, scheduler="sync", **kw)
+    assert s.duplicates == 4_000 and s.cells > 1
+    out = read_cloud(str(tmp_path / "out.laz"))[0]
+    assert len(out) == len(np.unique(out, axis=0)) == s.kept
+    if extra:
+        assert s.kept == 10_000
