@@ -71,7 +71,7 @@ class CellGrid:
         _kg.sort_cells(points, codes, order, _RUN)  # the runs of at most _RUN points; the longer ones here
         size = np.diff(cstart)
         for a, b in zip(cstart[:-1][size > _RUN].tolist(), cstart[1:][size > _RUN].tolist()):
-            run = np.sort(order[a:b])  # by index, then (stable) by coordinates
+            run = order[a:b]  # by index (the argsort is stable), then (stable) by coordinates
             q = points[run]
             order[a:b] = run[np.lexsort((q[:, 2], q[:, 1], q[:, 0]))]
         self.order = order.astype(np.int64)

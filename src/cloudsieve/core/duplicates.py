@@ -11,8 +11,8 @@ point is kept too). Their count is reported by the engine's summary.
   validate; a hash table over the rows, :mod:`.kernels.copies`);
 - :func:`sorted_copies`: the same on rows already in canonical
   (lexicographic, stable) order, where copies are adjacent (a kernel, no
-  checks), and :func:`first_rows`: :func:`first_copies` on valid points
-  (no checks).
+  checks), and :func:`first_rows` / :func:`copy_rows`: :func:`first_copies`
+  / :func:`exact_copies` on valid points (no checks).
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import numpy as np
 from ._validation import check_points
 from .kernels import copies as _kc
 
-__all__ = ["exact_copies", "first_copies", "first_rows", "sorted_copies"]
+__all__ = ["copy_rows", "exact_copies", "first_copies", "first_rows", "sorted_copies"]
 
 
 def sorted_copies(P: np.ndarray) -> np.ndarray:
@@ -62,8 +62,7 @@ def exact_copies(points) -> np.ndarray:
     >>> exact_copies([[0, 0, 0], [1, 0, 0], [0, 0, 0]]).tolist()
     [False, False, True]
     """
-    first = first_rows(check_points(points))
-    return first != np.arange(len(first))
+    return copy_rows(check_points(points))
 
 
 def first_copies(points) -> np.ndarray:
@@ -92,3 +91,9 @@ def first_rows(pts: np.ndarray) -> np.ndarray:
     if len(pts) == 0:
         return np.zeros(0, dtype=np.int64)
     return _kc.first_equal((pts + 0.0).view(np.uint64))
+
+
+def copy_rows(pts: np.ndarray) -> np.ndarray:
+    """:func:`exact_copies` of valid points (rows of float64, any number of columns)."""
+    first = first_rows(pts)
+    return first != np.arange(len(first))

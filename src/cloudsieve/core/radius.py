@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from .cellgrid import check_points
+from .duplicates import first_rows
 from .kernels import knn as _kknn
 
 __all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
@@ -103,22 +104,14 @@ def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
     c^2 distances (a sample of 300,000 points, 60,000 of them at one spot:
     258 s, against 0.2 s for the distinct rows).
     """
-    from .duplicates import first_rows
-
-    threads = None if workers < 0 else workers
     first = first_rows(allp)
-    if (first == np.arange(len(allp))).all():
-        query = np.zeros(len(allp), dtype=bool)
-        query[:m] = True
-        return _kknn.knn_unchecked(allp, np.array([0, len(allp)], dtype=np.int64), np.array([k], dtype=np.int64),
-                                   query, threads)[0][:m, k - 1]
-    lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order
+    lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
     group = np.searchsorted(lead, first)  # each row's distinct row
     mult = np.bincount(group, minlength=len(lead))
     query = np.zeros(len(lead), dtype=bool)
     query[group[:m]] = True
     d, i = _kknn.knn_unchecked(np.ascontiguousarray(allp[lead]), np.array([0, len(lead)], dtype=np.int64),
-                               np.array([k], dtype=np.int64), query, threads)
+                               np.array([k], dtype=np.int64), query, None if workers < 0 else workers)
     q = np.flatnonzero(query)  # the other rows of d, i are not written
     d, i = d[q], i[q]
     need = k - (mult[q] - 1)  # others still needed after the copies at distance 0

@@ -69,7 +69,7 @@ import math
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
-from .duplicates import first_rows, sorted_copies
+from .duplicates import copy_rows, sorted_copies
 from .eliminate import eliminate
 from .entropy import score_points, score_unchecked
 from .knn import canonical_order
@@ -214,7 +214,7 @@ def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim,
         return keep
     if rule == "eliminate":  # no labels, no scores; exact copies go first (priority +inf) and never weigh
         keep[:] = False
-        target = min(target, int((first_rows(pts) == np.arange(n)).sum()))  # copies kept at most once
+        target = min(target, n - int(copy_rows(pts).sum()))  # copies kept at most once
         keep[eliminate(pts, count=target, threads=threads)] = True
         callback(progress)(n - target)
         return keep

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ._validation import neighbour_count
-from .duplicates import first_rows
+from .duplicates import copy_rows
 from .kernels.knn import knn_scored
 from .knn import knn_query, mark_duplicates
 
@@ -91,8 +91,7 @@ def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
     if len(big):
         rows = np.concatenate([np.arange(indptr[j], indptr[j + 1]) for j in big])
         key = np.column_stack([pts[order[rows]], _cluster_of(indptr, rows).astype(np.float64)])
-        copy = first_rows(key) != np.arange(len(rows))
-        pre[np.unique(_cluster_of(indptr, rows[copy]))] = True
+        pre[np.unique(_cluster_of(indptr, rows[copy_rows(key)]))] = True
     rk, rk1, nb, flag = knn_scored(pts, order, indptr, np.where(pre, 0, kcl), koff, threads)
     flag |= pre
     if flag.any():  # score the distinct points of these clusters (m and k follow)
