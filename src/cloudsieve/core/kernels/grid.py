@@ -126,7 +126,7 @@ def cell_neighbours(ukeys):
     return nstart, out[:t].copy()
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
     """Nearest alive point to p other than x (equal distances: lower ``tie``), squared distance; (-1, inf)
     if none in the 27 cells around p."""
