@@ -98,7 +98,7 @@ def _insert(bd, bi, cnt, k, d2, t):
     return cnt
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def ring_search(X, i, ring, k, bd, bi):
     """The k nearest centres of X[i] by rings of cells: bd (k,) their squared
     distances ascending, bi (k,) their indices."""

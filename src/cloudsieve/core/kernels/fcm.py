@@ -61,7 +61,7 @@ def memberships(d2, e, u, r):
         u[q] = r[q] / s
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _row_change(old_i, old_u, new_i, new_u):
     """max |U1 - U0| over one row of the full n x c matrices: U0 nonzero at old_i, U1 at new_i."""
     L0 = len(old_i)
@@ -138,7 +138,7 @@ def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
     return ch, relabel
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _sort_small(keys, vals, n):
     """Stable insertion sort of keys[:n] (float64) carrying vals[:n] (int64)."""
     for a in range(1, n):

@@ -12,7 +12,7 @@ import numpy as np
 from numba import njit, prange
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _smallest_share(a00, a01, a02, a11, a12, a22):
     """lambda_min / (l0 + l1 + l2) of a symmetric positive semi-definite 3 x 3 matrix (closed form)."""
     tr = a00 + a11 + a22

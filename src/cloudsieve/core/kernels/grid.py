@@ -30,7 +30,7 @@ def _spread(v):
     return v
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _compact(v):
     v &= _M5
     v = (v | (v >> 2)) & _M4
@@ -55,7 +55,7 @@ def cell_codes(P, lo, h):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _less(P, a, b):
     for j in range(3):
         if P[a, j] != P[b, j]:

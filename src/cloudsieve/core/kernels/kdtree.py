@@ -59,7 +59,7 @@ def kth_smallest(a, n, k, s0, s1):
             return piv
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def nth_element(perm, P, s, dim, a, b, kth):
     """Reorder perm[a:b] (rows s + perm) so that position kth holds its sorted
     element along ``dim``, smaller or equal before, greater or equal after."""
@@ -91,7 +91,7 @@ def nth_element(perm, P, s, dim, a, b, kth):
             return
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def build_tree(P, s, m, leaf, perm, X, node, box, stack):
     """A k-d tree of the cluster P[s:s+m]: split at the median of the widest
     side down to leaves of <= leaf points. X (3, m): the coordinates in leaf

@@ -37,7 +37,7 @@ __all__ = ["pairwise_sum", "cluster_sums", "cluster_max", "stale_bounds", "assig
 _PW_BLOCK = 128  # numpy's PW_BLOCKSIZE
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _pairwise_block(a, lo, n):
     """numpy's pairwise sum of a[lo:lo + n] for n <= 128 (its unrolled base case)."""
     if n < 8:

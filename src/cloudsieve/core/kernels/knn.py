@@ -55,7 +55,7 @@ BOUND_NODE = 2
 TRIM = 8
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _cluster(P, s, m, kq, K, query, leaf, bound_node, trim, out_d, out_i, w):
     """The kq nearest of each point of the cluster P[s:s+m] into out rows s..s+m-1."""
     perm, X, node, box, stack, C, cj, tmp, cd, ci, s0, s1, si, t0, rank = w

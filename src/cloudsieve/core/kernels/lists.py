@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _dist(P, a, b):
     """|P[a] - P[b]|, summed coordinate by coordinate from the first (the k-d tree's order)."""
     s = 0.0
@@ -33,7 +33,7 @@ def _dist(P, a, b):
     return math.sqrt(s)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _nearest(P, nb, kk, x, n):
     """r_1(x): the distance to the first entry of x's list; inf when x has no list."""
     if kk[x] <= 0 or nb.shape[1] == 0:

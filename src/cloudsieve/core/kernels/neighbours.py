@@ -55,7 +55,7 @@ def term_weight(i, nptr, nbr, state, term):
     return w
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _ties_by_tie(o, d2, nbr, s, tie):
     """In the positions o sorted by d2, order each run of equal distances by tie (insertion sort; runs are
     short)."""

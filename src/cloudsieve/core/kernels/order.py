@@ -28,7 +28,7 @@ def _spread(x):
     return x
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _stable_sort(key, idx, m, k2, i2):
     """Sort idx[:m] by key[:m] (keys moved along), equal keys keeping their order:
     insertion sort of runs of 16, then bottom-up merges (k2, i2: scratch of >= m)."""

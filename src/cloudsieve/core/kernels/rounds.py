@@ -75,10 +75,11 @@ def break_ties(cand, keys, tie):
         i = j
 
 
-@njit(cache=True, nogil=True)
-def _sort_key(v):
-    """uint64 in the order of the float64 v (-0.0 as 0.0; no NaN)."""
-    b = np.array([v + 0.0]).view(np.uint64)[0]
+@njit(cache=True, nogil=True, _nrt=False)
+def _sort_key(b):
+    """uint64 in the order of the float64 whose bits are b (-0.0 as 0.0; no NaN)."""
+    if b == np.uint64(1) << np.uint64(63):  # -0.0
+        b = np.uint64(0)
     if b >> np.uint64(63):
         return ~b
     return b | (np.uint64(1) << np.uint64(63))
@@ -91,8 +92,9 @@ def _radix_order(keys, m, kb, kb2, ib, ib2, count):
     length >= m and ``count`` (256,) int64 are scratch; returns a view of ``ib`` or ``ib2``."""
     same_or = np.uint64(0)
     same_and = ~np.uint64(0)
+    bits = keys.view(np.uint64)  # the keys' bits, without an array per key
     for i in range(m):
-        u = _sort_key(keys[i])
+        u = _sort_key(bits[i])
         kb[i] = u
         ib[i] = i
         same_or |= u
@@ -167,7 +169,7 @@ def select_round(cand, nb, kk, ok, limit):
 _HALF_MAX = np.finfo(np.float64).max / 2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _is_covered(nb, kk, r1, y, coverage, vals):
     """r_1(y) <= coverage * (median of r_1 over y's listed neighbours); False without neighbours.
 
