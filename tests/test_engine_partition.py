@@ -85,6 +85,30 @@ def test_labels_are_the_nearest_centre(built):
     assert np.array_equal(labels, d.argmin(axis=1))
 
 
+@pytest.mark.parametrize("margin", [0.0, 0.05, 0.3, 5.0])
+def test_labels_and_pairs_equal_a_brute_force_oracle(margin):
+    """label_block against every centre's distance: the nearest (ties lower index) and the pairs (i, j) of
+    the HALO_NEIGHBOURS + 1 nearest centres of each point of cell j within margin of their bisector."""
+    rng = np.random.default_rng(7)
+    centers = rng.random((23, 3))
+    z = rng.random((3000, 3))
+    z[:40] = np.round(z[:40] * 2) / 2  # points equally far from some centres
+    centers[:4] = [[0.0, 0, 0], [1.0, 0, 0], [0.0, 1, 0], [1.0, 1, 0]]
+    d = np.sqrt(((z[:, None, :] - centers[None]) ** 2).sum(-1))
+    order = np.lexsort((np.broadcast_to(np.arange(len(centers)), d.shape), d), axis=1)
+    lab = order[:, 0]
+    want = set()
+    for r in range(len(z)):
+        j = lab[r]
+        for i in order[r, 1 : L.HALO_NEIGHBOURS + 1]:
+            s = (d[r, i] ** 2 - d[r, j] ** 2) / (2 * np.linalg.norm(centers[i] - centers[j]))
+            if s <= margin * (1 + 1e-6) + 1e-12:
+                want.add((int(i), int(j)))
+    labels, pairs = L.label_block(centers, z, margin)
+    assert np.array_equal(labels, lab)
+    assert set(map(tuple, pairs.tolist())) == want
+
+
 def test_ties_go_to_the_lower_index():
     centers = np.array([[0.0, 0, 0], [2.0, 0, 0], [1.0, 5, 0], [-3.0, 0, 0]])
     z = np.array([[1.0, 0, 0], [1.0, 0, 0.5], [-1.5, 0, 0], [0.1, 0, 0]])
