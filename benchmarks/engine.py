@@ -211,7 +211,7 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="km,fcm")
     p.add_argument("--rule", default="threshold", help="rule of every run (default threshold, the paper)")
     p.add_argument("--ratio", type=float, default=None, help="kept share of every run (--ratio of simplify)")
-    p.add_argument("--cell-size", type=int, default=100_000)
+    p.add_argument("--cell-size", type=int, default=200_000)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--skip", default="", help="comma list of sections to skip: throughput,memory,cap,speedup")
     p.add_argument("--workdir", default="/tmp/cloudsieve-bench-engine")

@@ -256,7 +256,7 @@ def test_the_work_store_record_keeps_its_keys():
     """Work stores of earlier runs resume: the recorded options keep their names (halo_context as "context")."""
     record = params.run_record(params.validate("simplify", {"halo_context": True, "ratio": 0.5, "rule": "iterative"}))
     assert record == {"method": "km", "rule": "iterative", "threshold": 0.001, "ratio": 0.5, "count": None,
-                      "cluster_size": 400, "cell_size": 100_000, "seed": 0, "context": True, "k0": 1.0, "k_min": 4}
+                      "cluster_size": 400, "cell_size": 200_000, "seed": 0, "context": True, "k0": 1.0, "k_min": 4}
 
 
 # ----------------------------------------------------------------- the scheduler

@@ -146,7 +146,7 @@ _OPTIONS = [
            high=1.0, metavar="R"),
     Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
-    Option("cell_size", INT, 100_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
+    Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
     Option("halo_context", BOOL, False,
            "use each cell's halo (and the whole cell) as density context instead of the small cluster alone"),

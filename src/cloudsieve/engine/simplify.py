@@ -66,7 +66,7 @@ def simplify(
     ratio: float | None = None,
     count: int | None = None,
     cluster_size: int = 400,
-    cell_size: int = 100_000,
+    cell_size: int = 200_000,
     scheduler: str | None = None,
     workers: int | None = None,
     memory_limit: str | int | None = None,
