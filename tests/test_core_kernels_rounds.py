@@ -98,3 +98,17 @@ def test_select_clusters_with_coverage_is_the_filtered_pass():
     want = _first_independent(cand[ok], nb.astype(np.int64), n, kk)
     got = kr.select_clusters(starts, 0, len(sizes), alive, val, 0.0, True, tie, nb, kk, r1, 1.0)
     assert sorted(got) == sorted(want)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_radix_order_is_the_stable_argsort(seed):
+    """The rounds' radix sort of float keys (read as their bits): numpy's stable argsort, -0.0 equal to 0.0."""
+    rng = np.random.default_rng(seed)
+    m = 3000
+    keys = rng.standard_normal(m + 7) * 10.0 ** rng.integers(-200, 200)
+    keys[rng.integers(0, m, 400)] = keys[rng.integers(0, m, 400)]  # ties
+    keys[:60] = np.r_[0.0, -0.0, np.inf, -np.inf, 5e-324, -5e-324][rng.integers(0, 6, 60)]
+    scratch = (np.empty(m, np.uint64), np.empty(m, np.uint64), np.empty(m, np.int64), np.empty(m, np.int64),
+               np.empty(256, np.int64))
+    got = kr._radix_order(keys, m, *scratch)
+    np.testing.assert_array_equal(got, np.argsort(keys[:m] + 0.0, kind="stable"))

@@ -133,7 +133,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                    k, nptr, nbr, low, term, soff, dd, w):
     """The lists of rows [start, stop) in one pass: each distance computed once, each list sorted while its
     entries are at hand (insertion sort by (squared distance, tie): the lists are short, 6 entries on
-    average at 50% kept; longer than 32: a merge sort, then ties by tie). Row r's list starts at entry
+    average at 50% kept; longer than 32: :func:`_merge_sort` by the same key). Row r's list starts at entry
     ``nptr[r - lo]`` of the buffers (``dd`` the entries' squared distances, scratch) from entry ``k``,
     ``w[r]`` its crowding sum. Stops at the first row that does not fit in the buffers: returns (that
     row, its first entry); the caller grows them and goes on (growing them here made every store
