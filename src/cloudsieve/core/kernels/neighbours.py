@@ -24,6 +24,7 @@ import numpy as np
 from numba import njit
 
 from .grid import nearest
+from .order import _stable_sort
 
 SHRINK = 1.0 - 2.0**-23  # a float64 times this, rounded to float32, is below it
 TINY = 1e-30  # terms below it are bounded by 0
@@ -56,53 +57,22 @@ def term_weight(i, nptr, nbr, state, term):
 
 
 @njit(cache=True, _nrt=False)
-def _merge_sort(soff, b, m, dd, nbr, tie, buf):
-    """soff[b:b + m] = the positions 0..m-1 of the entries b.. in order of (squared distance ``dd``, tie of
-    ``nbr``): runs of 16 by insertion, then bottom-up merges through ``buf`` (>= m). A total order (the
-    ties are distinct), so the same order as any correct sort."""
-    for t in range(m):
-        soff[b + t] = t
-    for a in range(0, m, 16):
-        e = min(a + 16, m)
-        for t in range(a + 1, e):
-            v = soff[b + t]
-            q = t - 1
-            while q >= a and (dd[b + soff[b + q]] > dd[b + v] or (dd[b + soff[b + q]] == dd[b + v]
-                                                                  and tie[nbr[b + soff[b + q]]] > tie[nbr[b + v]])):
-                soff[b + q + 1] = soff[b + q]
+def _ties_by_tie(soff, b, k, dd, nbr, tie):
+    """In the positions soff[b:k] sorted by distance (``dd`` of the entries b.., unsorted), order each run
+    of equal distances by tie (insertion sort; runs are short)."""
+    a = b
+    while a < k:
+        e = a + 1
+        while e < k and dd[b + soff[e]] == dd[b + soff[a]]:
+            e += 1
+        for u in range(a + 1, e):
+            v = soff[u]
+            q = u - 1
+            while q >= a and tie[nbr[b + soff[q]]] > tie[nbr[b + v]]:
+                soff[q + 1] = soff[q]
                 q -= 1
-            soff[b + q + 1] = v
-    width = 16
-    inbuf = False  # where the runs are: soff[b:b + m] or buf[:m]
-    while width < m:
-        for a in range(0, m, 2 * width):
-            mid = min(a + width, m)
-            e = min(a + 2 * width, m)
-            i = a
-            j = mid
-            for o in range(a, e):
-                if inbuf:
-                    x = buf[i] if i < mid else -1
-                    y = buf[j] if j < e else -1
-                else:
-                    x = soff[b + i] if i < mid else -1
-                    y = soff[b + j] if j < e else -1
-                if y < 0 or (x >= 0 and (dd[b + x] < dd[b + y] or (dd[b + x] == dd[b + y]
-                                                                  and tie[nbr[b + x]] < tie[nbr[b + y]]))):
-                    v = x
-                    i += 1
-                else:
-                    v = y
-                    j += 1
-                if inbuf:
-                    soff[b + o] = v
-                else:
-                    buf[o] = v
-        inbuf = not inbuf
-        width *= 2
-    if inbuf:
-        for t in range(m):
-            soff[b + t] = buf[t]
+            soff[q + 1] = v
+        a = e
 
 
 @njit(cache=True, inline="always")
@@ -133,7 +103,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                    k, nptr, nbr, low, term, soff, dd, w):
     """The lists of rows [start, stop) in one pass: each distance computed once, each list sorted while its
     entries are at hand (insertion sort by (squared distance, tie): the lists are short, 6 entries on
-    average at 50% kept; longer than 32: :func:`_merge_sort` by the same key). Row r's list starts at entry
+    average at 50% kept; longer than 32: a merge sort, then ties by tie). Row r's list starts at entry
     ``nptr[r - lo]`` of the buffers (``dd`` the entries' squared distances, scratch) from entry ``k``,
     ``w[r]`` its crowding sum. Stops at the first row that does not fit in the buffers: returns (that
     row, its first entry); the caller grows them and goes on (growing them here made every store
@@ -142,6 +112,8 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
     buf = np.empty(64, dtype=soff.dtype)
+    kbuf = np.empty(64)
+    kbuf2 = np.empty(64)
     for i in range(start, stop):
         nptr[i - lo] = k
         if state[i] == 0:
@@ -172,10 +144,17 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
         m = k - b
         if not nearest_first or m == 0:
             continue
-        if m > 32:  # long lists (low ratios, dense spots): a merge sort (numpy's argsort made an array a row)
+        if m > 32:  # long lists (low ratios, dense spots): a merge sort of a copy of the distances with the
+            # positions along, then ties by tie (numpy's argsort made an array a row)
             if len(buf) < m:
                 buf = np.empty(2 * m, dtype=soff.dtype)
-            _merge_sort(soff, b, m, dd, nbr, tie, buf)
+                kbuf = np.empty(2 * m)
+                kbuf2 = np.empty(2 * m)
+            for t in range(m):
+                soff[b + t] = t
+                kbuf[t] = dd[b + t]
+            _stable_sort(kbuf, soff[b:k], m, kbuf2, buf)
+            _ties_by_tie(soff, b, k, dd, nbr, tie)
             continue
         for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]
             q = t - 1
