@@ -134,3 +134,33 @@ def test_forked_results_in_order_and_errors_named():
         forked([(divmod, 1, 1), (_fail,)])
     with pytest.raises(CloudsieveError, match=r"metro crashed in its worker process \(exit code 3\)"):
         forked([(_die,)], name="metro")
+
+
+def _pid(_):
+    return os.getpid()
+
+
+def test_prestart_starts_the_workers_in_the_background_and_close_ends_them():
+    """The local pool's workers start before the first task (from the fork server, which this thread starts:
+    it dies with the thread that started it); the tasks run as before; close() leaves no worker alive."""
+    r = Runner("processes", 2)
+    try:
+        r.prestart()
+        r.prestart()  # once
+        r._prestart.join()
+        workers = dict(r._pool._processes)
+        assert len(workers) == 2 and all(p.is_alive() for p in workers.values())
+        assert set(r(_pid, [(i,) for i in range(4)], "test")) <= set(workers) | {os.getpid()}
+    finally:
+        r.close()
+    assert not any(p.is_alive() for p in workers.values())
+
+
+def test_prestart_is_a_no_op_without_a_local_pool():
+    r = Runner("threads", 2)
+    try:
+        r.prestart()
+        assert getattr(r, "_prestart", None) is None
+        assert r(_pid, [(0,)], "test") == [os.getpid()]
+    finally:
+        r.close()

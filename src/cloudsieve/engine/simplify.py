@@ -261,6 +261,7 @@ def simplify(
             t0 = time.perf_counter()
             st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
             if st is None:
+                runner.prestart()  # the workers start while the driver ingests
                 with stage_bar(bars, "ingest", None, "pt") as bar:
                     st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
                                                  drop_invalid=drop_invalid)
