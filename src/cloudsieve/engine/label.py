@@ -67,34 +67,29 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
     p = len(centers)
     if tree is None:
         tree = cKDTree(centers)
+    none = np.empty((0, 2), dtype=np.int64)
+    if p == 1:
+        return np.zeros(len(xyz), dtype=np.int64), none
     kq = min(p, HALO_NEIGHBOURS + 1)
-    if not halo:
-        d, nn = _nearest(tree, xyz, min(p, 2))
-        labels = nn[:, 0].astype(np.int64)
-        if p > 1:
-            tied = np.flatnonzero(d[:, 1] == d[:, 0])
-            if len(tied):
-                labels[tied] = _lowest_tied(*_nearest(tree, xyz[tied], kq))
-        return labels, np.empty((0, 2), dtype=np.int64)
-    if kq == 1:
-        return _nearest(tree, xyz, 1)[1][:, 0].astype(np.int64), np.empty((0, 2), dtype=np.int64)
-    # the 2 nearest centres first; only the rows whose second is close enough for a pair (ties included)
-    # again with kq: a farther centre is farther still, so the same labels and pairs (CPU time for 10 M
+    # the 2 nearest centres of every point; again with kq only the rows whose second centre is close enough
+    # for a pair (without a halo: an exact tie), since a farther centre is farther still (CPU time for 10 M
     # points into 100 cells: 3.1 s for kq centres of every point)
+    bound = 2.0 * margin * (1 + 1e-6) + 1e-12 if halo else 0.0
     d, nn = _nearest(tree, xyz, 2)
     labels = nn[:, 0].astype(np.int64)
-    near = np.flatnonzero((d[:, 1] - d[:, 0]) <= 2.0 * margin * (1 + 1e-6) + 1e-12)
+    near = np.flatnonzero((d[:, 1] - d[:, 0]) <= bound)
     if kq > 2 and len(near):
         d, nn = _nearest(tree, xyz[near], kq)
-        labels[near] = _lowest_tied(d, nn)
     else:
         d, nn = d[near], nn[near]
-        labels[near] = _lowest_tied(d, nn)
+    labels[near] = _lowest_tied(d, nn)
+    if not halo:
+        return labels, none
     d2 = d * d
     # every column but the label's (column 0 too: on an exact tie the label may be a later column)
     other = nn.astype(np.int64)
     # cheap bound first: s_ij <= margin needs d_i - d_j <= 2 margin (|c_i - c_j| >= d_i - d_j)
-    cand = (d - d[:, :1]) <= 2.0 * margin * (1 + 1e-6) + 1e-12
+    cand = (d - d[:, :1]) <= bound
     rows, cols = np.nonzero(cand)
     if len(rows):
         i = other[rows, cols]
@@ -107,7 +102,7 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
         keys = np.unique(i[hit] * p + j[hit])
         pairs = np.stack([keys // p, keys % p], axis=1)
     else:
-        pairs = np.empty((0, 2), dtype=np.int64)
+        pairs = none
     return labels, pairs
 
 
