@@ -109,6 +109,8 @@ class Runner:
         self.workers = workers
         self.bars = bars
         self._stages: dict[str, Callable[[int], None]] = {}  # stages opened by :meth:`stage`
+        self._pool = None  # the local process pool ("processes")
+        self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
             return
@@ -147,7 +149,6 @@ class Runner:
             )
         self.local = "sync" if scheduler == "synchronous" else scheduler
         self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
-        self._pool = None
         if self.local == "processes":
             # one pool for the whole run: dask would start (and import into) a
             # new pool at every compute() otherwise, seconds per stage
@@ -156,8 +157,9 @@ class Runner:
             # a worker process is replaced after a few tasks: long-lived
             # processes keep the high-water mark of the allocator (fragmented
             # heaps of many cells), so the peak memory would creep with N
+            self._context = worker_context()
             self._pool = ProcessPoolExecutor(
-                int(workers or os.cpu_count() or 1), mp_context=worker_context(), max_tasks_per_child=_TASKS_PER_CHILD,
+                int(workers or os.cpu_count() or 1), mp_context=self._context, max_tasks_per_child=_TASKS_PER_CHILD,
                 initializer=die_with_parent,  # a worker dies with the fork server, which dies with the driver
             )
 
@@ -201,13 +203,10 @@ class Runner:
         measured); started while the driver ingests, that overlaps the
         ingest. Returns at once; the tasks and their results are the same.
         """
-        pool = getattr(self, "_pool", None)
-        if pool is None or getattr(self, "_prestarted", False):
+        pool = self._pool
+        # spawned workers would be the thread's children, and die with it (PR_SET_PDEATHSIG)
+        if pool is None or self._prestart is not None or self._context.get_start_method() != "forkserver":
             return
-        self._prestarted = True
-        ctx = pool._mp_context
-        if ctx.get_start_method() != "forkserver":
-            return  # spawned workers would be the thread's children: they die with it (PR_SET_PDEATHSIG)
         from multiprocessing import forkserver
 
         # the fork server from this thread: it dies with the thread that started it (PR_SET_PDEATHSIG), and
@@ -225,8 +224,8 @@ class Runner:
 
     def close(self) -> None:
         """Shut down the process pool and the client/cluster this runner started."""
-        if getattr(self, "_pool", None) is not None:
-            if getattr(self, "_prestart", None) is not None:
+        if self._pool is not None:
+            if self._prestart is not None:
                 self._prestart.join()
             self._pool.shutdown(wait=True)
             self._pool = None
