@@ -274,3 +274,15 @@ def test_scheduler_check_passes_when_something_listens_and_names_the_address_whe
     assert isinstance(exc.value, CloudsieveError) and isinstance(exc.value, ConnectionError)
     with pytest.raises(InvalidParameterError, match=r"scheduler address 'tcp://host' needs a host and a port"):
         check_scheduler("tcp://host")
+
+
+def test_simplify_signature_defaults_are_the_options_defaults():
+    """simplify()'s keyword defaults repeat params' (for its signature and help); they must not drift apart."""
+    import inspect
+
+    from cloudsieve.engine.simplify import simplify
+
+    sig = inspect.signature(simplify).parameters
+    for name, option in params.COMMANDS["simplify"].items():
+        assert name in sig, name
+        assert sig[name].default == option.default, (name, sig[name].default, option.default)
