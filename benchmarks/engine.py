@@ -37,6 +37,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cloudsieve.params import OPTIONS
+
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 
@@ -211,7 +213,7 @@ def main(argv=None) -> int:
     p.add_argument("--methods", default="km,fcm")
     p.add_argument("--rule", default="threshold", help="rule of every run (default threshold, the paper)")
     p.add_argument("--ratio", type=float, default=None, help="kept share of every run (--ratio of simplify)")
-    p.add_argument("--cell-size", type=int, default=200_000)
+    p.add_argument("--cell-size", type=int, default=OPTIONS["cell_size"].default, help="default: simplify's")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--skip", default="", help="comma list of sections to skip: throughput,memory,cap,speedup")
     p.add_argument("--workdir", default="/tmp/cloudsieve-bench-engine")
