@@ -135,3 +135,24 @@ def test_delete_store(tmp_path):
     delete_store(tmp_path / "s.zarr")
     assert not (tmp_path / "s.zarr").exists()
     delete_store(tmp_path / "s.zarr")  # missing: nothing to do
+
+
+def test_export_selects_chunk_by_chunk_and_stops_its_reader_on_error(tmp_path):
+    import threading
+
+    src = shared_file("simple.laz")
+    store = ingest(src, tmp_path / "s.zarr", chunk_size=100)
+    keep = np.random.default_rng(0).random(1065) < 0.4
+    store.create_array("simplify/keep", shape=(1065,), dtype=bool)[:] = keep
+    export(store, tmp_path / "k.laz", mask="simplify/keep", chunk_size=250)
+    las, out = laspy.read(src), laspy.read(tmp_path / "k.laz")
+    assert out.header.point_count == keep.sum()
+    for name in ("X", "Y", "Z", "intensity", "gps_time", "classification", "return_number"):
+        np.testing.assert_array_equal(out[name], las[name][keep])  # the boolean index is the oracle
+    # a mask chunk that cannot be decoded, read by the prefetch thread: the error reaches the caller, no
+    # file is left under the destination's name, and the reading thread has stopped
+    (tmp_path / "s.zarr" / "simplify" / "keep" / "c" / "5").write_bytes(b"not a blosc frame")
+    with pytest.raises(RuntimeError, match="error during blosc decompression"):
+        export(store, tmp_path / "bad.laz", mask="simplify/keep", chunk_size=100)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["k.laz", "s.zarr"]
+    assert not [t for t in threading.enumerate() if t.name == "cloudsieve-reader"]

@@ -128,11 +128,14 @@ class _StoreFiller:
             self.capacity = self.written
 
 
-def _prefetch(chunks, depth: int = 1):
+def prefetch(chunks, depth: int = 1):
     """Iterate *chunks* produced by a background thread, *depth* chunks ahead.
 
-    Decoding (lazrs, which releases the GIL) overlaps with compressing and
-    writing the previous chunk; memory grows by *depth* chunks at most.
+    The producer's work overlaps with the consumer's (ingest: decoding, in
+    lazrs, which releases the GIL, with compressing and writing the previous
+    chunk; export: reading and selecting a chunk with encoding the previous
+    one); memory grows by *depth* chunks at most. Close the generator to
+    stop the thread early.
     """
     q: queue.Queue = queue.Queue(maxsize=depth)
     done = object()
@@ -253,7 +256,7 @@ def ingest(
             hi = np.full(3, -np.inf)
             # NaN/infinite coordinates refused or dropped (InvalidPointsError, EmptyInputError at the end)
             valid = ValidPoints(src, drop_invalid)
-            prefetched = _prefetch(reader.chunks())
+            prefetched = prefetch(reader.chunks())
             for _, chunk in valid.chunks(prefetched, progress=update):
                 xyz = chunk["xyz"]
                 # per column: a 1-D strided reduction is ~10x faster than xyz.min(axis=0) on (n, 3)
