@@ -1,7 +1,7 @@
 """Partition step 3, label + bucket: one task per input chunk.
 
-Each point gets the nearest cell centre (k-d tree over the centres, exact
-ties to the lower index); the chunk's points are sorted by cell *inside the
+Each point gets the nearest cell centre (the compiled k-d tree of the
+centres, :mod:`cloudsieve.core.kernels.closest`; exact ties to the lower index); the chunk's points are sorted by cell *inside the
 chunk* (stable) and the sorted copy is written to the chunk's own row of
 ``partition/xyz``. Nothing is written to another task's zarr chunk, nothing is
 ever sorted globally. The same pass lists, from each point's
@@ -12,7 +12,8 @@ halos (see :mod:`cloudsieve.engine.halo`).
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from ..core.kernels.closest import nearest_sites, site_tree
 
 __all__ = ["label_block", "label_chunk", "HALO_NEIGHBOURS"]
 
@@ -20,13 +21,6 @@ __all__ = ["label_block", "label_chunk", "HALO_NEIGHBOURS"]
 HALO_NEIGHBOURS = 5
 #: points labelled at once inside a chunk task (bounds the k-d tree query arrays)
 _LABEL_BLOCK = 131072
-
-
-def _nearest(tree: cKDTree, xyz: np.ndarray, kq: int) -> tuple[np.ndarray, np.ndarray]:
-    d, nn = tree.query(xyz, k=kq)
-    if kq == 1:
-        return d[:, None], nn[:, None]
-    return d, nn
 
 
 def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
@@ -42,7 +36,7 @@ def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
     return labels
 
 
-def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTree | None = None, halo: bool = True):
+def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple | None = None, halo: bool = True):
     """Cell of each point (nearest centre, ties to the lower index) and halo pairs.
 
     With ``halo=False`` (no density context: the cell tasks never read a
@@ -51,7 +45,8 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
     time for 1 M points of benchmarks/make_scan.py into 10 cells: 0.15 s
     instead of 0.22 s).
 
-    The halo test uses the distances the k-d tree already returned:
+    *tree*: :func:`~cloudsieve.core.kernels.closest.site_tree` of *centers*
+    (built when None). The halo test uses the distances the tree already returned:
     ``s_ij(z) = (|z - c_i|^2 - |z - c_j|^2) / (2 |c_i - c_j|)``, the same
     bisector distance as :func:`cloudsieve.engine.halo.halo_distance` up to rounding; pairs are only
     candidates (the cell task applies the exact test), so a relative slack
@@ -66,7 +61,7 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
     """
     p = len(centers)
     if tree is None:
-        tree = cKDTree(centers)
+        tree = site_tree(centers)
     none = np.empty((0, 2), dtype=np.int64)
     if p == 1:
         return np.zeros(len(xyz), dtype=np.int64), none
@@ -75,11 +70,11 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: cKDTr
     # for a pair (without a halo: an exact tie), since a farther centre is farther still (CPU time for 10 M
     # points into 100 cells: 3.1 s for kq centres of every point)
     bound = 2.0 * margin * (1 + 1e-6) + 1e-12 if halo else 0.0
-    d, nn = _nearest(tree, xyz, 2)
+    d, nn = nearest_sites(tree, xyz, 2)
     labels = nn[:, 0].astype(np.int64)
     near = np.flatnonzero((d[:, 1] - d[:, 0]) <= bound)
     if kq > 2 and len(near):
-        d, nn = _nearest(tree, xyz[near], kq)
+        d, nn = nearest_sites(tree, xyz[near], kq)
     else:
         d, nn = d[near], nn[near]
     labels[near] = _lowest_tied(d, nn)
@@ -132,7 +127,7 @@ def label_chunk(
     centers = np.asarray(g["partition/centers"][:])
     xyz = st.read("xyz", start, stop)
     n = len(xyz)
-    tree = cKDTree(centers)
+    tree = site_tree(centers)
     labels = np.empty(n, dtype=np.int64)
     pairs = []
     block = _LABEL_BLOCK
