@@ -323,6 +323,7 @@ def simplify(
                 logger.warning("%s", missed)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
+            runner.close()  # the export runs here: the workers' memory goes now
 
             t0 = time.perf_counter()
             with stage_bar(bars, "export", st.count, "pt") as bar:

@@ -40,7 +40,7 @@ logger = logging.getLogger(__name__)
 _MALLOC_TUNED = False
 
 
-def bound_malloc() -> None:
+def bound_malloc(threshold: int = 1 << 20) -> None:
     """Return big buffers to the OS on free (glibc), so memory stays flat in N.
 
     glibc raises its mmap threshold after the first large free, and from then
@@ -49,8 +49,9 @@ def bound_malloc() -> None:
     at 20 M before levelling off. A fixed 1 MiB threshold (``mallopt``
     M_MMAP_THRESHOLD) keeps large buffers in mmap; measured peak RSS 260 MB
     at 5 M and 280 MB at 20 M, for about 10% more CPU (page faults on fresh
-    buffers). Process-wide, set once; skipped when the user set
-    MALLOC_MMAP_THRESHOLD_ or the C library is not glibc.
+    buffers). Process-wide, set once (*threshold*, bytes; the local
+    workers use 16 MiB: :mod:`cloudsieve.engine.runner`); skipped when the
+    user set MALLOC_MMAP_THRESHOLD_ or the C library is not glibc.
     """
     global _MALLOC_TUNED
     if _MALLOC_TUNED or "MALLOC_MMAP_THRESHOLD_" in os.environ or not sys.platform.startswith("linux"):
@@ -60,8 +61,8 @@ def bound_malloc() -> None:
         import ctypes
 
         libc = ctypes.CDLL("libc.so.6")
-        libc.mallopt(-3, 1 << 20)  # M_MMAP_THRESHOLD
-        logger.debug("glibc mmap threshold set to 1 MiB")
+        libc.mallopt(-3, int(threshold))  # M_MMAP_THRESHOLD
+        logger.debug("glibc mmap threshold set to %d bytes", threshold)
     except (OSError, AttributeError):  # pragma: no cover - not glibc
         pass
 
