@@ -328,7 +328,11 @@ class Runner:
                 if key in keys:
                     update(1)
 
-        kwargs = {"scheduler": self.local}
+        # the scheduler as a function: named by a string, dask imports distributed (about 0.2 s) to look
+        # for a client first
+        from dask import local, multiprocessing, threaded
+
+        kwargs = {"scheduler": {"sync": local.get_sync, "threads": threaded.get, "processes": multiprocessing.get}[self.local]}
         if self.workers and self.local != "sync":
             kwargs["num_workers"] = int(self.workers)
         if self._pool is not None:
