@@ -28,6 +28,7 @@ the evaluation's sources) yields :class:`~cloudsieve.store.chunk.Chunk`
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import shutil
@@ -36,6 +37,7 @@ from typing import Any
 
 import numpy as np
 import zarr
+from zarr.core.sync import sync as zarr_sync
 
 from ..errors import (
     ArrayNotFoundError,
@@ -304,8 +306,14 @@ class PointStore:
         if step <= 0:
             raise InvalidParameterError(f"chunk_size must be positive, got {step}")
         for start in range(0, self.count, step):
-            stop = min(start + step, self.count)
-            yield Chunk(start, {n: np.asarray(a[start:stop]) for n, a in arrays.items()})
+            sel = slice(start, min(start + step, self.count))
+
+            # all arrays in one call of zarr's event loop: read and decoded concurrently (the codecs release
+            # the GIL), not one array after the other (export of 5 M of 10 M points: 1.83-1.90 -> 1.54-1.75 s)
+            async def read_all(sel=sel) -> list:
+                return await asyncio.gather(*(a.async_array.getitem(sel) for a in arrays.values()))
+
+            yield Chunk(start, {n: np.asarray(v) for n, v in zip(arrays, zarr_sync(read_all()))})
 
     # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:
