@@ -138,20 +138,6 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
     return np.ascontiguousarray(centers[order])
 
 
-def warm_kernels() -> None:
-    """Load :func:`fit_centers`' compiled kernels from numba's cache, on a small generated cloud.
-
-    The driver's first K-means call otherwise pays it on the partition's
-    critical path (0.21 s of 0.29 s on the 10 M scan's 50,000-point sample);
-    :func:`cloudsieve.engine.simplify.simplify` runs this in a thread while
-    it ingests. Errors are left to the real call, which raises them.
-    """
-    try:
-        fit_centers(np.random.default_rng(0).random((2000, 3)) * [100.0, 100.0, 1.0], 20, 0, np.zeros(3))
-    except Exception as exc:  # noqa: BLE001 - only a warm-up
-        logger.debug("partition kernels not warmed up: %r", exc)
-
-
 def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tuple[float, float, float]:
     """k-NN radius of the full cloud, estimated on the sample; and the halo margin.
 

@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import logging
 import os
-import threading
 import time
 from collections.abc import Callable
 
@@ -44,7 +43,7 @@ from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
 from .eliminate import run_eliminate
-from .partition import build_partition, reusable_partition, warm_kernels
+from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner, stage_bar
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
@@ -262,15 +261,10 @@ def simplify(
             t0 = time.perf_counter()
             st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
             if st is None:
-                runner.prestart()  # the workers start while the driver ingests, and the driver's kernels load
-                warm = threading.Thread(target=warm_kernels, name="cloudsieve-warm-up", daemon=True)
-                warm.start()
-                try:
-                    with stage_bar(bars, "ingest", None, "pt") as bar:
-                        st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
-                                                     drop_invalid=drop_invalid)
-                finally:
-                    warm.join()
+                runner.prestart()  # the workers start while the driver ingests
+                with stage_bar(bars, "ingest", None, "pt") as bar:
+                    st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
+                                                 drop_invalid=drop_invalid)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
