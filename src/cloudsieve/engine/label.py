@@ -1,8 +1,9 @@
 """Partition step 3, label + bucket: one task per input chunk.
 
 Each point gets the nearest cell centre (the compiled k-d tree of the
-centres, :mod:`cloudsieve.core.kernels.closest`; exact ties to the lower index); the chunk's points are sorted by cell *inside the
-chunk* (stable) and the sorted copy is written to the chunk's own row of
+centres, :mod:`cloudsieve.core.kernels.closest`; exact ties to the lower
+index); the chunk's points are sorted by cell *inside the chunk* (stable)
+and the sorted copy is written to the chunk's own row of
 ``partition/xyz``. Nothing is written to another task's zarr chunk, nothing is
 ever sorted globally. The same pass lists, from each point's
 ``HALO_NEIGHBOURS`` nearest centres, which cells can contribute to which

@@ -32,8 +32,8 @@ logger = logging.getLogger(__name__)
 DEFAULT_SCHEDULER = "processes"
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
 #: process; the heap is bounded by the fixed mmap threshold below). A replaced worker's first task costs
-#: about 0.1 s more (numba's cache, fresh pages): at 8 tasks per worker, as before, the 10 M benchmark's
-#: cells stage took 14.4-14.6 s against 12.9-14.4 s without replacement
+#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
+#: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
 _TASKS_PER_CHILD = 64
 #: glibc's mmap threshold in the local workers, fixed: buffers above it are mapped and unmapped on free.
 #: glibc's default threshold rises with the largest buffer freed (the label tasks' 24 MB arrays), after
@@ -332,7 +332,8 @@ class Runner:
         # for a client first
         from dask import local, multiprocessing, threaded
 
-        kwargs = {"scheduler": {"sync": local.get_sync, "threads": threaded.get, "processes": multiprocessing.get}[self.local]}
+        get = {"sync": local.get_sync, "threads": threaded.get, "processes": multiprocessing.get}[self.local]
+        kwargs: dict[str, Any] = {"scheduler": get}
         if self.workers and self.local != "sync":
             kwargs["num_workers"] = int(self.workers)
         if self._pool is not None:
