@@ -146,3 +146,20 @@ def test_missing_source_as_a_command_no_traceback(tmp_path):
     assert proc.returncode == 2
     assert proc.stderr == f"cloudsieve simplify: error: {missing}: no such file\n"
     assert listing(tmp_path) == []
+
+
+def test_the_command_is_run_and_run_returns_mains_code(tmp_path):
+    """``cloudsieve`` (the console script) and ``python -m cloudsieve`` both go through cli.run, which
+    freezes the objects left before the exit: the same codes and messages as main()."""
+    import tomllib
+
+    scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
+    assert scripts == {"cloudsieve": "cloudsieve.cli:run"}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+    code = "import sys; from cloudsieve.cli import run; sys.argv[1:] = {!r}; sys.exit(run())"
+    ok = subprocess.run([sys.executable, "-c", code.format(["--version"])], capture_output=True, text=True, env=env)
+    assert (ok.returncode, ok.stdout.startswith("cloudsieve "), ok.stderr) == (0, True, "")
+    missing = tmp_path / "missing.laz"
+    bad = subprocess.run([sys.executable, "-c", code.format(["info", str(missing)])], capture_output=True, text=True,
+                         env=env)
+    assert (bad.returncode, bad.stderr) == (2, f"cloudsieve info: error: {missing}: no such file\n")

@@ -9,6 +9,7 @@ Each subcommand lives in its own module of this package and exposes
 from __future__ import annotations
 
 import argparse
+import gc
 import importlib
 import logging
 import pkgutil
@@ -71,5 +72,19 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def run() -> int:
+    """The ``cloudsieve`` command (the process exits next, with the code returned): :func:`main`.
+
+    The objects left are then frozen (``gc.freeze``): the interpreter's exit
+    skips collecting them, which took a tenth of a second with numba, scipy
+    and zarr loaded, 0.27 s after a 10 M-point simplify (0.06 s frozen).
+    Every file is closed by then, and the exit handlers still run. Not for
+    a process that goes on (tests call :func:`main`).
+    """
+    code = main()
+    gc.freeze()
+    return code
+
+
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(run())
