@@ -8,8 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from cloudsieve.engine import runner as runner_module
-from cloudsieve.engine.runner import PeakMemory, Runner, forked, imap, stage_bar
+from cloudsieve.engine import pool as pool_module
+from cloudsieve.engine.calls import forked, imap
+from cloudsieve.engine.runner import PeakMemory, Runner, stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
 
 
@@ -76,7 +77,7 @@ def test_task_threads_share_the_cores():
 
 def test_every_preloaded_module_imports():
     """The fork server imports these once; a stale name would only show as slower workers."""
-    for name in runner_module._PRELOAD:
+    for name in pool_module._PRELOAD:
         importlib.import_module(name)
 
 

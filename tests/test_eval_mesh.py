@@ -82,7 +82,7 @@ print(json.dumps(r))
 
 def test_metro_equals_direct_pymeshlab_call(tmp_path):
     """Our figures equal a direct get_hausdorff_distance call, made first thing in a fresh process
-    (pymeshlab's sampling RNG is process-wide and never reseeded, see cloudsieve.engine.runner.forked)."""
+    (pymeshlab's sampling RNG is process-wide and never reseeded, see cloudsieve.engine.calls.forked)."""
     import json
     import subprocess
     import sys

@@ -1,11 +1,10 @@
-"""The one task runner: batches of independent calls on dask, or in forked children.
+"""The one task runner: batches of independent calls on dask.
 
-Used by the engine (every stage's tasks) and by the evaluation:
+Used by the engine (every stage's tasks) and by the evaluation's stages:
 :class:`Runner` runs a batch of tasks on the chosen dask scheduler (results in
-argument order, one progress bar per stage); :func:`imap` streams calls in
-this process or on a dask.distributed client with a bounded number in
-flight (the point-error chunks); :func:`forked` runs each call in its own
-forked child (the reproducible pymeshlab Metro figures depend on it);
+argument order, one progress bar per stage); its local process pool is
+:mod:`.pool`'s. Calls streamed to a cluster or run in forked children are
+:mod:`.calls`' (:func:`~.calls.imap`, :func:`~.calls.forked`);
 :class:`PeakMemory` samples the memory of this process and its children.
 """
 
@@ -16,63 +15,20 @@ import logging
 import os
 import threading
 import uuid
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from ..errors import CloudsieveError, InvalidParameterError
+from ..errors import InvalidParameterError
 from ..progress import callback
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
-from .lifeline import die_with_parent
+from .pool import local_pool, worker_context
 
-__all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "worker_context", "stage_bar", "imap", "forked"]
+__all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "stage_bar"]
 
 logger = logging.getLogger(__name__)
 
 #: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
 DEFAULT_SCHEDULER = "processes"
-#: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
-#: process; the heap is bounded by the fixed mmap threshold below). A replaced worker's first task costs
-#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
-#: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
-_TASKS_PER_CHILD = 64
-#: glibc's mmap threshold in the local workers, fixed: buffers above it are mapped and unmapped on free.
-#: glibc's default threshold rises with the largest buffer freed (the label tasks' 24 MB arrays), after
-#: which the cells' arrays came from per-thread heaps that fragment: peak RSS of the 10 M benchmark's
-#: process tree 1.50 GB without replacing the workers, 1.30 GB with 32 MiB fixed, 1.05 GB with 16 MiB
-#: (1.14-1.23 GB replacing them every 8 tasks); the cells' arrays (a few MB) stay in the heap
-_WORKER_MMAP_THRESHOLD = 16 << 20
-#: modules imported once by the fork server, so a replaced worker starts in milliseconds
-_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
-            "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
-            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
-            # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
-            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.kernels.warmup",
-            # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
-            "cloudsieve.engine.forkserver_init"]
-
-
-def worker_context():
-    """The multiprocessing context of the local worker processes.
-
-    dask's default is "spawn": every new process starts Python and imports
-    numpy, scipy, zarr and cloudsieve again (~1.3 s measured), and workers are
-    replaced every ``_TASKS_PER_CHILD`` tasks. Where available (and unless
-    dask's ``multiprocessing.context`` is configured) a "forkserver" that has
-    imported them once forks the workers instead: a clean single-threaded
-    parent, like spawn, without the start-up cost.
-    """
-    import multiprocessing as mp
-
-    import dask
-    from dask.multiprocessing import get_context
-
-    if dask.config.get("multiprocessing.context", None) is None and "forkserver" in mp.get_all_start_methods():
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(_PRELOAD)
-        return ctx
-    return get_context()
-
-
 @contextlib.contextmanager
 def stage_bar(bars, stage: str, total: int | None, unit: str) -> Iterator[Callable[[int], None]]:
     """``bars(stage, total, unit)`` as a context yielding ``update(n)``, or a no-op when *bars* is None."""
@@ -161,15 +117,8 @@ class Runner:
         if self.local == "processes":
             # one pool for the whole run: dask would start (and import into) a
             # new pool at every compute() otherwise, seconds per stage
-            from concurrent.futures import ProcessPoolExecutor
-
-            # the workers' heaps are bounded by a fixed mmap threshold (_worker_init), and a worker is
-            # replaced after _TASKS_PER_CHILD tasks
             self._context = worker_context()
-            self._pool = ProcessPoolExecutor(
-                int(workers or os.cpu_count() or 1), mp_context=self._context, max_tasks_per_child=_TASKS_PER_CHILD,
-                initializer=_worker_init,
-            )
+            self._pool = local_pool(int(workers or os.cpu_count() or 1), self._context)
 
     @property
     def task_threads(self) -> int:
@@ -343,121 +292,6 @@ class Runner:
             return list(dask.compute(*tasks, **kwargs))
 
 
-def _worker_init() -> None:
-    """A local worker process: dies with the fork server; large buffers back to the OS on free."""
-    from ..store.ingest import bound_malloc
-
-    die_with_parent()
-    bound_malloc(_WORKER_MMAP_THRESHOLD)
-
-
 def _after(func: Callable, n: int, *args):
     """``func(*args[:n])``: the rest are the results of the tasks it waited for (a task's extra inputs)."""
     return func(*args[:n])
-
-
-def imap(func: Callable, items: Iterable[tuple[tuple, dict]], client: Any = None, shared: Sequence[Any] = (),
-         kwargs: dict | None = None, max_inflight: int | None = None) -> Iterator[Any]:
-    """Yield ``func(*args, *shared, **kw, **kwargs)`` for each ``(args, kw)`` of *items*, in item order.
-
-    Without a *client* the calls run one after the other in this process
-    (each may use every core itself). With a dask.distributed *client* they
-    are submitted as tasks, at most *max_inflight* (default: twice the
-    workers) pending at once, so *items* may be a generator over data larger
-    than memory; each of *shared* is scattered once to every worker.
-
-    Parameters
-    ----------
-    items : iterable of (tuple, dict)
-        Per-call positional and keyword arguments.
-    shared, kwargs : sequence, dict
-        Trailing positional (broadcast on a cluster) and keyword arguments common to every call.
-    """
-    kwargs = kwargs or {}
-    if client is None:
-        for args, kw in items:
-            yield func(*args, *shared, **kw, **kwargs)
-        return
-    nworkers = max(len(client.scheduler_info().get("workers", {})), 1)
-    max_inflight = max_inflight or 2 * nworkers
-    extra = [client.scatter(a, broadcast=True) for a in shared]
-    pending = []
-    for args, kw in items:
-        pending.append(client.submit(func, *args, *extra, **kw, **kwargs, pure=False))
-        while len(pending) >= max_inflight:
-            yield pending.pop(0).result()
-    while pending:
-        yield pending.pop(0).result()
-
-
-def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
-    try:
-        conn.send(("ok", fn(*args)))
-    except BaseException as exc:  # noqa: BLE001 - reported to the parent
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
-    finally:
-        conn.close()
-
-
-def forked(calls: Sequence[tuple], max_parallel: int | None = None, name: str = "pymeshlab") -> list:
-    """Run each ``(fn, *args)`` of *calls* in its own forked child, up to *max_parallel* at once; results in order.
-
-    A forked child starts from the parent's state and ends with its call, so
-    a library with hidden process-wide state gives the same result for the
-    same call every time, as long as the parent never calls it itself.
-    pymeshlab's Metro sampling is such a case: it draws from a process-wide
-    random generator that is never reseeded, so in one process two identical
-    calls give different figures (see :mod:`cloudsieve.evaluate.mesh`).
-    It also runs single-threaded libraries on all cores. Without ``fork``
-    (Windows, macOS spawn) the calls run in process, one after the other.
-
-    Parameters
-    ----------
-    calls : sequence of tuple
-        ``(fn, *args)``; *fn* and the arguments need not be picklable (the
-        child inherits them), the result must be.
-    max_parallel : int, optional
-        Children at once (default: the machine's cores).
-    name : str
-        What the calls run, for the error messages.
-
-    Raises
-    ------
-    CloudsieveError
-        A call raised (its type and message are given) or its child died.
-    """
-    import multiprocessing as mp
-
-    try:
-        ctx = mp.get_context("fork")
-    except ValueError:  # pragma: no cover
-        logger.info("no fork: %s calls run in process; results that depend on process state vary between calls", name)
-        return [c[0](*c[1:]) for c in calls]
-    max_parallel = max_parallel or os.cpu_count() or 1
-    results: list = [None] * len(calls)
-    running: list = []
-
-    def finish(item):
-        i, proc, conn = item
-        try:
-            status, value = conn.recv()
-        except EOFError:
-            proc.join()
-            raise CloudsieveError(f"{name} crashed in its worker process (exit code {proc.exitcode})") from None
-        proc.join()
-        conn.close()
-        if status != "ok":
-            raise CloudsieveError(f"{name} failed: {value}")
-        results[i] = value
-
-    for i, call in enumerate(calls):
-        if len(running) >= max_parallel:
-            finish(running.pop(0))
-        parent, child = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_child, args=(child, call[0], call[1:]), daemon=True)
-        proc.start()
-        child.close()
-        running.append((i, proc, parent))
-    while running:
-        finish(running.pop(0))
-    return results

@@ -8,7 +8,7 @@ Cignoni et al. 1998) with face sampling (not only vertices), as many samples
 as Metro's own default of 10 x faces (capped, ``samples``) and a MaxDist of
 ten bounding-box diagonals so that no sample is dropped (pymeshlab's default
 drops samples beyond half the diagonal). Metro runs in a forked child
-(:func:`cloudsieve.engine.runner.forked`) so that its random sampling starts
+(:func:`cloudsieve.engine.calls.forked`) so that its random sampling starts
 from the same state every time: same meshes, same figures. pymeshlab's
 sampling draws from a process-wide random generator that is never reseeded,
 so this module never samples in the parent process.
@@ -29,7 +29,7 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..engine.runner import forked
+from ..engine.calls import forked
 from ..errors import MissingDependencyError
 
 __all__ = [
@@ -184,7 +184,7 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
     Notes
     -----
     Each direction runs in a forked child process (see
-    :func:`cloudsieve.engine.runner.forked`), both at once, so that the same
+    :func:`cloudsieve.engine.calls.forked`), both at once, so that the same
     meshes always give the same figures: equal to
     a direct ``get_hausdorff_distance`` call (``samplevert=False,
     sampleface=True``, the same ``samplenum`` and ``maxdist``) made first

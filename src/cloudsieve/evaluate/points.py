@@ -57,7 +57,7 @@ from typing import Any
 
 import numpy as np
 
-from ..engine.runner import imap
+from ..engine.calls import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE

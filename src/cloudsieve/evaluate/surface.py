@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..engine.runner import forked
+from ..engine.calls import forked
 from ._source import open_source
 from .mesh import COMPACT_THRESHOLD, ball_pivoting, compactness, compactness_summary, metro
 

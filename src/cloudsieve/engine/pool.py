@@ -1,0 +1,72 @@
+"""The local worker processes of the default scheduler: how they start, what they load, how long they live.
+
+:func:`local_pool` is the one process pool of a run (:class:`.runner.Runner`
+with dask's "processes" scheduler). Its workers are forked by a fork server
+that has imported the engine once (:func:`worker_context`, ``_PRELOAD``),
+die with it (:mod:`.lifeline`), keep their heaps bounded by a fixed mmap
+threshold and are replaced after ``_TASKS_PER_CHILD`` tasks.
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import ProcessPoolExecutor
+
+from .lifeline import die_with_parent
+
+__all__ = ["local_pool", "worker_context"]
+
+#: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
+#: process; the heap is bounded by the fixed mmap threshold below). A replaced worker's first task costs
+#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
+#: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
+_TASKS_PER_CHILD = 64
+#: glibc's mmap threshold in the local workers, fixed: buffers above it are mapped and unmapped on free.
+#: glibc's default threshold rises with the largest buffer freed (the label tasks' 24 MB arrays), after
+#: which the cells' arrays came from per-thread heaps that fragment: peak RSS of the 10 M benchmark's
+#: process tree 1.50 GB without replacing the workers, 1.30 GB with 32 MiB fixed, 1.05 GB with 16 MiB
+#: (1.14-1.23 GB replacing them every 8 tasks); the cells' arrays (a few MB) stay in the heap
+_WORKER_MMAP_THRESHOLD = 16 << 20
+#: modules imported once by the fork server, so a replaced worker starts in milliseconds
+_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
+            "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
+            "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
+            # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
+            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.kernels.warmup",
+            # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
+            "cloudsieve.engine.forkserver_init"]
+
+
+def worker_context():
+    """The multiprocessing context of the local worker processes.
+
+    dask's default is "spawn": every new process starts Python and imports
+    numpy, scipy, zarr and cloudsieve again (~1.3 s measured), and workers are
+    replaced every ``_TASKS_PER_CHILD`` tasks. Where available (and unless
+    dask's ``multiprocessing.context`` is configured) a "forkserver" that has
+    imported them once forks the workers instead: a clean single-threaded
+    parent, like spawn, without the start-up cost.
+    """
+    import multiprocessing as mp
+
+    import dask
+    from dask.multiprocessing import get_context
+
+    if dask.config.get("multiprocessing.context", None) is None and "forkserver" in mp.get_all_start_methods():
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(_PRELOAD)
+        return ctx
+    return get_context()
+
+
+def local_pool(workers: int, context) -> ProcessPoolExecutor:
+    """A pool of *workers* local worker processes started with *context* (:func:`worker_context`)."""
+    return ProcessPoolExecutor(workers, mp_context=context, max_tasks_per_child=_TASKS_PER_CHILD,
+                               initializer=_worker_init)
+
+
+def _worker_init() -> None:
+    """A local worker process: dies with the fork server; large buffers back to the OS on free."""
+    from ..store.ingest import bound_malloc
+
+    die_with_parent()
+    bound_malloc(_WORKER_MMAP_THRESHOLD)
