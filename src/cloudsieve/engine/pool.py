@@ -66,7 +66,7 @@ def local_pool(workers: int, context) -> ProcessPoolExecutor:
 
 def _worker_init() -> None:
     """A local worker process: dies with the fork server; large buffers back to the OS on free."""
-    from ..store.ingest import bound_malloc
+    from ..store.streaming import bound_malloc
 
     die_with_parent()
     bound_malloc(_WORKER_MMAP_THRESHOLD)

@@ -17,7 +17,7 @@ import zarr
 
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
-from .ingest import bound_malloc, prefetch
+from .streaming import bound_malloc, prefetch
 from .paths import same_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
