@@ -61,11 +61,11 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
         within *margin* of the bisector of c_i and c_j.
     """
     p = len(centers)
-    if tree is None:
-        tree = site_tree(centers)
     none = np.empty((0, 2), dtype=np.int64)
     if p == 1:
         return np.zeros(len(xyz), dtype=np.int64), none
+    if tree is None:
+        tree = site_tree(centers)
     kq = min(p, HALO_NEIGHBOURS + 1)
     # the 2 nearest centres of every point; again with kq only the rows whose second centre is close enough
     # for a pair (without a halo: an exact tie), since a farther centre is farther still (CPU time for 10 M

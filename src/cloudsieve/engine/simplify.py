@@ -122,10 +122,11 @@ def simplify(
     cell_size : int
         Points per coarse cell, i.e. per task; bounds a task's memory. The
         in-memory method peaks at about 2 kB per point, and K-means cells
-        vary (largest ~1.3x the mean). Measured on 2 cores, 2 workers, KM,
-        10 M points (benchmarks/engine.py): peak RSS of the process tree
-        1.26 GB with 100,000 (the default), 1.97 GB with 250,000, at the same
-        throughput.
+        vary (largest 1.54x the mean on the 10 M benchmark scan). Measured on 2 cores, 2 workers, 10 M
+        points (benchmarks/engine.py), peak RSS of the process tree: the
+        default command at 200,000 (the default) 0.99-1.03 GB, and the
+        same at 50 M points; ``--rule iterative`` 1.40 GB at 200,000 and
+        1.13 GB at 100,000 (README, "Speed and memory: out of core").
     scheduler : str, optional
         None (embedded default), "sync", "threads", "processes" or a
         "tcp://host:port" dask.distributed scheduler address.
