@@ -20,12 +20,6 @@ __all__ = ["local_pool", "worker_context"]
 #: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
 #: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
 _TASKS_PER_CHILD = 64
-#: glibc's mmap threshold in the local workers, fixed: buffers above it are mapped and unmapped on free.
-#: glibc's default threshold rises with the largest buffer freed (the label tasks' 24 MB arrays), after
-#: which the cells' arrays came from per-thread heaps that fragment: peak RSS of the 10 M benchmark's
-#: process tree 1.50 GB without replacing the workers, 1.30 GB with 32 MiB fixed, 1.05 GB with 16 MiB
-#: (1.14-1.23 GB replacing them every 8 tasks); the cells' arrays (a few MB) stay in the heap
-_WORKER_MMAP_THRESHOLD = 16 << 20
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
 _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
             "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
@@ -69,4 +63,4 @@ def _worker_init() -> None:
     from ..store.streaming import bound_malloc
 
     die_with_parent()
-    bound_malloc(_WORKER_MMAP_THRESHOLD)
+    bound_malloc()  # as the driver: see its docstring
