@@ -66,7 +66,7 @@ import numpy as np
 from .cells import CellTask, cell_tasks, largest_first
 from .colours import cell_colours
 from .halo import band_mask, read_band_halo
-from .runs import cell_runs, read_cell
+from .runs import cell_runs, gathered, read_cell, write_slices
 
 __all__ = ["global_radius", "share_task", "kept_counts", "apply_task", "run_eliminate"]
 
@@ -156,30 +156,29 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "band", "seconds" (small).
     """
-    from ..core.duplicates import exact_copies
-    from ..core.radius import AREA_K, HEX, point_areas
+    from ..core.duplicates import copy_rows
+    from ..core.radius import AREA_K, HEX, areas_of
     from ..store import PointStore
 
     t0 = time.perf_counter()
     g = PointStore.open(task.store_path, "r+").group
-    core = read_cell(g, cell_runs(g, task.cell))
+    core = read_cell(g, cell_runs(g, task.cell))  # the store's points: finite float64 (checked at ingest)
     n = len(core)
     r_max = float(task.params["r_max"])
-    own = core[~exact_copies(core)] if n else core
+    own = core[~copy_rows(core)] if n else core
     expected = float(len(own))
     if len(own) and math.isfinite(r_max):
-        areas, weight = point_areas(own, sample=max(SHARE_SAMPLE, AREA_K + 1), seed=task.cell,
-                                    workers=_threads(task))
+        areas, weight = areas_of(own, np.zeros((0, 3)), AREA_K, max(SHARE_SAMPLE, AREA_K + 1), task.cell,
+                                 _threads(task))
         expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum()) * weight
     band = np.flatnonzero(band_mask(core, {**dependents, task.cell: task.centers[task.cell]}, task.cell, dependents,
                                     task.margin))
-    if len(band):
-        g["simplify/band_xyz"][task.region : task.region + len(band)] = core[band]
-        g["simplify/band_pos"][task.region : task.region + len(band)] = band.astype(np.int64)
-    g["simplify/band_count"][task.cell : task.cell + 1] = np.array([len(band)], dtype=np.int64)
-    g["simplify/duplicates"][task.cell : task.cell + 1] = np.array([n - len(own)], dtype=np.int64)
-    g["simplify/share"][task.cell : task.cell + 1] = np.array([[expected, len(own)]])
-    g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
+    bands = [("simplify/band_xyz", task.region, core[band]),
+             ("simplify/band_pos", task.region, band.astype(np.int64))] if len(band) else []
+    write_slices(g, [*bands, ("simplify/band_count", task.cell, np.array([len(band)], dtype=np.int64)),
+                      ("simplify/duplicates", task.cell, np.array([n - len(own)], dtype=np.int64)),
+                      ("simplify/share", task.cell, np.array([[expected, len(own)]]))])
+    g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)  # after them: the marker
     return {"cell": task.cell, "n": n, "band": len(band), "seconds": time.perf_counter() - t0}
 
 
@@ -240,12 +239,14 @@ def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
 
 def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) -> np.ndarray:
     """The final keep decisions (``simplify/keep_cells``) of the halo points of cells *sources*."""
-    kc = g["simplify/keep_cells"]
+    kc = g["simplify/keep_cells"].async_array
     keep = np.zeros(len(cells), dtype=bool)
-    for s in sources:
-        sel = np.flatnonzero(cells == s)
-        if len(sel):
-            keep[sel] = np.asarray(kc.get_orthogonal_selection((task.halo[s] + pos[sel],)))
+    sels = [(s, np.flatnonzero(cells == s)) for s in sources]
+    sels = [(s, sel) for s, sel in sels if len(sel)]
+    # every source in one call of zarr's event loop
+    for (s, sel), got in zip(sels, gathered(kc.get_orthogonal_selection((task.halo[s] + pos[sel],))
+                                            for s, sel in sels)):
+        keep[sel] = np.asarray(got)
     return keep
 
 

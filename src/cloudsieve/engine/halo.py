@@ -25,6 +25,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .runs import gathered
+
 __all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_halo"]
 
 
@@ -154,19 +156,20 @@ def read_band_halo(group, sources: dict[int, int], centers, cell: int, margin: f
     points : ndarray of shape (h, 3), float64
     cells, positions : ndarray of shape (h,), int64
     """
-    xyz, pos, cnt = group[f"{prefix}_xyz"], group[f"{prefix}_pos"], group[f"{prefix}_count"]
+    xyz, pos, cnt = (group[f"{prefix}_{n}"].async_array for n in ("xyz", "pos", "count"))
+    srcs = sorted(sources)
+    # in two calls of zarr's event loop (the counts, then the bands), not three a source
+    counts = [int(np.asarray(c)[0]) for c in gathered(cnt.getitem(slice(s, s + 1)) for s in srcs)]
+    spans = [(s, int(sources[s]), int(sources[s]) + c) for s, c in zip(srcs, counts) if c > 0]
+    got = gathered(arr.getitem(slice(a, b)) for _, a, b in spans for arr in (xyz, pos))
     out, cells, where = [], [], []
-    for src in sorted(sources):
-        a = int(sources[src])
-        b = a + int(cnt[src])
-        if b <= a:
-            continue
-        z = np.asarray(xyz[a:b])
+    for (src, a, b), z, p in zip(spans, got[0::2], got[1::2]):
+        z = np.asarray(z)
         m = halo_mask(z, centers, cell, src, margin)
         if m.any():
             out.append(z[m])
             cells.append(np.full(int(m.sum()), src, dtype=np.int64))
-            where.append(np.asarray(pos[a:b])[m].astype(np.int64))
+            where.append(np.asarray(p)[m].astype(np.int64))
     if not out:
         return np.empty((0, 3)), np.empty(0, np.int64), np.empty(0, np.int64)
     return np.concatenate(out, axis=0), np.concatenate(cells), np.concatenate(where)
