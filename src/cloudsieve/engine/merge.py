@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CloudsieveError
-from .runs import chunk_runs
+from ..core.kernels.scatter import from_groups
+from .runs import chunk_runs, gathered
 
 __all__ = ["merge_task", "run_merge"]
 
@@ -32,15 +33,18 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     n = stop - start
     if int(runs[:, 1].sum()) != n:  # pragma: no cover - the partition is inconsistent
         raise CloudsieveError(f"{store_path}: chunk at {start} has {n} points but its cells hold {int(runs[:, 1].sum())}")
-    labels = np.asarray(g["partition/cell"][start:stop]).astype(np.int64)
-    order = np.argsort(labels, kind="stable")
-    regions = np.asarray(g["simplify/regions"].get_coordinate_selection(runs[:, 0])) if len(runs) else np.empty(0, np.int64)
-    # positions in the cell-ordered arrays of the chunk's points, sorted by cell (each run contiguous)
-    begin = regions + runs[:, 2]
-    idx = np.repeat(begin - np.cumsum(runs[:, 1]) + runs[:, 1], runs[:, 1]) + np.arange(n)
-    sorted_keep = np.asarray(g["simplify/keep_cells"].get_coordinate_selection(idx)) if n else np.empty(0, bool)
-    keep = np.empty(n, dtype=bool)
-    keep[order] = sorted_keep
+    labels = np.asarray(g["partition/cell"][start:stop])
+    regions = g["simplify/regions"]
+    first = np.asarray(regions.get_coordinate_selection(runs[:, 0])) if len(runs) else np.empty(0, np.int64)
+    # each run's keep decisions are a slice of the cell-ordered array: read in one call of zarr's event loop
+    # and put back in input order in one pass (was: a coordinate selection of the chunk's n positions and
+    # a stable argsort of its labels, 0.06-0.10 s a chunk of 1 M points)
+    kc = g["simplify/keep_cells"].async_array
+    parts = gathered(kc.getitem(slice(int(b), int(b) + int(c))) for b, c in zip(first + runs[:, 2], runs[:, 1]))
+    src = np.concatenate([np.asarray(p) for p in parts]) if parts else np.empty(0, bool)
+    offset = np.zeros(regions.shape[0], dtype=np.int64)
+    offset[runs[:, 0]] = np.cumsum(runs[:, 1]) - runs[:, 1]
+    keep = from_groups(labels, offset, src) if n else np.empty(0, bool)
     g["simplify/keep"][start:stop] = keep
     return int(keep.sum())
 

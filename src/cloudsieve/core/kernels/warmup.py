@@ -20,6 +20,7 @@ from .copies import first_equal
 from .entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
 from .knn import knn_scored, knn_unchecked, take_neighbours
 from .order import grouped_order
+from .scatter import from_groups
 
 __all__ = ["warm_up"]
 
@@ -52,4 +53,5 @@ def warm_up() -> float:
     scores_to_input(order, indptr, kcl, scored, ~scored, np.array([12, 12]), gain)
     graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
+    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))  # the merge
     return time.perf_counter() - t0
