@@ -156,12 +156,15 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
             _stable_sort(kbuf, soff[b:k], m, kbuf2, buf)
             _ties_by_tie(soff, b, k, dd, nbr, tie)
             continue
-        for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]
+        for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]; the
+            # sorted distances beside them in kbuf (one load a comparison instead of two dependent ones)
+            v = dd[b + t]
             q = t - 1
-            while q >= 0 and (dd[b + soff[b + q]] > dd[b + t] or (dd[b + soff[b + q]] == dd[b + t]
-                                                                  and tie[nbr[b + soff[b + q]]] > tie[nbr[b + t]])):
+            while q >= 0 and (kbuf[q] > v or (kbuf[q] == v and tie[nbr[b + soff[b + q]]] > tie[nbr[b + t]])):
+                kbuf[q + 1] = kbuf[q]
                 soff[b + q + 1] = soff[b + q]
                 q -= 1
+            kbuf[q + 1] = v
             soff[b + q + 1] = t
     nptr[stop - lo] = k
     return stop, k
