@@ -4,12 +4,14 @@ It is the last module of the fork server's preload list: imported there, it
 asks the kernel to kill the fork server when its parent, the driver, dies,
 then compiles the numba kernels (or loads them from numba's cache) once, so
 every worker forked from the server inherits them
-(:func:`cloudsieve.core.kernels.warmup.warm_up`).
+(:func:`cloudsieve.core.kernels.warmup.warm_up`), and freezes the objects it
+holds (``gc.freeze``) before the first fork.
 Imported anywhere else (a test that imports every preload module) it does
 nothing: the caller is recognised by ``multiprocessing.forkserver.main`` on
 the import's call stack.
 """
 
+import gc
 import logging
 import sys
 
@@ -32,3 +34,7 @@ if _in_forkserver_main():
         logging.getLogger(__name__).debug("kernels warmed up in %.2f s", warm_up())
     except Exception as exc:  # noqa: BLE001 - the workers then compile at their first call, and raise there
         logging.getLogger(__name__).warning("kernel warm-up failed in the fork server: %r", exc)
+    # the objects of the imports and the kernels, frozen before any fork: the workers' collections no longer
+    # walk them (8 cells' share and apply tasks in a process with the same imports: 0.061 -> 0.033 s of
+    # collections), and do not write to their pages (Python's advice for a parent that forks)
+    gc.freeze()
