@@ -59,7 +59,7 @@ def local_pool(workers: int, context) -> ProcessPoolExecutor:
 
 
 def _worker_init() -> None:
-    """A local worker process: dies with the fork server; large buffers back to the OS on free."""
+    """A local worker process: dies with the fork server; glibc's heap thresholds fixed (:func:`bound_malloc`)."""
     from ..store.streaming import bound_malloc
 
     die_with_parent()
