@@ -307,3 +307,36 @@ def test_single_cell(tmp_path):
     assert part.n_cells == 1
     assert np.array_equal(R.read_cell(st.group, part.runs(0)), xyz)
     assert len(part.halo_sources(0)) == 0
+
+
+def test_the_sample_taken_while_ingesting_is_the_one_read_from_the_store(tmp_path):
+    """IngestSample (the ingest's on_chunk) holds plan_sample's rows of the store, the same coordinates, and
+    build_partition given it builds the same cells; None when the reader announced no count (XYZ) or a point
+    was dropped, so the partition reads the store as before."""
+    from cloudsieve.store import ingest
+
+    from engine_data import plane as surface, write_laz
+
+    xyz = surface(120_000, seed=4)
+    src = write_laz(tmp_path / "in.laz", xyz)
+    taken = P.IngestSample(cell_size=2_000, seed=5)
+    st = ingest(src, tmp_path / "a.zarr", chunk_size=7_000, on_chunk=taken)
+    rows = P.plan_sample(st.count, P.n_cells_for(st.count, 2_000), 5)
+    assert 0 < len(rows) < st.count
+    stored = np.asarray(st.group["xyz"][:])[rows]
+    got = taken.sample(st.count)
+    assert got is not None and np.array_equal(got, stored)
+    assert taken.sample(st.count - 1) is None
+    a = P.build_partition(PointStore.open(st.path, "r+"), cell_size=2_000, cluster_size=100, seed=5, run=run_sync)
+    b = P.build_partition(PointStore.open(st.path, "r+"), cell_size=2_000, cluster_size=100, seed=5, run=run_sync,
+                          sample=got)
+    assert np.array_equal(a.centers, b.centers) and a.margin == b.margin
+    assert np.array_equal(a.cell_counts, b.cell_counts)
+
+    txt = tmp_path / "in.xyz"  # no announced count, and a row dropped
+    pts = xyz[:5_000].copy()
+    pts[10] = np.nan
+    np.savetxt(txt, pts)
+    taken = P.IngestSample(cell_size=2_000, seed=5)
+    st = ingest(txt, tmp_path / "b.zarr", chunk_size=1_000, drop_invalid=True, on_chunk=taken)
+    assert st.count == 4_999 and taken.sample(st.count) is None

@@ -43,7 +43,7 @@ from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
 from .eliminate import run_eliminate
-from .partition import build_partition, reusable_partition
+from .partition import IngestSample, build_partition, reusable_partition
 from .runner import PeakMemory, Runner, stage_bar
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
@@ -261,11 +261,13 @@ def simplify(
         try:
             t0 = time.perf_counter()
             st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
+            taken = None  # the partition's sample, taken while ingesting (a fresh store only)
             if st is None:
                 runner.prestart()  # the workers start while the driver ingests
+                taken = IngestSample(cell_size, seed)
                 with stage_bar(bars, "ingest", None, "pt") as bar:
                     st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
-                                                 drop_invalid=drop_invalid)
+                                                 drop_invalid=drop_invalid, on_chunk=taken)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
@@ -283,7 +285,7 @@ def simplify(
                 workstore.clear_derived(st)
                 part = build_partition(
                     st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
-                    halo=halo, eliminate_target=elim,
+                    halo=halo, eliminate_target=elim, sample=taken.sample(st.count) if taken else None,
                 )
             update(st.count)
             summary.cells = part.n_cells

@@ -121,11 +121,13 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
     return st
 
 
-def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, drop_invalid: bool = False):
+def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, drop_invalid: bool = False,
+                  on_chunk=None):
     """Ingest the file *src* into a new work store at *store_path* and record the source's identity.
 
     *drop_invalid* drops the points with NaN or infinite coordinates (see
-    :func:`cloudsieve.store.ingest`) instead of refusing the file.
+    :func:`cloudsieve.store.ingest`) instead of refusing the file; *on_chunk*
+    sees each block of points as it is stored (as in :func:`~cloudsieve.store.ingest`).
 
     Returns
     -------
@@ -135,7 +137,8 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
     from ..store import PointStore, ingest
 
     identity = source_identity(src)
-    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, drop_invalid=drop_invalid)
+    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, drop_invalid=drop_invalid,
+           on_chunk=on_chunk)
     st = PointStore.open(store_path, "r+")
     st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
     return st

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import os
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -106,6 +107,7 @@ def ingest(
     drop_invalid: bool = False,
     overwrite: bool = False,
     progress: _progress.ProgressCallback | None = None,
+    on_chunk: Callable[[int, np.ndarray, int | None], None] | None = None,
     **reader_options: Any,
 ) -> PointStore:
     """Stream the point cloud file *src* into a new point store *store*.
@@ -127,6 +129,13 @@ def ingest(
         Replace an existing store.
     progress : callable, optional
         Called with the number of points read after each chunk.
+    on_chunk : callable, optional
+        Called as ``on_chunk(start, xyz, count)`` with each block of valid
+        points as it is stored: ``start`` its first row in the store, ``xyz``
+        its coordinates (n, 3), float64, ``count`` the points the reader
+        announced (None when the format does not say). For work that needs
+        every point once, without reading the store again (the partition's
+        sample, :class:`cloudsieve.engine.partition.IngestSample`).
     **reader_options
         Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
 
@@ -175,8 +184,10 @@ def ingest(
             # NaN/infinite coordinates refused or dropped (InvalidPointsError, EmptyInputError at the end)
             valid = ValidPoints(src, drop_invalid)
             prefetched = prefetch(reader.chunks())
-            for _, chunk in valid.chunks(prefetched, progress=update):
+            for start, chunk in valid.chunks(prefetched, progress=update):
                 xyz = chunk["xyz"]
+                if on_chunk is not None:
+                    on_chunk(start, xyz, reader.count)
                 # per column: a 1-D strided reduction is ~10x faster than xyz.min(axis=0) on (n, 3)
                 lo = np.minimum(lo, [xyz[:, i].min() for i in range(3)])
                 hi = np.maximum(hi, [xyz[:, i].max() for i in range(3)])
