@@ -3,7 +3,8 @@
 A store of N points is cut into P = ceil(N / cell_size) cells:
 
 1. **sample** -- a uniform sample of S points (indices drawn once from the seed,
-   so the sample does not depend on the store's chunking), read chunk by chunk;
+   so the sample does not depend on the store's chunking), read chunk by chunk,
+   or taken while the ingest wrote the store (:class:`IngestSample`);
 2. **fit** -- P centres by the core :class:`~cloudsieve.core.KMeans` on the
    sample (coordinates taken relative to the store's lower bound);
 3. **label + bucket** -- one task per input chunk (:mod:`.label`) labels its
