@@ -43,7 +43,8 @@ from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
 from .eliminate import run_eliminate
-from .partition import IngestSample, build_partition, reusable_partition
+from .partition import build_partition, reusable_partition
+from .sample import IngestSample
 from .runner import PeakMemory, Runner, stage_bar
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION

@@ -135,7 +135,7 @@ def ingest(
         its coordinates (n, 3), float64, ``count`` the points the reader
         announced (None when the format does not say). For work that needs
         every point once, without reading the store again (the partition's
-        sample, :class:`cloudsieve.engine.partition.IngestSample`).
+        sample, :class:`cloudsieve.engine.sample.IngestSample`).
     **reader_options
         Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
 
