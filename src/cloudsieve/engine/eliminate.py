@@ -66,7 +66,8 @@ import numpy as np
 from .cells import CellTask, cell_tasks, largest_first
 from .colours import cell_colours
 from .halo import band_mask, read_band_halo
-from .runs import cell_runs, gathered, read_cell, write_slices
+from ..store.streaming import gathered
+from .runs import cell_runs, read_cell, write_slices
 
 __all__ = ["global_radius", "share_task", "kept_counts", "apply_task", "run_eliminate"]
 

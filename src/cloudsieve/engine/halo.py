@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .runs import gathered
+from ..store.streaming import gathered
 
 __all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_halo"]
 

@@ -13,7 +13,8 @@ import numpy as np
 
 from ..errors import CloudsieveError
 from ..core.kernels.scatter import from_groups
-from .runs import chunk_runs, gathered
+from ..store.streaming import gathered
+from .runs import chunk_runs
 
 __all__ = ["merge_task", "run_merge"]
 

@@ -3,8 +3,9 @@
 :func:`local_pool` is the one process pool of a run (:class:`.runner.Runner`
 with dask's "processes" scheduler). Its workers are forked by a fork server
 that has imported the engine once (:func:`worker_context`, ``_PRELOAD``),
-die with it (:mod:`.lifeline`), keep their heaps bounded by a fixed mmap
-threshold and are replaced after ``_TASKS_PER_CHILD`` tasks.
+die with it (:mod:`.lifeline`), keep glibc's heap thresholds fixed
+(:func:`~cloudsieve.store.streaming.bound_malloc`) and are replaced after
+``_TASKS_PER_CHILD`` tasks.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from .lifeline import die_with_parent
 __all__ = ["local_pool", "worker_context"]
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
-#: process; the heap is bounded by the fixed mmap threshold below). A replaced worker's first task costs
+#: process; the heap's thresholds are fixed by bound_malloc). A replaced worker's first task costs
 #: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
 #: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
 _TASKS_PER_CHILD = 64

@@ -26,11 +26,11 @@ in input order, its runs ``xyz[c, start:start + count]``
 
 from __future__ import annotations
 
-import asyncio
-
 import numpy as np
 
-__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "gathered", "write_slices"]
+from ..store.streaming import gathered
+
+__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "write_slices"]
 
 #: zarr chunk of the run tables (runs)
 _RUN_CHUNK = 65536
@@ -184,25 +184,9 @@ def read_cell(group, runs: np.ndarray) -> np.ndarray:
     return read_runs(group, runs)
 
 
-def gathered(calls) -> list:
-    """The results of zarr's coroutines *calls* (``Array.async_array`` reads and writes), run concurrently in
-    one call of zarr's event loop: one call each costs about 1 ms of zarr's overhead (a cell's ten runs, a
-    task's five small writes), and the codecs release the GIL."""
-    from zarr.core.sync import sync
-
-    calls = list(calls)
-    if not calls:
-        return []
-
-    async def run_all() -> list:
-        return await asyncio.gather(*calls)
-
-    return sync(run_all())
-
-
 def write_slices(group, items) -> None:
     """Write ``group[name][start:start + len(values)] = values`` for each (name, start, values) of *items*,
-    concurrently (:func:`gathered`): a crash may leave any subset written, so a marker written after them
+    concurrently (:func:`~cloudsieve.store.streaming.gathered`): a crash may leave any subset written, so a marker written after them
     tells a resumed run they are all there."""
     gathered(group[name].async_array.setitem(slice(int(start), int(start) + len(values)), values)
              for name, start, values in items)

@@ -10,7 +10,6 @@ no rename: the store is marked complete only at the end, and
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import os
 from collections.abc import Callable
@@ -18,7 +17,6 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.core.sync import sync as zarr_sync
 
 from .. import progress as _progress
 from ..errors import (
@@ -29,7 +27,7 @@ from ..errors import (
 from .paths import local_path, same_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
-from .streaming import bound_malloc, prefetch
+from .streaming import bound_malloc, gathered, prefetch
 
 __all__ = ["ingest"]
 
@@ -78,14 +76,9 @@ class _StoreFiller:
             self.capacity = stop
             for arr in self.arrays.values():
                 arr.resize((stop, *arr.shape[1:]))
-        # all arrays in one call of zarr's event loop: compressed and written
-        # concurrently (the codecs release the GIL), without a thread per array
+        # all arrays compressed and written concurrently, without a thread per array
         sel = slice(start, stop)
-
-        async def write_all() -> None:
-            await asyncio.gather(*(arr.async_array.setitem(sel, block[name]) for name, arr in self.arrays.items()))
-
-        zarr_sync(write_all())
+        gathered(arr.async_array.setitem(sel, block[name]) for name, arr in self.arrays.items())
         self.written = stop
 
     def flush(self) -> None:

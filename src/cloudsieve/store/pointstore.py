@@ -28,7 +28,6 @@ the evaluation's sources) yields :class:`~cloudsieve.store.chunk.Chunk`
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import os
 import shutil
@@ -37,7 +36,6 @@ from typing import Any
 
 import numpy as np
 import zarr
-from zarr.core.sync import sync as zarr_sync
 
 from ..errors import (
     ArrayNotFoundError,
@@ -48,6 +46,7 @@ from ..errors import (
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import local_path, path_exists, zarr_store
+from .streaming import gathered
 
 __all__ = [
     "PointStore",
@@ -307,13 +306,9 @@ class PointStore:
             raise InvalidParameterError(f"chunk_size must be positive, got {step}")
         for start in range(0, self.count, step):
             sel = slice(start, min(start + step, self.count))
-
-            # all arrays in one call of zarr's event loop: read and decoded concurrently (the codecs release
-            # the GIL), not one array after the other (export of 5 M of 10 M points: 1.83-1.90 -> 1.54-1.75 s)
-            async def read_all(sel=sel) -> list:
-                return await asyncio.gather(*(a.async_array.getitem(sel) for a in arrays.values()))
-
-            yield Chunk(start, {n: np.asarray(v) for n, v in zip(arrays, zarr_sync(read_all()))})
+            # all arrays read and decoded concurrently, not one after the other
+            got = gathered(a.async_array.getitem(sel) for a in arrays.values())
+            yield Chunk(start, {n: np.asarray(v) for n, v in zip(arrays, got)})
 
     # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:

@@ -1,14 +1,16 @@
-"""Helpers of the streaming stages (ingest, export) and of the local workers: a read-ahead thread, a bounded heap."""
+"""Helpers of the streaming stages (ingest, export), the store's reads and writes and the local workers:
+a read-ahead thread, zarr calls in one event-loop call, a bounded heap."""
 
 from __future__ import annotations
 
+import asyncio
 import logging
 import os
 import queue
 import sys
 import threading
 
-__all__ = ["prefetch", "bound_malloc"]
+__all__ = ["prefetch", "gathered", "bound_malloc"]
 
 logger = logging.getLogger(__name__)
 
@@ -60,14 +62,37 @@ def bound_malloc(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) ->
         pass
 
 
+def gathered(calls) -> list:
+    """The results of zarr's coroutines *calls* (``Array.async_array`` reads and writes), in order, run
+    concurrently in one call of zarr's event loop.
+
+    One call each costs about 1 ms of zarr's overhead (a cell's ten runs, a
+    task's five small writes), and the codecs release the GIL: a store
+    chunk's arrays read together, export of 5 M of 10 M points 1.83-1.90 ->
+    1.54-1.75 s.
+    """
+    from zarr.core.sync import sync
+
+    calls = list(calls)
+    if not calls:
+        return []
+
+    async def run_all() -> list:
+        return await asyncio.gather(*calls)
+
+    return sync(run_all())
+
+
 def prefetch(chunks, depth: int = 1):
     """Iterate *chunks* produced by a background thread, *depth* chunks ahead.
 
-    The producer's work overlaps with the consumer's (ingest: decoding, in
-    lazrs, which releases the GIL, with compressing and writing the previous
-    chunk; export: reading and selecting a chunk with encoding the previous
-    one); memory grows by *depth* chunks at most. Close the generator to
-    stop the thread early.
+    The producer's work overlaps with the consumer's where one of them
+    releases the GIL (ingest: decoding the next chunk with compressing and
+    writing the previous one, in the codecs' threads; export: reading and
+    selecting a chunk with encoding the previous one). lazrs holds the GIL
+    while it decodes or encodes: a Python thread that counts ran at 5-7% of
+    its rate during a 1 M-point decode. Memory grows by *depth* chunks at
+    most. Close the generator to stop the thread early.
     """
     q: queue.Queue = queue.Queue(maxsize=depth)
     done = object()
