@@ -24,11 +24,16 @@ LAS_FILES = [
 ]
 
 
-def shared_file(name: str) -> Path:
-    """Path of a real scan in ../shared/data; skips the test when the folder is absent."""
+def _require_data_dir() -> Path:
+    """DATA_DIR; skips the test when the folder is absent (a fresh clone)."""
     if not DATA_DIR.is_dir():
         pytest.skip(f"real scans not available: {DATA_DIR} is absent (a fresh clone without shared/)")
-    path = DATA_DIR / name
+    return DATA_DIR
+
+
+def shared_file(name: str) -> Path:
+    """Path of a real scan in ../shared/data; skips the test when the folder or the scan is absent."""
+    path = _require_data_dir() / name
     if not path.is_file():
         pytest.skip(f"real scan {name} not found in {DATA_DIR}")
     return path
@@ -36,6 +41,4 @@ def shared_file(name: str) -> Path:
 
 @pytest.fixture
 def data_dir() -> Path:
-    if not DATA_DIR.is_dir():
-        pytest.skip(f"real scans not available: {DATA_DIR} is absent (a fresh clone without shared/)")
-    return DATA_DIR
+    return _require_data_dir()
