@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.engine.colours import cell_colours, halo_graph
+from cloudsieve.core.colours import cell_colours, halo_graph
 from cloudsieve.errors import InvalidParameterError
 
 

@@ -21,8 +21,8 @@ from cloudsieve.core.eliminate import eliminate
 from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
-from cloudsieve.engine.colours import cell_colours
-from cloudsieve.engine.eliminate import kept_counts
+from cloudsieve.core.colours import cell_colours
+from cloudsieve.core.eliminate_cells import kept_counts
 from cloudsieve.engine.halo import read_band_halo, read_halo
 from cloudsieve.engine.runs import cell_runs
 from cloudsieve.engine.runner import Runner
@@ -125,7 +125,7 @@ def test_resume_after_a_crash_mid_pass(reference, scan, tmp_path, crash):
         a, n = int(regions[j]), int(counts[j])
         g["simplify/keep_cells"][a : a + n] = np.zeros(n, dtype=bool)
         if crash == "shares":
-            g["simplify/share"][j : j + 1] = np.array([[-1.0, 0.0]])
+            g["simplify/share"][j : j + 1] = np.full((1, g["simplify/share"].shape[1]), -1.0)
             g["simplify/band_count"][j : j + 1] = np.zeros(1, dtype=np.int64)
     g["simplify/keep"][:] = np.zeros(g["simplify/keep"].shape, dtype=bool)
     out = tmp_path / "resumed.laz"
@@ -239,7 +239,7 @@ def test_one_cell_equals_the_core_eliminate(tmp_path):
                  scheduler="sync")
     st, keep, xyz = store_arrays(store)
     assert s.cells == 1
-    core = eliminate(xyz, ratio=0.3)
+    core = eliminate(xyz, ratio=0.3, cell_points=None)
     assert np.array_equal(np.flatnonzero(keep), core)
 
 
@@ -275,7 +275,7 @@ def test_no_seam_on_autzen_at_20_percent(tmp_path):
     part = P.Partition.load(st)
     dist = _border_distance(xyz, np.asarray(st.group["partition/cell"][:]), part.centers)
     core = np.zeros(len(xyz), dtype=bool)
-    core[eliminate(xyz, count=s.kept, r_max=part.r_max)] = True
+    core[eliminate(xyz, count=s.kept, r_max=part.r_max, cell_points=None)] = True
     for r in (part.r_max, 2 * part.r_max):
         near = dist < r
         assert near.sum() > 2_000
@@ -303,7 +303,7 @@ def test_no_hole_at_the_borders(tmp_path, name, ratio, cell_size, cells):
     st, keep, xyz = store_arrays(store)
     assert keep.sum() == round(ratio * len(xyz))
     core = np.zeros(len(xyz), dtype=bool)
-    core[eliminate(xyz, count=int(keep.sum()))] = True
+    core[eliminate(xyz, count=int(keep.sum()), cell_points=None)] = True
     assert _point_max(xyz, keep) <= 1.1 * _point_max(xyz, core)
 
 

@@ -57,10 +57,12 @@ from __future__ import annotations
 import logging
 import math
 
+import numba
 import numpy as np
 
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
+from .eliminate_cells import CELL_POINTS, MIN_CELL_POINTS
 from .entropy import score_points
 from .kernels import eliminate as _ke
 from .kernels import geometry as _kgeo
@@ -264,25 +266,39 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
     if rank is not None:
         inner = src < n
         scale[inner] *= 1.0 - entropy * rank[src[inner]]
-    ialpha = int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-    nptr, nbr, low, soff, w, term = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
-    r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
-    links = np.full((len(allp), 8), -1, dtype=_kn.index_type(len(allp), nptr[-1]))
-    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,
-                                ialpha, r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
-    logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone; pops %d, stale %d, coverage %d, searches %d",
-                 n, nh, nf, len(gon), *stats)
-    out = np.empty(len(allp))
-    out[src] = prio
+    ialpha = _ialpha(alpha)
+    lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
+    prio, rep = _run(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor)
+    logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone", n, nh, nf, len(gon))
     copy = np.zeros(len(allp), dtype=bool)
     copy[src[grid.copy]] = True
-    left = np.isnan(out[n : n + nh]) & ~copy[n : n + nh]
-    out = out[:n]
+    left = np.isnan(prio[n : n + nh]) & ~copy[n : n + nh]
+    out = prio[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    # each grid row's rep at the stop: the nearest point left (module .kernels.cover), -1 for exact copies
-    # and points none was within reach of
-    rep = links[:, 2].astype(np.int64) if coverage else None
     return out, (grid if rho == two_r else None), left, rep
+
+
+def _ialpha(alpha: float) -> int:
+    return int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
+
+
+def _run(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor) -> tuple:
+    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows; the lists may hold
+    points absent from the start: their terms only make the first bounds larger). Returns the priority of
+    every position of the grid's points (NaN: not removed nor own and left), and each grid row's rep at
+    the stop: the nearest point left (module .kernels.cover), -1 for exact copies and points none was
+    within reach of (None without the coverage term)."""
+    two_r = 2.0 * r_max
+    nptr, nbr, low, soff, w, term = lists
+    src = grid.order
+    r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
+    links = np.full((len(src), 8), -1, dtype=_kn.index_type(len(src), nptr[-1]))
+    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,
+                                _ialpha(alpha), r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
+    logger.debug("eliminate: pops %d, stale %d, coverage %d, searches %d", *stats)
+    out = np.empty(len(src))
+    out[src] = prio
+    return out, (links[:, 2].astype(np.int64) if coverage else None)
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
@@ -312,13 +328,23 @@ _OPTIONS = {"labels", "dh", "fixed", "alpha", "coverage", "geometric", "entropy"
 
 
 def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int = RELOCATE_STEPS,
-              threads: int | None = None, **options) -> np.ndarray:
+              threads: int | None = None, cell_points: int | None = CELL_POINTS, **options) -> np.ndarray:
     """Sorted int64 indices of exactly ``count`` (or round(ratio * n)) points of a whole cloud.
 
     The elimination (:func:`eliminate_order`) stops at the count, then
     ``relocate_steps`` restricted Lloyd steps (:func:`relocate`) lower the
     squared error. ``options``: ``labels``, ``dh``, ``fixed``, ``alpha``,
     ``coverage``, ``geometric``, ``entropy`` as in :func:`eliminate_order`.
+
+    Above ``cell_points`` points (None: never), the cloud is split into
+    cells of at most that many points, eliminated colour by colour on
+    ``threads`` threads with their halos, as the out-of-core run does
+    (:mod:`.eliminate_cells`); the kept set then differs from one
+    elimination's, by as little as the engine's does. Only with the default
+    key: with any of ``options`` set (the information terms rank over the
+    whole cloud, fixed points belong to no cell), one elimination over the
+    whole cloud. The result depends on neither ``threads`` nor the input
+    order.
 
     Examples
     --------
@@ -335,7 +361,25 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
                                     "eliminate_order (cells)")
     if int(relocate_steps) != relocate_steps or relocate_steps < 0:
         raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
-    r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else check_r_max(r_max)
+    if cell_points is not None and (int(cell_points) != cell_points or cell_points < MIN_CELL_POINTS):
+        raise InvalidParameterError(f"cell_points must be None or an integer >= {MIN_CELL_POINTS}, got "
+                                    f"{cell_points!r}")
+    if cell_points is not None and len(pts) > cell_points and not options and 0 < target < len(pts):
+        from concurrent.futures import ThreadPoolExecutor
+
+        from .eliminate_cells import cell_cap, eliminate_cells, split_cells
+
+        workers = numba.get_num_threads() if threads is None else max(1, int(threads))
+        with ThreadPoolExecutor(1) as side:  # the cells are cut while r_max is solved (it needs only the count)
+            cells = side.submit(split_cells, pts, cell_cap(len(pts), target, int(cell_points)), workers)
+            r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else check_r_max(r_max)
+            cells = cells.result()
+        if math.isfinite(r_max):
+            return np.flatnonzero(eliminate_cells(pts, target, r_max, cells, int(relocate_steps),
+                                                  workers)).astype(np.int64)
+    elif r_max is None:
+        r_max = _radius(pts, np.zeros((0, 3)), target)
+    r_max = check_r_max(r_max)
     opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
             "entropy": 0.0} | options
     prio, grid, _, rep = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
@@ -352,14 +396,15 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
 
 
 def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
-                   threads: int | None = None) -> np.ndarray:
+                   steps: int = RELOCATE_STEPS, threads: int | None = None) -> np.ndarray:
     """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
 
     The halo points already ``decided`` (a neighbouring cell's final
     result) weigh as fixed points when kept (``halo_keep``) and as gone
     points when removed; the others are eliminated along (not counted).
-    Then :func:`relocate` with every kept halo point pulling on the
-    regions, on the same grid (one grid for both: the same points).
+    Then ``steps`` steps of :func:`relocate` with every kept halo point
+    pulling on the regions, on the same grid (one grid for both: the same
+    points).
 
     Parameters
     ----------
@@ -383,6 +428,8 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     if int(count) != count or not 0 <= count <= n:
         raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
     r_max = check_r_max(r_max)
+    if int(steps) != steps or steps < 0:
+        raise InvalidParameterError(f"steps must be an integer >= 0, got {steps!r}")
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
     dec = np.zeros(len(hal), dtype=bool) if decided is None else np.asarray(decided)
     hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)
@@ -402,4 +449,4 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
         keep = keep_lowest(prio, int(count))
         kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
         # the points left are the kept ones: the reps are the relocation's first nearest kept points
-        return relocate_points(pts, keep, hp, kept_halo, r_max, RELOCATE_STEPS, grid, rep)
+        return relocate_points(pts, keep, hp, kept_halo, r_max, int(steps), grid, rep) if steps else keep

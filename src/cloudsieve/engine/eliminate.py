@@ -9,20 +9,24 @@ elimination per cell:
    partition's attributes, so a resumed run uses the same one); the halo
    margin is at least 2.2 r_max (the elimination and the relocation reach
    2 r_max).
-2. **the shares** (:func:`share_task`, one small task per cell): the kept
-   points the area model of r_max (:mod:`cloudsieve.core.radius`) expects
-   in the cell, sum over its distinct points of min(1, a_i / (2 sqrt(3)
-   r_max^2)), a_i the k-NN area among the cell's points (the halo is not
-   read); stored with the cell's distinct point count in ``simplify/share``
-   (P, 2), with the cell's band (its points in the halos of the cells that
-   list it, :func:`~cloudsieve.engine.halo.band_mask`) in
-   ``simplify/band_*``, then ``simplify/scored[cell]``. The driver turns
+2. **the shares** (:func:`share_task`, one small task per cell): the sizes
+   of greedy packings of the cell's points at radii
+   :data:`~cloudsieve.core.packing.LADDER` x r_max
+   (:func:`~cloudsieve.core.packing.packing_ladder`: a cheap rehearsal of the
+   elimination, which the k-NN area model was not: module
+   :mod:`cloudsieve.core.packing`; the halo is not read); stored with the
+   cell's distinct point count in ``simplify/share`` (P, 1 + L), with the
+   cell's band (its points in the halos of the cells that list it,
+   :func:`~cloudsieve.engine.halo.band_mask`) in ``simplify/band_*``, then
+   ``simplify/scored[cell]``. The driver takes each cell's packing size at
+   the radius where they total the target
+   (:func:`~cloudsieve.core.packing.ladder_shares`) and turns
    them into integer counts q_j summing exactly to the target
-   (:func:`kept_counts`: proportional, clipped to each cell's distinct
+   (:func:`~cloudsieve.core.eliminate_cells.kept_counts`: proportional, clipped to each cell's distinct
    points, largest remainder, ties by cell id; exact copies only when the
    distinct points do not suffice).
 3. **the elimination** (:func:`apply_task`), colour by colour
-   (:func:`~cloudsieve.engine.colours.cell_colours`: cells that share a
+   (:func:`~cloudsieve.core.colours.cell_colours`: cells that share a
    halo never share a colour; one runner call, in which each cell waits only
    for the cells of lower colours in its halo): each cell reads its halo
    from its sources' bands
@@ -64,18 +68,14 @@ from typing import Any
 import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
-from .colours import cell_colours
+from ..core.colours import cell_colours
+from ..core.eliminate_cells import kept_counts
+from ..core.packing import ladder_shares
 from .halo import band_mask, read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
 
-__all__ = ["global_radius", "share_task", "kept_counts", "apply_task", "run_eliminate"]
-
-
-#: points of a cell its expected kept count is estimated on (the k-NN areas). On the 10 M scan's cells the
-#: estimate's spread over seeds is 0.1-0.3% of it at 20,000 points and 0.3-0.75% at 8,000; the cells' own
-#: estimate against the whole cell's varies by 3% whichever the size (their content)
-SHARE_SAMPLE = 10_000
+__all__ = ["global_radius", "share_task", "apply_task", "run_eliminate"]
 
 
 def global_radius(sample: np.ndarray, n: int, target: int) -> float:
@@ -128,24 +128,21 @@ def _read(task: CellTask):
 
 
 def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
-    """The kept points the area model expects in one cell, its distinct points, and its band (a task).
+    """The packing sizes of one cell, its distinct points, and its band (a task).
 
-    Writes ``simplify/share[cell]`` = (expected, distinct): expected = sum
-    over the cell's distinct points of min(1, a_i / (HEX r_max^2)), a_i their
-    :func:`~cloudsieve.core.radius.point_areas` among the cell's own points,
-    on a seeded sample of at most ``SHARE_SAMPLE`` of them (scaled up); then
-    ``simplify/scored[cell]``. ``task.params["r_max"]`` is the global radius
-    (inf: expected = distinct). Also stores the cell's band
-    (:func:`~cloudsieve.engine.halo.band_mask`: its points in the halo of a
-    cell of *dependents*) in ``simplify/band_*``, which the elimination reads
-    instead of whole neighbouring cells.
+    Writes ``simplify/share[cell]`` = (distinct, sizes of the greedy packings
+    of the cell's points at radii :data:`~cloudsieve.core.packing.LADDER` x
+    r_max), then ``simplify/scored[cell]``. ``task.params["r_max"]`` is the
+    global radius (inf: no packing, every point kept). Also stores the cell's
+    band (:func:`~cloudsieve.engine.halo.band_mask`: its points in the halo
+    of a cell of *dependents*) in ``simplify/band_*``, which the elimination
+    reads instead of whole neighbouring cells.
 
     The halo is not read: it is most of a cell task's reading (whole
     neighbouring cells, filtered), and the shares only split an exact total.
-    Without it the points along the border (a band of about r_8, 1-2% of a
-    100,000-point cell) see fewer neighbours and larger areas, which raises
-    every cell's expectation by a similar fraction before the counts are
-    scaled to the target.
+    Without it the packings along the border (a band of about r_max, 1-2% of
+    a 100,000-point cell) miss their outside neighbours and hold a few more
+    points, which raises every cell's size by a similar fraction.
 
     Parameters
     ----------
@@ -158,7 +155,7 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     dict with "cell", "n", "band", "seconds" (small).
     """
     from ..core.duplicates import copy_rows
-    from ..core.radius import AREA_K, HEX, areas_of
+    from ..core.packing import LADDER, packing_ladder
     from ..store import PointStore
 
     t0 = time.perf_counter()
@@ -166,76 +163,19 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     core = read_cell(g, cell_runs(g, task.cell))  # the store's points: finite float64 (checked at ingest)
     n = len(core)
     r_max = float(task.params["r_max"])
-    own = core[~copy_rows(core)] if n else core
-    expected = float(len(own))
-    if len(own) and math.isfinite(r_max):
-        areas, weight = areas_of(own, np.zeros((0, 3)), AREA_K, max(SHARE_SAMPLE, AREA_K + 1), task.cell,
-                                 _threads(task))
-        expected = float(np.minimum(1.0, areas / (HEX * r_max * r_max)).sum()) * weight
+    if n and math.isfinite(r_max):
+        sizes, distinct = packing_ladder(core, r_max)
+    else:
+        sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
     band = np.flatnonzero(band_mask(core, {**dependents, task.cell: task.centers[task.cell]}, task.cell, dependents,
                                     task.margin))
     bands = [("simplify/band_xyz", task.region, core[band]),
              ("simplify/band_pos", task.region, band.astype(np.int64))] if len(band) else []
     write_slices(g, [*bands, ("simplify/band_count", task.cell, np.array([len(band)], dtype=np.int64)),
-                      ("simplify/duplicates", task.cell, np.array([n - len(own)], dtype=np.int64)),
-                      ("simplify/share", task.cell, np.array([[expected, len(own)]]))])
+                      ("simplify/duplicates", task.cell, np.array([n - distinct], dtype=np.int64)),
+                      ("simplify/share", task.cell, np.r_[float(distinct), sizes][None, :])])
     g["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)  # after them: the marker
     return {"cell": task.cell, "n": n, "band": len(band), "seconds": time.perf_counter() - t0}
-
-
-def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
-    """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
-
-    The shares *expected* scaled to the target, each clipped to its cell's
-    *distinct* points (the excess spread over the others, again in
-    proportion), then rounded by largest remainder (ties by cell id). Exact
-    copies (*counts* - *distinct*) never count: a target above the distinct
-    points is not met (the run says so). Deterministic.
-
-    Parameters
-    ----------
-    expected : array_like of shape (P,), float >= 0
-    distinct, counts : array_like of shape (P,), int
-        Distinct points and all points of each cell (distinct <= counts).
-    target : int
-
-    Returns
-    -------
-    ndarray of shape (P,), int64
-        q_j in [0, distinct_j]; sum min(target, sum distinct).
-
-    Examples
-    --------
-    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist()
-    [1, 1, 3]
-    """
-    e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
-    cap = np.asarray(distinct, dtype=np.int64)
-    n = np.asarray(counts, dtype=np.int64)
-    goal = min(int(target), int(cap.sum()))
-    x = np.zeros(len(cap))
-    full = cap <= 0
-    while goal > 0:  # at most P rounds: every round clips at least one more cell
-        if full.all():
-            x = cap.astype(np.float64)
-            break
-        w = np.where(full, 0.0, e)
-        if not w.sum() > 0:
-            w = np.where(full, 0.0, cap.astype(np.float64))
-        x = np.where(full, cap, w * ((goal - cap[full].sum()) / w.sum()))
-        over = ~full & (x >= cap)
-        if not over.any():
-            break
-        full |= over
-    q = np.minimum(np.floor(x).astype(np.int64), cap)
-    order = np.lexsort((np.arange(len(cap)), -(x - q)))  # largest remainder, ties by cell id
-    while q.sum() < goal:
-        room = order[q[order] < cap[order]]
-        q[room[: goal - int(q.sum())]] += 1
-    while q.sum() > goal:  # rounding of the scaled shares only
-        has = order[::-1][q[order[::-1]] > 0]
-        q[has[: int(q.sum()) - goal]] -= 1
-    return q  # exact copies never fill a count (the duplicates policy): the run says when it is missed
 
 
 def _final_keep(g, task: CellTask, cells: np.ndarray, pos: np.ndarray, sources) -> np.ndarray:
@@ -262,9 +202,9 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     ----------
     task : CellTask
     count : int
-        q_j of :func:`kept_counts`, in [0, n].
+        q_j of :func:`~cloudsieve.core.eliminate_cells.kept_counts`, in [0, n].
     colours : dict int -> int
-        Colour (:func:`~cloudsieve.engine.colours.cell_colours`) of the cell
+        Colour (:func:`~cloudsieve.core.colours.cell_colours`) of the cell
         and of each of its halo sources; cells of lower colours must be done.
 
     Returns
@@ -332,7 +272,9 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     args = [(t, {int(i): part.centers[i] for i in readers[ptr[t.cell] : ptr[t.cell + 1]]}) for t in tasks]
     results = runner(share_task, args, "cells: share")
     share = np.asarray(store.group["simplify/share"][:])
-    q = kept_counts(share[:, 0], share[:, 1].astype(np.int64), part.cell_counts, int(target))
+    distinct = share[:, 0].astype(np.int64)
+    expected = ladder_shares(share[:, 1:], int(target)) if math.isfinite(r_max) else distinct
+    q = kept_counts(expected, distinct, part.cell_counts, int(target))
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
     # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it

@@ -21,7 +21,7 @@ through :class:`~cloudsieve.store.PointStore`)::
     label_cells  int32   (T,)  pass-1 small-cluster labels (ratio/count); -1: an exact copy
     done, scored uint8   (P,)  one zarr chunk per cell: concurrent tasks never share one
     duplicates   int64   (P,)  exact duplicate points of each cell (one chunk per cell)
-    share        float64 (P, 2) eliminate: kept points expected in each cell, its distinct points
+    share        float64 (P, 1 + L) eliminate: each cell's distinct points, its packing sizes (L radii)
     regions      int64   (P,)  start of each cell's region
     keep         bool    (N,)  keep mask in input order (the merge stage)
 
@@ -38,6 +38,7 @@ import os
 
 import numpy as np
 
+from ..core.packing import LADDER
 from ..errors import ResumeMismatchError
 from ..store import delete_store, is_store
 
@@ -61,6 +62,9 @@ logger = logging.getLogger(__name__)
 
 SIMPLIFY_ATTR = "cloudsieve_simplify"
 ENGINE_VERSION = 1
+
+#: columns of ``simplify/share``: a cell's distinct points, then its packing sizes
+SHARE_COLUMNS = 1 + len(LADDER)
 
 
 def source_identity(src: str) -> dict:
@@ -225,8 +229,10 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     if same:
         if "simplify/duplicates" not in g:  # a store of a version before the count (its done cells count 0)
             store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
-        if "simplify/share" not in g:  # a store of a version before the shares: its cells start again
-            store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
+        if "simplify/share" not in g or g["simplify/share"].shape != (n_cells, SHARE_COLUMNS):
+            # a store of a version before the shares or the packings: its cells start again
+            store.delete_array("simplify/share")
+            _share_array(store, n_cells)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         if "simplify/band_count" not in g:  # a store of a version before the bands: its cells start again
@@ -242,8 +248,7 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     store.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0)
     store.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0)
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
-    # eliminate: kept points the area model expects in each cell, and its distinct points
-    store.create_array("simplify/share", shape=(n_cells, 2), dtype="float64", chunks=(1, 2), fill_value=0.0)
+    _share_array(store, n_cells)
     _band_arrays(store, n_cells, total, block)
     # exact duplicate points of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
@@ -251,6 +256,12 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     store.create_array(
         "simplify/regions", data=np.asarray(starts, dtype=np.int64), chunks=(max(1, min(len(starts), 65536)),)
     )
+
+
+def _share_array(store, n_cells: int) -> None:
+    """eliminate: each cell's distinct points and packing sizes (:func:`cloudsieve.core.packing.packing_ladder`)."""
+    store.create_array("simplify/share", shape=(n_cells, SHARE_COLUMNS), dtype="float64", chunks=(1, SHARE_COLUMNS),
+                       fill_value=0.0)
 
 
 def _band_arrays(store, n_cells: int, total: int, block: int) -> None:

@@ -114,7 +114,7 @@ def _fall(y, rec, win, m, tie):
         _replay(win, (m + y) >> 1, y, rec, tie)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep):
     """Remove removable points, largest key first, until ``floor`` of the own ones remain.
@@ -155,7 +155,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
 
 # Without the runtime's reference counts (it allocates nothing): with them, every array a helper touches
 # was counted in and out with atomic operations on each removal, about a fifth of the time
-@njit(cache=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False)
 def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
                ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio):
     n = len(P)
@@ -284,7 +284,7 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             prio[i] = cur
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def relocate(P, near, kept, movable, tie, rcon2):
     """One restricted Lloyd step: each movable kept point k moves to the movable point of its Voronoi
     region (the points whose ``near`` is k) nearest the region's centroid, unless that would take some

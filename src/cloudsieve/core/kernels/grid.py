@@ -41,7 +41,7 @@ def _compact(v):
     return v
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def cell_codes(P, lo, h):
     """Z-order code (n,) int64 of each point's grid cell (cells of size h from lo, < 2^21 per axis)."""
     n = len(P)
@@ -63,7 +63,7 @@ def _less(P, a, b):
     return a < b
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def sort_cells(P, codes, order, longest):
     """Inside each run of equal codes in ``order`` of at most ``longest`` points, sort by coordinates then
     index (insertion sort, in place); longer runs are left as they are."""
@@ -86,7 +86,7 @@ def sort_cells(P, codes, order, longest):
         s = e
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lex_keys(ukeys):
     """Integer coordinates (C, 3) of the cells of Z-order codes ``ukeys`` and their (x, y, z) keys (C,):
     x << 42 | y << 21 | z, in the lexicographic order of the coordinates."""
@@ -104,7 +104,7 @@ def _lex_keys(ukeys):
     return xyz, key
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _column_sweep(xyz, L, K):
     """CSR of the occupied cells among the 27 around each cell, in (dx, dy, dz) order: one sweep of the
     cells in (x, y, z) order (``L``, keys ``K`` sorted); the 3 cells dz = -1, 0, 1 of each of the 9 columns
@@ -186,7 +186,7 @@ def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
     return best, bd
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, nogil=True, parallel=True)
 def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
     """Nearest kept point (kept != 0) of each point of ``rows`` (equal distances: lower ``tie``), -1 when
     none is in its 27 cells."""

@@ -1,7 +1,7 @@
 """Colours of the cells: no two cells that share a halo get the same colour.
 
-Pass 2 of the ``eliminate`` rule (:mod:`cloudsieve.engine.eliminate`) runs
-colour by colour: a cell reads the final keep masks of its neighbours of
+Pass 2 of the ``eliminate`` rule (:mod:`cloudsieve.engine.eliminate`, and
+in memory :mod:`.eliminate_cells`) runs colour by colour: a cell reads the final keep masks of its neighbours of
 lower colours, so the cells of one colour must not read each other
 (they run in parallel). Two cells are neighbours when either lists the other
 among its halo sources (the partition's ``halo_ptr``/``halo_src`` CSR, made

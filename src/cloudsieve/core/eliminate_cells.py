@@ -1,0 +1,297 @@
+"""The ``eliminate`` rule in memory over cells on threads: the engine's cell scheme without a store.
+
+One elimination over a whole cloud is sequential (the heaviest point
+anywhere goes next) and, at 1 M points, spends most of its time waiting on
+memory: its arrays no longer fit the caches. Above ``cell_points`` points,
+:func:`cloudsieve.core.eliminate.eliminate` does what the out-of-core run
+does (:mod:`cloudsieve.engine.eliminate`), on threads instead of dask:
+
+1. **cells**: a k-d split (:func:`split_cells`): the longest side of a
+   cell's box is cut at the median value of its points' coordinate, until
+   every cell holds at most ``cell_points`` points. Cuts are by value, so the
+   cells do not depend on the input order nor on the unit, and exact copies
+   share a cell.
+2. **counts**: each cell's share of the target is the kept points the area
+   model of r_max (:mod:`.radius`) expects in it: its points times the mean
+   of min(1, a_i / (2 sqrt(3) r_max^2)) over the areas a_i of the sample
+   r_max was solved on (the same areas: nothing more is measured);
+   :func:`kept_counts` turns the shares into integers summing exactly to
+   the target.
+3. **elimination**, colour by colour (:func:`.colours.cell_colours`: cells
+   whose halos meet never share a colour, so the cells of one colour run at
+   once): each cell runs :func:`.eliminate.eliminate_cell` with its halo,
+   the points of other cells within 2.2 r_max of its box, the lower colours'
+   final decisions fixed (kept) or gone (removed), the higher colours'
+   points eliminated along.
+
+The result is a function of the points, the count and ``cell_points``: not
+of the thread count (cells of one colour read nothing of each other, each
+elimination runs on one thread) nor of the input order.
+"""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+
+from .colours import cell_colours
+from .kernels import kdcells as _kk
+from .cellgrid import CellGrid
+from .kernels import neighbours as _kn
+from .kernels import packing as _kp
+from .packing import LADDER, ladder_shares
+
+__all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cells"]
+
+#: points of a cell at most. At 1 M points and 50% kept on 2 threads (load 0.5), the cells stage took
+#: 0.67 s with cells of 8,192 points, 0.70 s with 16,384, 0.79 s with 32,768, 0.83 s with 65,536 (one cell:
+#: 2.2 s): smaller cells fit the caches, but the halos and calls grow
+CELL_POINTS = 16_384
+#: the smallest ``cell_points`` accepted: below it the halos outweigh the cells
+MIN_CELL_POINTS = 1_024
+#: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
+MIN_KEPT = 1_024
+#: halo margin in r_max: the elimination and the relocation reach 2 r_max (as the engine's)
+HALO_RADII = 2.2
+
+
+def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray,
+                                                                              np.ndarray]:
+    """Split *points* (n, 3) into k-d cells of at most *cell_points* points (the halves of a level on
+    *threads* threads: the result does not depend on them).
+
+    Returns
+    -------
+    idx : ndarray of shape (n,), int64
+        The points cell by cell, ascending inside each cell.
+    starts : ndarray of shape (C + 1,), int64
+        Cell c holds ``idx[starts[c]:starts[c + 1]]``.
+    boxes : ndarray of shape (C, 2, 3), float64
+        Lower and upper corner of each cell's region (+-inf on the cloud's outer sides); the regions tile
+        space, touching on the cuts.
+    """
+    n = len(points)
+    idx = np.arange(n, dtype=np.int64)
+    vals = np.empty(n)
+    tmp = np.empty(n, dtype=np.int64)
+    lo = np.array([points[:, j].min() for j in range(3)]) if n else np.zeros(3)
+    hi = np.array([points[:, j].max() for j in range(3)]) if n else np.zeros(3)
+
+    def split(node):  # node: (path, s, e, box, lower and upper extent); the halves, or None for a cell
+        path, s, e, box, a, b = node
+        if e - s <= cell_points:
+            return None
+        ext = b - a
+        for axis in np.argsort(-ext, kind="stable"):  # the longest side; if every point ties on it, the next
+            if not ext[axis] > 0:
+                return None
+            _kk.gather(points, idx[s:e], int(axis), vals[s:e])
+            v = float(np.partition(vals[s:e], (e - s) // 2)[(e - s) // 2])
+            mid = s + _kk.split_at(idx[s:e], vals[s:e], v, tmp[s:e])
+            if s < mid < e:
+                break
+        else:
+            return None
+        upper, ub = box.copy(), a.copy()
+        upper[0, axis] = ub[axis] = v
+        lower, lb = box.copy(), b.copy()
+        lower[1, axis] = lb[axis] = v
+        return (path + (0,), s, mid, lower, a, lb), (path + (1,), mid, e, upper, ub, b)
+
+    level = [((), 0, n, np.array([[-np.inf] * 3, [np.inf] * 3]), lo, hi)]
+    cells = []
+    with ThreadPoolExecutor(max(1, int(threads))) as pool:
+        while level:  # the nodes of one level own disjoint ranges of idx, vals, tmp
+            halves = list(pool.map(split, level))
+            cells += [node for node, h in zip(level, halves) if h is None]
+            level = [x for h in halves if h is not None for x in h]
+    cells.sort(key=lambda c: c[0])  # depth first, lower side first: a pure function of the coordinates
+    starts = np.array([c[1] for c in cells] + [n], dtype=np.int64)
+    return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3)
+
+
+def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
+    """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
+
+    The shares *expected* scaled to the target, each clipped to its cell's
+    *distinct* points (the excess spread over the others, again in
+    proportion), then rounded by largest remainder (ties by cell id). Exact
+    copies (*counts* - *distinct*) never count: a target above the distinct
+    points is not met (the run says so). Deterministic.
+
+    Parameters
+    ----------
+    expected : array_like of shape (P,), float >= 0
+    distinct, counts : array_like of shape (P,), int
+        Distinct points and all points of each cell (distinct <= counts).
+    target : int
+
+    Returns
+    -------
+    ndarray of shape (P,), int64
+        q_j in [0, distinct_j]; sum min(target, sum distinct).
+
+    Examples
+    --------
+    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist()
+    [1, 1, 3]
+    """
+    e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
+    cap = np.asarray(distinct, dtype=np.int64)
+    goal = min(int(target), int(cap.sum()))
+    x = np.zeros(len(cap))
+    full = cap <= 0
+    while goal > 0:  # at most P rounds: every round clips at least one more cell
+        if full.all():
+            x = cap.astype(np.float64)
+            break
+        w = np.where(full, 0.0, e)
+        if not w.sum() > 0:
+            w = np.where(full, 0.0, cap.astype(np.float64))
+        x = np.where(full, cap, w * ((goal - cap[full].sum()) / w.sum()))
+        over = ~full & (x >= cap)
+        if not over.any():
+            break
+        full |= over
+    q = np.minimum(np.floor(x).astype(np.int64), cap)
+    order = np.lexsort((np.arange(len(cap)), -(x - q)))  # largest remainder, ties by cell id
+    while q.sum() < goal:
+        room = order[q[order] < cap[order]]
+        q[room[: goal - int(q.sum())]] += 1
+    while q.sum() > goal:  # rounding of the scaled shares only
+        has = order[::-1][q[order[::-1]] > 0]
+        q[has[: int(q.sum()) - goal]] -= 1
+    return q  # exact copies never fill a count (the duplicates policy): the run says when it is missed
+
+
+def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
+    """For each cell, the other cells whose boxes come within *margin* of its box."""
+    lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
+    out = []
+    for j in range(len(boxes)):
+        near = np.flatnonzero(np.all((boxes[:, 0] <= hi[j]) & (boxes[:, 1] >= lo[j]), axis=1))
+        out.append(near[near != j])
+    return out
+
+
+def _one_thread(fn, *args):
+    """fn(*args) with numba on one thread (a pool thread starts with numba's default count)."""
+    from .relocate import numba_threads
+
+    with numba_threads(1):
+        return fn(*args)
+
+
+def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float) -> tuple:
+    """What the elimination of a cell needs before its halo's decisions are known: the grid and the
+    neighbour lists of [own, halo] (every halo point alive), the cell's packing sizes along ``LADDER``
+    (module .packing, over the lists) and its distinct points."""
+    from .eliminate import ALPHA, _ialpha
+
+    n = len(own)
+    two_r = 2.0 * r_max
+    grid = CellGrid(np.concatenate([own, halo]), two_r)
+    state = np.ones(len(grid.order), dtype=np.uint8)
+    state[grid.copy] = 0
+    lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, _ialpha(ALPHA), True)
+    join = ((grid.order < n) & ~grid.copy).astype(np.uint8)
+    rad = np.array(LADDER) * r_max
+    counts = _kp.packing_from_lists(grid.P, lists[0], lists[1], join, rad * rad)
+    return grid, lists, counts, int(join.sum())
+
+
+def _finish(own: np.ndarray, halo: np.ndarray, prepared: tuple, kind: np.ndarray, r_max: float, count: int,
+            steps: int) -> np.ndarray:
+    """Keep mask of a prepared cell: the elimination to *count* of its points with its halo points free
+    (``kind`` 1: eliminated along), fixed (2: kept by a lower colour) or gone (0: removed by one), then
+    *steps* relocation steps (:func:`.eliminate.eliminate_cell`'s, on the prepared grid)."""
+    from .eliminate import ALPHA, _run, keep_lowest
+    from .relocate import relocate_points
+
+    n = len(own)
+    if count == n or count == 0:
+        return np.full(n, count == n)
+    grid, lists = prepared[:2]
+    src = grid.order
+    halo_row = src >= n
+    state = np.ones(len(src), dtype=np.uint8)
+    state[halo_row] = kind[src[halo_row] - n]
+    state[grid.copy] = 0
+    gone_rep = np.full(len(src), -1, dtype=np.int64)
+    rows = np.flatnonzero(halo_row & (state == 0) & ~grid.copy)  # the gone points: represented by their nearest
+    gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)  # point alive
+    ones = np.ones(len(src))
+    prio, rep = _run(grid, lists, state, n, gone_rep, r_max, ALPHA, True, ones, ones, int(count))
+    copy = np.zeros(len(src), dtype=bool)
+    copy[src[grid.copy]] = True
+    mine = prio[:n]
+    mine[np.isnan(mine)] = np.inf  # exact copies
+    keep = keep_lowest(mine, int(count))
+    kept_halo = (np.isnan(prio[n:]) & ~copy[n:] & (kind == 1)) | (kind == 2)
+    return relocate_points(own, keep, halo, kept_halo, r_max, int(steps), grid, rep) if steps else keep
+
+
+def cell_cap(n: int, target: int, cell_points: int) -> int:
+    """Points a cell holds at most: *cell_points*, more when fewer than ``MIN_KEPT`` would be kept in it."""
+    return max(int(cell_points), math.ceil(MIN_KEPT * n / max(int(target), 1)))
+
+
+def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, steps: int,
+                    threads: int) -> np.ndarray:
+    """Keep mask (n,) of exactly *target* points of *pts* (valid; r_max finite, 0 < target < n) split into
+    *cells* (:func:`split_cells` of :func:`cell_cap` points), with *steps* relocation steps per cell,
+    *threads* cells at once."""
+    n = len(pts)
+    idx, starts, boxes = cells
+    ncell = len(starts) - 1
+    size = np.diff(starts)
+    cell = np.empty(n, dtype=np.int64)  # the cell of every point
+    cell[idx] = np.repeat(np.arange(ncell), size)
+    margin = HALO_RADII * r_max
+    near = _neighbours(boxes, margin)
+    colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
+    band = _kk.band_flags(pts, idx, starts, boxes, margin)
+    bands = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
+    bands = [b[band[b]] for b in bands]  # each cell's points a neighbour's halo may hold
+    own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
+
+    def halo(j: int) -> np.ndarray:
+        lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
+        parts = [b[np.all((pts[b] >= lo) & (pts[b] <= hi), axis=1)] for b in (bands[i] for i in near[j])]
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+    halos = [np.zeros(0, dtype=np.int64)] * ncell
+
+    def prepare(j: int) -> tuple:
+        halos[j] = halo(j)
+        return _one_thread(_prepare, pts[own[j]], pts[halos[j]], r_max)
+
+    with ThreadPoolExecutor(max(1, int(threads))) as pool:
+        prepared = list(pool.map(prepare, range(ncell)))
+        distinct = np.array([p[3] for p in prepared])
+        if distinct.sum() < target:  # exact copies fill the count, as in one elimination (they go first, so are
+            distinct = size  # kept last)
+        q = kept_counts(ladder_shares(np.array([p[2] for p in prepared]), target), distinct, size, target)
+        keep = np.zeros(n, dtype=bool)
+        done = {}
+
+        def one(j: int) -> None:
+            for i in near[j]:  # the lower colours' cells of its halo: their keep masks are final
+                if colour[i] < colour[j]:
+                    done[i].result()
+            h = halos[j]
+            lower = colour[cell[h]] < colour[j]
+            kind = np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8)
+            keep[own[j]] = _one_thread(_finish, pts[own[j]], pts[h], prepared[j], kind, r_max, int(q[j]), steps)
+            prepared[j] = None  # its grid and lists: no longer needed
+
+        # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
+        # the whole lower colours). The pool takes the cells in this order, so a cell waits only for cells
+        # started before it
+        for j in sorted(range(ncell), key=lambda j: (colour[j], -size[j], j)):
+            done[j] = pool.submit(one, j)
+        for f in done.values():
+            f.result()
+    return keep
