@@ -10,7 +10,9 @@ poisson_subset, fps_subset; voxel and Poisson land within 0.5% of the count,
 farthest point on it) and the rule (:func:`cloudsieve.core.eliminate.eliminate`)
 in each variant:
 
-- ``off``: the default (coverage and squared-error terms, no information term);
+- ``off``: the default (coverage and squared-error terms, no information term;
+  over cells of 16,384 points above that many, :mod:`cloudsieve.core.eliminate_cells`);
+- ``one cell``: the same, one elimination over the whole cloud (with ``--one-cell``);
 - ``entropy``: dH of each point in KM clusters of ~400 points (seed 0), rank
   weight 0.5;
 - ``geometric``: surface variation importance 0.2 (with ``--geometric``).
@@ -67,22 +69,24 @@ def figures(P: np.ndarray, idx: np.ndarray, cache: dict, surface: bool = True) -
     return out
 
 
-def variants(P: np.ndarray, geometric: bool) -> dict:
+def variants(P: np.ndarray, geometric: bool, one_cell: bool = False) -> dict:
     out = {"off": {}}
+    if one_cell:
+        out["one cell"] = {"cell_points": None}
     out["entropy"] = {"labels": refine_labels(P, "km", 400, 0), "entropy": 0.5}
     if geometric:
         out["geometric"] = {"geometric": 0.2}
     return out
 
 
-def run(files, ratios, cache_path, geometric: bool) -> list[dict]:
+def run(files, ratios, cache_path, geometric: bool, one_cell: bool = False) -> list[dict]:
     store = json.loads(Path(cache_path).read_text()) if cache_path and Path(cache_path).is_file() else {}
     rows = []
     for name in files:
         path = Path(name) if Path(name).is_file() else DATA / name
         P = read_cloud(str(path))[0]
         surf: dict = {}
-        vs = variants(P, geometric)
+        vs = variants(P, geometric, one_cell)
         for ratio in ratios:
             count = int(round(ratio * len(P)))
             key = f"{path.name}:{ratio}"
@@ -154,11 +158,12 @@ def main(argv=None) -> int:
     ap.add_argument("--ratios", default="0.5,0.2,0.1")
     ap.add_argument("--cache", default=None, help="JSON file of the baselines' figures (read and written)")
     ap.add_argument("--geometric", action="store_true", help="also the geometric variant")
+    ap.add_argument("--one-cell", action="store_true", help="also the default as one elimination (no cells)")
     ap.add_argument("--json", default=None, help="write the rows there too")
     a = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     warnings.filterwarnings("ignore")
-    rows = run(a.files, [float(x) for x in a.ratios.split(",")], a.cache, a.geometric)
+    rows = run(a.files, [float(x) for x in a.ratios.split(",")], a.cache, a.geometric, a.one_cell)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
     print("## eliminate / best of voxel, Poisson, farthest point at equal count\n")

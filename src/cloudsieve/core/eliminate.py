@@ -361,7 +361,7 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
                                     "eliminate_order (cells)")
     if int(relocate_steps) != relocate_steps or relocate_steps < 0:
         raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
-    if cell_points is not None and (int(cell_points) != cell_points or cell_points < MIN_CELL_POINTS):
+    if cell_points is not None and not (isinstance(cell_points, (int, np.integer)) and cell_points >= MIN_CELL_POINTS):
         raise InvalidParameterError(f"cell_points must be None or an integer >= {MIN_CELL_POINTS}, got "
                                     f"{cell_points!r}")
     if cell_points is not None and len(pts) > cell_points and not options and 0 < target < len(pts):
