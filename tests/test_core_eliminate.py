@@ -13,11 +13,11 @@ from cloudsieve.core.eliminate import (
     COVER_LAMBDA,
     COVER_RADIUS,
     eliminate,
-    eliminate_cell,
     eliminate_order,
     keep_lowest,
     relocate,
 )
+from cloudsieve.core.eliminate_cells import eliminate_cell
 from cloudsieve.core.radius import elimination_radius, point_areas
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
 

@@ -8,8 +8,8 @@ import pytest
 from scipy.spatial import cKDTree
 
 from cloudsieve.core.cellgrid import CellGrid
-from cloudsieve.core.eliminate import eliminate
-from cloudsieve.core.eliminate_cells import MIN_CELL_POINTS, split_cells
+from cloudsieve.core.eliminate import MIN_CELL_POINTS, eliminate
+from cloudsieve.core.eliminate_cells import split_cells
 from cloudsieve.core.kernels import neighbours as _kn
 from cloudsieve.core.kernels import packing as _kp
 from cloudsieve.core.packing import LADDER, ladder_shares, packing_ladder

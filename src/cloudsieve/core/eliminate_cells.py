@@ -11,22 +11,29 @@ does (:mod:`cloudsieve.engine.eliminate`), on threads instead of dask:
    every cell holds at most ``cell_points`` points. Cuts are by value, so the
    cells do not depend on the input order nor on the unit, and exact copies
    share a cell.
-2. **counts**: each cell's share of the target is the kept points the area
-   model of r_max (:mod:`.radius`) expects in it: its points times the mean
-   of min(1, a_i / (2 sqrt(3) r_max^2)) over the areas a_i of the sample
-   r_max was solved on (the same areas: nothing more is measured);
-   :func:`kept_counts` turns the shares into integers summing exactly to
-   the target.
+2. **counts**, first, on all cells at once: each cell's grid and neighbour
+   lists (with every halo point, step 3's) and the sizes of greedy packings
+   of its points at radii about r_max (:mod:`.packing`, over the lists);
+   each cell's size at the radius where they total the target, made exact
+   integers by :func:`kept_counts`.
 3. **elimination**, colour by colour (:func:`.colours.cell_colours`: cells
    whose halos meet never share a colour, so the cells of one colour run at
-   once): each cell runs :func:`.eliminate.eliminate_cell` with its halo,
-   the points of other cells within 2.2 r_max of its box, the lower colours'
-   final decisions fixed (kept) or gone (removed), the higher colours'
-   points eliminated along.
+   once): each cell runs the elimination of :func:`eliminate_cell` on its
+   prepared grid and lists, its halo the points of other cells within
+   2.2 r_max of its box: the lower colours' final decisions fixed (kept) or
+   gone (removed), the higher colours' points eliminated along. A cell starts
+   once the lower-colour cells of its halo are done.
 
 The result is a function of the points, the count and ``cell_points``: not
 of the thread count (cells of one colour read nothing of each other, each
-elimination runs on one thread) nor of the input order.
+elimination runs on one thread) nor of the input order (up to 50,000
+points: above, r_max is solved on a seeded sample of rows). On the shared
+scans the kept sets had the point RMS of one elimination over the whole
+cloud within 1% (README).
+
+:func:`eliminate_cell` is one cell of the out-of-core run
+(:mod:`cloudsieve.engine.eliminate`), which builds its lists without the
+points its lower colours removed: the same priorities but for ties.
 """
 
 from __future__ import annotations
@@ -36,21 +43,18 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..errors import InvalidParameterError
+from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
+from .eliminate import ALPHA, _ialpha, _order, _run, keep_lowest
 from .kernels import kdcells as _kk
-from .cellgrid import CellGrid
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
 from .packing import LADDER, ladder_shares
+from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_points
 
-__all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cells"]
+__all__ = ["HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cell", "eliminate_cells"]
 
-#: points of a cell at most. At 1 M points and 50% kept on 2 threads (load 0.5), the cells stage took
-#: 0.67 s with cells of 8,192 points, 0.70 s with 16,384, 0.79 s with 32,768, 0.83 s with 65,536 (one cell:
-#: 2.2 s): smaller cells fit the caches, but the halos and calls grow
-CELL_POINTS = 16_384
-#: the smallest ``cell_points`` accepted: below it the halos outweigh the cells
-MIN_CELL_POINTS = 1_024
 #: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
 MIN_KEPT = 1_024
 #: halo margin in r_max: the elimination and the relocation reach 2 r_max (as the engine's)
@@ -176,10 +180,65 @@ def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
     return out
 
 
+def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
+                   steps: int = RELOCATE_STEPS, threads: int | None = None) -> np.ndarray:
+    """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
+
+    The halo points already ``decided`` (a neighbouring cell's final
+    result) weigh as fixed points when kept (``halo_keep``) and as gone
+    points when removed; the others are eliminated along (not counted).
+    Then ``steps`` steps of :func:`relocate` with every kept halo point
+    pulling on the regions, on the same grid (one grid for both: the same
+    points).
+
+    Parameters
+    ----------
+    points : array_like of shape (n, 3), float
+    count : int
+        Points of ``points`` kept, in [0, n].
+    r_max : float
+        The cloud's elimination radius.
+    halo : array_like of shape (h, 3), optional
+    decided, halo_keep : array_like of shape (h,), bool, optional
+        Which halo points are decided, and which of those are kept.
+    threads : int, optional
+
+    Returns
+    -------
+    ndarray of shape (n,), bool
+        Exactly ``count`` True.
+    """
+    pts = check_points(points)
+    n = len(pts)
+    if int(count) != count or not 0 <= count <= n:
+        raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
+    r_max = check_r_max(r_max)
+    if int(steps) != steps or steps < 0:
+        raise InvalidParameterError(f"steps must be an integer >= 0, got {steps!r}")
+    hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
+    dec = np.zeros(len(hal), dtype=bool) if decided is None else np.asarray(decided)
+    hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)
+    for name, a in (("decided", dec), ("halo_keep", hk)):
+        if a.shape != (len(hal),) or a.dtype != bool:
+            raise InvalidParameterError(f"{name} must be a bool mask of shape ({len(hal)},), got {a.dtype} {a.shape}")
+    if count == n or count == 0 or not math.isfinite(r_max):
+        return np.full(n, count == n)
+    # the halo in the elimination's order: free, decided and kept (fixed), decided and removed (gone)
+    perm = np.concatenate([np.flatnonzero(~dec), np.flatnonzero(dec & hk), np.flatnonzero(dec & ~hk)])
+    nfree = int((~dec).sum())
+    nfix = int((dec & hk).sum())
+    hp = hal[perm]
+    with numba_threads(threads):
+        prio, grid, left, rep = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max,
+                                       ALPHA, True, 0.0, None, 0.0, int(count))
+        keep = keep_lowest(prio, int(count))
+        kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
+        # the points left are the kept ones: the reps are the relocation's first nearest kept points
+        return relocate_points(pts, keep, hp, kept_halo, r_max, int(steps), grid, rep) if steps else keep
+
+
 def _one_thread(fn, *args):
     """fn(*args) with numba on one thread (a pool thread starts with numba's default count)."""
-    from .relocate import numba_threads
-
     with numba_threads(1):
         return fn(*args)
 
@@ -188,8 +247,6 @@ def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float) -> tuple:
     """What the elimination of a cell needs before its halo's decisions are known: the grid and the
     neighbour lists of [own, halo] (every halo point alive), the cell's packing sizes along ``LADDER``
     (module .packing, over the lists) and its distinct points."""
-    from .eliminate import ALPHA, _ialpha
-
     n = len(own)
     two_r = 2.0 * r_max
     grid = CellGrid(np.concatenate([own, halo]), two_r)
@@ -206,10 +263,7 @@ def _finish(own: np.ndarray, halo: np.ndarray, prepared: tuple, kind: np.ndarray
             steps: int) -> np.ndarray:
     """Keep mask of a prepared cell: the elimination to *count* of its points with its halo points free
     (``kind`` 1: eliminated along), fixed (2: kept by a lower colour) or gone (0: removed by one), then
-    *steps* relocation steps (:func:`.eliminate.eliminate_cell`'s, on the prepared grid)."""
-    from .eliminate import ALPHA, _run, keep_lowest
-    from .relocate import relocate_points
-
+    *steps* relocation steps (:func:`eliminate_cell`'s, on the prepared grid)."""
     n = len(own)
     if count == n or count == 0:
         return np.full(n, count == n)

@@ -32,7 +32,7 @@ elimination per cell:
    from its sources' bands
    (:func:`~cloudsieve.engine.halo.read_band_halo`: the same points as
    from the whole cells) and runs
-   :func:`~cloudsieve.core.eliminate.eliminate_cell`: the elimination
+   :func:`~cloudsieve.core.eliminate_cells.eliminate_cell`: the elimination
    (:func:`~cloudsieve.core.eliminate.eliminate_order`) stopped at q_j of its
    own points (``floor``), with the FINAL decisions of its lower-colour
    neighbours (their kept points fixed: they weigh, never go; their removed
@@ -211,7 +211,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
-    from ..core.eliminate import eliminate_cell
+    from ..core.eliminate_cells import eliminate_cell
 
     t0 = time.perf_counter()
     r_max = float(task.params["r_max"])

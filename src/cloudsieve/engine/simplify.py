@@ -11,8 +11,9 @@ and each in its own module:
 3. **cells** (:mod:`.cells`): one task per cell runs the in-memory method on
    its points and writes its keep mask; with a ratio/count, two passes around
    one global threshold (:mod:`.threshold`); the eliminate rule: per-cell
-   counts from the area model, then one elimination per cell
-   (:mod:`.eliminate`), colour by colour (:mod:`.colours`);
+   counts from greedy packings (:mod:`cloudsieve.core.packing`), then one
+   elimination per cell (:mod:`.eliminate`), colour by colour
+   (:mod:`cloudsieve.core.colours`);
 4. **merge** (:mod:`.merge`): one task per input chunk scatters the keep
    masks back to input order as ``simplify/keep``;
 5. **export** of the kept points, every attribute and the header
