@@ -1,4 +1,4 @@
-"""Compiled kernel of the packing counts (numba; private, inputs assumed valid).
+"""Compiled kernels of the packing counts (numba; private, inputs assumed valid).
 
 Grid arguments as in :mod:`.grid`.
 """
@@ -9,6 +9,29 @@ import numpy as np
 from numba import njit
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _blocked(P, i, j, m, r2, full):
+    """The packings among ``m`` (a bit each) that point j, a member of them, closes to point i: those whose
+    radius sqrt(r2[k]) (increasing) is beyond their distance."""
+    dx = P[j, 0] - P[i, 0]
+    dy = P[j, 1] - P[i, 1]
+    dz = P[j, 2] - P[i, 2]
+    d2 = dx * dx + dy * dy + dz * dz
+    for k in range(len(r2)):  # within radius k, so within every larger one
+        if d2 < r2[k]:
+            return m & (full << k)
+    return 0
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _join(i, blocked, full, mask, counts):
+    """Point i joins every packing not ``blocked``."""
+    free = full & ~blocked
+    mask[i] = free
+    for k in range(len(counts)):
+        counts[k] += (free >> k) & 1
+
+
 @njit(cache=True, nogil=True)
 def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
     """Sizes of greedy packings at the radii sqrt(r2) (increasing, at most 8), in one pass.
@@ -17,12 +40,10 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
     already in it is closer than sqrt(r2[k]). Rows with ``skip`` join none.
     Each distance is computed once for every radius. Returns counts (L,).
     """
-    n = len(P)
-    L = len(r2)
-    full = (1 << L) - 1
-    mask = np.zeros(n, dtype=np.uint8)
-    counts = np.zeros(L, dtype=np.int64)
-    for i in range(n):
+    full = (1 << len(r2)) - 1
+    mask = np.zeros(len(P), dtype=np.uint8)
+    counts = np.zeros(len(r2), dtype=np.int64)
+    for i in range(len(P)):
         if skip[i]:
             continue
         blocked = 0
@@ -31,22 +52,11 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
             cc = ncells[t]
             for j in range(cstart[cc], cstart[cc + 1]):
                 m = mask[j] & ~blocked
-                if m == 0:
-                    continue
-                dx = P[j, 0] - P[i, 0]
-                dy = P[j, 1] - P[i, 1]
-                dz = P[j, 2] - P[i, 2]
-                d2 = dx * dx + dy * dy + dz * dz
-                for k in range(L):  # within radius k, so within every larger one
-                    if d2 < r2[k]:
-                        blocked |= m & (full << k)
-                        break
+                if m != 0:
+                    blocked |= _blocked(P, i, j, m, r2, full)
             if blocked == full:
                 break
-        free = full & ~blocked
-        mask[i] = free
-        for k in range(L):
-            counts[k] += (free >> k) & 1
+        _join(i, blocked, full, mask, counts)
     return counts
 
 
@@ -55,32 +65,19 @@ def packing_from_lists(P, nptr, nbr, join, r2):
     """:func:`packing_counts` of the rows with ``join`` != 0 over the neighbour lists of :mod:`.neighbours`
     (every pair closer than the largest radius listed): the same packings in the grid's order, without a
     walk of the grid."""
-    n = len(P)
-    L = len(r2)
-    full = (1 << L) - 1
-    mask = np.zeros(n, dtype=np.uint8)
-    counts = np.zeros(L, dtype=np.int64)
-    for i in range(n):
+    full = (1 << len(r2)) - 1
+    mask = np.zeros(len(P), dtype=np.uint8)
+    counts = np.zeros(len(r2), dtype=np.int64)
+    for i in range(len(P)):
         if join[i] == 0:
             continue
         blocked = 0
         for t in range(nptr[i], nptr[i + 1]):
             j = nbr[t]
             m = mask[j] & ~blocked
-            if m == 0:
-                continue
-            dx = P[j, 0] - P[i, 0]
-            dy = P[j, 1] - P[i, 1]
-            dz = P[j, 2] - P[i, 2]
-            d2 = dx * dx + dy * dy + dz * dz
-            for k in range(L):
-                if d2 < r2[k]:
-                    blocked |= m & (full << k)
+            if m != 0:
+                blocked |= _blocked(P, i, j, m, r2, full)
+                if blocked == full:
                     break
-            if blocked == full:
-                break
-        free = full & ~blocked
-        mask[i] = free
-        for k in range(L):
-            counts[k] += (free >> k) & 1
+        _join(i, blocked, full, mask, counts)
     return counts
