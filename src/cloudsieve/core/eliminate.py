@@ -372,14 +372,16 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
         raise InvalidParameterError(f"cell_points must be None or an integer >= {MIN_CELL_POINTS}, got "
                                     f"{cell_points!r}")
     r_max = None if r_max is None else check_r_max(r_max)
-    if cell_points is not None and len(pts) > cell_points and not options and 0 < target < len(pts):
-        from concurrent.futures import ThreadPoolExecutor
+    from .eliminate_cells import cell_cap, eliminate_cells, split_cells
 
-        from .eliminate_cells import cell_cap, eliminate_cells, split_cells
+    cap = len(pts) if cell_points is None or options or not 0 < target < len(pts) else \
+        cell_cap(len(pts), target, int(cell_points))
+    if len(pts) > cap:  # more than one cell
+        from concurrent.futures import ThreadPoolExecutor
 
         workers = numba.get_num_threads() if threads is None else max(1, int(threads))
         with ThreadPoolExecutor(1) as side:  # the cells are cut while r_max is solved (it needs only the count)
-            cells = side.submit(split_cells, pts, cell_cap(len(pts), target, int(cell_points)), workers)
+            cells = side.submit(split_cells, pts, cap, workers)
             r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
             cells = cells.result()
         if math.isfinite(r_max):
