@@ -307,9 +307,8 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     near = _neighbours(boxes, margin)
     colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
     band = _kk.band_flags(pts, idx, starts, boxes, margin)
-    bands = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
-    bands = [b[band[b]] for b in bands]  # each cell's points a neighbour's halo may hold
     own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
+    bands = [o[band[o]] for o in own]  # each cell's points a neighbour's halo may hold
 
     def halo(j: int) -> np.ndarray:
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
