@@ -59,6 +59,28 @@ def test_cells_do_not_depend_on_order_unit_or_threads():
     assert np.allclose(b3[np.isfinite(b3)], 1000.0 * boxes[np.isfinite(boxes)])
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_median_cut_is_the_partition_oracle(seed):
+    """The histogram median is numpy's partition's, with ties, piles and one value; the rows split stably."""
+    from cloudsieve.core.kernels import kdcells as _kk
+
+    rng = np.random.default_rng(seed)
+    m = int(rng.integers(2, 3_000))
+    x = np.round(rng.standard_normal(m) ** 3, int(rng.integers(0, 3)))  # skewed, with ties
+    if seed == 3:
+        x[: m // 2] = x.min()  # a pile at the minimum: nothing below the median
+    P = np.c_[np.zeros(m), x, np.zeros(m)]
+    idx = rng.permutation(m).astype(np.int64)
+    before = idx.copy()
+    v, cut = _kk.median_cut(P, idx, 1, x.min(), x.max(), np.empty(m), np.empty(m, dtype=np.int64),
+                            np.zeros(64, dtype=np.int64))
+    vals = x[before]
+    assert v == np.partition(vals, m // 2)[m // 2]
+    first = vals < v if (vals < v).any() else vals == v
+    assert cut == first.sum()
+    assert np.array_equal(idx, np.r_[before[first], before[~first]])
+
+
 def test_cells_of_ties_and_copies():
     """Every point on one x: the cut moves to the next axis; a pile of copies stays one cell."""
     rng = np.random.default_rng(3)

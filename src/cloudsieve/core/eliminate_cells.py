@@ -91,9 +91,9 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
         for axis in np.argsort(-ext, kind="stable"):  # the longest side; if every point ties on it, the next
             if not ext[axis] > 0:
                 return None
-            _kk.gather(points, idx[s:e], int(axis), vals[s:e])
-            v = float(np.partition(vals[s:e], (e - s) // 2)[(e - s) // 2])
-            mid = s + _kk.split_at(idx[s:e], vals[s:e], v, tmp[s:e])
+            v, cut = _kk.median_cut(points, idx[s:e], int(axis), a[axis], b[axis], vals[s:e], tmp[s:e],
+                                    np.zeros(4096, dtype=np.int64))
+            mid = s + cut
             if s < mid < e:
                 break
         else:
