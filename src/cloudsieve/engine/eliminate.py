@@ -156,6 +156,7 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     """
     from ..core.duplicates import copy_rows
     from ..core.packing import LADDER, packing_ladder
+    from ..core.relocate import numba_threads
     from ..store import PointStore
 
     t0 = time.perf_counter()
@@ -164,7 +165,8 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     n = len(core)
     r_max = float(task.params["r_max"])
     if n and math.isfinite(r_max):
-        sizes, distinct = packing_ladder(core, r_max)
+        with numba_threads(_threads(task)):  # the task's share of the cores
+            sizes, distinct = packing_ladder(core, r_max)
     else:
         sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
     band = np.flatnonzero(band_mask(core, {**dependents, task.cell: task.centers[task.cell]}, task.cell, dependents,
