@@ -4,11 +4,11 @@ The ``eliminate`` rule runs cell by cell (out of core, and in memory above
 ``cell_points``), each cell to its own count q_j, so the counts must say
 where the elimination over the whole cloud would keep its points. The k-NN
 area model (:mod:`.radius`) misplaces them: on the shared scans, cells of
-16,384 points got counts 10-40% off the whole cloud's elimination
-(pumpAVisualReferenceImage.e57 at 50%, append-bug at 10%), because its
-areas ignore how the points are arranged (scan lines, lines, piles), and
-the cells' kept sets lost up to 10% point RMS and opened holes (point max
-up to 11x).
+16,384 points got counts 11-41% off the whole cloud's elimination on
+average (pumpAVisualReferenceImage.e57 at 50%, append-bug at 10%), because
+its areas ignore how the points are arranged (scan lines, strips, piles),
+and the cells' kept sets had 2-83% more point RMS than one elimination and
+opened holes (point max up to 11x).
 
 A greedy packing at radius rho (points in a fixed order; each joins unless
 a point already in is closer than rho) is also a Poisson-disk subset, so
