@@ -17,12 +17,12 @@ from engine_data import write_laz
 from scipy.spatial import cKDTree
 
 from cloudsieve.cli import main
+from cloudsieve.core.colours import cell_colours
 from cloudsieve.core.eliminate import eliminate
+from cloudsieve.core.eliminate_cells import kept_counts
 from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
-from cloudsieve.core.colours import cell_colours
-from cloudsieve.core.eliminate_cells import kept_counts
 from cloudsieve.engine.halo import read_band_halo, read_halo
 from cloudsieve.engine.runs import cell_runs
 from cloudsieve.engine.runner import Runner
