@@ -372,21 +372,15 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
         raise InvalidParameterError(f"cell_points must be None or an integer >= {MIN_CELL_POINTS}, got "
                                     f"{cell_points!r}")
     r_max = None if r_max is None else check_r_max(r_max)
-    from .eliminate_cells import cell_cap, eliminate_cells, split_cells
+    if cell_points is not None and not options and 0 < target < len(pts):
+        from .eliminate_cells import cell_cap, eliminate_in_cells
 
-    cap = len(pts) if cell_points is None or options or not 0 < target < len(pts) else \
-        cell_cap(len(pts), target, int(cell_points))
-    if len(pts) > cap:  # more than one cell
-        from concurrent.futures import ThreadPoolExecutor
-
-        workers = numba.get_num_threads() if threads is None else max(1, int(threads))
-        with ThreadPoolExecutor(1) as side:  # the cells are cut while r_max is solved (it needs only the count)
-            cells = side.submit(split_cells, pts, cap, workers)
-            r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-            cells = cells.result()
-        if math.isfinite(r_max):
-            return np.flatnonzero(eliminate_cells(pts, target, r_max, cells, int(relocate_steps),
-                                                  workers)).astype(np.int64)
+        cap = cell_cap(len(pts), target, int(cell_points))
+        if len(pts) > cap:  # more than one cell
+            workers = numba.get_num_threads() if threads is None else max(1, int(threads))
+            keep, r_max = eliminate_in_cells(pts, target, r_max, cap, int(relocate_steps), workers)
+            if keep is not None:
+                return np.flatnonzero(keep).astype(np.int64)
     r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
     opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
             "entropy": 0.0} | options

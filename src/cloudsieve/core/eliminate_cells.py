@@ -46,14 +46,15 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
-from .eliminate import ALPHA, _ialpha, _order, _run, keep_lowest
+from .eliminate import ALPHA, _ialpha, _radius, _run, keep_lowest
 from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
 from .packing import LADDER, ladder_shares
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_points
 
-__all__ = ["HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cell", "eliminate_cells"]
+__all__ = ["HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cell", "eliminate_cells",
+           "eliminate_in_cells"]
 
 #: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
 MIN_KEPT = 1_024
@@ -223,18 +224,10 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
             raise InvalidParameterError(f"{name} must be a bool mask of shape ({len(hal)},), got {a.dtype} {a.shape}")
     if count == n or count == 0 or not math.isfinite(r_max):
         return np.full(n, count == n)
-    # the halo in the elimination's order: free, decided and kept (fixed), decided and removed (gone)
-    perm = np.concatenate([np.flatnonzero(~dec), np.flatnonzero(dec & hk), np.flatnonzero(dec & ~hk)])
-    nfree = int((~dec).sum())
-    nfix = int((dec & hk).sum())
-    hp = hal[perm]
+    kind = np.where(dec, np.where(hk, 2, 0), 1).astype(np.uint8)  # free, fixed (kept), gone (removed)
     with numba_threads(threads):
-        prio, grid, left, rep = _order(pts, hp[:nfree], hp[nfree : nfree + nfix], hp[nfree + nfix :], r_max,
-                                       ALPHA, True, 0.0, None, 0.0, int(count))
-        keep = keep_lowest(prio, int(count))
-        kept_halo = np.concatenate([left, np.ones(nfix, dtype=bool), np.zeros(len(hal) - nfree - nfix, dtype=bool)])
-        # the points left are the kept ones: the reps are the relocation's first nearest kept points
-        return relocate_points(pts, keep, hp, kept_halo, r_max, int(steps), grid, rep) if steps else keep
+        grid, lists = _grid_lists(pts, hal, r_max, kind == 0)
+        return _finish(pts, hal, grid, lists, kind, r_max, int(count), int(steps))
 
 
 def _one_thread(fn, *args):
@@ -243,31 +236,39 @@ def _one_thread(fn, *args):
         return fn(*args)
 
 
+def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
+    """The grid of [own, halo] and its neighbour lists within 2 r_max, without the halo points ``absent``
+    (the ones a lower colour removed, when known: an absent point's terms would only make the elimination's
+    first bounds larger)."""
+    two_r = 2.0 * r_max
+    grid = CellGrid(np.concatenate([own, halo]), two_r)
+    state = np.ones(len(grid.order), dtype=np.uint8)
+    if absent is not None:
+        rows = np.flatnonzero(grid.order >= len(own))
+        state[rows[absent[grid.order[rows] - len(own)]]] = 0
+    state[grid.copy] = 0
+    return grid, _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, _ialpha(ALPHA), True)
+
+
 def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float) -> tuple:
     """What the elimination of a cell needs before its halo's decisions are known: the grid and the
     neighbour lists of [own, halo] (every halo point alive), the cell's packing sizes along ``LADDER``
     (module .packing, over the lists) and its distinct points."""
-    n = len(own)
-    two_r = 2.0 * r_max
-    grid = CellGrid(np.concatenate([own, halo]), two_r)
-    state = np.ones(len(grid.order), dtype=np.uint8)
-    state[grid.copy] = 0
-    lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, _ialpha(ALPHA), True)
-    join = ((grid.order < n) & ~grid.copy).astype(np.uint8)
+    grid, lists = _grid_lists(own, halo, r_max)
+    join = ((grid.order < len(own)) & ~grid.copy).astype(np.uint8)
     rad = np.array(LADDER) * r_max
     counts = _kp.packing_from_lists(grid.P, lists[0], lists[1], join, rad * rad)
     return grid, lists, counts, int(join.sum())
 
 
-def _finish(own: np.ndarray, halo: np.ndarray, prepared: tuple, kind: np.ndarray, r_max: float, count: int,
+def _finish(own: np.ndarray, halo: np.ndarray, grid, lists, kind: np.ndarray, r_max: float, count: int,
             steps: int) -> np.ndarray:
-    """Keep mask of a prepared cell: the elimination to *count* of its points with its halo points free
-    (``kind`` 1: eliminated along), fixed (2: kept by a lower colour) or gone (0: removed by one), then
-    *steps* relocation steps (:func:`eliminate_cell`'s, on the prepared grid)."""
+    """Keep mask of a cell on its grid and lists (:func:`_grid_lists`): the elimination to *count* of its
+    points with its halo points free (``kind`` 1: eliminated along), fixed (2: kept by a lower colour) or
+    gone (0: removed by one), then *steps* relocation steps on the same grid."""
     n = len(own)
     if count == n or count == 0:
         return np.full(n, count == n)
-    grid, lists = prepared[:2]
     src = grid.order
     halo_row = src >= n
     state = np.ones(len(src), dtype=np.uint8)
@@ -290,6 +291,20 @@ def _finish(own: np.ndarray, halo: np.ndarray, prepared: tuple, kind: np.ndarray
 def cell_cap(n: int, target: int, cell_points: int) -> int:
     """Points a cell holds at most: *cell_points*, more when fewer than ``MIN_KEPT`` would be kept in it."""
     return max(int(cell_points), math.ceil(MIN_KEPT * n / max(int(target), 1)))
+
+
+def eliminate_in_cells(pts: np.ndarray, target: int, r_max, cap: int, steps: int, threads: int) -> tuple:
+    """:func:`cloudsieve.core.eliminate.eliminate` over cells of at most *cap* points (valid input, 0 <
+    target < n): the cells are cut while r_max is solved (None: from the areas; the cut needs only the
+    count). Returns the keep mask (n,), or None when r_max is infinite (every point kept: no cells), and
+    r_max."""
+    with ThreadPoolExecutor(1) as side:
+        cells = side.submit(split_cells, pts, cap, threads)
+        r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
+        cells = cells.result()
+    if not math.isfinite(r_max):
+        return None, r_max
+    return eliminate_cells(pts, target, r_max, cells, steps, threads), r_max
 
 
 def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, steps: int,
@@ -337,7 +352,8 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             h = halos[j]
             lower = colour[cell[h]] < colour[j]
             kind = np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8)
-            keep[own[j]] = _one_thread(_finish, pts[own[j]], pts[h], prepared[j], kind, r_max, int(q[j]), steps)
+            grid, lists = prepared[j][:2]
+            keep[own[j]] = _one_thread(_finish, pts[own[j]], pts[h], grid, lists, kind, r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
