@@ -1,5 +1,12 @@
 """Compiled kernels of the packing counts (numba; private, inputs assumed valid).
 
+Two walks of the same neighbours, sharing the distance test and the join:
+over the grid (:func:`packing_counts`: the engine's share task, which builds
+no neighbour lists) and over the lists (:func:`packing_from_lists`: the
+in-memory cells, which build them anyway). Building lists only to pack a
+200,000-point cell took 0.111 s against 0.091 s for the grid walk at 50%
+kept, 0.262 s against 0.117 s at 10% (the same sizes; one thread).
+
 Grid arguments as in :mod:`.grid`.
 """
 
