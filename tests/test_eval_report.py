@@ -50,6 +50,9 @@ def test_report_files_exist_and_parse(tmp_path, bunny):
         assert sf[key] is not None
     md = (out / "report.md").read_text()
     assert "| original → simplified |" in md and "compactness ≥ 0.6" in md
+    per_face = sf["original"]["border_edges"] / sf["original"]["faces"]
+    assert 0 < per_face < 0.05 and f"| {per_face:.3f} |" in md  # bun_zipper: the tiles' rims, few holes, no note
+    assert "border edges per face" in md and "whatever the sampling" not in md
     for png in ("compactness.png", "point_errors.png"):
         assert (out / png).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     xyz, attrs = read_cloud(out / "errors.ply")
@@ -126,3 +129,21 @@ def test_check_compatible_headers():
     # an EPSG code on one side, only WKT on the other: compared by WKT
     wkt = 'PROJCS["X",AUTHORITY["EPSG","2154"]]'
     assert check_compatible({"crs": {"epsg": 2154, "wkt": wkt}}, {"crs": {"wkt": wkt}}, b, pts) == []
+
+
+def test_report_notes_the_holes_of_the_original_mesh(tmp_path, capsys):
+    """vegetation_1_3's ball-pivoting mesh is about half border edges: the CLI and report.md say so."""
+    from cloudsieve.evaluate.report import HOLEY, border_per_face
+
+    path = shared_file("vegetation_1_3.las")
+    xyz, _ = read_cloud(path)
+    s = _write_ply(tmp_path / "s.ply", xyz[::2])
+    assert main(["evaluate", str(path), s, "--subset", "--no-progress", "--report", str(tmp_path / "rep")]) == 0
+    rep = json.loads((tmp_path / "rep" / "report.json").read_text())
+    o, m = rep["surface"]["original"], rep["surface"]["simplified"]
+    assert o["border_edges"] > HOLEY * o["faces"]
+    assert (f"border edges    : original {border_per_face(o)} per face, simplified {border_per_face(m)} (holes of "
+            "the ball-pivoting meshes)") in capsys.readouterr().out
+    md = (tmp_path / "rep" / "report.md").read_text()
+    assert f"The original's mesh has {border_per_face(o)} border edges per face" in md
+    assert "whatever the sampling" in md

@@ -30,6 +30,30 @@ def test_surface_whole_cloud_when_small():
     assert same["max"] < 1e-9
 
 
+def test_border_edges_count_the_holes():
+    """Each mesh's border edges (of one triangle) against a count per edge; a hole in the cloud adds border edges."""
+    from collections import Counter
+
+    from cloudsieve.evaluate.mesh import ball_pivoting, border_edges
+
+    g = (np.stack(np.meshgrid(np.arange(64), np.arange(64)), -1).reshape(-1, 2) + 0.5) / 64
+    g += np.random.default_rng(0).normal(0, 0.002, g.shape)
+    a = np.c_[g, 0.1 * np.sin(4 * g[:, 0]) * np.cos(3 * g[:, 1])]  # a jittered grid: few holes in its mesh
+    holed = a[np.hypot(a[:, 0] - 0.5, a[:, 1] - 0.5) > 0.15]
+    for pts in (a, holed):
+        v, f = ball_pivoting(pts)
+        per_edge = Counter(tuple(sorted(e)) for t in f.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])))
+        oracle = sorted(e for e, c in per_edge.items() if c == 1)
+        assert border_edges(f).tolist() == [list(e) for e in oracle]
+    r = surface_errors(a, a[::2], tiles=1, tile_points=10_000)
+    h = surface_errors(holed, holed[::2], tiles=1, tile_points=10_000)
+    rim = 2 * np.pi * 0.15 * 64  # the hole's rim, in grid steps (measured: 37 more border edges, 20 at half)
+    assert h["original"]["border_edges"] - r["original"]["border_edges"] >= rim / 4
+    assert h["simplified"]["border_edges"] - r["simplified"]["border_edges"] >= rim / 8
+    assert r["original"]["border_edges"] < 0.05 * r["original"]["faces"]
+    assert border_edges(np.zeros((0, 3), np.int32)).shape == (0, 2)
+
+
 def test_tiles_are_bounded_and_spread():
     a = _surface(40_000, seed=3)
     tiles = choose_tiles(a, 4, 3000, seed=0)

@@ -35,7 +35,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..evaluate import evaluate
-    from ..evaluate.report import fmt, json_ready
+    from ..evaluate.report import border_per_face, fmt, json_ready
 
     def bars(stage, total, unit):
         return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
@@ -61,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"compactness>=0.6: original {100 * s['original']['compact_share']:.2f}%  "
               f"simplified {100 * s['simplified']['compact_share']:.2f}%  "
               f"(simplified mesh {fmt(s['vertices'])} vertices, {fmt(s['faces'])} faces)")
+        print(f"border edges    : original {border_per_face(s['original'])} per face, simplified "
+              f"{border_per_face(s['simplified'])} (holes of the ball-pivoting meshes)")
     if args.report_dir:
         print(f"report: {args.report_dir}/report.md")
     return 0

@@ -19,6 +19,15 @@ quality (pymeshlab ``compute_scalar_by_aspect_ratio_per_face(metric="Mean
 ratio")``). A mesh is "compact" when at least 50% of its triangles have
 c >= 0.6 (the paper's criterion).
 
+Border edges (edges of one triangle, :func:`border_edges`) measure how much
+of a mesh is holes: ball pivoting leaves a hole wherever points are too
+sparse or too noisy for its ball. On the shared aerial and terrestrial scans
+the original's mesh has 0.13-0.69 border edges per triangle (bun_zipper
+0.003, maxplanck 0.007), and 58-98% of the Metro samples on a simplified
+mesh lie within two point spacings of that border (README, "Where Metro's
+distance comes from"): there, Metro measures the holes of the original's
+mesh more than the sampling.
+
 The tiled surface-level stage that uses these is :mod:`.surface`.
 """
 
@@ -37,6 +46,7 @@ __all__ = [
     "COMPACT_SHARE",
     "compactness",
     "compactness_summary",
+    "border_edges",
     "point_spacing",
     "ball_pivoting",
     "metro",
@@ -94,6 +104,25 @@ def compactness_summary(c: np.ndarray) -> dict:
         "compactness_mean": float(c.mean()) if n else float("nan"),
         "compactness_hist": np.histogram(c, bins=HIST_BINS, range=(0.0, 1.0))[0].tolist(),
     }
+
+
+def border_edges(faces: np.ndarray) -> np.ndarray:
+    """Edges (e, 2) of exactly one triangle of *faces* (f, 3): the borders of the mesh's holes and its rim.
+
+    Each edge is given by its two vertex indices, lower first, in
+    lexicographic order.
+
+    Examples
+    --------
+    >>> border_edges(np.array([[0, 1, 2], [2, 1, 3]])).tolist()  # two triangles sharing edge 1-2
+    [[0, 1], [0, 2], [1, 3], [2, 3]]
+    """
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    if len(e) == 0:
+        return np.zeros((0, 2), np.int64)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u[c == 1]
 
 
 def point_spacing(points: np.ndarray, k: int = 6) -> float:

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["write_report", "write_json", "json_ready", "markdown", "plot_compactness", "plot_point_errors",
-           "write_error_ply", "fmt"]
+__all__ = ["write_report", "write_json", "json_ready", "markdown", "border_per_face", "plot_compactness",
+           "plot_point_errors", "write_error_ply", "fmt"]
 
 
 def json_ready(obj: Any) -> Any:
@@ -71,6 +71,21 @@ def fmt(v: Any, digits: int = 4) -> str:
     if abs(v) >= 1e5 or abs(v) < 1e-4:
         return f"{v:.{digits - 1}e}"
     return f"{v:.{digits}g}"
+
+
+#: border edges per face above which the report notes the holes of the original's mesh (bun_zipper: 0.003, the
+#: shared aerial and terrestrial scans: 0.13-0.69)
+HOLEY = 0.1
+
+
+def border_per_face(m: dict) -> str:
+    """Border edges per face of a surface report's mesh totals, 3 decimals ("-" when unknown or no face)."""
+    b = m.get("border_edges")
+    return "-" if b is None or not m["faces"] else f"{b / m['faces']:.3f}"
+
+
+def _holey(m: dict) -> bool:
+    return bool(m.get("border_edges") is not None and m["faces"] and m["border_edges"] > HOLEY * m["faces"])
 
 
 def _pct(v: Any) -> str:
@@ -120,12 +135,17 @@ def markdown(report: dict) -> str:
                 m = sf[mesh]
                 lines.append(f"| {mesh} | {label} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | "
                              f"{fmt(d['max_pct'])} | {fmt(d['rms_pct'])} |")
-        lines += ["", "| mesh | vertices | faces | compactness ≥ 0.6 | mean compactness | compact (≥ 50%) |",
-                  "|---|---:|---:|---:|---:|---|"]
+        lines += ["", "| mesh | vertices | faces | border edges per face | compactness ≥ 0.6 | mean compactness | "
+                  "compact (≥ 50%) |", "|---|---:|---:|---:|---:|---:|---|"]
         for mesh in ("original", "simplified"):
             m = sf[mesh]
-            lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {_pct(m['compact_share'])} | "
-                         f"{fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+            lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {border_per_face(m)} | "
+                         f"{_pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+        if _holey(sf["original"]):
+            lines += ["", f"> The original's mesh has {border_per_face(sf['original'])} border edges per face "
+                      "(holes where ball pivoting found too few points or too much noise). Metro's backward "
+                      "distances (samples on the simplified mesh) are large wherever the simplified mesh covers one "
+                      "of them, whatever the sampling."]
         if len(sf["tiles"]) > 1:
             lines += ["", "Per tile:", "",
                       "| tile | original pts | simplified pts | Metro mean % | Metro max % | Metro RMS % | c≥0.6 orig | c≥0.6 simpl |",

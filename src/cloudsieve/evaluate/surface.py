@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
-from .mesh import COMPACT_THRESHOLD, ball_pivoting, compactness, compactness_summary, metro
+from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, metro
 
 logger = logging.getLogger(__name__)
 
@@ -115,8 +115,9 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
         if cache is not None:
             cache[key] = (orig, mo)
     co, cs = compactness(*mo), compactness(*msimp)
-    rec["original"] = {"vertices": int(len(mo[0])), **compactness_summary(co)}
-    rec["simplified"] = {"vertices": int(len(msimp[0])), **compactness_summary(cs)}
+    rec["original"] = {"vertices": int(len(mo[0])), "border_edges": len(border_edges(mo[1])), **compactness_summary(co)}
+    rec["simplified"] = {"vertices": int(len(msimp[0])), "border_edges": len(border_edges(msimp[1])),
+                         **compactness_summary(cs)}
     if len(mo[1]) == 0 or len(msimp[1]) == 0:
         rec["error"] = (f"ball pivoting made no triangle ({len(mo[1])} from {len(orig)} original points, "
                         f"{len(msimp[1])} from {len(simp)} simplified points)")
@@ -181,8 +182,9 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         ``forward`` and ``backward`` (mean and RMS weighted by samples, max
         over tiles), ``mean, rms, max`` and their ``_pct`` (the larger of the
         two directions, Metro's symmetric convention), ``original`` and
-        ``simplified`` mesh totals (``vertices, faces, compact_share,
-        compact, compactness_mean, compactness_hist``), and for the simplified
+        ``simplified`` mesh totals (``vertices, border_edges, faces,
+        compact_share, compact, compactness_mean, compactness_hist``;
+        border edges: :func:`.mesh.border_edges`), and for the simplified
         mesh at the top level ``vertices, faces, compact_share, compact``.
     """
     src = open_source(original)
@@ -227,7 +229,8 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         out[key] = max(vals) if vals else float("nan")
     for name, cs_list, recs_key in (("original", cos, "original"), ("simplified", css, "simplified")):
         allc = np.concatenate(cs_list) if cs_list else np.zeros(0)
-        out[name] = {"vertices": int(sum(r[recs_key]["vertices"] for r in recs)), **compactness_summary(allc)}
+        out[name] = {"vertices": int(sum(r[recs_key]["vertices"] for r in recs)),
+                     "border_edges": int(sum(r[recs_key]["border_edges"] for r in recs)), **compactness_summary(allc)}
     sm = out["simplified"]
     out.update({"vertices": sm["vertices"], "faces": sm["faces"], "compact_share": sm["compact_share"],
                 "compact": sm["compact"]})
