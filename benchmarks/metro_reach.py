@@ -1,0 +1,172 @@
+"""Where Metro's distance comes from, and how far a mesh-aware rule gets (issue 12's Metro goals).
+
+Run: ``.venv/bin/python benchmarks/metro_reach.py [--ratios 0.5,0.2,0.1] [--steps 6] [--skip holes|loop]``
+
+Meshes and Metro are those of ``cloudsieve evaluate`` (:mod:`cloudsieve.evaluate.mesh`: ball pivoting at r
+and 2r, face sampling, 10 x faces samples, each Metro call in a forked child so that the same meshes give the
+same figures). Figures are % of the bounding-box diagonal.
+
+1. **Holes** (every scan of ../shared/data with at least 10,000 points). The original's mesh and its border
+   edges per face (:func:`cloudsieve.evaluate.mesh.border_edges`). For ``eliminate`` and the three baselines
+   (voxel-nearest, Poisson disk, farthest point) at each ratio: the Metro mean (the larger of the two
+   directions), and of the backward direction (samples on the simplified mesh, distance to the original's):
+   the share of samples within two point spacings of the original mesh's border, and their share of its mean.
+2. **The evaluator in the loop** (bun_zipper, maxplanck: the scans with the 0.9x goal). A mesh-aware rule at
+   its most direct: start from ``eliminate``'s kept set; at each step mesh it, run Metro's backward direction
+   against the original's mesh, and fix for good the ``--step`` share of the count (3%) of original points
+   nearest the largest backward distances (summed per point, samples near the original mesh's border left
+   out: no sampling can mend those); then ``eliminate`` the rest around the fixed points, to the same count.
+   Prints point RMS and Metro mean x the best baseline after every step, and the seconds a step takes.
+
+No timing here is a speed claim (load average printed); part 2's seconds are what a mesh per step costs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from cloudsieve.core.eliminate import eliminate
+from cloudsieve.engine.calls import forked
+from cloudsieve.evaluate.baselines import fps_subset, poisson_subset, voxel_subset
+from cloudsieve.evaluate.mesh import ball_pivoting, border_edges, metro, point_spacing
+from cloudsieve.io import read_cloud
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SCANS = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.laz", "append-bug.laz",
+         "vegetation_1_3.las", "pumpAVisualReferenceImage.e57"]
+LOOP_SCANS = ["bun_zipper.ply", "maxplanck.ply"]
+BASELINES = {"voxel": voxel_subset, "poisson": poisson_subset, "fps": fps_subset}
+NEAR = 2.0  # "near the border": within this many point spacings of the original's
+
+
+def _samples(mesh_s, mesh_t, n: int, maxdist: float) -> tuple[np.ndarray, np.ndarray]:
+    """Metro's samples on *mesh_s* and their distances to *mesh_t* (run in a forked child: the same samples as
+    :func:`metro`'s backward direction)."""
+    import pymeshlab as pml
+
+    ms = pml.MeshSet()
+    ms.add_mesh(pml.Mesh(*mesh_s))
+    ms.add_mesh(pml.Mesh(*mesh_t))
+    ms.get_hausdorff_distance(sampledmesh=0, targetmesh=1, samplevert=False, sampleedge=False, sampleface=True,
+                              samplenum=int(n), maxdist=pml.PureValue(maxdist), savesample=True)
+    return ms.mesh(2).vertex_matrix().copy(), np.abs(ms.mesh(2).vertex_scalar_array()).astype(np.float64)
+
+
+class Original:
+    """One scan: its points, mesh, spacing, and the points along its mesh's border."""
+
+    def __init__(self, path: Path):
+        self.P = read_cloud(str(path))[0]
+        self.diag = float(np.linalg.norm(self.P.max(0) - self.P.min(0)))
+        self.mesh = forked([(ball_pivoting, self.P)])[0]
+        self.spacing = point_spacing(self.P)
+        b = border_edges(self.mesh[1])
+        v = self.mesh[0]
+        pts = np.concatenate([v[b[:, 0]] * (1 - t) + v[b[:, 1]] * t for t in (0.0, 0.25, 0.5, 0.75)])
+        self.border = cKDTree(pts if len(pts) else np.full((1, 3), np.inf))
+        self.per_face = len(b) / max(len(self.mesh[1]), 1)
+        self.tree = cKDTree(self.P)
+
+    def figures(self, keep: np.ndarray) -> dict:
+        """Point RMS, Metro both ways, and the backward samples (positions, distances, near the border)."""
+        d, _ = cKDTree(self.P[keep]).query(self.P, workers=-1)
+        m = forked([(ball_pivoting, self.P[keep])])[0]
+        allv = np.concatenate([self.mesh[0], m[0]])
+        maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
+        n = min(max(10 * len(m[1]), 1000), 500_000)
+        fig = metro(self.mesh, m)
+        S, dist = forked([(_samples, m, self.mesh, n, maxdist)])[0]
+        near = self.border.query(S, workers=-1)[0] < NEAR * self.spacing
+        s = 100.0 / self.diag
+        return {"rms": float(np.sqrt((d ** 2).mean())) * s, "metro": max(fig["forward"]["mean"], fig["backward"]["mean"]) * s,
+                "fwd": fig["forward"]["mean"] * s, "bwd": fig["backward"]["mean"] * s, "S": S, "dist": dist,
+                "near": near, "near_share": float(near.mean()), "near_mass": float(dist[near].sum() / max(dist.sum(), 1e-300))}
+
+
+def _mask(n: int, idx: np.ndarray) -> np.ndarray:
+    k = np.zeros(n, dtype=bool)
+    k[idx] = True
+    return k
+
+
+def holes(scans: list[str], ratios: list[float]) -> None:
+    print("## 1. Holes of the original's mesh and Metro's backward direction\n")
+    print("| scan | border edges per face | kept | sampling | Metro mean % | backward samples near the border | "
+          "their share of the backward mean |")
+    print("|---|---:|---:|---|---:|---:|---:|")
+    for name in scans:
+        o = Original(DATA / name)
+        for ratio in ratios:
+            count = int(round(ratio * len(o.P)))
+            for label, idx in [("eliminate", eliminate(o.P, count))] + [(b, f(o.P, count)) for b, f in BASELINES.items()]:
+                f = o.figures(_mask(len(o.P), idx))
+                print(f"| {name} | {o.per_face:.3f} | {ratio:.0%} | {label} | {f['metro']:.5f} | {f['near_share']:.1%} | "
+                      f"{f['near_mass']:.1%} |", flush=True)
+
+
+def loop(scans: list[str], ratios: list[float], steps: int, step: float) -> None:
+    print("\n## 2. The evaluator in the loop\n")
+    print("| scan | kept | step | fixed | point RMS x | Metro mean x | forward x | backward x | seconds |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for name in scans:
+        o = Original(DATA / name)
+        n = len(o.P)
+        for ratio in ratios:
+            count = int(round(ratio * n))
+            base = {b: o.figures(_mask(n, f(o.P, count))) for b, f in BASELINES.items()}
+            best = {k: min(x[k] for x in base.values()) for k in ("rms", "metro", "fwd", "bwd")}
+            keep = _mask(n, eliminate(o.P, count))
+            fixed = np.zeros(n, dtype=bool)
+            for it in range(steps + 1):
+                t0 = time.perf_counter()
+                f = o.figures(keep)
+                secs = time.perf_counter() - t0
+                print(f"| {name} | {ratio:.0%} | {it} | {int(fixed.sum())} | {f['rms'] / best['rms']:.3f} | "
+                      f"{f['metro'] / best['metro']:.3f} | {f['fwd'] / best['fwd']:.3f} | {f['bwd'] / best['bwd']:.3f} | "
+                      f"{secs:.1f} |", flush=True)
+                if it == steps:
+                    break
+                far = ~f["near"]
+                _, j = o.tree.query(f["S"][far], workers=-1)
+                mass = np.bincount(j, weights=f["dist"][far], minlength=n)
+                cand = np.flatnonzero(~fixed & (mass > 0))
+                fixed[cand[np.argsort(-mass[cand], kind="stable")[: int(step * count)]]] = True
+                rest = np.flatnonzero(~fixed)
+                keep = fixed.copy()
+                keep[rest[eliminate(o.P[rest], count - int(fixed.sum()), fixed=o.P[fixed])]] = True
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ratios", default="0.5,0.2,0.1")
+    ap.add_argument("--scans", default=",".join(SCANS), help="part 1's scans")
+    ap.add_argument("--loop-scans", default=",".join(LOOP_SCANS), help="part 2's scans")
+    ap.add_argument("--steps", type=int, default=6)
+    ap.add_argument("--step", type=float, default=0.03, help="share of the count fixed per step")
+    ap.add_argument("--skip", default="", help="holes and/or loop, comma-separated")
+    args = ap.parse_args(argv)
+    logging.disable(logging.WARNING)
+    warnings.filterwarnings("ignore")
+    ratios = [float(r) for r in args.ratios.split(",")]
+    skip = set(filter(None, args.skip.split(",")))
+    print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
+    t0 = time.perf_counter()
+    if "holes" not in skip:
+        holes(args.scans.split(","), ratios)
+    if "loop" not in skip:
+        loop(args.loop_scans.split(","), ratios, args.steps, args.step)
+    print(f"\n{time.perf_counter() - t0:.0f} s; load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
