@@ -85,6 +85,9 @@ def test_compare_cli_equal_counts_and_report(tmp_path, crop):
             assert r[key] is not None and r[key] >= 0
     md = (out / "report.md").read_text()
     assert md.count("\n| ") >= 7 and "| poisson |" in md
+    om = rep["original_mesh"]  # the crop's mesh: its rim, few holes, no note
+    assert om["faces"] > 0 and 0 < om["border_edges"] < 0.1 * om["faces"]
+    assert f"border edges per face: {om['border_edges'] / om['faces']:.3f})" in md and "whatever the sampling" not in md
     for png in ("compactness.png", "point_errors.png"):
         assert (out / png).read_bytes()[:4] == b"\x89PNG"
     sub = json.loads((out / "km" / "report.json").read_text())
@@ -132,3 +135,14 @@ def test_compare_runs_eliminate_once_whatever_the_methods():
     assert compare_runs(["km", "fcm", "voxel"], ["coverage", "eliminate"]) == [
         ("km (coverage)", "km", "coverage"), ("eliminate", "km", "eliminate"), ("fcm (coverage)", "fcm", "coverage"),
         ("voxel", "voxel", None)]
+
+
+def test_compare_notes_the_holes_of_the_original_mesh():
+    """vegetation_1_3's mesh is about half border edges: compare's table says what that does to Metro."""
+    from cloudsieve.evaluate import compare
+
+    xyz, _ = read_cloud(shared_file("vegetation_1_3.las"))
+    res = compare(xyz, methods=["voxel", "fps"], ratio=0.5)
+    om = res["original_mesh"]
+    assert om["border_edges"] > 0.1 * om["faces"]
+    assert f"> The original's mesh has {om['border_edges'] / om['faces']:.3f} border edges per face" in res["markdown"]

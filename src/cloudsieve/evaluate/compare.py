@@ -32,7 +32,7 @@ from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
 from .evaluation import run_evaluation
-from .report import fmt, plot_compactness, plot_point_errors, write_json
+from .report import border_per_face, fmt, holes_note, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
 
@@ -64,7 +64,8 @@ def compare_markdown(result: dict) -> str:
              f"({100.0 * result['count'] / n:.1f}%); rule `{result['rule']}`; seed {result['seed']}.", "",
              "Point errors: original → simplified, exact, % of the bbox diagonal. Metro: ball-pivoting meshes, "
              "the larger of both directions, % of the diagonal. c ≥ 0.6: share of the simplified mesh's triangles "
-             f"(original mesh: {_share(result.get('original_compact_share'))}).", "",
+             f"(original mesh: {_share(result.get('original_compact_share'))}; border edges per face: "
+             f"{border_per_face(result.get('original_mesh') or {})}).", "",
              "| method | kept | time (s) | point mean % | point RMS % | point max % | Metro mean % | Metro max % | "
              "Metro RMS % | c ≥ 0.6 |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:
@@ -74,7 +75,8 @@ def compare_markdown(result: dict) -> str:
         lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
                      f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {fmt(r.get('metro_mean_pct'))} | "
                      f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {_share(r.get('compact_share'))} |")
-    lines.append("")
+    note = holes_note(result.get("original_mesh") or {})
+    lines += ["", f"> {note}", ""] if note else [""]
     return "\n".join(lines)
 
 
@@ -154,7 +156,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         ``rows`` (one per method: ``method, kept, time, point_mean_pct,
         point_rms_pct, point_max_pct, hausdorff_pct, metro_mean_pct,
         metro_max_pct, metro_rms_pct, compact_share, compact, vertices,
-        faces``, or ``error``), ``original_compact_share``, ``reports`` (the
+        faces``, or ``error``), ``original_compact_share``, ``original_mesh``
+        (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
     opts = validate("compare", {
@@ -217,6 +220,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": ",".join(rules),
               "seed": seed, "ratio": ratio, "rows": rows,
               "original_compact_share": (any_rep.get("surface") or {}).get("original", {}).get("compact_share"),
+              "original_mesh": {k: v for k, v in ((any_rep.get("surface") or {}).get("original") or {}).items()
+                                if k in ("vertices", "faces", "border_edges")},
               "reports": reports}
     result["markdown"] = compare_markdown(result)
     if out_dir is not None:

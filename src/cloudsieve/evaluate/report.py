@@ -27,7 +27,8 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["write_report", "write_json", "json_ready", "markdown", "border_per_face", "plot_compactness",
+__all__ = ["write_report", "write_json", "json_ready", "markdown", "border_per_face", "holes_note",
+           "plot_compactness",
            "plot_point_errors", "write_error_ply", "fmt"]
 
 
@@ -84,8 +85,14 @@ def border_per_face(m: dict) -> str:
     return "-" if b is None or not m["faces"] else f"{b / m['faces']:.3f}"
 
 
-def _holey(m: dict) -> bool:
-    return bool(m.get("border_edges") is not None and m["faces"] and m["border_edges"] > HOLEY * m["faces"])
+def holes_note(m: dict) -> str:
+    """A sentence on the holes of the original's mesh (its surface report's totals *m*) when it has more than
+    ``HOLEY`` border edges per face; "" otherwise."""
+    if not (m.get("border_edges") is not None and m["faces"] and m["border_edges"] > HOLEY * m["faces"]):
+        return ""
+    return (f"The original's mesh has {border_per_face(m)} border edges per face (holes where ball pivoting found "
+            "too few points or too much noise). Metro's backward distances (samples on the simplified mesh) are "
+            "large wherever the simplified mesh covers one of them, whatever the sampling.")
 
 
 def _pct(v: Any) -> str:
@@ -141,11 +148,8 @@ def markdown(report: dict) -> str:
             m = sf[mesh]
             lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {border_per_face(m)} | "
                          f"{_pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
-        if _holey(sf["original"]):
-            lines += ["", f"> The original's mesh has {border_per_face(sf['original'])} border edges per face "
-                      "(holes where ball pivoting found too few points or too much noise). Metro's backward "
-                      "distances (samples on the simplified mesh) are large wherever the simplified mesh covers one "
-                      "of them, whatever the sampling."]
+        if holes_note(sf["original"]):
+            lines += ["", f"> {holes_note(sf['original'])}"]
         if len(sf["tiles"]) > 1:
             lines += ["", "Per tile:", "",
                       "| tile | original pts | simplified pts | Metro mean % | Metro max % | Metro RMS % | c≥0.6 orig | c≥0.6 simpl |",
