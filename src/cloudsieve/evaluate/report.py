@@ -28,8 +28,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["write_report", "write_json", "json_ready", "markdown", "border_per_face", "holes_note",
-           "plot_compactness",
-           "plot_point_errors", "write_error_ply", "fmt"]
+           "plot_compactness", "plot_point_errors", "write_error_ply", "fmt"]
 
 
 def json_ready(obj: Any) -> Any:
