@@ -370,18 +370,18 @@ def test_kept_counts_sum_exactly_to_the_target_within_each_cell():
     expected = rng.random(40) * counts
     for target in (0, 1, 17, int(distinct.sum()) // 2, int(distinct.sum()) - 1, int(distinct.sum()),
                    int(distinct.sum()) + 5, int(counts.sum()), int(counts.sum()) + 9):
-        q = kept_counts(expected, distinct, counts, target)
+        q = kept_counts(expected, distinct, target)
         assert q.sum() == min(target, distinct.sum()), target
         assert (q >= 0).all() and (q <= distinct).all()  # exact copies never fill a count
-        assert np.array_equal(q, kept_counts(expected, distinct, counts, target))
+        assert np.array_equal(q, kept_counts(expected, distinct, target))
 
 
 def test_kept_counts_follow_the_shares_clip_and_break_ties_by_cell():
-    assert kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist() == [1, 1, 3]
-    assert kept_counts([1.0, 1.0, 1.0], [5, 5, 5], [5, 5, 5], 4).tolist() == [2, 1, 1]
-    assert kept_counts([9.0, 1.0, 1.0], [2, 9, 9], [2, 9, 9], 8).tolist() == [2, 3, 3]
-    assert kept_counts([0.0, 0.0], [3, 1], [3, 1], 2).tolist() == [2, 0]  # no share: by distinct points
-    assert kept_counts([0.0, 0.0], [3, 1], [4, 2], 6).tolist() == [3, 1]  # copies do not fill the count
+    assert kept_counts([1.0, 1.0, 2.0], [5, 5, 5], 5).tolist() == [1, 1, 3]
+    assert kept_counts([1.0, 1.0, 1.0], [5, 5, 5], 4).tolist() == [2, 1, 1]
+    assert kept_counts([9.0, 1.0, 1.0], [2, 9, 9], 8).tolist() == [2, 3, 3]
+    assert kept_counts([0.0, 0.0], [3, 1], 2).tolist() == [2, 0]  # no share: by distinct points
+    assert kept_counts([0.0, 0.0], [3, 1], 6).tolist() == [3, 1]  # copies do not fill the count
 
 
 def test_cli_says_eliminate_needs_a_ratio_or_a_count(tmp_path, capsys):

@@ -117,20 +117,20 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3)
 
 
-def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
+def kept_counts(expected, distinct, target: int) -> np.ndarray:
     """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
 
     The shares *expected* scaled to the target, each clipped to its cell's
     *distinct* points (the excess spread over the others, again in
     proportion), then rounded by largest remainder (ties by cell id). Exact
-    copies (*counts* - *distinct*) never count: a target above the distinct
-    points is not met (the run says so). Deterministic.
+    copies never count: a target above the distinct points is not met (the
+    run says so). Deterministic.
 
     Parameters
     ----------
     expected : array_like of shape (P,), float >= 0
-    distinct, counts : array_like of shape (P,), int
-        Distinct points and all points of each cell (distinct <= counts).
+    distinct : array_like of shape (P,), int
+        Distinct points of each cell.
     target : int
 
     Returns
@@ -140,7 +140,7 @@ def kept_counts(expected, distinct, counts, target: int) -> np.ndarray:
 
     Examples
     --------
-    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], [5, 5, 5], 5).tolist()
+    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], 5).tolist()
     [1, 1, 3]
     """
     e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
@@ -341,7 +341,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
         distinct = np.array([p[3] for p in prepared])
         if distinct.sum() < target:  # exact copies fill the count, as in one elimination (they go first, so are
             distinct = size  # kept last)
-        q = kept_counts(ladder_shares(np.array([p[2] for p in prepared]), target), distinct, size, target)
+        q = kept_counts(ladder_shares(np.array([p[2] for p in prepared]), target), distinct, target)
         keep = np.zeros(n, dtype=bool)
         done = {}
 

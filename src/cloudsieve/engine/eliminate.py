@@ -276,7 +276,7 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     share = np.asarray(store.group["simplify/share"][:])
     distinct = share[:, 0].astype(np.int64)
     expected = ladder_shares(share[:, 1:], int(target)) if math.isfinite(r_max) else distinct
-    q = kept_counts(expected, distinct, part.cell_counts, int(target))
+    q = kept_counts(expected, distinct, int(target))
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
     # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it
