@@ -101,6 +101,12 @@ def _gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
     return out
 
 
+def _mesh_figures(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, dict]:
+    """Compactness of each triangle of *mesh*, and its vertices, border edges and compactness summary."""
+    c = compactness(*mesh)
+    return c, {"vertices": int(len(mesh[0])), "border_edges": len(border_edges(mesh[1])), **compactness_summary(c)}
+
+
 def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: int | None,
                   max_samples: int, cache: dict | None = None, key: Any = None) -> tuple[dict, np.ndarray, np.ndarray]:
     lo, hi = orig.min(0), orig.max(0)
@@ -108,16 +114,15 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
     rec: dict[str, Any] = {"points_original": int(len(orig)), "points_simplified": int(len(simp)),
                            "diagonal": tile_diag}
     if cache is not None and key in cache and np.array_equal(cache[key][0], orig):
-        mo = cache[key][1]
+        _, mo, co, figs = cache[key]
         msimp = ball_pivoting(simp)
     else:  # both meshes at once, one forked child each
         mo, msimp = forked([(ball_pivoting, orig), (ball_pivoting, simp)])
-        if cache is not None:
-            cache[key] = (orig, mo)
-    co, cs = compactness(*mo), compactness(*msimp)
-    rec["original"] = {"vertices": int(len(mo[0])), "border_edges": len(border_edges(mo[1])), **compactness_summary(co)}
-    rec["simplified"] = {"vertices": int(len(msimp[0])), "border_edges": len(border_edges(msimp[1])),
-                         **compactness_summary(cs)}
+        co, figs = _mesh_figures(mo)
+        if cache is not None:  # the original's mesh and its figures, for the next simplification of it
+            cache[key] = (orig, mo, co, figs)
+    cs, rec["simplified"] = _mesh_figures(msimp)
+    rec["original"] = dict(figs)
     if len(mo[1]) == 0 or len(msimp[1]) == 0:
         rec["error"] = (f"ball pivoting made no triangle ({len(mo[1])} from {len(orig)} original points, "
                         f"{len(msimp[1])} from {len(simp)} simplified points)")
