@@ -83,13 +83,15 @@ class Original:
         allv = np.concatenate([self.mesh[0], m[0]])
         maxdist = 10.0 * float(np.linalg.norm(allv.max(0) - allv.min(0))) + 1e-12
         n = min(max(10 * len(m[1]), 1000), 500_000)
-        fig = metro(self.mesh, m)
+        fig = metro(self.mesh, m)  # the evaluation's figures, to the last digit; the samples (float32 distances)
+        # come from one more backward run: the same samples, as each run starts from the same forked state
         S, dist = forked([(_samples, m, self.mesh, n, maxdist)])[0]
         near = self.border.query(S, workers=-1)[0] < NEAR * self.spacing
         s = 100.0 / self.diag
-        return {"rms": float(np.sqrt((d ** 2).mean())) * s, "metro": max(fig["forward"]["mean"], fig["backward"]["mean"]) * s,
-                "fwd": fig["forward"]["mean"] * s, "bwd": fig["backward"]["mean"] * s, "S": S, "dist": dist,
-                "near": near, "near_share": float(near.mean()), "near_mass": float(dist[near].sum() / max(dist.sum(), 1e-300))}
+        fwd, bwd = fig["forward"]["mean"] * s, fig["backward"]["mean"] * s
+        return {"rms": float(np.sqrt((d ** 2).mean())) * s, "metro": max(fwd, bwd), "fwd": fwd, "bwd": bwd,
+                "S": S, "dist": dist, "near": near, "near_share": float(near.mean()),
+                "near_mass": float(dist[near].sum() / max(dist.sum(), 1e-300))}
 
 
 def _mask(n: int, idx: np.ndarray) -> np.ndarray:
