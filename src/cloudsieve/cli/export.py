@@ -30,6 +30,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
+    from ..engine.runner import Runner
     from ..store import export
     from ..errors import ArrayNotFoundError
     from ..store import PointStore
@@ -38,15 +39,20 @@ def run(args: argparse.Namespace) -> int:
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
-    with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
-        export(
-            store,
-            args.dst,
-            format=args.format,
-            mask=args.mask,
-            chunk_size=args.chunk_size,
-            overwrite=args.overwrite,
-            progress=update,
-        )
+    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
+    try:
+        with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
+            export(
+                store,
+                args.dst,
+                format=args.format,
+                mask=args.mask,
+                chunk_size=args.chunk_size,
+                overwrite=args.overwrite,
+                progress=update,
+                run=runner,  # LAS/LAZ: parts written by local worker processes
+            )
+    finally:
+        runner.close()
     print(f"exported {args.store} to {args.dst}", file=sys.stderr)
     return 0

@@ -21,7 +21,7 @@ import struct
 import numpy as np
 
 from .pointstore import PointStore
-from .streaming import bound_malloc
+from .streaming import bound_malloc, run_tasks
 
 __all__ = ["export_las", "part_task", "LAZ_CHUNK"]
 
@@ -121,7 +121,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
             counts = [b - a for a, b in bounds]
         else:
             args = [(store.path, mask, a, b) for a, b in bounds]
-            counts = run(count_task, args, "export: count") if run is not None else [count_task(*a) for a in args]
+            counts = run_tasks(run, count_task, args, "export: count")
     counts = np.asarray(counts, dtype=np.int64)
     part_size = int(part_size or max(1, round(step / LAZ_CHUNK)) * LAZ_CHUNK)
     plan = _plan(counts, step, part_size)
@@ -132,7 +132,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     suffix = "." + fmt
     try:
         args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items) for i, items in enumerate(plan)]
-        written = run(part_task, args, "export") if run is not None else [part_task(*a) for a in args]
+        written = run_tasks(run, part_task, args, "export")
         final = make_temp_path(dst)
         try:
             if len(args) == 1:

@@ -24,7 +24,7 @@ from ..errors import CorruptInputError, InputFormatError
 from .las_plan import LasPlan, plan_las
 from .paths import local_path
 from .pointstore import PointStore
-from .streaming import bound_malloc, gathered
+from .streaming import bound_malloc, gathered, run_tasks
 
 __all__ = ["ingest_las", "ingest_task"]
 
@@ -173,10 +173,7 @@ def ingest_las(
         new = PointStore.create(target, dtypes=plan.dtypes, chunk_size=chunk_size, count=plan.total,
                           overwrite=overwrite or local is not None, xyz_encoding=encoding)
         args = [(target, lo, hi, pieces) for lo, hi, pieces in plan.tasks(chunk_size)]
-        if run is None:
-            results = [ingest_task(*a) for a in args]
-        else:
-            results = run(ingest_task, args, "ingest")
+        results = run_tasks(run, ingest_task, args, "ingest")
         lo = np.min([r["mins"] for r in results], axis=0) * plan.scale + plan.offset
         hi = np.max([r["maxs"] for r in results], axis=0) * plan.scale + plan.offset
         header = dict(plan.header)

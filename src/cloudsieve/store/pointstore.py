@@ -13,7 +13,7 @@ Layout (see DESIGN.md)::
                            shape (N,) or (N, k), chunks (chunk_size, ...)
       partition/..., simplify/...   derived arrays of later stages
 
-Every array is compressed (blosc lz4, byte-shuffled; see :func:`compressors`).
+Every array is compressed (blosc: zstd for the input arrays, lz4 for derived ones; see :func:`compressors`).
 A store path is a local path or an fsspec URL (``file:///...`` is treated as
 the local path it names). This module is the only code that creates or
 deletes stores and store arrays: :meth:`PointStore.create` /
@@ -48,6 +48,7 @@ from ..errors import (
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import local_path, path_exists, zarr_store
+from .codecs import compressors
 from .streaming import gathered
 
 __all__ = [
@@ -63,17 +64,6 @@ logger = logging.getLogger(__name__)
 
 STORE_ATTR = "cloudsieve"
 STORE_VERSION = 1
-def compressors(level: int = 5) -> tuple:
-    """The codecs used for every store array: blosc lz4, byte-shuffled.
-
-    Measured on 10^6 points of autzen tiles (17 arrays, 52 MB raw, one core):
-    blosc-lz4 + shuffle 0.03 s CPU -> 25 MB; blosc-zstd(1) + shuffle 0.10 s
-    -> 21 MB; plain zstd(1) 0.13 s. Ingest is bounded by LAZ decoding, so the
-    cheapest codec wins; stores are work files, not archives.
-    """
-    return (zarr.codecs.BloscCodec(cname="lz4", clevel=level, shuffle="shuffle"),)
-
-
 def is_store(path: str | os.PathLike) -> bool:
     """True when *path* (local path or fsspec URL) holds a complete point store.
 
@@ -234,7 +224,7 @@ class PointStore:
                 dtype=np.dtype(dtype),
                 chunks=(chunk_size, *shape),
                 fill_value=0,
-                compressors=compressors(),
+                compressors=compressors("input"),
                 config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
         meta = {
