@@ -192,3 +192,18 @@ def test_cli_json_reports_cpu(tiles, tmp_path, capsys):
     out = json.loads(capsys.readouterr().out)
     assert set(out["cpu_seconds"]) == {"driver", "workers"}
     assert out["points_in"] == 110_000 and out["kept"] == 55_000
+
+
+def test_pipeline_reads_a_glob_as_one_cloud(tiles, tmp_path):
+    doc = {"pipeline": [{"type": "readers.las", "filename": str(tiles[0].parent / "*.laz"), "merge": True},
+                        {"type": "filters.entropy", "ratio": 0.25, "seed": 2},
+                        {"type": "writers.las", "filename": str(tmp_path / "out" / "{stem}.laz")}]}
+    (tmp_path / "p.json").write_text(json.dumps(doc))
+    assert main(["run", str(tmp_path / "p.json")]) == 0
+    got = laspy.read(tmp_path / "out" / "tiles.laz")
+    assert len(got.points) == 27_500
+    assert main(["simplify", str(tiles[0].parent), str(tmp_path / "d.laz"), "--ratio", "0.25", "--seed", "2"]) == 0
+    np.testing.assert_array_equal(laspy.read(tmp_path / "d.laz").points.array, got.points.array)
+    doc["pipeline"].append({"type": "evaluate", "report_dir": str(tmp_path / "rep")})
+    (tmp_path / "p.json").write_text(json.dumps(doc))
+    assert main(["run", str(tmp_path / "p.json")]) == 2

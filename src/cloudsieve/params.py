@@ -189,6 +189,7 @@ _OPTIONS = [
     Option("delimiter", TEXT, None, "XYZ/TXT/CSV column separator (default: sniffed)"),
     Option("columns", TEXT, None, "XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)"),
     Option("drop_invalid", BOOL, False, "drop points with NaN/infinite coordinates (default: refuse)"),
+    Option("merge", BOOL, False, "pipelines' readers.las: the files of a glob (or a directory, list, VPC) are one cloud"),
     Option("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
            metavar="ARRAY"),
 ]
