@@ -26,7 +26,7 @@ from cloudsieve.errors import (
 )
 from cloudsieve.io.vpc import read_vpc
 from cloudsieve.store import PointStore, ingest
-from cloudsieve.store.buckets import Buckets, bucket
+from cloudsieve.store.buckets import Buckets, bucket, read_runs
 from cloudsieve.store.tiles import export_tiles, tile_index, tile_keys
 
 
@@ -101,7 +101,8 @@ def test_bucket_all_points_blocks_and_reopen(autzen):
     assert len(blocks) > 1 and all(len(x["xyz"]) <= 16_000 for x in blocks)
     for name, want in groups[big].items():
         np.testing.assert_array_equal(np.concatenate([x[name] for x in blocks]), want)
-    # reopened and unpickled, it reads the same
+    # read from its runs alone (as a task does), reopened and unpickled, it reads the same
+    np.testing.assert_array_equal(read_runs(store.path, "all", runs)["intensity"], groups[big]["intensity"])
     again = pickle.loads(pickle.dumps(b))
     same = Buckets.open(store.path, "all")
     for other in (again, same):
@@ -127,6 +128,7 @@ def test_bucket_errors(autzen):
     with pytest.raises(InvalidParameterError, match=r"keys\(16000 points\) must return an integer array of shape "
                                                     r"\(16000,\), got int64 \(16001,\)"):
         bucket(store, bad_keys, "x")
+    assert "export/x" not in store.group  # a failed grouping leaves no scratch
     with pytest.raises(InvalidParameterError, match=r"got float64 \(16000,\)"):
         bucket(store, float_keys, "x")
     with pytest.raises(InvalidParameterError, match=r"bucket name must be a non-empty name without '/', got 'a/b'"):
@@ -247,7 +249,7 @@ def test_export_tiles_atomic_and_refusals(autzen, tmp_path):
     PointStore.open(store.path, "r+").group.attrs.update({"cloudsieve": meta})
     for overwrite, dst in ((True, out), (False, tmp_path / "new")):
         with pytest.raises(InputFormatError, match=r"x values .* do not fit LAS int32 with scale 0.01"):
-            export_tiles(store.path, dst, tile_size=100.0, overwrite=overwrite)
+            export_tiles(store.path, dst, tile_size=200.0, overwrite=overwrite)
     assert sorted(os.listdir(tmp_path)) == ["s.zarr", "tiles"]  # nothing new, no temporary folder
     assert sorted(os.listdir(out)) == ["old.txt"]  # the old folder untouched
     assert "export/tiles" not in PointStore.open(store.path).group

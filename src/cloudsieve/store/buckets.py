@@ -48,7 +48,7 @@ from ..errors import ArrayNotFoundError, InvalidParameterError
 from .pointstore import PointStore
 from .streaming import gathered
 
-__all__ = ["bucket", "Buckets", "bucket_chunk"]
+__all__ = ["bucket", "Buckets", "bucket_chunk", "open_runs", "read_runs", "iter_runs"]
 
 logger = logging.getLogger(__name__)
 
@@ -177,35 +177,104 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
         store.create_array(f"{prefix}/data/{d}", shape=(len(starts), r_len, *shape), dtype=dtype,
                            chunks=(1, inner, *shape), shards=(1, r_len, *shape))
     args = [(store.path, name, c, s, min(s + chunk, n), keys, mask) for c, s in enumerate(starts)]
-    if run is None:
-        results = [bucket_chunk(*a) for a in args]
-    else:
-        results = run(bucket_chunk, args, f"bucket {name}")
-    # the run table: (key, chunk, start, count) per nonzero run, ordered by key then chunk
+    try:
+        results = [bucket_chunk(*a) for a in args] if run is None else run(bucket_chunk, args, f"bucket {name}")
+        keys_, counts, ptr, runs = _run_table(results)
+        store.create_array(f"{prefix}/runs", data=runs, chunks=(max(1, min(len(runs), 65536)), 3))
+        for what, data in (("ptr", ptr), ("counts", counts), ("keys", keys_)):  # keys last: the mark of complete
+            store.create_array(f"{prefix}/{what}", data=data, chunks=(max(1, min(len(data), 65536)),))
+    except BaseException:
+        store.delete_array(prefix)  # no half-written scratch left in the store
+        raise
+    logger.info("bucket %s: %d points of %s in %d keys, %d runs", name, int(counts.sum()), store.path, len(keys_),
+                len(runs))
+    out = Buckets(store.path, name, keys_, counts, ptr)
+    out._table = runs
+    return out
+
+
+def _run_table(results: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(keys, counts, ptr, runs) from the map tasks' (keys, counts) per chunk: runs by key, then chunk."""
     ks = np.concatenate([r[0] for r in results]) if results else _EMPTY
     cnt = np.concatenate([r[1] for r in results]) if results else _EMPTY
     chunk_of = np.repeat(np.arange(len(results), dtype=np.int64), [len(r[0]) for r in results])
     first = np.concatenate([np.cumsum(r[1]) - r[1] for r in results]) if results else _EMPTY
     order = np.lexsort((chunk_of, ks))
-    ks = ks[order]
+    ks, cnt = ks[order], cnt[order]
     heads = np.flatnonzero(np.r_[True, ks[1:] != ks[:-1]]) if len(ks) else _EMPTY
-    runs = np.stack([chunk_of[order], first[order], cnt[order]], axis=1).astype(np.int64)
-    uniq = ks[heads]
-    counts = np.add.reduceat(cnt[order], heads) if len(heads) else _EMPTY
-    ptr = np.r_[heads, len(ks)].astype(np.int64)
-    store.create_array(f"{prefix}/runs", data=runs.reshape(-1, 3), chunks=(max(1, min(len(runs), 65536)), 3))
-    for what, data in (("ptr", ptr), ("counts", counts.astype(np.int64)), ("keys", uniq.astype(np.int64))):
-        store.create_array(f"{prefix}/{what}", data=data, chunks=(max(1, len(data)),))
-    logger.info("bucket %s: %d points of %s in %d keys, %d runs", name, int(counts.sum()), store.path, len(uniq),
-                len(runs))
-    return Buckets.open(store.path, name)
+    runs = np.stack([chunk_of[order], first[order], cnt], axis=1).astype(np.int64).reshape(-1, 3)
+    counts = np.add.reduceat(cnt, heads) if len(heads) else _EMPTY
+    return ks[heads].astype(np.int64), counts.astype(np.int64), np.r_[heads, len(ks)].astype(np.int64), runs
+
+
+def open_runs(store_path: str, name: str) -> dict:
+    """The scratch arrays of buckets *name*, one per attribute ("xyz" first), to read runs from.
+
+    Returns
+    -------
+    dict of str to zarr.Array
+        Pass it to :func:`read_runs` for several reads in one task (opening
+        them costs about 10 ms).
+    """
+    store = PointStore.open(store_path, "r")
+    prefix = _prefix(name)
+    return {d: store.group[f"{prefix}/data/{d}"] for d in _names(store)}
+
+
+def read_runs(store_path: str, name: str, runs: np.ndarray, arrays: dict | None = None) -> dict[str, np.ndarray]:
+    """Every attribute of the points of *runs* (rows (chunk, start, count), as :meth:`Buckets.runs` gives).
+
+    The task-side read: a task handed its key's runs reads them without
+    loading the buckets' index (arrays of size K). *arrays*: :func:`open_runs`'s,
+    else opened here.
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``"xyz"``: (n, 3) float64, then each attribute (n,) or (n, k), the
+        runs' points one run after the other.
+    """
+    arrays = open_runs(store_path, name) if arrays is None else arrays
+    runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
+    # every run of every attribute in one event-loop call (the codecs run concurrently)
+    got = gathered(a.async_array.getitem((int(c), slice(int(s), int(s + k))))
+                   for a in arrays.values() for c, s, k in runs)
+    r = len(runs)
+    out = {}
+    for i, (d, a) in enumerate(arrays.items()):
+        parts = [np.asarray(p) for p in got[i * r:(i + 1) * r]]
+        out[d] = np.concatenate(parts) if parts else np.empty((0, *a.shape[2:]), dtype=a.dtype)
+    return out
+
+
+def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
+              arrays: dict | None = None) -> Iterator[dict[str, np.ndarray]]:
+    """:func:`read_runs` in consecutive blocks of whole runs, each of at most *max_points* points.
+
+    A block holds one run when that run alone is larger (a run is at most
+    one store chunk): memory stays bounded by the chunk size however many
+    points the runs hold.
+    """
+    arrays = open_runs(store_path, name) if arrays is None else arrays
+    runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
+    ends = np.cumsum(runs[:, 2])
+    a = 0
+    while a < len(runs):
+        base = ends[a] - runs[a, 2]
+        b = max(a + 1, int(np.searchsorted(ends, base + int(max_points), side="right")))
+        yield read_runs(store_path, name, runs[a:b], arrays)
+        a = b
 
 
 class Buckets:
-    """The points of a store grouped by key (made by :func:`bucket`), read one key at a time.
+    """The points of a store grouped by key (made by :func:`bucket`): the driver's index of them.
 
-    Picklable (arrays of size K and the store's path); in a task, reopen
-    with :meth:`Buckets.open` (store path and name) rather than shipping it.
+    Holds arrays of size K (keys, counts) and the run table (one row per
+    nonzero (key, chunk) pair), nothing of size N. A task for one key is
+    best handed ``(store_path, name, buckets.runs(key))`` and reads with
+    :func:`read_runs` / :func:`iter_runs`, rather than this object (each
+    task would load or unpickle the whole index). It pickles, and
+    :meth:`Buckets.open` reopens it from the store's path and the name.
 
     Attributes
     ----------
@@ -217,19 +286,17 @@ class Buckets:
         The distinct keys, increasing.
     counts : ndarray of shape (K,), int64
         Points of each key.
-    names : list of str
-        The attributes :meth:`read` returns, "xyz" first.
+    ptr : ndarray of shape (K + 1,), int64
+        The runs of ``keys[i]`` are rows ``ptr[i]:ptr[i + 1]`` of the run table.
     """
 
-    def __init__(self, store_path: str, name: str, keys: np.ndarray, counts: np.ndarray, ptr: np.ndarray,
-                 names: list[str]) -> None:
+    def __init__(self, store_path: str, name: str, keys: np.ndarray, counts: np.ndarray, ptr: np.ndarray) -> None:
         self.store_path = str(store_path)
         self.name = name
         self.keys = keys
         self.counts = counts
         self.ptr = ptr
-        self.names = list(names)
-        self._group = None
+        self._table: np.ndarray | None = None  # the run table, read on first use
 
     @classmethod
     def open(cls, store: PointStore | str | os.PathLike, name: str) -> Buckets:
@@ -246,24 +313,16 @@ class Buckets:
         if f"{prefix}/keys" not in store.group:
             raise ArrayNotFoundError(f"{store.path} holds no complete buckets {name!r} (no {prefix}/keys)")
         g = store.group
-        names = [d for d in _names(store) if f"{prefix}/data/{d}" in g]
         return cls(store.path, name, np.asarray(g[f"{prefix}/keys"][:]), np.asarray(g[f"{prefix}/counts"][:]),
-                   np.asarray(g[f"{prefix}/ptr"][:]), names)
+                   np.asarray(g[f"{prefix}/ptr"][:]))
 
     def __len__(self) -> int:
         return len(self.keys)
 
-    def __getstate__(self) -> dict:
-        return {k: v for k, v in self.__dict__.items() if k != "_group"}
-
-    def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
-        self._group = None
-
-    def _g(self):
-        if self._group is None:
-            self._group = PointStore.open(self.store_path, "r").group
-        return self._group
+    @property
+    def names(self) -> list[str]:
+        """The attributes :meth:`read` returns, "xyz" first."""
+        return list(open_runs(self.store_path, self.name))
 
     def runs(self, key: int) -> np.ndarray:
         """The runs of *key*: rows (chunk, start, count), chunks increasing, shape (r, 3), int64.
@@ -274,21 +333,10 @@ class Buckets:
         i = int(np.searchsorted(self.keys, key))
         if i >= len(self.keys) or self.keys[i] != key:
             return np.empty((0, 3), dtype=np.int64)
-        a, b = int(self.ptr[i]), int(self.ptr[i + 1])
-        return np.asarray(self._g()[f"export/{self.name}/runs"][a:b]).astype(np.int64)
-
-    def _read_runs(self, runs: np.ndarray) -> dict[str, np.ndarray]:
-        g = self._g()
-        arrays = [g[f"export/{self.name}/data/{d}"].async_array for d in self.names]
-        # every run of every attribute in one event-loop call (the codecs run concurrently)
-        got = gathered(a.getitem((int(c), slice(int(s), int(s + k)))) for a in arrays for c, s, k in runs)
-        r = len(runs)
-        out = {}
-        for i, d in enumerate(self.names):
-            parts = [np.asarray(p) for p in got[i * r:(i + 1) * r]]
-            shape = arrays[i].shape[2:]
-            out[d] = np.concatenate(parts) if parts else np.empty((0, *shape), dtype=arrays[i].dtype)
-        return out
+        if self._table is None:
+            g = PointStore.open(self.store_path, "r").group
+            self._table = np.asarray(g[f"export/{self.name}/runs"][:]).astype(np.int64).reshape(-1, 3)
+        return self._table[int(self.ptr[i]):int(self.ptr[i + 1])]
 
     def read(self, key: int) -> dict[str, np.ndarray]:
         """Every attribute of the points of *key*, in input order.
@@ -299,30 +347,15 @@ class Buckets:
             ``"xyz"``: (n, 3) float64, and each attribute (n,) or (n, k); n = 0
             for a key without points.
         """
-        return self._read_runs(self.runs(key))
+        return read_runs(self.store_path, self.name, self.runs(key))
 
     def blocks(self, key: int, max_points: int) -> Iterator[dict[str, np.ndarray]]:
-        """The points of *key* as :meth:`read` gives them, in consecutive blocks of whole runs.
-
-        A block holds at most *max_points* points, or one run when a run is
-        larger (a run is at most one store chunk): memory stays bounded by the
-        chunk size however many points the key has.
-        """
-        runs = self.runs(key)
-        if not len(runs):
-            return
-        ends = np.cumsum(runs[:, 2])
-        a = 0
-        while a < len(runs):
-            base = ends[a] - runs[a, 2]
-            b = max(a + 1, int(np.searchsorted(ends, base + int(max_points), side="right")))
-            yield self._read_runs(runs[a:b])
-            a = b
+        """The points of *key* as :meth:`read` gives them, in consecutive blocks (see :func:`iter_runs`)."""
+        return iter_runs(self.store_path, self.name, self.runs(key), max_points)
 
     def delete(self) -> None:
         """Delete the scratch arrays (``export/<name>/``) from the store."""
         PointStore.open(self.store_path, "r").delete_array(_prefix(self.name))
-        self._group = None
 
     def __repr__(self) -> str:
         return f"Buckets({self.store_path!r}, {self.name!r}, keys={len(self.keys)}, points={int(self.counts.sum())})"

@@ -29,7 +29,7 @@ import numpy as np
 
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
-from .buckets import Buckets, bucket
+from .buckets import bucket, iter_runs, open_runs
 from .paths import local_path
 from .pointstore import PointStore
 
@@ -94,8 +94,8 @@ def tile_name(stem: str, key: int) -> str:
     return f"{stem}_{int(ix[0])}_{int(iy[0])}.laz"
 
 
-def write_tile(store_path: str, name: str, key: int, path: str) -> dict:
-    """Task of :func:`export_tiles`: write the points of tile *key* to the LAZ file *path*.
+def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
+    """Task of :func:`export_tiles`: write the points of a tile, its *runs* in the buckets *name*, to the LAZ *path*.
 
     Reads them in blocks of at most a store chunk (memory bounded by the
     chunk size, whatever the tile's count).
@@ -109,12 +109,11 @@ def write_tile(store_path: str, name: str, key: int, path: str) -> dict:
     from ..io.vpc import describe_tile
 
     store = PointStore.open(store_path, "r")
-    buckets = Buckets.open(store, name)
-    dtypes = store.dtypes
-    dtypes["xyz"] = (np.dtype(np.float64), (3,))  # as the buckets hold them (PointStore.read's coordinates)
+    arrays = open_runs(store_path, name)
+    dtypes = {d: (np.dtype(a.dtype), tuple(a.shape[2:])) for d, a in arrays.items()}  # as the buckets hold them
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
                      bounds=store.bounds) as writer:
-        for block in buckets.blocks(key, store.chunk_size):
+        for block in iter_runs(store_path, name, runs, store.chunk_size, arrays):
             writer.write(block)
     return describe_tile(path)
 
@@ -211,7 +210,7 @@ def export_tiles(
     try:
         buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
         names = [tile_name(stem, int(k)) for k in buckets.keys]
-        args = [(store.path, _SCRATCH, int(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
+        args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
         entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "tiles: write")
         for n in buckets.counts:
             update(int(n))
