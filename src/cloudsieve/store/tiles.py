@@ -109,11 +109,12 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
     from ..io.vpc import describe_tile
 
     store = PointStore.open(store_path, "r")
-    arrays = open_runs(store_path, name)
-    dtypes = {d: (np.dtype(a.dtype), tuple(a.shape[2:])) for d, a in arrays.items()}  # as the buckets hold them
+    scratch = open_runs(store_path, name)
+    record = scratch[1]
+    dtypes = {d: (record[d].base, record[d].shape) for d in record.names}  # as the buckets hold them
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
                      bounds=store.bounds) as writer:
-        for block in iter_runs(store_path, name, runs, store.chunk_size, arrays):
+        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch):
             writer.write(block)
     return describe_tile(path)
 
