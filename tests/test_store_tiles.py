@@ -259,3 +259,34 @@ def test_export_tiles_atomic_and_refusals(autzen, tmp_path):
     summary = export_tiles(store.path, out, tile_size=400.0, overwrite=True)
     assert sorted(os.listdir(out)) == sorted([os.path.basename(f) for f in summary["files"]] + ["index.vpc"])
     assert summary["points"] == store.count
+
+
+def test_export_tiles_of_a_ply_scan_and_of_no_point(tmp_path):
+    from cloudsieve.errors import EmptyInputError
+    from cloudsieve.io import read_cloud
+
+    store = ingest(shared_file("bun_zipper.ply"), tmp_path / "bun.zarr", chunk_size=10_000)
+    size = 0.05
+    summary = export_tiles(store, tmp_path / "bun", tile_size=size)
+    xyz, attrs = read_cloud(shared_file("bun_zipper.ply"))
+    keys = tile_keys(xyz, size)
+    uniq = np.unique(keys)
+    assert summary["tiles"] == len(uniq) > 4 and summary["points"] == len(xyz)
+    scales = set()
+    for key, path in zip(uniq, summary["files"]):
+        tile = laspy.read(path)
+        sel = keys == key
+        # a fresh header (scales chosen from the store's bounds, the same for every tile): coordinates to its scale
+        np.testing.assert_allclose(np.c_[tile.x, tile.y, tile.z], xyz[sel], rtol=0, atol=tile.header.scales.max())
+        np.testing.assert_array_equal(tile["confidence"], attrs["confidence"][sel])
+        scales.add(tuple(tile.header.scales) + tuple(tile.header.offsets))
+    assert len(scales) == 1
+    doc = json.loads((tmp_path / "bun" / "index.vpc").read_text())
+    assert [f["properties"]["proj:wkt2"] for f in doc["features"]] == [""] * len(uniq)  # no CRS
+    # no point kept: an empty tile set and an empty index
+    store.create_array("simplify/keep", data=np.zeros(store.count, dtype=bool))
+    summary = export_tiles(store, tmp_path / "none", tile_size=size, mask="simplify/keep")
+    assert summary["tiles"] == summary["points"] == 0 and summary["files"] == []
+    assert os.listdir(tmp_path / "none") == ["index.vpc"]
+    with pytest.raises(EmptyInputError, match=r"the VPC lists no files"):
+        read_vpc(tmp_path / "none" / "index.vpc")
