@@ -290,3 +290,24 @@ def test_export_tiles_of_a_ply_scan_and_of_no_point(tmp_path):
     assert os.listdir(tmp_path / "none") == ["index.vpc"]
     with pytest.raises(EmptyInputError, match=r"the VPC lists no files"):
         read_vpc(tmp_path / "none" / "index.vpc")
+
+
+@pytest.mark.parametrize("name, size", [("extrabytes.las", 1000.0), ("1_4_w_evlr.laz", 100.0),
+                                        ("append-bug.laz", 300.0), ("simple.copc.laz", 1000.0)])
+def test_export_tiles_keeps_every_record_and_record_kind(tmp_path, name, size):
+    """Extra bytes, LAS 1.4 EVLRs, point format 8: each tile holds exactly the input records of its square."""
+    src = shared_file(name)
+    store = ingest(src, tmp_path / "s.zarr", chunk_size=3_000)
+    summary = export_tiles(store, tmp_path / "t", tile_size=size)
+    las = laspy.read(str(src))
+    keys = tile_keys(np.c_[las.x, las.y, las.z], size)
+    records = raw_records(src)
+    assert summary["tiles"] == len(np.unique(keys)) > 1
+    for key, path in zip(np.unique(keys), summary["files"]):
+        np.testing.assert_array_equal(raw_records(path), records[keys == key])
+        tile = laspy.read(path)
+        # every VLR and EVLR but COPC's own (its octree layout: dropped, see io/las_header.py)
+        assert [(v.user_id, v.record_id) for v in tile.header.vlrs] == [
+            (v.user_id, v.record_id) for v in las.header.vlrs if v.user_id != "copc"]
+        assert [(v.user_id, v.record_id, v.record_data_bytes()) for v in tile.evlrs or []] == [
+            (v.user_id, v.record_id, v.record_data_bytes()) for v in las.evlrs or [] if v.user_id != "copc"]
