@@ -207,3 +207,25 @@ def test_pipeline_reads_a_glob_as_one_cloud(tiles, tmp_path):
     doc["pipeline"].append({"type": "evaluate", "report_dir": str(tmp_path / "rep")})
     (tmp_path / "p.json").write_text(json.dumps(doc))
     assert main(["run", str(tmp_path / "p.json")]) == 2
+
+
+def test_tiles_out_and_the_vpc_back_in(tiles, tmp_path):
+    src = str(tiles[0].parent / "*.laz")
+    assert main(["simplify", src, str(tmp_path / "one.laz"), "--ratio", "0.4", "--no-progress"]) == 0
+    assert main(["simplify", src, str(tmp_path / "tiled"), "--ratio", "0.4", "--tile-size", "250",
+                 "--no-progress"]) == 0
+    vpc = tmp_path / "tiled" / "index.vpc"
+    doc = json.loads(vpc.read_text())
+    assert sum(f["properties"]["pc:count"] for f in doc["features"]) == 44_000
+    # the tiles hold exactly the records of the one-file output (in tile order)
+    one = laspy.read(tmp_path / "one.laz").points.array
+    st = ingest(str(vpc), tmp_path / "back.zarr")
+    assert st.count == len(one) == 44_000
+    raw = np.asarray(st.array("xyz")[:])
+    key = lambda a: np.lexsort(a.T[::-1])  # noqa: E731
+    np.testing.assert_array_equal(raw[key(raw)], np.c_[one["X"], one["Y"], one["Z"]][key(np.c_[one["X"], one["Y"],
+                                                                                                  one["Z"]])])
+    # an existing folder is refused (exit 2) and left as it was
+    before = sorted(p.name for p in (tmp_path / "tiled").iterdir())
+    assert main(["simplify", src, str(tmp_path / "tiled"), "--ratio", "0.4", "--tile-size", "250"]) == 2
+    assert sorted(p.name for p in (tmp_path / "tiled").iterdir()) == before

@@ -22,7 +22,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
-    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts)")
+    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts), or with --tile-size "
+                   "a folder of LAZ tiles and index.vpc")
     add_options(p, "export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -50,7 +51,8 @@ def run(args: argparse.Namespace) -> int:
                 chunk_size=args.chunk_size,
                 overwrite=args.overwrite,
                 progress=update,
-                run=runner,  # LAS/LAZ: parts written by local worker processes
+                run=runner,  # LAS/LAZ and tiles: written by local worker processes
+                tile_size=args.tile_size,
             )
     finally:
         runner.close()

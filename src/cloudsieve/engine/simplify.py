@@ -36,7 +36,7 @@ import time
 from collections.abc import Callable
 
 from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
-from ..io import check_readable, check_writable, detect_format
+from ..io import check_readable, check_tile_folder, check_writable, detect_format
 from ..io.sources import expand_sources
 from ..params import run_record, validate
 from ..progress import callback
@@ -89,6 +89,7 @@ def simplify(
     drop_invalid: bool = False,
     keep_duplicates: bool = False,
     strict: bool = False,
+    tile_size: float | None = None,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -192,6 +193,11 @@ def simplify(
         written; the default work store is removed) instead of a logged
         warning. Both name the requested and delivered counts and why.
 
+    tile_size : float, optional
+        Write DST as a folder of square LAZ tiles of this edge (the CRS's
+        units, a grid anchored at 0), each written by a task, and
+        ``DST/index.vpc`` listing them (:func:`cloudsieve.store.tiles.export_tiles`).
+
     Returns
     -------
     Summary
@@ -226,7 +232,7 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
@@ -242,7 +248,10 @@ def simplify(
         raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     for path in sources:
         check_readable(path)
-    check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
+    if tile_size is None:
+        check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
+    else:
+        check_tile_folder(dst, format)
     if client is None and scheduler is not None and "://" in scheduler:
         check_scheduler(scheduler)
 
@@ -336,9 +345,10 @@ def simplify(
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            if detect_format(dst, format) in ("las", "laz") and dst_local is not None:  # tasks write the parts
+            if tile_size is not None or (detect_format(dst, format) in ("las", "laz") and dst_local is not None):
+                # tasks write the parts (or the tiles)
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=update,
-                       run=runner, counts=kept_counts)
+                       run=runner, counts=kept_counts, tile_size=tile_size)
             else:
                 runner.close()  # the export streams here: the workers' memory goes now
                 with stage_bar(bars, "export", st.count, "pt") as bar:

@@ -66,6 +66,7 @@ def export(
     progress: _progress.ProgressCallback | None = None,
     run=None,
     counts: list[int] | None = None,
+    tile_size: float | None = None,
 ) -> str:
     """Write the points of *store* (all, or those kept by *mask*) to *dst*.
 
@@ -97,6 +98,10 @@ def export(
         process.
     counts : list of int, optional
         Points *mask* keeps in each store chunk, when known (saves a pass).
+    tile_size : float, optional
+        Write *dst* as a folder of square LAZ tiles of this edge and
+        ``dst/index.vpc`` (:func:`.tiles.export_tiles`, as tasks; *mask* a
+        store array name or None).
 
     Returns
     -------
@@ -120,6 +125,15 @@ def export(
     update = _progress.callback(progress)
     from ..io import detect_format
 
+    if tile_size is not None:
+        if not (mask is None or isinstance(mask, str)):
+            raise InvalidParameterError("a tiled export takes its mask as the name of a bool array of the store")
+        from .tiles import export_tiles
+
+        kept = export_tiles(store, dst, tile_size=tile_size, mask=mask, run=run, overwrite=overwrite)["points"]
+        update(store.count)
+        _log(kept, store, dst)
+        return dst
     fmt = detect_format(dst, format)
     if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)) and local_path(dst) is not None:
         from .export_las import export_las
