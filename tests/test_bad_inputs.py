@@ -83,7 +83,7 @@ CASES = [
     ("pipeline-not-json",         "run {in}/not-json.json",                                           2, "{in}/not-json.json: not valid JSON: Expecting value at line 1, column 15"),
     ("pipeline-no-stages",        "run {in}/no-stages.json",                                          2, "{in}/no-stages.json: the pipeline has no stages"),
     ("pipeline-unknown-stage",    "run {in}/unknown-stage.json",                                      2, "{in}/unknown-stage.json: stage 2 (filters.smooth): unknown stage type; known after the reader: writers.las, writers.ply, writers.text, filters.entropy, evaluate, compare"),
-    ("pipeline-unknown-key",      "run {in}/typo.json --check",                                       2, "{in}/typo.json: stage 1 (readers.las): unknown option(s) ['filenme']; accepted: ['drop_invalid', 'filename']"),
+    ("pipeline-unknown-key",      "run {in}/typo.json --check",                                       2, "{in}/typo.json: stage 1 (readers.las): unknown option(s) ['filenme']; accepted: ['drop_invalid', 'filename', 'merge']"),
     ("pipeline-bad-value",        "run {in}/bad-value.json",                                          2, "{in}/bad-value.json: stage 2 (filters.entropy): ratio must be a number in (0, 1], got 2"),
     ("pipeline-unset-variable",   "run {in}/unset-variable.json --check",                             2, "{in}/unset-variable.json: stage 1 (readers.ply): filename '$CLOUDSIEVE_TEST_UNSET/bun.ply' uses the environment variable CLOUDSIEVE_TEST_UNSET, which is not set"),
     ("pipeline-missing-input",    "run {in}/missing-input.json --check",                              2, "{in}/missing-input.json: stage 1 (readers.las): {in}/missing.laz: no such file"),

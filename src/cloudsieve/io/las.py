@@ -29,7 +29,7 @@ from ._base import Reader, Writer
 from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
 
-__all__ = ["LasReader", "LasWriter", "record_arrays", "laz_backend"]
+__all__ = ["LasReader", "LasWriter", "record_arrays", "laz_backend", "decode_error"]
 
 _XYZ = ("X", "Y", "Z")
 
@@ -57,6 +57,23 @@ def record_arrays(points: laspy.PackedPointRecord, names: list[str]) -> dict[str
         else:
             out[name] = _raw(points[name])
     return out
+
+
+def decode_error(path: str, count: int, compressed: bool, done: int, last: int, exc: Exception) -> CorruptInputError:
+    """The error for points *done* to *last* of *path* failing to decode: it names the first point that fails.
+
+    For LAZ with fixed-size chunks the point is exact (see
+    :func:`.las_checks.decodable_points`); otherwise the message gives the points read.
+    """
+    decodable = decodable_points(path) if compressed else None
+    if decodable is not None and decodable >= count:
+        return CorruptInputError(
+            f"{path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
+    if decodable is not None and decodable >= done:
+        decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
+        return CorruptInputError(f"{path}: cannot decode point {decodable} of {count} ({decoded}{exc}); truncated or "
+                                 f"corrupt")
+    return CorruptInputError(f"{path}: cannot decode points {done} to {last} of {count} ({exc}); truncated or corrupt")
 
 
 def _las_dtypes(header: laspy.LasHeader) -> dict:
@@ -161,22 +178,8 @@ class LasReader(Reader):
             )
 
     def _decode_error(self, done: int, exc: Exception) -> CorruptInputError:
-        """The error for the chunk of points from *done* on that fails to decode: it names the first point that fails.
-
-        For LAZ with fixed-size chunks the point is exact (see
-        :func:`.las_checks.decodable_points`); otherwise the message gives the chunk read.
-        """
-        decodable = decodable_points(self.path) if self._las.header.are_points_compressed else None
-        if decodable is not None and decodable >= self.count:
-            return CorruptInputError(
-                f"{self.path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
-        if decodable is not None and decodable >= done:
-            decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
-            return CorruptInputError(
-                f"{self.path}: cannot decode point {decodable} of {self.count} ({decoded}{exc}); truncated or corrupt")
         last = min(done + self.chunk_size, self.count) - 1
-        return CorruptInputError(
-            f"{self.path}: cannot decode points {done} to {last} of {self.count} ({exc}); truncated or corrupt")
+        return decode_error(self.path, self.count, self._las.header.are_points_compressed, done, last, exc)
 
     def close(self) -> None:
         las = getattr(self, "_las", None)
@@ -193,10 +196,12 @@ class LasWriter(Writer):
     (see :func:`.las_header.header_from_dict`); other sources get
     :func:`.las_header.build_header`
     (pass ``bounds=`` to choose scales and offsets). laspy updates the point
-    counts, returns histogram and bounds.
+    counts, returns histogram and bounds. ``label=`` names the file messages
+    speak of, when this one is a part of it.
     """
 
     def _open(self) -> None:
+        self._label = self.options.get("label", self.path)  # the file named in messages (a part: its whole file)
         las_source = self.source_format in ("las", "laz", "copc") or (
             self.source_format is None and "point_format" in self.header
         )
@@ -204,8 +209,8 @@ class LasWriter(Writer):
             self._header_dict = self.header
             self._mapping = [(n, n, "copy") for n in self.dtypes if n != "xyz"]
         else:
-            self._header_dict, self._mapping = build_header(self.dtypes, self.options.get("bounds"), self.path)
-        header, self._evlrs = header_from_dict(self._header_dict, self.path)
+            self._header_dict, self._mapping = build_header(self.dtypes, self.options.get("bounds"), self._label)
+        header, self._evlrs = header_from_dict(self._header_dict, self._label)
         if self._evlrs and header.version.minor < 4:  # pragma: no cover - EVLRs imply 1.4
             self._evlrs = []
         self._scales = np.asarray(header.scales, dtype=np.float64)
@@ -221,7 +226,7 @@ class LasWriter(Writer):
                 closefd=False,
             )
         except laspy.LaspyException as exc:
-            raise InputFormatError(f"cannot write {self.path}: {exc}") from exc
+            raise InputFormatError(f"cannot write {self._label}: {exc}") from exc
         self._keep_extra_bytes_vlrs()
         self._pf = header.point_format
         self._header = header
@@ -255,7 +260,7 @@ class LasWriter(Writer):
             raw = np.round((xyz[:, i] - self._offsets[i]) / self._scales[i])
             if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
                 raise InputFormatError(
-                    f"cannot write {self.path}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
+                    f"cannot write {self._label}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
                     f"LAS int32 with scale {self._scales[i]} and offset {self._offsets[i]}"
                 )
             rec.array[dim] = raw.astype(np.int32)
@@ -273,7 +278,7 @@ class LasWriter(Writer):
                 else:
                     rec[las_name] = values
             except (ValueError, OverflowError, laspy.LaspyException) as exc:
-                raise InputFormatError(f"cannot write {self.path}: dimension {las_name!r}: {exc}") from exc
+                raise InputFormatError(f"cannot write {self._label}: dimension {las_name!r}: {exc}") from exc
         self._writer.write_points(rec)
 
     def _close(self) -> None:

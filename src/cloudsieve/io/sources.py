@@ -108,8 +108,8 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
         files = sorted(os.path.join(src, n) for n in os.listdir(src)
                        if n.lower().endswith(TILE_EXTENSIONS) and os.path.isfile(os.path.join(src, n)))
         if not files:
-            raise InputIsDirectoryError(f"{src} is a directory, not a point cloud file, and holds no LAS/LAZ file "
-                                        f"to read as one cloud")
+            raise InputIsDirectoryError(f"{src} is a directory, not a point cloud file or point store, and holds "
+                                        f"no LAS/LAZ file to read as one cloud")
         what = ""
     elif src.lower().endswith(".vpc"):
         from .vpc import read_vpc

@@ -43,20 +43,41 @@ def count_task(store_path: str, mask: str, start: int, stop: int) -> int:
     return int(np.count_nonzero(np.asarray(st.array(mask)[start:stop], dtype=bool)))
 
 
-def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunks: list[tuple[int, int, int, int]]) -> int:
+class _Quiet(logging.Filter):
+    """Drops warnings about the header: every part has the same, and the first part gives them."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return record.levelno < logging.WARNING
+
+
+def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunks: list[tuple[int, int, int, int]],
+              label: str, first: bool) -> int:
     """Write one part: for each store rows ``[start, stop)``, its kept points ``lo:hi`` (a task).
+
+    *label* is the whole file's name, for messages; only the *first* part warns about the header.
 
     Returns
     -------
     int : points written.
     """
-    from ..io import open_writer
-
     bound_malloc()
     st = PointStore.open(store_path, "r")
+    quiet = _Quiet()
+    header_log = logging.getLogger("cloudsieve.io.las_header")
+    if not first:
+        header_log.addFilter(quiet)
+    try:
+        return _write_part(st, part_path, fmt, mask, chunks, label)
+    finally:
+        header_log.removeFilter(quiet)
+
+
+def _write_part(st: PointStore, part_path: str, fmt: str, mask: str | None, chunks, label: str) -> int:
+    from ..io import open_writer
+
     written = 0
     with open_writer(part_path, header=st.header, dtypes=st.dtypes, format=fmt, source_format=st.source_format,
-                     overwrite=True, bounds=st.bounds) as writer:
+                     overwrite=True, bounds=st.bounds, label=label) as writer:
         for start, stop, lo, hi in chunks:
             chunk = st.rows(start, stop)
             rows = _kept_rows(st, mask, start, stop)
@@ -131,7 +152,8 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     tmp = make_temp_path(dst, directory=True)
     suffix = "." + fmt
     try:
-        args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items) for i, items in enumerate(plan)]
+        args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items, dst, i == 0)
+                for i, items in enumerate(plan)]
         written = run_tasks(run, part_task, args, "export")
         final = make_temp_path(dst)
         try:

@@ -37,7 +37,7 @@ def _read_piece(path: str, first: int, n: int, names: list[str]) -> tuple[np.nda
     """Points ``first .. first + n - 1`` of the LAS/LAZ file *path*: raw X, Y, Z (n, 3) int64 and the attributes."""
     import laspy
 
-    from ..io.las import record_arrays
+    from ..io.las import decode_error, record_arrays
     from ..io.las_checks import QUIET_READS
 
     # one thread per task: the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the cores)
@@ -47,8 +47,8 @@ def _read_piece(path: str, first: int, n: int, names: list[str]) -> tuple[np.nda
                 _seek(reader, first)
                 points = reader.read_points(n)
         except Exception as exc:
-            raise CorruptInputError(f"{path}: cannot decode points {first} to {first + n - 1} ({exc}); "
-                                    f"truncated or corrupt") from exc
+            h = reader.header
+            raise decode_error(path, int(h.point_count), h.are_points_compressed, first, first + n - 1, exc) from exc
     if len(points) != n:
         raise CorruptInputError(f"{path}: the header says {first + n} points or more but only {first + len(points)} "
                                 f"could be read (truncated or corrupt)")

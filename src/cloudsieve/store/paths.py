@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import os
+import shutil
 from urllib.parse import unquote, urlparse
 
 import zarr
 
-__all__ = ["local_path", "same_path", "path_exists", "zarr_store"]
+__all__ = ["local_path", "same_path", "path_exists", "zarr_store", "delete_store"]
 
 
 def local_path(path: str | os.PathLike) -> str | None:
@@ -51,3 +52,17 @@ def path_exists(path: str) -> bool:
 
     fs, p = fsspec.core.url_to_fs(path)
     return fs.exists(p)
+
+
+def delete_store(path: str | os.PathLike) -> None:
+    """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
+    path = os.fspath(path)
+    local = local_path(path)
+    if local is not None:
+        shutil.rmtree(local, ignore_errors=True)
+    else:  # pragma: no cover - remote stores
+        import fsspec
+
+        fs, p = fsspec.core.url_to_fs(path)
+        if fs.exists(p):
+            fs.rm(p, recursive=True)

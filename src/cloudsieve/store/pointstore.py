@@ -13,26 +13,21 @@ Layout (see DESIGN.md)::
                            shape (N,) or (N, k), chunks (chunk_size, ...)
       partition/..., simplify/...   derived arrays of later stages
 
-Every array is compressed (blosc: zstd for the input arrays, lz4 for derived ones; see :func:`compressors`).
-A store path is a local path or an fsspec URL (``file:///...`` is treated as
-the local path it names). This module is the only code that creates or
-deletes stores and store arrays: :meth:`PointStore.create` /
-:meth:`PointStore.finish` (used by :func:`cloudsieve.store.ingest`),
-:meth:`PointStore.create_array`, :meth:`PointStore.require_array`,
-:meth:`PointStore.delete_array` and :func:`delete_store`. :func:`is_store`
-is the one test of whether a path holds a store; :meth:`PointStore.open`
-refuses a folder that is not a complete store.
-
-Every chunk iterator of cloudsieve (file readers, :meth:`PointStore.chunks`,
-the evaluation's sources) yields :class:`~cloudsieve.store.chunk.Chunk`
-``(start, arrays)``.
+Every array is compressed (:func:`.codecs.compressors`). A store path is a
+local path or an fsspec URL (``file:///...`` is the local path it names).
+Only this module creates store arrays (:meth:`PointStore.create`,
+:meth:`~PointStore.create_array`, :meth:`~PointStore.require_array`) and
+deletes them (:meth:`~PointStore.delete_array`; whole stores:
+:func:`.paths.delete_store`); :func:`is_store` is the one test of whether a
+path holds a store. :meth:`PointStore.chunks` yields
+:class:`~cloudsieve.store.chunk.Chunk` ``(start, arrays)``, as every chunk
+iterator of cloudsieve does.
 """
 
 from __future__ import annotations
 
 import logging
 import os
-import shutil
 from collections.abc import Iterator, Sequence
 from typing import Any
 
@@ -47,7 +42,7 @@ from ..errors import (
     StoreNotFoundError,
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
-from .paths import local_path, path_exists, zarr_store
+from .paths import delete_store, local_path, path_exists, zarr_store
 from .codecs import compressors
 from .streaming import gathered
 
@@ -76,20 +71,6 @@ def is_store(path: str | os.PathLike) -> bool:
     except (CloudsieveError, OSError, ValueError):
         return False
     return True
-
-
-def delete_store(path: str | os.PathLike) -> None:
-    """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
-    path = os.fspath(path)
-    local = local_path(path)
-    if local is not None:
-        shutil.rmtree(local, ignore_errors=True)
-    else:  # pragma: no cover - remote stores
-        import fsspec
-
-        fs, p = fsspec.core.url_to_fs(path)
-        if fs.exists(p):
-            fs.rm(p, recursive=True)
 
 
 class PointStore:
@@ -257,8 +238,7 @@ class PointStore:
 
     # ------------------------------------------------------------------ read
     @property
-    def attrs(self) -> dict:
-        """The group's attributes (update with ``store.group.attrs.update``)."""
+    def attrs(self) -> dict:  # the group's attributes (update with ``store.group.attrs.update``)
         return dict(self.group.attrs)
 
     @property
