@@ -43,7 +43,7 @@ from ..errors import (
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import delete_store, local_path, path_exists, zarr_store
-from .codecs import compressors
+from .codecs import compressors, filters
 from .streaming import gathered
 
 __all__ = [
@@ -206,6 +206,7 @@ class PointStore:
                 chunks=(chunk_size, *shape),
                 fill_value=0,
                 compressors=compressors("input"),
+                filters=filters(len(shape)),
                 config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
         meta = {
