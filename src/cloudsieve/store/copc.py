@@ -170,6 +170,31 @@ def _ancestor_task(header: dict, scratch: str, index: int, parts: list[list[tupl
     return nbytes
 
 
+def _bounds_task(store_path: str, mask: str, start: int, stop: int) -> np.ndarray | None:
+    """Bounds ``(2, 3)`` of the points ``start:stop`` that *mask* keeps, or None when it keeps none."""
+    store = PointStore.open(store_path)
+    keep = store.read(mask, start, stop)
+    if not keep.any():
+        return None
+    xyz = store.read("xyz", start, stop)[keep]
+    return np.stack([xyz.min(axis=0), xyz.max(axis=0)])
+
+
+def _kept_bounds(store: PointStore, mask: str, run) -> np.ndarray:
+    """Bounds of the points *mask* keeps (the header's, and the root cube's corner), one task per store chunk."""
+    arr = store.array(mask)  # a missing mask: ArrayNotFoundError here, before any task
+    if arr.ndim != 1 or arr.shape[0] != store.count or np.dtype(arr.dtype) != np.bool_:
+        raise InvalidParameterError(f"{store.path}: mask {mask!r} must be a boolean array of {store.count} entries "
+                                    f"(one per point), got {arr.dtype} {tuple(arr.shape)}")
+    step = store.chunk_size
+    parts = run(_bounds_task, [(store.path, mask, s, min(s + step, store.count))
+                               for s in range(0, store.count, step)], "copc bounds")
+    parts = [p for p in parts if p is not None]
+    if not parts:
+        return np.zeros((2, 3))
+    return np.stack([np.min([p[0] for p in parts], axis=0), np.max([p[1] for p in parts], axis=0)])
+
+
 def _sequential(func, args, stage):
     return [func(*a) for a in args]
 
@@ -252,7 +277,7 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     run = _sequential if run is None else run
     update = _progress.callback(progress)
     header, mapping = copc_header(store.header, store.dtypes, store.source_format, store.bounds, dst)
-    origin, size = root_cube(store.bounds)
+    origin, size = root_cube(store.bounds if mask is None else _kept_bounds(store, mask, run))
     depth = _bucket_depth(store.count, task_points)
     name = f"copc-{uuid.uuid4().hex[:12]}"
     tmp = make_temp_path(dst)

@@ -46,7 +46,8 @@ def root_cube(bounds: np.ndarray) -> tuple[np.ndarray, float]:
     Returns
     -------
     origin : ndarray of shape (3,), float64
-        ``centre - size / 2``.
+        The lowest corner of *bounds*, as PDAL's ``writers.copc`` puts it (and
+        copc-lib, which finds node boxes from the LAS header's minimum, expects).
     size : float
         The largest extent of *bounds* (1.0 for a single position).
     """
@@ -56,8 +57,7 @@ def root_cube(bounds: np.ndarray) -> tuple[np.ndarray, float]:
     size = float(np.max(bounds[1] - bounds[0]))
     if not size > 0:
         size = 1.0
-    centre = (bounds[0] + bounds[1]) / 2.0
-    return centre - size / 2.0, size
+    return bounds[0].copy(), size
 
 
 def cells(xyz: np.ndarray, origin: np.ndarray, size: float, depth: int) -> np.ndarray:
