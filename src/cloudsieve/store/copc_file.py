@@ -29,6 +29,7 @@ Functions: :func:`copc_header` (the output header, as the JSON dict of
 
 from __future__ import annotations
 
+import base64
 import io
 import logging
 import struct
@@ -110,9 +111,38 @@ def copc_header(header: dict, dtypes: dict, source_format: str | None, bounds: n
             d[key] = ""
     wkt = any(v["user_id"] == "LASF_Projection" and v["record_id"] == 2112 for v in d["vlrs"] + d["evlrs"])
     if not wkt and any(v["user_id"] == "LASF_Projection" for v in d["vlrs"] + d["evlrs"]):
-        logger.warning("%s: the source's CRS is in GeoTIFF keys only; COPC readers expect a WKT VLR "
-                       "(the GeoTIFF keys are kept)", path)
+        d["vlrs"] = d["vlrs"] + _wkt_from_geotiff(d, path)
     return d, mapping
+
+
+def _wkt_from_geotiff(d: dict, path: str) -> list[dict]:
+    """A WKT VLR (as a header dict entry) for a CRS given by GeoTIFF keys only, or none (with a warning).
+
+    LAS 1.4 point formats 6-10 take their CRS from a WKT VLR (COPC: "if
+    the data has a CRS"); PDAL writes WKT1 (GDAL's flavour): the same here,
+    through pyproj (laspy's ``parse_crs``: GeoTIFF keys naming an EPSG code).
+    The GeoTIFF keys are kept too.
+    """
+    try:
+        import pyproj  # noqa: F401 - laspy's parse_crs needs it
+    except ImportError:
+        logger.warning("%s: the source's CRS is in GeoTIFF keys only and pyproj is not installed: no WKT VLR "
+                       "written (pip install pyproj)", path)
+        return []
+    header, _ = header_from_dict(d, path)
+    try:
+        crs = header.parse_crs()
+    except Exception as exc:  # a key set pyproj cannot read
+        crs, reason = None, str(exc)
+    else:
+        reason = "no EPSG code in the keys"
+    if crs is None:
+        logger.warning("%s: cannot turn the source's GeoTIFF keys into a WKT CRS (%s): no WKT VLR written", path,
+                       reason)
+        return []
+    data = crs.to_wkt("WKT1_GDAL").encode("ascii", errors="replace") + b"\0"
+    return [{"user_id": "LASF_Projection", "record_id": 2112, "description": "OGC WKT (from GeoTIFF keys)",
+             "data": base64.b64encode(data).decode("ascii")}]
 
 
 def laz_vlr(header: laspy.LasHeader) -> lazrs.LazVlr:
