@@ -112,19 +112,22 @@ def _subtree_task(store_path: str, name: str, keys: np.ndarray, depth: int, orig
     statistics of every point.
     """
     b = Buckets.open(store_path, name)
-    parts = [b.read(int(k)) for k in keys]
-    arrays = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
-    del parts
-    # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
-    order = np.argsort(node_keys(arrays["xyz"], origin, size, GRID_BITS), kind="stable")
-    arrays = {n: v.take(order, axis=0) for n, v in arrays.items()}
-    xyz = arrays["xyz"]
-    level = assign_levels(xyz, origin, size, base_depth=depth, leaf_points=leaf_points)
     hdr, _ = header_from_dict(header)
-    records = point_records(arrays, hdr, mapping)
+    xyz_parts, record_parts = [], []
+    for k in keys:  # bucket by bucket: packed records (36 bytes a point in format 7) and coordinates only
+        part = b.read(int(k))
+        xyz_parts.append(part["xyz"])
+        record_parts.append(point_records(part, hdr, mapping))
+        del part
+    xyz, records = np.concatenate(xyz_parts), np.concatenate(record_parts)
+    del xyz_parts, record_parts
     stats = record_stats(records, hdr.point_format)
+    # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
+    order = np.argsort(node_keys(xyz, origin, size, GRID_BITS), kind="stable")
+    xyz, records = xyz[order], records[order]
+    level = assign_levels(xyz, origin, size, base_depth=depth, leaf_points=leaf_points)
     order, depths, nkeys, counts = group_nodes(xyz, level, origin, size)
-    del arrays, xyz
+    del xyz, level
     records = records[order]
     ends = np.cumsum(counts)
     starts = ends - counts
