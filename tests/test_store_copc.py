@@ -274,3 +274,81 @@ def test_octree_levels_match_a_single_build():
                                           whole[at])
     _, depths, _, counts = group_nodes(xyz, whole, origin, size)
     assert counts.sum() == len(xyz) and depths.max() >= 3 and np.all(counts[depths == 0] <= 128**3)
+
+
+def test_hierarchy_in_pages(tmp_path):
+    """A file whose hierarchy is cut into pages (every 4 levels) reads the same as with one page."""
+    from cloudsieve.io import open_reader
+    from cloudsieve.io.las_header import header_from_dict
+    from cloudsieve.store.copc_file import compress, copc_header, laz_vlr, point_records, record_stats, write_copc
+    from cloudsieve.store.octree import demorton
+
+    copclib = pytest.importorskip("copclib")
+    with open_reader(str(shared_file("autzen_trim.laz"))) as reader:
+        parts = [arrays for _, arrays in reader.chunks()]
+        header, dtypes, fmt = reader.header, reader.dtypes, reader.format
+    arrays = {n: np.concatenate([p[n] for p in parts]) for n in parts[0]}
+    bounds = np.stack([arrays["xyz"].min(axis=0), arrays["xyz"].max(axis=0)])
+    origin, size = root_cube(bounds)
+    # leaves of at most 40 points: nodes down to depth 4, where the pages start
+    level = assign_levels(arrays["xyz"], origin, size, leaf_points=40)
+    order, depths, keys, counts = group_nodes(arrays["xyz"], level, origin, size)
+    hd, mapping = copc_header(header, dtypes, fmt, bounds)
+    hdr, _ = header_from_dict(hd)
+    records = point_records(arrays, hdr, mapping)[order]
+    vlr, ends = laz_vlr(hdr), np.cumsum(counts)
+    chunks = [compress(records[e - c:e], vlr) for c, e in zip(counts, ends)]
+    (tmp_path / "chunks.bin").write_bytes(b"".join(chunks))
+    nbytes = np.array([len(c) for c in chunks])
+    cells_ = demorton(keys)
+    nodes = {"depth": depths, "x": cells_[:, 0], "y": cells_[:, 1], "z": cells_[:, 2], "count": counts,
+             "nbytes": nbytes, "source": np.zeros(len(counts), dtype=np.int64), "offset": np.cumsum(nbytes) - nbytes}
+    stats = record_stats(records, hdr.point_format)
+    one, paged = str(tmp_path / "one.copc.laz"), str(tmp_path / "paged.copc.laz")
+    write_copc(one, hd, origin, size, nodes, [str(tmp_path / "chunks.bin")], stats, root_nodes=len(counts))
+    write_copc(paged, hd, origin, size, nodes, [str(tmp_path / "chunks.bin")], stats, root_nodes=8)
+    assert depths.max() >= 4 and np.sum(depths == 4) > 8
+    box = laspy.copc.Bounds(mins=np.array([636400.0, 849100.0, 400.0]), maxs=np.array([636900.0, 849300.0, 450.0]))
+    got = {}
+    for path in (one, paged):
+        with laspy.CopcReader.open(path) as reader:
+            got[path] = (reader.copc_info.hierarchy_root_size // 32, reader.query(), reader.query(bounds=box))
+        f = copclib.FileReader(path)
+        assert len(f.GetAllNodes()) == len(counts) and f.ValidateSpatialBounds(False)
+        assert len(f.GetPageList()) == (1 if path == one else 1 + len(np.unique(keys[depths == 4])))
+    assert got[one][0] == len(counts) and got[paged][0] == np.sum(depths < 4) + len(np.unique(keys[depths == 4]))
+    for i in (1, 2):
+        want = {n: np.asarray(got[one][i][n]) for n in hdr.point_format.dimension_names}
+        assert_same_records(got[paged][i], want)
+    assert len(got[one][1]) == 110_000 and 100 < len(got[one][2]) < 110_000
+
+
+def test_nested_hierarchy_pages_hold_every_entry_once():
+    """Pages every level (step 1): followed from the root page, every entry found once, in the page of its root."""
+    from cloudsieve.store.copc_hierarchy import ENTRY_DTYPE, hierarchy_pages
+    from cloudsieve.store.octree import demorton
+
+    src = laspy.read(shared_file("autzen_trim.laz"))
+    xyz = np.stack([src.x, src.y, src.z], axis=1)
+    origin, size = root_cube(np.stack([xyz.min(0), xyz.max(0)]))
+    _, depths, keys, counts = group_nodes(xyz, assign_levels(xyz, origin, size, leaf_points=40), origin, size)
+    entries = np.zeros(len(depths), dtype=ENTRY_DTYPE)
+    c = demorton(keys)
+    entries["d"], entries["x"], entries["y"], entries["z"] = depths, c[:, 0], c[:, 1], c[:, 2]
+    entries["count"], entries["offset"], entries["nbytes"] = counts, np.arange(len(depths)) * 100, 7
+    at = 1000
+    data, root_size = hierarchy_pages(entries, at, step=1, root_nodes=4)
+    pages = [(at, root_size, None)]
+    found = []
+    while pages:
+        offset, nbytes, root = pages.pop()
+        page = np.frombuffer(data[offset - at:offset - at + nbytes], dtype=ENTRY_DTYPE)
+        nodes = page[page["count"] >= 0]
+        if root is not None:  # a page holds its root node and that node's children
+            assert tuple(nodes[0][["d", "x", "y", "z"]].tolist()) == root
+            assert np.all(nodes["d"][1:] == root[0] + 1) if len(nodes) > 1 else True
+        found += [tuple(e.tolist()) for e in nodes]
+        pages += [(int(p["offset"]), int(p["nbytes"]), tuple(p[["d", "x", "y", "z"]].tolist()))
+                  for p in page[page["count"] == -1]]
+    assert sorted(found) == sorted(tuple(e.tolist()) for e in entries)
+    assert len(data) == 32 * (2 * len(entries) - np.sum(depths == 0))  # one pointer per node below the root

@@ -5,9 +5,7 @@ A COPC file (https://copc.io, version 1.0) is a LAS 1.4 file of point format
 header, is the ``copc`` info VLR (record 1: the root cube, the spacing, the
 place of the root hierarchy page, the GPS time range), whose points are
 LAZ-compressed with variable-size chunks, one chunk per octree node, and
-whose EVLR ``copc`` 1000 holds the hierarchy: 32-byte entries
-``(depth, x, y, z)`` int32, file offset uint64, byte size int32 and point
-count int32 of each node.
+whose EVLR ``copc`` 1000 holds the hierarchy (:mod:`.copc_hierarchy`).
 
 Point formats (as PDAL's ``writers.copc``): a source with NIR gives 8, with
 RGB 7, else 6. A source of format 0-5 is converted field by field:
@@ -42,6 +40,7 @@ from laspy.vlrs.vlrlist import VLRList
 
 from ..errors import InputFormatError
 from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, header_from_dict
+from .copc_hierarchy import ENTRY_DTYPE, ROOT_PAGE_NODES, hierarchy_pages
 
 __all__ = ["copc_header", "point_records", "compress", "record_stats", "merge_stats", "write_copc", "laz_vlr",
            "SPAN"]
@@ -54,7 +53,6 @@ _WAVE = ("wavepacket_index", "wavepacket_offset", "wavepacket_size", "return_poi
          "x_t", "y_t", "z_t")
 _LAS14_HEADER_SIZE = 375
 _WKT_ENCODING = 0x10
-_ENTRY = struct.Struct("<4iQii")
 
 
 def _output_format(point_format: int) -> int:
@@ -244,7 +242,7 @@ def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
 
 
 def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: dict[str, np.ndarray],
-               sources: list[str], stats: dict) -> int:
+               sources: list[str], stats: dict, root_nodes: int = ROOT_PAGE_NODES) -> int:
     """Write the COPC file *path* from node chunks already compressed into *sources*.
 
     Parameters
@@ -263,6 +261,8 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
         Scratch files holding the chunks.
     stats : dict
         :func:`merge_stats` of every point.
+    root_nodes : int
+        At most this many nodes: one hierarchy page (see :mod:`.copc_hierarchy`).
 
     Returns
     -------
@@ -308,18 +308,16 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
     table_at = int(chunk_at[-1])
     hdr.start_of_first_evlr = evlr_at = table_at + len(table_bytes)
     depth = np.asarray(nodes["depth"], dtype=np.int64)
-    entries = np.zeros(len(depth), dtype=[("d", "<i4"), ("x", "<i4"), ("y", "<i4"), ("z", "<i4"),
-                                          ("offset", "<u8"), ("nbytes", "<i4"), ("count", "<i4")])
-    for name in ("x", "y", "z"):
-        entries[name] = nodes[name]
-    entries["d"], entries["offset"], entries["nbytes"], entries["count"] = depth, chunk_at[:-1], nbytes, count
-    hierarchy = entries.tobytes()
-    if len(depth) == 0:  # an empty cloud: the root, without points
-        hierarchy = _ENTRY.pack(0, 0, 0, 0, 0, 0, 0)
+    entries = np.zeros(max(len(depth), 1), dtype=ENTRY_DTYPE)  # an empty cloud: the root, without points
+    if len(depth):
+        for name in ("x", "y", "z"):
+            entries[name] = nodes[name]
+        entries["d"], entries["offset"], entries["nbytes"], entries["count"] = depth, chunk_at[:-1], nbytes, count
+    hierarchy, root_size = hierarchy_pages(entries, evlr_at + 60, root_nodes=root_nodes)
     half = size / 2.0
     centre = np.asarray(origin, dtype=np.float64) + half
     gps = stats["gps"] or [0.0, 0.0]
-    info = struct.pack("<5d2Q2d11Q", *centre, half, size / SPAN, evlr_at + 60, len(hierarchy), *gps, *([0] * 11))
+    info = struct.pack("<5d2Q2d11Q", *centre, half, size / SPAN, evlr_at + 60, root_size, *gps, *([0] * 11))
     head = header_bytes(info)
     if len(head) != points_at:  # pragma: no cover - the info VLR has a fixed size
         raise InputFormatError(f"cannot write {path}: the header changed size")
