@@ -1,0 +1,280 @@
+"""Virtual point clouds (VPC): the tile index PDAL wrench and QGIS read and write.
+
+A VPC (``.vpc``) is a STAC ItemCollection: a GeoJSON FeatureCollection with
+one STAC item per file, carrying the pointcloud and projection extensions
+(see wrench's ``vpc-spec.md`` and ``VirtualPointCloud::write`` in
+``src/vpc.cpp``). :func:`write_vpc` writes the layout wrench writes::
+
+    {"type": "FeatureCollection", "features": [
+      {"type": "Feature", "stac_version": "1.0.0",
+       "stac_extensions": ["https://stac-extensions.github.io/pointcloud/v1.0.0/schema.json",
+                           "https://stac-extensions.github.io/projection/v1.1.0/schema.json"],
+       "id": "tiles_6360_8489",
+       "geometry": {"type": "Polygon", "coordinates": [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]},
+       "bbox": [x0, y0, z0, x1, y1, z1],
+       "properties": {"datetime": "2015-09-10T00:00:00Z", "pc:count": 27340, "pc:type": "lidar",
+                      "pc:encoding": "?", "pc:schemas": [{"name": "X", "type": "floating", "size": 8}, ...],
+                      "proj:wkt2": "PROJCS[...]", "proj:geometry": {...}, "proj:bbox": [...]},
+       "links": [],
+       "assets": {"data": {"href": "./tiles_6360_8489.laz", "roles": ["data"]}}}]}
+
+Geometry and bbox are in the files' own CRS: wrench reprojects them to WGS 84
+with PROJ when it can, which cloudsieve does not depend on; ``proj:bbox`` and
+``proj:geometry``, which wrench and QGIS read first, are exact either way.
+``proj:wkt2`` is the WKT of the file's WKT VLR ("" when it has none, as
+wrench writes it), plus ``proj:epsg`` when the GeoTIFF keys give a code.
+:func:`read_vpc` reads any such file: the ``href`` of each item's data asset
+(the first asset when none has the "data" role), relative to the VPC's folder.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import EmptyInputError, InputFormatError, InputNotFoundError, InvalidParameterError
+from ._base import check_destination, make_temp_path, remove, replace
+
+__all__ = ["read_vpc", "write_vpc", "describe_tile", "STAC_EXTENSIONS"]
+
+logger = logging.getLogger(__name__)
+
+#: the STAC extensions every item declares (as wrench writes them)
+STAC_EXTENSIONS = [
+    "https://stac-extensions.github.io/pointcloud/v1.0.0/schema.json",
+    "https://stac-extensions.github.io/projection/v1.1.0/schema.json",
+]
+
+
+# ------------------------------------------------------------------ reading
+def _data_asset(assets: dict) -> object:
+    """The asset with the "data" role, else the first one (wrench takes the first)."""
+    for asset in assets.values():
+        if isinstance(asset, dict) and "data" in (asset.get("roles") or []):
+            return asset
+    return next(iter(assets.values()))
+
+
+def read_vpc(path: str | os.PathLike) -> list[str]:
+    """The files a VPC lists, as absolute paths, in its order.
+
+    Parameters
+    ----------
+    path : str or path-like
+        A ``.vpc`` file (STAC ItemCollection, as PDAL wrench and QGIS write).
+
+    Returns
+    -------
+    list of str
+        The ``href`` of each item's data asset; a relative one is taken
+        relative to the VPC's folder (a ``file://`` URL as the path it names).
+
+    Raises
+    ------
+    InputNotFoundError
+        *path*, or a file it lists, does not exist.
+    InputFormatError
+        Not JSON, not a FeatureCollection, an item without a data asset, a
+        remote asset (http, s3, ...), or a file listed twice.
+    EmptyInputError
+        The VPC lists no files.
+    """
+    from . import check_input_file
+
+    path = os.fspath(path)
+    check_input_file(path)
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        where = f" at line {exc.lineno}, column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else ""
+        what = exc.msg if isinstance(exc, json.JSONDecodeError) else "not UTF-8 text"
+        raise InputFormatError(f"{path}: not a VPC file: not valid JSON ({what}{where})") from None
+    kind = data.get("type") if isinstance(data, dict) else type(data).__name__
+    if kind != "FeatureCollection":
+        raise InputFormatError(f'{path}: not a VPC file: its "type" is {kind!r}, not "FeatureCollection"')
+    features = data.get("features")
+    if not isinstance(features, list):
+        raise InputFormatError(f'{path}: not a VPC file: no "features" list')
+    if not features:
+        raise EmptyInputError(f'{path}: the VPC lists no files (its "features" list is empty)')
+    folder = os.path.dirname(os.path.abspath(path))
+    out: list[str] = []
+    seen: dict[str, int] = {}
+    for i, f in enumerate(features):
+        if not isinstance(f, dict) or f.get("type") != "Feature":
+            raise InputFormatError(f'{path}: feature {i} is not a STAC item ("type": "Feature")')
+        name = f"feature {i} ({f['id']!r})" if "id" in f else f"feature {i}"
+        assets = f.get("assets")
+        if not isinstance(assets, dict) or not assets:
+            raise InputFormatError(f'{path}: {name} has no "assets"')
+        asset = _data_asset(assets)
+        href = asset.get("href") if isinstance(asset, dict) else None
+        if not isinstance(href, str) or not href:
+            raise InputFormatError(f'{path}: {name}: its data asset has no "href"')
+        if href.startswith("file://"):
+            from ..store.paths import local_path
+
+            href = local_path(href)
+        elif "://" in href:
+            raise InputFormatError(f"{path}: {name} lists {href}, a remote file; only local files can be read")
+        full = os.path.normpath(href if os.path.isabs(href) else os.path.join(folder, href))
+        if not os.path.exists(full):
+            raise InputNotFoundError(f"{path}: {name} lists {full}, which does not exist")
+        if full in seen:
+            raise InputFormatError(f"{path}: features {seen[full]} and {i} both list {full}")
+        seen[full] = i
+        out.append(full)
+    return out
+
+
+# ------------------------------------------------------------------ writing
+def _datetime(day_year) -> str:
+    """The STAC datetime of a LAS creation (day of year, year), as wrench writes it.
+
+    An unset or invalid year becomes 1970 and an invalid day the 1st of
+    January (wrench's fallbacks; wrench keeps a year 0, an unset date here).
+    """
+    day, year = (int(v) for v in (day_year or (0, 0)))
+    year = year if year > 0 else 1970
+    last = datetime.date(year, 12, 31).timetuple().tm_yday
+    day = day if 1 <= day <= last else 1
+    date = datetime.date(year, 1, 1) + datetime.timedelta(days=day - 1)
+    return f"{date.isoformat()}T00:00:00Z"
+
+
+def _schemas(dtypes: dict) -> list[dict]:
+    """``pc:schemas``: name, type ("signed", "unsigned", "floating") and size in bytes of each dimension."""
+    kinds = {"i": "signed", "u": "unsigned", "f": "floating", "b": "unsigned"}
+    out = []
+    for name, (dtype, shape) in dtypes.items():
+        dtype = np.dtype(dtype)
+        if name == "xyz":
+            out += [{"name": d, "type": "floating", "size": 8} for d in "XYZ"]
+            continue
+        out.append({"name": name, "type": kinds.get(dtype.kind, "unsigned"),
+                    "size": int(dtype.itemsize * int(np.prod(shape or (1,))))})
+    return out
+
+
+def describe_tile(path: str | os.PathLike) -> dict:
+    """The :func:`write_vpc` entry of a LAS/LAZ file, from its header (no point is read).
+
+    Returns
+    -------
+    dict
+        ``path`` (absolute), ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax,
+        ymax, zmax]], ``wkt`` (the WKT VLR's, or None), ``epsg`` (or None),
+        ``datetime`` and ``schemas``.
+
+    Raises
+    ------
+    InputFormatError
+        Not a LAS, LAZ or COPC file (and the errors of :func:`cloudsieve.io.open_reader`).
+    """
+    from . import detect_format, open_reader
+
+    path = os.path.abspath(os.fspath(path))
+    if detect_format(path) not in ("las", "laz", "copc"):
+        raise InputFormatError(f"{path}: a VPC entry is described from a LAS/LAZ header; this is not a LAS/LAZ file")
+    with open_reader(path) as reader:
+        h, dtypes = reader.header, reader.dtypes
+    crs = h.get("crs") or {}
+    return {
+        "path": path,
+        "count": int(h["point_count"]),
+        "bounds": [list(map(float, h["mins"])), list(map(float, h["maxs"]))],
+        "wkt": crs.get("wkt"),
+        "epsg": crs.get("epsg"),
+        "datetime": _datetime(h.get("creation_day_year")),
+        "schemas": _schemas(dtypes),
+    }
+
+
+def _feature(entry: dict, folder: str, i: int) -> dict:
+    try:
+        tile = os.path.abspath(os.fspath(entry["path"]))
+        count = int(entry["count"])
+        lo, hi = (np.asarray(entry["bounds"], dtype=np.float64).reshape(2, 3)).tolist()
+    except (KeyError, TypeError, ValueError) as exc:
+        raise InvalidParameterError(
+            f"VPC entry {i} needs 'path', 'count' and 'bounds' [[xmin, ymin, zmin], [xmax, ymax, zmax]]: {exc}") from None
+    if not np.all(np.isfinite(lo + hi)):
+        raise InvalidParameterError(f"VPC entry {i} ({tile}): bounds {[lo, hi]} are not finite")
+    rel = os.path.relpath(tile, folder).replace(os.sep, "/")
+    bbox = [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]
+    ring = [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]], [lo[0], lo[1]]]
+    geometry = {"type": "Polygon", "coordinates": [ring]}
+    props = {
+        "datetime": entry.get("datetime") or _datetime(None),
+        "pc:count": count,
+        "pc:type": "lidar",
+        "pc:encoding": "?",
+        "pc:schemas": list(entry.get("schemas") or []),
+        "proj:wkt2": entry.get("wkt") or "",
+    }
+    if entry.get("epsg"):
+        props["proj:epsg"] = int(entry["epsg"])
+    props["proj:geometry"] = geometry
+    props["proj:bbox"] = bbox
+    name = os.path.basename(tile)
+    return {
+        "type": "Feature",
+        "stac_version": "1.0.0",
+        "stac_extensions": list(STAC_EXTENSIONS),
+        "id": str(entry.get("id") or Path(name).stem),
+        "geometry": geometry,
+        "bbox": bbox,
+        "properties": props,
+        "links": [],
+        "assets": {"data": {"href": "./" + rel, "roles": ["data"]}},  # wrench resolves "./" hrefs only
+    }
+
+
+def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = False) -> str:
+    """Write a VPC listing *tiles* (written under a temporary name, then renamed).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The ``.vpc`` file.
+    tiles : list of dict
+        One entry per file, in the order listed: ``path`` (the file),
+        ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]], and
+        optionally ``wkt``, ``epsg``, ``datetime``, ``schemas`` and ``id``
+        (default: the file name without its last suffix, as wrench names
+        items). :func:`describe_tile` makes one from a LAS/LAZ file.
+    overwrite : bool
+        Replace an existing *path*.
+
+    Returns
+    -------
+    str
+        *path*.
+
+    Raises
+    ------
+    InvalidParameterError
+        An entry without path, count or finite bounds.
+    DestinationExistsError, DestinationNotWritableError
+    """
+    path = os.fspath(path)
+    folder = os.path.dirname(os.path.abspath(path))
+    doc = {"type": "FeatureCollection", "features": [_feature(t, folder, i) for i, t in enumerate(tiles)]}
+    text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
+    check_destination(path, overwrite)
+    tmp = make_temp_path(path)
+    try:
+        with open(tmp, "w", encoding="utf-8") as fh:
+            fh.write(text)
+        replace(tmp, path)
+    except BaseException:
+        remove(tmp)
+        raise
+    logger.info("wrote %s listing %d files", path, len(tiles))
+    return path

@@ -1,0 +1,230 @@
+"""Point store -> a folder of square LAZ tiles and their ``index.vpc``: :func:`export_tiles`.
+
+Tiles are the squares ``[ix S, (ix + 1) S) x [iy S, (iy + 1) S)`` of a grid
+anchored at the CRS's origin (never at the first point), so two exports of
+overlapping clouds with the same S cut the same squares. The points are
+grouped by tile out of core (:func:`cloudsieve.store.buckets.bucket`, one
+task per store chunk); then one task per non-empty tile writes its LAZ
+(through :func:`cloudsieve.io.open_writer`: every attribute, VLR and the CRS
+kept, each point an exact copy of its input record, in input order). The
+driver only plans and writes ``index.vpc`` (:func:`cloudsieve.io.vpc.write_vpc`).
+
+The folder is written under a temporary name beside the destination and
+renamed when every tile and the index are written: a failure leaves nothing
+under the destination (and no scratch in the store). The output's bytes
+depend on the store and S only, not on the scheduler or the number of
+workers. Workers write into that temporary folder: on a dask.distributed
+cluster, the destination must be on a file system they share (as the store).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+from functools import partial
+from typing import Any
+
+import numpy as np
+
+from .. import progress as _progress
+from ..errors import InvalidParameterError, SameSourceDestinationError
+from .buckets import bucket, iter_runs, open_runs
+from .paths import local_path
+from .pointstore import PointStore
+
+__all__ = ["export_tiles", "tile_keys", "tile_index", "tile_name", "VPC_NAME"]
+
+logger = logging.getLogger(__name__)
+
+#: the index written beside the tiles
+VPC_NAME = "index.vpc"
+#: the scratch of the grouping (``export/tiles/`` in the store), deleted at the end
+_SCRATCH = "tiles"
+_HALF = np.int64(1 << 31)
+
+
+def _cells(v: np.ndarray, size: float) -> np.ndarray:
+    """floor(v / size), corrected so that ``i * size <= v < (i + 1) * size`` holds in float64."""
+    i = np.floor(v / size)
+    i -= v < i * size
+    i += v >= (i + 1) * size
+    return i
+
+
+def tile_keys(xyz: np.ndarray, tile_size: float) -> np.ndarray:
+    """The tile of each point as one int64 key, ordered as (ix, iy).
+
+    Parameters
+    ----------
+    xyz : ndarray of shape (n, 3), float64
+    tile_size : float
+        Edge S of the square tiles, in the coordinates' units.
+
+    Returns
+    -------
+    ndarray of shape (n,), int64
+        ``ix * 2**32 + (iy + 2**31)`` with ``ix = floor(x / S)``,
+        ``iy = floor(y / S)`` (see :func:`tile_index`).
+
+    Raises
+    ------
+    InvalidParameterError
+        A tile index outside the signed 32-bit range (S too small for the coordinates).
+    """
+    xy = np.asarray(xyz, dtype=np.float64)[:, :2]
+    ij = np.stack([_cells(xy[:, 0], tile_size), _cells(xy[:, 1], tile_size)], axis=1)
+    if len(ij) and (ij.min() < -_HALF or ij.max() >= _HALF):
+        raise InvalidParameterError(
+            f"tile_size {tile_size} is too small for coordinates up to {np.abs(xy).max():.6g}: tile indices "
+            f"must fit 32 bits")
+    ij = ij.astype(np.int64)
+    return (ij[:, 0] << np.int64(32)) + (ij[:, 1] + _HALF)
+
+
+def tile_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(ix, iy) of :func:`tile_keys`' keys: the tile covers ``[ix S, (ix + 1) S) x [iy S, (iy + 1) S)``."""
+    keys = np.asarray(keys, dtype=np.int64)
+    return keys >> np.int64(32), (keys & np.int64(0xFFFFFFFF)) - _HALF
+
+
+def tile_name(stem: str, key: int) -> str:
+    """The file name of tile *key*: ``{stem}_{ix}_{iy}.laz``."""
+    ix, iy = tile_index(np.array([key]))
+    return f"{stem}_{int(ix[0])}_{int(iy[0])}.laz"
+
+
+def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
+    """Task of :func:`export_tiles`: write the points of a tile, its *runs* in the buckets *name*, to the LAZ *path*.
+
+    Reads them in blocks of at most a store chunk (memory bounded by the
+    chunk size, whatever the tile's count).
+
+    Returns
+    -------
+    dict
+        The tile's VPC entry (:func:`cloudsieve.io.vpc.describe_tile` of the file written).
+    """
+    from ..io import open_writer
+    from ..io.vpc import describe_tile
+
+    store = PointStore.open(store_path, "r")
+    scratch = open_runs(store_path, name)
+    record = scratch[1]
+    dtypes = {d: (record[d].base, record[d].shape) for d in record.names}  # as the buckets hold them
+    with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
+                     bounds=store.bounds) as writer:
+        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch):
+            writer.write(block)
+    return describe_tile(path)
+
+
+def _check_grid(store: PointStore, tile_size: Any) -> float:
+    try:
+        size = float(tile_size)
+    except (TypeError, ValueError):
+        size = math.nan
+    if not math.isfinite(size) or size <= 0:
+        raise InvalidParameterError(f"tile_size must be a positive number, got {tile_size!r}")
+    if store.count:
+        extent = np.abs(store.bounds[:, :2]).max() / size
+        if not extent < 2.0**31 - 1:
+            raise InvalidParameterError(
+                f"tile_size {size} is too small for {store.path}: coordinates up to "
+                f"{np.abs(store.bounds[:, :2]).max():.6g} give tile indices beyond 32 bits")
+    return size
+
+
+def _check_destination(store: PointStore, dst: str, overwrite: bool) -> str:
+    from ..io._base import check_destination
+
+    local = local_path(dst)
+    if local is None:
+        raise InvalidParameterError(f"{dst}: tiles are written to a local folder, not a URL")
+    src = local_path(store.path)
+    if src is not None:
+        a, b = os.path.realpath(src), os.path.realpath(local)
+        if os.path.commonpath([a, b]) == b:
+            raise SameSourceDestinationError(
+                f"destination {dst} is or holds the source store {store.path}: cloudsieve never overwrites its input")
+    check_destination(local, overwrite)
+    return local
+
+
+def export_tiles(
+    store: PointStore | str | os.PathLike,
+    dst_dir: str | os.PathLike,
+    *,
+    tile_size: float,
+    mask: str | None = None,
+    run=None,
+    overwrite: bool = False,
+    progress: _progress.ProgressCallback | None = None,
+) -> dict:
+    """Write the points of *store* (all, or those of *mask*) as square LAZ tiles in *dst_dir*, with an index.vpc.
+
+    One file per non-empty tile, ``{stem}_{ix}_{iy}.laz`` (*stem* is
+    *dst_dir*'s name; the tile covers ``[ix S, (ix + 1) S) x [iy S, (iy + 1) S)``),
+    and ``index.vpc`` listing them (:mod:`cloudsieve.io.vpc`), in (ix, iy) order.
+
+    Parameters
+    ----------
+    store : PointStore or str
+        The store or its path.
+    dst_dir : str or path-like
+        The folder to write (it must not exist, unless *overwrite*).
+    tile_size : float
+        Edge S of the tiles, in the CRS's units.
+    mask : str, optional
+        A boolean array of the store (e.g. "simplify/keep"): only its True points are written.
+    run : callable, optional
+        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
+        None runs the tasks here, one after the other.
+    overwrite : bool
+        Replace an existing *dst_dir* (only once the new tiles are complete).
+    progress : callable, optional
+        Called with the points of each tile written.
+
+    Returns
+    -------
+    dict
+        ``{"tiles": n, "points": m, "files": [paths], "vpc": path, "tile_size": S}``.
+
+    Raises
+    ------
+    InvalidParameterError
+        *tile_size* not a positive number, or too small for 32-bit tile
+        indices; a remote *dst_dir*; a bad *mask*.
+    DestinationExistsError, DestinationNotWritableError, SameSourceDestinationError
+        (the last one also when *dst_dir* holds the store).
+    """
+    from ..io._base import make_temp_path, remove, replace
+    from ..io.vpc import write_vpc
+
+    if not isinstance(store, PointStore):
+        store = PointStore.open(os.fspath(store), "r")
+    size = _check_grid(store, tile_size)
+    dst = _check_destination(store, os.fspath(dst_dir), overwrite)
+    stem = os.path.basename(dst.rstrip(os.sep))
+    update = _progress.callback(progress)
+    tmp = make_temp_path(dst, directory=True)
+    try:
+        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+        names = [tile_name(stem, int(k)) for k in buckets.keys]
+        args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
+        entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "tiles: write")
+        for n in buckets.counts:
+            update(int(n))
+        write_vpc(os.path.join(tmp, VPC_NAME), entries)
+        replace(tmp, dst)
+    except BaseException:
+        remove(tmp)
+        raise
+    finally:
+        store.delete_array(f"export/{_SCRATCH}")
+    points = int(buckets.counts.sum())
+    if not points:
+        logger.warning("%s: no point to write; wrote an empty tile set", dst)
+    logger.info("exported %d points of %s as %d tiles of %g to %s", points, store.path, len(names), size, dst)
+    return {"tiles": len(names), "points": points, "files": [os.path.join(dst, f) for f in names],
+            "vpc": os.path.join(dst, VPC_NAME), "tile_size": size}
