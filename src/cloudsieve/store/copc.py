@@ -50,7 +50,7 @@ from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
 from ..io._base import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
-from .buckets import Buckets, bucket
+from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
 from .octree import GRID_BITS, assign_levels, demorton, group_nodes, node_keys, root_cube
 from .paths import same_path
@@ -62,6 +62,8 @@ logger = logging.getLogger(__name__)
 
 #: points per subtree task (its memory: about 165 bytes per point, measured with tracemalloc)
 DEFAULT_TASK_POINTS = 1_000_000
+#: points per read of a subtree task's buckets
+_READ_BLOCK = 1 << 18
 #: a node whose cube holds at most this many points keeps them all (a leaf)
 DEFAULT_LEAF_POINTS = 50_000
 
@@ -105,20 +107,19 @@ def _chunk(records: np.ndarray, vlr) -> bytes:
     return compress(records.take(np.argsort(records["gps_time"], kind="stable")), vlr)
 
 
-def _subtree_task(store_path: str, name: str, keys: np.ndarray, depth: int, origin: np.ndarray, size: float,
+def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, origin: np.ndarray, size: float,
                   leaf_points: int, header: dict, mapping: list, scratch: str, index: int) -> dict:
-    """Build the subtree of one node at *depth* (its buckets *keys*): its chunks and its ancestors' records.
+    """Build the subtree of one node at *depth* (its buckets' *runs*): its chunks and its ancestors' records.
 
     Writes ``scratch/nodes-<index>.bin`` (one LAZ chunk per node of the
     subtree) and ``scratch/up-<index>.bin`` (raw records of the ancestors'
     points, shallowest ancestor first); returns their tables and the
     statistics of every point.
     """
-    b = Buckets.open(store_path, name)
     hdr, _ = header_from_dict(header)
     xyz_parts, record_parts = [], []
-    for k in keys:  # bucket by bucket: packed records (36 bytes a point in format 7) and coordinates only
-        part = b.read(int(k))
+    # block by block: packed records (36 bytes a point in format 7) and coordinates only
+    for part in iter_runs(store_path, name, runs, _READ_BLOCK):
         xyz_parts.append(part["xyz"])
         record_parts.append(point_records(part, hdr, mapping))
         del part
@@ -292,8 +293,8 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     try:
         buckets = bucket(store, partial(node_keys, origin=origin, size=size, depth=depth), name, mask=mask, run=run)
         plan = _plan(buckets.keys, buckets.counts, depth, task_points)
-        args = [(store.path, name, buckets.keys[s:e], d, origin, size, leaf_points, header, mapping, scratch, i)
-                for i, (d, _, s, e) in enumerate(plan)]
+        args = [(store.path, name, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, origin,
+                 size, leaf_points, header, mapping, scratch, i) for i, (d, _, s, e) in enumerate(plan)]
         results = run(_subtree_task, args, "copc subtrees")
         for r in results:
             update(r["stats"]["count"])
