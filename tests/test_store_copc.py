@@ -14,7 +14,7 @@ from cloudsieve.engine.runner import Runner
 from cloudsieve.errors import ArrayNotFoundError, DestinationExistsError, InvalidParameterError
 from cloudsieve.store import PointStore, ingest
 from cloudsieve.store.copc import export_copc
-from cloudsieve.store.octree import GRID_BITS, assign_levels, cells, group_nodes, root_cube
+from cloudsieve.store.octree import GRID_BITS, KEY_DEPTH, assign_levels, group_nodes, point_keys, root_cube
 
 SMALL = {"task_points": 12_000, "leaf_points": 3_000}  # many subtree tasks and a 5-level tree on 110 000 points
 
@@ -261,19 +261,18 @@ def test_octree_levels_match_a_single_build():
     src = laspy.read(shared_file("autzen_trim.laz"))
     xyz = np.stack([src.x, src.y, src.z], axis=1)
     origin, size = root_cube(np.stack([xyz.min(0), xyz.max(0)]))
-    order = np.argsort(cells(xyz, origin, size, GRID_BITS) @ np.array([1 << 42, 1 << 21, 1]), kind="stable")
-    xyz = xyz[order]
-    whole = assign_levels(xyz, origin, size, leaf_points=2_000)
-    node = cells(xyz, origin, size, 2) @ np.array([16, 4, 1])
+    keys = point_keys(xyz, origin, size)
+    keys = keys[np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")]
+    whole = assign_levels(keys, leaf_points=2_000)
+    node = keys >> (3 * (KEY_DEPTH - 2))
     big = np.bincount(node).max()
     assert big > 2_000
     for k in np.unique(node):
         at = np.flatnonzero(node == k)
         if len(at) > 2_000:  # ancestors of depth-2 nodes are split; a small depth-2 node's parent may be a leaf
-            np.testing.assert_array_equal(assign_levels(xyz[at], origin, size, base_depth=2, leaf_points=2_000),
-                                          whole[at])
-    _, depths, _, counts = group_nodes(xyz, whole, origin, size)
-    assert counts.sum() == len(xyz) and depths.max() >= 3 and np.all(counts[depths == 0] <= 128**3)
+            np.testing.assert_array_equal(assign_levels(keys[at], base_depth=2, leaf_points=2_000), whole[at])
+    _, depths, _, counts = group_nodes(keys, whole)
+    assert counts.sum() == len(keys) and depths.max() >= 3 and np.all(counts[depths == 0] <= 128**3)
 
 
 def test_hierarchy_in_pages(tmp_path):
@@ -291,8 +290,8 @@ def test_hierarchy_in_pages(tmp_path):
     bounds = np.stack([arrays["xyz"].min(axis=0), arrays["xyz"].max(axis=0)])
     origin, size = root_cube(bounds)
     # leaves of at most 40 points: nodes down to depth 4, where the pages start
-    level = assign_levels(arrays["xyz"], origin, size, leaf_points=40)
-    order, depths, keys, counts = group_nodes(arrays["xyz"], level, origin, size)
+    pkeys = point_keys(arrays["xyz"], origin, size)
+    order, depths, keys, counts = group_nodes(pkeys, assign_levels(pkeys, leaf_points=40))
     hd, mapping = copc_header(header, dtypes, fmt, bounds)
     hdr, _ = header_from_dict(hd)
     records = point_records(arrays, hdr, mapping)[order]
@@ -331,7 +330,8 @@ def test_nested_hierarchy_pages_hold_every_entry_once():
     src = laspy.read(shared_file("autzen_trim.laz"))
     xyz = np.stack([src.x, src.y, src.z], axis=1)
     origin, size = root_cube(np.stack([xyz.min(0), xyz.max(0)]))
-    _, depths, keys, counts = group_nodes(xyz, assign_levels(xyz, origin, size, leaf_points=40), origin, size)
+    pkeys = point_keys(xyz, origin, size)
+    _, depths, keys, counts = group_nodes(pkeys, assign_levels(pkeys, leaf_points=40))
     entries = np.zeros(len(depths), dtype=ENTRY_DTYPE)
     c = demorton(keys)
     entries["d"], entries["x"], entries["y"], entries["z"] = depths, c[:, 0], c[:, 1], c[:, 2]

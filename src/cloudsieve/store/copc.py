@@ -52,7 +52,7 @@ from ..io._base import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
-from .octree import GRID_BITS, assign_levels, demorton, group_nodes, node_keys, root_cube
+from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
 from .paths import same_path
 from .pointstore import PointStore
 
@@ -126,13 +126,15 @@ def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, orig
     xyz, records = np.concatenate(xyz_parts), np.concatenate(record_parts)
     del xyz_parts, record_parts
     stats = record_stats(records, hdr.point_format)
+    keys = point_keys(xyz, origin, size)
+    del xyz
     # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
-    order = np.argsort(node_keys(xyz, origin, size, GRID_BITS), kind="stable")
-    xyz, records = xyz[order], records[order]
-    level = assign_levels(xyz, origin, size, base_depth=depth, leaf_points=leaf_points)
-    order, depths, nkeys, counts = group_nodes(xyz, level, origin, size)
-    del xyz, level
-    records = records[order]
+    order = np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")
+    keys, records = keys[order], records.take(order)  # take: 2.4x faster than indexing on records
+    level = assign_levels(keys, base_depth=depth, leaf_points=leaf_points)
+    order, depths, nkeys, counts = group_nodes(keys, level)
+    del keys, level
+    records = records.take(order)
     ends = np.cumsum(counts)
     starts = ends - counts
     vlr = laz_vlr(hdr)

@@ -26,13 +26,15 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GRID_BITS", "MAX_DEPTH", "root_cube", "cells", "morton", "demorton", "node_keys", "assign_levels",
-           "group_nodes"]
+__all__ = ["GRID_BITS", "MAX_DEPTH", "KEY_DEPTH", "root_cube", "cells", "morton", "demorton", "point_keys",
+           "node_keys", "assign_levels", "group_nodes"]
 
 #: voxels of a node's sampling grid along each axis: 2^GRID_BITS (Untwine and PDAL use 128)
 GRID_BITS = 7
 #: deepest node; its voxels (cells at depth MAX_DEPTH + GRID_BITS = 21) pack into 63 bits
 MAX_DEPTH = 14
+#: depth of the cells whose Morton keys (:func:`point_keys`) give every node and voxel of a point
+KEY_DEPTH = MAX_DEPTH + GRID_BITS
 
 
 def root_cube(bounds: np.ndarray) -> tuple[np.ndarray, float]:
@@ -106,6 +108,16 @@ def demorton(m: np.ndarray) -> np.ndarray:
     return np.stack([_squeeze(m >> 2), _squeeze(m >> 1), _squeeze(m)], axis=1)
 
 
+def point_keys(xyz: np.ndarray, origin: np.ndarray, size: float) -> np.ndarray:
+    """Morton key of each point's cell at depth :data:`KEY_DEPTH` (21): every coarser cell is a shift of it.
+
+    The cell at depth d of a point is its cell at depth 21 shifted right by
+    21 - d bits per axis (exactly: the cells are floors of products by powers
+    of two), so its Morton key is ``point_keys >> 3 * (21 - d)``.
+    """
+    return morton(cells(xyz, origin, size, KEY_DEPTH))
+
+
 def node_keys(xyz: np.ndarray, origin: np.ndarray, size: float, depth: int) -> np.ndarray:
     """Morton key of each point's node at *depth* (the keys of :func:`cloudsieve.store.buckets.bucket`).
 
@@ -124,18 +136,16 @@ def _first_of_each(keys: np.ndarray) -> np.ndarray:
     return np.sort(order[head])
 
 
-def assign_levels(xyz: np.ndarray, origin: np.ndarray, size: float, *, base_depth: int = 0,
-                  leaf_points: int = 50_000) -> np.ndarray:
+def assign_levels(keys: np.ndarray, *, base_depth: int = 0, leaf_points: int = 50_000) -> np.ndarray:
     """The depth of the node that keeps each point (see the module docstring).
 
     Parameters
     ----------
-    xyz : ndarray of shape (n, 3), float64
-        The points of one node at *base_depth* (all of them), in their order.
-    origin, size
-        The root cube (:func:`root_cube`).
+    keys : ndarray of shape (n,), int64
+        :func:`point_keys` of the points of one node at *base_depth* (all of
+        them), in their order.
     base_depth : int
-        Depth of the node holding *xyz* (at most :data:`GRID_BITS`): its
+        Depth of the node holding the points (at most :data:`GRID_BITS`): its
         ancestors all hold more than *leaf_points* points, so every one of
         them samples its grid.
     leaf_points : int
@@ -146,9 +156,9 @@ def assign_levels(xyz: np.ndarray, origin: np.ndarray, size: float, *, base_dept
     ndarray of shape (n,), int8
         The depth of each point's node; the node is the point's cell at that depth.
     """
-    n = len(xyz)
-    level = np.full(n, -1, dtype=np.int8)
-    rest = np.arange(n)
+    keys = np.asarray(keys, dtype=np.int64)
+    level = np.full(len(keys), -1, dtype=np.int8)
+    rest = np.arange(len(keys))
     for depth in range(MAX_DEPTH + 1):
         if len(rest) == 0:
             break
@@ -157,23 +167,28 @@ def assign_levels(xyz: np.ndarray, origin: np.ndarray, size: float, *, base_dept
             break
         if depth >= base_depth:
             # a node at this depth holds, in its cube, those of the n points that share its cell
-            nodes = node_keys(xyz, origin, size, depth)
+            nodes = keys >> (3 * (KEY_DEPTH - depth))
             uniq, counts = np.unique(nodes, return_counts=True)
             small = counts[np.searchsorted(uniq, nodes[rest])] <= leaf_points
             level[rest[small]] = depth
             rest = rest[~small]
             if len(rest) == 0:
                 break
-        voxels = node_keys(xyz[rest], origin, size, depth + GRID_BITS)
-        first = _first_of_each(voxels)
+        first = _first_of_each(keys[rest] >> (3 * (KEY_DEPTH - depth - GRID_BITS)))  # the voxels
         level[rest[first]] = depth
         rest = np.delete(rest, first)
     return level
 
 
-def group_nodes(xyz: np.ndarray, level: np.ndarray, origin: np.ndarray, size: float
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def group_nodes(keys: np.ndarray, level: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The points grouped by node: nodes by (depth, Morton key), points in their order within a node.
+
+    Parameters
+    ----------
+    keys : ndarray of shape (n,), int64
+        :func:`point_keys` of the points.
+    level : ndarray of shape (n,), int
+        :func:`assign_levels` of the points.
 
     Returns
     -------
@@ -186,15 +201,12 @@ def group_nodes(xyz: np.ndarray, level: np.ndarray, origin: np.ndarray, size: fl
     counts : ndarray of shape (m,), int64
         Points of each node (``order`` holds them in runs of these lengths).
     """
-    n = len(xyz)
+    n = len(keys)
     if n == 0:
         e = np.empty(0, dtype=np.int64)
         return e, e, e, e
     level = np.asarray(level, dtype=np.int64)
-    key = np.empty(n, dtype=np.int64)
-    for depth in np.unique(level):
-        at = np.flatnonzero(level == depth)
-        key[at] = node_keys(xyz[at], origin, size, int(depth))
+    key = np.asarray(keys, dtype=np.int64) >> (3 * (KEY_DEPTH - level))
     order = np.lexsort((key, level))  # stable: input order within a node
     sl, sk = level[order], key[order]
     head = np.ones(n, dtype=bool)
