@@ -2,12 +2,15 @@
 
 The root is a cube (:func:`root_cube`); the node ``(d, i, j, k)`` is the cell
 ``(i, j, k)`` of the cube cut into ``2^d`` along each axis, and a point's cell
-at depth *d* is ``floor((xyz - origin) * 2^d / size)``, clipped into the cube
-(:func:`cells`; multiplications by powers of two only, so every machine finds
-the same cells).
+at depth *d* is ``floor((xyz - origin) * (2^d / size))``, clipped into the
+cube (:func:`cells`). The factors of two depths differ by a power of two, so
+the cell at depth d is exactly the cell at depth :data:`KEY_DEPTH` (21)
+shifted right: one Morton key per point (:func:`point_keys`) gives its node
+and voxel at every depth.
 
-Which node keeps a point (:func:`assign_levels`), as Untwine and PDAL's
-``writers.copc`` do, top down: a node whose cube holds at most
+Which node keeps a point (:func:`assign_levels`), top down, with a voxel grid
+per node in the manner of Untwine and PDAL's ``writers.copc`` (128 cells
+along each axis): a node whose cube holds at most
 *leaf_points* points keeps every point that reaches it (a leaf); any other
 node lays a grid of ``2^GRID_BITS`` (128) voxels along each axis over its
 cube and keeps the first point, in the order given, of each voxel; the rest go
