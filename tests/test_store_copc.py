@@ -1,4 +1,4 @@
-"""COPC output (store/copc.py) on real scans: read back by laspy's CopcReader and copc-lib, against the source records."""
+"""COPC output (store/copc.py) on real scans: read back by laspy's CopcReader and copc-lib, against the sources."""
 
 from __future__ import annotations
 

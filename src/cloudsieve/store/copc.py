@@ -214,7 +214,8 @@ def _ancestors(results: list[dict], task_points: int) -> tuple[np.ndarray, np.nd
     for t, r in enumerate(results):
         up = r["up"]
         offsets = np.cumsum(up["count"]) - up["count"]
-        rows += [(int(d), int(k), t, int(o), int(c)) for d, k, o, c in zip(up["depth"], up["key"], offsets, up["count"])]
+        rows += [(int(d), int(k), t, int(o), int(c))
+                 for d, k, o, c in zip(up["depth"], up["key"], offsets, up["count"])]
     rows.sort(key=lambda r: (r[0], r[1], r[2]))
     nodes: dict[tuple[int, int], list] = {}
     for d, k, t, o, c in rows:
@@ -277,7 +278,8 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     if not isinstance(store, PointStore):
         store = PointStore.open(os.fspath(store))
     if same_path(store.path, dst):
-        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+        raise SameSourceDestinationError(
+            f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
     if not (isinstance(leaf_points, (int, np.integer)) and isinstance(task_points, (int, np.integer))
             and 1 <= leaf_points <= task_points):
         raise InvalidParameterError(f"need 1 <= leaf_points <= task_points, got leaf_points={leaf_points!r}, "
