@@ -11,7 +11,12 @@ import pytest
 from conftest import shared_file
 
 from cloudsieve.engine.runner import Runner
-from cloudsieve.errors import ArrayNotFoundError, DestinationExistsError, InvalidParameterError
+from cloudsieve.errors import (
+    ArrayNotFoundError,
+    DestinationExistsError,
+    InvalidParameterError,
+    SameSourceDestinationError,
+)
 from cloudsieve.store import PointStore, ingest
 from cloudsieve.store.copc import export_copc
 from cloudsieve.store.octree import GRID_BITS, KEY_DEPTH, assign_levels, group_nodes, point_keys, root_cube
@@ -187,8 +192,9 @@ def test_mask(autzen_store, tmp_path):
     keep[np.argmin(autzen_store.read("xyz")[:, 0])] = False  # the kept points' bounds differ from the store's
     autzen_store.create_array("simplify/keep", data=keep, overwrite=True)
     dst = str(tmp_path / "m.copc.laz")
-    out = export_copc(autzen_store, dst, mask="simplify/keep", **SMALL)
-    assert out["points"] == int(keep.sum())
+    placed = []
+    out = export_copc(autzen_store, dst, mask="simplify/keep", progress=placed.append, **SMALL)
+    assert out["points"] == int(keep.sum()) == sum(placed) and len(placed) == out["tasks"]
     src = laspy.read(shared_file("autzen_trim.laz"))
     with laspy.CopcReader.open(dst) as reader:
         got = reader.query()
@@ -205,6 +211,8 @@ def test_atomic_refusals_and_failures(autzen_store, tmp_path):
     with pytest.raises(DestinationExistsError, match=r"a\.copc\.laz exists; pass overwrite=True to replace it"):
         export_copc(autzen_store, str(dst))
     assert dst.read_bytes() == b"old"
+    with pytest.raises(SameSourceDestinationError, match=r"is the source .*: cloudsieve never overwrites its input"):
+        export_copc(autzen_store, autzen_store.path, overwrite=True)
     with pytest.raises(ArrayNotFoundError, match=r"has no array 'simplify/none'"):
         export_copc(autzen_store, str(dst), mask="simplify/none", overwrite=True)
     autzen_store.create_array("simplify/rank", data=np.arange(autzen_store.count), overwrite=True)
