@@ -297,6 +297,10 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     try:
         buckets = bucket(store, partial(node_keys, origin=origin, size=size, depth=depth), name, mask=mask, run=run)
         plan = _plan(buckets.keys, buckets.counts, depth, task_points)
+        biggest = max((int(buckets.counts[s:e].sum()) for _, _, s, e in plan), default=0)
+        if biggest > task_points:
+            logger.warning("%s: a node at depth %d holds %d points, more than task_points=%d: its task holds them "
+                           "all (about 165 bytes a point)", dst, depth, biggest, task_points)
         args = [(store.path, name, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, origin,
                  size, leaf_points, header, mapping, scratch, i) for i, (d, _, s, e) in enumerate(plan)]
         results = run(_subtree_task, args, "copc subtrees")
