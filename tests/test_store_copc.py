@@ -165,15 +165,15 @@ def test_vlrs_crs_and_layout_kept(autzen_store, tmp_path):
     src.close()
 
 
-def test_same_bytes_sync_and_local_cluster(autzen_store, tmp_path):
+def test_same_bytes_sync_processes_and_local_cluster(autzen_store, tmp_path):
     from distributed import Client, LocalCluster
 
-    a, b, c = (str(tmp_path / f"{n}.copc.laz") for n in "abc")
-    run = Runner("sync")
-    try:
-        export_copc(autzen_store, a, run=run, **SMALL)
-    finally:
-        run.close()
+    a, b, c, d = (str(tmp_path / f"{n}.copc.laz") for n in "abcd")
+    for path, run in ((a, Runner("sync")), (d, Runner("processes", workers=2))):
+        try:
+            export_copc(autzen_store, path, run=run, **SMALL)
+        finally:
+            run.close()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                       dashboard_address=None) as cluster, Client(cluster) as client:
         run = Runner(client=client)
@@ -181,8 +181,8 @@ def test_same_bytes_sync_and_local_cluster(autzen_store, tmp_path):
     assert out["tasks"] > 4
     # one subtree task for the whole cloud: the same file
     export_copc(autzen_store, c, leaf_points=SMALL["leaf_points"], task_points=1_000_000)
-    data = [open(p, "rb").read() for p in (a, b, c)]
-    assert data[0] == data[1] == data[2]
+    data = [open(p, "rb").read() for p in (a, b, c, d)]
+    assert data[0] == data[1] == data[2] == data[3]
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]  # no temporary left
     assert leftover_buckets(autzen_store) == []  # nor buckets in the store
 
