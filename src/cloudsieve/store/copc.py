@@ -308,9 +308,8 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
             update(r["stats"]["count"])
         anc, anc_counts, batches = _ancestors(results, task_points)
         sizes = run(_ancestor_task, [(header, scratch, i, b) for i, b in enumerate(batches)], "copc ancestors")
-        table = _node_table(results, anc, anc_counts, batches, sizes, scratch)
+        nodes, sources = _node_table(results, anc, anc_counts, batches, sizes, scratch)
         stats = merge_stats([r["stats"] for r in results])
-        nodes, sources = table
         written = run(write_copc, [(tmp, header, origin, size, nodes, sources, stats)], "copc file")[0]
         replace(tmp, dst)
     except BaseException:
