@@ -58,12 +58,13 @@ def scan(n: int, workdir: Path) -> Path:
 
 
 class TreePeak:
-    """Peak RSS of a process and all its descendants, sampled in a thread."""
+    """Peak RSS of a process and all its descendants (or of that process alone), sampled in a thread."""
 
-    def __init__(self, pid: int, interval: float = 0.1) -> None:
+    def __init__(self, pid: int, interval: float = 0.1, children: bool = True) -> None:
         import psutil
 
         self.proc = psutil.Process(pid)
+        self.children = children
         self.peak = 0
         self.interval = interval
         self._stop = threading.Event()
@@ -74,7 +75,7 @@ class TreePeak:
         while not self._stop.is_set():
             total = 0
             try:
-                procs = [self.proc, *self.proc.children(recursive=True)]
+                procs = [self.proc, *(self.proc.children(recursive=True) if self.children else [])]
             except Exception:
                 break
             for p in procs:

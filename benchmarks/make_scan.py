@@ -15,6 +15,7 @@ LAZ, written chunk by chunk; the same seed gives the same file.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime
 import math
 import sys
@@ -84,8 +85,14 @@ def _synthetic_tile(rng: np.random.Generator, header: laspy.LasHeader, n: int, s
     return rec
 
 
-def make_scan(n: int, out: str, seed: int = 0, chunk: int = 1_000_000) -> int:
-    """Write *n* points to *out* (LAZ); returns the number written."""
+def make_scan(n: int, out: str, seed: int = 0, chunk: int = 1_000_000, files: int = 1) -> int:
+    """Write *n* points to *out* (LAZ); returns the number written.
+
+    With *files* > 1, *out* is a folder that gets that many LAZ files
+    ``tile_0000.laz``, ... of about n / files points each: the same scene,
+    cut where the points fall in the sequence (each file a band of the grid),
+    as a tiled delivery of one survey.
+    """
     base = _autzen_tile()
     if base is not None:
         src_header, src = base
@@ -113,7 +120,18 @@ def make_scan(n: int, out: str, seed: int = 0, chunk: int = 1_000_000) -> int:
     written = 0
     pending: list[laspy.ScaleAwarePointRecord] = []
     pending_n = 0
-    with laspy.open(out, mode="w", header=header, do_compress=True) as writer:
+    per_file = math.ceil(n / files)
+    if files > 1:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        chunk = min(chunk, per_file)
+
+    def open_file(k: int):
+        path = Path(out) / f"tile_{k:04d}.laz" if files > 1 else out
+        return laspy.open(path, mode="w", header=header, do_compress=True)
+
+    writer = open_file(0)
+    with contextlib.ExitStack() as stack:
+        stack.callback(lambda: writer.close())
         for t in range(n_tiles):
             rng = np.random.default_rng([seed, t])
             take = min(tile_n, n - written - pending_n)
@@ -144,11 +162,20 @@ def make_scan(n: int, out: str, seed: int = 0, chunk: int = 1_000_000) -> int:
                 rec = rec[:take]
             pending.append(rec)
             pending_n += len(rec)
-            if pending_n >= chunk or written + pending_n >= n:
+            while pending_n >= chunk or (pending_n and written + pending_n >= n):
                 arr = np.concatenate([p.array for p in pending])
-                writer.write_points(laspy.ScaleAwarePointRecord(arr, header.point_format, header.scales, header.offsets))
-                written += len(arr)
-                pending, pending_n = [], 0
+                room = per_file - written % per_file  # points the current file still takes
+                head, rest = arr[:room], arr[room:]
+                writer.write_points(laspy.ScaleAwarePointRecord(head, header.point_format, header.scales,
+                                                                header.offsets))
+                written += len(head)
+                pending = [laspy.ScaleAwarePointRecord(rest, header.point_format, header.scales, header.offsets)]
+                pending_n = len(rest)
+                if not pending_n:
+                    pending = []
+                if written % per_file == 0 and written < n:
+                    writer.close()
+                    writer = open_file(written // per_file)
             if written >= n:
                 break
     return written
@@ -160,9 +187,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("out", help="output .laz")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--chunk-size", type=int, default=1_000_000)
+    p.add_argument("--files", type=int, default=1, help="write that many tiles into the folder OUT instead of one file")
     args = p.parse_args(argv)
     n = int(args.n)
-    written = make_scan(n, args.out, seed=args.seed, chunk=args.chunk_size)
+    written = make_scan(n, args.out, seed=args.seed, chunk=args.chunk_size, files=args.files)
     src = "autzen_trim.laz tiles" if AUTZEN.is_file() else "synthetic scene"
     print(f"wrote {written} points ({src}, seed {args.seed}) to {args.out}", file=sys.stderr)
     return 0

@@ -313,17 +313,20 @@ def test_the_sample_taken_while_ingesting_is_the_one_read_from_the_store(tmp_pat
     """IngestSample (the ingest's on_chunk) holds plan_sample's rows of the store, the same coordinates, and
     build_partition given it builds the same cells; None when the reader announced no count (XYZ) or a point
     was dropped, so the partition reads the store as before."""
+    from cloudsieve.io import open_writer
     from cloudsieve.store import ingest
 
-    from engine_data import plane as surface, write_laz
+    from engine_data import plane as surface
 
     xyz = surface(120_000, seed=4)
-    src = write_laz(tmp_path / "in.laz", xyz)
+    src = tmp_path / "in.ply"  # a streamed format (LAS sources are ingested by tasks, with no on_chunk)
+    with open_writer(src, header={}, dtypes={"xyz": (np.dtype(np.float64), (3,))}) as writer:
+        writer.write({"xyz": xyz})
     taken = P.IngestSample(cell_size=2_000, seed=5)
     st = ingest(src, tmp_path / "a.zarr", chunk_size=7_000, on_chunk=taken)
     rows = P.plan_sample(st.count, P.n_cells_for(st.count, 2_000), 5)
     assert 0 < len(rows) < st.count
-    stored = np.asarray(st.group["xyz"][:])[rows]
+    stored = st.read("xyz")[rows]
     got = taken.sample(st.count)
     assert got is not None and np.array_equal(got, stored)
     assert taken.sample(st.count - 1) is None

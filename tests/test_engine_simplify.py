@@ -126,7 +126,7 @@ def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
     # every point in exactly one cell core
     labels = np.asarray(g["partition/cell"][:])
     assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
-    xyz = np.asarray(g["xyz"][:])
+    xyz = st.read("xyz")
     cores = [R.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
     allpts = np.concatenate(cores)
     assert len(allpts) == n
@@ -191,7 +191,7 @@ def test_no_seams_at_cell_borders(tmp_path, ratio, context):
     part = P.Partition.load(st)
     labels = np.asarray(g["partition/cell"][:])
     keep = np.asarray(g["simplify/keep"][:])
-    pts = np.asarray(g["xyz"][:])
+    pts = st.read("xyz")
     rho = n / 100.0**2
     radius = math.sqrt(cluster_size / (math.pi * rho))  # one cluster radius
     ratio_near, n_near = _border_density_ratio(pts, keep, part.centers, labels, radius)

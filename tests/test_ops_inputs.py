@@ -221,7 +221,7 @@ def test_check_names_an_unknown_reader_key_and_the_accepted_ones(tmp_path, capsy
     rc, _, err = run(["run", path, "--check"], capsys)
     assert rc == 2
     assert err == (f"cloudsieve run: error: {path}: stage 1 (readers.las): unknown option(s) ['filenme']; "
-                   "accepted: ['drop_invalid', 'filename']\n")
+                   "accepted: ['drop_invalid', 'filename', 'merge']\n")
     path.write_text(json.dumps({"pipeline": [{"type": "readers.las", "filename": str(shared_file("bun_zipper.ply"))},
                                              {"type": "filters.entropy", "ratio": 0.5},
                                              {"type": "writers.las", "filename": "out.las"}]}))

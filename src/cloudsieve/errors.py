@@ -32,6 +32,7 @@ __all__ = [
     "PartitionLayoutError",
     "MissingDependencyError",
     "TargetNotMetError",
+    "MismatchedInputsError",
     "ConvergenceWarning",
 ]
 
@@ -146,6 +147,10 @@ class MissingDependencyError(CloudsieveError, ImportError):
 
 class TargetNotMetError(CloudsieveError, ValueError):
     """A ratio or count that could not be met, with ``strict`` (otherwise a logged warning)."""
+
+
+class MismatchedInputsError(InputFormatError):
+    """The files of one cloud (a glob, a directory, a list, a VPC) disagree: point format, attributes, CRS or scale."""
 
 
 class ConvergenceWarning(UserWarning):

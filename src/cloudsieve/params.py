@@ -189,6 +189,10 @@ _OPTIONS = [
     Option("delimiter", TEXT, None, "XYZ/TXT/CSV column separator (default: sniffed)"),
     Option("columns", TEXT, None, "XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)"),
     Option("drop_invalid", BOOL, False, "drop points with NaN/infinite coordinates (default: refuse)"),
+    Option("merge", BOOL, False, "pipelines' readers.las: the files of a glob (or a directory, list, VPC) are one cloud"),
+    Option("tile_size", FLOAT, None,
+           "write DST as a folder of square LAZ tiles of edge S (the CRS's units; a grid anchored at 0) and "
+           "DST/index.vpc", low=0.0, low_open=True, metavar="S"),
     Option("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
            metavar="ARRAY"),
 ]
@@ -217,7 +221,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", "keep_duplicates", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
+        "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "drop_invalid"),
@@ -225,7 +229,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
         "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", "keep_duplicates", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", extra=(_INPUT_FORMAT,)),
-    "export": _command("mask", "chunk_size", "overwrite", extra=(_OUTPUT_FORMAT,)),
+    "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT,)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
 }
 

@@ -17,6 +17,10 @@ Stages, in this order:
     ``readers.las``, ``readers.copc``, ``readers.ply``, ``readers.e57``,
     ``readers.text`` or ``readers.store`` (a cloudsieve point store).
     ``filename`` may be a glob; the pipeline then runs once per matching file.
+    ``merge`` (default false, ``readers.las``): the glob's files, or a
+    directory, list file or VPC as ``filename``, are one cloud
+    (:mod:`cloudsieve.io.sources`), simplified in one run; ``{stem}`` is then
+    the name of the folder that holds them. Not with ``evaluate`` or ``compare``.
     ``drop_invalid`` (default false): drop the points with NaN or infinite
     coordinates instead of refusing the file, in every stage that reads it.
     A bare string stands for a reader chosen by extension (as in PDAL).
@@ -86,7 +90,7 @@ WRITERS = {"writers.las": None, "writers.ply": "ply", "writers.text": "xyz"}
 TOP_LEVEL = {"pipeline", "scheduler", "workers"}
 PATH_OPTIONS = {"filename", "report_dir", "store"}
 #: the options of a reader stage and of a writer stage
-READER_OPTIONS = {"filename", "drop_invalid"}
+READER_OPTIONS = {"filename", "drop_invalid", "merge"}
 WRITER_OPTIONS = {"filename", "overwrite"}
 #: a variable left in a path after expansion: not set in the environment
 _UNSET_VARIABLE = re.compile(r"\$(?:\{(\w+)\}|(\w+))")
@@ -286,7 +290,11 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
     for i, stage in enumerate(stages, 1):
         _expand(stage, f"{where}: stage {i} ({stage['type']})")
     pattern = reader["filename"]
-    inputs = sorted(glob.glob(pattern)) if glob.has_magic(pattern) else [pattern]
+    merge = bool(reader.get("merge", False))
+    if merge and (reader["type"] != "readers.las" or {"evaluate", "compare"} & set(seen)):
+        raise PipelineError(f"{where}: stage 1 ({reader['type']}): merge reads LAS/LAZ/COPC files as one cloud "
+                            f"(readers.las) and is not used with evaluate or compare")
+    inputs = sorted(glob.glob(pattern)) if glob.has_magic(pattern) and not merge else [pattern]
     if not inputs:
         raise PipelineError(f"{where}: stage 1 ({reader['type']}): no file matches {pattern!r}")
     if len(inputs) > 1:
@@ -304,7 +312,11 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
 def _fill(value: Any, src: str) -> Any:
     if not isinstance(value, str):
         return value
-    name = os.path.basename(src.rstrip("/"))
+    from .io.sources import is_many
+
+    if is_many(src) and not os.path.isdir(src) and glob.has_magic(src):
+        src = os.path.dirname(src) or "."  # a merged glob: named after its folder
+    name = os.path.basename(os.path.abspath(src).rstrip("/"))
     stem = name.split(".")[0] if not name.startswith(".") else name
     return value.replace("{stem}", stem).replace("{name}", name)
 
@@ -339,7 +351,15 @@ def check_inputs(pipeline: Pipeline) -> None:
     kind = pipeline.reader["type"]
     label = f"{pipeline.source}: stage 1 ({kind})"
     accepted = {"readers.las": ("las", "laz", "copc")}.get(kind, (READERS[kind],))
-    for path in pipeline.inputs:
+    from .io.sources import expand_sources
+
+    inputs = pipeline.inputs
+    if pipeline.reader.get("merge", False):
+        try:
+            inputs = expand_sources(inputs[0])
+        except CloudsieveError as exc:
+            raise PipelineError(f"{label}: {exc}") from None
+    for path in inputs:
         try:
             if kind == "readers.store":
                 check_readable(path)

@@ -22,7 +22,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
-    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts)")
+    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts), or with --tile-size "
+                   "a folder of LAZ tiles and index.vpc")
     add_options(p, "export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -30,6 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
+    from ..engine.runner import Runner
     from ..store import export
     from ..errors import ArrayNotFoundError
     from ..store import PointStore
@@ -38,15 +40,21 @@ def run(args: argparse.Namespace) -> int:
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
-    with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
-        export(
-            store,
-            args.dst,
-            format=args.format,
-            mask=args.mask,
-            chunk_size=args.chunk_size,
-            overwrite=args.overwrite,
-            progress=update,
-        )
+    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
+    try:
+        with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
+            export(
+                store,
+                args.dst,
+                format=args.format,
+                mask=args.mask,
+                chunk_size=args.chunk_size,
+                overwrite=args.overwrite,
+                progress=update,
+                run=runner,  # LAS/LAZ and tiles: written by local worker processes
+                tile_size=args.tile_size,
+            )
+    finally:
+        runner.close()
     print(f"exported {args.store} to {args.dst}", file=sys.stderr)
     return 0

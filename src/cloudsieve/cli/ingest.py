@@ -20,7 +20,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "name and renamed when complete."
         ),
     )
-    p.add_argument("src", metavar="SRC", help="input file (format by extension, or --format)")
+    p.add_argument("src", metavar="SRC", help="input file (format by extension, or --format), or LAS/LAZ/COPC files "
+                   "as one cloud: a quoted glob ('tiles/*.laz'), a directory, a list file (.lst) or a VPC (.vpc)")
     p.add_argument("store", metavar="STORE", help="point store to create (folder or fsspec URL)")
     add_options(p, "ingest")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -29,8 +30,10 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
-    from ..store import ingest
+    from ..engine.runner import Runner
     from ..io import open_reader
+    from ..io.sources import is_many
+    from ..store import ingest
 
     option_values(args, "ingest", check=True)
     options = {}
@@ -38,19 +41,27 @@ def run(args: argparse.Namespace) -> int:
         options["delimiter"] = args.delimiter
     if args.columns:
         options["columns"] = [c.strip() for c in args.columns.split(",")]
-    with open_reader(args.src, format=args.format, **options) as reader:
-        total = reader.count
-    with progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
-        store = ingest(
-            args.src,
-            args.store,
-            format=args.format,
-            chunk_size=args.chunk_size,
-            drop_invalid=args.drop_invalid,
-            overwrite=args.overwrite,
-            progress=update,
-            **options,
-        )
+    if is_many(args.src):
+        total = None
+    else:
+        with open_reader(args.src, format=args.format, **options) as reader:
+            total = reader.count
+    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
+    try:
+        with progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
+            store = ingest(
+                args.src,
+                args.store,
+                format=args.format,
+                chunk_size=args.chunk_size,
+                drop_invalid=args.drop_invalid,
+                overwrite=args.overwrite,
+                progress=update,
+                run=runner,  # LAS/LAZ/COPC sources: tasks on local worker processes
+                **options,
+            )
+    finally:
+        runner.close()
     dropped = store.group.attrs["cloudsieve"].get("dropped_invalid", 0)
     msg = f"ingested {store.count} points ({len(store.dimensions) - 1} attributes) from {args.src} into {args.store}"
     if dropped:

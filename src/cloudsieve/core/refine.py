@@ -29,8 +29,8 @@ logger = logging.getLogger(__name__)
 METHODS = ("fcm", "km")
 
 # The refinement's stopping rule. The paper runs KM until no point changes
-# cluster and FCM until memberships move less than 1e-5. Measured (session 2,
-# 1 M points into 2,500 clusters): KM needs 225 iterations to "no change" but
+# cluster and FCM until memberships move less than 1e-5. Measured (1 M points
+# into 2,500 clusters): KM needs 225 iterations to "no change" but
 # 16 to "at most 1% changed", at the same mean squared error within 2.3%; and
 # simplify_points(rule="iterative", ratio=0.5) then gives the same point RMS
 # (bun_zipper 0.3668% vs 0.3656% of the diagonal, maxplanck 0.4528% vs

@@ -50,13 +50,13 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     return int(keep.sum())
 
 
-def run_merge(store, runner) -> int:
+def run_merge(store, runner) -> list[int]:
     """The merge stage: one :func:`merge_task` per input chunk of *store* (``simplify/keep`` must exist).
 
     Returns
     -------
-    int : kept points.
+    list of int : kept points per input chunk (the export's plan).
     """
     n, step = store.count, store.chunk_size
     args = [(store.path, c, s, min(s + step, n)) for c, s in enumerate(range(0, n, step))]
-    return int(sum(runner(merge_task, args, "merge")))
+    return [int(k) for k in runner(merge_task, args, "merge")]

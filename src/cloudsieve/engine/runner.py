@@ -11,9 +11,11 @@ argument order, one progress bar per stage); its local process pool is
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import threading
+import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -76,8 +78,11 @@ class Runner:
         self._stages: dict[str, Callable[[int], None]] = {}  # stages opened by :meth:`stage`
         self._pool = None  # the local process pool ("processes")
         self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
+        self.task_cpu = 0.0  # CPU seconds of the local worker processes' tasks (the "processes" pool)
+        self._cpu_start: dict | None = None  # each dask.distributed worker's CPU time when the run began
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
+            self._cpu_start = _workers_cpu(client)
             return
         if isinstance(scheduler, str) and "://" in scheduler:
             from ..scheduler import connect
@@ -85,6 +90,7 @@ class Runner:
             self.client = connect(scheduler)  # dask's OSError becomes a SchedulerUnreachableError
             self._own_client = True
             self.name = f"distributed ({scheduler})"
+            self._cpu_start = _workers_cpu(self.client)
             return
         if memory_limit is not None:
             if scheduler not in (None, "processes"):
@@ -105,6 +111,7 @@ class Runner:
             self.client = Client(self._cluster)
             self._own_client = True
             self.name = f"local cluster ({n} workers, memory limit {memory_limit})"
+            self._cpu_start = _workers_cpu(self.client)
             return
         if scheduler is None:
             scheduler = DEFAULT_SCHEDULER
@@ -178,6 +185,21 @@ class Runner:
 
         self._prestart = threading.Thread(target=start, name="cloudsieve-prestart", daemon=True)
         self._prestart.start()
+
+    def worker_cpu(self) -> float:
+        """CPU seconds the worker processes spent on this run so far (0 when the tasks run in this process).
+
+        The local process pool: the sum of its tasks' CPU times, each measured
+        in its worker process (one task at a time there). A dask.distributed
+        cluster: each worker process's CPU time now less when the run began,
+        summed (a worker that left during the run is missed). The "sync" and
+        "threads" schedulers run the tasks in this process: their CPU is
+        this process's own.
+        """
+        if self.client is not None and self._cpu_start is not None:
+            now = _workers_cpu(self.client)
+            return float(sum(max(0.0, v - self._cpu_start.get(w, 0.0)) for w, v in now.items()))
+        return float(self.task_cpu)
 
     def close(self) -> None:
         """Shut down the process pool and the client/cluster this runner started (again: nothing)."""
@@ -263,8 +285,12 @@ class Runner:
         token = uuid.uuid4().hex[:8]
         last = len(args) - 1
         tasks: list = []
+        name = func.__name__
+        timed = self._pool is not None
+        if timed:  # each task's CPU, measured in its worker process
+            func = functools.partial(_timed, func)
         for i, a in enumerate(args):
-            key = f"cloudsieve-{func.__name__}-{token}-{last - i:09d}"
+            key = f"cloudsieve-{name}-{token}-{last - i:09d}"
             if deps[i]:  # delayed arguments: dependencies of the graph
                 t = dask.delayed(_after, pure=False)(func, len(a), *a, *[tasks[j] for j in deps[i]], dask_key_name=key)
             else:
@@ -289,7 +315,30 @@ class Runner:
             kwargs["pool"] = self._pool
             kwargs["chunksize"] = 1  # dask batches 6 tasks per submission by default: 6 cells on one worker
         with _Count():
-            return list(dask.compute(*tasks, **kwargs))
+            results = list(dask.compute(*tasks, **kwargs))
+        if timed:
+            self.task_cpu += sum(cpu for _, cpu in results)
+            results = [r for r, _ in results]
+        return results
+
+
+def _timed(func: Callable, *args):
+    """``(func(*args), CPU seconds of this process while it ran)``: a task in a worker process of its own."""
+    t0 = time.process_time()
+    result = func(*args)
+    return result, time.process_time() - t0
+
+
+def _process_cpu() -> float:
+    return time.process_time()
+
+
+def _workers_cpu(client) -> dict:
+    """Each dask.distributed worker's process CPU time (seconds), by worker address."""
+    try:
+        return {w: float(v) for w, v in client.run(_process_cpu).items()}
+    except Exception:  # pragma: no cover - a cluster that refuses client.run
+        return {}
 
 
 def _after(func: Callable, n: int, *args):

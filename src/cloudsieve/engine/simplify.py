@@ -36,7 +36,8 @@ import time
 from collections.abc import Callable
 
 from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
-from ..io import check_readable, check_writable
+from ..io import check_readable, check_tile_folder, check_writable, detect_format
+from ..io.sources import expand_sources
 from ..params import run_record, validate
 from ..progress import callback
 from ..scheduler import check_scheduler
@@ -88,6 +89,7 @@ def simplify(
     drop_invalid: bool = False,
     keep_duplicates: bool = False,
     strict: bool = False,
+    tile_size: float | None = None,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -98,7 +100,9 @@ def simplify(
     Parameters
     ----------
     src : str or path-like
-        Input file (any format :mod:`cloudsieve.io` reads) or a point store.
+        Input file (any format :mod:`cloudsieve.io` reads), a point store, or
+        LAS/LAZ/COPC files as one cloud: a glob, a directory, a list file or a
+        VPC (:mod:`cloudsieve.io.sources`; one partition, one exact count).
     dst : str or path-like
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
@@ -189,6 +193,11 @@ def simplify(
         written; the default work store is removed) instead of a logged
         warning. Both name the requested and delivered counts and why.
 
+    tile_size : float, optional
+        Write DST as a folder of square LAZ tiles of this edge (the CRS's
+        units, a grid anchored at 0), each written by a task, and
+        ``DST/index.vpc`` listing them (:func:`cloudsieve.store.tiles.export_tiles`).
+
     Returns
     -------
     Summary
@@ -223,20 +232,26 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
     })
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     context = opts["halo_context"]
     update = callback(progress)
+    cpu0 = time.process_time()
     summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     dst_local = local_path(dst)
-    if same_path(src, dst):  # first: overwriting would not help, so it is not suggested
+    sources = expand_sources(src)
+    if any(same_path(p, dst) for p in sources):  # first: overwriting would not help, so it is not suggested
         raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
     if dst_local is not None and os.path.exists(dst_local) and not overwrite:
         raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
-    check_readable(src)
-    check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
+    for path in sources:
+        check_readable(path)
+    if tile_size is None:
+        check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
+    else:
+        check_tile_folder(dst, format)
     if client is None and scheduler is not None and "://" in scheduler:
         check_scheduler(scheduler)
 
@@ -263,13 +278,12 @@ def simplify(
         try:
             t0 = time.perf_counter()
             st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
-            taken = None  # the partition's sample, taken while ingesting (a fresh store only)
+            taken = None  # the partition's sample, taken while ingesting (a streamed format only)
             if st is None:
-                runner.prestart()  # the workers start while the driver ingests
+                runner.prestart()  # the workers start while the driver plans (or streams) the ingest
                 taken = IngestSample(cell_size, seed)
-                with stage_bar(bars, "ingest", None, "pt") as bar:
-                    st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
-                                                 drop_invalid=drop_invalid, on_chunk=taken)
+                st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=update,
+                                             drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
@@ -318,7 +332,8 @@ def simplify(
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
-            summary.kept = merge.run_merge(st, runner)
+            kept_counts = merge.run_merge(st, runner)
+            summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
             missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
                                    keep_duplicates)
@@ -328,12 +343,18 @@ def simplify(
                 logger.warning("%s", missed)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
-            runner.close()  # the export runs here: the workers' memory goes now
 
             t0 = time.perf_counter()
-            with stage_bar(bars, "export", st.count, "pt") as bar:
-                export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
+            if tile_size is not None or (detect_format(dst, format) in ("las", "laz") and dst_local is not None):
+                # tasks write the parts (or the tiles)
+                export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=update,
+                       run=runner, counts=kept_counts, tile_size=tile_size)
+            else:
+                runner.close()  # the export streams here: the workers' memory goes now
+                with stage_bar(bars, "export", st.count, "pt") as bar:
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
             summary.seconds["export"] = time.perf_counter() - t0
+            summary.cpu_seconds["workers"] = runner.worker_cpu()
         except TargetNotMetError:
             if default_store:  # the run is complete and would end the same: nothing is left behind
                 delete_store(store_path)
@@ -341,6 +362,7 @@ def simplify(
         finally:
             runner.close()
     summary.seconds["total"] = time.perf_counter() - t_start
+    summary.cpu_seconds["driver"] = time.process_time() - cpu0
     summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
     workstore.record_summary(st, summary.to_dict())
     if default_store:

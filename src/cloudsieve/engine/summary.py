@@ -60,6 +60,11 @@ class Summary:
     seconds : dict str -> float
         Wall time per stage ("ingest", "partition", "cells", "merge",
         "export") and "total".
+    cpu_seconds : dict str -> float
+        ``{"driver": d, "workers": w}``: this process's own CPU time during
+        the run, and the sum over the worker processes (see
+        :meth:`cloudsieve.engine.runner.Runner.worker_cpu`; 0 with the "sync"
+        and "threads" schedulers, whose tasks run in this process).
     peak_memory : int
         Peak resident memory (bytes), sampled: of this process and its
         children, or, on a dask.distributed cluster, the peak of the sum over
@@ -83,6 +88,7 @@ class Summary:
     duplicates_kept: bool = False
     threshold: float | None = None
     seconds: dict[str, float] = field(default_factory=dict)
+    cpu_seconds: dict[str, float] = field(default_factory=lambda: {"driver": 0.0, "workers": 0.0})
     peak_memory: int = 0
     peak_memory_of: str = "this process and its children"
     scheduler: str = ""
@@ -108,6 +114,9 @@ class Summary:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
+        cpu = s.cpu_seconds
+        lines.append(f"cpu           {cpu['driver'] + cpu['workers']:>13.2f}s  (driver {cpu['driver']:.2f}s, "
+                     f"workers {cpu['workers']:.2f}s)")
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
         lines.append(f"scheduler     {s.scheduler}")
         return "\n".join(lines)

@@ -68,9 +68,13 @@ SHARE_COLUMNS = 1 + len(LADDER)
 
 
 def source_identity(src: str) -> dict:
-    """What identifies a source file for resume: its absolute path, size and mtime (ns)."""
-    st = os.stat(src)
-    return {"path": os.path.abspath(src), "size": int(st.st_size), "mtime_ns": int(st.st_mtime_ns)}
+    """What identifies a source for resume: its absolute path, size and mtime (ns); for several files
+    (:func:`cloudsieve.io.sources.expand_sources`) the sum of their sizes and the latest mtime."""
+    from ..io.sources import expand_sources
+
+    stats = [os.stat(p) for p in expand_sources(src)]
+    return {"path": os.path.abspath(src) if "*" not in src else src, "size": int(sum(s.st_size for s in stats)),
+            "mtime_ns": int(max(s.st_mtime_ns for s in stats))}
 
 
 def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_store: bool) -> str:
@@ -126,12 +130,13 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
 
 
 def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, drop_invalid: bool = False,
-                  on_chunk=None):
+                  on_chunk=None, run=None, bars=None):
     """Ingest the file *src* into a new work store at *store_path* and record the source's identity.
 
     *drop_invalid* drops the points with NaN or infinite coordinates (see
     :func:`cloudsieve.store.ingest`) instead of refusing the file; *on_chunk*
-    sees each block of points as it is stored (as in :func:`~cloudsieve.store.ingest`).
+    sees each block of points as it is stored (as in :func:`~cloudsieve.store.ingest`); *run* runs the
+    tasks of a LAS source (one bar, "ingest", counting them), *bars* shows a streamed format's points.
 
     Returns
     -------
@@ -140,9 +145,22 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
     """
     from ..store import PointStore, ingest
 
+    from ..io.sources import expand_sources
+    from ..store.las_plan import is_las_source
+    from .runner import stage_bar
+
     identity = source_identity(src)
-    ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, drop_invalid=drop_invalid,
-           on_chunk=on_chunk)
+    if is_las_source(expand_sources(src)):
+        ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, run=run)
+    else:
+        with stage_bar(bars, "ingest", None, "pt") as bar:
+            def both(n):
+                bar(n)
+                if progress is not None:
+                    progress(n)
+
+            ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, drop_invalid=drop_invalid,
+                   on_chunk=on_chunk)
     st = PointStore.open(store_path, "r+")
     st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
     return st

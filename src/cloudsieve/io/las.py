@@ -29,12 +29,12 @@ from ._base import Reader, Writer
 from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
 
-__all__ = ["LasReader", "LasWriter"]
+__all__ = ["LasReader", "LasWriter", "record_arrays", "laz_backend"]
 
 _XYZ = ("X", "Y", "Z")
 
 
-def _laz_backend():
+def laz_backend():
     backends = laspy.LazBackend.detect_available()
     return backends if backends else None
 
@@ -45,6 +45,18 @@ def _raw(values: Any) -> np.ndarray:
     if isinstance(values, ScaledArrayView):
         values = values.array
     return np.ascontiguousarray(np.asarray(values))
+
+
+def record_arrays(points: laspy.PackedPointRecord, names: list[str]) -> dict[str, np.ndarray]:
+    """The attributes *names* of a laspy point record, each as its raw values (bit fields unpacked)."""
+    array = points.array
+    out = {}
+    for name in names:
+        if name in array.dtype.names:
+            out[name] = np.ascontiguousarray(array[name])
+        else:
+            out[name] = _raw(points[name])
+    return out
 
 
 def _las_dtypes(header: laspy.LasHeader) -> dict:
@@ -69,7 +81,7 @@ class LasReader(Reader):
 
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
-        backend = options.get("laz_backend", _laz_backend())
+        backend = options.get("laz_backend", laz_backend())
         check_layout(path)
         try:
             self._las = laspy.open(path, mode="r", laz_backend=backend)
@@ -140,12 +152,7 @@ class LasReader(Reader):
             for i, dim in enumerate(_XYZ):
                 np.multiply(array[dim], self._scales[i], out=xyz[:, i])
                 xyz[:, i] += self._offsets[i]
-            chunk = {"xyz": xyz}
-            for name in self._names:
-                if name in array.dtype.names:
-                    chunk[name] = np.ascontiguousarray(array[name])
-                else:
-                    chunk[name] = _raw(points[name])
+            chunk = {"xyz": xyz, **record_arrays(points, self._names)}
             done += n
             yield chunk
         if done != self.count:
@@ -210,7 +217,7 @@ class LasWriter(Writer):
                 mode="w",
                 header=header,
                 do_compress=compress,
-                laz_backend=_laz_backend() if compress else None,
+                laz_backend=laz_backend() if compress else None,
                 closefd=False,
             )
         except laspy.LaspyException as exc:

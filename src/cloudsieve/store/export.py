@@ -18,7 +18,7 @@ import zarr
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
 from .streaming import bound_malloc, prefetch
-from .paths import same_path
+from .paths import local_path, same_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
 
@@ -64,6 +64,9 @@ def export(
     chunk_size: int = DEFAULT_CHUNK_SIZE,
     overwrite: bool = False,
     progress: _progress.ProgressCallback | None = None,
+    run=None,
+    counts: list[int] | None = None,
+    tile_size: float | None = None,
 ) -> str:
     """Write the points of *store* (all, or those kept by *mask*) to *dst*.
 
@@ -88,6 +91,17 @@ def export(
         Replace an existing *dst*.
     progress : callable, optional
         Called with the number of points processed after each chunk.
+    run : Runner, optional
+        Runs a LAS/LAZ export as tasks (:func:`.export_las.export_las`: workers
+        write parts, this process only concatenates bytes); None runs the
+        same parts here, one after the other. Other formats stream from this
+        process.
+    counts : list of int, optional
+        Points *mask* keeps in each store chunk, when known (saves a pass).
+    tile_size : float, optional
+        Write *dst* as a folder of square LAZ tiles of this edge and
+        ``dst/index.vpc`` (:func:`.tiles.export_tiles`, as tasks; *mask* a
+        store array name or None).
 
     Returns
     -------
@@ -109,6 +123,25 @@ def export(
     take = _mask_source(store, mask)
     bound_malloc()
     update = _progress.callback(progress)
+    from ..io import detect_format
+
+    if tile_size is not None:
+        if not (mask is None or isinstance(mask, str)):
+            raise InvalidParameterError("a tiled export takes its mask as the name of a bool array of the store")
+        from .tiles import export_tiles
+
+        kept = export_tiles(store, dst, tile_size=tile_size, mask=mask, run=run, overwrite=overwrite)["points"]
+        update(store.count)
+        _log(kept, store, dst)
+        return dst
+    fmt = detect_format(dst, format)
+    if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)) and local_path(dst) is not None:
+        from .export_las import export_las
+
+        kept = export_las(store, dst, fmt=fmt, mask=mask, run=run, counts=counts, overwrite=overwrite)
+        update(store.count)
+        _log(kept, store, dst)
+        return dst
     kept = 0
     with open_writer(
         dst,
@@ -125,7 +158,11 @@ def export(
                 writer.write(chunk)
                 kept += len(chunk["xyz"])
                 update(n)
+    _log(kept, store, dst)
+    return dst
+
+
+def _log(kept: int, store: PointStore, dst: str) -> None:
     if kept == 0:
         logger.warning("%s: no point kept; wrote an empty cloud", dst)
     logger.info("exported %d of %d points from %s to %s", kept, store.count, store.path, dst)
-    return dst

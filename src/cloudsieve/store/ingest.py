@@ -23,6 +23,7 @@ from ..errors import (
     EmptyInputError,
     InvalidParameterError,
     SameSourceDestinationError,
+    UnknownFormatError,
 )
 from .paths import local_path, same_path
 from .chunk import DEFAULT_CHUNK_SIZE
@@ -101,6 +102,7 @@ def ingest(
     overwrite: bool = False,
     progress: _progress.ProgressCallback | None = None,
     on_chunk: Callable[[int, np.ndarray, int | None], None] | None = None,
+    run=None,
     **reader_options: Any,
 ) -> PointStore:
     """Stream the point cloud file *src* into a new point store *store*.
@@ -108,7 +110,11 @@ def ingest(
     Parameters
     ----------
     src : str or path-like
-        LAS/LAZ/COPC/PLY/E57/XYZ file.
+        LAS/LAZ/COPC/PLY/E57/XYZ file, or LAS/LAZ/COPC files as one cloud: a
+        glob, a directory, a list file or a VPC
+        (:func:`cloudsieve.io.sources.expand_sources`). LAS sources are
+        ingested as tasks (:func:`.ingest_las.ingest_las`, "xyz" stored as the
+        LAS integers); the other formats stream through this process.
     store : str or path-like
         Store folder or fsspec URL (``file:///...`` works like a path).
     format : str, optional
@@ -128,7 +134,11 @@ def ingest(
         its coordinates (n, 3), float64, ``count`` the points the reader
         announced (None when the format does not say). For work that needs
         every point once, without reading the store again (the partition's
-        sample, :class:`cloudsieve.engine.sample.IngestSample`).
+        sample, :class:`cloudsieve.engine.sample.IngestSample`). Streamed
+        formats only: LAS sources are read by tasks.
+    run : Runner, optional
+        Runs the ingest tasks of a LAS source (:class:`cloudsieve.engine.runner.Runner`);
+        None: one after the other in this process.
     **reader_options
         Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
 
@@ -158,6 +168,23 @@ def ingest(
         raise InvalidParameterError(f"chunk_size must be positive, got {chunk_size}")
     bound_malloc()
     update = _progress.callback(progress)
+    from ..io.sources import expand_sources
+    from .las_plan import is_las_source
+
+    sources = expand_sources(src)
+    if format is None and not reader_options and is_las_source(sources):
+        from .ingest_las import ingest_las
+
+        for path in sources:
+            if same_path(path, store):
+                raise SameSourceDestinationError(
+                    f"destination {store} is the source {path}: cloudsieve never overwrites its input")
+        st = ingest_las(sources, store, run=run, chunk_size=chunk_size, overwrite=overwrite)
+        update(st.count)
+        return st
+    if len(sources) > 1:
+        raise UnknownFormatError(f"{src}: several files are read as one cloud only when all are LAS, LAZ or COPC; "
+                                 f"got {', '.join(sorted({os.path.splitext(p)[1] or '(none)' for p in sources}))}")
     local = local_path(store)
     with open_reader(src, format=format, chunk_size=chunk_size, **reader_options) as reader:
         if local is not None:

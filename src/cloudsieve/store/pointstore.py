@@ -6,12 +6,14 @@ Layout (see DESIGN.md)::
       zarr.json            group attributes; key "cloudsieve" holds
                            {"version": 1, "count", "bounds", "format", "header",
                             "dimensions", "chunk_size", "complete": true}
-      xyz                  float64 (N, 3), chunks (chunk_size, 3)
+      xyz                  float64 (N, 3), chunks (chunk_size, 3); or int32 (N, 3), the
+                           LAS integers X, Y, Z, when "xyz_encoding" holds their
+                           {"scale": [sx, sy, sz], "offset": [ox, oy, oz]} (LAS sources)
       intensity, ...       one array per attribute under its laspy name,
                            shape (N,) or (N, k), chunks (chunk_size, ...)
       partition/..., simplify/...   derived arrays of later stages
 
-Every array is compressed (blosc lz4, byte-shuffled; see :func:`compressors`).
+Every array is compressed (blosc: zstd for the input arrays, lz4 for derived ones; see :func:`compressors`).
 A store path is a local path or an fsspec URL (``file:///...`` is treated as
 the local path it names). This module is the only code that creates or
 deletes stores and store arrays: :meth:`PointStore.create` /
@@ -46,6 +48,7 @@ from ..errors import (
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import local_path, path_exists, zarr_store
+from .codecs import compressors
 from .streaming import gathered
 
 __all__ = [
@@ -61,17 +64,6 @@ logger = logging.getLogger(__name__)
 
 STORE_ATTR = "cloudsieve"
 STORE_VERSION = 1
-def compressors(level: int = 5) -> tuple:
-    """The codecs used for every store array: blosc lz4, byte-shuffled.
-
-    Measured on 10^6 points of autzen tiles (17 arrays, 52 MB raw, one core):
-    blosc-lz4 + shuffle 0.03 s CPU -> 25 MB; blosc-zstd(1) + shuffle 0.10 s
-    -> 21 MB; plain zstd(1) 0.13 s. Ingest is bounded by LAZ decoding, so the
-    cheapest codec wins; stores are work files, not archives.
-    """
-    return (zarr.codecs.BloscCodec(cname="lz4", clevel=level, shuffle="shuffle"),)
-
-
 def is_store(path: str | os.PathLike) -> bool:
     """True when *path* (local path or fsspec URL) holds a complete point store.
 
@@ -149,6 +141,19 @@ class PointStore:
         self.source_format = meta["format"]
         self.dimensions = list(meta["dimensions"])
         self.chunk_size = int(meta["chunk_size"])
+        enc = meta.get("xyz_encoding")
+        self.xyz_scale = None if enc is None else np.asarray(enc["scale"], dtype=np.float64)
+        self.xyz_offset = None if enc is None else np.asarray(enc["offset"], dtype=np.float64)
+
+    def decode_xyz(self, raw: np.ndarray) -> np.ndarray:
+        """Coordinates (n, 3) float64 from the stored xyz rows *raw*: ``X * scale + offset`` for LAS integers."""
+        if self.xyz_scale is None:
+            return np.asarray(raw, dtype=np.float64)
+        out = np.empty(raw.shape, dtype=np.float64)
+        for i in range(3):  # per column: a 1-D multiply-add, no (n, 3) temporaries
+            np.multiply(raw[:, i], self.xyz_scale[i], out=out[:, i])
+            out[:, i] += self.xyz_offset[i]
+        return out
 
     # ------------------------------------------------------------------ open
     @classmethod
@@ -193,6 +198,7 @@ class PointStore:
         chunk_size: int = DEFAULT_CHUNK_SIZE,
         count: int = 0,
         overwrite: bool = False,
+        xyz_encoding: dict | None = None,
     ) -> PointStore:
         """Create an empty store at *path* (local path or URL): one array per entry of *dtypes*.
 
@@ -201,19 +207,24 @@ class PointStore:
         unknown), in chunks of *chunk_size*. The store returned (mode "w") is
         incomplete, and :meth:`open` refuses it, until :meth:`finish`.
         An existing *path* raises :class:`DestinationExistsError` unless *overwrite*.
+        *xyz_encoding* ``{"scale": [3 floats], "offset": [3 floats]}`` stores
+        "xyz" as the LAS integers (int32): exact for a LAS source, and 12 bytes
+        a point instead of 24 before compression.
         """
         path = os.fspath(path)
         if not overwrite and path_exists(path):
             raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
         for name, (dtype, shape) in dtypes.items():
+            if name == "xyz" and xyz_encoding is not None:
+                dtype = np.int32
             group.create_array(
                 name,
                 shape=(count, *shape),
                 dtype=np.dtype(dtype),
                 chunks=(chunk_size, *shape),
                 fill_value=0,
-                compressors=compressors(),
+                compressors=compressors("input"),
                 config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
         meta = {
@@ -224,6 +235,7 @@ class PointStore:
             "dimensions": list(dtypes),
             "chunk_size": int(chunk_size),
             "complete": False,
+            "xyz_encoding": xyz_encoding,
         }
         return cls(group, path, "w", meta=meta)
 
@@ -256,6 +268,7 @@ class PointStore:
         for name in self.dimensions:
             arr = self.group[name]
             out[name] = (np.dtype(arr.dtype), tuple(arr.shape[1:]))
+        out["xyz"] = (np.dtype(np.float64), (3,))  # decoded from LAS integers where so stored
         return out
 
     def __contains__(self, name: str) -> bool:
@@ -278,7 +291,7 @@ class PointStore:
         return node
 
     def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Points ``start:stop`` of array *name*.
+        """Points ``start:stop`` of array *name* ("xyz" always as float64 coordinates).
 
         Returns
         -------
@@ -286,7 +299,8 @@ class PointStore:
         """
         arr = self.array(name)
         stop = arr.shape[0] if stop is None else min(stop, arr.shape[0])
-        return np.asarray(arr[start:stop])
+        values = np.asarray(arr[start:stop])
+        return self.decode_xyz(values) if name == "xyz" else values
 
     def chunks(self, names: Sequence[str] | None = None, chunk_size: int | None = None) -> Iterator[Chunk]:
         """Yield :class:`Chunk` ``(start, {name: array})`` over the point axis, in point order.
@@ -299,16 +313,23 @@ class PointStore:
             Points per block (default: the store's chunk size; a multiple of it
             reads whole zarr chunks).
         """
-        names = list(self.dimensions if names is None else names)
-        arrays = {n: self.array(n) for n in names}
         step = int(chunk_size or self.chunk_size)
         if step <= 0:
             raise InvalidParameterError(f"chunk_size must be positive, got {step}")
         for start in range(0, self.count, step):
-            sel = slice(start, min(start + step, self.count))
-            # all arrays read and decoded concurrently, not one after the other
-            got = gathered(a.async_array.getitem(sel) for a in arrays.values())
-            yield Chunk(start, {n: np.asarray(v) for n, v in zip(arrays, got)})
+            yield Chunk(start, self.rows(start, start + step, names))
+
+    def rows(self, start: int, stop: int, names: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+        """Points ``[start, stop)`` of the arrays *names* (default: every input dimension), "xyz" as float64."""
+        names = list(self.dimensions if names is None else names)
+        arrays = [self.array(n) for n in names]
+        sel = slice(int(start), min(int(stop), self.count))
+        # all arrays read and decoded concurrently, not one after the other
+        got = gathered(a.async_array.getitem(sel) for a in arrays)
+        out = {n: np.asarray(v) for n, v in zip(names, got)}
+        if "xyz" in out:
+            out["xyz"] = self.decode_xyz(out["xyz"])
+        return out
 
     # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:

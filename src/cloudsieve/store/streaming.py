@@ -10,7 +10,7 @@ import queue
 import sys
 import threading
 
-__all__ = ["prefetch", "gathered", "bound_malloc"]
+__all__ = ["prefetch", "gathered", "bound_malloc", "run_tasks"]
 
 logger = logging.getLogger(__name__)
 
@@ -134,3 +134,15 @@ def prefetch(chunks, depth: int = 1):
             except queue.Empty:
                 pass
             thread.join(timeout=0.05)
+
+
+def run_tasks(run, func, args: list, stage: str) -> list:
+    """``[func(*a) for a in args]`` through *run* (a :class:`cloudsieve.engine.runner.Runner`), results in order.
+
+    In this process, one after the other, when *run* is None, or when there
+    is a single task and no dask.distributed cluster: a local worker process
+    would only add its start-up (about 1.5 s) to that task.
+    """
+    if run is None or (len(args) <= 1 and getattr(run, "client", None) is None):
+        return [func(*a) for a in args]
+    return run(func, args, stage)

@@ -1,0 +1,126 @@
+"""SRC as one cloud of many files: a glob, a directory, a list file or a VPC.
+
+Large scans come as tiles (national and city programs ship thousands of LAZ
+files). :func:`expand_sources` turns SRC into the ordered list of files that
+make one cloud:
+
+- a glob (``'tiles/*.laz'``, quoted so the shell leaves it): the matching
+  files, sorted by path;
+- a directory that is not a point store: its LAS/LAZ/COPC files (not
+  recursive), sorted by name;
+- a list file (``.lst``, or a ``.txt`` whose first non-blank line names an
+  existing point cloud file): one path per line, relative to the list's
+  folder; blank lines and lines starting with ``#`` are skipped;
+- a VPC (``.vpc``, the STAC ItemCollection of PDAL wrench and QGIS): its
+  tiles, in the order it lists them (:func:`cloudsieve.io.vpc.read_vpc`);
+- anything else: SRC itself, one file.
+
+The order is part of the input: points are numbered file after file in it,
+which fixes the result for a seed.
+"""
+
+from __future__ import annotations
+
+import glob
+import os
+
+from ..errors import EmptyInputError, InputIsDirectoryError, InputNotFoundError
+
+__all__ = ["expand_sources", "is_many", "LIST_EXTENSIONS", "TILE_EXTENSIONS"]
+
+#: extensions of the files a directory source contributes
+TILE_EXTENSIONS = (".las", ".laz")
+#: extensions always read as a list of paths
+LIST_EXTENSIONS = (".lst",)
+_GLOB_CHARS = "*?["
+
+
+def _is_glob(src: str) -> bool:
+    return any(c in src for c in _GLOB_CHARS) and not os.path.exists(src)
+
+
+def _is_list_file(src: str) -> bool:
+    low = src.lower()
+    if low.endswith(LIST_EXTENSIONS):
+        return True
+    if not low.endswith(".txt") or not os.path.isfile(src):
+        return False
+    with open(src, "rb") as fh:
+        head = fh.read(4096).decode("utf-8", errors="replace")
+    for line in head.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        path = line if os.path.isabs(line) else os.path.join(os.path.dirname(os.path.abspath(src)), line)
+        return line.lower().endswith(TILE_EXTENSIONS + (".ply", ".e57")) and os.path.isfile(path)
+    return False
+
+
+def _is_directory_source(src: str) -> bool:
+    return os.path.isdir(src) and not os.path.exists(os.path.join(src, "zarr.json"))
+
+
+def is_many(src: str | os.PathLike) -> bool:
+    """True when *src* names several files (a glob, a directory, a list file or a VPC), not one file or a store."""
+    src = os.fspath(src)
+    return (_is_glob(src) or _is_directory_source(src) or src.lower().endswith(".vpc") or _is_list_file(src))
+
+
+def _read_list(src: str) -> list[str]:
+    base = os.path.dirname(os.path.abspath(src))
+    out = []
+    with open(src, encoding="utf-8") as fh:
+        for number, line in enumerate(fh, 1):
+            line = line.strip()
+            if not line or line.startswith("#"):
+                continue
+            path = line if os.path.isabs(line) else os.path.join(base, line)
+            if not os.path.isfile(path):
+                raise InputNotFoundError(f"{src}, line {number}: {line}: no such file")
+            out.append(os.path.abspath(path))
+    return out
+
+
+def expand_sources(src: str | os.PathLike) -> list[str]:
+    """The files that make the cloud *src*, in order (see the module docstring).
+
+    Returns
+    -------
+    list of str
+        Absolute paths; ``[src]`` when *src* is one file (or a point store).
+
+    Raises
+    ------
+    EmptyInputError
+        A glob, list or VPC that names no file.
+    InputIsDirectoryError
+        A directory with no LAS/LAZ file.
+    InputNotFoundError
+        A listed file does not exist.
+    InputFormatError
+        A VPC that is not a STAC ItemCollection.
+    """
+    src = os.fspath(src)
+    if _is_glob(src):
+        files = sorted(p for p in glob.glob(src) if os.path.isfile(p))
+        what = f"{src}: the pattern matches no file"
+    elif _is_directory_source(src):
+        files = sorted(os.path.join(src, n) for n in os.listdir(src)
+                       if n.lower().endswith(TILE_EXTENSIONS) and os.path.isfile(os.path.join(src, n)))
+        if not files:
+            raise InputIsDirectoryError(f"{src} is a directory, not a point cloud file, and holds no LAS/LAZ file "
+                                        f"to read as one cloud")
+        what = ""
+    elif src.lower().endswith(".vpc"):
+        from .vpc import read_vpc
+
+        files = read_vpc(src)
+        what = f"{src}: the VPC lists no file"
+    elif _is_list_file(src):
+        files = _read_list(src)
+        what = f"{src}: the list names no file"
+    else:
+        return [src]
+    if not files:
+        raise EmptyInputError(what)
+    return [os.path.abspath(p) for p in files]

@@ -1,0 +1,246 @@
+"""Point store -> one LAS/LAZ file, as tasks: :func:`export_las`.
+
+The kept points are cut into parts of a whole number of LAZ chunks (50,000
+points, laspy's chunk size), in input order. Each task writes its part as a
+complete LAS/LAZ file with :class:`cloudsieve.io.las.LasWriter` (every
+attribute, VLR and the CRS; each point the exact record it came from); then
+the driver only concatenates bytes: the first part's header and VLRs, the
+parts' point data (kernel-side copies, ``os.copy_file_range``), one chunk
+table made of the parts' tables, the EVLRs, and the header's counts, bounds
+and return histogram summed over the parts. Every chunk but the last holds
+50,000 points, as in a file written in one stream, so the file is the same,
+byte for byte, as the one :func:`cloudsieve.store.export` writes alone.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import struct
+
+import numpy as np
+
+from .pointstore import PointStore
+from .streaming import bound_malloc, run_tasks
+
+__all__ = ["export_las", "part_task", "LAZ_CHUNK"]
+
+logger = logging.getLogger(__name__)
+
+#: points per LAZ chunk (laspy's, so a part boundary is a chunk boundary)
+LAZ_CHUNK = 50_000
+
+
+def _kept_rows(store: PointStore, mask: str | None, start: int, stop: int) -> np.ndarray | None:
+    if mask is None:
+        return None
+    return np.flatnonzero(np.asarray(store.array(mask)[start:stop], dtype=bool))
+
+
+def count_task(store_path: str, mask: str, start: int, stop: int) -> int:
+    """Kept points in rows ``[start, stop)`` (a task)."""
+    st = PointStore.open(store_path, "r")
+    return int(np.count_nonzero(np.asarray(st.array(mask)[start:stop], dtype=bool)))
+
+
+def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunks: list[tuple[int, int, int, int]]) -> int:
+    """Write one part: for each store rows ``[start, stop)``, its kept points ``lo:hi`` (a task).
+
+    Returns
+    -------
+    int : points written.
+    """
+    from ..io import open_writer
+
+    bound_malloc()
+    st = PointStore.open(store_path, "r")
+    written = 0
+    with open_writer(part_path, header=st.header, dtypes=st.dtypes, format=fmt, source_format=st.source_format,
+                     overwrite=True, bounds=st.bounds) as writer:
+        for start, stop, lo, hi in chunks:
+            chunk = st.rows(start, stop)
+            rows = _kept_rows(st, mask, start, stop)
+            if rows is None:
+                rows = np.arange(stop - start)
+            rows = rows[lo:hi]
+            writer.write({k: v.take(rows, axis=0) for k, v in chunk.items()})
+            written += len(rows)
+    return written
+
+
+def _plan(counts: np.ndarray, chunk_size: int, part_size: int) -> list[list[tuple[int, int, int, int]]]:
+    """Parts of *part_size* kept points: per part, the store rows and the slice of their kept points."""
+    ends = np.cumsum(counts)
+    starts = ends - counts
+    total = int(ends[-1]) if len(ends) else 0
+    parts = []
+    for k_lo in range(0, max(total, 1), part_size):
+        k_hi = min(k_lo + part_size, total)
+        first = int(np.searchsorted(ends, k_lo, side="right"))
+        items = []
+        for c in range(first, len(counts)):
+            if starts[c] >= k_hi:
+                break
+            a, b = max(k_lo, int(starts[c])), min(k_hi, int(ends[c]))
+            if b > a or total == 0:
+                items.append((c * chunk_size, (c + 1) * chunk_size, a - int(starts[c]), b - int(starts[c])))
+        parts.append(items)
+    return parts
+
+
+def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None, run=None,
+               counts: list[int] | None = None, overwrite: bool = False, part_size: int | None = None) -> int:
+    """Write the points of *store* kept by the bool array *mask* to the LAS/LAZ file *dst*, as tasks.
+
+    Parameters
+    ----------
+    store : PointStore
+    dst : str
+        Destination; written under a temporary name beside it, renamed when complete.
+    fmt : {"las", "laz"}
+    mask : str, optional
+        A bool array of the store ("simplify/keep"); None keeps every point.
+    run : Runner, optional
+        Runs the tasks; None: one after the other in this process.
+    counts : list of int, optional
+        Kept points per store chunk, when known (the merge stage's results).
+    part_size : int, optional
+        Points per task, a multiple of :data:`LAZ_CHUNK` (default: about a store chunk).
+
+    Returns
+    -------
+    int : points written.
+    """
+    from ..io._base import check_destination, make_temp_path, remove, replace
+
+    check_destination(dst, overwrite)
+    n, step = store.count, store.chunk_size
+    bounds = [(s, min(s + step, n)) for s in range(0, n, step)]
+    if counts is None:
+        if mask is None:
+            counts = [b - a for a, b in bounds]
+        else:
+            args = [(store.path, mask, a, b) for a, b in bounds]
+            counts = run_tasks(run, count_task, args, "export: count")
+    counts = np.asarray(counts, dtype=np.int64)
+    part_size = int(part_size or max(1, round(step / LAZ_CHUNK)) * LAZ_CHUNK)
+    plan = _plan(counts, step, part_size)
+    for items in plan:  # the last chunk of the store is short
+        for i, (a, b, lo, hi) in enumerate(items):
+            items[i] = (a, min(b, n), lo, hi)
+    tmp = make_temp_path(dst, directory=True)
+    suffix = "." + fmt
+    try:
+        args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items) for i, items in enumerate(plan)]
+        written = run_tasks(run, part_task, args, "export")
+        final = make_temp_path(dst)
+        try:
+            if len(args) == 1:
+                os.replace(args[0][1], final)
+            else:
+                splice([a[1] for a in args], final, compressed=(fmt == "laz"))
+            replace(final, dst)
+        except BaseException:
+            remove(final)
+            raise
+    finally:
+        remove(tmp)
+    return int(sum(written))
+
+
+# ------------------------------------------------------------------ splice
+def _header(path: str):
+    import laspy
+
+    with laspy.open(path) as reader:
+        return reader.header
+
+
+def splice(parts: list[str], dst: str, *, compressed: bool) -> None:
+    """Concatenate the LAS/LAZ files *parts* (same header and VLRs, every LAZ part but the last a whole
+    number of chunks) into *dst*: one header, the points in order, one chunk table, the first part's EVLRs."""
+    import lazrs
+
+    headers = [_header(p) for p in parts]
+    h0 = headers[0]
+    start = h0.offset_to_point_data
+    counts = [int(h.point_count) for h in headers]
+    lazvlr = None
+    if compressed:
+        lazvlr = lazrs.LazVlr([v for v in h0.vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
+    with open(dst, "r+b") as out:
+        with open(parts[0], "rb") as src:
+            out.write(src.read(start))
+        if compressed:
+            out.write(b"\0" * 8)  # the offset to the chunk table, written below
+        table = []
+        for path, h, cnt in zip(parts, headers, counts):
+            with open(path, "rb") as src:
+                if compressed:
+                    src.seek(start)
+                    own = lazrs.read_chunk_table(src, lazvlr)  # leaves src at the first chunk
+                    nchunks = -(-cnt // LAZ_CHUNK)
+                    own = own[:nchunks]
+                    size = sum(s for _, s in own)
+                    table.extend(own)
+                    pos = start + 8
+                else:
+                    size, pos = cnt * h.point_format.size, start
+                _copy(src, out, pos, size)
+        table_at = out.tell()
+        if compressed:
+            lazrs.write_chunk_table(out, table, lazvlr)
+        evlr_at = out.tell()
+        if h0.version.minor >= 4 and h0.number_of_evlrs:
+            with open(parts[0], "rb") as src:
+                src.seek(0, 2)
+                end = src.tell()
+                _copy(src, out, h0.start_of_first_evlr, end - h0.start_of_first_evlr)
+        out.truncate()
+        _patch_header(out, headers, counts, evlr_at)
+        if compressed:
+            out.seek(start)
+            out.write(struct.pack("<q", table_at))
+
+
+def _copy(src, out, pos: int, size: int) -> None:
+    """*size* bytes of *src* from *pos* on, appended to *out* (in the kernel where it can)."""
+    out.flush()
+    done = 0
+    try:
+        while done < size:
+            got = os.copy_file_range(src.fileno(), out.fileno(), size - done, pos + done)
+            if got == 0:
+                break
+            done += got
+    except (OSError, AttributeError):  # pragma: no cover - no copy_file_range: through memory
+        pass
+    if done < size:  # pragma: no cover
+        src.seek(pos + done)
+        out.seek(0, 2)
+        out.write(src.read(size - done))
+    out.seek(0, 2)
+
+
+def _patch_header(out, headers, counts: list[int], evlr_at: int) -> None:
+    """The header fields that sum or span over the parts: point counts, returns, bounds, the EVLRs' start."""
+    h0 = headers[0]
+    total = int(sum(counts))
+    by_return = np.sum([np.asarray(h.number_of_points_by_return, dtype=np.int64) for h in headers], axis=0)
+    nonempty = [h for h, c in zip(headers, counts) if c]
+    maxs = np.max([h.maxs for h in nonempty], axis=0) if nonempty else np.asarray(h0.maxs)
+    mins = np.min([h.mins for h in nonempty], axis=0) if nonempty else np.asarray(h0.mins)
+    out.seek(0)
+    raw = bytearray(out.read(h0.offset_to_point_data))
+    legacy = int.from_bytes(raw[107:111], "little")
+    if legacy and total < 2**32:  # laspy fills the legacy fields where they can hold the count (point formats 0-5)
+        struct.pack_into("<I", raw, 107, total)
+        struct.pack_into("<5I", raw, 111, *[int(v) for v in by_return[:5]])
+    struct.pack_into("<6d", raw, 179, maxs[0], mins[0], maxs[1], mins[1], maxs[2], mins[2])
+    if h0.version.minor >= 4:
+        if h0.number_of_evlrs:
+            struct.pack_into("<Q", raw, 235, evlr_at)
+        struct.pack_into("<Q", raw, 247, total)
+        struct.pack_into("<15Q", raw, 255, *[int(v) for v in by_return[:15]])
+    out.seek(0)
+    out.write(raw)

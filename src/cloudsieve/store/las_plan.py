@@ -1,0 +1,194 @@
+"""The ingest's plan for LAS/LAZ/COPC sources: headers only, read by the driver.
+
+One or many files (:func:`cloudsieve.io.sources.expand_sources`) are one
+cloud. The driver reads their headers (never a point), checks that they
+agree, fixes the store's integer encoding and cuts the rows into tasks
+(:mod:`.ingest_las` runs them). The rules, exact and documented:
+
+- **Point format and attributes** must be the same in every file (same LAS
+  point format, same extra-bytes dimensions), else
+  :class:`~cloudsieve.errors.MismatchedInputsError` naming the first file
+  that differs.
+- **CRS**: every file's projection records (``LASF_Projection`` VLRs and
+  EVLRs: WKT, GeoTIFF keys) must be byte-identical to the first file's.
+- **Scales and offsets**: the store takes, per axis, the finest scale of all
+  files and the first file's offset. A file with another scale or offset is
+  re-quantised, ``X' = X * (s / s') + (o - o') / s'``, only when both
+  factors are integers (so every record is exactly representable: a 0.01 m
+  file into a 0.001 m store, or offsets a whole number of steps apart), else
+  MismatchedInputsError. The result must fit LAS int32 (checked per task).
+- **VLRs and EVLRs**: the first file's, then every record of a later file
+  not already present with the same user id, record id and bytes (the
+  projection and extra-bytes records are the same in all files, by the rules
+  above). The LAS version is the highest among the files.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import MismatchedInputsError
+
+__all__ = ["LasPlan", "plan_las", "is_las_source", "LAS_FORMATS"]
+
+#: formats whose records the task ingest copies as LAS integers
+LAS_FORMATS = ("las", "laz", "copc")
+_PROJECTION = "LASF_Projection"
+_DROPPED = ("laszip encoded", "copc")
+
+
+def is_las_source(paths: list[str]) -> bool:
+    """True when every file of *paths* is LAS, LAZ or COPC (by extension)."""
+    from ..io import detect_format
+
+    return all(detect_format(p) in LAS_FORMATS for p in paths)
+
+
+@dataclass
+class LasPlan:
+    """The files of one LAS cloud and how their records map to the store.
+
+    Attributes
+    ----------
+    paths : list of str
+    counts : ndarray of shape (F,), int64
+        Points per file (from the headers).
+    header : dict
+        The store's header (:func:`cloudsieve.io.las_header.header_to_dict`
+        layout): the first file's, merged as the module docstring says.
+    dtypes : dict
+        Attribute name -> (dtype, per-point shape), "xyz" first.
+    scale, offset : ndarray of shape (3,), float64
+        The store's integer encoding of x, y, z.
+    factors : ndarray of shape (F, 2, 3), int64
+        Per file, the integer multiplier and addend of the re-quantisation
+        (``[[1, 1, 1], [0, 0, 0]]`` for a file already in the store's encoding).
+    format : str
+        The first file's format ("las", "laz", "copc").
+    """
+
+    paths: list[str]
+    counts: np.ndarray
+    header: dict
+    dtypes: dict
+    scale: np.ndarray
+    offset: np.ndarray
+    factors: np.ndarray
+    format: str
+
+    @property
+    def total(self) -> int:
+        return int(self.counts.sum())
+
+    def tasks(self, chunk_size: int, chunks_per_task: int = 1) -> list[tuple[int, int, list[tuple]]]:
+        """The ingest's tasks: ``(row_start, row_stop, pieces)``, each a whole number of store chunks.
+
+        *pieces* are ``(path, first, n, factors)``: *n* points of *path* from
+        its point *first* on, with the file's re-quantisation factors (an
+        (2, 3) int64 list). A task reads only its pieces (a large LAZ file is
+        entered through its chunk table), and every store chunk is written by
+        exactly one task.
+        """
+        step = int(chunk_size) * int(chunks_per_task)
+        ends = np.cumsum(self.counts)
+        starts = ends - self.counts
+        out = []
+        for lo in range(0, self.total, step):
+            hi = min(lo + step, self.total)
+            first, last = np.searchsorted(ends, lo, side="right"), np.searchsorted(starts, hi, side="left")
+            pieces = []
+            for f in range(int(first), int(last)):
+                a, b = max(lo, int(starts[f])), min(hi, int(ends[f]))
+                if b > a:
+                    pieces.append((self.paths[f], a - int(starts[f]), b - a, self.factors[f].tolist()))
+            out.append((lo, hi, pieces))
+        return out
+
+
+def _projection(header: dict) -> list:
+    return [(v["record_id"], v["data"]) for v in header["vlrs"] + header["evlrs"] if v["user_id"] == _PROJECTION]
+
+
+def _attributes(header: dict) -> list:
+    return [(e["name"], e["kind"], e["num_elements"]) for e in header.get("extra_dimensions", [])]
+
+
+def _integer(value: float, what: str, path: str, first: str) -> int:
+    near = round(value)
+    if not math.isfinite(value) or abs(value - near) > 1e-6 * max(1.0, abs(value)):
+        raise MismatchedInputsError(
+            f"{path}: {what} is {value:.9g} steps of the cloud's scale (from {first}), not a whole number: its "
+            f"records are not exactly representable; re-quantise the files to one scale and offset first")
+    return int(near)
+
+
+def _merge_records(headers: list[dict], key: str) -> list[dict]:
+    seen = {(v["user_id"], v["record_id"], v["data"]) for v in headers[0][key]}
+    out = list(headers[0][key])
+    for h in headers[1:]:
+        for v in h[key]:
+            ident = (v["user_id"], v["record_id"], v["data"])
+            if ident not in seen and v["user_id"] not in _DROPPED:
+                seen.add(ident)
+                out.append(v)
+    return out
+
+
+def plan_las(paths: list[str]) -> LasPlan:
+    """Read the headers of *paths* (LAS/LAZ/COPC) and plan their ingest as one cloud.
+
+    Raises
+    ------
+    MismatchedInputsError
+        Point formats, attributes, CRS or scales that the module's rules refuse.
+    CorruptInputError, InputNotFoundError, ...
+        A file that is not a readable LAS file (as :func:`cloudsieve.io.open_reader`).
+    """
+    from ..io import open_reader
+
+    headers, counts, dtypes, fmt = [], [], None, None
+    for path in paths:
+        with open_reader(path) as reader:
+            headers.append(reader.header)
+            counts.append(int(reader.count))
+            if dtypes is None:
+                dtypes, fmt = reader.dtypes, reader.format
+    first = headers[0]
+    for path, h in zip(paths[1:], headers[1:]):
+        if h["point_format"] != first["point_format"]:
+            raise MismatchedInputsError(
+                f"{path}: point format {h['point_format']}, but {paths[0]} has {first['point_format']}: the files "
+                f"of one cloud must share their point format")
+        if _attributes(h) != _attributes(first):
+            raise MismatchedInputsError(
+                f"{path}: extra attributes {[a[0] for a in _attributes(h)]}, but {paths[0]} has "
+                f"{[a[0] for a in _attributes(first)]}: the files of one cloud must share their attributes")
+        if _projection(h) != _projection(first):
+            crs = (h.get("crs") or {}).get("name") or "none"
+            crs0 = (first.get("crs") or {}).get("name") or "none"
+            raise MismatchedInputsError(
+                f"{path}: its CRS ({crs}) differs from that of {paths[0]} ({crs0}): the files of one cloud must "
+                f"share their CRS; reproject them first")
+    scales = np.array([h["scales"] for h in headers], dtype=np.float64)
+    offsets = np.array([h["offsets"] for h in headers], dtype=np.float64)
+    scale, offset = scales.min(axis=0), offsets[0]
+    factors = np.zeros((len(paths), 2, 3), dtype=np.int64)
+    for f, path in enumerate(paths):
+        for i in range(3):
+            factors[f, 0, i] = _integer(scales[f, i] / scale[i], f"the {'xyz'[i]} scale {scales[f, i]:g}", path,
+                                        paths[0])
+            factors[f, 1, i] = _integer((offsets[f, i] - offset[i]) / scale[i],
+                                        f"the {'xyz'[i]} offset {offsets[f, i]:g}", path, paths[0])
+    header = dict(first)
+    header.update({
+        "version": max((h["version"] for h in headers), key=lambda v: tuple(int(x) for x in v.split("."))),
+        "point_count": int(sum(counts)),
+        "scales": scale.tolist(),
+        "offsets": offset.tolist(),
+        "vlrs": _merge_records(headers, "vlrs"),
+        "evlrs": _merge_records(headers, "evlrs"),
+    })
+    return LasPlan(list(paths), np.asarray(counts, dtype=np.int64), header, dtypes, scale, offset, factors, fmt)
