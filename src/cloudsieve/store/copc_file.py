@@ -38,7 +38,7 @@ import lazrs
 import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 
-from ..errors import InputFormatError
+from ..errors import CorruptInputError, InputFormatError
 from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, header_from_dict
 from .copc_hierarchy import ENTRY_DTYPE, ROOT_PAGE_NODES, hierarchy_pages
 
@@ -225,8 +225,8 @@ def merge_stats(parts: list[dict]) -> dict:
 
 
 def _evlr(user_id: str, record_id: int, description: str, data: bytes) -> bytes:
-    return struct.pack("<H16sHQ32s", 0, user_id.encode("ascii"), record_id, len(data),
-                       description.encode("ascii")[:32]) + data
+    return struct.pack("<H16sHQ32s", 0, user_id.encode("ascii", errors="replace"), record_id, len(data),
+                       description.encode("ascii", errors="replace")[:32]) + data
 
 
 def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
@@ -236,7 +236,8 @@ def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
         while remaining:
             block = src.read(min(remaining, 1 << 22))
             if not block:
-                raise OSError(f"{path}: {remaining} bytes missing at {offset + nbytes - remaining}")
+                raise CorruptInputError(f"scratch file {path} is truncated: {remaining} bytes missing at "
+                                        f"{offset + nbytes - remaining}")
             dst.write(block)
             remaining -= len(block)
 
