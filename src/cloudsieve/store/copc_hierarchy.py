@@ -1,0 +1,91 @@
+"""The COPC hierarchy: the nodes' 32-byte entries, in pages.
+
+An entry is ``(depth, x, y, z)`` int32, the node's chunk offset uint64, its
+byte size int32 and its point count int32; a count of -1 points to a page
+(offset and size of the page) holding the entries of that node's part of the
+tree. A reader loads the root page first, then the pages its query reaches.
+
+Pages as EPT's "hierarchy step" (Entwine) cuts them: with at most
+:data:`ROOT_PAGE_NODES` nodes, one page; else every node at a depth that is a
+multiple of :data:`HIERARCHY_STEP` (4) starts a page holding the nodes of its
+subtree down to the next such depth, and pointers to the pages below. The
+pages follow from the nodes alone: the same for any split into tasks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .octree import demorton, morton
+
+__all__ = ["ENTRY_DTYPE", "HIERARCHY_STEP", "ROOT_PAGE_NODES", "hierarchy_pages"]
+
+ENTRY_DTYPE = np.dtype([("d", "<i4"), ("x", "<i4"), ("y", "<i4"), ("z", "<i4"), ("offset", "<u8"),
+                        ("nbytes", "<i4"), ("count", "<i4")])
+#: pages start at the depths that are multiples of this
+HIERARCHY_STEP = 4
+#: at most this many nodes: a single page
+ROOT_PAGE_NODES = 1024
+
+
+def hierarchy_pages(entries: np.ndarray, at: int, *, step: int = HIERARCHY_STEP,
+                    root_nodes: int = ROOT_PAGE_NODES) -> tuple[bytes, int]:
+    """The hierarchy's pages, root page first, as they go into the file at offset *at*.
+
+    Parameters
+    ----------
+    entries : ndarray of shape (m,), ENTRY_DTYPE
+        Every node's entry (every ancestor of a node is a node).
+    at : int
+        File offset of the first page (the root page).
+    step : int
+        Depths of the page roots: the multiples of *step*.
+    root_nodes : int
+        With at most this many nodes, a single page.
+
+    Returns
+    -------
+    data : bytes
+        Every page, back to back.
+    root_size : int
+        Bytes of the root page.
+    """
+    entries = np.asarray(entries, dtype=ENTRY_DTYPE)
+    if len(entries) <= root_nodes:
+        return entries.tobytes(), entries.nbytes
+    d = entries["d"].astype(np.int64)
+    key = morton(np.stack([entries["x"], entries["y"], entries["z"]], axis=1))
+    pd = (d // step) * step
+    pkey = key >> (3 * (d - pd))
+    # the pages below the root, by (depth, key); a node's page index (0: the root page)
+    page_depths, page_keys = [], []
+    node_page = np.zeros(len(entries), dtype=np.int64)
+    for depth in np.unique(pd[pd > 0]):
+        at_depth = pd == depth
+        uniq, inv = np.unique(pkey[at_depth], return_inverse=True)
+        node_page[at_depth] = 1 + sum(len(k) for k in page_keys) + inv
+        page_depths.append(np.full(len(uniq), depth))
+        page_keys.append(uniq)
+    pdepth = np.concatenate(page_depths)
+    pkeys = np.concatenate(page_keys)
+    n_pages = 1 + len(pkeys)
+    # a page's pointer goes in the page of its root's ancestor at the depth one step up
+    parent = np.zeros(len(pkeys), dtype=np.int64)
+    for depth in np.unique(pdepth):
+        if depth == step:
+            continue
+        here = np.flatnonzero(pdepth == depth)
+        up = np.flatnonzero(pdepth == depth - step)
+        parent[here] = 1 + up[np.searchsorted(pkeys[up], pkeys[here] >> (3 * step))]
+    pointers = np.zeros(len(pkeys), dtype=ENTRY_DTYPE)
+    cells = demorton(pkeys)
+    pointers["d"], pointers["count"] = pdepth, -1
+    pointers["x"], pointers["y"], pointers["z"] = cells[:, 0], cells[:, 1], cells[:, 2]
+    rows = np.concatenate([entries, pointers])
+    row_page = np.concatenate([node_page, parent])
+    sizes = np.bincount(row_page, minlength=n_pages) * ENTRY_DTYPE.itemsize
+    offsets = at + np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    rows["offset"][len(entries):] = offsets[1:]
+    rows["nbytes"][len(entries):] = sizes[1:]
+    order = np.argsort(row_page, kind="stable")
+    return rows[order].tobytes(), int(sizes[0])
