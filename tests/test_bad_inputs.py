@@ -32,7 +32,7 @@ from cloudsieve.io import read_cloud
 from cloudsieve.store import ingest
 from conftest import DATA_DIR, shared_file
 
-WRITABLE = "las (.las), laz (.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
+WRITABLE = "las (.las), laz (.laz), copc (.copc.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
 
 # fmt: off
 CASES = [
@@ -66,7 +66,6 @@ CASES = [
     ("folder-not-writable",       "export {in}/s.zarr /proc/cloudsieve-test.las",                     2, "cannot write /proc/cloudsieve-test.las:"),
     ("report-folder-is-a-file",   "evaluate {data}/simple.las {data}/simple.laz --report {in}/afile/r", 2, "cannot write {in}/afile/r: {in}/afile is not a folder"),
     ("format-not-writable-e57",   "simplify {data}/simple.las {out}/o.e57 --ratio 0.5",                           2, f"{{out}}/o.e57: writing e57 files is not supported; formats that can be written: {WRITABLE}"),
-    ("format-not-writable-copc",  "simplify {data}/simple.las {out}/o.copc.laz --ratio 0.5",                      2, "{out}/o.copc.laz: writing copc files is not supported (write .laz: a COPC file needs an octree order)"),
     ("format-unknown",            "export {in}/s.zarr {out}/o.foo",                                   2, "{out}/o.foo: unknown point cloud format (extension .foo)"),
     ("demo-folder-not-empty",     "demo --out {in} --points 1000",                                    2, "{in} exists and is not empty"),
     # -- the options

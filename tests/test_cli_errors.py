@@ -21,7 +21,7 @@ import pytest
 from cloudsieve.cli import main
 from conftest import ROOT, shared_file
 
-WRITABLE = "las (.las), laz (.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
+WRITABLE = "las (.las), laz (.laz), copc (.copc.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
 FAST = 5.0  # seconds
 
 
@@ -55,7 +55,6 @@ def test_missing_source(tmp_path, capsys):
 @pytest.mark.parametrize("name, message", [
     ("out.e57", "writing e57 files is not supported"),
     ("out.foo", "cannot write extension .foo (unknown format)"),
-    ("out.copc.laz", "writing copc files is not supported (write .laz: a COPC file needs an octree order)"),
 ])
 def test_destination_format_not_writable(tmp_path, capsys, src, name, message):
     out = tmp_path / name

@@ -103,13 +103,11 @@ def test_copc_records_dropped_with_log(tmp_path, caplog):
     assert any(type(v).__name__ == "WktCoordinateSystemVlr" for v in out.header.vlrs)  # the CRS stays
 
 
-def test_copc_to_copc_refused(tmp_path):
-    from cloudsieve.errors import UnknownFormatError
-
+def test_copc_to_copc(tmp_path):
     store = ingest(shared_file("simple.copc.laz"), tmp_path / "s.zarr")
-    with pytest.raises(UnknownFormatError, match=r"writing copc files is not supported \(write \.laz"):
-        export(store, tmp_path / "out.copc.laz")
-    assert not (tmp_path / "out.copc.laz").exists()
+    export(store, tmp_path / "out.copc.laz")  # an octree built afresh (cloudsieve.store.copc)
+    with laspy.CopcReader.open(str(tmp_path / "out.copc.laz")) as reader:
+        assert len(reader.query()) == store.count == 1065
 
 
 def test_reader_chunks_and_dtypes():

@@ -229,3 +229,21 @@ def test_tiles_out_and_the_vpc_back_in(tiles, tmp_path):
     before = sorted(p.name for p in (tmp_path / "tiled").iterdir())
     assert main(["simplify", src, str(tmp_path / "tiled"), "--ratio", "0.4", "--tile-size", "250"]) == 2
     assert sorted(p.name for p in (tmp_path / "tiled").iterdir()) == before
+
+
+def test_tiles_in_one_copc_out(tiles, tmp_path):
+    src = str(tiles[0].parent)
+    assert main(["simplify", src, str(tmp_path / "one.laz"), "--ratio", "0.3", "--no-progress"]) == 0
+    assert main(["simplify", src, str(tmp_path / "one.copc.laz"), "--ratio", "0.3", "--no-progress"]) == 0
+    one = laspy.read(tmp_path / "one.laz")
+    lo, hi = np.array([636400.0, 849100.0]), np.array([636800.0, 849300.0])
+    inside = ((one.x >= lo[0]) & (one.x <= hi[0]) & (one.y >= lo[1]) & (one.y <= hi[1]))
+    with laspy.CopcReader.open(str(tmp_path / "one.copc.laz")) as reader:
+        assert reader.header.point_count == len(one.points) == 33_000
+        got = reader.query(laspy.copc.Bounds(mins=lo, maxs=hi))
+    assert len(got) == int(inside.sum()) > 0
+    key = lambda x, y, t: np.lexsort((t, y, x))  # noqa: E731
+    want = np.c_[one.X[inside], one.Y[inside], one.Z[inside]]
+    have = np.c_[got.X, got.Y, got.Z]
+    np.testing.assert_array_equal(have[key(have[:, 0], have[:, 1], have[:, 2])],
+                                  want[key(want[:, 0], want[:, 1], want[:, 2])])

@@ -345,7 +345,7 @@ def simplify(
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            if tile_size is not None or (detect_format(dst, format) in ("las", "laz") and dst_local is not None):
+            if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
                 # tasks write the parts (or the tiles)
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=update,
                        run=runner, counts=kept_counts, tile_size=tile_size)

@@ -10,7 +10,7 @@ format        extensions                            read    write
 ============  ====================================  ======  ======
 las           .las                                  yes     yes
 laz           .laz                                  yes     yes
-copc          .copc.laz                             yes     no (write .laz)
+copc          .copc.laz                             yes     from a store (:mod:`cloudsieve.store.copc`)
 ply           .ply                                  yes     yes (binary LE)
 e57           .e57                                  yes     no
 xyz           .xyz .txt .csv .pts                   yes     yes
@@ -168,7 +168,8 @@ def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
 
 
 def _writable_formats() -> str:
-    return ", ".join(f"{name} ({' '.join(f['extensions'])})" for name, f in FORMATS.items() if f["writer"] is not None)
+    return ", ".join(f"{name} ({' '.join(f['extensions'])})" for name, f in FORMATS.items()
+                     if f["writer"] is not None or name == "copc")
 
 
 def check_writable(path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False) -> str:
@@ -194,10 +195,9 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
         raise UnknownFormatError(
             f"{path}: cannot write {what} (unknown format); formats that can be written: {_writable_formats()}"
         ) from None
-    if FORMATS[fmt]["writer"] is None:
-        hint = " (write .laz: a COPC file needs an octree order)" if fmt == "copc" else ""
+    if FORMATS[fmt]["writer"] is None and fmt != "copc":  # COPC: written from a store (cloudsieve.store.copc)
         raise UnknownFormatError(
-            f"{path}: writing {fmt} files is not supported{hint}; formats that can be written: {_writable_formats()}")
+            f"{path}: writing {fmt} files is not supported; formats that can be written: {_writable_formats()}")
     from ..store import local_path
 
     if local_path(path) is None:  # a remote URL: checked when written

@@ -79,7 +79,9 @@ def export(
     store : PointStore or str
         The store or its path/URL.
     dst : str or path-like
-        Destination file (.las, .laz, .ply, .xyz/.txt/.csv/.pts).
+        Destination file (.las, .laz, .copc.laz, .ply, .xyz/.txt/.csv/.pts);
+        COPC is written as tasks (:func:`.copc.export_copc`: an octree built
+        out of core).
     format : str, optional
         Overrides the format found from *dst*'s extension.
     mask : None, str, or 1-D bool array-like of length N
@@ -135,6 +137,15 @@ def export(
         _log(kept, store, dst)
         return dst
     fmt = detect_format(dst, format)
+    if fmt == "copc":
+        if not (mask is None or isinstance(mask, str)):
+            raise InvalidParameterError("a COPC export takes its mask as the name of a bool array of the store")
+        from .copc import export_copc
+
+        kept = export_copc(store, dst, mask=mask, run=run, overwrite=overwrite)["points"]
+        update(store.count)
+        _log(kept, store, dst)
+        return dst
     if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)) and local_path(dst) is not None:
         from .export_las import export_las
 
