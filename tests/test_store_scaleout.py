@@ -153,6 +153,11 @@ def test_export_parts_give_the_bytes_of_one_stream(tmp_path):
         export_las(PointStore.open(st.path), str(tmp_path / f"parts.{fmt}"), fmt=fmt, mask="simplify/keep",
                    part_size=50_000)
         assert (tmp_path / f"parts.{fmt}").read_bytes() == (tmp_path / f"stream.{fmt}").read_bytes()
+    # nothing kept: one empty part, the same empty file
+    PointStore.open(st.path, "r+").create_array("simplify/none", data=np.zeros(st.count, bool))
+    export(st, tmp_path / "stream0.laz", mask=np.zeros(st.count, bool))
+    assert export_las(PointStore.open(st.path), str(tmp_path / "parts0.laz"), fmt="laz", mask="simplify/none") == 0
+    assert (tmp_path / "parts0.laz").read_bytes() == (tmp_path / "stream0.laz").read_bytes()
 
 
 def test_export_parts_keep_evlrs(tmp_path):

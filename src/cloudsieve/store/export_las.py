@@ -89,22 +89,21 @@ def _write_part(st: PointStore, part_path: str, fmt: str, mask: str | None, chun
     return written
 
 
-def _plan(counts: np.ndarray, chunk_size: int, part_size: int) -> list[list[tuple[int, int, int, int]]]:
-    """Parts of *part_size* kept points: per part, the store rows and the slice of their kept points."""
+def _plan(counts: np.ndarray, chunk_size: int, n: int, part_size: int) -> list[list[tuple[int, int, int, int]]]:
+    """Parts of *part_size* kept points: per part, the store rows ``(start, stop)`` and the slice ``lo:hi`` of
+    their kept points (one empty part when nothing is kept)."""
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
     parts = []
     for k_lo in range(0, max(total, 1), part_size):
         k_hi = min(k_lo + part_size, total)
-        first = int(np.searchsorted(ends, k_lo, side="right"))
         items = []
-        for c in range(first, len(counts)):
+        for c in range(int(np.searchsorted(ends, k_lo, side="right")), len(counts)):
             if starts[c] >= k_hi:
                 break
             a, b = max(k_lo, int(starts[c])), min(k_hi, int(ends[c]))
-            if b > a or total == 0:
-                items.append((c * chunk_size, (c + 1) * chunk_size, a - int(starts[c]), b - int(starts[c])))
+            items.append((c * chunk_size, min((c + 1) * chunk_size, n), a - int(starts[c]), b - int(starts[c])))
         parts.append(items)
     return parts
 
@@ -145,10 +144,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
             counts = run_tasks(run, count_task, args, "export: count")
     counts = np.asarray(counts, dtype=np.int64)
     part_size = int(part_size or max(1, round(step / LAZ_CHUNK)) * LAZ_CHUNK)
-    plan = _plan(counts, step, part_size)
-    for items in plan:  # the last chunk of the store is short
-        for i, (a, b, lo, hi) in enumerate(items):
-            items[i] = (a, min(b, n), lo, hi)
+    plan = _plan(counts, step, n, part_size)
     tmp = make_temp_path(dst, directory=True)
     suffix = "." + fmt
     try:
