@@ -35,6 +35,7 @@ import os
 import time
 from collections.abc import Callable
 
+from ..core._validation import ratio_count
 from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
 from ..io import check_readable, check_writable
 from ..params import run_record, validate
@@ -278,7 +279,7 @@ def simplify(
             t0 = time.perf_counter()
             target = None
             if ratio is not None or count is not None:
-                target = int(round(float(ratio) * st.count)) if ratio is not None else min(int(count), st.count)
+                target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
             elim = target if rule == "eliminate" else None  # its r_max and margin come with the partition
             halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
@@ -321,7 +322,7 @@ def simplify(
             summary.kept = merge.run_merge(st, runner)
             summary.removed = summary.points_in - summary.kept
             missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
-                                   keep_duplicates)
+                                   keep_duplicates, exact=elim is not None)
             if missed and strict:
                 raise TargetNotMetError(missed)
             if missed:
