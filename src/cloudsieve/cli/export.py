@@ -38,7 +38,8 @@ def run(args: argparse.Namespace) -> int:
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
-    with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
+    total = store.count if args.mask is None else None  # the points written: a mask's count is not known yet
+    with progress.bar(f"export {args.dst}", total, enabled=not args.no_progress) as update:
         export(
             store,
             args.dst,

@@ -332,7 +332,7 @@ def simplify(
             runner.close()  # the export runs here: the workers' memory goes now
 
             t0 = time.perf_counter()
-            with stage_bar(bars, "export", st.count, "pt") as bar:
+            with stage_bar(bars, "export", summary.kept, "pt") as bar:
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
             summary.seconds["export"] = time.perf_counter() - t0
         except TargetNotMetError:

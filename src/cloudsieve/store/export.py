@@ -87,7 +87,7 @@ def export(
     overwrite : bool
         Replace an existing *dst*.
     progress : callable, optional
-        Called with the number of points processed after each chunk.
+        Called with the number of points written after each chunk.
 
     Returns
     -------
@@ -121,10 +121,10 @@ def export(
     ) as writer:
         # the next chunk is read and selected in a thread while this one is encoded (the codecs release the GIL)
         with closing(prefetch(_selected(store, take, chunk_size))) as chunks:
-            for n, chunk in chunks:
+            for _, chunk in chunks:
                 writer.write(chunk)
                 kept += len(chunk["xyz"])
-                update(n)
+                update(len(chunk["xyz"]))  # the points written, not read: a bar's total is the kept count
     if kept == 0:
         logger.warning("%s: no point kept; wrote an empty cloud", dst)
     logger.info("exported %d of %d points from %s to %s", kept, store.count, store.path, dst)
