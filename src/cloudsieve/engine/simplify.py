@@ -238,12 +238,15 @@ def simplify(
         raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     check_readable(src)
     check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
-    if client is None and scheduler is not None and "://" in scheduler:
-        check_scheduler(scheduler)
-
     src_is_store = is_store(src)
     default_store = store is None and not src_is_store
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
+    # a work store of another source or other options is refused before any scheduler is contacted
+    st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
+    if st is not None:
+        workstore.record_params(st, params, overwrite)
+    if client is None and scheduler is not None and "://" in scheduler:
+        check_scheduler(scheduler)
 
     def both(bar):  # a stage's bar and the caller's progress
         def up(n):
@@ -263,7 +266,6 @@ def simplify(
                 notify(f"dask dashboard: {runner.dashboard_link}")
         try:
             t0 = time.perf_counter()
-            st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
             taken = None  # the partition's sample, taken while ingesting (a fresh store only)
             if st is None:
                 runner.prestart()  # the workers start while the driver ingests
@@ -271,10 +273,10 @@ def simplify(
                 with stage_bar(bars, "ingest", None, "pt") as bar:
                     st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=both(bar),
                                                  drop_invalid=drop_invalid, on_chunk=taken)
+                workstore.record_params(st, params, overwrite)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
-            workstore.record_params(st, params, overwrite)
 
             t0 = time.perf_counter()
             target = None
