@@ -15,8 +15,9 @@ import logging
 import os
 import pkgutil
 import sys
+import warnings
 
-from ..errors import CloudsieveError
+from ..errors import CloudsieveError, IncompatibleCloudsWarning
 
 __all__ = ["main", "build_parser"]
 
@@ -71,6 +72,8 @@ def _main(argv: list[str] | None) -> int:
     if extra:  # the subcommand's usage and name, not the top level's (argparse leaves these to the top parser)
         commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
         commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    # shown once, as the log line the library writes beside it (not again as a Python warning)
+    warnings.filterwarnings("ignore", category=IncompatibleCloudsWarning)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     # without a terminal, each stage's progress is one INFO line of this logger (--no-progress: none)

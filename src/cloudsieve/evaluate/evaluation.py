@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import IncompatibleCloudsError
+from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
 from ..engine.runner import stage_bar
 from ..params import validate
@@ -117,7 +117,8 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
         if strict:
             raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False to compare anyway)",
                                           advice={"strict": False})
-        warnings.warn(p, UserWarning, stacklevel=4)  # the caller of evaluate() (or of compare())
+        # the caller of evaluate() (or of compare()); the command line ignores it: the log line says it
+        warnings.warn(p, IncompatibleCloudsWarning, stacklevel=4)
         msgs.append(p)
     for m in msgs:
         logger.warning(m)
