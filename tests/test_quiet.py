@@ -59,3 +59,25 @@ def test_pytest_starts_without_a_warning(tmp_path):
                           capture_output=True, text=True, env=env, cwd=ROOT)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "warnings summary" not in proc.stdout and "Warning" not in proc.stdout, proc.stdout
+
+
+def test_a_local_cluster_beside_port_8787_says_nothing():
+    import socket
+    import warnings
+
+    from cloudsieve.engine.runner import Runner
+
+    taken = socket.socket()
+    try:
+        try:
+            taken.bind(("0.0.0.0", 8787))
+            taken.listen()
+        except OSError:  # already in use (another cluster): the case itself
+            pass
+        with warnings.catch_warnings(record=True) as got:
+            warnings.simplefilter("always")
+            runner = Runner(None, 1, memory_limit="1GB")  # a LocalCluster of 1 worker process
+            runner.close()
+    finally:
+        taken.close()
+    assert [str(w.message) for w in got if "8787" in str(w.message)] == []
