@@ -88,3 +88,16 @@ def test_ply_to_ply_keeps_the_comments_and_says_the_faces_go(tmp_path, caplog):
 @pytest.mark.parametrize("name", ["simple.las", "autzen_trim.laz"])
 def test_las_to_las_says_nothing(tmp_path, caplog, name):
     assert convert(shared_file(name), tmp_path / "o.laz", tmp_path, caplog) == []
+
+
+def test_a_float_intensity_beyond_0_1_is_said_once(tmp_path, caplog):
+    n = 30
+    src = tmp_path / "i.ply"
+    with cloudsieve.open_writer(src, header={}, dtypes={"xyz": ("f8", ()), "intensity": ("f4", ())}) as w:
+        w.write({"xyz": np.random.default_rng(1).random((n, 3)), "intensity": np.arange(n, dtype=np.float32) * 10})
+    dst = tmp_path / "i.las"
+    messages = convert(src, dst, tmp_path, caplog)
+    assert messages[1:] == [f"{dst}: intensity has values outside 0..1 (0..290): LAS intensity clipped to 0..65535"]
+    las = laspy.read(dst)
+    assert las.intensity.tolist() == [0] + [65535] * (n - 1)
+    np.testing.assert_array_equal(np.asarray(las["intensity_"]), np.arange(n) * 10.0)  # the exact values kept
