@@ -28,6 +28,7 @@ from cloudsieve.engine.runs import cell_runs
 from cloudsieve.engine.runner import Runner
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.store import PointStore
+from cloudsieve.engine.runner import NO_HTTP_PORT
 
 KW = dict(rule="eliminate", cell_size=6_000, chunk_size=10_000, seed=3)
 
@@ -98,7 +99,7 @@ def test_same_bytes_on_a_local_cluster_with_1_and_2_workers(reference, scan, tmp
     ref = reference[0]
     for n in (1, 2):
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                          dashboard_address=None) as c, Client(c) as client:
+                          dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as c, Client(c) as client:
             out = tmp_path / f"o{n}.laz"
             simplify(scan, out, client=client, ratio=0.2, **KW)
         assert digest(out) == digest(ref)

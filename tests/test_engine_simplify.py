@@ -35,6 +35,7 @@ from cloudsieve.store import ingest
 from cloudsieve.engine import simplify
 from cloudsieve.errors import InvalidParameterError, ResumeMismatchError
 from cloudsieve.store import PointStore
+from cloudsieve.engine.runner import NO_HTTP_PORT
 
 FAST = dict(method="km", rule="threshold", cluster_size=200, seed=7)
 
@@ -52,7 +53,8 @@ def digest(path) -> bytes:
 def cluster2():
     from distributed import Client, LocalCluster
 
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as c:
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                      scheduler_kwargs=NO_HTTP_PORT) as c:
         with Client(c) as client:
             yield client
 
@@ -94,7 +96,8 @@ def test_same_bytes_on_a_local_cluster_with_1_and_2_workers(reference, real_laz,
     out2 = tmp_path / "two.laz"
     simplify(real_laz, out2, client=cluster2, cell_size=6_000, chunk_size=10_000, **FAST)
     assert digest(out2) == digest(ref)
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as c:
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None,
+                      scheduler_kwargs=NO_HTTP_PORT) as c:
         with Client(c) as client:
             out1 = tmp_path / "one.laz"
             simplify(real_laz, out1, client=client, cell_size=6_000, chunk_size=10_000, **FAST)

@@ -9,6 +9,7 @@ from scipy.spatial.distance import cdist
 
 from cloudsieve.errors import EmptyInputError, NotASubsetError
 from cloudsieve.evaluate.points import point_errors
+from cloudsieve.engine.runner import NO_HTTP_PORT
 
 
 def _brute(a, b):
@@ -137,7 +138,8 @@ def test_dask_localcluster_equals_local():
     b = np.concatenate([a[::2], rng.random((50, 3))])
     local = point_errors(a, b, chunk_size=4000)
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None) as cluster, distributed.Client(cluster) as client:
+                                  dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, \
+            distributed.Client(cluster) as client:
         remote = point_errors(a, b, chunk_size=4000, client=client)
     for name in ("forward", "backward"):
         assert remote[name]["count"] == local[name]["count"]

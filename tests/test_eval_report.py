@@ -11,7 +11,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial import cKDTree
 
 from cloudsieve.cli import main
-from cloudsieve.errors import EmptyInputError, IncompatibleCloudsError, NotASubsetError
+from cloudsieve.errors import EmptyInputError, IncompatibleCloudsError, IncompatibleCloudsWarning, NotASubsetError
 from cloudsieve.evaluate import check_compatible, evaluate
 from cloudsieve.io import open_writer, read_cloud
 
@@ -113,7 +113,8 @@ def test_crs_mismatch_flagged(tmp_path):
     with pytest.raises(IncompatibleCloudsError, match="different CRS"):
         evaluate(src, other, surface=False)
     assert main(["evaluate", str(src), str(other), "--no-surface", "--no-progress"]) == 2
-    r = evaluate(src, other, surface=False, strict=False)
+    with pytest.warns(IncompatibleCloudsWarning, match="different CRS"):
+        r = evaluate(src, other, surface=False, strict=False)
     assert any("different CRS" in w for w in r["warnings"])
     # no CRS on one side: a warning only
     r = evaluate(src, shared_file("simple.las"), surface=False)

@@ -17,6 +17,7 @@ from cloudsieve import simplify
 from cloudsieve.cli import main
 from cloudsieve.engine.memory import LOCAL_SCOPE, worker_rss
 from conftest import shared_file
+from cloudsieve.engine.runner import NO_HTTP_PORT
 
 LABEL = "2 dask workers (sum of their resident memory)"
 
@@ -26,7 +27,7 @@ def cluster():
     from distributed import Client, LocalCluster
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as c:
+                      dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as c:
         with Client(c) as client:
             yield c, client
 

@@ -3,7 +3,8 @@
 One root, :class:`CloudsieveError`; every subclass also inherits the built-in
 exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
 ``except ValueError`` keeps working. Messages name the file and the problem.
-Warnings: :class:`ConvergenceWarning` (a ``UserWarning``).
+Warnings: :class:`ConvergenceWarning` and :class:`IncompatibleCloudsWarning`
+(both a ``UserWarning``).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ __all__ = [
     "TargetNotMetError",
     "MismatchedInputsError",
     "ConvergenceWarning",
+    "IncompatibleCloudsWarning",
 ]
 
 
@@ -155,3 +157,10 @@ class MismatchedInputsError(InputFormatError):
 
 class ConvergenceWarning(UserWarning):
     """An iterative fit stopped at max_iter before its convergence test held."""
+
+
+class IncompatibleCloudsWarning(UserWarning):
+    """Clouds of different CRS or units compared anyway (``strict=False``); also logged, once.
+
+    The command line shows the log line only (it ignores this warning).
+    """

@@ -83,7 +83,8 @@ class Option:
     default : object
         The default (None for an optional option).
     help : str
-        One line for ``--help``.
+        One line for ``--help``, describing the flag: for a bool that
+        defaults to True, what ``--no-NAME`` does.
     low, high : float, optional
         Range of an int or float; *low* is excluded when *low_open*.
     choices : tuple of str
@@ -162,8 +163,9 @@ _OPTIONS = [
            metavar="SCHED"),
     Option("workers", INT, None, "local dask workers (default: all cores)", low=1, metavar="N"),
     Option("memory_limit", SIZE, None, "memory cap per worker, e.g. 1GB (runs a local dask cluster)", metavar="SIZE"),
-    Option("store", PATH, None, "work store (path or fsspec URL); default DST.cloudsieve.zarr, removed on success",
-           metavar="PATH"),
+    Option("store", PATH, None, "work store (path or fsspec URL), kept after success (to inspect, export or resume); "
+           "checked before any work: one made from another source or with other options is refused (--overwrite "
+           "discards it); default DST.cloudsieve.zarr, removed on success", metavar="PATH"),
     Option("resume", BOOL, False, "continue a crashed run from its work store"),
     Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
     Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
@@ -171,12 +173,12 @@ _OPTIONS = [
     Option("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
            low=1, metavar="N"),
     Option("surface", BOOL, True,
-           "surface level (ball-pivoting meshes, Metro distances, compactness); --no-surface: point level only"),
+           "point level only: skip the surface level (ball-pivoting meshes, Metro distances, compactness)"),
     Option("tiles", INT, 4, "surface tiles", low=1, metavar="T"),
     Option("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
            low=1, metavar="M"),
     Option("subset", BOOL, False, "the simplified cloud must be a subset of the original (error otherwise)"),
-    Option("strict", BOOL, True, "fail on different CRS or units; --no-strict (or --force): warn and compare anyway",
+    Option("strict", BOOL, True, "compare clouds of different CRS or units, with a warning (default: refuse them)",
            aliases=("--force",)),
     Option("report_dir", PATH, None, "write report.json, report.md and plots into this folder", aliases=("--report",),
            metavar="DIR"),
@@ -202,6 +204,9 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
+#: ingest's and export's overwrite: they have no work store
+_OVERWRITE_STORE = Option("overwrite", BOOL, False, "replace an existing point store STORE")
+_OVERWRITE_FILE = Option("overwrite", BOOL, False, "replace an existing destination file DST")
 #: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
 _STRICT_COUNT = Option("strict", BOOL, False,
                        "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
@@ -228,8 +233,9 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
         "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", "keep_duplicates", extra=(_RULE_LIST,)),
-    "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", extra=(_INPUT_FORMAT,)),
-    "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT,)),
+    "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite",
+                       extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
+    "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
 }
 

@@ -321,16 +321,16 @@ def _fill(value: Any, src: str) -> Any:
     return value.replace("{stem}", stem).replace("{name}", name)
 
 
-def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, progress: Any,
-             drop_invalid: bool = False) -> None:
-    """A pipeline with a writer and no filter: a plain conversion, streamed through a temporary store."""
+def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, drop_invalid: bool = False) -> int:
+    """A pipeline with a writer and no filter: a conversion streamed through a temporary store; its points."""
     import tempfile
 
     from .store import export, ingest
 
     with tempfile.TemporaryDirectory(prefix="cloudsieve-convert-") as tmp:
-        store = ingest(src, os.path.join(tmp, "store.zarr"), progress=progress, drop_invalid=drop_invalid)
-        export(store, dst, format=out_format, overwrite=overwrite, progress=progress)
+        store = ingest(src, os.path.join(tmp, "store.zarr"), drop_invalid=drop_invalid)
+        export(store, dst, format=out_format, overwrite=overwrite)
+        return store.count
 
 
 def check_inputs(pipeline: Pipeline) -> None:
@@ -382,9 +382,10 @@ def check_inputs(pipeline: Pipeline) -> None:
 def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None, bars: Any = None) -> list[dict]:
     """Run a pipeline, once per input file.
 
-    *progress* ``(n)`` is called as points are done; *bars* ``(stage, total,
-    unit)`` gives each stage of the simplification and the evaluation its own
-    bar (see :func:`cloudsieve.progress.bar`).
+    *progress* ``(n)`` is called with an input's points when it is done (each
+    input counted once); *bars* ``(stage, total, unit)`` gives each stage of
+    the simplification and the evaluation its own bar (see
+    :func:`cloudsieve.progress.bar`).
 
     Returns
     -------
@@ -398,6 +399,7 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
     results = []
     for src in pipeline.inputs:
         entry: dict[str, Any] = {"input": src, "output": None, "summary": None, "report": None}
+        points = 0
         filt = next((s for s in pipeline.stages if s["type"] == "filters.entropy"), None)
         writer = next((s for s in pipeline.stages if s["type"] in WRITERS), None)
         run_opts = {k: v for k, v in pipeline.options.items() if k in ("scheduler", "workers")}
@@ -408,15 +410,16 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
             overwrite = bool(writer.get("overwrite", False))
             log.info("pipeline %s: %s -> %s", pipeline.source, src, dst)
             if filt is None:
-                entry["summary"] = _convert(src, dst, out_format, overwrite, progress, drop_invalid)
+                points = _convert(src, dst, out_format, overwrite, drop_invalid)
             else:
                 params = {k: _fill(v, src) for k, v in filt.items() if k != "type"}
                 for key, value in run_opts.items():
                     params.setdefault(key, value)
                 entry["summary"] = functions["filters.entropy"](
-                    src, dst, format=out_format, overwrite=overwrite, client=client, progress=progress,
+                    src, dst, format=out_format, overwrite=overwrite, client=client,
                     drop_invalid=drop_invalid, bars=bars, **params
                 )
+                points = entry["summary"].points_in
             entry["output"] = dst
         for stage in pipeline.stages:
             params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
@@ -425,5 +428,8 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
                                                         **params)
             elif stage["type"] == "compare":
                 entry["report"] = functions["compare"](src, drop_invalid=drop_invalid, **params)
+                points = points or entry["report"]["points"]
+        if progress is not None:
+            progress(points)
         results.append(entry)
     return results

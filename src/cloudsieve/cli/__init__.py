@@ -12,10 +12,12 @@ import argparse
 import gc
 import importlib
 import logging
+import os
 import pkgutil
 import sys
+import warnings
 
-from ..errors import CloudsieveError
+from ..errors import CloudsieveError, IncompatibleCloudsWarning
 
 __all__ = ["main", "build_parser"]
 
@@ -26,8 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="cloudsieve",
         description=(
-            "Simplify 3D point clouds too large for memory by entropy estimation "
-            "(Mahdaoui et al. 2017), streaming through a zarr point store, on dask."
+            "Simplify 3D point clouds too large for memory (by default weighted sample elimination to an exact "
+            "count; or the entropy rules of Mahdaoui et al. 2017), streaming through a zarr point store, on dask."
         ),
         epilog="Run 'cloudsieve COMMAND --help' for a command's options.",
     )
@@ -48,9 +50,30 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 2 for a cloudsieve error)."""
+    """Run the CLI; returns the exit code (0 ok, 2 for a cloudsieve error).
+
+    A closed stdout (``cloudsieve info x.laz | head -1``) ends the command
+    quietly with 0, as ``cat`` would stop: the reader has what it wanted.
+    """
+    try:
+        try:
+            code = _main(argv)
+        finally:  # --help's text too: flushed here, where a closed pipe can still be caught
+            sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()
+        return 0
+    return code
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:  # the subcommand's usage and name, not the top level's (argparse leaves these to the top parser)
+        commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
+        commands[args.command].error(f"unrecognized arguments: {' '.join(extra)}")
+    # shown once, as the log line the library writes beside it (not again as a Python warning)
+    warnings.filterwarnings("ignore", category=IncompatibleCloudsWarning)
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     # without a terminal, each stage's progress is one INFO line of this logger (--no-progress: none)
@@ -70,6 +93,17 @@ def main(argv: list[str] | None = None) -> int:
             hint = "; the work store is kept: run the same command again (or add --resume) to continue"
         print(f"cloudsieve {args.command}: interrupted{hint}", file=sys.stderr)
         return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so that the interpreter's last flush into a closed pipe raises nothing."""
+    try:
+        fd = sys.stdout.fileno()
+    except (AttributeError, OSError, ValueError):  # not a file (a test's captured stream)
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, fd)
+    os.close(devnull)
 
 
 def run() -> int:

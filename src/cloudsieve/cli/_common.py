@@ -56,24 +56,25 @@ _TYPES = {params.INT: parse_int, params.FLOAT: parse_float, params.SIZE: _size}
 
 
 def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[str] | None = None, *,
-                defaults: Mapping[str, Any] | None = None) -> None:
+                defaults: Mapping[str, Any] | None = None, helps: Mapping[str, str] | None = None) -> None:
     """Add the options of *command* (all, or *names*) to *parser*, from the spec.
 
     The flag is the option's name with dashes (``--cluster-size``), ``--no-NAME``
-    for a bool that defaults to True; old flags are aliases. *defaults*
-    overrides the spec's defaults (``demo``).
+    for a bool that defaults to True; old flags are aliases. *defaults* and
+    *helps* override the spec's defaults and help texts (``demo``, which has
+    some of simplify's options only: its help names no option it lacks).
     """
     spec = params.COMMANDS[command]
-    defaults = defaults or {}
+    defaults, helps = defaults or {}, helps or {}
     for name in names if names is not None else spec:
         opt = spec[name]
         default = defaults.get(name, opt.default)
         flags = (opt.flag, *opt.aliases)
+        text = helps.get(name, opt.help)
         if opt.kind == params.BOOL:
             action = "store_false" if opt.default is True else "store_true"
-            parser.add_argument(*flags, dest=name, action=action, default=default, help=opt.help)
+            parser.add_argument(*flags, dest=name, action=action, default=default, help=text.replace("%", "%%"))
             continue
-        text = opt.help
         if default is not None:
             shown = ",".join(default) if isinstance(default, (list, tuple)) else default
             text += f" (default {shown})"

@@ -25,7 +25,11 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="cloudsieve-demo", help="output folder (default: ./cloudsieve-demo)")
     p.add_argument("--overwrite", action="store_true",
                    help="write into an existing, non-empty --out folder (its demo files are replaced, others kept)")
-    add_options(p, "simplify", ["method", "rule", "ratio", "scheduler", "seed"], defaults={"method": "km", "ratio": 0.5})
+    add_options(p, "simplify", ["method", "rule", "ratio", "scheduler", "seed"], defaults={"method": "km", "ratio": 0.5},
+                helps={"rule": "pruning rule (default: eliminate, weighted sample elimination, exactly --ratio of the "
+                               "points); iterative, target and coverage also keep about --ratio"})
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (nor, without a terminal, the log "
+                                                                 "line of each stage)")
     p.set_defaults(func=run)
 
 
@@ -48,9 +52,12 @@ def _prepare_folder(out: str, overwrite: bool) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..engine import simplify
     from ..evaluate import evaluate
+    from functools import partial
+
     from ..progress import bar
     from ..synthetic import write_scene_laz
 
+    bar = partial(bar, enabled=not args.no_progress)
     options = option_values(args, "simplify", check=True)  # before anything is written
     options.pop("overwrite", None)  # demo's --overwrite is about its folder; its own files are always replaced
     _prepare_folder(args.out, args.overwrite)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 
 from ._common import add_options, option_values
 
@@ -44,8 +43,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(json_ready(report), indent=1))
         return 0
-    for w in report["warnings"]:
-        print(f"warning: {w}", file=sys.stderr)
     p = report["point"]
     print(f"original {fmt(report['original']['count'])} points, simplified {fmt(report['simplified']['count'])}, "
           f"diagonal {fmt(report['diagonal'])} ({p['mode']})")

@@ -40,9 +40,10 @@ def run(args: argparse.Namespace) -> int:
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
+    total = store.count if args.mask is None else None  # the points written: a mask's count is not known yet
     runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
     try:
-        with progress.bar(f"export {args.dst}", store.count, enabled=not args.no_progress) as update:
+        with progress.bar(f"export {args.dst}", total, enabled=not args.no_progress) as update:
             export(
                 store,
                 args.dst,
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
                 chunk_size=args.chunk_size,
                 overwrite=args.overwrite,
                 progress=update,
-                run=runner,  # LAS/LAZ and tiles: written by local worker processes
+                run=runner,  # LAS/LAZ, COPC and tiles: written by local worker processes
                 tile_size=args.tile_size,
             )
     finally:

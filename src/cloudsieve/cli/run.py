@@ -27,6 +27,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--check", action="store_true",
                    help="validate the pipeline and check that its inputs can be read; run nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars (nor, without a terminal, the log "
+                                                                 "line of each stage)")
     p.set_defaults(func=run, wording=stage_wording(None))
 
 
@@ -57,6 +59,8 @@ def stage_wording(pipeline):
 
 
 def run(args: argparse.Namespace) -> int:
+    from functools import partial
+
     from ..pipeline import check_inputs, load_pipeline, run_pipeline
     from ..progress import bar
 
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {path}")
         print("stages: " + " -> ".join([pipeline.reader["type"], *(s["type"] for s in pipeline.stages)]))
         return 0
+    bar = partial(bar, enabled=not args.no_progress)
     with bar("pipeline", None) as progress:
         results = run_pipeline(pipeline, progress=progress, bars=bar)
     for entry in results:

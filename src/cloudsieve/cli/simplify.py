@@ -17,13 +17,15 @@ def add_parser(subparsers) -> None:
         "simplify",
         help="simplify a point cloud of any size (out of core, on dask)",
         description=(
-            "Simplify SRC into DST by entropy estimation (Mahdaoui et al. 2017): the cloud is "
-            "ingested into a zarr point store, cut into coarse cells (dask tasks), each cell "
-            "refined into small KM/FCM clusters, scored and pruned, and the kept points written "
-            "with every attribute. Same seed, same bytes, on any scheduler. The default rule, eliminate "
-            "(weighted sample elimination, no clusters), keeps exactly --ratio R or --count N points; "
-            "--threshold S alone runs the paper's threshold rule; --rule picks any rule. Every option, SRC, "
-            "DST's format and folder and the scheduler are checked before any work starts."
+            "Simplify SRC into DST out of core: the cloud is ingested into a zarr point store (the work store), "
+            "cut into coarse cells (one dask task each), each cell pruned by the rule, and the kept points "
+            "written with every attribute and the header. The default rule, eliminate (weighted sample "
+            "elimination: the most crowded point goes first; no clusters, no entropy), keeps exactly --ratio R "
+            "or --count N points. --threshold S alone runs the paper's rule (Mahdaoui et al. 2017: small "
+            "K-means/FCM clusters, each point scored by how much it changes the entropy of its cluster's "
+            "density, the points below S dropped); --rule picks any rule. Same seed, same bytes, on any "
+            "scheduler. Every option, SRC, DST's format and folder, the work store and the scheduler are "
+            "checked before any work starts."
         ),
     )
     p.add_argument("src", metavar="SRC", help="input file (LAS/LAZ/COPC/PLY/E57/XYZ), a point store, or LAS/LAZ/COPC "

@@ -13,6 +13,7 @@ from ..errors import InvalidParameterError, InvalidPointsError
 
 __all__ = [
     "neighbour_count",
+    "ratio_count",
     "check_points",
     "check_labels",
     "check_density_params",
@@ -40,6 +41,20 @@ def neighbour_count(m, k0: float = 1.0, k_min: int = 4):
     m = np.asarray(m)
     k = np.floor(k0 * np.sqrt(m) + 0.5).astype(np.int64)
     return np.maximum(k, int(k_min))
+
+
+def ratio_count(ratio: float, n: int) -> int:
+    """The points a kept share *ratio* of *n* points asks for: round(ratio * n), at least 1 when ratio > 0.
+
+    The one rounding of a ratio, in memory and out of core. A positive ratio
+    of a non-empty cloud keeps at least one point (half of 1 point is 1, not
+    an empty cloud).
+
+    >>> ratio_count(0.5, 5000), ratio_count(0.5, 1), ratio_count(0.0, 10)
+    (2500, 1, 0)
+    """
+    k = int(round(float(ratio) * n))
+    return max(k, 1) if ratio > 0 and n > 0 else k
 
 
 def check_points(points, name: str = "points") -> np.ndarray:

@@ -62,6 +62,7 @@ import numba
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ._validation import ratio_count
 from .cellgrid import CellGrid, check_points
 from .entropy import score_points
 from .kernels import eliminate as _ke
@@ -94,7 +95,7 @@ def _target(n: int, ratio, count) -> int:
     if ratio is not None:
         if not (isinstance(ratio, (int, float, np.integer, np.floating)) and 0 < ratio <= 1):
             raise InvalidParameterError(f"ratio must be in (0, 1], got {ratio!r}")
-        return int(round(float(ratio) * n))
+        return ratio_count(ratio, n)
     if count is None:
         raise InvalidParameterError("the eliminate rule needs a ratio or a count (or r_max)")
     if int(count) != count or not 0 <= count <= n:
@@ -335,7 +336,7 @@ _OPTIONS = {"labels", "dh", "fixed", "alpha", "coverage", "geometric", "entropy"
 
 def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int = RELOCATE_STEPS,
               threads: int | None = None, cell_points: int | None = CELL_POINTS, **options) -> np.ndarray:
-    """Sorted int64 indices of exactly ``count`` (or round(ratio * n)) points of a whole cloud.
+    """Sorted int64 indices of exactly ``count`` (or round(ratio * n), at least 1) points of a whole cloud.
 
     The elimination (:func:`eliminate_order`) stops at the count, then
     ``relocate_steps`` restricted Lloyd steps (:func:`relocate`) lower the

@@ -46,6 +46,7 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
+from .duplicates import copy_rows
 from .eliminate import ALPHA, _ialpha, _radius, _run, keep_lowest
 from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
@@ -222,8 +223,11 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     for name, a in (("decided", dec), ("halo_keep", hk)):
         if a.shape != (len(hal),) or a.dtype != bool:
             raise InvalidParameterError(f"{name} must be a bool mask of shape ({len(hal)},), got {a.dtype} {a.shape}")
-    if count == n or count == 0 or not math.isfinite(r_max):
+    if count == n or count == 0:
         return np.full(n, count == n)
+    if not math.isfinite(r_max):  # no radius (a cloud of at most AREA_K points, or of one spot): as in the whole-cloud
+        # elimination, every distinct point has the same priority, its copies +inf: the last `count` distinct stay
+        return keep_lowest(np.where(copy_rows(pts), np.inf, 0.0), int(count))
     kind = np.where(dec, np.where(hk, 2, 0), 1).astype(np.uint8)  # free, fixed (kept), gone (removed)
     with numba_threads(threads):
         grid, lists = _grid_lists(pts, hal, r_max, kind == 0)

@@ -68,8 +68,8 @@ import math
 
 import numpy as np
 
-from ._validation import check_context, check_density_params, check_labels, check_points
-from .duplicates import copy_rows, sorted_copies
+from ._validation import check_context, check_density_params, check_labels, check_points, ratio_count
+from .duplicates import copy_rows, first_rows, sorted_copies
 from .eliminate import eliminate
 from .entropy import score_points, score_unchecked
 from .knn import canonical_order
@@ -110,7 +110,7 @@ def _target_count(n, ratio, count):
     if ratio is not None:
         if not (0 <= ratio <= 1):
             raise InvalidParameterError(f"ratio is the kept fraction, in [0, 1], got {ratio!r}")
-        return int(round(ratio * n))
+        return ratio_count(ratio, n)
     if count is not None:
         if int(count) != count or count < 0:
             raise InvalidParameterError(f"count must be an integer >= 0, got {count!r}")
@@ -216,7 +216,9 @@ def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim,
         keep[:] = False
         target = min(target, n - int(copy_rows(pts).sum()))  # copies kept at most once
         keep[eliminate(pts, count=target, threads=threads)] = True
-        callback(progress)(n - target)
+        if keep_duplicates:  # every copy of a kept point (the first copy is the one the elimination may keep)
+            keep = keep[first_rows(pts)]
+        callback(progress)(n - int(keep.sum()))
         return keep
     order = canonical_order(pts)
     P = pts[order]

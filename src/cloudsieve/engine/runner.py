@@ -41,6 +41,11 @@ def stage_bar(bars, stage: str, total: int | None, unit: str) -> Iterator[Callab
             yield callback(upd)
 
 
+#: the scheduler of a LocalCluster without a dashboard still serves HTTP (health checks), on port 8787 unless told
+#: otherwise: any free port instead, so no "Port 8787 is already in use" warning beside another cluster
+NO_HTTP_PORT = {"dashboard_address": ":0"}
+
+
 class Runner:
     """Runs batches of independent tasks on the chosen dask scheduler.
 
@@ -107,6 +112,7 @@ class Runner:
                 memory_limit=memory_limit,
                 host="127.0.0.1",
                 dashboard_address=None,
+                scheduler_kwargs=NO_HTTP_PORT,
             )
             self.client = Client(self._cluster)
             self._own_client = True

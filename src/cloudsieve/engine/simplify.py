@@ -35,6 +35,7 @@ import os
 import time
 from collections.abc import Callable
 
+from ..core._validation import ratio_count
 from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
 from ..io import check_readable, check_tile_folder, check_writable, detect_format
 from ..io.sources import expand_sources
@@ -252,12 +253,15 @@ def simplify(
         check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
     else:
         check_tile_folder(dst, format)
-    if client is None and scheduler is not None and "://" in scheduler:
-        check_scheduler(scheduler)
-
     src_is_store = is_store(src)
     default_store = store is None and not src_is_store
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
+    # a work store of another source or other options is refused before any scheduler is contacted
+    st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
+    if st is not None:
+        workstore.record_params(st, params, overwrite)
+    if client is None and scheduler is not None and "://" in scheduler:
+        check_scheduler(scheduler)
 
     def both(bar):  # a stage's bar and the caller's progress
         def up(n):
@@ -277,22 +281,21 @@ def simplify(
                 notify(f"dask dashboard: {runner.dashboard_link}")
         try:
             t0 = time.perf_counter()
-            st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
             taken = None  # the partition's sample, taken while ingesting (a streamed format only)
             if st is None:
                 runner.prestart()  # the workers start while the driver plans (or streams) the ingest
                 taken = IngestSample(cell_size, seed)
                 st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=update,
                                              drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
+                workstore.record_params(st, params, overwrite)
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
-            workstore.record_params(st, params, overwrite)
 
             t0 = time.perf_counter()
             target = None
             if ratio is not None or count is not None:
-                target = int(round(float(ratio) * st.count)) if ratio is not None else min(int(count), st.count)
+                target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
             elim = target if rule == "eliminate" else None  # its r_max and margin come with the partition
             halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
@@ -336,7 +339,7 @@ def simplify(
             summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
             missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
-                                   keep_duplicates)
+                                   keep_duplicates, exact=elim is not None)
             if missed and strict:
                 raise TargetNotMetError(missed)
             if missed:
@@ -351,7 +354,7 @@ def simplify(
                        run=runner, counts=kept_counts, tile_size=tile_size)
             else:
                 runner.close()  # the export streams here: the workers' memory goes now
-                with stage_bar(bars, "export", st.count, "pt") as bar:
+                with stage_bar(bars, "export", summary.kept, "pt") as bar:
                     export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"] = runner.worker_cpu()

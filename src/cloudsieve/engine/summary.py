@@ -6,11 +6,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from ..core._validation import ratio_count
+
 __all__ = ["Summary", "missed_target"]
 
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
-                  keep_duplicates: bool = False) -> str | None:
+                  keep_duplicates: bool = False, exact: bool = False) -> str | None:
     """What to say when a ratio or count was asked and the kept count differs (issue 13, item 4).
 
     Returns
@@ -18,11 +20,13 @@ def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0
     str or None
         ``"SRC: asked to keep A points, kept K: why"`` (logged as a warning,
         or raised with ``strict``), None when the request was met or there
-        was none.
+        was none. With *exact* (a rule that keeps exactly the count asked,
+        ``eliminate``: no thresholds, no clusters) only the input's size and
+        its exact duplicates can explain a miss.
     """
     if ratio is None and count is None:
         return None
-    asked = int(round(float(ratio) * n)) if ratio is not None else int(count)
+    asked = ratio_count(ratio, n) if ratio is not None else int(count)
     if kept == asked:
         return None
     if asked > n:
@@ -31,6 +35,8 @@ def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0
         why = "the exact copies of kept points are kept too (keep_duplicates)"
     elif duplicates and asked > n - duplicates:
         why = f"{duplicates:,} of the {n:,} points are exact duplicates, kept once (keep_duplicates keeps them)"
+    elif exact:
+        why = "the rule missed its exact count (a bug: please report it with the input)"
     else:
         why = ("points with equal scores at the global threshold go or stay together, exact duplicates "
                "count once, and clusters too small to thin are kept whole")

@@ -197,6 +197,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
             count = len(idx)
         if len(idx) == 0:
             rows.append(_row(label, None, 0, seconds, error="kept no point"))
+            tick(1)
             continue
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
         rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,

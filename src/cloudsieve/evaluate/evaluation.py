@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import IncompatibleCloudsError
+from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
 from ..engine.runner import stage_bar
 from ..params import validate
@@ -117,7 +117,8 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
         if strict:
             raise IncompatibleCloudsError(f"{names[0]} vs {names[1]}: {p} (pass strict=False to compare anyway)",
                                           advice={"strict": False})
-        warnings.warn(p, UserWarning, stacklevel=4)  # the caller of evaluate() (or of compare())
+        # the caller of evaluate() (or of compare()); the command line ignores it: the log line says it
+        warnings.warn(p, IncompatibleCloudsWarning, stacklevel=4)
         msgs.append(p)
     for m in msgs:
         logger.warning(m)
@@ -202,6 +203,14 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
                           drop_invalid=drop_invalid, bars=bars)
 
 
+def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """(scales, offsets) of a LAS header (the grid its coordinates are stored on), else None."""
+    header = header or {}
+    if "point_format" not in header or not header.get("scales") or not header.get("offsets"):
+        return None
+    return np.asarray(header["scales"], dtype=np.float64), np.asarray(header["offsets"], dtype=np.float64)
+
+
 def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
                    tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
                    report_dir: str | None = None, error_points: int = 2_000_000,
@@ -242,7 +251,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
     t = time.perf_counter()
     with stage_bar(bars, "point errors", src.count, "pt") as bar:
         p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
-                         error_points=error_points if report_dir else 0,
+                         error_points=error_points if report_dir else 0, grid=las_grid(simp_header),
                          on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress))
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p

@@ -92,13 +92,26 @@ def _sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
     return np.sort(rng.choice(n, size=size, replace=False)).astype(np.int64)
 
 
-def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
+    """*xyz* as a LAS file of *grid* = (scales, offsets) stores and reads it back (None: unchanged).
+
+    The writer stores round((x - offset) / scale); laspy reads X * scale + offset.
+    """
+    if grid is None:
+        return xyz
+    scales, offsets = grid
+    return np.round((xyz - offsets) / scales) * scales + offsets
+
+
+def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
+                   grid: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Multiplicities of the simplified points *rows* found at distance 0 but not matched (copies).
 
     A simplified cloud holding a point c times is a subset only if the
     original holds it at least c times. Counts, for each distinct point among
     ``bpoints[rows]``, how often the simplified points and the original (one
-    streamed pass) hold it.
+    streamed pass; its points on *grid*, the simplified cloud's quantisation,
+    when given: :func:`quantise`) hold it.
 
     Returns
     -------
@@ -115,14 +128,15 @@ def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray) -> tuple[
     held = np.bincount(idx[hit], minlength=len(q)).astype(np.int64)
     orig = np.zeros(len(q), dtype=np.int64)
     for chunk in src.chunks():
-        hit, idx = index.lookup(chunk.xyz)
+        hit, idx = index.lookup(quantise(chunk.xyz, grid))
         orig += np.bincount(idx[hit], minlength=len(q))
     return q, held, orig
 
 
 def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
-                 error_points: int = 0, on_error_points=None, progress=None) -> dict:
+                 error_points: int = 0, on_error_points=None, progress=None,
+                 grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
     Parameters
@@ -152,6 +166,12 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         point order (used for the coloured error PLY).
     progress : callable, optional
         Called with the number of original points read, per chunk.
+    grid : (scales, offsets), optional
+        The quantisation of *simplified* (a LAS file's scales and offsets):
+        a simplified point not found exactly is still an original point if
+        it is one on this grid (an original point as a LAS file of this grid
+        stores it: a PLY or a LAS of another scale simplified to LAS), for
+        ``subset`` and ``not_in_original``; the distances stay measured.
 
     Returns
     -------
@@ -236,6 +256,12 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         bd[todo] = best
     far = todo[bd[todo] > 0]
     n_out, example = len(far), (f"e.g. {bpoints[far[0]].tolist()}, {bd[far[0]]:.6g} away" if len(far) else "")
+    if grid is not None and len(far):  # original points as the simplified cloud's LAS grid stores them
+        q, held, orig = _excess_copies(src, bpoints, far, grid)
+        excess = np.maximum(held - orig, 0)
+        n_out = int(excess.sum())
+        off = far[np.isin(far, np.flatnonzero(ExactIndex(q[excess > 0]).lookup(bpoints)[0]))] if n_out else far[:0]
+        example = f"e.g. {bpoints[off[0]].tolist()}, {bd[off[0]]:.6g} away" if len(off) else ""
     if len(far) < len(todo):  # exact copies held more often than one match each: count multiplicities
         q, held, orig = _excess_copies(src, bpoints, todo[bd[todo] == 0])
         excess = np.maximum(held - orig, 0)

@@ -226,6 +226,11 @@ class Writer:
         except BaseException:
             self._abort()
             raise
+        from .conversions import conversion_note  # once the subclass knows its fields (a LAS writer's mapping)
+
+        note = conversion_note(path, format, source_format, self.header, getattr(self, "_mapping", None))
+        if note:
+            logger.warning("%s", note)
 
     # subclass hooks ---------------------------------------------------------
     def _open(self) -> None:

@@ -25,7 +25,7 @@ from laspy.vlrs.vlrlist import VLRList
 
 from ..errors import CorruptInputError, InputFormatError
 from ..store.chunk import DEFAULT_CHUNK_SIZE
-from ._base import Reader, Writer
+from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
 from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
 
@@ -233,6 +233,7 @@ class LasWriter(Writer):
         rec = laspy.ScaleAwarePointRecord.zeros(0, header=header)
         self._packed = set(rec.array.dtype.names)
         self._las_names = set(header.point_format.dimension_names)
+        self._said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
 
     def _keep_extra_bytes_vlrs(self) -> None:
         """Write the source's extra-bytes VLRs verbatim.
@@ -271,7 +272,12 @@ class LasWriter(Writer):
             if how == "color8":
                 values = values.astype(np.uint16) * np.uint16(257)
             elif how == "unit16":
-                values = np.clip(np.round(np.nan_to_num(values.astype(np.float64)) * 65535.0), 0, 65535).astype(np.uint16)
+                values = np.nan_to_num(values.astype(np.float64))
+                if name not in self._said and len(values) and (values.min() < 0 or values.max() > 1):  # once a file
+                    self._said.add(name)
+                    logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self.path,
+                                   name, values.min(), values.max(), las_name)
+                values = np.clip(np.round(values * 65535.0), 0, 65535).astype(np.uint16)
             try:
                 if las_name in self._packed:
                     rec.array[las_name] = values

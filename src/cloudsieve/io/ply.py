@@ -280,6 +280,9 @@ class PlyWriter(Writer):
         lines = ["ply", "format binary_little_endian 1.0", "comment written by cloudsieve"]
         if self.source_format:
             lines.append(f"comment source format {self.source_format}")
+        if self.source_format == "ply":  # the source's comments and obj_info are kept
+            lines.extend(f"{key} {text}".encode("ascii", "replace").decode() for key, field in
+                         (("comment", "comments"), ("obj_info", "obj_info")) for text in self.header.get(field, []))
         self._count_line = len("\n".join(lines)) + 1
         lines.append("element vertex " + "0".ljust(_COUNT_WIDTH))
         lines.extend(f"property {_WRITE_TYPES[f[1]]} {f[0]}" for f in fields)

@@ -92,7 +92,8 @@ def export(
     overwrite : bool
         Replace an existing *dst*.
     progress : callable, optional
-        Called with the number of points processed after each chunk.
+        Called with the number of points written after each chunk (a task
+        path: once, with the points written).
     run : Runner, optional
         Runs a LAS/LAZ export as tasks (:func:`.export_las.export_las`: workers
         write parts, this process only concatenates bytes); None runs the
@@ -133,7 +134,7 @@ def export(
         from .tiles import export_tiles
 
         kept = export_tiles(store, dst, tile_size=tile_size, mask=mask, run=run, overwrite=overwrite)["points"]
-        update(store.count)
+        update(kept)
         _log(kept, store, dst)
         return dst
     fmt = detect_format(dst, format)
@@ -143,14 +144,14 @@ def export(
         from .copc import export_copc
 
         kept = export_copc(store, dst, mask=mask, run=run, overwrite=overwrite)["points"]
-        update(store.count)
+        update(kept)
         _log(kept, store, dst)
         return dst
     if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)) and local_path(dst) is not None:
         from .export_las import export_las
 
         kept = export_las(store, dst, fmt=fmt, mask=mask, run=run, counts=counts, overwrite=overwrite)
-        update(store.count)
+        update(kept)
         _log(kept, store, dst)
         return dst
     kept = 0
@@ -165,10 +166,10 @@ def export(
     ) as writer:
         # the next chunk is read and selected in a thread while this one is encoded (the codecs release the GIL)
         with closing(prefetch(_selected(store, take, chunk_size))) as chunks:
-            for n, chunk in chunks:
+            for _, chunk in chunks:
                 writer.write(chunk)
                 kept += len(chunk["xyz"])
-                update(n)
+                update(len(chunk["xyz"]))  # the points written, not read: a bar's total is the kept count
     _log(kept, store, dst)
     return dst
 
