@@ -100,7 +100,9 @@ def test_ctrl_c_says_how_to_resume_and_the_run_resumes(tmp_path: Path):
         deadline = time.monotonic() + 120
         while time.monotonic() < deadline and driver.poll() is None and not (store / "simplify").exists():
             time.sleep(0.05)
-        assert driver.poll() is None, "the run ended before it could be interrupted: make the input larger"
+        if driver.poll() is not None:
+            raise AssertionError(f"the run ended ({driver.returncode}) before it could be interrupted: "
+                                 f"{driver.stderr.read()[-2000:]}")
         os.kill(driver.pid, signal.SIGINT)
         _, err = driver.communicate(timeout=120)
     finally:
