@@ -2,10 +2,8 @@
 
 Each case runs ``cloudsieve`` in this process (``main(argv)``) with its
 output under an empty tmp folder, then checks the exit code, the whole of
-stderr, that the folder holds nothing new (no output, no ``*.cloudsieve.zarr``
-work store) and, for the checks that used to run the whole computation or
-wait for dask, that the failure came quickly (a generous bound: a behaviour
-check, not a benchmark).
+stderr, and that the folder holds nothing new (no output, no
+``*.cloudsieve.zarr`` work store: the refusal came before any work).
 """
 
 from __future__ import annotations
@@ -14,7 +12,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -22,16 +19,13 @@ from cloudsieve.cli import main
 from conftest import ROOT, shared_file
 
 WRITABLE = "las (.las), laz (.laz), copc (.copc.laz), ply (.ply), xyz (.xyz .txt .csv .pts)"
-FAST = 5.0  # seconds
 
 
 def run(argv, capsys):
-    """(exit code, stderr, seconds) of ``cloudsieve ARGV``."""
+    """(exit code, stderr) of ``cloudsieve ARGV``."""
     capsys.readouterr()
-    t0 = time.perf_counter()
     rc = main([str(a) for a in argv])
-    seconds = time.perf_counter() - t0
-    return rc, capsys.readouterr().err, seconds
+    return rc, capsys.readouterr().err
 
 
 def listing(folder):
@@ -45,11 +39,10 @@ def src():
 
 def test_missing_source(tmp_path, capsys):
     missing, out = tmp_path / "missing.laz", tmp_path / "out.laz"
-    rc, err, seconds = run(["simplify", missing, out, "--ratio", "0.5"], capsys)
+    rc, err = run(["simplify", missing, out, "--ratio", "0.5"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: {missing}: no such file\n"
     assert listing(tmp_path) == []
-    assert seconds < FAST
 
 
 @pytest.mark.parametrize("name, message", [
@@ -58,41 +51,37 @@ def test_missing_source(tmp_path, capsys):
 ])
 def test_destination_format_not_writable(tmp_path, capsys, src, name, message):
     out = tmp_path / name
-    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "sync"], capsys)
+    rc, err = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: {out}: {message}; formats that can be written: {WRITABLE}\n"
     assert listing(tmp_path) == []
-    assert seconds < FAST
 
 
 def test_destination_folder_is_a_file(tmp_path, capsys, src):
     afile = tmp_path / "afile"
     afile.write_bytes(b"")
     out, store = afile / "out.laz", tmp_path / "elsewhere.zarr"
-    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
+    rc, err = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: cannot write {out}: {afile} is not a folder\n"
     assert listing(tmp_path) == ["afile"]
-    assert seconds < FAST
 
 
 def test_destination_folder_missing(tmp_path, capsys, src):
     out, store = tmp_path / "nowhere" / "out.laz", tmp_path / "elsewhere.zarr"
-    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
+    rc, err = run(["simplify", src, out, "--ratio", "0.5", "--store", store, "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: cannot write {out}: folder {out.parent} does not exist\n"
     assert listing(tmp_path) == []
-    assert seconds < FAST
 
 
 def test_scheduler_unreachable(tmp_path, capsys, src):
     out = tmp_path / "out.laz"
-    rc, err, seconds = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "tcp://127.0.0.1:1"], capsys)
+    rc, err = run(["simplify", src, out, "--ratio", "0.5", "--scheduler", "tcp://127.0.0.1:1"], capsys)
     assert rc == 2
     assert err == ("cloudsieve simplify: error: cannot reach the dask scheduler at tcp://127.0.0.1:1: "
                    "Connection refused (connect timeout 5 s)\n")
     assert listing(tmp_path) == []
-    assert seconds < FAST + 5.0  # at most the connect timeout (refused at once here)
 
 
 @pytest.mark.parametrize("option, value, message", [
@@ -102,11 +91,10 @@ def test_scheduler_unreachable(tmp_path, capsys, src):
 ])
 def test_target_out_of_range(tmp_path, capsys, src, option, value, message):
     out = tmp_path / "out.laz"
-    rc, err, seconds = run(["simplify", src, out, option, value, "--scheduler", "sync"], capsys)
+    rc, err = run(["simplify", src, out, option, value, "--scheduler", "sync"], capsys)
     assert rc == 2
     assert err == f"cloudsieve simplify: error: {message}\n"
     assert listing(tmp_path) == []
-    assert seconds < FAST
 
 
 @pytest.mark.parametrize("option, value, message", [
@@ -114,7 +102,7 @@ def test_target_out_of_range(tmp_path, capsys, src, option, value, message):
     ("--count", "0", "count must be an integer >= 1, got 0"),
 ])
 def test_compare_target_out_of_range(tmp_path, capsys, src, option, value, message):
-    rc, err, _ = run(["compare", src, option, value, "--report", tmp_path / "cmp", "--no-progress"], capsys)
+    rc, err = run(["compare", src, option, value, "--report", tmp_path / "cmp", "--no-progress"], capsys)
     assert rc == 2
     assert err == f"cloudsieve compare: error: {message}\n"
     assert listing(tmp_path) == []
@@ -129,11 +117,10 @@ def test_pipeline_option_not_a_bool(tmp_path, capsys, src):
     ]}
     path = tmp_path / "p.json"
     path.write_text(json.dumps(doc))
-    rc, err, seconds = run(["run", path], capsys)
+    rc, err = run(["run", path], capsys)
     assert rc == 2
     assert err == f"cloudsieve run: error: {path}: stage 2 (filters.entropy): halo_context must be true or false, got 'yes'\n"
     assert listing(tmp_path) == ["p.json"]
-    assert seconds < FAST
 
 
 def test_missing_source_as_a_command_no_traceback(tmp_path):
