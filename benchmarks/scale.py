@@ -116,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tile-size", type=float, default=2000.0, help="edge of the output tiles (default 2000)")
     p.add_argument("--workdir", default="/tmp/cloudsieve-bench-scale")
     p.add_argument("--skip", default="", help="comma list of sections to skip: io,share,tiles")
+    p.add_argument("--outputs", default="laz,tiles,copc", help="outputs of the tiled delivery (default laz,tiles,copc)")
     args = p.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     work = Path(args.workdir)
@@ -156,11 +157,11 @@ def main(argv: list[str] | None = None) -> int:
               f"2 workers; load before {load()})\n")
         print("| output | wall s | points/s | stages s | CPU driver / workers s | driver peak RSS | tree peak RSS |")
         print("|---|---:|---:|---|---|---:|---:|")
-        outs = [("one LAZ", [str(work / "big.laz")]),
-                (f"tiles of {args.tile_size:g} + index.vpc", [str(work / "big-tiles"), "--tile-size",
-                                                                str(args.tile_size)]),
-                ("one COPC", [str(work / "big.copc.laz")])]
-        for name, dst in outs:
+        outs = {"laz": ("one LAZ", [str(work / "big.laz")]),
+                "tiles": (f"tiles of {args.tile_size:g} + index.vpc", [str(work / "big-tiles"), "--tile-size",
+                                                                         str(args.tile_size)]),
+                "copc": ("one COPC", [str(work / "big.copc.laz")])}
+        for name, dst in (outs[k] for k in args.outputs.split(",") if k):
             try:
                 s = cli([str(folder), *dst, "--ratio", "0.5", "--workers", "2"])
             except RuntimeError as exc:
