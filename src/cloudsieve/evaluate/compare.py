@@ -6,6 +6,7 @@ billion points), to the same output count, evaluates each one with
 :func:`cloudsieve.evaluate` (point level exact, surface level on tiles, the
 original's meshes built once and shared), and writes one table: method,
 kept, time, point mean/RMS/max (% of the diagonal, original -> simplified),
+D1/D2 PSNR (original -> simplified, dB) and the Chamfer distance,
 Metro mean/max/RMS (% of the diagonal, the larger of both directions),
 compactness >= 0.6 (share of the simplified mesh's triangles).
 
@@ -32,7 +33,7 @@ from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
 from .evaluation import run_evaluation
-from .report import border_per_face, fmt, holes_note, plot_compactness, plot_point_errors, write_json
+from .report import border_per_face, db, fmt, holes_note, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +49,9 @@ def _row(name: str, report: dict | None, kept: int, seconds: float, error: str |
         return row
     p, s = report["point"], report.get("surface")
     row.update({"point_mean_pct": p["forward"]["mean_pct"], "point_rms_pct": p["forward"]["rms_pct"],
-                "point_max_pct": p["forward"]["max_pct"], "hausdorff_pct": p["hausdorff_pct"]})
+                "point_max_pct": p["forward"]["max_pct"], "hausdorff_pct": p["hausdorff_pct"],
+                "d1_psnr": report["psnr"]["d1"]["forward"], "d2_psnr": report["psnr"]["d2"]["forward"],
+                "chamfer": report["chamfer"]["value"]})
     if s:
         row.update({"metro_mean_pct": s["mean_pct"], "metro_max_pct": s["max_pct"], "metro_rms_pct": s["rms_pct"],
                     "compact_share": s["compact_share"], "compact": s["compact"], "vertices": s["vertices"],
@@ -66,14 +69,19 @@ def compare_markdown(result: dict) -> str:
              "the larger of both directions, % of the diagonal. c ≥ 0.6: share of the simplified mesh's triangles "
              f"(original mesh: {_share(result.get('original_compact_share'))}; border edges per face: "
              f"{border_per_face(result.get('original_mesh') or {})}).", "",
-             "| method | kept | time (s) | point mean % | point RMS % | point max % | Metro mean % | Metro max % | "
-             "Metro RMS % | c ≥ 0.6 |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             f"D1/D2 PSNR: MPEG pc_error's, original → simplified, dB, peak {fmt(result.get('psnr_peak'))} "
+             f"({'the bbox diagonal' if result.get('psnr_peak_from') == 'diagonal' else 'given'}). Chamfer: mean "
+             "squared nearest-neighbour distance both ways, summed (squared cloud units).", "",
+             "| method | kept | time (s) | point mean % | point RMS % | point max % | D1 PSNR | D2 PSNR | Chamfer | "
+             "Metro mean % | Metro max % | Metro RMS % | c ≥ 0.6 |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:
         if "error" in r:
-            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | |")
+            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | | | | |")
             continue
         lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
-                     f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {fmt(r.get('metro_mean_pct'))} | "
+                     f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {db(r['d1_psnr'])} | "
+                     f"{db(r['d2_psnr'])} | {fmt(r['chamfer'])} | {fmt(r.get('metro_mean_pct'))} | "
                      f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {_share(r.get('compact_share'))} |")
     note = holes_note(result.get("original_mesh") or {})
     lines += ["", f"> {note}", ""] if note else [""]
@@ -109,7 +117,8 @@ def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
 def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] | None = None,
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
-            metro_samples: int | None = None, progress=None, drop_invalid: bool = False, **entropy_options) -> dict:
+            metro_samples: int | None = None, psnr_peak: float | None = None, progress=None,
+            drop_invalid: bool = False, **entropy_options) -> dict:
     """Run *methods* on *source* to the same count, evaluate each, one table.
 
     Parameters
@@ -133,7 +142,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     report_dir : path, optional
         Writes report.md, report.json, compactness.png, point_errors.png and
         one evaluation report per method in a sub-folder.
-    surface, tiles, tile_points, metro_samples :
+    surface, tiles, tile_points, metro_samples, psnr_peak :
         As in :func:`cloudsieve.evaluate`.
     seed : int
         Seeds every method and the evaluation.
@@ -154,7 +163,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     dict
         ``source``, ``points``, ``diagonal``, ``count``, ``rule``, ``seed``,
         ``rows`` (one per method: ``method, kept, time, point_mean_pct,
-        point_rms_pct, point_max_pct, hausdorff_pct, metro_mean_pct,
+        point_rms_pct, point_max_pct, hausdorff_pct, d1_psnr, d2_psnr`` (forward,
+        dB), ``chamfer, metro_mean_pct,
         metro_max_pct, metro_rms_pct, compact_share, compact, vertices,
         faces``, or ``error``), ``original_compact_share``, ``original_mesh``
         (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
@@ -163,7 +173,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     opts = validate("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, "drop_invalid": drop_invalid, **entropy_options,
+        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid, **entropy_options,
     })
     if report_dir is not None:
         check_folder(report_dir)
@@ -201,6 +211,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
         rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
                              seed=seed, metro_samples=metro_samples, report_dir=sub, surface_cache=cache,
+                             psnr_peak=psnr_peak,
                              names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time
@@ -218,7 +229,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         raise EmptyInputError(f"every method failed on {name}: " + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
     any_rep = next(iter(reports.values()))
     result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": ",".join(rules),
-              "seed": seed, "ratio": ratio, "rows": rows,
+              "seed": seed, "ratio": ratio, "psnr_peak": any_rep["psnr"]["peak"],
+              "psnr_peak_from": any_rep["psnr"]["peak_from"], "rows": rows,
               "original_compact_share": (any_rep.get("surface") or {}).get("original", {}).get("compact_share"),
               "original_mesh": {k: v for k, v in ((any_rep.get("surface") or {}).get("original") or {}).items()
                                 if k in ("vertices", "faces", "border_edges")},
