@@ -120,3 +120,26 @@ def test_the_check_sees_a_javascript_error(bunny_report, tmp_path):
     dom = _chromium(tmp_path, broken.as_uri(), "--dump-dom", "--virtual-time-budget=5000")
     assert _js_errors(dom.stderr), dom.stderr[-2000:]
     assert "data-rendered" not in re.search(r"<body[^>]*>", dom.stdout).group(0)
+
+
+@needs_chromium
+def test_compare_report_shows_the_methods_side_by_side(tmp_path):
+    from cloudsieve.evaluate import compare
+
+    xyz, _ = read_cloud(shared_file("bun_zipper.ply"))
+    res = compare(xyz[::3], methods=["random", "voxel"], ratio=0.2, surface=False, report_dir=tmp_path / "cmp")
+    page_path = Path(res["files"]["html"])
+    text = page_path.read_text()
+    assert text.count("<canvas id=") == 4 and "coloured by the error to voxel" in text and "voxel: kept points" in text
+    assert "<th>D1 PSNR</th>" in text
+    dom = _chromium(tmp_path, page_path.as_uri(), "--dump-dom", "--virtual-time-budget=5000")
+    body = re.search(r"<body[^>]*>", dom.stdout).group(0)
+    assert re.search(r'data-rendered="(webgl|2d)"', body) and "data-errors" not in body, body
+    assert _js_errors(dom.stderr) == []
+
+
+def test_a_page_at_the_view_limit_stays_small():
+    rng = np.random.default_rng(1)
+    pts = rng.random((VIEW_POINTS, 3)) * [100, 100, 5] + 4e5  # survey-like coordinates
+    text = page("t", "# t\n", original=pts, errors={"s": rng.random(VIEW_POINTS)}, kept={"s": pts})
+    assert len(text) < 3_600_000  # 2 x 200 k points x 6 bytes + 200 k error bytes, base64: 3.5 MB

@@ -27,6 +27,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..params import COMPARE_METHODS, validate
@@ -88,6 +90,29 @@ def compare_markdown(result: dict) -> str:
     return "\n".join(lines)
 
 
+def _write_html(path: Path, xyz: np.ndarray, kept: dict[str, np.ndarray], md: str, files: dict, seed: int) -> str:
+    """compare's report.html: the methods side by side, each its error view and its kept points.
+
+    The original's view sample is the same for every method (one position
+    array); each method's kept points are a sample of at most
+    ``VIEW_POINTS / number of methods`` (at least 20,000) so the page stays small.
+    """
+    from scipy.spatial import cKDTree
+
+    from .html import VIEW_POINTS, view_sample, write_html
+
+    shown = xyz[view_sample(len(xyz), seed=seed)]
+    per = max(VIEW_POINTS // max(len(kept), 1), 20_000)
+    errors, points = {}, {}
+    for label, idx in kept.items():
+        errors[label] = cKDTree(xyz[idx]).query(shown, k=1, workers=-1)[0]
+        points[label] = xyz[idx][view_sample(len(idx), size=per, seed=seed)]
+    images = {k: v for k, v in files.items() if v.endswith(".png")}
+    bounds = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
+    return write_html(path, "cloudsieve compare", md, images=images, original=shown, errors=errors, kept=points,
+                      bounds=bounds)
+
+
 def _share(v: Any) -> str:
     return "-" if v is None else f"{100.0 * float(v):.2f}%"
 
@@ -140,7 +165,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         and by ``target``, ``coverage`` and ``eliminate`` unless no entropy
         method runs).
     report_dir : path, optional
-        Writes report.md, report.json, compactness.png, point_errors.png and
+        Writes report.md, report.html, report.json, compactness.png, point_errors.png and
         one evaluation report per method in a sub-folder.
     surface, tiles, tile_points, metro_samples, psnr_peak :
         As in :func:`cloudsieve.evaluate`.
@@ -190,7 +215,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     runs = compare_runs(methods, rules)
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
-    rows, reports, hists, points_h = [], {}, {}, {}
+    rows, reports, hists, points_h, kept = [], {}, {}, {}, {}
     cache: dict = {}
     for label, m, r in runs:
         t = time.perf_counter()
@@ -217,6 +242,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         if sub is not None:  # rewrite with the method's name and time
             write_json(rep, sub / "report.json")
         reports[label] = rep
+        kept[label] = idx
         rows.append(_row(label, rep, int(len(idx)), seconds))
         if rep.get("surface"):
             hists[label] = rep["surface"]["simplified"]["compactness_hist"]
@@ -248,6 +274,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
                                                           title="Point errors (original → simplified) by method")
         (out_dir / "report.md").write_text(result["markdown"])
         files["markdown"] = str(out_dir / "report.md")
+        files["html"] = _write_html(out_dir / "report.html", xyz, kept, result["markdown"], files, seed)
         files["json"] = str(out_dir / "report.json")
         result["files"] = files
         write_json({k: v for k, v in result.items() if k != "reports"}, out_dir / "report.json")

@@ -154,16 +154,19 @@ def page(title: str, md: str, *, images: dict[str, str] | None = None, original:
         shown = [np.asarray(e, dtype=np.float64) for e in errors.values() if len(e)]
         top = max((float(np.percentile(e, TOP_PERCENTILE)) for e in shown), default=0.0)
         cells = []
-        for i, (label, err) in enumerate(errors.items()):
-            t = np.clip(np.asarray(err, dtype=np.float64) / top, 0, 1) if top > 0 else np.zeros(len(err))
-            values.append(_b64(np.rint(t * 255).astype(np.uint8)))
-            views.append({"canvas": f"v{len(views)}", "cloud": 0, "values": i})
-            cells.append(f"original ({len(original):,} points shown), coloured by the error to {label}")
-        for label, pts in kept.items():
-            clouds.append({"n": len(pts), "xyz": _b64(_quantise(pts, lo, hi))})
-            views.append({"canvas": f"v{len(views)}", "cloud": len(clouds) - 1, "values": None,
-                          "colour": [0.1, 0.3, 0.6]})
-            cells.append(f"{label}: kept points ({len(pts):,} shown)")
+        for label in dict.fromkeys([*errors, *kept]):  # per label (method): its error view, then its kept points
+            if label in errors:
+                err = np.asarray(errors[label], dtype=np.float64)
+                t = np.clip(err / top, 0, 1) if top > 0 else np.zeros(len(err))
+                values.append(_b64(np.rint(t * 255).astype(np.uint8)))
+                views.append({"canvas": f"v{len(views)}", "cloud": 0, "values": len(values) - 1})
+                cells.append(f"original ({len(original):,} points shown), coloured by the error to {label}")
+            if label in kept:
+                pts = kept[label]
+                clouds.append({"n": len(pts), "xyz": _b64(_quantise(pts, lo, hi))})
+                views.append({"canvas": f"v{len(views)}", "cloud": len(clouds) - 1, "values": None,
+                              "colour": [0.1, 0.3, 0.6]})
+                cells.append(f"{label}: kept points ({len(pts):,} shown)")
         data = {"bounds": [lo.tolist(), hi.tolist()], "clouds": clouds, "values": values, "views": views}
         parts.append("<h2>3D views</h2><p>Drag to rotate, wheel to zoom, shift-drag (or right-drag) to pan, "
                      "double click to reset; every view follows the same camera. Colour: the distance from each "

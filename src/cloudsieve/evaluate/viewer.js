@@ -9,7 +9,7 @@
  * Every view shares one camera: drag rotates, the wheel zooms, shift-drag or right-drag pans,
  * a double click resets. No network access, no dependency.
  * Status for tests: document.body.dataset.rendered = "webgl" | "2d" once every view is drawn;
- * document.body.dataset.errors counts uncaught errors.
+ * document.body.dataset.renderMs: milliseconds from navigation to the first frame; document.body.dataset.errors counts uncaught errors.
  */
 (function () {
   "use strict";
@@ -179,6 +179,7 @@
     }
     redraw();
     document.body.dataset.rendered = kind;
+    document.body.dataset.renderMs = String(Math.round(performance.now()));
   }
 
   if (document.readyState === "loading") document.addEventListener("DOMContentLoaded", start);
