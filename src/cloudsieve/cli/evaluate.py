@@ -64,6 +64,10 @@ def run(args: argparse.Namespace) -> int:
     if s:
         print(f"metro (% diag)  : mean {fmt(s['mean_pct'])}  max {fmt(s['max_pct'])}  rms {fmt(s['rms_pct'])}  "
               f"[{len(s['tiles'])} tile(s)]")
+        on = s.get("on_surface")
+        if on:
+            print(f"metro on surface: mean {fmt(on['mean_pct'])}  max {fmt(on['max_pct'])}  rms {fmt(on['rms_pct'])}  "
+                  f"({100 * on['excluded_share']:.2f}% of the backward samples face a hole of the original's mesh)")
         print(f"compactness>=0.6: original {100 * s['original']['compact_share']:.2f}%  "
               f"simplified {100 * s['simplified']['compact_share']:.2f}%  "
               f"(simplified mesh {fmt(s['vertices'])} vertices, {fmt(s['faces'])} faces)")

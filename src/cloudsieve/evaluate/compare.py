@@ -58,6 +58,8 @@ def _row(name: str, report: dict | None, kept: int, seconds: float, error: str |
         row.update({"metro_mean_pct": s["mean_pct"], "metro_max_pct": s["max_pct"], "metro_rms_pct": s["rms_pct"],
                     "compact_share": s["compact_share"], "compact": s["compact"], "vertices": s["vertices"],
                     "faces": s["faces"]})
+        on = s.get("on_surface") or {}
+        row.update({"metro_surface_mean_pct": on.get("mean_pct"), "metro_surface_excluded": on.get("excluded_share")})
     return row
 
 
@@ -68,23 +70,24 @@ def compare_markdown(result: dict) -> str:
              f"{fmt(n)} points, bbox diagonal {fmt(result['diagonal'])}; target {fmt(result['count'])} kept "
              f"({100.0 * result['count'] / n:.1f}%); rule `{result['rule']}`; seed {result['seed']}.", "",
              "Point errors: original → simplified, exact, % of the bbox diagonal. Metro: ball-pivoting meshes, "
-             "the larger of both directions, % of the diagonal. c ≥ 0.6: share of the simplified mesh's triangles "
+             "the larger of both directions, % of the diagonal; on surface: leaving out the samples that face a hole "
+             "of the original's mesh. c ≥ 0.6: share of the simplified mesh's triangles "
              f"(original mesh: {_share(result.get('original_compact_share'))}; border edges per face: "
              f"{border_per_face(result.get('original_mesh') or {})}).", "",
              f"D1/D2 PSNR: MPEG pc_error's, original → simplified, dB, peak {fmt(result.get('psnr_peak'))} "
              f"({'the bbox diagonal' if result.get('psnr_peak_from') == 'diagonal' else 'given'}). Chamfer: mean "
              "squared nearest-neighbour distance both ways, summed (squared cloud units).", "",
              "| method | kept | time (s) | point mean % | point RMS % | point max % | D1 PSNR | D2 PSNR | Chamfer | "
-             "Metro mean % | Metro max % | Metro RMS % | c ≥ 0.6 |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "Metro mean % | Metro max % | Metro RMS % | Metro mean % on surface | c ≥ 0.6 |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:
         if "error" in r:
-            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | | | | |")
+            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | | | | | |")
             continue
         lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
                      f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {db(r['d1_psnr'])} | "
                      f"{db(r['d2_psnr'])} | {fmt(r['chamfer'])} | {fmt(r.get('metro_mean_pct'))} | "
-                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {_share(r.get('compact_share'))} |")
+                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {fmt(r.get('metro_surface_mean_pct'))} | {_share(r.get('compact_share'))} |")
     note = holes_note(result.get("original_mesh") or {})
     lines += ["", f"> {note}", ""] if note else [""]
     return "\n".join(lines)
@@ -190,7 +193,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         ``rows`` (one per method: ``method, kept, time, point_mean_pct,
         point_rms_pct, point_max_pct, hausdorff_pct, d1_psnr, d2_psnr`` (forward,
         dB), ``chamfer, metro_mean_pct,
-        metro_max_pct, metro_rms_pct, compact_share, compact, vertices,
+        metro_max_pct, metro_rms_pct, metro_surface_mean_pct,
+        metro_surface_excluded, compact_share, compact, vertices,
         faces``, or ``error``), ``original_compact_share``, ``original_mesh``
         (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
         full evaluation report of each method) and ``markdown``.

@@ -144,6 +144,16 @@ def markdown(report: dict) -> str:
                 m = sf[mesh]
                 lines.append(f"| {mesh} | {label} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | "
                              f"{fmt(d['max_pct'])} | {fmt(d['rms_pct'])} |")
+        on = sf.get("on_surface") or {}
+        if on.get("backward"):
+            d, m = on["backward"], sf["simplified"]
+            lines.append(f"| simplified | simplified mesh → original mesh, where the original has surface | "
+                         f"{fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | {fmt(d['max_pct'])} | "
+                         f"{fmt(d['rms_pct'])} |")
+            lines += ["", f"Where the original has surface: {_pct(on['excluded_share'])} of the backward samples "
+                      "left out (their closest point on the original's mesh lies on its border: a hole, or the "
+                      f"tile's rim); Metro there (the larger direction): mean {fmt(on['mean_pct'])}%, max "
+                      f"{fmt(on['max_pct'])}%, RMS {fmt(on['rms_pct'])}%."]
         lines += ["", "| mesh | vertices | faces | border edges per face | compactness ≥ 0.6 | mean compactness | "
                   "compact (≥ 50%) |", "|---|---:|---:|---:|---:|---:|---|"]
         for mesh in ("original", "simplified"):

@@ -137,6 +137,29 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
     return rec, co, cs
 
 
+def _on_surface(recs: list[dict], forward: dict | None, diagonal: float) -> dict | None:
+    """Metro where the original's mesh has surface: the backward samples facing a hole (or a tile's rim) left out."""
+    rs = [r["backward"]["on_surface"] for r in recs if "on_surface" in r.get("backward", {})]
+    if not rs:
+        return None
+    n = np.array([r["samples"] for r in rs], dtype=np.float64)
+    excluded = int(sum(r["excluded"] for r in rs))
+    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
+    out: dict[str, Any] = {"excluded": excluded, "excluded_share": excluded / max(n.sum() + excluded, 1.0),
+                           "backward": None}
+    if n.sum() > 0:
+        keep = n > 0
+        mean = float((n[keep] * [r["mean"] for r, k in zip(rs, keep) if k]).sum() / n.sum())
+        rms = float(math.sqrt((n[keep] * np.square([r["rms"] for r, k in zip(rs, keep) if k])).sum() / n.sum()))
+        mx = float(max(r["max"] for r, k in zip(rs, keep) if k))
+        out["backward"] = {"mean": mean, "rms": rms, "max": mx, "mean_pct": mean * scale, "rms_pct": rms * scale,
+                           "max_pct": mx * scale, "samples": int(n.sum())}
+    for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
+        vals = [d[key] for d in (forward, out["backward"]) if d is not None]
+        out[key] = max(vals) if vals else float("nan")
+    return out
+
+
 def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
     rs = [r[name] for r in recs if name in r]
     if not rs:
@@ -186,7 +209,12 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         ``backward``, ``original``/``simplified`` mesh figures), aggregated
         ``forward`` and ``backward`` (mean and RMS weighted by samples, max
         over tiles), ``mean, rms, max`` and their ``_pct`` (the larger of the
-        two directions, Metro's symmetric convention), ``original`` and
+        two directions, Metro's symmetric convention), ``on_surface`` (Metro
+        where the original's mesh has surface: ``backward`` over the samples
+        whose closest point on the original's mesh is not on its border,
+        ``excluded`` and ``excluded_share`` of the backward samples, and
+        ``mean, rms, max`` and their ``_pct``, the larger of ``forward`` and
+        that ``backward``), ``original`` and
         ``simplified`` mesh totals (``vertices, border_edges, faces,
         compact_share, compact, compactness_mean, compactness_hist``;
         border edges: :func:`.mesh.border_edges`), and for the simplified
@@ -232,6 +260,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
         vals = [d[key] for d in (f, b) if d is not None]
         out[key] = max(vals) if vals else float("nan")
+    out["on_surface"] = _on_surface(recs, f, diagonal)
     for name, cs_list, recs_key in (("original", cos, "original"), ("simplified", css, "simplified")):
         allc = np.concatenate(cs_list) if cs_list else np.zeros(0)
         out[name] = {"vertices": int(sum(r[recs_key]["vertices"] for r in recs)),
