@@ -185,6 +185,8 @@ _OPTIONS = [
            low=1, metavar="N"),
     Option("psnr_peak", FLOAT, None, "peak p of the D1/D2 PSNR, 10*log10(3p^2/MSE) dB (default: the original's "
            "bounding-box diagonal)", low=0.0, low_open=True, metavar="P"),
+    Option("reference_mesh", PATH, None, "a mesh of the scanned surface (PLY/OBJ/STL/OFF): the simplified and the "
+           "original's tile meshes are also compared with it by Metro", metavar="FILE"),
     Option("methods", CHOICES, COMPARE_METHODS, "methods to compare, comma-separated", choices=COMPARE_METHODS,
            metavar="LIST"),
     # -- ingest / export
@@ -226,7 +228,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
-        "error_points", "metro_samples", "psnr_peak", "drop_invalid"),
+        "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
         "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",

@@ -68,6 +68,11 @@ def run(args: argparse.Namespace) -> int:
         if on:
             print(f"metro on surface: mean {fmt(on['mean_pct'])}  max {fmt(on['max_pct'])}  rms {fmt(on['rms_pct'])}  "
                   f"({100 * on['excluded_share']:.2f}% of the backward samples face a hole of the original's mesh)")
+        ref = (s.get("reference") or {}).get("simplified") or {}
+        if ref.get("forward"):
+            print(f"metro vs mesh   : mean {fmt(ref['mean_pct'])}  max {fmt(ref['max_pct'])}  rms "
+                  f"{fmt(ref['rms_pct'])}  (simplified mesh vs the reference mesh; original mesh: mean "
+                  f"{fmt(s['reference']['original'].get('mean_pct'))})")
         print(f"compactness>=0.6: original {100 * s['original']['compact_share']:.2f}%  "
               f"simplified {100 * s['simplified']['compact_share']:.2f}%  "
               f"(simplified mesh {fmt(s['vertices'])} vertices, {fmt(s['faces'])} faces)")

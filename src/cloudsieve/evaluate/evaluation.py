@@ -54,13 +54,14 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import IncompatibleCloudsError
+from ..errors import IncompatibleCloudsError, InvalidParameterError
 from ..io import check_folder
 from ..engine.runner import stage_bar
 from ..params import validate
 from ..progress import both
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
+from .mesh import load_mesh
 from .planes import field_figures
 from .points import point_errors
 from .report import write_report
@@ -139,7 +140,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
              metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False,
-             bars=None, psnr_peak: float | None = None) -> dict:
+             bars=None, psnr_peak: float | None = None, reference_mesh: str | None = None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -176,6 +177,10 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Run the point-level chunk tasks on this dask cluster.
     psnr_peak : float, optional
         Peak p of the D1/D2 PSNR (default: the original's bounding-box diagonal).
+    reference_mesh : path, optional
+        A mesh of the scanned surface (a file pymeshlab reads): the surface
+        level also compares the simplified and the original's tile meshes
+        with it by Metro (``report["surface"]["reference"]``). Needs *surface*.
     progress : callable, optional
         Called with the number of original points done (point level).
     drop_invalid : bool
@@ -206,14 +211,17 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
-        "psnr_peak": psnr_peak,
+        "psnr_peak": psnr_peak, "reference_mesh": reference_mesh,
     })
+    if reference_mesh is not None and not surface:
+        raise InvalidParameterError(f"reference_mesh ({reference_mesh}) needs the surface level, which "
+                                    "surface=False (--no-surface) turns off")
     if report_dir is not None:
         check_folder(report_dir)
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
                           chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
-                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak)
+                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh)
 
 
 def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
@@ -221,7 +229,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
                    report_dir: str | None = None, error_points: int = 2_000_000,
                    chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
                    progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
-                   drop_invalid: bool = False, bars=None, psnr_peak: float | None = None) -> dict:
+                   drop_invalid: bool = False, bars=None, psnr_peak: float | None = None,
+                   reference_mesh: str | None = None) -> dict:
     """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
 
     Parameters
@@ -236,6 +245,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         simplified clouds of one original).
     """
     t0 = time.perf_counter()
+    reference = load_mesh(reference_mesh) if reference_mesh is not None and surface else None
     src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=drop_invalid)
     warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
@@ -249,7 +259,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         "simplified": {"name": str(simp_name), "count": int(len(simp)), "crs": (simp_header or {}).get("crs")},
         "parameters": {"sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
                        "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples,
-                       "psnr_peak": psnr_peak},
+                       "psnr_peak": psnr_peak, "reference_mesh": reference_mesh},
         "warnings": list(warn),
         "timing": {},
     }
@@ -272,7 +282,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
             report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
                                                diagonal=p["diagonal"], samples=metro_samples,
-                                               cache=surface_cache, progress=bar)
+                                               cache=surface_cache, progress=bar, reference=reference)
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:

@@ -51,6 +51,8 @@ __all__ = [
     "ball_pivoting",
     "metro",
     "on_border",
+    "load_mesh",
+    "crop_mesh",
 ]
 
 COMPACT_THRESHOLD = 0.6
@@ -173,6 +175,45 @@ def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals:
             ms.generate_surface_reconstruction_ball_pivoting(ballradius=pml.PureValue(mult * r))
     m = ms.current_mesh()
     return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
+
+
+def load_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh from a file pymeshlab reads (PLY, OBJ, STL, OFF, ...): ``(vertices (v, 3), faces (f, 3))``.
+
+    Raises
+    ------
+    InputNotFoundError
+        No such file.
+    InputFormatError
+        The file holds no triangle, or pymeshlab cannot read it.
+    """
+    import os
+
+    from ..errors import InputFormatError, InputNotFoundError
+
+    if not os.path.isfile(path):
+        raise InputNotFoundError(f"reference mesh not found: {path}")
+    pml = _pymeshlab()
+    ms = pml.MeshSet()
+    try:
+        ms.load_new_mesh(str(path))
+    except pml.PyMeshLabException as exc:
+        raise InputFormatError(f"cannot read the reference mesh {path}: {exc}") from None
+    m = ms.current_mesh()
+    if m.face_number() == 0:
+        raise InputFormatError(f"the reference mesh {path} has no triangle ({m.vertex_number()} vertices)")
+    return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
+
+
+def crop_mesh(mesh: tuple[np.ndarray, np.ndarray], centre, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of *mesh* whose three vertices lie within *radius* of *centre* (vertices renumbered)."""
+    v, f = mesh
+    inside = np.linalg.norm(v - np.asarray(centre, dtype=np.float64), axis=1) <= radius
+    f = f[inside[f].all(axis=1)]
+    used = np.unique(f)
+    new = np.full(len(v), -1, np.int64)
+    new[used] = np.arange(len(used))
+    return v[used], new[f].astype(np.int32)
 
 
 def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float, save: bool = False) -> dict:

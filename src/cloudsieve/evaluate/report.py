@@ -160,6 +160,17 @@ def markdown(report: dict) -> str:
             m = sf[mesh]
             lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {border_per_face(m)} | "
                          f"{_pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+        ref = sf.get("reference")
+        if ref:
+            lines += ["", f"Against the reference mesh ({fmt(ref['faces'])} faces; Metro, % of the diagonal, the "
+                      "larger of both directions; forward: samples on the reference):", "",
+                      "| mesh | mean % | max % | RMS % | forward mean % | backward mean % |",
+                      "|---|---:|---:|---:|---:|---:|"]
+            for mesh in ("original", "simplified"):
+                d = ref.get(mesh) or {}
+                if d.get("forward"):
+                    lines.append(f"| {mesh} | {fmt(d['mean_pct'])} | {fmt(d['max_pct'])} | {fmt(d['rms_pct'])} | "
+                                 f"{fmt(d['forward']['mean_pct'])} | {fmt(d['backward']['mean_pct'])} |")
         if holes_note(sf["original"]):
             lines += ["", f"> {holes_note(sf['original'])}"]
         if len(sf["tiles"]) > 1:
