@@ -245,9 +245,9 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         simplified clouds of one original).
     """
     t0 = time.perf_counter()
-    reference = load_mesh(reference_mesh) if reference_mesh is not None and surface else None
     src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=drop_invalid)
+    reference = load_mesh(reference_mesh) if reference_mesh is not None and surface else None
     warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
                             names=(str(src.name), str(simp_name)), strict=strict)
     if names is not None:
