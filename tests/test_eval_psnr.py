@@ -157,3 +157,12 @@ def test_cli_evaluate_prints_and_writes_the_figures(tmp_path, capsys):
     assert f"D1 PSNR (dB)    : forward {rep['psnr']['d1']['forward']:.2f}  backward ∞" in text
     md = (out / "report.md").read_text()
     assert "## Field figures (MPEG pc_error D1/D2 PSNR, Chamfer)" in md and "| D2 |" in md
+
+
+def test_sampled_psnr_is_near_the_exact_one():
+    a = _surface(20_000, 8)
+    b = a[::4] + np.random.default_rng(2).normal(scale=0.002, size=(5000, 3))
+    exact = evaluate(a, b, surface=False)["psnr"]
+    sampled = evaluate(a, b, surface=False, sample=5000)["psnr"]
+    for metric in ("d1", "d2"):
+        assert sampled[metric]["symmetric"] == pytest.approx(exact[metric]["symmetric"], abs=0.3)
