@@ -143,3 +143,33 @@ def test_a_page_at_the_view_limit_stays_small():
     pts = rng.random((VIEW_POINTS, 3)) * [100, 100, 5] + 4e5  # survey-like coordinates
     text = page("t", "# t\n", original=pts, errors={"s": rng.random(VIEW_POINTS)}, kept={"s": pts})
     assert len(text) < 3_600_000  # 2 x 200 k points x 6 bytes + 200 k error bytes, base64: 3.5 MB
+
+
+_INTERACT = """<script>
+window.addEventListener("load", function () {
+  var c = document.getElementById("v0"), before = c.toDataURL(), r = c.getBoundingClientRect();
+  function at(type, dx, dy) {
+    var e = new MouseEvent(type, {clientX: r.left + 100 + dx, clientY: r.top + 100 + dy, bubbles: true, button: 0});
+    (type === "mousedown" ? c : window).dispatchEvent(e);
+  }
+  at("mousedown", 0, 0); at("mousemove", 60, 20); at("mouseup", 60, 20);
+  requestAnimationFrame(function () { requestAnimationFrame(function () {
+    var rotated = c.toDataURL();
+    c.dispatchEvent(new WheelEvent("wheel", {deltaY: -400, bubbles: true, cancelable: true}));
+    requestAnimationFrame(function () { requestAnimationFrame(function () {
+      document.body.dataset.rotated = String(rotated !== before);
+      document.body.dataset.zoomed = String(c.toDataURL() !== rotated);
+    }); });
+  }); });
+});
+</script></body>"""
+
+
+@needs_chromium
+def test_dragging_rotates_and_the_wheel_zooms(bunny_report, tmp_path):
+    probe = tmp_path / "probe.html"
+    probe.write_text(bunny_report.read_text().replace("</body>", _INTERACT))
+    dom = _chromium(tmp_path, probe.as_uri(), "--dump-dom", "--virtual-time-budget=8000")
+    body = re.search(r"<body[^>]*>", dom.stdout).group(0)
+    assert 'data-rotated="true"' in body and 'data-zoomed="true"' in body, body
+    assert "data-errors" not in body and _js_errors(dom.stderr) == []
