@@ -146,22 +146,26 @@ def test_a_page_at_the_view_limit_stays_small():
 
 
 _INTERACT = """<script>
-window.addEventListener("load", function () {
+// waits (polling timers, which the virtual time budget runs) for the first frame, drags, then wheels
+function poll(test, then, tries) {
+  if (test() || tries <= 0) then(test()); else setTimeout(function () { poll(test, then, tries - 1); }, 50);
+}
+poll(function () { return !!document.body.dataset.rendered; }, function () {
   var c = document.getElementById("v0"), before = c.toDataURL(), r = c.getBoundingClientRect();
   function at(type, dx, dy) {
     var e = new MouseEvent(type, {clientX: r.left + 100 + dx, clientY: r.top + 100 + dy, bubbles: true, button: 0});
     (type === "mousedown" ? c : window).dispatchEvent(e);
   }
   at("mousedown", 0, 0); at("mousemove", 60, 20); at("mouseup", 60, 20);
-  requestAnimationFrame(function () { requestAnimationFrame(function () {
-    var rotated = c.toDataURL();
+  poll(function () { return c.toDataURL() !== before; }, function (rotated) {
+    document.body.dataset.rotated = String(rotated);
+    var turned = c.toDataURL();
     c.dispatchEvent(new WheelEvent("wheel", {deltaY: -400, bubbles: true, cancelable: true}));
-    requestAnimationFrame(function () { requestAnimationFrame(function () {
-      document.body.dataset.rotated = String(rotated !== before);
-      document.body.dataset.zoomed = String(c.toDataURL() !== rotated);
-    }); });
-  }); });
-});
+    poll(function () { return c.toDataURL() !== turned; }, function (zoomed) {
+      document.body.dataset.zoomed = String(zoomed);
+    }, 100);
+  }, 100);
+}, 100);
 </script></body>"""
 
 
@@ -169,7 +173,7 @@ window.addEventListener("load", function () {
 def test_dragging_rotates_and_the_wheel_zooms(bunny_report, tmp_path):
     probe = tmp_path / "probe.html"
     probe.write_text(bunny_report.read_text().replace("</body>", _INTERACT))
-    dom = _chromium(tmp_path, probe.as_uri(), "--dump-dom", "--virtual-time-budget=8000")
+    dom = _chromium(tmp_path, probe.as_uri(), "--dump-dom", "--virtual-time-budget=30000")
     body = re.search(r"<body[^>]*>", dom.stdout).group(0)
     assert 'data-rotated="true"' in body and 'data-zoomed="true"' in body, body
     assert "data-errors" not in body and _js_errors(dom.stderr) == []
