@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # Sets up cloudsieve on a fresh Debian/Ubuntu machine with Python >= 3.10:
-# the system library open3d needs (libusb-1.0-0, via apt-get when missing),
+# the system library open3d needs (libusb-1.0-0) and the browser the report
+# tests use (chromium), via apt-get when missing,
 # then a virtual environment in .venv with cloudsieve and its test extras.
 set -euo pipefail
 cd "$(dirname "$0")"
@@ -14,13 +15,21 @@ has_libusb() {
     [[ "$libs" == *"libusb-1.0.so.0"* ]]
 }
 
-if ! has_libusb; then
+# True when Debian's chromium is installed (the tests open report.html in it, headless).
+has_chromium() {
+    [ -x /usr/bin/chromium ]
+}
+
+MISSING=()
+if ! has_libusb; then MISSING+=(libusb-1.0-0); fi
+if ! has_chromium; then MISSING+=(chromium); fi
+if [ "${#MISSING[@]}" -gt 0 ]; then
     SUDO=""
     if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
-    echo "setup: installing libusb-1.0-0 (needed by open3d) with apt-get" >&2
+    echo "setup: installing ${MISSING[*]} (libusb-1.0-0: needed by open3d; chromium: the report.html tests) with apt-get" >&2
     # wait for another apt/dpkg run instead of failing on its lock
     $SUDO apt-get -o DPkg::Lock::Timeout=300 update -qq
-    DEBIAN_FRONTEND=noninteractive $SUDO apt-get -o DPkg::Lock::Timeout=300 install -y -qq libusb-1.0-0 >/dev/null
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get -o DPkg::Lock::Timeout=300 install -y -qq "${MISSING[@]}" >/dev/null
 fi
 
 PYTHON="${PYTHON:-python3}"

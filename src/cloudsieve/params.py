@@ -185,6 +185,10 @@ _OPTIONS = [
     Option("error_points", INT, 2_000_000, "at most N points in errors.ply (uniform sample)", low=0, metavar="N"),
     Option("metro_samples", INT, None, "Metro samples per direction and tile (default 10 x faces, at most 500000)",
            low=1, metavar="N"),
+    Option("psnr_peak", FLOAT, None, "peak p of the D1/D2 PSNR, 10*log10(3p^2/MSE) dB (default: the original's "
+           "bounding-box diagonal)", low=0.0, low_open=True, metavar="P"),
+    Option("reference_mesh", PATH, None, "a mesh of the scanned surface (PLY/OBJ/STL/OFF): the simplified and the "
+           "original's tile meshes are also compared with it by Metro", metavar="FILE"),
     Option("methods", CHOICES, COMPARE_METHODS, "methods to compare, comma-separated", choices=COMPARE_METHODS,
            metavar="LIST"),
     # -- ingest / export
@@ -229,10 +233,11 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
-        "error_points", "metro_samples", "drop_invalid"),
+        "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
-        "surface", "seed", "metro_samples", "k0", "k_min", "drop_invalid", "keep_duplicates", extra=(_RULE_LIST,)),
+        "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",
+        extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite",
                        extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
     "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),

@@ -18,7 +18,8 @@ def add_parser(subparsers) -> None:
         description=(
             "Point level: distance from every original point to the simplified cloud (streamed; "
             "or a uniform sample with 95% confidence intervals) and back, mean/RMS/max, symmetric "
-            "Hausdorff, absolute and in % of the original's bounding-box diagonal. Surface level "
+            "Hausdorff, absolute and in % of the original's bounding-box diagonal; MPEG pc_error's D1/D2 PSNR "
+            "and the Chamfer distance. Surface level "
             "(the paper's): ball-pivoting meshes on T tiles, Metro distances both ways, triangle "
             "compactness. The original is streamed; the simplified cloud is loaded into memory."
         ),
@@ -34,7 +35,7 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..evaluate import evaluate
-    from ..evaluate.report import border_per_face, fmt, json_ready
+    from ..evaluate.report import border_per_face, db, fmt, json_ready
 
     def bars(stage, total, unit):
         return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
@@ -51,15 +52,29 @@ def run(args: argparse.Namespace) -> int:
         print(f"point {name:8s}: mean {fmt(d['mean'])} ({fmt(d['mean_pct'])}%)  rms {fmt(d['rms'])} "
               f"({fmt(d['rms_pct'])}%)  max {fmt(d['max'])} ({fmt(d['max_pct'])}%)")
     print(f"hausdorff       : {fmt(p['hausdorff'])} ({fmt(p['hausdorff_pct'])}%)")
+    ps = report["psnr"]
+    for m, label in (("d1", "point-to-point"), ("d2", "point-to-plane")):
+        print(f"{m.upper()} PSNR (dB)    : forward {db(ps[m]['forward'])}  backward {db(ps[m]['backward'])}  "
+              f"symmetric {db(ps[m]['symmetric'])}  ({label}, peak {fmt(ps['peak'])})")
+    print(f"chamfer         : {fmt(report['chamfer']['value'])} (mean squared NN distance, both ways summed)")
     s = report.get("surface")
     if s:
         print(f"metro (% diag)  : mean {fmt(s['mean_pct'])}  max {fmt(s['max_pct'])}  rms {fmt(s['rms_pct'])}  "
               f"[{len(s['tiles'])} tile(s)]")
+        on = s.get("on_surface")
+        if on:
+            print(f"metro on surface: mean {fmt(on['mean_pct'])}  max {fmt(on['max_pct'])}  rms {fmt(on['rms_pct'])}  "
+                  f"({100 * on['excluded_share']:.2f}% of the backward samples face a hole of the original's mesh)")
+        ref = (s.get("reference") or {}).get("simplified") or {}
+        if ref.get("forward"):
+            print(f"metro vs mesh   : mean {fmt(ref['mean_pct'])}  max {fmt(ref['max_pct'])}  rms "
+                  f"{fmt(ref['rms_pct'])}  (simplified mesh vs the reference mesh; original mesh: mean "
+                  f"{fmt(s['reference']['original'].get('mean_pct'))})")
         print(f"compactness>=0.6: original {100 * s['original']['compact_share']:.2f}%  "
               f"simplified {100 * s['simplified']['compact_share']:.2f}%  "
               f"(simplified mesh {fmt(s['vertices'])} vertices, {fmt(s['faces'])} faces)")
         print(f"border edges    : original {border_per_face(s['original'])} per face, simplified "
               f"{border_per_face(s['simplified'])} (holes of the ball-pivoting meshes)")
     if args.report_dir:
-        print(f"report: {args.report_dir}/report.md")
+        print(f"report: {args.report_dir}/report.html (and report.md, report.json)")
     return 0

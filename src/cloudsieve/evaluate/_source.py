@@ -26,6 +26,8 @@ logger = logging.getLogger(__name__)
 
 __all__ = ["Source", "open_source", "load_points"]
 
+_NORMALS = ("nx", "ny", "nz")
+
 
 class Source:
     """A cloud read chunk by chunk.
@@ -44,6 +46,9 @@ class Source:
         Drop a file's points with NaN or infinite coordinates (they are
         refused otherwise); the count of such a file is then unknown (None)
         until it is read.
+    has_normals : bool
+        The file or store has normals (``nx, ny, nz``): chunks then hold
+        ``"normals"`` (n, 3) beside ``"xyz"``.
     """
 
     def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False):
@@ -54,6 +59,7 @@ class Source:
         self._store = None
         self._path = None
         self.header: dict = {}
+        self.has_normals = False
         if isinstance(obj, np.ndarray):
             arr = np.asarray(obj, dtype=np.float64)
             if arr.ndim != 2 or arr.shape[1] != 3:
@@ -68,6 +74,7 @@ class Source:
             self.format = "store"
             self.count = int(obj.count)
             self.header = dict(getattr(obj, "header", {}) or {})
+            self.has_normals = all(n in obj.dimensions for n in _NORMALS)
         else:
             path = Path(obj)
             if not path.exists():
@@ -78,6 +85,7 @@ class Source:
                 self.format = "store"
                 self.count = int(self._store.count)
                 self.header = dict(self._store.header or {})
+                self.has_normals = all(n in self._store.dimensions for n in _NORMALS)
             else:
                 from ..io import open_reader
 
@@ -86,6 +94,7 @@ class Source:
                     self.format = reader.format
                     self.count = None if self.drop_invalid else reader.count
                     self.header = dict(reader.header or {})
+                    self.has_normals = all(n in reader.dtypes for n in _NORMALS)
 
     @property
     def store_path(self) -> str | None:
@@ -93,13 +102,17 @@ class Source:
         return None if self._store is None else str(self._store.path)
 
     def chunks(self) -> Iterator[Chunk]:
-        """Yield :class:`~cloudsieve.store.Chunk` ``(start, {"xyz": xyz})``, xyz of shape (n, 3) float64, in point order."""
+        """Yield :class:`~cloudsieve.store.Chunk` ``(start, {"xyz": xyz})``, xyz of shape (n, 3) float64, in point order.
+
+        With :attr:`has_normals`, the arrays also hold ``"normals"`` (n, 3) float64.
+        """
         if self._array is not None:
             for start in range(0, len(self._array), self.chunk_size):
                 yield Chunk(start, {"xyz": self._array[start : start + self.chunk_size]})
         elif self._store is not None:
-            for start, arrays in self._store.chunks(names=["xyz"], chunk_size=self.chunk_size):
-                yield Chunk(int(start), {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
+            names = ["xyz", *_NORMALS] if self.has_normals else ["xyz"]
+            for start, arrays in self._store.chunks(names=names, chunk_size=self.chunk_size):
+                yield Chunk(int(start), _arrays(arrays, self.has_normals))
         else:
             from ..io import open_reader
             from ..io.valid import ValidPoints
@@ -107,7 +120,7 @@ class Source:
             valid = ValidPoints(self._path, self.drop_invalid, warn=not self._warned)
             with open_reader(self._path, chunk_size=self.chunk_size) as reader:
                 for start, arrays in valid.chunks(reader.chunks()):
-                    yield Chunk(start, {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)})
+                    yield Chunk(start, _arrays(arrays, self.has_normals))
             self._warned = True
 
     def known_bounds(self) -> np.ndarray | None:
@@ -127,6 +140,13 @@ class Source:
         if self.count is None:
             self.count = sum(len(chunk.xyz) for chunk in self.chunks())
         return int(self.count)
+
+
+def _arrays(arrays: dict, normals: bool) -> dict[str, np.ndarray]:
+    out = {"xyz": np.asarray(arrays["xyz"], dtype=np.float64)}
+    if normals:
+        out["normals"] = np.stack([np.asarray(arrays[n], dtype=np.float64) for n in _NORMALS], axis=1)
+    return out
 
 
 def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False) -> Source:

@@ -6,6 +6,7 @@ billion points), to the same output count, evaluates each one with
 :func:`cloudsieve.evaluate` (point level exact, surface level on tiles, the
 original's meshes built once and shared), and writes one table: method,
 kept, time, point mean/RMS/max (% of the diagonal, original -> simplified),
+D1/D2 PSNR (original -> simplified, dB) and the Chamfer distance,
 Metro mean/max/RMS (% of the diagonal, the larger of both directions),
 compactness >= 0.6 (share of the simplified mesh's triangles).
 
@@ -26,13 +27,15 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
 from .evaluation import run_evaluation
-from .report import border_per_face, fmt, holes_note, plot_compactness, plot_point_errors, write_json
+from .report import border_per_face, db, fmt, holes_note, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
 
@@ -48,11 +51,15 @@ def _row(name: str, report: dict | None, kept: int, seconds: float, error: str |
         return row
     p, s = report["point"], report.get("surface")
     row.update({"point_mean_pct": p["forward"]["mean_pct"], "point_rms_pct": p["forward"]["rms_pct"],
-                "point_max_pct": p["forward"]["max_pct"], "hausdorff_pct": p["hausdorff_pct"]})
+                "point_max_pct": p["forward"]["max_pct"], "hausdorff_pct": p["hausdorff_pct"],
+                "d1_psnr": report["psnr"]["d1"]["forward"], "d2_psnr": report["psnr"]["d2"]["forward"],
+                "chamfer": report["chamfer"]["value"]})
     if s:
         row.update({"metro_mean_pct": s["mean_pct"], "metro_max_pct": s["max_pct"], "metro_rms_pct": s["rms_pct"],
                     "compact_share": s["compact_share"], "compact": s["compact"], "vertices": s["vertices"],
                     "faces": s["faces"]})
+        on = s.get("on_surface") or {}
+        row.update({"metro_surface_mean_pct": on.get("mean_pct"), "metro_surface_excluded": on.get("excluded_share")})
     return row
 
 
@@ -63,21 +70,50 @@ def compare_markdown(result: dict) -> str:
              f"{fmt(n)} points, bbox diagonal {fmt(result['diagonal'])}; target {fmt(result['count'])} kept "
              f"({100.0 * result['count'] / n:.1f}%); rule `{result['rule']}`; seed {result['seed']}.", "",
              "Point errors: original → simplified, exact, % of the bbox diagonal. Metro: ball-pivoting meshes, "
-             "the larger of both directions, % of the diagonal. c ≥ 0.6: share of the simplified mesh's triangles "
+             "the larger of both directions, % of the diagonal; on surface: leaving out the samples that face a hole "
+             "of the original's mesh. c ≥ 0.6: share of the simplified mesh's triangles "
              f"(original mesh: {_share(result.get('original_compact_share'))}; border edges per face: "
              f"{border_per_face(result.get('original_mesh') or {})}).", "",
-             "| method | kept | time (s) | point mean % | point RMS % | point max % | Metro mean % | Metro max % | "
-             "Metro RMS % | c ≥ 0.6 |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             f"D1/D2 PSNR: MPEG pc_error's, original → simplified, dB, peak {fmt(result.get('psnr_peak'))} "
+             f"({'the bbox diagonal' if result.get('psnr_peak_from') == 'diagonal' else 'given'}). Chamfer: mean "
+             "squared nearest-neighbour distance both ways, summed (squared cloud units).", "",
+             "| method | kept | time (s) | point mean % | point RMS % | point max % | D1 PSNR | D2 PSNR | Chamfer | "
+             "Metro mean % | Metro max % | Metro RMS % | Metro mean % on surface | c ≥ 0.6 |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for r in result["rows"]:
         if "error" in r:
-            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | |")
+            lines.append(f"| {r['method']} | - | - | {r['error']} | | | | | | | | | | |")
             continue
         lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
-                     f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {fmt(r.get('metro_mean_pct'))} | "
-                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {_share(r.get('compact_share'))} |")
+                     f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {db(r['d1_psnr'])} | "
+                     f"{db(r['d2_psnr'])} | {fmt(r['chamfer'])} | {fmt(r.get('metro_mean_pct'))} | "
+                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {fmt(r.get('metro_surface_mean_pct'))} | {_share(r.get('compact_share'))} |")
     note = holes_note(result.get("original_mesh") or {})
     lines += ["", f"> {note}", ""] if note else [""]
     return "\n".join(lines)
+
+
+def _write_html(path: Path, xyz: np.ndarray, kept: dict[str, np.ndarray], md: str, files: dict, seed: int) -> str:
+    """compare's report.html: the methods side by side, each its error view and its kept points.
+
+    The original's view sample is the same for every method (one position
+    array); each method's kept points are a sample of at most
+    ``VIEW_POINTS / number of methods`` (at least 20,000) so the page stays small.
+    """
+    from scipy.spatial import cKDTree
+
+    from .html import VIEW_POINTS, view_sample, write_html
+
+    shown = xyz[view_sample(len(xyz), seed=seed)]
+    per = max(VIEW_POINTS // max(len(kept), 1), 20_000)
+    errors, points = {}, {}
+    for label, idx in kept.items():
+        errors[label] = cKDTree(xyz[idx]).query(shown, k=1, workers=-1)[0]
+        points[label] = xyz[idx][view_sample(len(idx), size=per, seed=seed)]
+    images = {k: v for k, v in files.items() if v.endswith(".png")}
+    bounds = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
+    return write_html(path, "cloudsieve compare", md, images=images, original=shown, errors=errors, kept=points,
+                      bounds=bounds)
 
 
 def _share(v: Any) -> str:
@@ -109,7 +145,8 @@ def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
 def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule: str | list[str] | None = None,
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
-            metro_samples: int | None = None, progress=None, drop_invalid: bool = False, **entropy_options) -> dict:
+            metro_samples: int | None = None, psnr_peak: float | None = None, progress=None,
+            drop_invalid: bool = False, **entropy_options) -> dict:
     """Run *methods* on *source* to the same count, evaluate each, one table.
 
     Parameters
@@ -131,9 +168,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         and by ``target``, ``coverage`` and ``eliminate`` unless no entropy
         method runs).
     report_dir : path, optional
-        Writes report.md, report.json, compactness.png, point_errors.png and
+        Writes report.md, report.html, report.json, compactness.png, point_errors.png and
         one evaluation report per method in a sub-folder.
-    surface, tiles, tile_points, metro_samples :
+    surface, tiles, tile_points, metro_samples, psnr_peak :
         As in :func:`cloudsieve.evaluate`.
     seed : int
         Seeds every method and the evaluation.
@@ -154,8 +191,10 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     dict
         ``source``, ``points``, ``diagonal``, ``count``, ``rule``, ``seed``,
         ``rows`` (one per method: ``method, kept, time, point_mean_pct,
-        point_rms_pct, point_max_pct, hausdorff_pct, metro_mean_pct,
-        metro_max_pct, metro_rms_pct, compact_share, compact, vertices,
+        point_rms_pct, point_max_pct, hausdorff_pct, d1_psnr, d2_psnr`` (forward,
+        dB), ``chamfer, metro_mean_pct,
+        metro_max_pct, metro_rms_pct, metro_surface_mean_pct,
+        metro_surface_excluded, compact_share, compact, vertices,
         faces``, or ``error``), ``original_compact_share``, ``original_mesh``
         (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
         full evaluation report of each method) and ``markdown``.
@@ -163,7 +202,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     opts = validate("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, "drop_invalid": drop_invalid, **entropy_options,
+        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid, **entropy_options,
     })
     if report_dir is not None:
         check_folder(report_dir)
@@ -180,7 +219,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     runs = compare_runs(methods, rules)
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
-    rows, reports, hists, points_h = [], {}, {}, {}
+    rows, reports, hists, points_h, kept = [], {}, {}, {}, {}
     cache: dict = {}
     for label, m, r in runs:
         t = time.perf_counter()
@@ -202,11 +241,13 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
         rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
                              seed=seed, metro_samples=metro_samples, report_dir=sub, surface_cache=cache,
+                             psnr_peak=psnr_peak,
                              names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time
             write_json(rep, sub / "report.json")
         reports[label] = rep
+        kept[label] = idx
         rows.append(_row(label, rep, int(len(idx)), seconds))
         if rep.get("surface"):
             hists[label] = rep["surface"]["simplified"]["compactness_hist"]
@@ -219,7 +260,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         raise EmptyInputError(f"every method failed on {name}: " + "; ".join(f"{r['method']}: {r['error']}" for r in rows))
     any_rep = next(iter(reports.values()))
     result = {"source": str(name), "points": n, "diagonal": any_rep["diagonal"], "count": int(count), "rule": ",".join(rules),
-              "seed": seed, "ratio": ratio, "rows": rows,
+              "seed": seed, "ratio": ratio, "psnr_peak": any_rep["psnr"]["peak"],
+              "psnr_peak_from": any_rep["psnr"]["peak_from"], "rows": rows,
               "original_compact_share": (any_rep.get("surface") or {}).get("original", {}).get("compact_share"),
               "original_mesh": {k: v for k, v in ((any_rep.get("surface") or {}).get("original") or {}).items()
                                 if k in ("vertices", "faces", "border_edges")},
@@ -237,6 +279,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
                                                           title="Point errors (original → simplified) by method")
         (out_dir / "report.md").write_text(result["markdown"])
         files["markdown"] = str(out_dir / "report.md")
+        files["html"] = _write_html(out_dir / "report.html", xyz, kept, result["markdown"], files, seed)
         files["json"] = str(out_dir / "report.json")
         result["files"] = files
         write_json({k: v for k, v in result.items() if k != "reports"}, out_dir / "report.json")

@@ -6,8 +6,9 @@ The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`:
   chunk after chunk (picklable; sent once to dask workers);
 - :class:`ExactIndex` — exact-coordinate lookup (hash, sorted search,
   verification) of points kept unchanged;
-- :func:`forward_chunk` / :func:`backward_chunk` — the distances of one chunk
-  of original points, in each direction;
+- :func:`forward_chunk` — the distances of one chunk of original points to
+  the simplified cloud (the backward direction's chunk kernel, with the
+  point-to-plane errors, is :func:`.planes.backward_chunk`);
 - :func:`stats_partial`, :func:`combine`, :func:`aggregate` — small partial
   results per chunk (count, sums of powers, max and where it is, a fixed-bin
   log histogram, the bounding box, the simplified points found exactly),
@@ -31,6 +32,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import EmptyInputError
+from .planes import d2_sum
 
 __all__ = [
     "HIST_DECADES",
@@ -43,7 +45,6 @@ __all__ = [
     "forward_chunk",
     "combine",
     "aggregate",
-    "backward_chunk",
 ]
 
 #: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
@@ -195,6 +196,7 @@ def _empty_partial(m: int) -> dict:
         "sum": 0.0,
         "sumsq": 0.0,
         "sum4": 0.0,
+        "d2sq": 0.0,
         "max": 0.0,
         "argmax": None,
         "zeros": 0,
@@ -238,7 +240,8 @@ def stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
 
 def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None = None,
                   backward_index: ExactIndex | None = None, n_backward: int | None = None,
-                  keep: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
+                  keep: np.ndarray | None = None, normals: np.ndarray | None = None,
+                  d2_k: int | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
     """Partial forward statistics of one chunk of original points.
 
     Parameters
@@ -256,11 +259,17 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
         Number of (sampled) simplified points the ``matched`` bitmask covers.
     keep : ndarray of int, optional
         Rows of *xyz* whose (xyz, distance) are returned for the error PLY.
+    normals : ndarray of shape (n, 3), optional
+        The chunk's normals from the file (D2); estimated when None.
+    d2_k : int, optional
+        Also sum the point-to-plane (D2) errors, normals estimated from this
+        many neighbours in the chunk when *normals* is None
+        (:func:`.planes.d2_sum`); no D2 when None.
 
     Returns
     -------
     partial : dict
-        ``count, sum, sumsq, sum4, max, argmax, zeros, hist, bbox, matched``
+        ``count, sum, sumsq, sum4, d2sq, max, argmax, zeros, hist, bbox, matched``
         (packed bitmask over the simplified points found exactly in this chunk)
         and ``seen`` (points read).
     ply : (ndarray (k, 3), ndarray (k,)) or None
@@ -271,6 +280,10 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
     d, idx = target.query(q)
     p = stats_partial(d, q, m)
     p["seen"] = int(len(xyz))
+    if d2_k is not None:
+        w = np.flatnonzero(d > 0)
+        rows = w if select is None else select[w]
+        p["d2sq"] = d2_sum(xyz, rows, target.points[idx[w]] - q[w], normals, d2_k)
     if len(xyz):
         p["bbox"] = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
     mask = np.zeros(m, bool)
@@ -301,6 +314,7 @@ def combine(partials: list[dict]) -> dict:
         out["sum"] += p["sum"]
         out["sumsq"] += p["sumsq"]
         out["sum4"] += p["sum4"]
+        out["d2sq"] += p["d2sq"]
         out["zeros"] += p["zeros"]
         out["seen"] += p["seen"]
         out["hist"] += p["hist"]
@@ -333,7 +347,9 @@ def aggregate(partial: dict, diagonal: float, population: int | None = None) -> 
     Returns
     -------
     dict
-        ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``
+        ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``,
+        ``mse`` (mean squared distance: D1) and ``d2_mse`` (mean squared
+        point-to-plane error: D2)
         and, when sampled, ``ci``, ``population``, ``max_is_lower_bound``.
     """
     n = partial["count"]
@@ -354,6 +370,8 @@ def aggregate(partial: dict, diagonal: float, population: int | None = None) -> 
         "max_pct": mx * scale,
         "zeros": int(partial["zeros"]),
         "argmax": partial["argmax"],
+        "mse": msq,
+        "d2_mse": partial["d2sq"] / n,
     }
     if population is not None and population > n:
         fpc = math.sqrt((population - n) / (population - 1)) if population > 1 else 0.0
@@ -372,25 +390,4 @@ def aggregate(partial: dict, diagonal: float, population: int | None = None) -> 
             "rms_pct": [v * scale for v in ci_rms],
         }
         out["max_is_lower_bound"] = True
-    return out
-
-
-def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray) -> np.ndarray:
-    """Distances from *points* (u, 3) to one chunk of original points, where they can beat *best*.
-
-    Returns an array (u,) of distances, ``inf`` where the chunk cannot beat
-    *best* (its bounding box is farther); combine chunks with ``np.minimum``.
-    """
-    out = np.full(len(points), np.inf)
-    if len(xyz) == 0 or len(points) == 0:
-        return out
-    lo, hi = xyz.min(axis=0), xyz.max(axis=0)
-    gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
-    todo = np.flatnonzero(gap < best)
-    if len(todo):
-        tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
-        sub = points[todo]
-        o = morton_order(sub)
-        d, _ = tree.query(sub[o], k=1, workers=-1)
-        out[todo[o]] = d
     return out

@@ -18,6 +18,16 @@ Report keys (``report.json`` holds the same dict)
     ``max_pct``, ``count`` and, when sampled, ``ci`` (95% intervals for mean
     and RMS, ``*_pct`` too); ``hausdorff``, ``hausdorff_pct``, ``mode``,
     ``subset``, ``histogram``.
+``psnr``
+    MPEG ``pc_error``'s figures (:mod:`.planes`): ``peak`` p (``peak_from``
+    "diagonal" or "given"), ``d1`` and ``d2``, each ``forward`` (original ->
+    simplified), ``backward`` and ``symmetric`` (the larger MSE) PSNR in dB,
+    10 log10(3 p^2 / MSE), None (JSON null) for an MSE of 0; ``mse`` (the
+    same MSEs), ``normals`` ("file" or "estimated") and ``k_normals``.
+``chamfer``
+    ``value`` = ``forward`` + ``backward``, the mean squared nearest-neighbour
+    distances of both directions (squared cloud units), ``value_pct2``,
+    ``definition``.
 ``surface`` (unless ``surface=False``)
     From :func:`.surface.surface_errors`: ``mean``, ``rms``, ``max`` and
     their ``_pct`` (Metro, the larger of both directions), ``forward`` and
@@ -44,13 +54,15 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
+from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning, InvalidParameterError
 from ..io import check_folder
 from ..engine.runner import stage_bar
 from ..params import validate
 from ..progress import both
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
+from .mesh import load_mesh
+from .planes import field_figures
 from .points import point_errors
 from .report import write_report
 from .surface import surface_errors
@@ -129,7 +141,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
              metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False,
-             bars=None) -> dict:
+             bars=None, psnr_peak: float | None = None, reference_mesh: str | None = None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -164,6 +176,12 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Metro samples per direction and tile (default 10 x faces, at most 500,000).
     client : distributed.Client, optional
         Run the point-level chunk tasks on this dask cluster.
+    psnr_peak : float, optional
+        Peak p of the D1/D2 PSNR (default: the original's bounding-box diagonal).
+    reference_mesh : path, optional
+        A mesh of the scanned surface (a file pymeshlab reads): the surface
+        level also compares the simplified and the original's tile meshes
+        with it by Metro (``report["surface"]["reference"]``). Needs *surface*.
     progress : callable, optional
         Called with the number of original points done (point level).
     drop_invalid : bool
@@ -194,13 +212,17 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
+        "psnr_peak": psnr_peak, "reference_mesh": reference_mesh,
     })
+    if reference_mesh is not None and not surface:
+        raise InvalidParameterError(f"reference_mesh ({reference_mesh}) needs the surface level, which "
+                                    "surface=False (--no-surface) turns off")
     if report_dir is not None:
         check_folder(report_dir)
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
                           chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
-                          drop_invalid=drop_invalid, bars=bars)
+                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh)
 
 
 def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
@@ -216,7 +238,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
                    report_dir: str | None = None, error_points: int = 2_000_000,
                    chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
                    progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
-                   drop_invalid: bool = False, bars=None) -> dict:
+                   drop_invalid: bool = False, bars=None, psnr_peak: float | None = None,
+                   reference_mesh: str | None = None) -> dict:
     """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
 
     Parameters
@@ -233,6 +256,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
     t0 = time.perf_counter()
     src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)
     simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=drop_invalid)
+    reference = load_mesh(reference_mesh) if reference_mesh is not None and surface else None
     warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
                             names=(str(src.name), str(simp_name)), strict=strict)
     if names is not None:
@@ -243,7 +267,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
                      "crs": (src.header or {}).get("crs")},
         "simplified": {"name": str(simp_name), "count": int(len(simp)), "crs": (simp_header or {}).get("crs")},
         "parameters": {"sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-                       "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples},
+                       "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples,
+                       "psnr_peak": psnr_peak, "reference_mesh": reference_mesh},
         "warnings": list(warn),
         "timing": {},
     }
@@ -257,6 +282,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
     report["point"] = p
     report["diagonal"] = p["diagonal"]
     report["original"]["count"] = p["original_count"]
+    report["psnr"], report["chamfer"] = field_figures(p["forward"], p["backward"], diagonal=p["diagonal"],
+                                                      peak=psnr_peak, normals=p["normals"], k=p["k_normals"])
     if p["subset"] is False and not subset:
         logger.info("%d simplified points are not original points", p["not_in_original"])
     if surface:
@@ -264,12 +291,12 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
             report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
                                                diagonal=p["diagonal"], samples=metro_samples,
-                                               cache=surface_cache, progress=bar)
+                                               cache=surface_cache, progress=bar, reference=reference)
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:
         pts = None
         if ply_parts:
             pts = (np.concatenate([a for a, _ in ply_parts]), np.concatenate([e for _, e in ply_parts]))
-        write_report(report, report_dir, error_points=pts)
+        write_report(report, report_dir, error_points=pts, kept=simp)
     return report

@@ -50,6 +50,9 @@ __all__ = [
     "point_spacing",
     "ball_pivoting",
     "metro",
+    "on_border",
+    "load_mesh",
+    "crop_mesh",
 ]
 
 COMPACT_THRESHOLD = 0.6
@@ -174,21 +177,99 @@ def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals:
     return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
 
 
-def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float) -> dict:
+def load_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh from a file pymeshlab reads (PLY, OBJ, STL, OFF, ...): ``(vertices (v, 3), faces (f, 3))``.
+
+    Raises
+    ------
+    InputNotFoundError
+        No such file.
+    InputFormatError
+        The file holds no triangle, or pymeshlab cannot read it.
+    """
+    import os
+
+    from ..errors import InputFormatError, InputNotFoundError
+
+    if not os.path.isfile(path):
+        raise InputNotFoundError(f"reference mesh not found: {path}")
+    pml = _pymeshlab()
+    ms = pml.MeshSet()
+    try:
+        ms.load_new_mesh(str(path))
+    except pml.PyMeshLabException as exc:
+        raise InputFormatError(f"cannot read the reference mesh {path}: {exc}") from None
+    m = ms.current_mesh()
+    if m.face_number() == 0:
+        raise InputFormatError(f"the reference mesh {path} has no triangle ({m.vertex_number()} vertices)")
+    return m.vertex_matrix().copy(), m.face_matrix().astype(np.int32)
+
+
+def crop_mesh(mesh: tuple[np.ndarray, np.ndarray], centre, radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """The faces of *mesh* whose three vertices lie within *radius* of *centre* (vertices renumbered)."""
+    v, f = mesh
+    inside = np.linalg.norm(v - np.asarray(centre, dtype=np.float64), axis=1) <= radius
+    f = f[inside[f].all(axis=1)]
+    used = np.unique(f)
+    new = np.full(len(v), -1, np.int64)
+    new[used] = np.arange(len(used))
+    return v[used], new[f].astype(np.int32)
+
+
+def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float, save: bool = False) -> dict:
     pml = _pymeshlab()
     r = ms.get_hausdorff_distance(sampledmesh=sampled, targetmesh=target, samplevert=False, sampleedge=False,
-                                  sampleface=True, samplenum=int(samples), maxdist=pml.PureValue(maxdist))
+                                  sampleface=True, samplenum=int(samples), maxdist=pml.PureValue(maxdist),
+                                  savesample=save)
     return {"mean": float(r["mean"]), "rms": float(r["RMS"]), "max": float(r["max"]),
             "min": float(r["min"]), "samples": int(r["n_samples"])}
 
 
-def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float) -> dict:
-    """One Metro direction: samples on *mesh_s*, distances to *mesh_t*."""
+def on_border(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tol: float) -> np.ndarray:
+    """Which *points* (p, 3) lie within *tol* of a border edge of the mesh (vertices, faces): bool (p,).
+
+    A Metro sample whose closest point on the target mesh lies on its border
+    faces no surface: the target has a hole there (or ends, at a tile's rim).
+    Candidates are the 8 border edges with the nearest midpoints.
+    """
+    edges = border_edges(faces)
+    out = np.zeros(len(points), bool)
+    if len(edges) == 0 or len(points) == 0:
+        return out
+    a, b = vertices[edges[:, 0]], vertices[edges[:, 1]]
+    k = min(8, len(edges))
+    _, cand = cKDTree(0.5 * (a + b)).query(points, k=k, workers=-1)
+    cand = cand.reshape(len(points), k)
+    ab = (b - a)[cand]
+    ap = points[:, None, :] - a[cand]
+    t = np.clip(np.einsum("pki,pki->pk", ap, ab) / np.maximum(np.einsum("pki,pki->pk", ab, ab), 1e-300), 0, 1)
+    d = np.linalg.norm(ap - t[..., None] * ab, axis=2).min(axis=1)
+    return d <= tol
+
+
+def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float, holes: bool = False) -> dict:
+    """One Metro direction: samples on *mesh_s*, distances to *mesh_t*.
+
+    With *holes*, also ``on_surface``: the same figures over the samples
+    whose closest point on *mesh_t* is not on its border (:func:`on_border`,
+    within 1e-3 of its median edge length), and ``excluded`` (their count).
+    """
     pml = _pymeshlab()
     ms = pml.MeshSet()
     ms.add_mesh(pml.Mesh(mesh_s[0], mesh_s[1]))
     ms.add_mesh(pml.Mesh(mesh_t[0], mesh_t[1]))
-    return _metro_one(ms, 0, 1, n, maxdist)
+    rec = _metro_one(ms, 0, 1, n, maxdist, save=holes)
+    if holes:
+        closest, sample = ms.mesh(2).vertex_matrix(), ms.mesh(3).vertex_matrix()  # as vcg adds them
+        v, f = mesh_t
+        edge = float(np.median(np.linalg.norm(v[f[:, 0]] - v[f[:, 1]], axis=1))) if len(f) else 0.0
+        out = on_border(closest, v, f, 1e-3 * edge)
+        d = np.linalg.norm(sample - closest, axis=1)[~out]
+        rec["on_surface"] = {"mean": float(d.mean()) if len(d) else math.nan,
+                             "rms": float(np.sqrt(np.mean(d * d))) if len(d) else math.nan,
+                             "max": float(d.max()) if len(d) else math.nan, "samples": int(len(d)),
+                             "excluded": int(out.sum())}
+    return rec
 
 
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
@@ -208,7 +289,9 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
     dict
         ``forward`` (samples on a, distance to b) and ``backward`` (samples on
         b, distance to a), each ``mean, rms, max, min, samples`` in the
-        meshes' units.
+        meshes' units; ``backward["on_surface"]``: ``mean, rms, max,
+        samples`` over the backward samples whose closest point on a is not
+        on a's border (where a has surface), ``excluded`` (the others).
 
     Notes
     -----
@@ -227,5 +310,5 @@ def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.nd
     def n_of(mesh):
         return samples if samples is not None else min(max(10 * len(mesh[1]), 1000), max_samples)
 
-    fwd, bwd = forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist)])
+    fwd, bwd = forked([(_metro_dir, a, b, n_of(a), maxdist), (_metro_dir, b, a, n_of(b), maxdist, True)])
     return {"forward": fwd, "backward": bwd}

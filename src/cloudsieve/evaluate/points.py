@@ -67,12 +67,12 @@ from .distances import (
     ExactIndex,
     Target,
     aggregate,
-    backward_chunk,
     combine,
     forward_chunk,
     hist_edges,
     stats_partial,
 )
+from .planes import K_NORMALS, backward_chunk
 
 logger = logging.getLogger(__name__)
 
@@ -136,7 +136,7 @@ def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
 def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
                  error_points: int = 0, on_error_points=None, progress=None,
-                 grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+                 grid: tuple[np.ndarray, np.ndarray] | None = None, d2_k: int | None = K_NORMALS) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
     Parameters
@@ -172,6 +172,10 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         it is one on this grid (an original point as a LAS file of this grid
         stores it: a PLY or a LAS of another scale simplified to LAS), for
         ``subset`` and ``not_in_original``; the distances stay measured.
+    d2_k : int or None
+        Point-to-plane (D2) errors too, on the original's normals: from the
+        file (``nx, ny, nz``) or estimated from this many neighbours in the
+        point's chunk (:mod:`.planes`); None: D1 only (``d2_mse`` 0).
 
     Returns
     -------
@@ -222,7 +226,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         for chunk in src.chunks():
             start, stop = chunk.start, chunk.stop
             kw = {"select": _select(fwd_idx, start, stop), "keep": _select(ply_idx, start, stop),
-                  "n_backward": nb}
+                  "n_backward": nb, "normals": chunk.arrays.get("normals"), "d2_k": d2_k}
             yield (chunk.xyz,), kw
 
     partials = []
@@ -244,16 +248,18 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
 
     # backward: simplified points found exactly in the original have distance 0
     matched = np.unpackbits(total["matched"], count=nb).astype(bool)
-    bd = np.zeros(nb)
+    bd, bd2 = np.zeros(nb), np.zeros(nb)
     todo = np.flatnonzero(~matched)
     if len(todo):
         logger.info("backward: %d of %d simplified points not found exactly; searching the original", len(todo), nb)
         pts = bpoints[todo]
-        best = np.full(len(todo), np.inf)
-        items2 = (((chunk.xyz,), {}) for chunk in src.chunks())
-        for d in imap(backward_chunk, items2, client, shared=(pts, best)):
-            np.minimum(best, d, out=best)
+        best, best2 = np.full(len(todo), np.inf), np.zeros(len(todo))
+        items2 = (((chunk.xyz,), {"normals": chunk.arrays.get("normals"), "k": d2_k}) for chunk in src.chunks())
+        for d, d2 in imap(backward_chunk, items2, client, shared=(pts, best)):
+            win = d < best
+            best[win], best2[win] = d[win], d2[win]
         bd[todo] = best
+        bd2[todo] = best2
     far = todo[bd[todo] > 0]
     n_out, example = len(far), (f"e.g. {bpoints[far[0]].tolist()}, {bd[far[0]]:.6g} away" if len(far) else "")
     if grid is not None and len(far):  # original points as the simplified cloud's LAS grid stores them
@@ -275,6 +281,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             f"{n_out} of {nb} {'sampled ' if bwd_idx is not None else ''}simplified points are not points of "
             f"the original {src.name} ({example}), but a subset was claimed")
     bpart = stats_partial(bd, bpoints, 0)
+    bpart["d2sq"] = float(bd2.sum())
     backward = aggregate(bpart, diagonal, population=len(simplified) if bwd_idx is not None and nb < len(simplified) else None)
     haus = max(forward["max"], backward["max"])
     fh, bh = total["hist"], bpart["hist"]
@@ -295,6 +302,8 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         "hausdorff": haus,
         "hausdorff_pct": haus * 100.0 / diagonal if diagonal > 0 else float("nan"),
         "hausdorff_is_lower_bound": bool(sampled),
+        "normals": "file" if src.has_normals else "estimated",
+        "k_normals": d2_k,
         "subset": bool(n_out == 0),
         "not_in_original": int(n_out),
         "histogram": {

@@ -1,8 +1,10 @@
-"""Writing an evaluation report: report.json, report.md, PNG plots, error PLY.
+"""Writing an evaluation report: report.json, report.md, report.html, PNG plots, error PLY.
 
 ``report.json`` holds the report dict of :func:`cloudsieve.evaluate` as is
 (keys documented there). ``report.md`` renders it as tables like the paper's
-Tables 1-4. Plots (matplotlib, Agg backend, no display needed):
+Tables 1-4; ``report.html`` (:mod:`.html`) holds the same tables, the plots and
+3D views of the error-coloured original and of the kept points, in one file
+that needs no network. Plots (matplotlib, Agg backend, no display needed):
 
 - ``compactness.png``: histograms of triangle compactness, original mesh vs
   simplified mesh (the paper's figures 4-5), with the 0.6 line;
@@ -27,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["write_report", "write_json", "json_ready", "markdown", "border_per_face", "holes_note",
+__all__ = ["write_report", "write_json", "json_ready", "markdown", "field_lines", "db", "border_per_face", "holes_note",
            "plot_compactness", "plot_point_errors", "write_error_ply", "fmt"]
 
 
@@ -128,6 +130,7 @@ def markdown(report: dict) -> str:
                 lines.append(f"- {name} 95% CI: mean [{fmt(ci['mean'][0])}, {fmt(ci['mean'][1])}], "
                              f"RMS [{fmt(ci['rms'][0])}, {fmt(ci['rms'][1])}]; the sampled max is a lower bound.")
         lines.append("")
+    lines += field_lines(report)
     sf = report.get("surface")
     if sf:
         lines += ["## Surface level (ball-pivoting meshes, Metro distances, % of the original's bbox diagonal)", "",
@@ -141,12 +144,33 @@ def markdown(report: dict) -> str:
                 m = sf[mesh]
                 lines.append(f"| {mesh} | {label} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | "
                              f"{fmt(d['max_pct'])} | {fmt(d['rms_pct'])} |")
+        on = sf.get("on_surface") or {}
+        if on.get("backward"):
+            d, m = on["backward"], sf["simplified"]
+            lines.append(f"| simplified | simplified mesh → original mesh, where the original has surface | "
+                         f"{fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | {fmt(d['max_pct'])} | "
+                         f"{fmt(d['rms_pct'])} |")
+            lines += ["", f"Where the original has surface: {_pct(on['excluded_share'])} of the backward samples "
+                      "left out (their closest point on the original's mesh lies on its border: a hole, or the "
+                      f"tile's rim); Metro there (the larger direction): mean {fmt(on['mean_pct'])}%, max "
+                      f"{fmt(on['max_pct'])}%, RMS {fmt(on['rms_pct'])}%."]
         lines += ["", "| mesh | vertices | faces | border edges per face | compactness ≥ 0.6 | mean compactness | "
                   "compact (≥ 50%) |", "|---|---:|---:|---:|---:|---:|---|"]
         for mesh in ("original", "simplified"):
             m = sf[mesh]
             lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {border_per_face(m)} | "
                          f"{_pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+        ref = sf.get("reference")
+        if ref:
+            lines += ["", f"Against the reference mesh ({fmt(ref['faces'])} faces; Metro, % of the diagonal, the "
+                      "larger of both directions; forward: samples on the reference):", "",
+                      "| mesh | mean % | max % | RMS % | forward mean % | backward mean % |",
+                      "|---|---:|---:|---:|---:|---:|"]
+            for mesh in ("original", "simplified"):
+                d = ref.get(mesh) or {}
+                if d.get("forward"):
+                    lines.append(f"| {mesh} | {fmt(d['mean_pct'])} | {fmt(d['max_pct'])} | {fmt(d['rms_pct'])} | "
+                                 f"{fmt(d['forward']['mean_pct'])} | {fmt(d['backward']['mean_pct'])} |")
         if holes_note(sf["original"]):
             lines += ["", f"> {holes_note(sf['original'])}"]
         if len(sf["tiles"]) > 1:
@@ -166,6 +190,34 @@ def markdown(report: dict) -> str:
     if files:
         lines += ["## Files", ""] + [f"- {k}: `{os.path.basename(v)}`" for k, v in files.items()] + [""]
     return "\n".join(lines)
+
+
+def db(v: Any) -> str:
+    """A PSNR for a table: 2 decimals, "∞" for an MSE of 0 (inf, or None once read back from JSON)."""
+    if v is None or math.isinf(float(v)):  # report.json holds an infinite PSNR as null
+        return "∞"
+    return f"{float(v):.2f}"
+
+
+def field_lines(report: dict) -> list[str]:
+    """report.md's section on MPEG pc_error's D1/D2 PSNR and the Chamfer distance (none without them)."""
+    ps, ch = report.get("psnr"), report.get("chamfer")
+    if not ps or not ch:
+        return []
+    normals = "from the file" if ps["normals"] == "file" else f"estimated by PCA of {ps['k_normals']} neighbours"
+    lines = ["## Field figures (MPEG pc_error D1/D2 PSNR, Chamfer)", "",
+             f"PSNR = 10·log10(3·p²/MSE) dB with peak p = {fmt(ps['peak'])} "
+             f"({'the original' + chr(39) + 's bounding-box diagonal' if ps['peak_from'] == 'diagonal' else 'given'}); "
+             f"D1 point-to-point, D2 point-to-plane on the original's normals ({normals}); symmetric = the larger "
+             "MSE; ∞: no error.", "",
+             "| metric | forward PSNR (dB) | backward PSNR (dB) | symmetric PSNR (dB) | forward MSE | backward MSE |",
+             "|---|---:|---:|---:|---:|---:|"]
+    for m in ("d1", "d2"):
+        lines.append(f"| {m.upper()} | {db(ps[m]['forward'])} | {db(ps[m]['backward'])} | {db(ps[m]['symmetric'])} | "
+                     f"{fmt(ps['mse'][m]['forward'])} | {fmt(ps['mse'][m]['backward'])} |")
+    lines += ["", f"Chamfer distance: {fmt(ch['value'])} (squared cloud units; {fmt(ch['forward'])} forward + "
+              f"{fmt(ch['backward'])} backward, the mean squared nearest-neighbour distances).", ""]
+    return lines
 
 
 def _plt():
@@ -248,11 +300,22 @@ def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray)
     return str(path)
 
 
-def write_report(report: dict, directory: str | os.PathLike, *, error_points: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
-    """Write report.json, report.md, the plots and (given points and errors) errors.ply into *directory*.
+def write_report(report: dict, directory: str | os.PathLike, *, error_points: tuple[np.ndarray, np.ndarray] | None = None,
+                 kept: np.ndarray | None = None) -> dict:
+    """Write report.json, report.md, report.html, the plots and (given points and errors) errors.ply into *directory*.
+
+    Parameters
+    ----------
+    error_points : (ndarray (n, 3), ndarray (n,)), optional
+        Original points and their forward errors (errors.ply, and a sample
+        of them in report.html's 3D view).
+    kept : ndarray of shape (m, 3), optional
+        The simplified cloud (a sample of it in report.html's 3D view).
 
     Returns the mapping of file kinds to paths (also stored in ``report["files"]``).
     """
+    from .html import view_sample, write_html
+
     d = Path(directory)
     d.mkdir(parents=True, exist_ok=True)
     files: dict[str, str] = {}
@@ -273,8 +336,19 @@ def write_report(report: dict, directory: str | os.PathLike, *, error_points: tu
     if error_points is not None and len(error_points[0]):
         files["error PLY"] = write_error_ply(d / "errors.ply", *error_points)
     files["markdown"] = str(d / "report.md")
+    files["html"] = str(d / "report.html")
     files["json"] = str(d / "report.json")
     report["files"] = files
-    (d / "report.md").write_text(markdown(report))
+    md = markdown(report)
+    (d / "report.md").write_text(md)
+    seed = (report.get("parameters") or {}).get("seed") or 0
+    views: dict[str, Any] = {"bounds": np.asarray(p["bounds"]) if p else None}
+    if error_points is not None and len(error_points[0]):
+        i = view_sample(len(error_points[0]), seed=seed)
+        views.update(original=error_points[0][i], errors={"the simplified cloud": error_points[1][i]})
+    if kept is not None and len(kept):
+        views["kept"] = {"simplified": kept[view_sample(len(kept), seed=seed)]}
+    images = {k: v for k, v in files.items() if v.endswith(".png")}
+    write_html(d / "report.html", "cloudsieve evaluation", md, images=images, **views)
     write_json(report, d / "report.json")
     return files

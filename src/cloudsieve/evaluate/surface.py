@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
-from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, metro
+from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, crop_mesh, metro
 
 logger = logging.getLogger(__name__)
 
@@ -107,8 +107,29 @@ def _mesh_figures(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, dict
     return c, {"vertices": int(len(mesh[0])), "border_edges": len(border_edges(mesh[1])), **compactness_summary(c)}
 
 
+def _pct(r: dict, diagonal: float) -> dict:
+    for key in ("mean", "rms", "max"):
+        r[f"{key}_pct"] = r[key] * 100.0 / diagonal if diagonal > 0 else float("nan")
+    return r
+
+
+def _reference(ref: tuple[np.ndarray, np.ndarray], meshes: dict, diagonal: float, samples: int | None,
+               max_samples: int) -> dict:
+    """Metro of each of *meshes* (name -> mesh) against the reference mesh (cropped to the tile)."""
+    out: dict[str, Any] = {"faces": int(len(ref[1]))}
+    if len(ref[1]) == 0:
+        out["error"] = "the reference mesh has no triangle in this tile"
+        return out
+    for name, mesh in meshes.items():
+        if len(mesh[1]):
+            m = metro(ref, mesh, samples=samples, max_samples=max_samples)
+            out[name] = {"forward": _pct(m["forward"], diagonal), "backward": _pct(m["backward"], diagonal)}
+    return out
+
+
 def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: int | None,
-                  max_samples: int, cache: dict | None = None, key: Any = None) -> tuple[dict, np.ndarray, np.ndarray]:
+                  max_samples: int, cache: dict | None = None, key: Any = None,
+                  reference: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, np.ndarray, np.ndarray]:
     lo, hi = orig.min(0), orig.max(0)
     tile_diag = float(np.linalg.norm(hi - lo))
     rec: dict[str, Any] = {"points_original": int(len(orig)), "points_simplified": int(len(simp)),
@@ -123,6 +144,9 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
             cache[key] = (orig, mo, co, figs)
     cs, rec["simplified"] = _mesh_figures(msimp)
     rec["original"] = dict(figs)
+    if reference is not None:
+        rec["reference"] = _reference(reference, {"simplified": msimp, "original": mo}, diagonal, samples,
+                                      max_samples)
     if len(mo[1]) == 0 or len(msimp[1]) == 0:
         rec["error"] = (f"ball pivoting made no triangle ({len(mo[1])} from {len(orig)} original points, "
                         f"{len(msimp[1])} from {len(simp)} simplified points)")
@@ -135,6 +159,29 @@ def _tile_figures(orig: np.ndarray, simp: np.ndarray, diagonal: float, samples: 
             r[f"{key}_pct_tile"] = r[key] * 100.0 / tile_diag if tile_diag > 0 else float("nan")
         rec[name] = r
     return rec, co, cs
+
+
+def _on_surface(recs: list[dict], forward: dict | None, diagonal: float) -> dict | None:
+    """Metro where the original's mesh has surface: the backward samples facing a hole (or a tile's rim) left out."""
+    rs = [r["backward"]["on_surface"] for r in recs if "on_surface" in r.get("backward", {})]
+    if not rs:
+        return None
+    n = np.array([r["samples"] for r in rs], dtype=np.float64)
+    excluded = int(sum(r["excluded"] for r in rs))
+    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
+    out: dict[str, Any] = {"excluded": excluded, "excluded_share": excluded / max(n.sum() + excluded, 1.0),
+                           "backward": None}
+    if n.sum() > 0:
+        keep = n > 0
+        mean = float((n[keep] * [r["mean"] for r, k in zip(rs, keep) if k]).sum() / n.sum())
+        rms = float(math.sqrt((n[keep] * np.square([r["rms"] for r, k in zip(rs, keep) if k])).sum() / n.sum()))
+        mx = float(max(r["max"] for r, k in zip(rs, keep) if k))
+        out["backward"] = {"mean": mean, "rms": rms, "max": mx, "mean_pct": mean * scale, "rms_pct": rms * scale,
+                           "max_pct": mx * scale, "samples": int(n.sum())}
+    for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
+        vals = [d[key] for d in (forward, out["backward"]) if d is not None]
+        out[key] = max(vals) if vals else float("nan")
+    return out
 
 
 def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
@@ -152,7 +199,8 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
 
 def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, tile_points: int = 200_000,
                    seed: int = 0, diagonal: float | None = None, samples: int | None = None,
-                   max_samples: int = 500_000, progress=None, cache: dict | None = None) -> dict:
+                   max_samples: int = 500_000, progress=None, cache: dict | None = None,
+                   reference: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """The paper's surface-level figures on tiles of the cloud.
 
     Parameters
@@ -178,6 +226,10 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     cache : dict, optional
         Keeps the original's tile meshes between calls on the same original
         (compare evaluates several simplifications of one cloud).
+    reference : (vertices (v, 3), faces (f, 3)), optional
+        A mesh of the scanned surface (:func:`.mesh.load_mesh`): the
+        simplified and the original tile meshes are compared with it by Metro
+        (cropped to each tile's ball), in ``reference``.
 
     Returns
     -------
@@ -186,7 +238,15 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         ``backward``, ``original``/``simplified`` mesh figures), aggregated
         ``forward`` and ``backward`` (mean and RMS weighted by samples, max
         over tiles), ``mean, rms, max`` and their ``_pct`` (the larger of the
-        two directions, Metro's symmetric convention), ``original`` and
+        two directions, Metro's symmetric convention), ``on_surface`` (Metro
+        where the original's mesh has surface: ``backward`` over the samples
+        whose closest point on the original's mesh is not on its border,
+        ``excluded`` and ``excluded_share`` of the backward samples, and
+        ``mean, rms, max`` and their ``_pct``, the larger of ``forward`` and
+        that ``backward``), with *reference* ``reference`` (``faces``, and
+        for the ``simplified`` and the ``original`` tile meshes Metro against
+        the reference: ``forward`` (samples on the reference), ``backward``,
+        ``mean, rms, max`` and their ``_pct``, the larger), ``original`` and
         ``simplified`` mesh totals (``vertices, border_edges, faces,
         compact_share, compact, compactness_mean, compactness_hist``;
         border edges: :func:`.mesh.border_edges`), and for the simplified
@@ -218,7 +278,10 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     recs, cos, css = [], [], []
     for i, (t, o, s) in enumerate(zip(chosen, origs, simps)):
         logger.info("surface tile: %d original, %d simplified points", len(o), len(s))
-        rec, co, cs = _tile_figures(o, s, diagonal, samples, max_samples, cache, i)
+        ref = reference
+        if reference is not None and t.get("centre") is not None:
+            ref = crop_mesh(reference, t["centre"], t["radius"])
+        rec, co, cs = _tile_figures(o, s, diagonal, samples, max_samples, cache, i, ref)
         recs.append({**t, **rec})
         cos.append(co)
         css.append(cs)
@@ -232,6 +295,16 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
     for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
         vals = [d[key] for d in (f, b) if d is not None]
         out[key] = max(vals) if vals else float("nan")
+    out["on_surface"] = _on_surface(recs, f, diagonal)
+    if reference is not None:
+        out["reference"] = {"faces": int(len(reference[1]))}
+        for mesh in ("simplified", "original"):
+            sub = [r["reference"][mesh] for r in recs if mesh in r.get("reference", {})]
+            figs = {d: _combine_dirs(sub, d, diagonal) for d in ("forward", "backward")}
+            if figs["forward"] is not None:
+                figs.update({k: max(figs["forward"][k], figs["backward"][k])
+                             for k in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct")})
+            out["reference"][mesh] = figs
     for name, cs_list, recs_key in (("original", cos, "original"), ("simplified", css, "simplified")):
         allc = np.concatenate(cs_list) if cs_list else np.zeros(0)
         out[name] = {"vertices": int(sum(r[recs_key]["vertices"] for r in recs)),
