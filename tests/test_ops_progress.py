@@ -48,8 +48,8 @@ def assert_stages(stderr: str, stages: list[tuple[str, str]]) -> None:
     assert "\r" not in stderr and "it/s" not in stderr
 
 
-# a fresh run takes the partition's sample while it ingests: no "partition: sample" stage
-SIMPLIFY_STAGES = [("ingest", "points"), ("partition: label", "tasks?"),
+# a LAS source is ingested by tasks, and the partition reads its sample from the store ("partition: sample")
+SIMPLIFY_STAGES = [("ingest", "points"), ("partition: sample", "tasks?"), ("partition: label", "tasks?"),
                    ("cells: score", "tasks?"), ("cells: threshold", "tasks?"), ("cells: apply", "tasks?"),
                    ("merge", "tasks?"), ("export", "points")]
 
@@ -63,7 +63,7 @@ def test_simplify_without_a_terminal_logs_one_line_per_stage(tmp_path):
     proc = cloudsieve(["simplify", "--rule", "iterative", shared_file("simple.las"), tmp_path / "p.las", "--scheduler",
                        "sync"], tmp_path)
     assert_stages(proc.stderr, [s for s in SIMPLIFY_STAGES if s[0] not in ("cells: score", "cells: threshold",
-                                                                          "cells: apply")][:2]
+                                                                          "cells: apply")][:3]
                   + [("cells", "tasks?"), ("merge", "tasks?"), ("export", "points")])
     proc = cloudsieve(["simplify", "--rule", "iterative", shared_file("simple.las"), tmp_path / "q.las",
                        "--no-progress", "--scheduler", "sync"], tmp_path)

@@ -350,8 +350,9 @@ def simplify(
             t0 = time.perf_counter()
             if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
                 # tasks write the parts (or the tiles)
-                export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=update,
-                       run=runner, counts=kept_counts, tile_size=tile_size)
+                with stage_bar(bars, "export", summary.kept, "pt") as bar:
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar),
+                           run=runner, counts=kept_counts, tile_size=tile_size)
             else:
                 runner.close()  # the export streams here: the workers' memory goes now
                 with stage_bar(bars, "export", summary.kept, "pt") as bar:

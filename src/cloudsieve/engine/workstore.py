@@ -150,15 +150,16 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
     from .runner import stage_bar
 
     identity = source_identity(src)
-    if is_las_source(expand_sources(src)):
-        ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=progress, run=run)
-    else:
-        with stage_bar(bars, "ingest", None, "pt") as bar:
-            def both(n):
-                bar(n)
-                if progress is not None:
-                    progress(n)
+    with stage_bar(bars, "ingest", None, "pt") as bar:  # one line, in points, whether tasks read or this process
 
+        def both(n):
+            bar(n)
+            if progress is not None:
+                progress(n)
+
+        if is_las_source(expand_sources(src)):
+            ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, run=run)
+        else:
             ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, drop_invalid=drop_invalid,
                    on_chunk=on_chunk)
     st = PointStore.open(store_path, "r+")

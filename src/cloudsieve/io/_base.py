@@ -228,7 +228,8 @@ class Writer:
             raise
         from .conversions import conversion_note  # once the subclass knows its fields (a LAS writer's mapping)
 
-        note = conversion_note(path, format, source_format, self.header, getattr(self, "_mapping", None))
+        label = self.options.get("label", path)  # the file a message names (a part: the whole file)
+        note = conversion_note(label, format, source_format, self.header, getattr(self, "_mapping", None))
         if note:
             logger.warning("%s", note)
 

@@ -275,7 +275,7 @@ class LasWriter(Writer):
                 values = np.nan_to_num(values.astype(np.float64))
                 if name not in self._said and len(values) and (values.min() < 0 or values.max() > 1):  # once a file
                     self._said.add(name)
-                    logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self.path,
+                    logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self._label,
                                    name, values.min(), values.max(), las_name)
                 values = np.clip(np.round(values * 65535.0), 0, 65535).astype(np.uint16)
             try:

@@ -303,14 +303,14 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
                            "all (about 165 bytes a point)", dst, depth, biggest, task_points)
         args = [(store.path, name, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, origin,
                  size, leaf_points, header, mapping, scratch, i) for i, (d, _, s, e) in enumerate(plan)]
-        results = run(_subtree_task, args, "copc subtrees")
+        results = run(_subtree_task, args, "export: copc subtrees")
         for r in results:
             update(r["stats"]["count"])
         anc, anc_counts, batches = _ancestors(results, task_points)
-        sizes = run(_ancestor_task, [(header, scratch, i, b) for i, b in enumerate(batches)], "copc ancestors")
+        sizes = run(_ancestor_task, [(header, scratch, i, b) for i, b in enumerate(batches)], "export: copc ancestors")
         nodes, sources = _node_table(results, anc, anc_counts, batches, sizes, scratch)
         stats = merge_stats([r["stats"] for r in results])
-        written = run(write_copc, [(tmp, header, origin, size, nodes, sources, stats)], "copc file")[0]
+        written = run(write_copc, [(tmp, header, origin, size, nodes, sources, stats)], "export: copc file")[0]
         replace(tmp, dst)
     except BaseException:
         remove(tmp)

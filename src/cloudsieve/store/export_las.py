@@ -44,7 +44,7 @@ def count_task(store_path: str, mask: str, start: int, stop: int) -> int:
 
 
 class _Quiet(logging.Filter):
-    """Drops warnings about the header: every part has the same, and the first part gives them."""
+    """Drops warnings about the header and the conversion: every part has the same, the first part gives them."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return record.levelno < logging.WARNING
@@ -63,13 +63,14 @@ def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunk
     bound_malloc()
     st = PointStore.open(store_path, "r")
     quiet = _Quiet()
-    header_log = logging.getLogger("cloudsieve.io.las_header")
-    if not first:
-        header_log.addFilter(quiet)
+    logs = [logging.getLogger(name) for name in ("cloudsieve.io.las_header", "cloudsieve.io._base")]
+    for log in logs if not first else []:
+        log.addFilter(quiet)
     try:
         return _write_part(st, part_path, fmt, mask, chunks, label)
     finally:
-        header_log.removeFilter(quiet)
+        for log in logs:
+            log.removeFilter(quiet)
 
 
 def _write_part(st: PointStore, part_path: str, fmt: str, mask: str | None, chunks, label: str) -> int:
@@ -150,7 +151,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     try:
         args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items, dst, i == 0)
                 for i, items in enumerate(plan)]
-        written = run_tasks(run, part_task, args, "export")
+        written = run_tasks(run, part_task, args, "export: write")
         final = make_temp_path(dst)
         try:
             if len(args) == 1:

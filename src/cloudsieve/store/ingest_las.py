@@ -173,7 +173,7 @@ def ingest_las(
         new = PointStore.create(target, dtypes=plan.dtypes, chunk_size=chunk_size, count=plan.total,
                           overwrite=overwrite or local is not None, xyz_encoding=encoding)
         args = [(target, lo, hi, pieces) for lo, hi, pieces in plan.tasks(chunk_size)]
-        results = run_tasks(run, ingest_task, args, "ingest")
+        results = run_tasks(run, ingest_task, args, "ingest: read")
         lo = np.min([r["mins"] for r in results], axis=0) * plan.scale + plan.offset
         hi = np.max([r["maxs"] for r in results], axis=0) * plan.scale + plan.offset
         header = dict(plan.header)

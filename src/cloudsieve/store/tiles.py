@@ -212,7 +212,7 @@ def export_tiles(
         buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
         names = [tile_name(stem, int(k)) for k in buckets.keys]
         args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
-        entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "tiles: write")
+        entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
         for n in buckets.counts:
             update(int(n))
         write_vpc(os.path.join(tmp, VPC_NAME), entries)
