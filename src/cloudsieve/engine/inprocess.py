@@ -11,7 +11,7 @@ synchronous scheduler (:class:`~.runner.Runner` "sync"), so the output is the
 same, byte for byte (tests/test_inprocess.py), and a cell's k-NN and kernels
 use every core.
 
-Only when the caller chose nothing: no scheduler, no client, no memory limit.
+Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
 """
 
 from __future__ import annotations

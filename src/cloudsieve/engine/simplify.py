@@ -258,7 +258,7 @@ def simplify(
         check_scheduler(scheduler)
 
     src_is_store = is_store(src)
-    if scheduler is None and client is None and memory_limit is None:  # a small input runs in this process
+    if scheduler is None and client is None and memory_limit is None and workers is None:  # small: in process
         scheduler = local_scheduler(sources, src if src_is_store else None)
     default_store = store is None and not src_is_store
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
