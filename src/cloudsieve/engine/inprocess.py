@@ -3,10 +3,11 @@
 A cloud of at most :data:`IN_PROCESS_POINTS` points is one cell at the
 default ``cell_size`` (200,000): one cell task, nothing for worker processes to
 share, and starting them (a fork server that imports the engine and loads the
-kernels, then the workers) cost more than the whole run. Measured on 2 cores
-(load 4-7), autzen_trim.laz (110,000 points, ``--ratio 0.5``, warm numba
-cache), the whole command: 9.3-10.9 s with the process pool, 7.3 s in
-process. The tasks are the same and run in the same order on dask's
+kernels, then the workers) cost more than the whole run. Measured on 2 cores,
+the whole ``cloudsieve simplify SRC DST --ratio 0.5`` (warm numba cache,
+side by side, load 7.1-7.8): autzen_trim.laz (110,000 points) 6.61-6.75 s
+with the process pool, 3.67-5.65 s in process; simple.las (1,065 points)
+6.57-7.63 s and 3.34-3.82 s. The tasks are the same and run in the same order on dask's
 synchronous scheduler (:class:`~.runner.Runner` "sync"), so the output is the
 same, byte for byte (tests/test_inprocess.py), and a cell's k-NN and kernels
 use every core.
