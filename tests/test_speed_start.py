@@ -79,6 +79,9 @@ def test_the_in_process_limit_counts_the_headers(tmp_path):
     assert local_scheduler([autzen, autzen], limit=IN_PROCESS_POINTS) == (
         "sync" if 2 * n <= IN_PROCESS_POINTS else None)
     assert source_points([str(tmp_path / "missing.laz")]) is None  # the run itself reports it
+    assert source_points([str(shared_file("bun_zipper.ply"))]) == 35_947
+    # E57's reader logs the fields it skips at opening: not opened twice, so not counted
+    assert source_points([str(shared_file("pumpAVisualReferenceImage.e57"))]) is None
 
 
 def test_targets_of_a_run():

@@ -26,20 +26,25 @@ logger = logging.getLogger(__name__)
 
 #: at most this many input points run in the calling process (the default cell size: one cell)
 IN_PROCESS_POINTS = 200_000
+#: the formats whose count is read from the header, silently
+_HEADER_COUNTS = ("las", "laz", "copc", "ply")
 
 
 def source_points(sources: Sequence[str], store: str | None = None) -> int | None:
     """The points of *sources* (files) or of the point *store*, from their headers; None when a format
-    does not say (XYZ text) or a source cannot be opened (the run then reports it)."""
+    does not say (XYZ text), its reader may log at opening (E57: the fields it skips, which the ingest
+    logs once), or a source cannot be opened (the run then reports it)."""
     try:
         if store is not None:
             from ..store import PointStore
 
             return int(PointStore.open(store).count)
-        from ..io import open_reader
+        from ..io import detect_format, open_reader
 
         total = 0
         for path in sources:
+            if detect_format(path) not in _HEADER_COUNTS:
+                return None
             with open_reader(path) as reader:
                 if reader.count is None:
                     return None
