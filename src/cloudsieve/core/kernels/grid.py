@@ -168,7 +168,7 @@ def cell_neighbours(ukeys):
     return _column_sweep(xyz, L, key[L])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
     """Nearest alive point to p other than x (equal distances: lower ``tie``), squared distance; (-1, inf)
     if none in the 27 cells around p."""
