@@ -6,7 +6,8 @@ directory when that is read-only, or ``NUMBA_CACHE_DIR``). Measured on 2
 cores (load ~5): the kernels of the default command (targets ``common``,
 ``partition``, ``eliminate``) compiled in 25.8 s into an empty cache; the
 first ``cloudsieve simplify autzen_trim.laz --ratio 0.5`` took 33.8 s
-without a warm-up (51.7 s before this module's targets, side by side) and
+without a warm-up (51.7 s with the code before the targets, the in-process path
+and plain-call helpers, side by side) and
 3.6 s after one.
 
 Each target calls the kernels of one part of the method on a tiny input, with
