@@ -13,22 +13,32 @@ The public API:
 - pipelines: :func:`load_pipeline`, :func:`run_pipeline`;
 - the exceptions (root :class:`CloudsieveError`).
 
-open3d and pymeshlab are imported only when an evaluation needs them.
+Each name is imported at its first use: ``import cloudsieve`` itself loads
+no numba, dask, zarr, open3d or pymeshlab (open3d and pymeshlab only when an
+evaluation needs them).
 """
 
 from __future__ import annotations
 
 import logging
+import sys
+import types
 
-from .core import FuzzyCMeans, KMeans, Scores, entropy_scores, score_points
-from .store import PointStore, export, ingest
-from .engine import Summary, simplify
 from .errors import *  # noqa: F401,F403
 from .errors import __all__ as _errors_all
-from .evaluate import compare, evaluate
-from .io import open_reader, open_writer, read_cloud
-from .pipeline import load_pipeline, run_pipeline
-from .core import prune, refine_labels, simplify_points, threshold_for_count, unit_free_scores
+
+#: where each public name lives; imported at its first use (module ``__getattr__``, PEP 562), so
+#: ``import cloudsieve`` loads no numba, dask, zarr, open3d or pymeshlab
+_LAZY = {
+    "FuzzyCMeans": "core", "KMeans": "core", "Scores": "core", "entropy_scores": "core", "score_points": "core",
+    "prune": "core", "refine_labels": "core", "simplify_points": "core", "threshold_for_count": "core",
+    "unit_free_scores": "core",
+    "PointStore": "store", "export": "store", "ingest": "store",
+    "Summary": "engine", "simplify": "engine",
+    "compare": "evaluate", "_evaluate": "evaluate",
+    "open_reader": "io", "open_writer": "io", "read_cloud": "io",
+    "load_pipeline": "pipeline", "run_pipeline": "pipeline",
+}
 
 __version__ = "0.1.0"
 
@@ -60,3 +70,36 @@ __all__ = [
     "run_pipeline",
     *_errors_all,
 ]
+
+
+def __getattr__(name: str):
+    """A public name of :data:`_LAZY`, imported from its module at its first use."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name.lstrip("_"))
+        if not name.startswith("_"):
+            globals()[name] = value  # next time a plain attribute
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *(name.lstrip("_") for name in _LAZY)})
+
+
+class _Package(types.ModuleType):
+    """This package's module type: ``cloudsieve.evaluate`` is always the function, never the subpackage of
+    the same name (importing a submodule sets the parent's attribute; the function shadowed it when the
+    package imported it eagerly, and still does)."""
+
+    @property
+    def evaluate(self):
+        return __getattr__("_evaluate")
+
+    @evaluate.setter
+    def evaluate(self, module) -> None:  # the import system's binding of the subpackage: the function stays
+        pass
+
+
+sys.modules[__name__].__class__ = _Package

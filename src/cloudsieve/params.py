@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 
 from .core import METHODS, PAPER_THRESHOLD, RULES
+from .core.kernels.warmup import TARGETS as _WARM_TARGETS
 from .errors import InvalidParameterError
 from .rule_default import DEFAULT_RULE, Metavar, resolve_rule
 from .io import FORMATS
@@ -199,6 +200,9 @@ _OPTIONS = [
     Option("tile_size", FLOAT, None,
            "write DST as a folder of square LAZ tiles of edge S (the CRS's units; a grid anchored at 0) and "
            "DST/index.vpc", low=0.0, low_open=True, metavar="S"),
+    # -- warmup
+    Option("targets", CHOICES, tuple(_WARM_TARGETS), "warm-up targets to compile, comma-separated (default: all)",
+           choices=tuple(_WARM_TARGETS), metavar="LIST"),
     Option("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
            metavar="ARRAY"),
 ]
@@ -242,6 +246,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
                        extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
     "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
+    "warmup": _command("targets"),
 }
 
 

@@ -16,7 +16,6 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from .kernels import centres as kc
 
@@ -57,6 +56,8 @@ class Chunks:
 
 def centre_tree(C: np.ndarray) -> cKDTree:
     """The k-d tree over centres C (c, p): the reference of :func:`nearest_centres`."""
+    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+
     return cKDTree(C, balanced_tree=False, compact_nodes=False)
 
 

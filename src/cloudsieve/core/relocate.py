@@ -37,16 +37,19 @@ class numba_threads:
         self.threads = threads
 
     def __enter__(self):
-        import numba
-
-        self.old = numba.get_num_threads()
+        # None touches nothing: asking numba for its thread count starts its threading layer, and a
+        # process that has started GNU OpenMP's cannot fork (the fork server's warm-up)
         if self.threads is not None:
+            import numba
+
+            self.old = numba.get_num_threads()
             numba.set_num_threads(max(1, min(int(self.threads), numba.config.NUMBA_NUM_THREADS)))
 
     def __exit__(self, *exc):
-        import numba
+        if self.threads is not None:
+            import numba
 
-        numba.set_num_threads(self.old)
+            numba.set_num_threads(self.old)
 
 
 def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int = RELOCATE_STEPS,

@@ -2,8 +2,10 @@
 
 It is the last module of the fork server's preload list: imported there, it
 asks the kernel to kill the fork server when its parent, the driver, dies,
-then compiles the numba kernels (or loads them from numba's cache) once, so
-every worker forked from the server inherits them
+then compiles the numba kernels of the run's warm-up targets (named by the
+driver in ``CLOUDSIEVE_WARM_UP``, :func:`.pool.start_forkserver`; the scoring
+path without it), or loads them from numba's cache, once, so every worker
+forked from the server inherits them
 (:func:`cloudsieve.core.kernels.warmup.warm_up`), and freezes the objects it
 holds (``gc.freeze``) before the first fork.
 Imported anywhere else (a test that imports every preload module) it does
@@ -13,10 +15,12 @@ the import's call stack.
 
 import gc
 import logging
+import os
 import sys
 
-from ..core.kernels.warmup import warm_up
+from ..core.kernels.warmup import TARGETS, warm_up
 from .lifeline import die_with_parent
+from .pool import WARM_UP_ENV
 
 
 def _in_forkserver_main() -> bool:
@@ -31,7 +35,8 @@ def _in_forkserver_main() -> bool:
 if _in_forkserver_main():
     die_with_parent()
     try:
-        logging.getLogger(__name__).debug("kernels warmed up in %.2f s", warm_up())
+        _targets = [t for t in os.environ.get(WARM_UP_ENV, "common,partition,scores").split(",") if t in TARGETS]
+        logging.getLogger(__name__).debug("kernels of %s warmed up in %.2f s", _targets, warm_up(_targets))
     except Exception as exc:  # noqa: BLE001 - the workers then compile at their first call, and raise there
         logging.getLogger(__name__).warning("kernel warm-up failed in the fork server: %r", exc)
     # the objects of the imports and the kernels, frozen before any fork: the workers' collections no longer

@@ -51,7 +51,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ..core import neighbour_count
 from ..errors import PartitionLayoutError
@@ -129,6 +128,8 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
     rel = sample - sample.mean(axis=0)
     q = rel[perm[: min(s, 4000)]]
     sub = rel[perm[: s // 8]]
+    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+
     r1 = float(np.median(cKDTree(rel).query(q, k=k + 1)[0][:, k]))
     r2 = float(np.median(cKDTree(sub).query(q, k=k + 1)[0][:, k]))
     if r1 > 0 and r2 > r1:

@@ -10,11 +10,17 @@ die with it (:mod:`.lifeline`), keep glibc's heap thresholds fixed
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 
 from .lifeline import die_with_parent
 
-__all__ = ["local_pool", "worker_context"]
+__all__ = ["local_pool", "worker_context", "start_forkserver", "WARM_UP_ENV"]
+
+#: the environment variable naming the warm-up targets the fork server compiles, comma-separated
+#: (:data:`cloudsieve.core.kernels.warmup.TARGETS`; set only while :func:`start_forkserver` starts it)
+WARM_UP_ENV = "CLOUDSIEVE_WARM_UP"
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
 #: process; the heap's thresholds are fixed by bound_malloc). A replaced worker's first task costs
@@ -51,6 +57,31 @@ def worker_context():
         ctx.set_forkserver_preload(_PRELOAD)
         return ctx
     return get_context()
+
+
+def start_forkserver(context, targets: Iterable[str]) -> None:
+    """Start the fork server of *context* now (a "forkserver" context only), warming up *targets*.
+
+    The fork server compiles (or loads from numba's cache) the kernels of
+    *targets* once, before it forks a worker
+    (:mod:`.forkserver_init`): the workers inherit them, and two workers
+    never compile the same kernel side by side. It is one per process: a
+    fork server already running (an earlier run of this process) is kept,
+    and its workers load what else they need from the cache.
+    """
+    if context.get_start_method() != "forkserver":
+        return
+    from multiprocessing import forkserver
+
+    before = os.environ.get(WARM_UP_ENV)
+    os.environ[WARM_UP_ENV] = ",".join(targets)  # the fork server's environment is this process's
+    try:
+        forkserver.ensure_running()
+    finally:
+        if before is None:
+            os.environ.pop(WARM_UP_ENV, None)
+        else:
+            os.environ[WARM_UP_ENV] = before
 
 
 def local_pool(workers: int, context) -> ProcessPoolExecutor:

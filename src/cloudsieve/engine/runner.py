@@ -23,7 +23,7 @@ from typing import Any
 from ..errors import InvalidParameterError
 from ..progress import callback
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
-from .pool import local_pool, worker_context
+from .pool import local_pool, start_forkserver, worker_context
 
 __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "stage_bar"]
 
@@ -72,9 +72,14 @@ class Runner:
         Run on this cluster.
     bars : callable, optional
         ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
+    warm : tuple of str
+        The warm-up targets of the run's tasks
+        (:func:`cloudsieve.core.kernels.warmup.targets_of`): the local
+        process pool's fork server compiles them before it forks a worker.
     """
 
-    def __init__(self, scheduler=None, workers=None, memory_limit=None, client=None, bars=None) -> None:
+    def __init__(self, scheduler=None, workers=None, memory_limit=None, client=None, bars=None,
+                 warm: tuple[str, ...] = ("common", "partition", "scores")) -> None:
         self.client = client
         self._own_client = False
         self._cluster = None
@@ -131,6 +136,7 @@ class Runner:
             # one pool for the whole run: dask would start (and import into) a
             # new pool at every compute() otherwise, seconds per stage
             self._context = worker_context()
+            start_forkserver(self._context, warm)  # it warms up while the driver ingests
             self._pool = local_pool(int(workers or os.cpu_count() or 1), self._context)
 
     @property

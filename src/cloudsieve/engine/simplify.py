@@ -45,7 +45,9 @@ from ..scheduler import check_scheduler
 from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # "threshold" is a parameter of simplify()
+from ..core.kernels.warmup import targets_of
 from .eliminate import run_eliminate
+from .inprocess import local_scheduler
 from .partition import build_partition, reusable_partition
 from .sample import IngestSample
 from .runner import PeakMemory, Runner, stage_bar
@@ -254,6 +256,8 @@ def simplify(
     else:
         check_tile_folder(dst, format)
     src_is_store = is_store(src)
+    if scheduler is None and client is None and memory_limit is None and workers is None:  # small: in process
+        scheduler = local_scheduler(sources, src if src_is_store else None)
     default_store = store is None and not src_is_store
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
     # a work store of another source or other options is refused before any scheduler is contacted
@@ -271,7 +275,7 @@ def simplify(
         return up
 
     with PeakMemory() as peak:
-        runner = Runner(scheduler, workers, memory_limit, client, bars)
+        runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
         summary.scheduler = runner.name
         if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
             peak.watch_workers(runner.remote_client)

@@ -42,7 +42,7 @@ from ..errors import (
     InvalidParameterError,
     UnknownFormatError,
 )
-from ..store.chunk import DEFAULT_CHUNK_SIZE
+from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, check_destination
 
 __all__ = [

@@ -20,7 +20,7 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from ..errors import DestinationExistsError, DestinationNotWritableError
-from ..store.chunk import DEFAULT_CHUNK_SIZE, Chunk
+from ..chunk import DEFAULT_CHUNK_SIZE, Chunk
 
 __all__ = ["Reader", "Writer", "check_destination", "make_temp_path", "current_umask", "replace", "remove"]
 

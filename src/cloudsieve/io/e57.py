@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CorruptInputError, InputFormatError, MissingDependencyError
-from ..store.chunk import DEFAULT_CHUNK_SIZE
+from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader
 
 __all__ = ["E57Reader"]

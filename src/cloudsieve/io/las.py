@@ -24,7 +24,7 @@ from laspy.point.dims import ScaledArrayView
 from laspy.vlrs.vlrlist import VLRList
 
 from ..errors import CorruptInputError, InputFormatError
-from ..store.chunk import DEFAULT_CHUNK_SIZE
+from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
 from .las_checks import QUIET_READS, check_layout, decodable_points
 from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CorruptInputError, InputFormatError
-from ..store.chunk import DEFAULT_CHUNK_SIZE
+from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
 from ._text import parse_rows
 

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterable, Iterator
 import numpy as np
 
 from ..errors import EmptyInputError, InvalidPointsError
-from ..store.chunk import Chunk
+from ..chunk import Chunk
 
 __all__ = ["ValidPoints"]
 

@@ -1,38 +1,6 @@
-"""The one chunk shape: what every chunk iterator yields, and the default chunk size.
+"""The one chunk shape, re-exported here (its home is :mod:`cloudsieve.chunk`, outside this package, so
+the readers of :mod:`cloudsieve.io` import it without zarr)."""
 
-File readers (:meth:`cloudsieve.io.Reader.chunks`), point stores
-(:meth:`cloudsieve.store.PointStore.chunks`) and the evaluation's sources all
-yield :class:`Chunk` ``(start, arrays)``.
-"""
-
-from __future__ import annotations
-
-from typing import NamedTuple
-
-import numpy as np
+from ..chunk import DEFAULT_CHUNK_SIZE, Chunk
 
 __all__ = ["Chunk", "DEFAULT_CHUNK_SIZE"]
-
-#: points per chunk of every reader, store array and streamed evaluation, unless given
-DEFAULT_CHUNK_SIZE = 1_000_000
-
-
-class Chunk(NamedTuple):
-    """Consecutive points from *start* on, as every chunk iterator yields them (``start, arrays = chunk``).
-
-    *arrays* holds ``"xyz"``, ndarray of shape (n, 3), float64, and one array
-    per attribute of shape (n,) or (n, k).
-    """
-
-    start: int
-    arrays: dict[str, np.ndarray]
-
-    @property
-    def xyz(self) -> np.ndarray:
-        """The coordinates, ndarray of shape (n, 3)."""
-        return self.arrays["xyz"]
-
-    @property
-    def stop(self) -> int:
-        """One past the index of the block's last point."""
-        return self.start + len(self.arrays["xyz"])

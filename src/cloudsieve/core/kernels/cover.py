@@ -22,7 +22,7 @@ from numba import njit
 from .grid import nearest
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff):
     """Nearest remaining point to p other than x from position ``start`` of p's list in nearest-first
     order, its squared distance and position (the list's end when found by the grid walk, or none)."""
@@ -39,7 +39,7 @@ def next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr
     return a, d2, end
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def link(p, a, ahead, anext, aprev):
     """Put p in the list of points whose alt is a."""
     h = ahead[a]
@@ -50,7 +50,7 @@ def link(p, a, ahead, anext, aprev):
     ahead[a] = p
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def unlink(p, a, ahead, anext, aprev):
     """Take p out of the list of points whose alt is a."""
     if aprev[p] >= 0:
@@ -61,7 +61,7 @@ def unlink(p, a, ahead, anext, aprev):
         aprev[anext[p]] = aprev[p]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def gain(p, x, d2, P):
     """Squared distance p would gain if its rep x went and it moved to the point at squared distance d2."""
     dx = P[p, 0] - P[x, 0]
@@ -70,14 +70,14 @@ def gain(p, x, d2, P):
     return d2 - (dx * dx + dy * dy + dz * dz)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def add_gain(x, t, c2b, cerr):
     """c2b[x] += t, with the rounding bound."""
     c2b[x] += t
     cerr[x] += 2.0**-51 * (abs(c2b[x]) + abs(t))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2):
     """An upper bound of the coverage factor f(x) (exact e, c lowered below every rounding of its sum)."""
     if nmiss[x] > 0:
@@ -90,13 +90,13 @@ def fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2):
     return f / (1.0 + lam * c2 * inv_r2)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def resume_at(p, sp, nptr):
     """Where the next search of p's alt starts: after the last one found, unless past p's list."""
     return sp[p] + 1 if sp[p] < nptr[p + 1] else sp[p]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def take_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff, alt, altd2, sp, ahead,
              anext, aprev, e2b, c2b, cerr, nmiss):
     """Give p (represented by x) its next alt from ``start`` of its list, and add it to x's coverage data."""

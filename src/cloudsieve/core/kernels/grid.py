@@ -10,7 +10,7 @@ each cell, ``nstart``/``ncells`` the CSR list of the occupied cells among the
 from __future__ import annotations
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 _M1 = np.int64(0x1F00000000FFFF)
 _M2 = np.int64(0x1F0000FF0000FF)
@@ -41,12 +41,16 @@ def _compact(v):
     return v
 
 
-@njit(cache=True, nogil=True, parallel=True)
+# Not parallel=True (nor nearest_kept): measured on 2 cores (load ~7) on a 220,000-point cell, cell_codes took
+# 1.1-4.1 ms parallel against 1.7-1.9 ms in one thread, nearest_kept 83-104 ms against 46-47 ms, and their
+# compilation 0.3 s and 1.1 s more; a cell task runs on one core anyway, and a fork server that has run a
+# parallel kernel cannot fork (GNU OpenMP), so the default rule's kernels can be warmed up there
+@njit(cache=True, nogil=True)
 def cell_codes(P, lo, h):
     """Z-order code (n,) int64 of each point's grid cell (cells of size h from lo, < 2^21 per axis)."""
     n = len(P)
     out = np.empty(n, dtype=np.int64)
-    for i in prange(n):
+    for i in range(n):
         c = np.int64(0)
         for j in range(3):
             q = min(np.int64((P[i, j] - lo[j]) / h), np.int64(0x1FFFFF))
@@ -164,7 +168,7 @@ def cell_neighbours(ukeys):
     return _column_sweep(xyz, L, key[L])
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
     """Nearest alive point to p other than x (equal distances: lower ``tie``), squared distance; (-1, inf)
     if none in the 27 cells around p."""
@@ -186,11 +190,11 @@ def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
     return best, bd
 
 
-@njit(cache=True, nogil=True, parallel=True)
+@njit(cache=True, nogil=True)
 def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
     """Nearest kept point (kept != 0) of each point of ``rows`` (equal distances: lower ``tie``), -1 when
     none is in its 27 cells."""
     out = np.empty(len(rows), dtype=np.int64)
-    for u in prange(len(rows)):
+    for u in range(len(rows)):
         out[u] = nearest(rows[u], -1, P, cell, cstart, nstart, ncells, kept, tie)[0]
     return out

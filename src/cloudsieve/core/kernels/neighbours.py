@@ -45,7 +45,7 @@ def ipow(u, alpha, ialpha):
     return r
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def term_weight(i, nptr, nbr, state, term):
     """Crowding sum of point i over its alive neighbours from the stored terms (the grid walk's sum, bit
     for bit: the same terms in the same order)."""
@@ -75,7 +75,7 @@ def _ties_by_tie(soff, b, k, dd, nbr, tie):
         a = e
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
     """:func:`.grid.nearest` (the nearest alive point to p other than x, equal distances lower ``tie``;
     squared distance) from p's list; the grid walk only when no alive point of it is within 2 r_max.

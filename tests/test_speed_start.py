@@ -1,0 +1,111 @@
+"""First contact (issue 28): lazy imports, small inputs in the calling process, ``cloudsieve warmup``.
+
+No wall times here: the timings are in the README ("Start-up"). These tests
+check what the timings rely on: ``import cloudsieve`` and ``cloudsieve --help``
+load no dask, zarr, open3d, pymeshlab or distributed; a small input runs in
+the calling process and writes the same bytes as the process pool; the
+warm-up of the default rule leaves nothing for the default command to compile.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import cloudsieve
+from cloudsieve.cli import main
+from cloudsieve.core.kernels.compile_log import CompileLog
+from cloudsieve.core.kernels.warmup import TARGETS, targets_of, warm_up
+from cloudsieve.engine.inprocess import IN_PROCESS_POINTS, local_scheduler, source_points
+
+from conftest import shared_file
+
+HEAVY = ("dask", "zarr", "open3d", "pymeshlab", "distributed")
+SRC = str(Path(__file__).resolve().parents[1] / "src")
+
+
+def _loaded_after(code: str) -> list[str]:
+    """The HEAVY modules a fresh interpreter holds after running *code*."""
+    probe = f"import sys\n{code}\nprint(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, env=env)
+    return out.stdout.split()
+
+
+def test_import_cloudsieve_loads_no_dask_zarr_open3d_pymeshlab():
+    assert _loaded_after("import cloudsieve") == []
+
+
+def test_cli_help_loads_no_dask_zarr_open3d_pymeshlab():
+    code = "from cloudsieve.cli import build_parser\nbuild_parser().format_help()"
+    assert _loaded_after(code) == []
+
+
+def test_public_names_resolve_lazily_and_evaluate_stays_the_function():
+    import cloudsieve.evaluate.report  # noqa: F401 - the subpackage of the same name, imported first
+
+    assert callable(cloudsieve.evaluate) and cloudsieve.evaluate.__name__ == "evaluate"
+    for name in cloudsieve.__all__:
+        assert getattr(cloudsieve, name) is not None, name
+    assert set(cloudsieve.__all__) <= set(dir(cloudsieve))
+    with pytest.raises(AttributeError, match="no attribute 'nope'"):
+        cloudsieve.nope  # noqa: B018
+
+
+@pytest.mark.parametrize("name, cell_size", [("simple.las", 200_000), ("autzen_trim.laz", 40_000)])
+def test_small_input_in_process_writes_the_same_bytes_as_the_process_pool(name, cell_size, tmp_path):
+    src = shared_file(name)
+    assert local_scheduler([str(src)]) == "sync"  # below IN_PROCESS_POINTS: the in-process path
+    inproc = cloudsieve.simplify(src, tmp_path / "a.laz", ratio=0.5, cell_size=cell_size)
+    pooled = cloudsieve.simplify(src, tmp_path / "b.laz", ratio=0.5, cell_size=cell_size, scheduler="processes",
+                                 workers=2)
+    assert inproc.scheduler == "sync" and pooled.scheduler.startswith("processes")
+    assert inproc.cells == pooled.cells >= (3 if cell_size < 100_000 else 1)
+    assert inproc.kept == pooled.kept == round(0.5 * inproc.points_in)
+    assert (tmp_path / "a.laz").read_bytes() == (tmp_path / "b.laz").read_bytes()
+
+
+def test_the_in_process_limit_counts_the_headers(tmp_path):
+    autzen = str(shared_file("autzen_trim.laz"))
+    n = source_points([autzen])
+    assert n == 110_000
+    assert local_scheduler([autzen], limit=n) == "sync"
+    assert local_scheduler([autzen], limit=n - 1) is None
+    assert local_scheduler([autzen, autzen], limit=IN_PROCESS_POINTS) == (
+        "sync" if 2 * n <= IN_PROCESS_POINTS else None)
+    assert source_points([str(tmp_path / "missing.laz")]) is None  # the run itself reports it
+    assert source_points([str(shared_file("bun_zipper.ply"))]) == 35_947
+    # E57's reader logs the fields it skips at opening: not opened twice, so not counted
+    assert source_points([str(shared_file("pumpAVisualReferenceImage.e57"))]) is None
+
+
+def test_targets_of_a_run():
+    assert targets_of("eliminate") == ("common", "partition", "eliminate")
+    assert targets_of("threshold") == targets_of("iterative") == targets_of(None) == ("common", "partition", "scores")
+    assert {t for rule in ("eliminate", "threshold") for t in targets_of(rule)} <= set(TARGETS)
+
+
+def test_after_the_eliminate_warm_up_the_default_command_compiles_nothing(tmp_path):
+    warm_up(targets_of("eliminate"))
+    with CompileLog() as log:
+        cloudsieve.simplify(shared_file("autzen_trim.laz"), tmp_path / "o.laz", ratio=0.5, scheduler="sync")
+    assert dict(log.seconds) == {}
+
+
+def test_cli_warmup_exits_0_and_names_each_target(capsys):
+    assert main(["warmup", "--targets", "common,scores"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("common: ") and "\nscores: " in out and "cloudsieve warmup: " in out
+    assert main(["warmup", "--targets", "common", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert list(record["targets"]) == ["common"] and record["seconds"] >= 0 and record["cache"]
+
+
+def test_cli_warmup_refuses_an_unknown_target(capsys):
+    assert main(["warmup", "--targets", "common,nope"]) == 2
+    assert "nope" in capsys.readouterr().err
