@@ -9,7 +9,8 @@ pipelines and the API refuse the same values with the same message.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Callable, Iterable, Mapping
+import contextlib
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
 from .. import params
@@ -122,3 +123,16 @@ def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_
     for name, value in getattr(exc, "advice", {}).items():
         message = message.replace(f"{name}={value!r}", wording(name, value))
     return message
+
+
+@contextlib.contextmanager
+def task_runner(no_progress: bool) -> Iterator[Any]:
+    """The local worker processes of a command's tasks (ingest, export), one bar per stage; closed on exit."""
+    from .. import progress
+    from ..engine.runner import Runner
+
+    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not no_progress))
+    try:
+        yield runner
+    finally:
+        runner.close()

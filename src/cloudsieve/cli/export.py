@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import add_options, option_values
+from ._common import add_options, option_values, task_runner
 
 ORDER = 30
 
@@ -31,7 +31,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
-    from ..engine.runner import Runner
     from ..store import export
     from ..errors import ArrayNotFoundError
     from ..store import PointStore
@@ -41,21 +40,18 @@ def run(args: argparse.Namespace) -> int:
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
     total = store.count if args.mask is None else None  # the points written: a mask's count is not known yet
-    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
-    try:
-        with progress.bar(f"export {args.dst}", total, enabled=not args.no_progress) as update:
-            export(
-                store,
-                args.dst,
-                format=args.format,
-                mask=args.mask,
-                chunk_size=args.chunk_size,
-                overwrite=args.overwrite,
-                progress=update,
-                run=runner,  # LAS/LAZ, COPC and tiles: written by local worker processes
-                tile_size=args.tile_size,
-            )
-    finally:
-        runner.close()
+    with task_runner(args.no_progress) as runner, \
+            progress.bar(f"export {args.dst}", total, enabled=not args.no_progress) as update:
+        export(
+            store,
+            args.dst,
+            format=args.format,
+            mask=args.mask,
+            chunk_size=args.chunk_size,
+            overwrite=args.overwrite,
+            progress=update,
+            run=runner,  # LAS/LAZ, COPC and tiles: written by local worker processes
+            tile_size=args.tile_size,
+        )
     print(f"exported {args.store} to {args.dst}", file=sys.stderr)
     return 0

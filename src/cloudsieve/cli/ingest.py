@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from ._common import add_options, option_values
+from ._common import add_options, option_values, task_runner
 
 ORDER = 20
 
@@ -30,7 +30,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import progress
-    from ..engine.runner import Runner
     from ..io import open_reader
     from ..io.sources import is_many
     from ..store import ingest
@@ -46,22 +45,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         with open_reader(args.src, format=args.format, **options) as reader:
             total = reader.count
-    runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not args.no_progress))
-    try:
-        with progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
-            store = ingest(
-                args.src,
-                args.store,
-                format=args.format,
-                chunk_size=args.chunk_size,
-                drop_invalid=args.drop_invalid,
-                overwrite=args.overwrite,
-                progress=update,
-                run=runner,  # LAS/LAZ/COPC sources: tasks on local worker processes
-                **options,
-            )
-    finally:
-        runner.close()
+    with task_runner(args.no_progress) as runner, \
+            progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
+        store = ingest(
+            args.src,
+            args.store,
+            format=args.format,
+            chunk_size=args.chunk_size,
+            drop_invalid=args.drop_invalid,
+            overwrite=args.overwrite,
+            progress=update,
+            run=runner,  # LAS/LAZ/COPC sources: tasks on local worker processes
+            **options,
+        )
     dropped = store.group.attrs["cloudsieve"].get("dropped_invalid", 0)
     msg = f"ingested {store.count} points ({len(store.dimensions) - 1} attributes) from {args.src} into {args.store}"
     if dropped:
