@@ -309,6 +309,7 @@ def test_single_cell(tmp_path):
     assert len(part.halo_sources(0)) == 0
 
 
+@pytest.mark.filterwarnings("ignore::cloudsieve.errors.ConvergenceWarning")  # the centres' fit on this plane
 def test_the_sample_taken_while_ingesting_is_the_one_read_from_the_store(tmp_path):
     """IngestSample (the ingest's on_chunk) holds plan_sample's rows of the store, the same coordinates, and
     build_partition given it builds the same cells; None when the reader announced no count (XYZ) or a point

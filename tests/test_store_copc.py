@@ -223,7 +223,7 @@ def test_atomic_refusals_and_failures(autzen_store, tmp_path):
     assert dst.read_bytes() == b"old" and sorted(os.listdir(tmp_path)) == ["a.copc.laz"]
     # a failure after the subtrees are written (a cluster losing its workers at the last stage) leaves nothing
     with pytest.raises(RuntimeError, match="workers lost"):
-        export_copc(autzen_store, str(tmp_path / "b.copc.laz"), run=failing_at("copc file"), **SMALL)
+        export_copc(autzen_store, str(tmp_path / "b.copc.laz"), run=failing_at("export: copc file"), **SMALL)
     assert sorted(os.listdir(tmp_path)) == ["a.copc.laz"] and leftover_buckets(autzen_store) == []
     export_copc(autzen_store, str(dst), overwrite=True, **SMALL)
     assert dst.read_bytes()[:4] == b"LASF" and sorted(os.listdir(tmp_path)) == ["a.copc.laz"]
