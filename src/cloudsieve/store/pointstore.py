@@ -6,9 +6,8 @@ Layout (see DESIGN.md)::
       zarr.json            group attributes; key "cloudsieve" holds
                            {"version": 1, "count", "bounds", "format", "header",
                             "dimensions", "chunk_size", "complete": true}
-      xyz                  float64 (N, 3), chunks (chunk_size, 3); or int32 (N, 3), the
-                           LAS integers X, Y, Z, when "xyz_encoding" holds their
-                           {"scale": [sx, sy, sz], "offset": [ox, oy, oz]} (LAS sources)
+      xyz                  float64 (N, 3), chunks (chunk_size, 3); LAS sources: int32, the LAS
+                           integers, with "xyz_encoding" {"scale": [3], "offset": [3]}
       intensity, ...       one array per attribute under its laspy name,
                            shape (N,) or (N, k), chunks (chunk_size, ...)
       partition/..., simplify/...   derived arrays of later stages
