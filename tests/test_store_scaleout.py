@@ -217,8 +217,8 @@ def test_pipeline_reads_a_glob_as_one_cloud(tiles, tmp_path):
 def test_tiles_out_and_the_vpc_back_in(tiles, tmp_path):
     src = str(tiles[0].parent / "*.laz")
     assert main(["simplify", src, str(tmp_path / "one.laz"), "--ratio", "0.4", "--no-progress"]) == 0
-    assert main(["simplify", src, str(tmp_path / "tiled"), "--ratio", "0.4", "--tile-size", "250",
-                 "--no-progress"]) == 0
+    assert main(["simplify", src, str(tmp_path / "tiled") + "/", "--ratio", "0.4", "--tile-size", "250",
+                 "--no-progress"]) == 0  # a folder given with its slash
     vpc = tmp_path / "tiled" / "index.vpc"
     doc = json.loads(vpc.read_text())
     assert sum(f["properties"]["pc:count"] for f in doc["features"]) == 44_000

@@ -230,6 +230,8 @@ def simplify(
 
     t_start = time.perf_counter()
     src, dst = os.fspath(src), os.fspath(dst)
+    if tile_size is not None and len(dst) > 1:
+        dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,

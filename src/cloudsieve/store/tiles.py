@@ -204,7 +204,7 @@ def export_tiles(
     if not isinstance(store, PointStore):
         store = PointStore.open(os.fspath(store), "r")
     size = _check_grid(store, tile_size)
-    dst = _check_destination(store, os.fspath(dst_dir), overwrite)
+    dst = _check_destination(store, os.fspath(dst_dir).rstrip("/") or os.fspath(dst_dir), overwrite)
     stem = os.path.basename(dst.rstrip(os.sep))
     update = _progress.callback(progress)
     tmp = make_temp_path(dst, directory=True)
