@@ -9,7 +9,7 @@ side by side, load 7.1-7.8): autzen_trim.laz (110,000 points) 6.61-6.75 s
 with the process pool, 3.67-5.65 s in process; simple.las (1,065 points)
 6.57-7.63 s and 3.34-3.82 s. The tasks are the same and run in the same order on dask's
 synchronous scheduler (:class:`~.runner.Runner` "sync"), so the output is the
-same, byte for byte (tests/test_inprocess.py), and a cell's k-NN and kernels
+same, byte for byte (tests/test_speed_start.py), and a cell's k-NN and kernels
 use every core.
 
 Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
