@@ -13,8 +13,6 @@ nothing (everything is carried over).
 
 from __future__ import annotations
 
-from typing import Any
-
 __all__ = ["conversion_note"]
 
 _LAS = ("las", "laz", "copc")

@@ -47,13 +47,12 @@ from functools import partial
 import numpy as np
 
 from .. import progress as _progress
-from ..errors import InvalidParameterError, SameSourceDestinationError
+from ..errors import InvalidParameterError
 from ..io._base import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
 from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
-from .paths import same_path
 from .pointstore import PointStore
 
 __all__ = ["export_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
@@ -274,12 +273,9 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError, InvalidParameterError
     """
-    dst = os.fspath(dst)
-    if not isinstance(store, PointStore):
-        store = PointStore.open(os.fspath(store))
-    if same_path(store.path, dst):
-        raise SameSourceDestinationError(
-            f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    from .export import source_and_destination
+
+    store, dst = source_and_destination(store, dst)
     if not (isinstance(leaf_points, (int, np.integer)) and isinstance(task_points, (int, np.integer))
             and 1 <= leaf_points <= task_points):
         raise InvalidParameterError(f"need 1 <= leaf_points <= task_points, got leaf_points={leaf_points!r}, "

@@ -22,7 +22,7 @@ from .paths import local_path, same_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
 
-__all__ = ["export"]
+__all__ = ["export", "source_and_destination"]
 
 logger = logging.getLogger(__name__)
 
@@ -53,6 +53,16 @@ def _selected(store: PointStore, take, chunk_size: int):
             rows = np.flatnonzero(take(start, start + n))
             chunk = {k: v.take(rows, axis=0) for k, v in chunk.items()}
         yield n, chunk
+
+
+def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.PathLike) -> tuple[PointStore, str]:
+    """The open store and *dst* as a string, refusing a destination that is the store (every export's first check)."""
+    dst = os.fspath(dst)
+    if not isinstance(store, PointStore):
+        store = PointStore.open(os.fspath(store))
+    if same_path(store.path, dst):
+        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    return store, dst
 
 
 def export(
@@ -118,11 +128,7 @@ def export(
     """
     from ..io import open_writer  # here, not at the top: see ingest()
 
-    dst = os.fspath(dst)
-    if not isinstance(store, PointStore):
-        store = PointStore.open(os.fspath(store))
-    if same_path(store.path, dst):
-        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    store, dst = source_and_destination(store, dst)
     take = _mask_source(store, mask)
     bound_malloc()
     update = _progress.callback(progress)
