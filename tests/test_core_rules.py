@@ -212,7 +212,7 @@ def test_eliminate_rule_needs_a_ratio_or_a_count():
     from cloudsieve.core import simplify_points
 
     pts = np.random.default_rng(0).random((100, 3))
-    with pytest.raises(InvalidParameterError, match="rule='eliminate' needs ratio="):
+    with pytest.raises(InvalidParameterError, match="rule 'eliminate' needs a ratio or a count"):
         simplify_points(pts, rule="eliminate")
-    with pytest.raises(InvalidParameterError, match="rule='eliminate' needs ratio="):
+    with pytest.raises(InvalidParameterError, match="rule 'eliminate' needs a ratio or a count"):
         prune(pts, rule="eliminate")

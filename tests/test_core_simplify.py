@@ -35,11 +35,10 @@ def test_duplicates_are_dropped():
     pts = surface(1000)
     dup = np.concatenate([pts, pts[:50]])
     # issue 13, item 3: the copies are kept only when asked (keep_duplicates), whatever the rule
-    kept = simplify_points(dup, method="km", rule="threshold", threshold=-1.0, cluster_size=200,
-                           keep_duplicates=True)
-    assert len(kept) == 1050  # S < 0: nothing qualifies, and the copies stay with their first point
-    kept = simplify_points(dup, method="km", rule="threshold", threshold=-1.0, cluster_size=200)
-    assert len(kept) == 1000  # by default the copies go even when nothing qualifies
+    kept = simplify_points(dup, method="km", rule="target", ratio=1.0, cluster_size=200, keep_duplicates=True)
+    assert len(kept) == 1050  # ratio 1: nothing goes, and the copies stay with their first point
+    kept = simplify_points(dup, method="km", rule="target", ratio=1.0, cluster_size=200)
+    assert len(kept) == 1000  # by default the copies go even when nothing else does (S >= 0: issue 29)
     kept = simplify_points(dup, method="km", rule="threshold", threshold=0.0, cluster_size=200)
     assert not np.isin(np.arange(1000, 1050), kept).any()
 
@@ -58,11 +57,11 @@ def test_bad_input_messages():
         simplify_points(pts.ravel())
     with pytest.raises(ValueError, match=r"rule must be one of iterative, threshold, target, coverage, eliminate, got 'x'"):
         simplify_points(pts, rule="x")
-    with pytest.raises(ValueError, match=r"method must be 'fcm' or 'km', got 'dbscan'"):
+    with pytest.raises(ValueError, match=r"method must be one of fcm, km, got 'dbscan'"):
         simplify_points(pts, method="dbscan")
-    with pytest.raises(ValueError, match=r"rule='target' needs ratio="):
+    with pytest.raises(ValueError, match=r"rule 'target' needs a ratio or a count"):
         simplify_points(pts, rule="target")
-    with pytest.raises(ValueError, match=r"ratio is the kept fraction, in \[0, 1\], got 1.5"):
+    with pytest.raises(ValueError, match=r"ratio must be a number in \(0, 1\], got 1.5"):
         simplify_points(pts, rule="target", ratio=1.5)
     with pytest.raises(ValueError, match=r"give ratio or count, not both"):
         simplify_points(pts, rule="target", ratio=0.5, count=3)

@@ -11,13 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from .core import METHODS, PAPER_THRESHOLD
+from .core.rules import BOTH_RULE, DEFAULT_RULE, PAPER_THRESHOLD, THRESHOLD_RULE
 from .errors import InvalidParameterError
+from .params_spec import METHODS
 
 __all__ = ["DEFAULT_RULE", "Metavar", "resolve_rule"]
 
-#: the rule when none is given and a ratio or a count is; with a threshold alone: "threshold"
-DEFAULT_RULE = "eliminate"
 
 
 class Metavar(str):
@@ -70,18 +69,20 @@ def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]
     if o["rule"] is None:
         if not has_target and not given:
             words = {name: Metavar(metavars[name]) for name in ("ratio", "count", "threshold")}
-            raise InvalidParameterError(
+            exc = InvalidParameterError(
                 f"{caller} needs ratio={words['ratio']!r} or count={words['count']!r} (the default rule, "
                 f"{DEFAULT_RULE}, keeps exactly that many points), or threshold={words['threshold']!r} for the "
                 "paper's threshold rule", advice=words)
+            exc.caller = caller  # the command line words the API's name as its own (cloudsieve simplify)
+            raise exc
         if has_target and given:
             name = "ratio" if o["ratio"] is not None else "count"
             raise InvalidParameterError(
                 f"threshold={o['threshold']!r} is the S of the paper's rules threshold and iterative, but with "
                 f"{name}={o[name]!r} the default rule is {DEFAULT_RULE}, which takes no threshold: add "
-                "rule='iterative' to use both, or leave the threshold out",
-                advice={"threshold": o["threshold"], name: o[name], "rule": "iterative"})
-        rule = DEFAULT_RULE if has_target else "threshold"
+                f"rule={BOTH_RULE!r} to use both, or leave the threshold out",
+                advice={"threshold": o["threshold"], name: o[name], "rule": BOTH_RULE})
+        rule = DEFAULT_RULE if has_target else THRESHOLD_RULE
         o["rule"] = rule if command == "simplify" else [rule]
     if not given:
         o["threshold"] = PAPER_THRESHOLD

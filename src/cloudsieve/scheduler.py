@@ -10,42 +10,19 @@ from __future__ import annotations
 
 import socket
 from typing import Any
-from urllib.parse import urlparse
-
-from .errors import InvalidParameterError, SchedulerUnreachableError
+from .address import host_port
+from .errors import SchedulerUnreachableError
 
 __all__ = ["CONNECT_TIMEOUT", "host_port", "check_scheduler", "connect"]
 
 #: seconds to wait for a scheduler's address to accept a connection
 CONNECT_TIMEOUT = 5.0
-#: address schemes that run over TCP (a socket connect tells whether they answer)
-_TCP_SCHEMES = ("tcp", "tls", "ws", "wss")
 
 
 def _reason(exc: BaseException) -> str:
     if isinstance(exc, (socket.timeout, TimeoutError)):
         return "no answer"
     return getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-
-
-def host_port(address: str) -> tuple[str, int] | None:
-    """The (host, port) of a TCP scheduler *address*; None for a scheme that is not TCP (left to dask).
-
-    Raises
-    ------
-    InvalidParameterError
-        A ``tcp://`` (``tls://``, ``ws://``, ``wss://``) address without a host or a port.
-    """
-    url = urlparse(address)
-    if url.scheme not in _TCP_SCHEMES:
-        return None
-    try:
-        host, port = url.hostname, url.port
-    except ValueError:
-        host, port = None, None
-    if not host or port is None:
-        raise InvalidParameterError(f"scheduler address {address!r} needs a host and a port: tcp://host:port")
-    return host, port
 
 
 def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import re
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from typing import Any
 
@@ -117,11 +118,20 @@ def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_
     The library words an advised option as the API does (``overwrite=True``,
     listed in ``exc.advice``); exactly those words are replaced by
     ``wording(name, value)``: a flag by default, a pipeline stage's key under
-    ``cloudsieve run``.
+    ``cloudsieve run``. With the flags, the options the message names as
+    words (``exc.options``: ``ratio must be ...``) are written as flags
+    (``--ratio must be ...``), and the API's name (``exc.caller``,
+    ``cloudsieve.simplify``) as the command's.
     """
     message = str(exc)
     for name, value in getattr(exc, "advice", {}).items():
         message = message.replace(f"{name}={value!r}", wording(name, value))
+    caller = getattr(exc, "caller", None)
+    if caller and caller.startswith("cloudsieve."):  # the API's name: cloudsieve.simplify -> cloudsieve simplify
+        message = message.replace(caller, caller.replace(".", " ", 1))
+    if wording is flag_wording:  # the options the message names as words, as flags (a pipeline's keys stay)
+        for name in getattr(exc, "options", ()):
+            message = re.sub(rf"(?<![\w-]){re.escape(name)}(?![\w=])", "--" + name.replace("_", "-"), message)
     return message
 
 

@@ -50,6 +50,7 @@ def _prepare_folder(out: str, overwrite: bool) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..core.rules import get as get_rule
     from ..engine import simplify
     from ..evaluate import evaluate
     from functools import partial
@@ -73,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"2/3 simplified -> {dst}: kept {summary.kept:,} of {summary.points_in:,} points "
         f"({time.perf_counter() - t0:.1f} s, rule {options['rule']}"
-        + (")" if options["rule"] == "eliminate" else f", method {options['method']})")
+        + (f", method {options['method']})" if get_rule(options["rule"]).clusters else ")")
     )
 
     t0 = time.perf_counter()

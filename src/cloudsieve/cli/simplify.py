@@ -42,7 +42,6 @@ def add_parser(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..engine import simplify
-    from ..params import validate
 
     def bars(stage, total, unit):
         return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
@@ -50,15 +49,8 @@ def run(args: argparse.Namespace) -> int:
     def notify(message: str) -> None:
         print(message, file=sys.stderr)
 
-    if args.rule == "eliminate" and args.ratio is None and args.count is None:
-        from ..errors import InvalidParameterError
-
-        given = args.threshold is not None
-        raise InvalidParameterError("--rule eliminate needs --ratio or --count"
-                                    + (f" (it takes no --threshold: got --threshold {args.threshold:g})" if given else ""))
-    values = option_values(args, "simplify")
-    validate("simplify", values, caller="cloudsieve simplify")  # the API checks again; this words the call's name
-    summary = simplify(args.src, args.dst, **values, bars=bars, notify=notify)
+    # the API validates every option, once; the error's words become the command line's (cli_message)
+    summary = simplify(args.src, args.dst, **option_values(args, "simplify"), bars=bars, notify=notify)
     if args.json:
         record = summary.to_dict()
         record["store"] = record["store"] or None  # null, not "", when the work store was removed

@@ -17,18 +17,34 @@ One module per stage, found by its name:
   :mod:`.kernels.lists`, :mod:`.kernels.rescore` for the rounds);
 - :mod:`.simplify`: :func:`simplify_points`, all of it.
 
-Public functions validate their input once and run kernels that assume valid input.
+Public functions validate their input once (:mod:`cloudsieve.params`) and run kernels that assume valid
+input. Each name is imported at its first use.
 """
 
-from ._validation import neighbour_count
-from .duplicates import exact_copies, first_copies
-from .entropy import Scores, entropy_scores, score_points
-from .fcm import FuzzyCMeans
-from .kmeans import KMeans
-from .refine import METHODS, refine_labels
-from .rules import PAPER_THRESHOLD, RULES, prune, threshold_for_count, unit_free_scores
-from .simplify import simplify_points
-from ..errors import ConvergenceWarning
+from importlib import import_module
+
+#: where each public name lives; imported at its first use (PEP 562), so that the rule registry
+#: (:mod:`.rules`, read by :mod:`cloudsieve.params`) imports without numba or scipy
+_LAZY = {
+    "neighbour_count": "._validation", "exact_copies": ".duplicates", "first_copies": ".duplicates",
+    "Scores": ".entropy", "entropy_scores": ".entropy", "score_points": ".entropy", "FuzzyCMeans": ".fcm",
+    "KMeans": ".kmeans", "METHODS": ".refine", "refine_labels": ".refine", "PAPER_THRESHOLD": ".rules",
+    "RULES": ".rules", "prune": ".rules", "threshold_for_count": ".rules", "unit_free_scores": ".rules",
+    "simplify_points": ".simplify", "ConvergenceWarning": "..errors",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        value = getattr(import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
 
 __all__ = [
     "KMeans",

@@ -2,7 +2,7 @@
 
 :func:`refine_labels` clusters n points into c = ceil(n / cluster_size)
 clusters with :class:`~.kmeans.KMeans` or :class:`~.fcm.FuzzyCMeans` (the
-engine calls it per cell); :func:`make_estimator` validates its arguments and
+engine calls it per cell; it checks its arguments); :func:`make_estimator` builds the estimator and
 :func:`refine_unchecked` runs it on validated points (for
 :func:`~.simplify.simplify_points`).
 """
@@ -20,19 +20,20 @@ from .cluster import CentroidClustering
 from .fcm import FuzzyCMeans
 from .kmeans import KMeans
 from ..errors import ConvergenceWarning, InvalidParameterError
+from ..params_spec import METHODS as _METHODS
 
 __all__ = ["METHODS", "REFINE_LABEL_TOL", "REFINE_KM_TOL", "REFINE_FCM_MAX_ITER", "refine_labels",
            "make_estimator", "refine_unchecked", "check_method"]
 
 logger = logging.getLogger(__name__)
 
-METHODS = ("fcm", "km")
+METHODS = _METHODS  # the option's choices (:mod:`cloudsieve.params_spec`)
 
 # The refinement's stopping rule. The paper runs KM until no point changes
 # cluster and FCM until memberships move less than 1e-5. Measured (1 M points
 # into 2,500 clusters): KM needs 225 iterations to "no change" but
 # 16 to "at most 1% changed", at the same mean squared error within 2.3%; and
-# simplify_points(rule="iterative", ratio=0.5) then gives the same point RMS
+# simplify_points(rule=iterative, ratio=0.5) then gives the same point RMS
 # (bun_zipper 0.3668% vs 0.3656% of the diagonal, maxplanck 0.4528% vs
 # 0.4504%). FCM never reaches 1e-5 in 300 iterations on the real scans, and 20
 # iterations give the same RMS as 300 on bun_zipper (0.3667% vs 0.3687%).
@@ -50,7 +51,7 @@ REFINE_FCM_MAX_ITER = 20
 def check_method(method) -> None:
     """``method`` is one of :data:`METHODS`."""
     if method not in METHODS:
-        raise InvalidParameterError(f"method must be 'fcm' or 'km', got {method!r}")
+        raise InvalidParameterError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
 
 
 def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int = 0, *,
@@ -95,6 +96,8 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
     valid partition into small clusters.
     """
     pts = check_points(points)
+    check_method(method)
+    check_cluster_size(cluster_size, k_min)
     est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest,
                          max_iter=max_iter, init=init, tol=tol, label_tol=label_tol)
     return refine_unchecked(pts, est, threads)
@@ -103,7 +106,7 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
 def make_estimator(shape, method: str, cluster_size: int, seed: int, *, k_min: int = 4, n_nearest: int = 8,
                    max_iter: int | None = None, init="k-means++", tol: float | None = None,
                    label_tol: float | None = REFINE_LABEL_TOL) -> CentroidClustering | None:
-    """Validate the refinement's arguments for points of shape (n, p) and build its estimator.
+    """The refinement's estimator for points of shape (n, p) (method and cluster_size already valid).
 
     Parameters are those of :func:`refine_labels`; ``shape`` is (n, p).
 
@@ -116,11 +119,9 @@ def make_estimator(shape, method: str, cluster_size: int, seed: int, *, k_min: i
     Raises
     ------
     InvalidParameterError
-        A bad method, cluster_size or estimator parameter.
+        A bad estimator parameter.
     """
     n, p = shape
-    check_method(method)
-    check_cluster_size(cluster_size, k_min)
     if n == 0:
         return None
     c = max(1, math.ceil(n / cluster_size))

@@ -8,11 +8,11 @@ distance is at most the median of their neighbours' (:func:`_covered`). The
 remaining points are rescored between rounds: incrementally without context
 (only the clusters that lost a point, from the kept k-NN lists:
 :mod:`.incremental`), by a full rescoring with context (here). One round's
-choice is :func:`.selection.round_selection`. See :mod:`.rules` for the
-rules' contracts.
+choice is :func:`.selection.round_selection`. See :mod:`.rules.iterative`
+and :mod:`.rules.coverage` for the rules' contracts.
 
 Public: :func:`prune_in_rounds`, on validated input (called by
-:func:`.rules.prune_unchecked`).
+:func:`.rules.iterative.rounds`).
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ import numpy as np
 
 from .chunks import ClusterChunks
 from .kernels import lists as kl
+from . import rules as registry
 from .kernels import rounds as kr
 
 __all__ = ["round_selection"]
@@ -45,7 +46,8 @@ def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, co
     nb : ndarray of shape (n, K), int32 or int64
         Neighbour lists, nearest first; entries outside [0, n) are none.
     n_alive : int
-    rule : {"iterative", "coverage"}
+    rule : str
+        A rule of the registry that runs rounds (:data:`.rules.RULES`).
     threshold : float
     target : int or None
     coverage : float
@@ -67,7 +69,7 @@ def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, co
     n = len(P)
     if kk is None:
         kk = np.full(n, nb.shape[1], dtype=np.int64)
-    use_cov = rule == "coverage"
+    use_cov = registry.get(rule).coverage_test
     if use_cov and r1 is None:
         r1 = kl.spacings(P, nb, kk)
     limit = -1 if target is None else n_alive - target

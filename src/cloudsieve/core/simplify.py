@@ -1,6 +1,7 @@
 """The method in memory, end to end (DESIGN.md stages 3-5): refine, score, prune.
 
-:func:`simplify_points` validates everything once, then runs the stages'
+:func:`simplify_points` validates its options once (:func:`cloudsieve.params.validate_params`,
+command ``simplify_points``) and its arrays (:mod:`._validation`), then runs the stages'
 kernels on the validated arrays: :func:`.refine.refine_unchecked` (KM or FCM
 labels, unless ``labels`` are given) and :func:`.rules.prune_unchecked`
 (scores and the rule).
@@ -10,15 +11,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._validation import check_cluster_size, check_context, check_density_params, check_labels, check_points
-from .knn import canonical_order
-from .refine import check_method, make_estimator, refine_unchecked
-from .rules import PAPER_THRESHOLD, check_rule_args, prune_unchecked
+from . import rules
+from ._validation import check_context, check_labels, check_points
+from ..params import validate_params
 
-__all__ = ["simplify_points"]
+__all__ = ["simplify_points", "simplify_unchecked"]
 
 
-def simplify_points(points, *, method: str = "km", rule: str = "iterative", threshold: float = PAPER_THRESHOLD,
+@validate_params("simplify_points")
+def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE,
+                    threshold: float = rules.PAPER_THRESHOLD,
                     ratio=None, count=None, cluster_size: int = 400, seed: int = 0, k0: float = 1.0,
                     k_min: int = 4, context=None, labels=None, score: str = "delta_h",
                     n_nearest: int = 8, init="k-means++", coverage: float = 1.0,
@@ -31,8 +33,9 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     method : {"km", "fcm"}
         Refinement into c = ceil(n / cluster_size) clusters (ignored when
         ``labels`` is given).
-    rule : {"iterative", "threshold", "target", "coverage", "eliminate"}
-        See :mod:`.rules`. ``eliminate`` needs no clusters: ``method``,
+    rule : str
+        A rule of the registry (:data:`.rules.RULES`; default ``iterative``).
+        ``eliminate`` needs no clusters: ``method``,
         ``labels`` and the entropy options are then unused (no KM/FCM runs).
         The default stays ``iterative`` here (the paper's in-memory method,
         which needs no ratio or count), while :func:`cloudsieve.simplify`,
@@ -42,7 +45,8 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     threshold : float
         S on dH (0.001, the paper: :data:`.rules.PAPER_THRESHOLD`).
     ratio, count : optional
-        Kept fraction / kept count (rules target, coverage, eliminate; iterative with a target).
+        Kept fraction in (0, 1] / kept count >= 1 (the rules that need or take a target);
+        a count above the points keeps them all (the returned indices say how many).
     cluster_size : int
         >= k_min + 2.
     seed : int
@@ -73,23 +77,38 @@ def simplify_points(points, *, method: str = "km", rule: str = "iterative", thre
     """
     pts = check_points(points)
     n, p = pts.shape
-    if labels is None:
-        est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
-    else:
-        check_method(method)
-        check_cluster_size(cluster_size, k_min)
-        lab = check_labels(labels, n)
-    check_density_params(k0, k_min, 3)
-    target = check_rule_args(n, rule, threshold, ratio, count, score)
+    lab = None if labels is None else check_labels(labels, n)
     ctx = check_context(context, p)
-    if rule == "eliminate":  # weighted sample elimination: no clusters needed
+    return simplify_unchecked(pts, method=method, rule=rule, threshold=threshold,
+                              target=rules.check_rule_args(n, ratio, count), cluster_size=cluster_size, seed=seed,
+                              k0=k0, k_min=k_min, ctx=ctx, labels=lab, score=score, n_nearest=n_nearest, init=init,
+                              coverage=coverage, progress=progress, threads=threads,
+                              keep_duplicates=bool(keep_duplicates))
+
+
+def simplify_unchecked(pts, *, method, rule, threshold, target, cluster_size, seed, k0, k_min, ctx, labels, score,
+                       n_nearest=8, init="k-means++", coverage=1.0, progress=None, threads=None,
+                       keep_duplicates=False) -> np.ndarray:
+    """:func:`simplify_points` on validated input (the engine's cells call it): kept indices, ascending.
+
+    ``pts`` (n, 3) float64 and ``labels`` (n,) int64 or None as from :mod:`._validation`;
+    ``target`` the kept count (None: the threshold decides); no checks.
+    """
+    from .knn import canonical_order
+    from .refine import make_estimator, refine_unchecked
+
+    n = len(pts)
+    if not rules.get(rule).clusters:  # e.g. weighted sample elimination: no clusters needed
         lab = np.zeros(n, dtype=np.int64)
     elif labels is None:
+        est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
         order = canonical_order(pts)
         lab_c = refine_unchecked(pts[order], est, threads)
         lab = np.empty(n, dtype=np.int64)
         lab[order] = lab_c
-    keep = prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
-                           k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
-                           threads=threads, keep_duplicates=bool(keep_duplicates))
+    else:
+        lab = labels
+    keep = rules.prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
+                                 k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
+                                 threads=threads, keep_duplicates=bool(keep_duplicates))
     return np.flatnonzero(keep).astype(np.int64)

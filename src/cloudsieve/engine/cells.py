@@ -16,9 +16,10 @@ T (:mod:`cloudsieve.engine.threshold`):
 - pass 1, :func:`score_task`: :func:`cloudsieve.core.refine_labels` and
   :func:`cloudsieve.core.unit_free_scores` (m*dH, comparable across clusters
   and cells), stored in ``simplify/label_cells`` and ``simplify/score_cells``;
-- pass 2, :func:`apply_task`: rule ``"target"`` keeps score > T, which is
-  ``prune(rule="threshold", score="unit_free", threshold=T)`` on the same
-  scores; rules ``"iterative"``/``"coverage"`` keep in each cell as many
+- pass 2, :func:`apply_task`: a rule whose registry ``engine`` is
+  ``global_threshold`` (``target``) keeps score > T, the one-pass threshold
+  on the unit-free score m*dH; a ``cell_count`` rule (``iterative``,
+  ``coverage``) keeps in each cell as many
   points as the target rule would (n_j - #{score <= T}), chosen by the core's
   rule with that count on the stored clusters (``simplify_points(labels=...,
   count=...)``), so the removals follow the scores across cells and the total
@@ -39,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from ..core.rules import CELL_COUNT, PAPER_THRESHOLD
+from ..core.rules import get as get_rule
 from .halo import read_halo
 from .runs import cell_runs, read_cell
 
@@ -181,6 +184,19 @@ def _core_kwargs(params: dict) -> dict:
     return {"k0": params["k0"], "k_min": params["k_min"], "threads": _threads(params)}
 
 
+def _simplify(core, params: dict, cell: int, *, threshold, target, labels, context) -> np.ndarray:
+    """The in-memory method on one cell (:func:`cloudsieve.core.simplify.simplify_unchecked`: the run's
+    options were validated once, by :func:`cloudsieve.engine.simplify`): the kept indices."""
+    from ..core.simplify import simplify_unchecked
+
+    ctx = None if context is None else np.ascontiguousarray(context, dtype=np.float64).reshape(-1, 3)
+    return simplify_unchecked(
+        np.ascontiguousarray(core, dtype=np.float64), method=params["method"], rule=params["rule"],
+        threshold=threshold, target=target, cluster_size=params["cluster_size"],
+        seed=cell_seed(params["seed"], cell), k0=params["k0"], k_min=params["k_min"], ctx=ctx, labels=labels,
+        score="delta_h", threads=_threads(params), keep_duplicates=_keep_duplicates(params))
+
+
 def _mark_done(g, name: str, cell: int) -> None:
     g[name][cell : cell + 1] = np.ones(1, dtype=np.uint8)
 
@@ -208,7 +224,7 @@ def cell_task(task: CellTask) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "halo", "duplicates", "seconds" (small).
     """
-    from ..core import exact_copies, simplify_points
+    from ..core import exact_copies
 
     t0 = time.perf_counter()
     params, cell, region = task.params, task.cell, task.region
@@ -218,17 +234,8 @@ def cell_task(task: CellTask) -> dict[str, Any]:
     n_copies = 0
     if n:
         n_copies = int(exact_copies(core).sum())
-        kept = simplify_points(
-            core,
-            method=params["method"],
-            rule=params["rule"],
-            threshold=params["threshold"],
-            cluster_size=params["cluster_size"],
-            seed=cell_seed(params["seed"], cell),
-            context=_context(params, halo),
-            keep_duplicates=_keep_duplicates(params),
-            **_core_kwargs(params),
-        )
+        kept = _simplify(core, params, cell, threshold=params["threshold"], target=None, labels=None,
+                         context=_context(params, halo))
         keep[np.asarray(kept, dtype=np.int64)] = True
     g["simplify/keep_cells"][region : region + n] = keep
     _record_duplicates(g, cell, n_copies)
@@ -275,9 +282,9 @@ def score_task(task: CellTask) -> dict[str, Any]:
 def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     """Pass 2 of a ratio/count: apply the global threshold T to one cell (a dask task).
 
-    rule "target": keep the points with score > T (what
-    ``prune(rule="threshold", score="unit_free", threshold=T)`` does on the same
-    scores). rules "iterative"/"coverage": the cell keeps as many points as the
+    A ``global_threshold`` rule of the registry (``target``): keep the points
+    with score > T (the one-pass threshold on the same unit-free scores).
+    A ``cell_count`` rule (``iterative``, ``coverage``): the cell keeps as many points as the
     target rule would (n - #{score <= T}), chosen by the core's rule on the
     stored clusters (``simplify_points(labels=..., count=...)``).
 
@@ -285,7 +292,7 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
-    from ..core import first_copies, simplify_points
+    from ..core import first_copies
     from ..store import PointStore
 
     t0 = time.perf_counter()
@@ -297,24 +304,15 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     labels = np.asarray(g["simplify/label_cells"][region : region + n]).astype(np.int64)
     copy = labels < 0  # exact copies (pass 1)
     keep = (s > threshold) & ~copy
-    need_points = params["rule"] != "target" or (copy.any() and _keep_duplicates(params))
+    by_count = get_rule(params["rule"]).engine == CELL_COUNT  # else: the global threshold decides
+    need_points = by_count or (copy.any() and _keep_duplicates(params))
     core = read_cell(g, runs) if n and need_points else None
-    if params["rule"] == "target" and core is not None:  # copies follow their first point
+    if not by_count and core is not None:  # copies follow their first point
         keep = keep[first_copies(core)]
-    elif params["rule"] != "target" and n:
+    elif by_count and n:
         halo = thinned_halo(g, task, threshold) if params["context"] else None
-        kept = simplify_points(
-            core,
-            method=params["method"],
-            rule=params["rule"],
-            count=int(keep.sum()),
-            cluster_size=params["cluster_size"],
-            seed=cell_seed(params["seed"], cell),
-            labels=labels,
-            context=_context(params, halo),
-            keep_duplicates=_keep_duplicates(params),
-            **_core_kwargs(params),
-        )
+        kept = _simplify(core, params, cell, threshold=PAPER_THRESHOLD, target=int(keep.sum()), labels=labels,
+                         context=_context(params, halo))
         keep = np.zeros(n, dtype=bool)
         keep[np.asarray(kept, dtype=np.int64)] = True
     g["simplify/keep_cells"][region : region + n] = keep

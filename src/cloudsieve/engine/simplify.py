@@ -36,6 +36,8 @@ import time
 from collections.abc import Callable
 
 from ..core._validation import ratio_count
+from ..core.rules import ELIMINATION
+from ..core.rules import get as get_rule
 from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
 from ..io import check_readable, check_tile_folder, check_writable, detect_format
 from ..io.sources import expand_sources
@@ -44,7 +46,7 @@ from ..progress import callback
 from ..scheduler import check_scheduler
 from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
-from . import threshold as thresholds  # "threshold" is a parameter of simplify()
+from . import threshold as thresholds  # threshold is a parameter of simplify()
 from ..core.kernels.warmup import targets_of
 from .eliminate import run_eliminate
 from .inprocess import local_scheduler
@@ -110,8 +112,8 @@ def simplify(
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
         Refinement into small clusters: K-means (the default: as good as FCM and 1.26x faster end to end) or fuzzy C-means.
-    rule : {"eliminate", "iterative", "threshold", "target", "coverage"}, optional
-        Pruning rule (see :mod:`cloudsieve.prune`). ``eliminate``: weighted
+    rule : str, optional
+        Pruning rule, a name of the registry (:data:`cloudsieve.core.rules.RULES`). ``eliminate``: weighted
         sample elimination (:mod:`cloudsieve.engine.eliminate`), exactly the
         requested count; it uses no clusters (``method``, ``cluster_size``
         and ``halo_context`` are unused). Default (None): ``eliminate`` when
@@ -302,7 +304,8 @@ def simplify(
             target = None
             if ratio is not None or count is not None:
                 target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
-            elim = target if rule == "eliminate" else None  # its r_max and margin come with the partition
+            # the elimination's r_max and margin come with the partition
+            elim = target if get_rule(rule).engine == ELIMINATION else None
             halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
                                       eliminate_target=elim)

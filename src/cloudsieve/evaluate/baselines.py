@@ -35,6 +35,8 @@ import math
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..core.rules import MEMORY_RULE
+from ..core.rules import get as get_rule
 from ..errors import CloudsieveError, InvalidParameterError
 
 logger = logging.getLogger(__name__)
@@ -186,11 +188,11 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
     return np.unique(idx).astype(np.int64)
 
 
-def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = "iterative",
+def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = MEMORY_RULE,
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.prune.simplify_points`.
 
-    *count* is passed to every rule but ``threshold`` (``target``,
+    *count* is passed to every rule that takes one (``target``,
     ``iterative`` and ``coverage`` then stop at the count); with ``threshold``
     (the paper's single pass at S) or ``count=None`` the rule's threshold
     decides the count.
@@ -198,7 +200,7 @@ def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km",
     from ..core import simplify_points
 
     kw = dict(options)
-    if rule != "threshold" and count is not None:
+    if get_rule(rule).takes_target and count is not None:
         kw["count"] = int(count)
     keep = simplify_points(np.ascontiguousarray(points, dtype=np.float64), method=method, rule=rule, seed=seed, **kw)
     keep = np.asarray(keep)
@@ -215,7 +217,7 @@ BASELINES = {
 }
 
 
-def run_method(name: str, points: np.ndarray, count: int | None, *, seed: int = 0, rule: str = "iterative",
+def run_method(name: str, points: np.ndarray, count: int | None, *, seed: int = 0, rule: str = MEMORY_RULE,
                **options) -> np.ndarray:
     """Run method *name* (``km``, ``fcm`` or a key of :data:`BASELINES`); sorted kept indices."""
     if name in ("km", "fcm"):

@@ -31,6 +31,8 @@ import numpy as np
 
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
+from ..core.rules import MEMORY_RULE
+from ..core.rules import get as get_rule
 from ..params import COMPARE_METHODS, validate
 from ._source import load_points
 from .baselines import run_method
@@ -123,17 +125,17 @@ def _share(v: Any) -> str:
 def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
     """The rows of a comparison: (row name, method, rule or None), entropy methods first.
 
-    Each rule runs once per entropy method (km, fcm), except ``eliminate``,
-    which uses no clusters: it runs once, as the row "eliminate".
+    Each rule runs once per entropy method (km, fcm), except a rule that
+    uses no clusters (``eliminate``): it runs once, as the row of its name.
     """
     runs = []
     first = next((m for m in methods if m in ("km", "fcm")), None)
     for m in methods:
         if m in ("km", "fcm"):
             for r in rules:
-                if r == "eliminate":
+                if not get_rule(r).clusters:  # one row, named after the rule
                     if m == first:
-                        runs.append(("eliminate", m, r))
+                        runs.append((r, m, r))
                     continue
                 runs.append((m if len(rules) == 1 else f"{m} ({r})", m, r))
         else:
@@ -212,8 +214,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     n = len(xyz)
     if ratio is not None:
         count = max(1, int(round(ratio * n)))
-    if count is not None and not 1 <= count <= n:
-        raise InvalidParameterError(f"count must be in [1, {n}] (the points of {name}), got {count}")
+    if count is not None and count > n:  # as every surface: all the points, the count said
+        logger.info("compare: count %d is more than the %d points of %s: all of them kept", count, n, name)
+        count = n
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = compare_runs(methods, rules)
@@ -224,7 +227,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     for label, m, r in runs:
         t = time.perf_counter()
         try:
-            idx = run_method(m, xyz, count, seed=seed, rule=r or "iterative",
+            idx = run_method(m, xyz, count, seed=seed, rule=r or MEMORY_RULE,
                              **(entropy_options if r is not None else {}))
         except (CloudsieveError, ValueError, ImportError) as exc:
             logger.warning("compare: %s failed: %s", m, exc)

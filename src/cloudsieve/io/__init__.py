@@ -43,6 +43,7 @@ from ..errors import (
     UnknownFormatError,
 )
 from ..chunk import DEFAULT_CHUNK_SIZE
+from ..formats import FORMAT_TABLE
 from ._base import Reader, Writer, check_destination
 
 __all__ = [
@@ -90,12 +91,8 @@ def _resolve(spec: Any) -> Any:
     return spec
 
 
-register_format("las", [".las"], "cloudsieve.io.las:LasReader", "cloudsieve.io.las:LasWriter")
-register_format("laz", [".laz"], "cloudsieve.io.las:LasReader", "cloudsieve.io.las:LasWriter")
-register_format("copc", [".copc.laz"], "cloudsieve.io.las:LasReader", None)
-register_format("ply", [".ply"], "cloudsieve.io.ply:PlyReader", "cloudsieve.io.ply:PlyWriter")
-register_format("e57", [".e57"], "cloudsieve.io.e57:E57Reader", None)
-register_format("xyz", [".xyz", ".txt", ".csv", ".pts"], "cloudsieve.io.xyz:XyzReader", "cloudsieve.io.xyz:XyzWriter")
+for _name, (_extensions, _reader, _writer) in FORMAT_TABLE.items():  # the table params.py reads too
+    register_format(_name, list(_extensions), _reader, _writer)
 
 
 def detect_format(path: str | os.PathLike, format: str | None = None) -> str:

@@ -21,7 +21,8 @@ the argument types of the real calls (so the same compiled versions):
 - ``km``, ``fcm``: the refinement into small clusters;
 - ``rules``: the rounds of the iterative, target and coverage rules.
 
-:data:`RULE_TARGETS` names the targets of a rule's cell tasks: the local fork
+:func:`targets_of` names the targets of a rule's cell tasks (the rule's
+``warm`` in the registry, else :data:`ENTROPY_TARGETS`): the local fork
 server (:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers
 it forks inherit the code and never compile it again; ``cloudsieve warmup``
 (:mod:`cloudsieve.cli.warmup`) warms every target into the cache (setup.sh
@@ -35,7 +36,10 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-__all__ = ["TARGETS", "RULE_TARGETS", "warm_up", "targets_of"]
+from .. import rules
+from ...params import WARM_TARGETS
+
+__all__ = ["TARGETS", "ENTROPY_TARGETS", "warm_up", "targets_of"]
 
 
 def _points(n: int = 600) -> np.ndarray:
@@ -115,7 +119,7 @@ def _method(method: str) -> Callable[[], None]:
     def warm() -> None:
         from ..simplify import simplify_points
 
-        simplify_points(_points(), method=method, rule="threshold", cluster_size=100)
+        simplify_points(_points(), method=method, rule=rules.THRESHOLD_RULE, cluster_size=100)
 
     return warm
 
@@ -123,8 +127,9 @@ def _method(method: str) -> Callable[[], None]:
 def _rules() -> None:
     from ..simplify import simplify_points
 
-    for rule in ("iterative", "target", "coverage"):
-        simplify_points(_points(), rule=rule, ratio=0.5, cluster_size=100)
+    for rule in rules.RULES.values():  # the entropy rules with a target
+        if rule.clusters and rule.takes_target:
+            simplify_points(_points(), rule=rule.name, ratio=0.5, cluster_size=100)
 
 
 #: every warm-up target, by name (module docstring), in the order ``cloudsieve warmup`` runs them
@@ -138,21 +143,24 @@ TARGETS: dict[str, Callable[[], None]] = {
     "rules": _rules,
 }
 
-#: the targets of each rule's worker tasks (the local fork server warms these up); none starts numba's
-#: threading layer (a fork server that has started GNU OpenMP's cannot fork)
-RULE_TARGETS: dict[str, tuple[str, ...]] = {"eliminate": ("common", "partition", "eliminate")}
+#: the targets of an entropy rule's worker tasks; a rule may name its own (:attr:`Rule.warm
+#: <cloudsieve.core.rules.Rule>`). The local fork server warms these up; none starts numba's threading
+#: layer (a fork server that has started GNU OpenMP's cannot fork)
+ENTROPY_TARGETS = ("common", "partition", "scores")
+assert tuple(TARGETS) == WARM_TARGETS  # the names params.py offers, without importing this module
 
 
 def targets_of(rule: str | None) -> tuple[str, ...]:
     """The warm-up targets of the worker tasks of a run of *rule*: the default rule's kernels, or for the
     entropy rules the scoring path (their refinement and rounds load from the cache).
 
-    >>> targets_of("eliminate")
+    >>> from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
+    >>> targets_of(DEFAULT_RULE)
     ('common', 'partition', 'eliminate')
-    >>> targets_of("threshold")
+    >>> targets_of(THRESHOLD_RULE)
     ('common', 'partition', 'scores')
     """
-    return RULE_TARGETS.get(rule or "", ("common", "partition", "scores"))
+    return (rule is not None and rules.get(rule).warm) or ENTROPY_TARGETS
 
 
 def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,

@@ -1,0 +1,261 @@
+"""The user options, as data: one :class:`Option` each (name, type, range, default, help) and
+:data:`COMMANDS`, the options of each command and API entry.
+
+A leaf: it imports the rule registry (:mod:`cloudsieve.core.rules`, which
+imports no numba or scipy), the formats table (:mod:`cloudsieve.formats`) and
+nothing else of cloudsieve. :mod:`cloudsieve.params` checks values against
+it; :mod:`cloudsieve.cli` builds its flags from it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from .core import rules
+from .formats import READABLE as _READABLE
+from .formats import WRITABLE as _WRITABLE
+
+__all__ = [
+    "Option",
+    "OPTIONS",
+    "COMMANDS",
+    "METHODS",
+    "COMPARE_METHODS",
+    "LOCAL_SCHEDULERS",
+    "TARGET_RULES",
+    "WARM_TARGETS",
+    "MEMORY_COMMANDS",
+    "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER",
+]
+
+INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER = (
+    "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler")
+
+#: the refinements into small clusters: fuzzy C-means, K-means (:mod:`cloudsieve.core.refine`)
+METHODS = ("fcm", "km")
+#: the methods :func:`cloudsieve.compare` runs: the entropy methods, then the baselines
+COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
+#: the targets of ``cloudsieve warmup`` (:data:`cloudsieve.core.kernels.warmup.TARGETS`, which checks them)
+WARM_TARGETS = ("common", "partition", "eliminate", "scores", "km", "fcm", "rules")
+#: dask's local schedulers ("synchronous" is dask's own name for "sync")
+LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
+#: the rules that need a ratio or a count (from the registry)
+TARGET_RULES = tuple(r.name for r in rules.RULES.values() if r.needs_target)
+_THRESHOLD_RULES = tuple(r.name for r in rules.RULES.values() if r.takes_threshold)
+
+
+def _and(names: tuple[str, ...]) -> str:
+    return ", ".join(names[:-1]) + " and " + names[-1] if len(names) > 1 else "".join(names)
+
+
+@dataclass(frozen=True)
+class Option:
+    """One user option.
+
+    Attributes
+    ----------
+    name : str
+        The API keyword and pipeline key; the CLI flag is ``--`` + name with dashes.
+    kind : str
+        ``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list, or a
+        comma-separated string), ``format`` (a choice in any case, with or
+        without a dot: "LAZ", ".laz"), ``text``, ``path``, ``size`` (bytes: an
+        int or text such as "2GB") or ``scheduler``.
+    default : object
+        The default (None for an optional option).
+    help : str
+        One line for ``--help``, describing the flag: for a bool that
+        defaults to True, what ``--no-NAME`` does.
+    low, high : float, optional
+        Range of an int or float; *low* is excluded when *low_open*.
+    choices : tuple of str
+        Of a ``choice`` / ``choices`` option.
+    aliases : tuple of str
+        Old CLI flags that still work.
+    metavar : str, optional
+        The CLI's name for the value.
+    """
+
+    name: str
+    kind: str
+    default: Any
+    help: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    choices: tuple[str, ...] = ()
+    aliases: tuple[str, ...] = ()
+    metavar: str | None = None
+
+    @property
+    def flag(self) -> str:
+        """The CLI flag: ``--cluster-size``; ``--no-surface`` for a bool that defaults to True."""
+        dashed = self.name.replace("_", "-")
+        return f"--no-{dashed}" if self.kind == BOOL and self.default is True else f"--{dashed}"
+
+    def describe(self) -> str:
+        """What a valid value is, as in the error messages: ``a number in (0, 1]``."""
+        if self.kind == INT:
+            return f"an integer >= {self.low:g}"
+        if self.kind == FLOAT:
+            if self.high is not None:
+                return f"a number in {'(' if self.low_open else '['}{self.low:g}, {self.high:g}]"
+            return f"a finite number {'>' if self.low_open else '>='} {self.low:g}"
+        return {
+            BOOL: "true or false",
+            CHOICE: "one of " + ", ".join(self.choices),
+            FORMAT: "one of " + ", ".join(self.choices),
+            CHOICES: "a list of " + ", ".join(self.choices),
+            TEXT: "a string",
+            PATH: "a path",
+            SIZE: "a size in bytes (an integer, or text such as '2GB')",
+            SCHEDULER: "sync, threads, processes or a tcp://host:port address",
+        }[self.kind]
+
+
+_OPTIONS = [
+    # -- the method
+    Option("method", CHOICE, "km", "refinement into small clusters: K-means (default) or fuzzy C-means; unused by --rule eliminate "
+           "(no clusters)", choices=METHODS),
+    Option("rule", CHOICE, None, f"pruning rule (default: {rules.DEFAULT_RULE}, weighted sample elimination, exactly "
+           f"--ratio or --count points; with --threshold alone: {rules.THRESHOLD_RULE}, the paper's one-pass rule); "
+           f"{_and(TARGET_RULES)} need --ratio or --count", choices=rules.names()),
+    Option("threshold", FLOAT, None, f"entropy-change threshold S of the {'/'.join(_THRESHOLD_RULES)} rules (default "
+           f"{rules.PAPER_THRESHOLD:g} with those rules); given alone, it selects the {rules.THRESHOLD_RULE} rule",
+           low=0.0, metavar="S"),
+    Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1% (exactly with --rule "
+           "eliminate)", low=0.0, low_open=True,
+           high=1.0, metavar="R"),
+    Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
+    Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
+    Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
+           metavar="POINTS"),
+    Option("halo_context", BOOL, False,
+           "use each cell's halo (and the whole cell) as density context instead of the small cluster alone"),
+    Option("k0", FLOAT, 1.0, "k-NN rule k = max(k_min, round(k0 * sqrt(m)))", low=0.0, low_open=True),
+    Option("k_min", INT, 4, "smallest k of the k-NN rule", low=1),
+    Option("seed", INT, 0, "one seed for everything: same seed, same bytes", low=0),
+    Option("keep_duplicates", BOOL, False,
+           "keep every exact copy (same x, y, z) of a kept point; default: exact duplicates are scored once and "
+           "kept once"),
+    # -- the run
+    Option("scheduler", SCHEDULER, None,
+           "sync, threads, processes or a dask.distributed address tcp://host:port (default: local, no set-up)",
+           metavar="SCHED"),
+    Option("workers", INT, None, "local dask workers (default: all cores)", low=1, metavar="N"),
+    Option("memory_limit", SIZE, None, "memory cap per worker, e.g. 1GB (runs a local dask cluster)", metavar="SIZE"),
+    Option("store", PATH, None, "work store (path or fsspec URL), kept after success (to inspect, export or resume); "
+           "checked before any work: one made from another source or with other options is refused (--overwrite "
+           "discards it); default DST.cloudsieve.zarr, removed on success", metavar="PATH"),
+    Option("resume", BOOL, False, "continue a crashed run from its work store"),
+    Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
+    Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
+    # -- evaluation
+    Option("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
+           low=1, metavar="N"),
+    Option("surface", BOOL, True,
+           "point level only: skip the surface level (ball-pivoting meshes, Metro distances, compactness)"),
+    Option("tiles", INT, 4, "surface tiles", low=1, metavar="T"),
+    Option("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
+           low=1, metavar="M"),
+    Option("subset", BOOL, False, "the simplified cloud must be a subset of the original (error otherwise)"),
+    Option("strict", BOOL, True, "compare clouds of different CRS or units, with a warning (default: refuse them)",
+           aliases=("--force",)),
+    Option("report_dir", PATH, None, "write report.json, report.md and plots into this folder", aliases=("--report",),
+           metavar="DIR"),
+    Option("error_points", INT, 2_000_000, "at most N points in errors.ply (uniform sample)", low=0, metavar="N"),
+    Option("metro_samples", INT, None, "Metro samples per direction and tile (default 10 x faces, at most 500000)",
+           low=1, metavar="N"),
+    Option("psnr_peak", FLOAT, None, "peak p of the D1/D2 PSNR, 10*log10(3p^2/MSE) dB (default: the original's "
+           "bounding-box diagonal)", low=0.0, low_open=True, metavar="P"),
+    Option("reference_mesh", PATH, None, "a mesh of the scanned surface (PLY/OBJ/STL/OFF): the simplified and the "
+           "original's tile meshes are also compared with it by Metro", metavar="FILE"),
+    Option("methods", CHOICES, COMPARE_METHODS, "methods to compare, comma-separated", choices=COMPARE_METHODS,
+           metavar="LIST"),
+    # -- ingest / export
+    Option("delimiter", TEXT, None, "XYZ/TXT/CSV column separator (default: sniffed)"),
+    Option("columns", TEXT, None, "XYZ/TXT/CSV column names, comma separated (default: header row or x,y,z,...)"),
+    Option("drop_invalid", BOOL, False, "drop points with NaN/infinite coordinates (default: refuse)"),
+    Option("merge", BOOL, False, "pipelines' readers.las: the files of a glob (or a directory, list, VPC) are one cloud"),
+    Option("tile_size", FLOAT, None,
+           "write DST as a folder of square LAZ tiles of edge S (the CRS's units; a grid anchored at 0) and "
+           "DST/index.vpc", low=0.0, low_open=True, metavar="S"),
+    # -- warmup
+    Option("targets", CHOICES, WARM_TARGETS, "warm-up targets to compile, comma-separated (default: all)",
+           choices=WARM_TARGETS, metavar="LIST"),
+    Option("mask", TEXT, None, "bool array of the store selecting the points to write (e.g. simplify/keep)",
+           metavar="ARRAY"),
+]
+#: every option, by name (``format`` and compare's ``rule`` are variants, see :data:`COMMANDS`)
+OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
+
+_OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
+                        choices=_WRITABLE)
+_INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
+#: ingest's and export's overwrite: they have no work store
+_OVERWRITE_STORE = Option("overwrite", BOOL, False, "replace an existing point store STORE")
+_OVERWRITE_FILE = Option("overwrite", BOOL, False, "replace an existing destination file DST")
+#: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
+_STRICT_COUNT = Option("strict", BOOL, False,
+                       "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
+_RULE_LIST = Option("rule", CHOICES, None, "entropy rule(s), comma-separated; each runs once per method (eliminate: "
+                    "once, no clusters) (default: eliminate, with --ratio or --count; with --threshold alone: threshold)",
+                    choices=rules.names(), metavar="RULES")
+
+
+def _command(*names: str, extra: tuple[Option, ...] = ()) -> dict[str, Option]:
+    spec = {n: OPTIONS[n] for n in names}
+    spec.update({o.name: o for o in extra})
+    return spec
+
+
+#: the in-memory method's own options (its API only: no flag, no pipeline key)
+_MEMORY_RULE = Option("rule", CHOICE, rules.MEMORY_RULE, "pruning rule", choices=rules.names())
+_MEMORY_THRESHOLD = Option("threshold", FLOAT, rules.PAPER_THRESHOLD, "entropy-change threshold S", low=0.0)
+_MEMORY = (
+    Option("score", CHOICE, "delta_h", "the score S is compared with: dH or m*dH", choices=("delta_h", "unit_free")),
+    Option("coverage", FLOAT, 1.0, "the coverage rule's factor", low=0.0, low_open=True),
+    Option("threads", INT, None, "threads (default: all cores)", low=1),
+    Option("n_nearest", INT, 8, "FCM: memberships over the L nearest centres", low=1),
+    Option("dim", FLOAT, 3.0, "the dimension d of the k-NN density", low=0.0, low_open=True),
+    Option("max_rounds", INT, None, "at most this many rounds", low=0),
+)
+_MEMORY_OPTIONS = {o.name: o for o in _MEMORY}
+
+
+def _memory(*names: str) -> dict[str, Option]:
+    spec = {n: OPTIONS[n] for n in names if n in OPTIONS}
+    spec.update({n: _MEMORY_OPTIONS[n] for n in names if n in _MEMORY_OPTIONS})
+    spec.update(rule=_MEMORY_RULE, threshold=_MEMORY_THRESHOLD)
+    return spec
+
+
+#: command -> its options, by name, in the order of ``--help``
+COMMANDS: dict[str, dict[str, Option]] = {
+    "simplify": _command(
+        "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
+        "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
+        "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
+    "evaluate": _command(
+        "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
+        "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid"),
+    "compare": _command(
+        "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
+        "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",
+        extra=(_RULE_LIST,)),
+    "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite",
+                       extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
+    "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
+    "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
+    "warmup": _command("targets"),
+    # the in-memory API: cloudsieve.core.simplify_points and prune
+    "simplify_points": _memory("method", "rule", "threshold", "ratio", "count", "cluster_size", "seed", "k0",
+                               "k_min", "keep_duplicates", "score", "n_nearest", "coverage", "threads"),
+    "prune": _memory("rule", "threshold", "ratio", "count", "score", "k0", "k_min", "dim", "coverage", "max_rounds",
+                     "threads", "keep_duplicates"),
+}
+#: the commands of the in-memory API (no resolution of a default rule: theirs is :data:`rules.MEMORY_RULE`)
+MEMORY_COMMANDS = ("simplify_points", "prune")
+
+
