@@ -73,7 +73,7 @@ CASES = [
     ("count-zero",                "simplify {data}/simple.las {out}/o.laz --count 0",                 2, "count must be an integer >= 1, got 0"),
     ("ratio-and-count",           "simplify {data}/simple.las {out}/o.laz --ratio 0.5 --count 10",    2, "give ratio or count, not both (got ratio=0.5, count=10)"),
     ("target-without-ratio",      "simplify {data}/simple.las {out}/o.laz --rule target",             2, "rule 'target' needs a ratio or a count"),
-    ("cluster-size-too-small",    "simplify {data}/simple.las {out}/o.laz --cluster-size 5 --ratio 0.5",          2, "cluster_size=5 is too small: a cluster needs at least k_min+2=6 points"),
+    ("cluster-size-too-small",    "simplify {data}/simple.las {out}/o.laz --cluster-size 5 --ratio 0.5",          2, "--cluster-size 5 is too small: a cluster needs at least k_min+2=6 points"),
     ("unknown-scheduler",         "simplify {data}/simple.las {out}/o.laz --scheduler fast",          2, "unknown scheduler 'fast': use sync, threads, processes or a tcp://host:port address"),
     ("unreachable-scheduler",     "simplify {data}/simple.las {out}/o.laz --scheduler tcp://127.0.0.1:1 --ratio 0.5", 2, "cannot reach the dask scheduler at tcp://127.0.0.1:1: Connection refused (connect timeout 5 s)"),
     ("compare-unknown-method",    "compare {data}/simple.las --methods km,grid",                      2, "unknown method(s) ['grid']; choose among km, fcm, random, voxel, poisson, fps"),

@@ -85,9 +85,9 @@ def test_scheduler_unreachable(tmp_path, capsys, src):
 
 
 @pytest.mark.parametrize("option, value, message", [
-    ("--ratio", "0", "ratio must be a number in (0, 1], got 0.0"),
-    ("--ratio", "1.5", "ratio must be a number in (0, 1], got 1.5"),
-    ("--count", "0", "count must be an integer >= 1, got 0"),
+    ("--ratio", "0", "--ratio must be a number in (0, 1], got 0.0"),
+    ("--ratio", "1.5", "--ratio must be a number in (0, 1], got 1.5"),
+    ("--count", "0", "--count must be an integer >= 1, got 0"),
 ])
 def test_target_out_of_range(tmp_path, capsys, src, option, value, message):
     out = tmp_path / "out.laz"
@@ -98,8 +98,8 @@ def test_target_out_of_range(tmp_path, capsys, src, option, value, message):
 
 
 @pytest.mark.parametrize("option, value, message", [
-    ("--ratio", "0", "ratio must be a number in (0, 1], got 0.0"),
-    ("--count", "0", "count must be an integer >= 1, got 0"),
+    ("--ratio", "0", "--ratio must be a number in (0, 1], got 0.0"),
+    ("--count", "0", "--count must be an integer >= 1, got 0"),
 ])
 def test_compare_target_out_of_range(tmp_path, capsys, src, option, value, message):
     rc, err = run(["compare", src, option, value, "--report", tmp_path / "cmp", "--no-progress"], capsys)

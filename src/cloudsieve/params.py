@@ -221,12 +221,19 @@ def _compare(o: dict) -> None:
     _cluster_size(o)
 
 
+def _evaluate(o: dict) -> None:
+    if o["reference_mesh"] is not None and not o["surface"]:
+        raise InvalidParameterError(f"reference_mesh ({o['reference_mesh']}) needs the surface level, which "
+                                    "surface=False (--no-surface) turns off")
+
+
 def _simplify_points(o: dict) -> None:
     _rule_target(o)
     _cluster_size(o)
 
 
-_CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target}
+_CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target,
+          "refine": _cluster_size, "evaluate": _evaluate}
 
 
 def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
@@ -272,7 +279,8 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
         raise InvalidParameterError(f"{command}: unknown option(s) {unknown}; accepted: {sorted(spec)}")
     out = {name: check(opt, values.get(name, opt.default)) for name, opt in spec.items()}
     if command in _CROSS:
-        _target(out)
+        if "ratio" in out:
+            _target(out)
         if command not in MEMORY_COMMANDS:
             resolve_rule(command, out, caller or f"cloudsieve.{command}",
                          {name: OPTIONS[name].metavar for name in ("ratio", "count", "threshold")})
@@ -300,7 +308,7 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
             validate(command, {n: bound.arguments[n] for n in names})
             return func(*args, **kwargs)
 
-        wrapper.__wrapped__ = func
+        wrapper.unchecked = func  # for callers whose options were validated already
         return wrapper
 
     return decorate

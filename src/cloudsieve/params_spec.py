@@ -227,7 +227,7 @@ _MEMORY_OPTIONS = {o.name: o for o in _MEMORY}
 def _memory(*names: str) -> dict[str, Option]:
     spec = {n: OPTIONS[n] for n in names if n in OPTIONS}
     spec.update({n: _MEMORY_OPTIONS[n] for n in names if n in _MEMORY_OPTIONS})
-    spec.update(rule=_MEMORY_RULE, threshold=_MEMORY_THRESHOLD)
+    spec.update({o.name: o for o in (_MEMORY_RULE, _MEMORY_THRESHOLD) if o.name in names})
     return spec
 
 
@@ -252,10 +252,12 @@ COMMANDS: dict[str, dict[str, Option]] = {
     # the in-memory API: cloudsieve.core.simplify_points and prune
     "simplify_points": _memory("method", "rule", "threshold", "ratio", "count", "cluster_size", "seed", "k0",
                                "k_min", "keep_duplicates", "score", "n_nearest", "coverage", "threads"),
+    "scores": _memory("k0", "k_min", "dim", "threads"),
+    "refine": _memory("method", "cluster_size", "seed", "k_min", "n_nearest", "threads"),
     "prune": _memory("rule", "threshold", "ratio", "count", "score", "k0", "k_min", "dim", "coverage", "max_rounds",
                      "threads", "keep_duplicates"),
 }
 #: the commands of the in-memory API (no resolution of a default rule: theirs is :data:`rules.MEMORY_RULE`)
-MEMORY_COMMANDS = ("simplify_points", "prune")
+MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine")
 
 

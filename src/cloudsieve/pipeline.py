@@ -49,7 +49,8 @@ every stage that runs on dask.
 
 Every option is checked when the file is loaded, as the API checks it (names,
 types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
-so a bad value fails before any stage runs, naming the stage. Relative paths are relative to the working
+so a bad value fails before any stage runs, naming the stage; ``filters.entropy``
+then runs on the options validated there (:func:`cloudsieve.engine.simplify.run_simplify`). Relative paths are relative to the working
 folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
 environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``); a variable
 that is not set is an error. :func:`check_inputs` (``cloudsieve run --check``,
@@ -119,14 +120,16 @@ class Pipeline:
     stages: list[dict]
     options: dict = field(default_factory=dict)
     source: str = "<pipeline>"
+    #: the options of each stage after the reader that runs a command (by its index in *stages*), validated
+    #: once when the file was loaded (:func:`cloudsieve.params.validate`): :func:`run_pipeline` checks none again
+    validated: dict = field(default_factory=dict)
 
 
 def _stage_functions() -> dict[str, Any]:
     # Imported here: the engine and the evaluation pull in dask, open3d, pymeshlab.
-    from .engine import simplify
     from .evaluate import compare, evaluate
 
-    return {"filters.entropy": simplify, "evaluate": evaluate, "compare": compare}
+    return {"evaluate": evaluate, "compare": compare}
 
 
 #: stage type -> its command in :data:`cloudsieve.params.COMMANDS`
@@ -145,8 +148,10 @@ def stage_options(kind: str) -> set[str]:
     return set(COMMANDS[STAGE_COMMANDS[kind]]) - _FROM_WRITER - _FROM_READER
 
 
-def _check_values(stage: dict, run_options: dict, label: str) -> None:
-    """Validate a stage's option values (types, ranges, together) as the API will; PipelineError naming the stage."""
+def _check_values(stage: dict, run_options: dict, label: str) -> dict | None:
+    """Validate a stage's option values (types, ranges, together) as the API would; PipelineError naming the stage.
+
+    Returns the validated options of a stage that runs a command (None for a reader or a writer)."""
     kind = stage["type"]
     extra = set(stage) - stage_options(kind) - {"type"}
     if extra:
@@ -164,11 +169,12 @@ def _check_values(stage: dict, run_options: dict, label: str) -> None:
         else:
             if kind == "filters.entropy":
                 values = {**run_options, **values}
-            validate(STAGE_COMMANDS[kind], values, caller=kind)
+            return validate(STAGE_COMMANDS[kind], values, caller=kind)
     except InvalidParameterError as exc:
         # the label names the stage: only the values left to the user are reworded (ratio=R -> "ratio")
         advice = {k: v for k, v in exc.advice.items() if isinstance(v, Metavar)}
         raise PipelineError(f"{label}: {exc}", advice=advice) from None
+    return None
 
 
 def _apply_override(doc: dict, item: str, where: str) -> None:
@@ -265,6 +271,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
     run_options = {k: v for k, v in run_options.items() if k in doc}
     _check_values(reader, run_options, f"{where}: stage 1 ({reader['type']})")
     seen: list[str] = []
+    validated: dict[int, dict] = {}
     for i, stage in enumerate(rest, 2):
         kind = stage["type"]
         label = f"{where}: stage {i} ({kind})"
@@ -273,7 +280,9 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
         if kind not in WRITERS and kind not in STAGE_COMMANDS:
             known = ", ".join([*WRITERS, *STAGE_COMMANDS])
             raise PipelineError(f"{label}: unknown stage type; known after the reader: {known}")
-        _check_values(stage, run_options, label)
+        checked = _check_values(stage, run_options, label)
+        if checked is not None:
+            validated[i - 2] = checked
         family = "writer" if kind in WRITERS else kind
         if family in seen:
             raise PipelineError(f"{label}: only one {family} stage is allowed")
@@ -306,7 +315,7 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
                         f"because the reader matches {len(inputs)} files"
                     )
     options = {k: v for k, v in doc.items() if k != "pipeline"}
-    return Pipeline(inputs=inputs, reader=reader, stages=rest, options=options, source=where)
+    return Pipeline(inputs=inputs, reader=reader, stages=rest, options=options, source=where, validated=validated)
 
 
 def _fill(value: Any, src: str) -> Any:
@@ -402,7 +411,6 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         points = 0
         filt = next((s for s in pipeline.stages if s["type"] == "filters.entropy"), None)
         writer = next((s for s in pipeline.stages if s["type"] in WRITERS), None)
-        run_opts = {k: v for k, v in pipeline.options.items() if k in ("scheduler", "workers")}
         if writer is not None:
             dst = _fill(writer["filename"], src)
             Path(dst).parent.mkdir(parents=True, exist_ok=True)
@@ -411,14 +419,12 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
             log.info("pipeline %s: %s -> %s", pipeline.source, src, dst)
             if filt is None:
                 points = _convert(src, dst, out_format, overwrite, drop_invalid)
-            else:
-                params = {k: _fill(v, src) for k, v in filt.items() if k != "type"}
-                for key, value in run_opts.items():
-                    params.setdefault(key, value)
-                entry["summary"] = functions["filters.entropy"](
-                    src, dst, format=out_format, overwrite=overwrite, client=client,
-                    drop_invalid=drop_invalid, bars=bars, **params
-                )
+            else:  # the options validated at load (run_options merged), the paths filled
+                from .engine.simplify import run_simplify
+
+                opts = {k: _fill(v, src) for k, v in pipeline.validated[pipeline.stages.index(filt)].items()}
+                opts.update(format=out_format, overwrite=overwrite, drop_invalid=drop_invalid)
+                entry["summary"] = run_simplify(src, dst, opts, client=client, bars=bars)
                 points = entry["summary"].points_in
             entry["output"] = dst
         for stage in pipeline.stages:

@@ -47,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
             total = reader.count
     with task_runner(args.no_progress) as runner, \
             progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
-        store = ingest(
+        store = ingest.unchecked(  # validated above, with delimiter and columns
             args.src,
             args.store,
             format=args.format,

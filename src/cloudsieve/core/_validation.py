@@ -1,8 +1,9 @@
 """The input checks of the in-memory method, and the one k formula.
 
-Every public function of :mod:`cloudsieve.core` validates its input here once
-(shapes, dtypes, finite coordinates, parameter ranges) and hands the validated
-arrays to kernels that assume valid input. Messages carry the values.
+Every public function of :mod:`cloudsieve.core` validates its arrays here once
+(shapes, dtypes, finite coordinates, labels; its options through
+:mod:`cloudsieve.params`) and hands the validated arrays to kernels that
+assume valid input. Messages carry the values.
 """
 
 from __future__ import annotations
@@ -16,8 +17,6 @@ __all__ = [
     "ratio_count",
     "check_points",
     "check_labels",
-    "check_density_params",
-    "check_cluster_size",
     "check_context",
 ]
 
@@ -103,23 +102,6 @@ def check_labels(labels, n: int) -> np.ndarray:
     if n and not np.issubdtype(lab.dtype, np.integer):
         raise InvalidParameterError(f"labels must be integers, got dtype {lab.dtype}")
     return lab.astype(np.int64, copy=False)
-
-
-def check_density_params(k0, k_min, dim) -> None:
-    """k0 > 0, integer k_min >= 1 and dim > 0 (the k-NN density's parameters)."""
-    if not (np.isfinite(k0) and k0 > 0):
-        raise InvalidParameterError(f"k0 must be a positive number, got {k0!r}")
-    if int(k_min) != k_min or k_min < 1:
-        raise InvalidParameterError(f"k_min must be an integer >= 1, got {k_min!r}")
-    if not (np.isfinite(dim) and dim > 0):
-        raise InvalidParameterError(f"dim must be a positive number, got {dim!r}")
-
-
-def check_cluster_size(cluster_size, k_min) -> None:
-    """An integer cluster_size >= k_min + 2 (a cluster must be able to lose a point and keep k neighbours)."""
-    if int(cluster_size) != cluster_size or cluster_size < k_min + 2:
-        raise InvalidParameterError(
-            f"cluster_size={cluster_size!r} is too small: a cluster needs at least k_min+2={int(k_min) + 2} points")
 
 
 def check_context(context, p: int) -> np.ndarray | None:

@@ -66,7 +66,8 @@ from functools import cached_property
 
 import numpy as np
 
-from ._validation import check_context, check_density_params, check_labels, check_points
+from ._validation import check_context, check_labels, check_points
+from ..params import validate_params
 from .kernels.entropy import entropy_weights, grouped_gain, graph_to_input, scores_to_input
 from .knn import group, knn_clusters, knn_context
 from .scored_knn import groups_to_lists, knn_scored_clusters
@@ -140,6 +141,7 @@ class Scores:
         return nb[nb >= 0].astype(np.int64)  # row-major: row by row, nearest first
 
 
+@validate_params("scores")
 def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
                  context=None, threads: int | None = None) -> Scores:
     """Leave-one-out entropy scores with the k-NN graph (see the module docstring).
@@ -165,7 +167,6 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     """
     pts = check_points(points)
     lab = check_labels(labels, len(pts))
-    check_density_params(k0, k_min, dim)
     ctx = check_context(context, pts.shape[1])
     return score_unchecked(pts, lab, k0, k_min, dim, ctx, threads)
 
@@ -178,7 +179,7 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
     pts : ndarray of shape (n, p), float64, finite
     lab : ndarray of shape (n,), int64
     k0, k_min, dim : float, int, float
-        Valid (see :func:`._validation.check_density_params`).
+        Valid (the options of :func:`score_points`, checked by :mod:`cloudsieve.params`).
     ctx : ndarray of shape (q, p), float64, finite, or None
     threads : int or None
         None: all cores.
@@ -291,4 +292,4 @@ def entropy_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim:
     >>> s.shape, bool((s >= 0).all())
     ((50,), True)
     """
-    return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context).delta_h
+    return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context).delta_h  # validated there

@@ -15,15 +15,16 @@ import warnings
 
 import numpy as np
 
-from ._validation import check_cluster_size, check_points
+from ._validation import check_points
 from .cluster import CentroidClustering
 from .fcm import FuzzyCMeans
 from .kmeans import KMeans
-from ..errors import ConvergenceWarning, InvalidParameterError
+from ..errors import ConvergenceWarning
+from ..params import validate_params
 from ..params_spec import METHODS as _METHODS
 
 __all__ = ["METHODS", "REFINE_LABEL_TOL", "REFINE_KM_TOL", "REFINE_FCM_MAX_ITER", "refine_labels",
-           "make_estimator", "refine_unchecked", "check_method"]
+           "make_estimator", "refine_unchecked"]
 
 logger = logging.getLogger(__name__)
 
@@ -48,12 +49,7 @@ REFINE_KM_TOL = REFINE_LABEL_TOL
 REFINE_FCM_MAX_ITER = 20
 
 
-def check_method(method) -> None:
-    """``method`` is one of :data:`METHODS`."""
-    if method not in METHODS:
-        raise InvalidParameterError(f"method must be one of {', '.join(METHODS)}, got {method!r}")
-
-
+@validate_params("refine")
 def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int = 0, *,
                   k_min: int = 4, n_nearest: int = 8, max_iter: int | None = None, init="k-means++",
                   threads: int | None = None, tol: float | None = None,
@@ -96,8 +92,6 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
     valid partition into small clusters.
     """
     pts = check_points(points)
-    check_method(method)
-    check_cluster_size(cluster_size, k_min)
     est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest,
                          max_iter=max_iter, init=init, tol=tol, label_tol=label_tol)
     return refine_unchecked(pts, est, threads)

@@ -56,7 +56,7 @@ from .runner import PeakMemory, Runner, stage_bar
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
 
-__all__ = ["simplify", "Summary"]
+__all__ = ["simplify", "run_simplify", "Summary"]
 
 logger = logging.getLogger(__name__)
 
@@ -228,12 +228,7 @@ def simplify(
     TargetNotMetError
         *strict* and the kept count differs from the ratio or count asked.
     """
-    from ..store import export, local_path, same_path
-
     t_start = time.perf_counter()
-    src, dst = os.fspath(src), os.fspath(dst)
-    if tile_size is not None and len(dst) > 1:
-        dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
@@ -241,6 +236,28 @@ def simplify(
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
         "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
     })
+    return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
+
+
+#: the options :func:`run_simplify` reads, as local names
+_OPTION_NAMES = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
+                 "memory_limit", "store", "seed", "resume", "overwrite", "format", "chunk_size", "halo_context", "k0",
+                 "k_min", "drop_invalid", "keep_duplicates", "strict", "tile_size")
+
+
+def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, client=None, progress=None, bars=None,
+                 notify=None, t_start: float | None = None) -> Summary:
+    """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
+    for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
+    from ..store import export, local_path, same_path
+
+    t_start = time.perf_counter() if t_start is None else t_start
+    src, dst = os.fspath(src), os.fspath(dst)
+    (method, rule, threshold, ratio, count, cluster_size, cell_size, scheduler, workers, memory_limit, store, seed,
+     resume, overwrite, format, chunk_size, halo_context, k0, k_min, drop_invalid, keep_duplicates, strict,
+     tile_size) = (opts[name] for name in _OPTION_NAMES)
+    if tile_size is not None and len(dst) > 1:
+        dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     context = opts["halo_context"]

@@ -158,10 +158,10 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
                 progress(n)
 
         if is_las_source(expand_sources(src)):
-            ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, run=run)
+            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, run=run)
         else:
-            ingest(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, drop_invalid=drop_invalid,
-                   on_chunk=on_chunk)
+            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both,
+                             drop_invalid=drop_invalid, on_chunk=on_chunk)
     st = PointStore.open(store_path, "r+")
     st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
     return st

@@ -214,9 +214,6 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
         "psnr_peak": psnr_peak, "reference_mesh": reference_mesh,
     })
-    if reference_mesh is not None and not surface:
-        raise InvalidParameterError(f"reference_mesh ({reference_mesh}) needs the surface level, which "
-                                    "surface=False (--no-surface) turns off")
     if report_dir is not None:
         check_folder(report_dir)
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,

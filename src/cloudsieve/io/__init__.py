@@ -39,11 +39,11 @@ from ..errors import (
     InputIsDirectoryError,
     InputNotFoundError,
     InputNotReadableError,
-    InvalidParameterError,
     UnknownFormatError,
 )
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ..formats import FORMAT_TABLE
+from ..params import check
 from ._base import Reader, Writer, check_destination
 
 __all__ = [
@@ -279,8 +279,7 @@ def open_reader(
         *chunk_size* is not positive.
     """
     path = os.fspath(path)
-    if int(chunk_size) <= 0:
-        raise InvalidParameterError(f"chunk_size must be positive, got {chunk_size}")
+    check("chunk_size", chunk_size)  # the option's one check (params)
     check_input_file(path)
     fmt = detect_format(path, format)
     spec = FORMATS[fmt]["reader"]

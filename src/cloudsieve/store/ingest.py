@@ -19,9 +19,9 @@ import numpy as np
 import zarr
 
 from .. import progress as _progress
+from ..params import validate_params
 from ..errors import (
     EmptyInputError,
-    InvalidParameterError,
     SameSourceDestinationError,
     UnknownFormatError,
 )
@@ -92,6 +92,7 @@ class _StoreFiller:
             self.capacity = self.written
 
 
+@validate_params("ingest")
 def ingest(
     src: str | os.PathLike,
     store: str | os.PathLike,
@@ -163,9 +164,7 @@ def ingest(
     src, store = os.fspath(src), os.fspath(store)
     if same_path(src, store):
         raise SameSourceDestinationError(f"destination {store} is the source {src}: cloudsieve never overwrites its input")
-    chunk_size = int(chunk_size)
-    if chunk_size <= 0:
-        raise InvalidParameterError(f"chunk_size must be positive, got {chunk_size}")
+    chunk_size = int(chunk_size)  # its options were validated by params (the decorator), once
     bound_malloc()
     update = _progress.callback(progress)
     from ..io.sources import expand_sources

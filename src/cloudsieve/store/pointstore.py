@@ -40,6 +40,7 @@ from ..errors import (
     InvalidParameterError,
     StoreNotFoundError,
 )
+from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .paths import delete_store, local_path, path_exists, zarr_store
 from .codecs import compressors, filters
@@ -293,9 +294,7 @@ class PointStore:
             Points per block (default: the store's chunk size; a multiple of it
             reads whole zarr chunks).
         """
-        step = int(chunk_size or self.chunk_size)
-        if step <= 0:
-            raise InvalidParameterError(f"chunk_size must be positive, got {step}")
+        step = int(self.chunk_size if chunk_size is None else check("chunk_size", chunk_size))  # params' check
         for start in range(0, self.count, step):
             yield Chunk(start, self.rows(start, start + step, names))
 
