@@ -68,16 +68,16 @@ def test_store_errors(tmp_path, las_store):
     las_store.create_array("stage/a", shape=(3,), dtype="int8")
     with raises(ArrayNotFoundError, KeyError, f"{las_store.path}: 'stage' is a group, not an array"):
         las_store.array("stage")
-    with raises(InvalidParameterError, ValueError, "chunk_size must be positive, got -5"):
+    with raises(InvalidParameterError, ValueError, "chunk_size must be an integer >= 1, got -5"):
         next(las_store.chunks(chunk_size=-5))
     with raises(InvalidParameterError, ValueError, f"{las_store.path}: 'intensity' is an input array"):
         las_store.create_array("intensity", shape=(1065,), dtype=np.uint16)
 
 
 def test_ingest_export_errors(tmp_path, las_store):
-    with raises(InvalidParameterError, ValueError, "chunk_size must be positive, got 0"):
+    with raises(InvalidParameterError, ValueError, "chunk_size must be an integer >= 1, got 0"):
         ingest(shared_file("simple.las"), tmp_path / "t.zarr", chunk_size=0)
-    with raises(InvalidParameterError, ValueError, "chunk_size must be positive, got 0"):
+    with raises(InvalidParameterError, ValueError, "chunk_size must be an integer >= 1, got 0"):
         open_reader(shared_file("simple.las"), chunk_size=0)
     out = tmp_path / "o.las"
     with raises(InvalidParameterError, ValueError, "mask must be 1-D with 1065 entries (one per point), got shape (3,)"):

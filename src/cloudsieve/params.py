@@ -281,7 +281,7 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     if command in _CROSS:
         if "ratio" in out:
             _target(out)
-        if command not in MEMORY_COMMANDS:
+        if "rule" in out and command not in MEMORY_COMMANDS:  # simplify, compare: the default rule
             resolve_rule(command, out, caller or f"cloudsieve.{command}",
                          {name: OPTIONS[name].metavar for name in ("ratio", "count", "threshold")})
         _CROSS[command](out)

@@ -51,16 +51,17 @@ def _prepare_folder(out: str, overwrite: bool) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.rules import get as get_rule
-    from ..engine import simplify
+    from ..engine.simplify import run_simplify
     from ..evaluate import evaluate
+    from ..params import validate
     from functools import partial
 
     from ..progress import bar
     from ..synthetic import write_scene_laz
 
     bar = partial(bar, enabled=not args.no_progress)
-    options = option_values(args, "simplify", check=True)  # before anything is written
-    options.pop("overwrite", None)  # demo's --overwrite is about its folder; its own files are always replaced
+    # validated once, before anything is written; demo's --overwrite is about its folder (its files are replaced)
+    options = validate("simplify", {**option_values(args, "simplify"), "overwrite": True})
     _prepare_folder(args.out, args.overwrite)
     src = os.path.join(args.out, "scene.laz")
     dst = os.path.join(args.out, "scene-simplified.laz")
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"1/3 wrote example scan {src}: {args.points:,} points ({time.perf_counter() - t0:.1f} s)")
 
     t0 = time.perf_counter()
-    summary = simplify(src, dst, **options, overwrite=True, bars=bar, notify=print)
+    summary = run_simplify(src, dst, options, bars=bar, notify=print)
     print(
         f"2/3 simplified -> {dst}: kept {summary.kept:,} of {summary.points_in:,} points "
         f"({time.perf_counter() - t0:.1f} s, rule {options['rule']}"

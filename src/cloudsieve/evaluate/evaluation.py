@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning, InvalidParameterError
+from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
 from ..engine.runner import stage_bar
 from ..params import validate
