@@ -18,7 +18,7 @@ option of the in-memory method (it runs on threads: ``threads``), so that
 case checks that ``simplify_points`` has no such parameter and feeds the
 three other surfaces.
 
-A count above the cloud's points is not a bad value: every surface keeps all
+params.py is a leaf (:func:`test_params_is_a_leaf`). A count above the cloud's points is not a bad value: every surface keeps all
 the points and reports the count kept (params.py knows no cloud size).
 """
 
@@ -131,3 +131,15 @@ def test_pipeline_check(case, src, tmp_path):
     assert done.stderr == f"cloudsieve run: error: {path}: stage 2 (filters.entropy): {message}\n"
     assert "Traceback" not in done.stderr
     assert sorted(os.listdir(tmp_path)) == ["p.json"]
+
+
+def test_params_is_a_leaf():
+    """params.py imports no cloudsieve.core module but the rule registry, no io, engine or scheduler, no numba or scipy."""
+    probe = ("import sys, cloudsieve.params\n"
+             "print(' '.join(sorted(m for m in sys.modules if m.startswith(('cloudsieve', 'numba', 'scipy')))))")
+    env = {**os.environ, "PYTHONPATH": SRC_DIR + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
+                            env=env).stdout.split()
+    assert sorted(loaded) == ["cloudsieve", "cloudsieve.address", "cloudsieve.core", "cloudsieve.core.rules",
+                              "cloudsieve.errors", "cloudsieve.formats", "cloudsieve.params",
+                              "cloudsieve.params_spec", "cloudsieve.rule_default"]
