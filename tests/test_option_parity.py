@@ -18,8 +18,9 @@ option of the in-memory method (it runs on threads: ``threads``), so that
 case checks that ``simplify_points`` has no such parameter and feeds the
 three other surfaces.
 
-params.py is a leaf (:func:`test_params_is_a_leaf`). A count above the cloud's points is not a bad value: every surface keeps all
+A count above the cloud's points is not a bad value: every surface keeps all
 the points and reports the count kept (params.py knows no cloud size).
+:func:`test_params_is_a_leaf` checks what ``import cloudsieve.params`` loads.
 """
 
 from __future__ import annotations
