@@ -10,15 +10,17 @@ One module per stage, found by its name:
 - :mod:`.kernels`: the compiled (numba) kernels the stages call;
 - :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
 - :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
-- :mod:`.rules` (:func:`prune`: threshold, target, and the rounds of :mod:`.rounds`:
-  iterative, coverage; one round's choice in :mod:`.selection`, the rounds without
-  context in :mod:`.incremental`, their threads in :mod:`.chunks`);
+- :mod:`.rules`: the rule registry (:data:`.rules.RULES`, one module per rule) and
+  :func:`prune`; the rounds of iterative and coverage in :mod:`.rounds` (one round's
+  choice in :mod:`.selection`, the rounds without context in :mod:`.incremental`,
+  their threads in :mod:`.chunks`);
 - :mod:`.kernels`: the compiled (numba) loops (:mod:`.kernels.rounds`,
   :mod:`.kernels.lists`, :mod:`.kernels.rescore` for the rounds);
 - :mod:`.simplify`: :func:`simplify_points`, all of it.
 
-Public functions validate their input once (:mod:`cloudsieve.params`) and run kernels that assume valid
-input. Each name is imported at its first use.
+Public functions validate their input once (options: :mod:`cloudsieve.params`; arrays:
+:mod:`._validation`) and run kernels that assume valid input. Each name is imported at its first
+use, so the rule registry imports without numba or scipy.
 """
 
 from importlib import import_module
