@@ -256,7 +256,7 @@ def score_task(task: CellTask) -> dict[str, Any]:
     -------
     dict with "cell", "n", "halo", "seconds" (small).
     """
-    from ..core import exact_copies, refine_labels, unit_free_scores
+    from ..core import exact_copies, refine_labels, score_points
 
     t0 = time.perf_counter()
     params, cell, region = task.params, task.cell, task.region
@@ -264,13 +264,14 @@ def score_task(task: CellTask) -> dict[str, Any]:
     n = len(core)
     scores = np.zeros(n, dtype=np.float64)
     labels = np.zeros(n, dtype=np.int64)
-    if n:
-        labels = refine_labels(
+    if n:  # the run's options were validated once (engine.simplify): the unchecked calls
+        labels = refine_labels.unchecked(
             core, params["method"], params["cluster_size"], cell_seed(params["seed"], cell), k_min=params["k_min"],
             threads=_threads(params),
         )
         scores = np.asarray(
-            unit_free_scores(core, labels, context=_context(params, halo), **_core_kwargs(params)), dtype=np.float64
+            score_points.unchecked(core, labels, context=_context(params, halo), **_core_kwargs(params)).unit_free,
+            dtype=np.float64,
         )
         labels[exact_copies(core)] = -1  # pass 2 drops them (or keeps them with their first copy)
     g["simplify/score_cells"][region : region + n] = scores

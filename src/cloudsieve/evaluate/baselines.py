@@ -202,7 +202,9 @@ def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km",
     kw = dict(options)
     if get_rule(rule).takes_target and count is not None:
         kw["count"] = int(count)
-    keep = simplify_points(np.ascontiguousarray(points, dtype=np.float64), method=method, rule=rule, seed=seed, **kw)
+    # compare validated the options once: the unchecked method
+    keep = simplify_points.unchecked(np.ascontiguousarray(points, dtype=np.float64), method=method, rule=rule,
+                                     seed=seed, **kw)
     keep = np.asarray(keep)
     if keep.dtype == bool:
         keep = np.flatnonzero(keep)
