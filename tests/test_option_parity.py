@@ -144,3 +144,12 @@ def test_params_is_a_leaf():
     assert sorted(loaded) == ["cloudsieve", "cloudsieve.address", "cloudsieve.core", "cloudsieve.core.rules",
                               "cloudsieve.errors", "cloudsieve.formats", "cloudsieve.params",
                               "cloudsieve.params_spec", "cloudsieve.rule_default"]
+
+
+def test_the_registry_refuses_a_rule_as_the_option_does():
+    from cloudsieve.core import rules
+
+    with pytest.raises(InvalidParameterError) as exc:
+        rules.get("fastest")
+    assert str(exc.value) == CASES["unknown rule"][1]
+    assert tuple(rules.RULES) == rules.names() and all(rules.get(name).name == name for name in rules.names())
