@@ -50,7 +50,10 @@ every stage that runs on dask.
 Every option is checked when the file is loaded, as the API checks it (names,
 types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
 so a bad value fails before any stage runs, naming the stage; ``filters.entropy``
-then runs on the options validated there (:func:`cloudsieve.engine.simplify.run_simplify`). Relative paths are relative to the working
+and ``evaluate`` then run on the options validated there
+(:func:`cloudsieve.engine.simplify.run_simplify`,
+:func:`cloudsieve.evaluate.evaluation.run_evaluation`); ``compare`` calls its API,
+which validates them again. Relative paths are relative to the working
 folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
 environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``); a variable
 that is not set is an error. :func:`check_inputs` (``cloudsieve run --check``,
@@ -127,9 +130,9 @@ class Pipeline:
 
 def _stage_functions() -> dict[str, Any]:
     # Imported here: the engine and the evaluation pull in dask, open3d, pymeshlab.
-    from .evaluate import compare, evaluate
+    from .evaluate import compare
 
-    return {"evaluate": evaluate, "compare": compare}
+    return {"compare": compare}
 
 
 #: stage type -> its command in :data:`cloudsieve.params.COMMANDS`
@@ -427,11 +430,17 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
                 entry["summary"] = run_simplify(src, dst, opts, client=client, bars=bars)
                 points = entry["summary"].points_in
             entry["output"] = dst
-        for stage in pipeline.stages:
+        for i, stage in enumerate(pipeline.stages):
             params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
-            if stage["type"] == "evaluate":
-                entry["report"] = functions["evaluate"](src, entry["output"], drop_invalid=drop_invalid, bars=bars,
-                                                        **params)
+            if stage["type"] == "evaluate":  # on the options validated at load, as filters.entropy
+                from .evaluate.evaluation import run_evaluation
+                from .io import check_folder
+
+                opts = {k: _fill(v, src) for k, v in pipeline.validated[i].items()}
+                opts["drop_invalid"] = drop_invalid
+                if opts["report_dir"] is not None:
+                    check_folder(opts["report_dir"])
+                entry["report"] = run_evaluation(src, entry["output"], bars=bars, **opts)
             elif stage["type"] == "compare":
                 entry["report"] = functions["compare"](src, drop_invalid=drop_invalid, **params)
                 points = points or entry["report"]["points"]
