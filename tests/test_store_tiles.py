@@ -236,7 +236,7 @@ def test_export_tiles_atomic_and_refusals(autzen, tmp_path):
     (out / "old.txt").write_text("kept")
     with pytest.raises(DestinationExistsError, match=r"tiles exists \(a folder\); pass overwrite=True to replace it"):
         export_tiles(store, out, tile_size=400.0)
-    with pytest.raises(InvalidParameterError, match=r"tile_size must be a positive number, got -1"):
+    with pytest.raises(InvalidParameterError, match=r"tile_size must be a finite number > 0, got -1.0"):
         export_tiles(store, out, tile_size=-1, overwrite=True)
     with pytest.raises(InvalidParameterError, match=r"tile_size 1e-05 is too small for .*: coordinates up to "
                                                     r"849498 give tile indices beyond 32 bits"):

@@ -20,7 +20,6 @@ cluster, the destination must be on a file system they share (as the store).
 from __future__ import annotations
 
 import logging
-import math
 import os
 from functools import partial
 from typing import Any
@@ -29,6 +28,7 @@ import numpy as np
 
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
+from ..params import check
 from .buckets import bucket, iter_runs, open_runs
 from .paths import local_path
 from .pointstore import PointStore
@@ -120,12 +120,9 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
 
 
 def _check_grid(store: PointStore, tile_size: Any) -> float:
-    try:
-        size = float(tile_size)
-    except (TypeError, ValueError):
-        size = math.nan
-    if not math.isfinite(size) or size <= 0:
-        raise InvalidParameterError(f"tile_size must be a positive number, got {tile_size!r}")
+    size = check("tile_size", tile_size)  # the option's one check (params); the grid's own bound below
+    if size is None:  # an optional option elsewhere; required here
+        raise InvalidParameterError("tile_size must be a finite number > 0, got None")
     if store.count:
         extent = np.abs(store.bounds[:, :2]).max() / size
         if not extent < 2.0**31 - 1:
