@@ -36,7 +36,7 @@ _LAZY = {
     "PointStore": "store", "export": "store", "ingest": "store",
     "Summary": "engine", "simplify": "engine",
     "compare": "evaluate", "_evaluate": "evaluate",
-    "open_reader": "io", "open_writer": "io", "read_cloud": "io",
+    "open_reader": "io", "open_writer": "io", "read_cloud": "store",
     "load_pipeline": "pipeline", "run_pipeline": "pipeline",
 }
 
