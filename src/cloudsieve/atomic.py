@@ -25,7 +25,7 @@ import tempfile
 
 from .errors import DestinationExistsError, DestinationNotWritableError
 
-__all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove"]
+__all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove", "write_text"]
 
 logger = logging.getLogger(__name__)
 
@@ -115,3 +115,22 @@ def remove(path: str) -> None:
             os.remove(path)
     except OSError:  # pragma: no cover - best effort
         logger.warning("could not remove temporary %s", path)
+
+
+def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
+    """Write *text* to *path* atomically: a temporary file beside it, renamed when written (replacing *path*).
+
+    Raises
+    ------
+    DestinationNotWritableError
+        The folder cannot be written.
+    """
+    path = os.fspath(path)
+    tmp = make_temp_path(path)
+    try:
+        with open(tmp, "w", encoding=encoding) as fh:
+            fh.write(text)
+        replace(tmp, path)
+    except BaseException:
+        remove(tmp)
+        raise
