@@ -2,7 +2,7 @@
 
 ``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>`` in a run's environment:
 when the run reaches *point* it appends its process id and a newline to the
-marker file and blocks for good (a signal ends it). Unset, or naming another
+marker file (``#once``: creates it) and blocks for good (a signal ends it). Unset, or naming another
 point, it does nothing. The points (:class:`.runner.Runner`, the one task
 runner):
 
@@ -18,7 +18,8 @@ runner):
   again when its worker is killed and the task rerun, run on).
 
 ``tests/test_ops_orphans.py`` waits for the marker, then sends SIGKILL or
-SIGINT to the driver.
+SIGINT to the driver; ``tests/test_engine_simplify.py`` kills the driver
+after 3 cells, or the worker that holds a task.
 """
 
 from __future__ import annotations
