@@ -15,6 +15,7 @@ from typing import Any
 from .core import rules
 from .formats import READABLE as _READABLE
 from .formats import WRITABLE as _WRITABLE
+from .warmup_targets import TARGETS as _WARM_TARGETS
 
 __all__ = [
     "Option",
@@ -36,8 +37,8 @@ INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER = (
 METHODS = ("fcm", "km")
 #: the methods :func:`cloudsieve.compare` runs: the entropy methods, then the baselines
 COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
-#: the targets of ``cloudsieve warmup`` (:data:`cloudsieve.core.kernels.warmup.TARGETS`, which checks them)
-WARM_TARGETS = ("common", "partition", "eliminate", "scores", "km", "fcm", "rules")
+#: the targets of ``cloudsieve warmup`` (:mod:`cloudsieve.warmup_targets`)
+WARM_TARGETS = _WARM_TARGETS
 #: dask's local schedulers ("synchronous" is dask's own name for "sync")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count (from the registry)

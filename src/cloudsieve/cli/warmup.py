@@ -1,5 +1,5 @@
 """``cloudsieve warmup``: compile every kernel into numba's on-disk cache, once (thin wiring over
-:func:`cloudsieve.core.kernels.warmup.warm_up`).
+:func:`cloudsieve.core.warmup.warm_up`).
 
 For a fresh install (setup.sh runs it), a container image or a cluster
 worker: afterwards a run loads its kernels from the cache in about a second
@@ -46,7 +46,7 @@ def _cache_dir() -> str:
 
 def run(args: argparse.Namespace) -> int:
     from ..core.kernels.compile_log import CompileLog
-    from ..core.kernels.warmup import warm_up
+    from ..core.warmup import warm_up
 
     targets = option_values(args, "warmup", check=True)["targets"]
     record: dict = {"cache": _cache_dir(), "targets": {}}

@@ -47,7 +47,7 @@ from ..scheduler import check_scheduler
 from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # threshold is a parameter of simplify()
-from ..core.kernels.warmup import targets_of
+from ..warmup_targets import targets_of
 from .eliminate import run_eliminate
 from .inprocess import local_scheduler
 from .partition import build_partition, reusable_partition

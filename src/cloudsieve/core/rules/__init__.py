@@ -77,7 +77,7 @@ class Rule:
     coverage_test : bool
         Its rounds drop a point only where its neighbours are at least as dense.
     warm : tuple of str
-        The warm-up targets its runs compile (:mod:`cloudsieve.core.kernels.warmup`).
+        The warm-up targets its runs compile (:mod:`cloudsieve.warmup_targets`).
     module : str
         The module of its in-memory selection, imported at the first call.
     summary : str

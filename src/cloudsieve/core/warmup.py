@@ -21,12 +21,13 @@ the argument types of the real calls (so the same compiled versions):
 - ``km``, ``fcm``: the refinement into small clusters;
 - ``rules``: the rounds of the iterative, target and coverage rules.
 
-:func:`targets_of` names the targets of a rule's cell tasks (the rule's
-``warm`` in the registry, else :data:`ENTROPY_TARGETS`): the local fork
-server (:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers
-it forks inherit the code and never compile it again; ``cloudsieve warmup``
+:mod:`cloudsieve.warmup_targets` names the targets and those of each rule's
+cell tasks (a leaf: the options read it): the local fork server
+(:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers it
+forks inherit the code and never compile it again; ``cloudsieve warmup``
 (:mod:`cloudsieve.cli.warmup`) warms every target into the cache (setup.sh
-runs it).
+runs it). The warm-up drives the in-memory method, so it lives here, not in
+:mod:`.kernels`.
 """
 
 from __future__ import annotations
@@ -36,10 +37,10 @@ from collections.abc import Callable, Iterable
 
 import numpy as np
 
-from .. import rules
-from ...params import WARM_TARGETS
+from . import rules
+from ..warmup_targets import TARGETS
 
-__all__ = ["TARGETS", "ENTROPY_TARGETS", "warm_up", "targets_of"]
+__all__ = ["warm_up"]
 
 
 def _points(n: int = 600) -> np.ndarray:
@@ -50,8 +51,8 @@ def _points(n: int = 600) -> np.ndarray:
 
 
 def _common() -> None:
-    from .copies import first_equal
-    from .scatter import from_groups
+    from .kernels.copies import first_equal
+    from .kernels.scatter import from_groups
 
     P = _points(24)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
@@ -59,10 +60,10 @@ def _common() -> None:
 
 
 def _eliminate() -> None:
-    from ..eliminate import eliminate
-    from ..eliminate_cells import eliminate_cell
-    from ..packing import packing_ladder
-    from ..radius import elimination_radius, point_areas
+    from .eliminate import eliminate
+    from .eliminate_cells import eliminate_cell
+    from .packing import packing_ladder
+    from .radius import elimination_radius, point_areas
 
     P = _points()
     areas, weight = point_areas(P)  # the partition's r_max (the radius's k-NN)
@@ -74,8 +75,8 @@ def _eliminate() -> None:
 
 
 def _partition() -> None:
-    from .bisector import within_any
-    from .closest import nearest_sites, site_tree
+    from .kernels.bisector import within_any
+    from .kernels.closest import nearest_sites, site_tree
 
     P = _points(200)
     tree = site_tree(np.ascontiguousarray(P[:8]))
@@ -86,9 +87,9 @@ def _partition() -> None:
 
 
 def _scores() -> None:
-    from .entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
-    from .knn import knn_scored, knn_unchecked, take_neighbours
-    from .order import grouped_order
+    from .kernels.entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
+    from .kernels.knn import knn_scored, knn_unchecked, take_neighbours
+    from .kernels.order import grouped_order
 
     rng = np.random.default_rng(0)
     P = np.ascontiguousarray(rng.random((24, 3)))
@@ -117,7 +118,7 @@ def _scores() -> None:
 
 def _method(method: str) -> Callable[[], None]:
     def warm() -> None:
-        from ..simplify import simplify_points
+        from .simplify import simplify_points
 
         simplify_points(_points(), method=method, rule=rules.THRESHOLD_RULE, cluster_size=100)
 
@@ -125,15 +126,15 @@ def _method(method: str) -> Callable[[], None]:
 
 
 def _rules() -> None:
-    from ..simplify import simplify_points
+    from .simplify import simplify_points
 
     for rule in rules.RULES.values():  # the entropy rules with a target
         if rule.clusters and rule.takes_target:
             simplify_points(_points(), rule=rule.name, ratio=0.5, cluster_size=100)
 
 
-#: every warm-up target, by name (module docstring), in the order ``cloudsieve warmup`` runs them
-TARGETS: dict[str, Callable[[], None]] = {
+#: the function of each warm-up target (:data:`cloudsieve.warmup_targets.TARGETS`, in that order)
+_RUN: dict[str, Callable[[], None]] = {
     "common": _common,
     "partition": _partition,
     "eliminate": _eliminate,
@@ -142,30 +143,12 @@ TARGETS: dict[str, Callable[[], None]] = {
     "fcm": _method("fcm"),
     "rules": _rules,
 }
-
-#: the targets of an entropy rule's worker tasks; a rule may name its own (:attr:`Rule.warm
-#: <cloudsieve.core.rules.Rule>`). The local fork server warms these up; none starts numba's threading
-#: layer (a fork server that has started GNU OpenMP's cannot fork)
-ENTROPY_TARGETS = ("common", "partition", "scores")
-assert tuple(TARGETS) == WARM_TARGETS  # the names params.py offers, without importing this module
-
-
-def targets_of(rule: str | None) -> tuple[str, ...]:
-    """The warm-up targets of the worker tasks of a run of *rule*: the default rule's kernels, or for the
-    entropy rules the scoring path (their refinement and rounds load from the cache).
-
-    >>> from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
-    >>> targets_of(DEFAULT_RULE)
-    ('common', 'partition', 'eliminate')
-    >>> targets_of(THRESHOLD_RULE)
-    ('common', 'partition', 'scores')
-    """
-    return (rule is not None and rules.get(rule).warm) or ENTROPY_TARGETS
+assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.warmup_targets has its function here"
 
 
 def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
             report: Callable[[str, float], None] | None = None) -> float:
-    """Call the kernels of each of *targets* (names of :data:`TARGETS`) once on a tiny input.
+    """Call the kernels of each of *targets* (names of :data:`cloudsieve.warmup_targets.TARGETS`) once on a tiny input.
 
     Parameters
     ----------
@@ -187,7 +170,7 @@ def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
     t_all = time.perf_counter()
     for name in targets:
         t0 = time.perf_counter()
-        TARGETS[name]()
+        _RUN[name]()
         if report is not None:
             report(name, time.perf_counter() - t0)
     return time.perf_counter() - t_all
