@@ -143,7 +143,7 @@ def test_params_is_a_leaf():
                             env=env).stdout.split()
     assert sorted(loaded) == ["cloudsieve", "cloudsieve.address", "cloudsieve.core", "cloudsieve.core.rules",
                               "cloudsieve.errors", "cloudsieve.formats", "cloudsieve.params",
-                              "cloudsieve.params_spec", "cloudsieve.rule_default"]
+                              "cloudsieve.params_spec", "cloudsieve.rule_default", "cloudsieve.warmup_targets"]
 
 
 def test_the_registry_refuses_a_rule_as_the_option_does():

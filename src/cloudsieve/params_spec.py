@@ -2,8 +2,9 @@
 :data:`COMMANDS`, the options of each command and API entry.
 
 A leaf: it imports the rule registry (:mod:`cloudsieve.core.rules`, which
-imports no numba or scipy), the formats table (:mod:`cloudsieve.formats`) and
-nothing else of cloudsieve. :mod:`cloudsieve.params` checks values against
+imports no numba or scipy), the formats table (:mod:`cloudsieve.formats`), the
+warm-up targets' names (:mod:`cloudsieve.warmup_targets`) and nothing else of
+cloudsieve. :mod:`cloudsieve.params` checks values against
 it; :mod:`cloudsieve.cli` builds its flags from it.
 """
 
