@@ -38,18 +38,16 @@ from collections.abc import Callable
 from ..core._validation import ratio_count
 from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
-from ..errors import DestinationExistsError, SameSourceDestinationError, TargetNotMetError
-from ..io import check_readable, check_tile_folder, check_writable, detect_format
-from ..io.sources import expand_sources
+from ..errors import TargetNotMetError
+from ..io import detect_format
 from ..params import run_record, validate
 from ..progress import callback
-from ..scheduler import check_scheduler
-from ..store import DEFAULT_CHUNK_SIZE, delete_store, is_store
+from ..store import DEFAULT_CHUNK_SIZE, delete_store
 from . import cells, merge, workstore
 from . import threshold as thresholds  # threshold is a parameter of simplify()
 from ..warmup_targets import targets_of
+from .checks import check_run
 from .eliminate import run_eliminate
-from .inprocess import local_scheduler
 from .partition import build_partition, reusable_partition
 from .sample import IngestSample
 from .runner import PeakMemory, Runner, stage_bar
@@ -249,7 +247,7 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
-    from ..store import export, local_path, same_path
+    from ..store import export
 
     t_start = time.perf_counter() if t_start is None else t_start
     src, dst = os.fspath(src), os.fspath(dst)
@@ -264,29 +262,9 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
     update = callback(progress)
     cpu0 = time.process_time()
     summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
-    dst_local = local_path(dst)
-    sources = expand_sources(src)
-    if any(same_path(p, dst) for p in sources):  # first: overwriting would not help, so it is not suggested
-        raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
-    if dst_local is not None and os.path.exists(dst_local) and not overwrite:
-        raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
-    for path in sources:
-        check_readable(path)
-    if tile_size is None:
-        check_writable(dst, format, overwrite=True)  # an existing DST was refused above unless overwrite
-    else:
-        check_tile_folder(dst, format)
-    src_is_store = is_store(src)
-    if scheduler is None and client is None and memory_limit is None and workers is None:  # small: in process
-        scheduler = local_scheduler(sources, src if src_is_store else None)
-    default_store = store is None and not src_is_store
-    store_path = workstore.work_store_path(src, dst, store, src_is_store)
-    # a work store of another source or other options is refused before any scheduler is contacted
-    st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite, resume=resume)
-    if st is not None:
-        workstore.record_params(st, params, overwrite)
-    if client is None and scheduler is not None and "://" in scheduler:
-        check_scheduler(scheduler)
+    checked = check_run(src, dst, opts, params, client=client)
+    st, store_path, default_store = checked.store, checked.store_path, checked.default_store
+    scheduler, dst_local = checked.scheduler, checked.dst_local
 
     def both(bar):  # a stage's bar and the caller's progress
         def up(n):
