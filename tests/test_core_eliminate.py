@@ -125,11 +125,20 @@ def test_exact_count_for_ratio(ratio):
     assert np.array_equal(keep, np.unique(keep))
 
 
-@pytest.mark.parametrize("count", [0, 1, 2, 777, 2999, 3000])
+@pytest.mark.parametrize("count", [1, 2, 777, 2999, 3000])
 def test_exact_count_for_count(count):
     P = sheet(3000, seed=6)
     assert len(eliminate(P, count)) == count
     assert len(eliminate(P, count, relocate_steps=0, coverage=False)) == count
+
+
+def test_count_above_the_points_keeps_them_all_and_unchecked_takes_0():
+    """As every surface (params.py knows no cloud size): a count above n keeps the n points; 0 is refused by
+    the option's check, and ``eliminate.unchecked`` (the callers that validated) keeps nothing."""
+    P = sheet(300, seed=6)
+    assert np.array_equal(eliminate(P, 301), np.arange(300))
+    assert len(eliminate.unchecked(P, 0)) == 0
+    assert np.array_equal(eliminate.unchecked(P, 77), eliminate(P, 77))
 
 
 def test_point_order_does_not_matter():
@@ -284,10 +293,19 @@ def test_bad_input():
         eliminate(P[:, :2], 10)
     with pytest.raises(InvalidPointsError, match="index 3"):
         eliminate(np.where(np.arange(100)[:, None] == 3, np.nan, P), 10)
-    with pytest.raises(InvalidParameterError, match="ratio or count, not both"):
+    with pytest.raises(InvalidParameterError, match=r"^give ratio or count, not both \(got ratio=0.1, count=10\)$"):
         eliminate(P, 10, ratio=0.1)
-    with pytest.raises(InvalidParameterError, match=r"count must be an integer in \[0, 100\].*101"):
-        eliminate(P, 101)
+    # the options' messages of every surface (params.py)
+    with pytest.raises(InvalidParameterError, match=r"^count must be an integer >= 1, got 0$"):
+        eliminate(P, 0)
+    with pytest.raises(InvalidParameterError, match=r"^ratio must be a number in \(0, 1\], got 1.5$"):
+        eliminate(P, ratio=1.5)
+    with pytest.raises(InvalidParameterError, match=r"^rule 'eliminate' needs a ratio or a count$"):
+        eliminate(P)
+    with pytest.raises(InvalidParameterError, match=r"^relocate_steps must be an integer >= 0, got -1$"):
+        eliminate(P, 10, relocate_steps=-1)
+    with pytest.raises(InvalidParameterError, match=r"^threads must be an integer >= 1, got 0$"):
+        eliminate(P, 10, threads=0)
     with pytest.raises(InvalidParameterError, match="needs a ratio or a count"):
         eliminate_order(P)
     with pytest.raises(InvalidParameterError, match="r_max must be a positive number"):
@@ -301,11 +319,12 @@ def test_bad_input():
 
 
 def test_empty_and_tiny():
-    assert eliminate(np.zeros((0, 3)), 0).shape == (0,)
+    assert eliminate(np.zeros((0, 3)), 1).shape == (0,)
+    assert eliminate.unchecked(np.zeros((0, 3)), 0).shape == (0,)
     assert eliminate_order(np.zeros((0, 3)), count=0).shape == (0,)
     one = np.zeros((1, 3))
     assert np.array_equal(eliminate(one, 1), [0])
-    assert len(eliminate(one, 0)) == 0
+    assert len(eliminate.unchecked(one, 0)) == 0
 
 
 # sha256 of the priorities (float64 bytes) and of the removal order (int64 bytes) of bun_zipper.ply at the
@@ -440,3 +459,16 @@ def test_keep_lowest_is_the_lexsort_oracle_with_ties_and_copies():
             ref = np.zeros(n, dtype=bool)
             ref[np.lexsort((-np.arange(n), p))[:count]] = True
             np.testing.assert_array_equal(keep_lowest(p, count), ref)
+
+
+def test_the_options_and_their_defaults_are_the_specs():
+    """eliminate() validates through the one option spec (command ``eliminate``), with its defaults; cell_points
+    is optional there (None: one elimination), its default here CELL_POINTS."""
+    import inspect
+
+    from cloudsieve.core.eliminate import CELL_POINTS
+    from cloudsieve.params import COMMANDS
+
+    sig = inspect.signature(eliminate).parameters
+    for name, option in COMMANDS["eliminate"].items():
+        assert sig[name].default == (CELL_POINTS if name == "cell_points" else option.default), name

@@ -14,8 +14,8 @@ is created:
   of its command, checked when the file is loaded;
 - the API: :func:`cloudsieve.simplify`, :func:`cloudsieve.evaluate` and
   :func:`cloudsieve.compare` call :func:`validate` first; the in-memory
-  :func:`cloudsieve.core.simplify_points` and :func:`cloudsieve.core.prune`
-  are wrapped by :func:`validate_params`. The kernels below them check no option.
+  :func:`cloudsieve.core.simplify_points`, :func:`cloudsieve.core.prune` and
+  :func:`cloudsieve.core.eliminate.eliminate` are wrapped by :func:`validate_params`. The kernels below them check no option.
 
 So all of them accept and refuse the same values with the same message
 (``ratio must be a number in (0, 1], got 0.0``); the command line writes the
@@ -232,8 +232,13 @@ def _simplify_points(o: dict) -> None:
     _cluster_size(o)
 
 
+def _eliminate(o: dict) -> None:
+    elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
+    _rule_target({**o, "rule": elimination})  # the eliminate rule's target: needed
+
+
 _CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target,
-          "refine": _cluster_size, "evaluate": _evaluate}
+          "refine": _cluster_size, "evaluate": _evaluate, "eliminate": _eliminate}
 
 
 def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
@@ -252,7 +257,8 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     command : str
         ``simplify``, ``evaluate``, ``compare``, ``ingest``, ``export``,
         ``pipeline`` (a pipeline's top-level keys), ``warmup``, or the
-        in-memory API's ``simplify_points`` and ``prune``.
+        in-memory API's ``simplify_points``, ``prune``, ``scores``, ``refine``
+        and ``eliminate``.
     values : mapping of str to object
         Some of the command's options; the others take their defaults.
     caller : str, optional

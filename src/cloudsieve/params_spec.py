@@ -222,6 +222,10 @@ _MEMORY = (
     Option("n_nearest", INT, 8, "FCM: memberships over the L nearest centres", low=1),
     Option("dim", FLOAT, 3.0, "the dimension d of the k-NN density", low=0.0, low_open=True),
     Option("max_rounds", INT, None, "at most this many rounds", low=0),
+    # eliminate() (cloudsieve.core.eliminate): RELOCATE_STEPS of core/relocate.py; MIN_CELL_POINTS is this low
+    Option("relocate_steps", INT, 1, "restricted Lloyd steps after the elimination", low=0),
+    Option("cell_points", INT, None, "run over cells of at most this many points above it (None: one elimination)",
+           low=1_024),
 )
 _MEMORY_OPTIONS = {o.name: o for o in _MEMORY}
 
@@ -251,15 +255,17 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
     "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
     "warmup": _command("targets"),
-    # the in-memory API: cloudsieve.core.simplify_points and prune
+    # the in-memory API: cloudsieve.core.simplify_points, prune, score_points, refine_labels
     "simplify_points": _memory("method", "rule", "threshold", "ratio", "count", "cluster_size", "seed", "k0",
                                "k_min", "keep_duplicates", "score", "n_nearest", "coverage", "threads"),
     "scores": _memory("k0", "k_min", "dim", "threads"),
     "refine": _memory("method", "cluster_size", "seed", "k_min", "n_nearest", "threads"),
     "prune": _memory("rule", "threshold", "ratio", "count", "score", "k0", "k_min", "dim", "coverage", "max_rounds",
                      "threads", "keep_duplicates"),
+    # cloudsieve.core.eliminate.eliminate: the eliminate rule on a whole cloud
+    "eliminate": _memory("ratio", "count", "relocate_steps", "threads", "cell_points"),
 }
 #: the commands of the in-memory API (no resolution of a default rule: theirs is :data:`rules.MEMORY_RULE`)
-MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine")
+MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine", "eliminate")
 
 

@@ -60,6 +60,7 @@ import numba
 import numpy as np
 
 from ..errors import InvalidParameterError
+from ..params import COMMANDS, validate_params
 from ._validation import ratio_count
 from .cellgrid import CellGrid, check_points
 from .kernels import neighbours as _kn
@@ -75,7 +76,9 @@ logger = logging.getLogger(__name__)
 #: 0.79 s with 32,768, 0.83 s with 65,536 (one elimination: 2.2 s): smaller cells fit the caches, but the halos
 #: and calls grow
 CELL_POINTS = 16_384
-MIN_CELL_POINTS = 1_024  # the smallest cell_points accepted: below it the halos outweigh the cells
+#: the smallest cell_points accepted (the option's, :mod:`cloudsieve.params_spec`): below it the halos outweigh the
+#: cells
+MIN_CELL_POINTS = int(COMMANDS["eliminate"]["cell_points"].low)
 
 
 def _target(n: int, ratio, count) -> int:
@@ -206,9 +209,15 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, floor) -> tuple:
 _OPTIONS = {"fixed", "alpha", "coverage"}
 
 
+@validate_params("eliminate")
 def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int = RELOCATE_STEPS,
               threads: int | None = None, cell_points: int | None = CELL_POINTS, **options) -> np.ndarray:
     """Sorted int64 indices of exactly ``count`` (or round(ratio * n), at least 1) points of a whole cloud.
+
+    The options are validated once (:func:`cloudsieve.params.validate`, command ``eliminate``): one of
+    ``ratio`` in (0, 1] and ``count`` >= 1 (a count above the points keeps them all), ``relocate_steps`` >= 0,
+    ``threads`` >= 1, ``cell_points`` None or >= ``MIN_CELL_POINTS``; ``r_max`` (a radius: inf keeps all) is
+    checked here. ``eliminate.unchecked`` takes validated options and also a count of 0 (nothing kept).
 
     The elimination (:func:`eliminate_order`) stops at the count, then
     ``relocate_steps`` restricted Lloyd steps (:func:`relocate`) lower the
@@ -233,16 +242,11 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     200
     """
     pts = check_points(points)
-    target = _target(len(pts), ratio, count)
+    target = ratio_count(ratio, len(pts)) if ratio is not None else min(int(count), len(pts))
     bad = set(options) - _OPTIONS
     if bad:
         raise InvalidParameterError(f"eliminate() got unexpected options {sorted(bad)}; halo and floor belong to "
                                     "eliminate_order (cells)")
-    if int(relocate_steps) != relocate_steps or relocate_steps < 0:
-        raise InvalidParameterError(f"relocate_steps must be an integer >= 0, got {relocate_steps!r}")
-    if cell_points is not None and not (isinstance(cell_points, (int, np.integer)) and cell_points >= MIN_CELL_POINTS):
-        raise InvalidParameterError(f"cell_points must be None or an integer >= {MIN_CELL_POINTS}, got "
-                                    f"{cell_points!r}")
     r_max = None if r_max is None else check_r_max(r_max)
     if cell_points is not None and not options and 0 < target < len(pts):
         from .eliminate_cells import cell_cap, eliminate_in_cells

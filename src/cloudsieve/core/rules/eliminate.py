@@ -24,7 +24,7 @@ def prune(rule, pts, lab, *, target, progress, threads, keep_duplicates, **_unus
     n = len(pts)
     keep = np.zeros(n, dtype=bool)
     target = min(target, n - int(copy_rows(pts).sum()))  # copies kept at most once
-    keep[eliminate(pts, count=target, threads=threads)] = True
+    keep[eliminate.unchecked(pts, count=target, threads=threads)] = True  # the options were validated by the caller
     if keep_duplicates:  # every copy of a kept point (the first copy is the one the elimination may keep)
         keep = keep[first_rows(pts)]
     callback(progress)(n - int(keep.sum()))
