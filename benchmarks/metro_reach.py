@@ -1,24 +1,21 @@
-"""Where Metro's distance comes from, and how far a mesh-aware rule gets (issue 12's Metro goals).
+"""Where Metro's distance comes from (issue 12's Metro goals).
 
-Run: ``.venv/bin/python benchmarks/metro_reach.py [--ratios 0.5,0.2,0.1] [--steps 6] [--skip holes|loop]``
+Run: ``.venv/bin/python benchmarks/metro_reach.py [--ratios 0.5,0.2,0.1] [--scans a.ply,b.laz]``
 
 Meshes and Metro are those of ``cloudsieve evaluate`` (:mod:`cloudsieve.evaluate.mesh`: ball pivoting at r
 and 2r, face sampling, 10 x faces samples, each Metro call in a forked child so that the same meshes give the
 same figures). Figures are % of the bounding-box diagonal.
 
-1. **Holes** (every scan of ../shared/data with at least 10,000 points). The original's mesh and its border
-   edges per face (:func:`cloudsieve.evaluate.mesh.border_edges`). For ``eliminate`` and the three baselines
-   (voxel-nearest, Poisson disk, farthest point) at each ratio: the Metro mean (the larger of the two
-   directions), and of the backward direction (samples on the simplified mesh, distance to the original's):
-   the share of samples within two point spacings of the original mesh's border, and their share of its mean.
-2. **The evaluator in the loop** (bun_zipper, maxplanck: the scans with the 0.9x goal). A mesh-aware rule at
-   its most direct: start from ``eliminate``'s kept set; at each step mesh it, run Metro's backward direction
-   against the original's mesh, and fix for good the ``--step`` share of the count (3%) of original points
-   nearest the largest backward distances (summed per point, samples near the original mesh's border left
-   out: no sampling can mend those); then ``eliminate`` the rest around the fixed points, to the same count.
-   Prints point RMS and Metro mean x the best baseline after every step, and the seconds a step takes.
+**Holes** (every scan of ../shared/data with at least 10,000 points). The original's mesh and its border
+edges per face (:func:`cloudsieve.evaluate.mesh.border_edges`). For ``eliminate`` and the three baselines
+(voxel-nearest, Poisson disk, farthest point) at each ratio: the Metro mean (the larger of the two
+directions), and of the backward direction (samples on the simplified mesh, distance to the original's): the
+share of samples within two point spacings of the original mesh's border, and their share of its mean.
 
-No timing here is a speed claim (load average printed); part 2's seconds are what a mesh per step costs.
+Its part 2, "the evaluator in the loop" (docs/benchmarks.md), eliminated around fixed points with
+``eliminate(fixed=)``, an option removed with issue 29 (no caller in src); it runs at commit 1850bb2.
+
+No timing here is a speed claim (load average printed).
 """
 
 from __future__ import annotations
@@ -43,7 +40,6 @@ from cloudsieve.io import read_cloud
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SCANS = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.laz", "append-bug.laz",
          "vegetation_1_3.las", "pumpAVisualReferenceImage.e57"]
-LOOP_SCANS = ["bun_zipper.ply", "maxplanck.ply"]
 BASELINES = {"voxel": voxel_subset, "poisson": poisson_subset, "fps": fps_subset}
 NEAR = 2.0  # "near the border": within this many point spacings of the original's
 
@@ -74,7 +70,6 @@ class Original:
         pts = np.concatenate([v[b[:, 0]] * (1 - t) + v[b[:, 1]] * t for t in (0.0, 0.25, 0.5, 0.75)])
         self.border = cKDTree(pts if len(pts) else np.full((1, 3), np.inf))
         self.per_face = len(b) / max(len(self.mesh[1]), 1)
-        self.tree = cKDTree(self.P)
 
     def figures(self, keep: np.ndarray) -> dict:
         """Point RMS, Metro both ways, and the backward samples (positions, distances, near the border)."""
@@ -101,7 +96,7 @@ def _mask(n: int, idx: np.ndarray) -> np.ndarray:
 
 
 def holes(scans: list[str], ratios: list[float]) -> None:
-    print("## 1. Holes of the original's mesh and Metro's backward direction\n")
+    print("## Holes of the original's mesh and Metro's backward direction\n")
     print("| scan | border edges per face | kept | sampling | Metro mean % | backward samples near the border | "
           "their share of the backward mean |")
     print("|---|---:|---:|---|---:|---:|---:|")
@@ -115,57 +110,17 @@ def holes(scans: list[str], ratios: list[float]) -> None:
                       f"{f['near_mass']:.1%} |", flush=True)
 
 
-def loop(scans: list[str], ratios: list[float], steps: int, step: float) -> None:
-    print("\n## 2. The evaluator in the loop\n")
-    print("| scan | kept | step | fixed | point RMS x | Metro mean x | forward x | backward x | seconds |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for name in scans:
-        o = Original(DATA / name)
-        n = len(o.P)
-        for ratio in ratios:
-            count = int(round(ratio * n))
-            base = {b: o.figures(_mask(n, f(o.P, count))) for b, f in BASELINES.items()}
-            best = {k: min(x[k] for x in base.values()) for k in ("rms", "metro", "fwd", "bwd")}
-            keep = _mask(n, eliminate(o.P, count))
-            fixed = np.zeros(n, dtype=bool)
-            for it in range(steps + 1):
-                t0 = time.perf_counter()
-                f = o.figures(keep)
-                secs = time.perf_counter() - t0
-                print(f"| {name} | {ratio:.0%} | {it} | {int(fixed.sum())} | {f['rms'] / best['rms']:.3f} | "
-                      f"{f['metro'] / best['metro']:.3f} | {f['fwd'] / best['fwd']:.3f} | {f['bwd'] / best['bwd']:.3f} | "
-                      f"{secs:.1f} |", flush=True)
-                if it == steps:
-                    break
-                far = ~f["near"]
-                _, j = o.tree.query(f["S"][far], workers=-1)
-                mass = np.bincount(j, weights=f["dist"][far], minlength=n)
-                cand = np.flatnonzero(~fixed & (mass > 0))
-                fixed[cand[np.argsort(-mass[cand], kind="stable")[: int(step * count)]]] = True
-                rest = np.flatnonzero(~fixed)
-                keep = fixed.copy()
-                keep[rest[eliminate(o.P[rest], count - int(fixed.sum()), fixed=o.P[fixed])]] = True
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--ratios", default="0.5,0.2,0.1")
-    ap.add_argument("--scans", default=",".join(SCANS), help="part 1's scans")
-    ap.add_argument("--loop-scans", default=",".join(LOOP_SCANS), help="part 2's scans")
-    ap.add_argument("--steps", type=int, default=6)
-    ap.add_argument("--step", type=float, default=0.03, help="share of the count fixed per step")
-    ap.add_argument("--skip", default="", help="holes and/or loop, comma-separated")
+    ap.add_argument("--scans", default=",".join(SCANS))
     args = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     warnings.filterwarnings("ignore")
     ratios = [float(r) for r in args.ratios.split(",")]
-    skip = set(filter(None, args.skip.split(",")))
     print(f"load average at start: {' '.join(f'{x:.2f}' for x in os.getloadavg())}\n")
     t0 = time.perf_counter()
-    if "holes" not in skip:
-        holes(args.scans.split(","), ratios)
-    if "loop" not in skip:
-        loop(args.loop_scans.split(","), ratios, args.steps, args.step)
+    holes(args.scans.split(","), ratios)
     print(f"\n{time.perf_counter() - t0:.0f} s; load average at end: {' '.join(f'{x:.2f}' for x in os.getloadavg())}")
     return 0
 

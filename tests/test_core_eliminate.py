@@ -1,4 +1,7 @@
-"""The ``eliminate`` rule in memory: exact counts, a brute-force oracle, invariances, halo and fixed points."""
+"""The ``eliminate`` rule in memory: exact counts, a brute-force oracle, invariances, halo and fixed points.
+
+``eliminate_order`` (tests/eliminate_oracle.py) is the reference elimination with every option of the kernels:
+the brute force checks it, and it checks :func:`eliminate` and :func:`eliminate_cell`."""
 
 from __future__ import annotations
 
@@ -8,11 +11,12 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from cloudsieve.core.eliminate import eliminate, eliminate_order, relocate
+from cloudsieve.core.eliminate import eliminate, relocate
 from cloudsieve.core.elimination import COVER_GAMMA, COVER_LAMBDA, COVER_RADIUS, keep_lowest
 from cloudsieve.core.eliminate_cells import eliminate_cell
 from cloudsieve.core.radius import elimination_radius, point_areas
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
+from eliminate_oracle import eliminate_order
 
 
 def sheet(n, seed=0, thick=0.02):
@@ -129,7 +133,7 @@ def test_exact_count_for_ratio(ratio):
 def test_exact_count_for_count(count):
     P = sheet(3000, seed=6)
     assert len(eliminate(P, count)) == count
-    assert len(eliminate(P, count, relocate_steps=0, coverage=False)) == count
+    assert len(eliminate(P, count, relocate_steps=0)) == count
 
 
 def test_count_above_the_points_keeps_them_all_and_unchecked_takes_0():
@@ -209,8 +213,6 @@ def test_fixed_points_weigh_but_are_never_removed():
     k = keep_lowest(prio, 600)
     kb = keep_lowest(base, 600)
     assert k[left].sum() < kb[left].sum()
-    keep = eliminate(P, 600, fixed=fixed)
-    assert len(keep) == 600
 
 
 @pytest.mark.parametrize("seed", [0, 1])
@@ -306,14 +308,11 @@ def test_bad_input():
         eliminate(P, 10, relocate_steps=-1)
     with pytest.raises(InvalidParameterError, match=r"^threads must be an integer >= 1, got 0$"):
         eliminate(P, 10, threads=0)
-    with pytest.raises(InvalidParameterError, match="needs a ratio or a count"):
-        eliminate_order(P)
     with pytest.raises(InvalidParameterError, match="r_max must be a positive number"):
-        eliminate_order(P, r_max=-1.0)
-    with pytest.raises(InvalidParameterError, match="unexpected options"):
-        eliminate(P, 10, halo=P)
-    with pytest.raises(InvalidParameterError, match="unexpected options"):  # the information terms are gone
-        eliminate(P, 10, entropy=0.5)
+        eliminate(P, 10, r_max=-1.0)
+    for gone in ({"halo": P}, {"entropy": 0.5}, {"fixed": P}, {"alpha": 8.0}, {"coverage": False}):
+        with pytest.raises(TypeError, match="unexpected keyword argument"):  # the oracle's options, the terms: gone
+            eliminate(P, 10, **gone)
     with pytest.raises(ValueError):  # the built-in still catches it
         eliminate(P, -1)
 
@@ -472,3 +471,21 @@ def test_the_options_and_their_defaults_are_the_specs():
     sig = inspect.signature(eliminate).parameters
     for name, option in COMMANDS["eliminate"].items():
         assert sig[name].default == (CELL_POINTS if name == "cell_points" else option.default), name
+
+
+@pytest.mark.parametrize("count", [1, 700, 2049])
+def test_eliminate_is_the_reference_elimination_stopped_at_the_count(count):
+    """One elimination (cell_points=None) is the reference's order stopped at the count, copies first, then the
+    relocation from that kept set."""
+    from cloudsieve.core.elimination import area_radius
+
+    P = sheet(2000, seed=18)
+    P = np.concatenate([P, P[::40]])  # 50 exact copies
+    r = area_radius(P, np.zeros((0, 3)), count)
+    ref = keep_lowest(eliminate_order(P, r_max=r, floor=count), count)
+    keep = np.zeros(len(P), dtype=bool)
+    keep[eliminate(P, count, relocate_steps=0, cell_points=None)] = True
+    np.testing.assert_array_equal(keep, ref)
+    keep[:] = False
+    keep[eliminate(P, count, cell_points=None)] = True
+    np.testing.assert_array_equal(keep, relocate(P, ref, r))

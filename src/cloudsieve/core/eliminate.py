@@ -9,7 +9,7 @@ lighter, until the count is reached. Here the key of a point x is::
     w(x)   = sum over remaining y with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
     f(x)   = g(e(x)) / (1 + lam * c(x) / r_max^2)
 
-- w is Yuksel's crowding weight, with alpha = 1 by default (Yuksel and CGAL
+- w is Yuksel's crowding weight, with alpha = 1 (``ALPHA``; Yuksel and CGAL
   use 8; on the shared scans alpha = 1 gave lower point RMS and max errors at
   every ratio, e.g. bun_zipper at 20%: RMS 0.975x / max 1.04x the best
   baseline against 0.999x / 1.13x with alpha = 8);
@@ -34,9 +34,9 @@ as points go and the largest is always next, so priorities are
 non-increasing along the removals, and the removal order is exactly
 "priority descending, ties lower index first": keeping the N points of
 lowest priority (:func:`keep_lowest`) is the elimination stopped at N.
-Across cells (each run with its halo, :func:`eliminate_order`) with one
-global r_max, one global threshold on all priorities removes a prefix of each
-cell's own order: an exact total count, ties by point index.
+The full order, with the kernels' other options (a halo, fixed and gone
+points, a floor, any alpha, no coverage term), is the tests' reference
+(tests/eliminate_oracle.py), which checks this elimination and the cells'.
 
 After the count is reached, :func:`.relocate.relocate` moves each kept
 point to the point of its Voronoi region nearest the region's centroid (one
@@ -53,13 +53,11 @@ only exact copies are told apart, by index) nor on the thread count.
 
 from __future__ import annotations
 
-import logging
 import math
 
 import numba
 import numpy as np
 
-from ..errors import InvalidParameterError
 from ..params import COMMANDS, validate_params
 from ._validation import ratio_count
 from .cellgrid import CellGrid, check_points
@@ -67,9 +65,7 @@ from .kernels import neighbours as _kn
 from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimination
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relocate_points
 
-__all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate_order", "eliminate", "keep_lowest", "relocate"]
-
-logger = logging.getLogger(__name__)
+__all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate", "keep_lowest", "relocate"]
 
 #: eliminate() runs over cells of at most this many points above it (module .eliminate_cells). At 1 M points and
 #: 50% kept on 2 threads (load 0.5), the cells stage took 0.67 s with cells of 8,192 points, 0.70 s with 16,384,
@@ -81,137 +77,32 @@ CELL_POINTS = 16_384
 MIN_CELL_POINTS = int(COMMANDS["eliminate"]["cell_points"].low)
 
 
-def _target(n: int, ratio, count) -> int:
-    if ratio is not None and count is not None:
-        raise InvalidParameterError(f"give ratio or count, not both (ratio={ratio!r}, count={count!r})")
-    if ratio is not None:
-        if not (isinstance(ratio, (int, float, np.integer, np.floating)) and 0 < ratio <= 1):
-            raise InvalidParameterError(f"ratio must be in (0, 1], got {ratio!r}")
-        return ratio_count(ratio, n)
-    if count is None:
-        raise InvalidParameterError("the eliminate rule needs a ratio or a count (or r_max)")
-    if int(count) != count or not 0 <= count <= n:
-        raise InvalidParameterError(f"count must be an integer in [0, {n}] (the number of points), got {count!r}")
-    return int(count)
-
-
-def eliminate_order(points, *, r_max=None, ratio=None, count=None, halo=None, fixed=None, gone=None,
-                    alpha: float = ALPHA, coverage: bool = True, floor: int = 0, threads: int | None = None,
-                    halo_left: bool = False):
-    """Priority of every point in the elimination order (larger goes first).
-
-    Parameters
-    ----------
-    points : array_like of shape (n, 3), float
-    r_max : float, optional
-        The Poisson-disk radius (:func:`cloudsieve.core.radius.elimination_radius`);
-        inf: every point is kept (all priorities 0). Default: from the areas
-        of ``points`` (halo as context) and the count of ``ratio``/``count``.
-        Cells of one cloud must share one r_max for their priorities to compare.
-    ratio, count : optional
-        The kept share in (0, 1] or count (one of them): for r_max only.
-    halo : array_like of shape (h, 3), optional
-        Points of the neighbouring cells: eliminated with the points (the
-        border sees the density it will have) but given no priority.
-    fixed : array_like of shape (f, 3), optional
-        Points that weigh on the others and are never removed.
-    gone : array_like of shape (g, 3), optional
-        Points already removed (a neighbouring cell's): they do not weigh,
-        but each is represented from the start by its nearest point (of
-        ``points``, ``halo``, ``fixed``; within 2 r_max), as if it had just
-        gone, so the coverage term sees the area they leave uncovered.
-        Exact copies of a point (of any of the four) are not: like the
-        copies among ``points``, they never weigh.
-    alpha : float
-        Exponent of the crowding weight, > 0.
-    coverage : bool
-        Use the coverage term f (module docstring); False: plain WSE.
-    floor : int
-        Stop when this many of the points are left (the halo's points are
-        eliminated along but do not count); the points left get their keys at
-        the stop (the keys they would be removed with next, <= every removed
-        key). 0: a full order. Keeping the ``floor`` lowest
-        (:func:`keep_lowest`) is exactly the elimination stopped at ``floor``
-        points, with or without halo.
-    threads : int, optional
-        numba threads of the parallel passes (None: numba's setting); the
-        result does not depend on it.
-    halo_left : bool
-        Also return which halo points are left at the stop (``floor`` > 0).
-
-    Returns
-    -------
-    ndarray of shape (n,), float64
-        Key at removal: +inf for exact copies of a lower-index point, >= 0
-        otherwise. Removal order: priority descending, ties lower index first.
-    left : ndarray of shape (h,), bool
-        Only with ``halo_left``: the halo points not removed (nor exact copies).
-    """
-    out = _eliminate_order(points, r_max, ratio, count, halo, fixed, alpha, coverage, floor, threads, gone)
-    return (out[0], out[2]) if halo_left else out[0]
-
-
-def _eliminate_order(points, r_max, ratio, count, halo, fixed, alpha, coverage, floor, threads, gone=None) -> tuple:
-    """:func:`eliminate_order`, the grid of its points (None when there is none), the halo points left, each
-    grid row's nearest point left (-1: not known; None without the coverage term)."""
-    pts = check_points(points)
+def _eliminated(pts: np.ndarray, r_max: float, target: int, threads) -> tuple:
+    """One elimination of *pts* (valid) stopped at *target* points: the keep mask, the grid and each grid row's
+    nearest point left (module .kernels.cover), both None when no elimination ran (no points, r_max inf)."""
     n = len(pts)
-    hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
-    fix = np.zeros((0, 3)) if fixed is None else check_points(fixed, "fixed")
-    gon = np.zeros((0, 3)) if gone is None else check_points(gone, "gone")
-    if not (isinstance(alpha, (int, float, np.integer, np.floating)) and math.isfinite(alpha) and alpha > 0):
-        raise InvalidParameterError(f"alpha must be a positive number, got {alpha!r}")
-    if int(floor) != floor or not 0 <= floor <= n:
-        raise InvalidParameterError(f"floor must be an integer in [0, {n}], got {floor!r}")
-    if r_max is None:
-        target = _target(n, ratio, count)
-        r_max = area_radius(pts, hal, target)
-    else:
-        r_max = check_r_max(r_max)
-    if n == 0:
-        return np.zeros(0), None, np.ones(len(hal), dtype=bool), None
-    with numba_threads(threads):
-        return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), int(floor))
-
-
-def _order(pts, hal, fix, gon, r_max, alpha, coverage, floor) -> tuple:
-    n, nh, nf = len(pts), len(hal), len(fix)
-    if not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody
-        allp = np.concatenate([pts, hal, fix]) if nh or nf else pts
-        grid = CellGrid(allp, 0.0)
-        out = np.zeros(len(allp))
-        out[grid.order[grid.copy]] = np.inf
-        return out[:n], None, np.isfinite(out[n : n + nh]) if nh else np.ones(0, dtype=bool), None
-    allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
+    if not n or not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody; copies go first
+        prio = np.zeros(n)
+        if n:
+            grid = CellGrid(pts, 0.0)
+            prio[grid.order[grid.copy]] = np.inf
+        return keep_lowest(prio, target), None, None
     two_r = 2.0 * r_max
-    grid = CellGrid(allp, two_r)
-    src = grid.order  # internal row -> position in allp
-    state = np.where(src < n + nh, 1, np.where(src < n + nh + nf, 2, 0)).astype(np.uint8)
-    state[grid.copy] = 0
-    gone_rep = np.full(len(allp), -1, dtype=np.int64)
-    if len(gon) and coverage:  # the gone points: represented by their nearest alive point; their exact
-        # copies are not (they weigh on nobody, as the cell that removed them counted them)
-        rows = np.flatnonzero((src >= n + nh + nf) & ~grid.copy)
-        gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)
-    ones = np.ones(len(allp))  # the key's factors of the removed information terms (module docstring)
-    ialpha = alpha_int(alpha)
-    lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
-    prio, rep = run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, ones, ones, floor)
-    logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone", n, nh, nf, len(gon))
-    copy = np.zeros(len(allp), dtype=bool)
-    copy[src[grid.copy]] = True
-    left = np.isnan(prio[n : n + nh]) & ~copy[n : n + nh]
-    out = prio[:n]
-    out[np.isnan(out)] = np.inf  # exact copies
-    return out, grid, left, rep
-
-
-_OPTIONS = {"fixed", "alpha", "coverage"}
+    with numba_threads(threads):
+        grid = CellGrid(pts, two_r)
+        state = np.ones(n, dtype=np.uint8)
+        state[grid.copy] = 0
+        ones = np.ones(n)  # the key's factors of the removed information terms (module docstring)
+        lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
+        prio, rep = run_elimination(grid, lists, state, n, np.full(n, -1, dtype=np.int64), r_max, ALPHA, True,
+                                    ones, ones, target)
+    prio[np.isnan(prio)] = np.inf  # exact copies
+    return keep_lowest(prio, target), grid, rep
 
 
 @validate_params("eliminate")
 def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int = RELOCATE_STEPS,
-              threads: int | None = None, cell_points: int | None = CELL_POINTS, **options) -> np.ndarray:
+              threads: int | None = None, cell_points: int | None = CELL_POINTS) -> np.ndarray:
     """Sorted int64 indices of exactly ``count`` (or round(ratio * n), at least 1) points of a whole cloud.
 
     The options are validated once (:func:`cloudsieve.params.validate`, command ``eliminate``): one of
@@ -219,20 +110,18 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     ``threads`` >= 1, ``cell_points`` None or >= ``MIN_CELL_POINTS``; ``r_max`` (a radius: inf keeps all) is
     checked here. ``eliminate.unchecked`` takes validated options and also a count of 0 (nothing kept).
 
-    The elimination (:func:`eliminate_order`) stops at the count, then
-    ``relocate_steps`` restricted Lloyd steps (:func:`relocate`) lower the
-    squared error. ``options``: ``fixed``, ``alpha``, ``coverage`` as in
-    :func:`eliminate_order`.
+    The elimination (module docstring, alpha = 1 with the coverage term)
+    stops at the count, then ``relocate_steps`` restricted Lloyd steps
+    (:func:`relocate`) lower the squared error.
 
     Above ``cell_points`` points (None: never), the cloud is split into
     cells of at most that many points, eliminated colour by colour on
     ``threads`` threads with their halos, as the out-of-core run does
     (:mod:`.eliminate_cells`); the kept set then differs from one
-    elimination's, by as little as the engine's does. Only with the default
-    key: with any of ``options`` set (fixed points belong to no cell, the
-    cells run the default key), one elimination over the whole cloud. The result does not depend on ``threads``, nor on the input
-    order up to ``.radius.AREA_SAMPLE`` points (above, r_max is solved on a seeded
-    sample of rows).
+    elimination's, by as little as the engine's does. The result does not
+    depend on ``threads``, nor on the input order up to
+    ``.radius.AREA_SAMPLE`` points (above, r_max is solved on a seeded sample
+    of rows).
 
     Examples
     --------
@@ -243,12 +132,8 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     """
     pts = check_points(points)
     target = ratio_count(ratio, len(pts)) if ratio is not None else min(int(count), len(pts))
-    bad = set(options) - _OPTIONS
-    if bad:
-        raise InvalidParameterError(f"eliminate() got unexpected options {sorted(bad)}; halo and floor belong to "
-                                    "eliminate_order (cells)")
     r_max = None if r_max is None else check_r_max(r_max)
-    if cell_points is not None and not options and 0 < target < len(pts):
+    if cell_points is not None and 0 < target < len(pts):
         from .eliminate_cells import cell_cap, eliminate_in_cells
 
         cap = cell_cap(len(pts), target, int(cell_points))
@@ -258,14 +143,9 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
             if keep is not None:
                 return np.flatnonzero(keep).astype(np.int64)
     r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-    opts = {"fixed": None, "alpha": ALPHA, "coverage": True} | options
-    prio, grid, _, rep = _eliminate_order(pts, r_max, None, None, None, opts["fixed"], opts["alpha"],
-                                          opts["coverage"], target, threads)
-    keep = keep_lowest(prio, target)
-    if opts["fixed"] is not None:  # the grid holds the fixed points too: relocation runs without them
-        grid = None
+    keep, grid, rep = _eliminated(pts, r_max, target, threads)
     if relocate_steps and math.isfinite(r_max) and target:
         with numba_threads(threads):
             keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps),
-                                   grid, None if grid is None else rep)
+                                   grid, rep)
     return np.flatnonzero(keep).astype(np.int64)

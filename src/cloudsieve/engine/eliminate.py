@@ -33,8 +33,7 @@ elimination per cell:
    (:func:`~cloudsieve.engine.halo.read_band_halo`: the same points as
    from the whole cells) and runs
    :func:`~cloudsieve.core.eliminate_cells.eliminate_cell`: the elimination
-   (:func:`~cloudsieve.core.eliminate.eliminate_order`) stopped at q_j of its
-   own points (``floor``), with the FINAL decisions of its lower-colour
+   (:mod:`cloudsieve.core.eliminate`) stopped at q_j of its own points, with the FINAL decisions of its lower-colour
    neighbours (their kept points fixed: they weigh, never go; their removed
    points gone: represented by their nearest point, so the coverage term
    sees the area they leave) and the points of its higher-colour neighbours
