@@ -140,3 +140,34 @@ def test_reader_writer_without_filter_converts(tmp_path):
         las = f.read()
     assert len(xyz) == len(las.points)
     assert (attrs["intensity"] == las.intensity).all()
+
+
+def test_compare_validates_its_options_once_on_the_command_line_and_in_a_pipeline(tmp_path, monkeypatch, capsys):
+    """The CLI validates to size its bar and a pipeline when it is loaded; both then run run_compare, which
+    checks no option again (issue 29)."""
+    import importlib
+
+    import cloudsieve.params as params
+    import cloudsieve.pipeline_load as loader
+
+    api = importlib.import_module("cloudsieve.evaluate.compare")  # the package's name compare is the function
+
+    calls = []
+    real = params.validate
+
+    def counting(command, values, **kw):
+        calls.append(command)
+        return real(command, values, **kw)
+
+    for module in (params, api, loader):
+        monkeypatch.setattr(module, "validate", counting)
+    src = str(shared_file("maxplanck.ply"))
+    assert main(["compare", src, "--methods", "random", "--ratio", "0.2", "--no-surface", "--no-progress"]) == 0
+    assert "random" in capsys.readouterr().out
+    assert calls.count("compare") == 1
+    calls.clear()
+    doc = {"pipeline": [{"type": "readers.ply", "filename": src},
+                        {"type": "compare", "methods": ["random"], "ratio": 0.2, "surface": False}]}
+    [entry] = run_pipeline(load_pipeline(write(tmp_path, doc)))
+    assert entry["report"]["rows"][0]["method"] == "random"
+    assert calls.count("compare") == 1

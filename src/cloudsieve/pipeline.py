@@ -49,11 +49,11 @@ every stage that runs on dask.
 
 Every option is checked when the file is loaded, as the API checks it (names,
 types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
-so a bad value fails before any stage runs, naming the stage; ``filters.entropy``
-and ``evaluate`` then run on the options validated there
+so a bad value fails before any stage runs, naming the stage; ``filters.entropy``,
+``evaluate`` and ``compare`` then run on the options validated there
 (:func:`cloudsieve.engine.simplify.run_simplify`,
-:func:`cloudsieve.evaluate.evaluation.run_evaluation`); ``compare`` calls its API,
-which validates them again. Relative paths are relative to the working
+:func:`cloudsieve.evaluate.evaluation.run_evaluation`,
+:func:`cloudsieve.evaluate.compare.run_compare`), checked once. Relative paths are relative to the working
 folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
 environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``); a variable
 that is not set is an error. :func:`check_inputs` (``cloudsieve run --check``,
@@ -75,13 +75,6 @@ from .pipeline_load import READERS, WRITERS, Pipeline, load_pipeline, stage_opti
 __all__ = ["Pipeline", "load_pipeline", "check_inputs", "run_pipeline", "stage_options"]
 
 log = logging.getLogger(__name__)
-
-
-def _stage_functions() -> dict[str, Any]:
-    # Imported here: the engine and the evaluation pull in dask, open3d, pymeshlab.
-    from .evaluate import compare
-
-    return {"compare": compare}
 
 
 def _fill(value: Any, src: str) -> Any:
@@ -168,7 +161,6 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         One entry per input: ``{"input": path, "output": path or None,
         "summary": ..., "report": ...}``.
     """
-    functions = _stage_functions()
     check_inputs(pipeline)
     drop_invalid = bool(pipeline.reader.get("drop_invalid", False))
     results = []
@@ -194,7 +186,6 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
                 points = entry["summary"].points_in
             entry["output"] = dst
         for i, stage in enumerate(pipeline.stages):
-            params = {k: _fill(v, src) for k, v in stage.items() if k != "type"}
             if stage["type"] == "evaluate":  # on the options validated at load, as filters.entropy
                 from .evaluate.evaluation import run_evaluation
                 from .io import check_folder
@@ -204,8 +195,12 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
                 if opts["report_dir"] is not None:
                     check_folder(opts["report_dir"])
                 entry["report"] = run_evaluation(src, entry["output"], bars=bars, **opts)
-            elif stage["type"] == "compare":
-                entry["report"] = functions["compare"](src, drop_invalid=drop_invalid, **params)
+            elif stage["type"] == "compare":  # on the options validated at load, as evaluate
+                from .evaluate.compare import run_compare
+
+                opts = {k: _fill(v, src) for k, v in pipeline.validated[i].items()}
+                opts["drop_invalid"] = drop_invalid
+                entry["report"] = run_compare(src, opts)
                 points = points or entry["report"]["points"]
         if progress is not None:
             progress(points)

@@ -1,5 +1,6 @@
 """``cloudsieve compare SRC``: entropy simplification vs baselines at the same count
-(thin wiring over :func:`cloudsieve.evaluate.compare`)."""
+(thin wiring over :func:`cloudsieve.evaluate.compare`: its options validated here, once, then
+:func:`cloudsieve.evaluate.compare.run_compare`)."""
 
 from __future__ import annotations
 
@@ -32,15 +33,12 @@ def add_parser(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from .. import params, progress
-    from ..evaluate import compare
-    from ..evaluate.compare import compare_runs
+    from ..evaluate.compare import compare_runs, run_compare
 
-    values = option_values(args, "compare")
-    opts = params.validate("compare", values, caller="cloudsieve compare")  # the rule resolved, as the API will
-    methods = opts["methods"]
-    values.pop("methods")
-    runs = len(compare_runs(methods, opts["rule"]))
+    # validated once, here: the rule resolved sizes the bar, and the API's run takes the options as they are
+    opts = params.validate("compare", option_values(args, "compare"), caller="cloudsieve compare")
+    runs = len(compare_runs(opts["methods"], opts["rule"]))
     with progress.bar("methods", runs, unit="method", enabled=not args.no_progress) as tick:
-        result = compare(args.src, methods=methods, **values, progress=tick)
+        result = run_compare(args.src, opts, progress=tick)
     print(result["markdown"])
     return 0

@@ -41,7 +41,7 @@ from .report import border_per_face, db, fmt, holes_note, plot_compactness, plot
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["compare", "compare_runs", "compare_markdown", "METHODS"]
+__all__ = ["compare", "run_compare", "compare_runs", "compare_markdown", "METHODS"]
 
 METHODS = COMPARE_METHODS
 
@@ -206,10 +206,22 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid, **entropy_options,
     })
+    return run_compare(source, opts, progress=progress)
+
+
+#: compare's options for the entropy methods (:func:`cloudsieve.core.simplify_points`)
+ENTROPY_OPTIONS = ("threshold", "cluster_size", "k0", "k_min", "keep_duplicates")
+
+
+def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
+    """:func:`compare` with options already validated (``opts``, from :func:`cloudsieve.params.validate` for
+    ``compare``: the command line, a pipeline stage); no option is checked again."""
+    (methods, rules, ratio, count, report_dir, surface, tiles, tile_points, seed, metro_samples, psnr_peak,
+     drop_invalid) = (opts[k] for k in ("methods", "rule", "ratio", "count", "report_dir", "surface", "tiles",
+                                        "tile_points", "seed", "metro_samples", "psnr_peak", "drop_invalid"))
     if report_dir is not None:
         check_folder(report_dir)
-    methods, rules = opts["methods"], opts["rule"]
-    entropy_options = {k: opts[k] for k in entropy_options}
+    entropy_options = {k: opts[k] for k in ENTROPY_OPTIONS}
     xyz, _header, name = load_points(source, what="source cloud", drop_invalid=drop_invalid)
     n = len(xyz)
     if ratio is not None:
