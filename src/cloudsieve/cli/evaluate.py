@@ -57,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{m.upper()} PSNR (dB)    : forward {db(ps[m]['forward'])}  backward {db(ps[m]['backward'])}  "
               f"symmetric {db(ps[m]['symmetric'])}  ({label}, peak {fmt(ps['peak'])})")
     for name, n in (ps.get("d2_sample") or {}).items():
-        if n:
+        if n and ps["mse"]["d2"][name] > 0:
             print(f"D2 {name:8s}    : on a uniform sample of {fmt(n)} points, PSNR standard error "
                   f"±{ps['d2_se_db'][name]:.3f} dB")
     print(f"chamfer         : {fmt(report['chamfer']['value'])} (mean squared NN distance, both ways summed)")

@@ -66,6 +66,7 @@ from .planes import field_figures
 from .points import point_errors
 from .report import write_report
 from .surface import surface_errors
+from .tiles import SAMPLE_SIZE
 
 logger = logging.getLogger(__name__)
 
@@ -294,7 +295,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
                          error_points=error_points if report_dir else 0, grid=las_grid(simp_header),
                          on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress),
-                         d2_sample=d2_sample)
+                         d2_sample=d2_sample, keep_sample=SAMPLE_SIZE if surface and surface_budget else 0)
+    sample = p.pop("uniform_sample", None)
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p
     report["diagonal"] = p["diagonal"]
@@ -309,7 +311,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
             report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
                                                diagonal=p["diagonal"], samples=metro_samples,
                                                cache=surface_cache, progress=bar, reference=reference,
-                                               budget=surface_budget, full=surface_full)
+                                               budget=surface_budget, full=surface_full,
+                                               sample=None if sample is None else (sample, p["original_count"]))
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:

@@ -137,7 +137,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
                  chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
                  error_points: int = 0, on_error_points=None, progress=None,
                  grid: tuple[np.ndarray, np.ndarray] | None = None, d2_k: int | None = K_NORMALS,
-                 d2_sample: int | None = D2_SAMPLE) -> dict:
+                 d2_sample: int | None = D2_SAMPLE, keep_sample: int = 0) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
     Parameters
@@ -181,6 +181,11 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         D2 on a uniform seeded sample of at most this many of the evaluated
         points per direction (``d2_sample`` and ``d2_se`` in each direction
         when smaller than it); None: every point.
+    keep_sample : int
+        Also return ``uniform_sample``: the coordinates of a uniform seeded
+        sample of this many original points (*seed*, as
+        :func:`.tiles.uniform_sample` draws it), taken on the way (for the
+        surface level's tiles; the caller removes it before writing JSON).
 
     Returns
     -------
@@ -202,7 +207,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     tick = callback(progress)
     rng = np.random.default_rng(seed)
     sampled = sample is not None
-    n = src.count_points() if sampled or error_points else src.count
+    n = src.count_points() if sampled or error_points or keep_sample else src.count
     fwd_idx = bwd_idx = None
     if sampled:
         sample = int(sample)
@@ -228,6 +233,9 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             d2_idx = (_sample_indices(n, int(d2_sample), d2rng) if rows is None
                       else np.sort(d2rng.choice(rows, int(d2_sample), replace=False)))
 
+    keep_idx = _sample_indices(n, int(keep_sample), np.random.default_rng(seed)) if keep_sample else None
+    kept_parts: list[np.ndarray] = []
+
     target = Target(simplified)
     bpoints = simplified if bwd_idx is None else simplified[bwd_idx]
     bindex = None if bwd_idx is None else ExactIndex(bpoints)
@@ -238,6 +246,8 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     def items():
         for chunk in src.chunks():
             start, stop = chunk.start, chunk.stop
+            if keep_idx is not None:
+                kept_parts.append(chunk.xyz[_select(keep_idx, start, stop)])
             select, d2_rows = _select(fwd_idx, start, stop), _select(d2_idx, start, stop)
             if select is not None and d2_rows is not None:  # positions among the sampled rows
                 d2_rows = np.searchsorted(select, d2_rows)
@@ -311,7 +321,9 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     nz = np.flatnonzero((fh + bh) > 0)
     lo, hi = (int(nz[0]), int(nz[-1]) + 1) if len(nz) else (0, 0)
     edges = np.log10(hist_edges())
+    out = {} if keep_idx is None else {"uniform_sample": np.concatenate(kept_parts) if kept_parts else np.zeros((0, 3))}
     return {
+        **out,
         "mode": "sampled" if sampled else "exact",
         "sample": int(sample) if sampled else None,
         "seed": int(seed),

@@ -244,7 +244,7 @@ def field_lines(report: dict) -> list[str]:
                      f"{fmt(ps['mse'][m]['forward'])} | {fmt(ps['mse'][m]['backward'])} |")
     samp = ps.get("d2_sample") or {}
     for name in ("forward", "backward"):
-        if samp.get(name):
+        if samp.get(name) and ps["mse"]["d2"][name] > 0:
             lines += ["", f"D2 {name}: measured on a uniform random sample of {fmt(samp[name])} points (D1 and "
                       f"Chamfer on every point); standard error of its PSNR ±{ps['d2_se_db'][name]:.3f} dB."]
     lines += ["", f"Chamfer distance: {fmt(ch['value'])} (squared cloud units; {fmt(ch['forward'])} forward + "

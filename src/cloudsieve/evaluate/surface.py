@@ -37,7 +37,7 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
-from .tiles import (PILOT_POINTS, BUDGET_TILES, Budget, budget_tile_points, choose_tiles, gather_tiles,
+from .tiles import (PILOT_POINTS, BUDGET_TILES, Budget, budget_tile_points, choose_tiles, cut_tile, gather_tiles,
                     partition_tiles, random_tiles, spread, uniform_sample)
 from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, crop_mesh, metro
 
@@ -143,7 +143,7 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
 
 
 def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
-          run_tile) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
+          run_tile, sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
     """The tiles (fixed, budget or full; see :mod:`.tiles`), their points, and how they were chosen."""
     t0 = time.perf_counter()
     if budget is None and not full:
@@ -152,7 +152,9 @@ def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, 
             return (chosen, gather_tiles(src, chosen, tile_points), _simplified_in(simplified, chosen),
                     {"mode": "fixed", "tile_points": int(tile_points), "population": src.count_points()})
         return _whole(src, simplified)
-    sample, n = uniform_sample(src, seed=seed)
+    given = sample is not None
+    sample, n = sample if given else uniform_sample(src, seed=seed)
+    t_pass = 0.0 if given else time.perf_counter() - t0  # the gather pass costs about as much as this one
     if full:
         if n <= tile_points:
             return _whole(src, simplified)
@@ -160,7 +162,6 @@ def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, 
         return chosen, origs, simps, {"mode": "full", "tile_points": int(tile_points), "population": n}
     if n <= min(PILOT_POINTS, tile_points):
         return _whole(src, simplified)
-    t_pass = time.perf_counter() - t0  # the gather pass costs about as much as the sample's
     rng = np.random.default_rng([seed, 8])
     size = min(PILOT_POINTS, tile_points, len(sample))
     _, near = cKDTree(sample).query(sample[rng.integers(len(sample))], k=size)
@@ -174,11 +175,13 @@ def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, 
                 "pilot": {"points": int(size), "seconds": seconds, "rate": rate}}
     if n <= tile_points and n / rate <= remaining:
         return (*_whole(src, simplified)[:3], {**sampling, "mode": "whole", "tile_points": n})
-    m = budget_tile_points(rate, remaining, tiles or BUDGET_TILES, tile_points)
+    aim = tiles or BUDGET_TILES
+    m = budget_tile_points(rate, remaining, aim, tile_points)
     fit = int(math.ceil(1.5 * remaining * rate / m)) + 1
     count = tiles or min(64, fit, max(1, 4_000_000 // m))
+    m = min(tile_points, 2 * m)  # gathered at up to twice the pilot's size, cut to fit as tiles run
     chosen = random_tiles(sample, n, count, m, seed=seed)
-    sampling.update({"tile_points": m, "candidates": len(chosen)})
+    sampling.update({"tile_points": m, "candidates": len(chosen), "aim": aim})
     return chosen, gather_tiles(src, chosen, m), _simplified_in(simplified, chosen), sampling
 
 
@@ -201,7 +204,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
                    seed: int = 0, diagonal: float | None = None, samples: int | None = None,
                    max_samples: int = 500_000, progress=None, cache: dict | None = None,
                    reference: tuple[np.ndarray, np.ndarray] | None = None, budget: float | None = None,
-                   full: bool = False) -> dict:
+                   full: bool = False, sample: tuple[np.ndarray, int] | None = None) -> dict:
     """The paper's surface-level figures on tiles of the cloud.
 
     Parameters
@@ -220,6 +223,9 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         None: T tiles of M points (k-means centres), however long they take.
     full : bool
         Every original point in one tile of about M points (no budget).
+    sample : (ndarray (s, 3), int), optional
+        A uniform sample of the original and its point count, when one is
+        at hand (saves a pass over the original).
     tile_points : int
         At most M original points per tile; the whole cloud is one tile when
         it has at most M points.
@@ -275,7 +281,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
     plan = cache.get("plan") if cache is not None else None  # compare: the first call's tiles for every method
     if plan is None:
         plan = _plan(src, simplified, tiles, tile_points, seed, budget, full,
-                     lambda o, p: _tile_figures(o, p, diagonal or 1.0, samples, max_samples)[0])
+                     lambda o, p: _tile_figures(o, p, diagonal or 1.0, samples, max_samples)[0], sample)
         if cache is not None:
             cache["plan"] = plan
         run_all = False
@@ -295,8 +301,11 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         diagonal = float(np.linalg.norm(hi - lo))
     recs, cos, css, used = [], [], [], []
     for i, (t, o, s) in enumerate(zip(chosen, origs, simps)):
-        if clock is not None and i and not clock.fits(len(o)):
-            break
+        if clock is not None and sampling["mode"] == "budget":  # the size that shares the time left
+            size = budget_tile_points(clock.rate(), budget - clock.elapsed(), max(sampling["aim"] - i, 1), len(o))
+            t, o, s = cut_tile(t, o, s, size)
+            if i and not clock.fits(len(o)):
+                break
         logger.info("surface tile: %d original, %d simplified points", len(o), len(s))
         started = time.perf_counter()
         ref = reference

@@ -11,8 +11,10 @@ Three ways to choose them (:func:`.surface.surface_errors`):
   a time budget: a pilot tile cut from the uniform sample is meshed and
   compared first and its rate (original points a second, on this machine
   under its current load) sets the tile size (:func:`budget_tile_points`);
-  tiles then run one by one while the next one, at the slowest rate seen,
-  still fits (:class:`Budget`). The figures are the sampled tiles' and their
+  candidates are gathered at up to twice that size and each tile, run one
+  by one, is cut (:func:`cut_tile`) to the size that shares the time left
+  among the tiles still aimed for at the slowest rate seen so far, and runs
+  only while it still fits (:class:`Budget`). The figures are the sampled tiles' and their
   spread is given as a standard error (:func:`spread`);
 - **full** (:func:`partition_tiles`): every original point in one tile (the
   cells of k-means centres of a uniform sample, at most about M points
@@ -33,9 +35,11 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["PILOT_POINTS", "BUDGET_TILES", "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles",
-           "partition_tiles", "budget_tile_points", "Budget", "spread"]
+__all__ = ["SAMPLE_SIZE", "PILOT_POINTS", "BUDGET_TILES", "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles",
+           "partition_tiles", "budget_tile_points", "cut_tile", "Budget", "spread"]
 
+#: points of the uniform sample the tiles are drawn from (and the pilot cut from)
+SAMPLE_SIZE = 200_000
 #: original points of the pilot tile that measures the rate of the surface level
 PILOT_POINTS = 10_000
 #: tiles a budget is sized for (at least): enough for a standard error over tiles
@@ -44,7 +48,7 @@ BUDGET_TILES = 8
 _GATHER_MAX = 4_000_000
 
 
-def uniform_sample(src, size: int = 200_000, seed: int = 0) -> tuple[np.ndarray, int]:
+def uniform_sample(src, size: int = SAMPLE_SIZE, seed: int = 0) -> tuple[np.ndarray, int]:
     """(a uniform seeded sample of at most *size* points of *src* (one streamed pass), the cloud's count)."""
     n = src.count_points()
     rng = np.random.default_rng(seed)
@@ -181,6 +185,17 @@ def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, simplifie
         origs.append(pts)
         simps.append(simplified[np.flatnonzero(slab == i)])
     return tiles, origs, simps
+
+
+def cut_tile(tile: dict, orig: np.ndarray, simp: np.ndarray, size: int) -> tuple[dict, np.ndarray, np.ndarray]:
+    """The *size* original points of a tile nearest its centre, and the simplified points within their radius."""
+    if len(orig) <= size:
+        return tile, orig, simp
+    c = np.asarray(tile["centre"], dtype=np.float64)
+    d = np.sqrt(((orig - c) ** 2).sum(axis=1))
+    keep = np.sort(np.argsort(d, kind="stable")[:size])
+    r = float(d[keep].max())
+    return {**tile, "radius": r}, orig[keep], simp[np.sqrt(((simp - c) ** 2).sum(axis=1)) <= r]
 
 
 def budget_tile_points(rate: float, remaining: float, tiles: int, tile_points: int) -> int:
