@@ -20,8 +20,10 @@ def add_parser(subparsers) -> None:
             "or a uniform sample with 95% confidence intervals) and back, mean/RMS/max, symmetric "
             "Hausdorff, absolute and in % of the original's bounding-box diagonal; MPEG pc_error's D1/D2 PSNR "
             "and the Chamfer distance. Surface level "
-            "(the paper's): ball-pivoting meshes on T tiles, Metro distances both ways, triangle "
-            "compactness. The original is streamed; the simplified cloud is loaded into memory."
+            "(the paper's): ball-pivoting meshes on tiles, Metro distances both ways, triangle "
+            "compactness; by default random tiles within a time budget (--surface-budget), their standard "
+            "errors given, or every point (--surface-full). D2 on a uniform sample (--d2-sample). The original "
+            "is streamed; the simplified cloud is loaded into memory."
         ),
     )
     p.add_argument("original", metavar="ORIGINAL", help="original cloud (LAS/LAZ/COPC/PLY/E57/XYZ file or point store)")
