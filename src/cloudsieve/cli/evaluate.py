@@ -21,9 +21,9 @@ def add_parser(subparsers) -> None:
             "Hausdorff, absolute and in % of the original's bounding-box diagonal; MPEG pc_error's D1/D2 PSNR "
             "and the Chamfer distance. Surface level "
             "(the paper's): ball-pivoting meshes on tiles, Metro distances both ways, triangle "
-            "compactness; by default random tiles within a time budget (--surface-budget), their standard "
-            "errors given, or every point (--surface-full). D2 on a uniform sample (--d2-sample). The original "
-            "is streamed; the simplified cloud is loaded into memory."
+            "compactness; by default on random tiles within a time budget, their standard errors given, or on "
+            "every point. D2 on a uniform sample, its standard error given. The original is streamed; the "
+            "simplified cloud is loaded into memory."
         ),
     )
     p.add_argument("original", metavar="ORIGINAL", help="original cloud (LAS/LAZ/COPC/PLY/E57/XYZ file or point store)")
