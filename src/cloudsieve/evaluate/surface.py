@@ -165,7 +165,7 @@ def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, 
     rng = np.random.default_rng([seed, 8])
     size = min(PILOT_POINTS, tile_points, len(sample))
     _, near = cKDTree(sample).query(sample[rng.integers(len(sample))], k=size)
-    pilot = sample[np.sort(near)]
+    pilot = sample[np.sort(np.atleast_1d(near))]
     started = time.perf_counter()
     run_tile(pilot, pilot[rng.random(len(pilot)) < len(simplified) / n])
     seconds = time.perf_counter() - started
