@@ -12,10 +12,10 @@ in each variant:
 
 - ``off``: the default (coverage and squared-error terms, no information term;
   over cells of 16,384 points above that many, :mod:`cloudsieve.core.eliminate_cells`);
-- ``one cell``: the same, one elimination over the whole cloud (with ``--one-cell``);
-- ``entropy``: dH of each point in KM clusters of ~400 points (seed 0), rank
-  weight 0.5;
-- ``geometric``: surface variation importance 0.2 (with ``--geometric``).
+- ``one cell``: the same, one elimination over the whole cloud (with ``--one-cell``).
+
+(The ``entropy`` and ``geometric`` variants of docs/benchmarks.md ran the
+information terms, removed since: issue 29.)
 
 Figures, from :func:`cloudsieve.evaluate.evaluate` (``subset=True``; its ``run_evaluation``, which keeps the
 original's tile meshes between calls): point
@@ -46,7 +46,6 @@ from pathlib import Path
 
 import numpy as np
 
-from cloudsieve.core import refine_labels
 from cloudsieve.core.eliminate import eliminate
 from cloudsieve.evaluate.evaluation import run_evaluation
 from cloudsieve.evaluate.baselines import fps_subset, poisson_subset, voxel_subset
@@ -69,24 +68,21 @@ def figures(P: np.ndarray, idx: np.ndarray, cache: dict, surface: bool = True) -
     return out
 
 
-def variants(P: np.ndarray, geometric: bool, one_cell: bool = False) -> dict:
+def variants(P: np.ndarray, one_cell: bool = False) -> dict:
     out = {"off": {}}
     if one_cell:
         out["one cell"] = {"cell_points": None}
-    out["entropy"] = {"labels": refine_labels(P, "km", 400, 0), "entropy": 0.5}
-    if geometric:
-        out["geometric"] = {"geometric": 0.2}
     return out
 
 
-def run(files, ratios, cache_path, geometric: bool, one_cell: bool = False) -> list[dict]:
+def run(files, ratios, cache_path, one_cell: bool = False) -> list[dict]:
     store = json.loads(Path(cache_path).read_text()) if cache_path and Path(cache_path).is_file() else {}
     rows = []
     for name in files:
         path = Path(name) if Path(name).is_file() else DATA / name
         P = read_cloud(str(path))[0]
         surf: dict = {}
-        vs = variants(P, geometric, one_cell)
+        vs = variants(P, one_cell)
         for ratio in ratios:
             count = int(round(ratio * len(P)))
             key = f"{path.name}:{ratio}"
@@ -157,13 +153,12 @@ def main(argv=None) -> int:
     ap.add_argument("files", nargs="*", default=SCANS)
     ap.add_argument("--ratios", default="0.5,0.2,0.1")
     ap.add_argument("--cache", default=None, help="JSON file of the baselines' figures (read and written)")
-    ap.add_argument("--geometric", action="store_true", help="also the geometric variant")
     ap.add_argument("--one-cell", action="store_true", help="also the default as one elimination (no cells)")
     ap.add_argument("--json", default=None, help="write the rows there too")
     a = ap.parse_args(argv)
     logging.disable(logging.WARNING)
     warnings.filterwarnings("ignore")
-    rows = run(a.files, [float(x) for x in a.ratios.split(",")], a.cache, a.geometric, a.one_cell)
+    rows = run(a.files, [float(x) for x in a.ratios.split(",")], a.cache, a.one_cell)
     if a.json:
         Path(a.json).write_text(json.dumps(rows, indent=1))
     print("## eliminate / best of voxel, Poisson, farthest point at equal count\n")

@@ -7,6 +7,7 @@ import pytest
 
 from cloudsieve.core import centres as ce
 from cloudsieve.core.kernels.kmeans import pairwise_sum
+from cloudsieve.core.kernels.threads import Chunks
 
 
 def tree_answer(X, C, k):
@@ -33,7 +34,7 @@ def test_nearest_centres_equal_the_tree(p, scale):
         dd, ii = tree_answer(X, C, k)
         for f in (0.3, 1.0, 3.0):  # the cell side changes only the speed
             h = ce.cell_size(C, k) * f
-            with ce.Chunks(2) as chunks:
+            with Chunks(2) as chunks:
                 d, i = ce.nearest_centres(X, C, k, chunks, h)  # many rows: candidate lists (p <= 3)
                 dr, ir = ce.nearest_centres(X, C, k, chunks, h, rows)  # few rows: rings
             np.testing.assert_array_equal(d, dd)
@@ -53,7 +54,7 @@ def test_nearest_centres_same_on_any_thread_count_and_with_far_outliers():
     dd, ii = tree_answer(X, C, 9)
     out = []
     for t in (1, 2, 3):
-        with ce.Chunks(t) as chunks:
+        with Chunks(t) as chunks:
             out.append(ce.nearest_centres(X, C, 9, chunks, ce.cell_size(C, 9)))
     for d, i in out:
         np.testing.assert_array_equal(d, dd)
@@ -71,9 +72,9 @@ def test_pairwise_sum_is_numpys_row_sum():
 
 
 def test_chunks_cover_the_range_in_order():
-    with ce.Chunks(3) as chunks:
+    with Chunks(3) as chunks:
         got = chunks.map(lambda s, e: (s, e), 100_000, min_chunk=1000)
     assert got[0][0] == 0 and got[-1][1] == 100_000
     assert all(a[1] == b[0] for a, b in zip(got, got[1:]))
-    with ce.Chunks(1) as chunks:
+    with Chunks(1) as chunks:
         assert chunks.map(lambda s, e: (s, e), 10) == [(0, 10)]

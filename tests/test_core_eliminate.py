@@ -8,15 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from cloudsieve.core.eliminate import (
-    COVER_GAMMA,
-    COVER_LAMBDA,
-    COVER_RADIUS,
-    eliminate,
-    eliminate_order,
-    keep_lowest,
-    relocate,
-)
+from cloudsieve.core.eliminate import eliminate, eliminate_order, relocate
+from cloudsieve.core.elimination import COVER_GAMMA, COVER_LAMBDA, COVER_RADIUS, keep_lowest
 from cloudsieve.core.eliminate_cells import eliminate_cell
 from cloudsieve.core.radius import elimination_radius, point_areas
 from cloudsieve.errors import InvalidParameterError, InvalidPointsError
@@ -162,8 +155,8 @@ def test_unit_scale_does_not_matter():
 
 def test_threads_do_not_matter():
     P = sheet(5000, seed=9)
-    a = eliminate_order(P, ratio=0.2, threads=1, geometric=0.2)
-    b = eliminate_order(P, ratio=0.2, threads=2, geometric=0.2)
+    a = eliminate_order(P, ratio=0.2, threads=1)
+    b = eliminate_order(P, ratio=0.2, threads=2)
     assert np.array_equal(a, b)
 
 
@@ -272,17 +265,6 @@ def test_relocate_keeps_count_and_lowers_error():
     assert rms[1] <= rms[0]
 
 
-def test_entropy_term_needs_labels_and_changes_little():
-    P = sheet(3000, seed=16)
-    with pytest.raises(InvalidParameterError, match="labels or dh"):
-        eliminate_order(P, ratio=0.2, entropy=0.5)
-    labels = np.arange(3000) // 400
-    keep = eliminate(P, ratio=0.2, labels=labels, entropy=0.5)
-    base = eliminate(P, ratio=0.2)
-    assert len(keep) == 600
-    assert len(np.intersect1d(keep, base)) > 300  # a second key: most of the set stays
-
-
 def test_radius_formula():
     a = np.full(1000, 2.0)
     assert elimination_radius(a, 100) == pytest.approx(math.sqrt(2000 / (2 * math.sqrt(3) * 100)))
@@ -310,10 +292,10 @@ def test_bad_input():
         eliminate_order(P)
     with pytest.raises(InvalidParameterError, match="r_max must be a positive number"):
         eliminate_order(P, r_max=-1.0)
-    with pytest.raises(InvalidParameterError, match=r"geometric must be in \[0, 1\)"):
-        eliminate_order(P, ratio=0.5, geometric=1.5)
     with pytest.raises(InvalidParameterError, match="unexpected options"):
         eliminate(P, 10, halo=P)
+    with pytest.raises(InvalidParameterError, match="unexpected options"):  # the information terms are gone
+        eliminate(P, 10, entropy=0.5)
     with pytest.raises(ValueError):  # the built-in still catches it
         eliminate(P, -1)
 

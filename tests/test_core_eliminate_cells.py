@@ -211,9 +211,8 @@ def test_planar_and_collinear_input_over_cells():
 
 def test_options_run_one_elimination_and_cell_points_is_checked():
     P = sheet(6_000, seed=10)
-    labels = np.arange(len(P)) % 7
-    a = eliminate(P, ratio=0.2, labels=labels, entropy=0.5, cell_points=MIN_CELL_POINTS)
-    assert np.array_equal(a, eliminate(P, ratio=0.2, labels=labels, entropy=0.5, cell_points=None))
+    a = eliminate(P, ratio=0.2, alpha=1.0, cell_points=MIN_CELL_POINTS)  # an option, even the default: one
+    assert np.array_equal(a, eliminate(P, ratio=0.2, cell_points=None))
     assert np.array_equal(eliminate(P, ratio=0.2, cell_points=10_000), eliminate(P, ratio=0.2, cell_points=None))
     # cells grow to hold MIN_KEPT kept points: 5 of 6,000 is one cell, one elimination
     assert np.array_equal(eliminate(P, 5, cell_points=MIN_CELL_POINTS), eliminate(P, 5, cell_points=None))

@@ -1,14 +1,15 @@
-"""The incremental rescoring kernels (core/kernels/rescore.py): the terms of entropy_terms, bit for bit."""
+"""The incremental rescoring kernels (core/kernels/rescore.py): the terms of entropy_weights, bit for bit."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from cloudsieve.core.entropy import entropy_change, entropy_terms
+from cloudsieve.core.entropy import entropy_change
+from cloudsieve.core.kernels.entropy import entropy_weights
 from cloudsieve.core.kernels import rescore as ks
 
 
-def test_rescore_kernels_are_entropy_terms():
+def test_rescore_kernels_are_entropy_weights():
     rng = np.random.default_rng(9)
     sizes = rng.integers(20, 300, 15)
     starts = np.r_[0, np.cumsum(sizes)]
@@ -25,9 +26,9 @@ def test_rescore_kernels_are_entropy_terms():
     touched = rng.random(c) < 0.8
     rows = ks.scored_rows(touched, ginv, kk, 0, n)
     np.testing.assert_array_equal(rows, np.flatnonzero(touched[ginv] & (kk > 0)))
-    # the reference: entropy_terms and bincount scatters, as the numpy rounds computed them
+    # the reference: entropy_weights and bincount scatters, as the numpy rounds computed them
     cl = ginv[rows]
-    w, gw, Wc, dw, dg = entropy_terms(cl, c, rk[rows], rk1[rows], 3)
+    w, gw, Wc, dw, dg = entropy_weights(cl, c, rk[rows], rk1[rows], 3)
     acc_w = np.zeros(n)
     acc_g = np.zeros(n)
     for kv in np.unique(kk[rows]):

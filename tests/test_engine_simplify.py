@@ -35,6 +35,7 @@ from cloudsieve.store import ingest
 from cloudsieve.engine import simplify
 from cloudsieve.errors import InvalidParameterError, ResumeMismatchError
 from cloudsieve.store import PointStore
+from cloudsieve.engine.pause import PAUSE_ENV
 from cloudsieve.engine.runner import NO_HTTP_PORT
 
 FAST = dict(method="km", rule="threshold", cluster_size=200, seed=7)
@@ -222,7 +223,7 @@ def test_ratio_and_count_across_cells_within_one_percent(tmp_path, rule, ratio, 
 # ----------------------------------------------------------------- failures
 
 
-def test_a_worker_killed_mid_run_changes_nothing(real_laz, tmp_path, cluster2):
+def test_a_worker_killed_mid_run_changes_nothing(real_laz, tmp_path, cluster2, monkeypatch):
     src = write_laz(tmp_path / "p.laz", plane(24_000, side=150.0, seed=9))
     kw = dict(method="km", rule="iterative", cluster_size=200, cell_size=1_500, chunk_size=4_000, seed=2)
     ref = tmp_path / "ref.laz"
@@ -230,6 +231,12 @@ def test_a_worker_killed_mid_run_changes_nothing(real_laz, tmp_path, cluster2):
     store = tmp_path / "w.zarr"
     out = tmp_path / "out.laz"
     result: dict = {}
+    # the first cell task to start stops in its worker (the test hook of engine/pause.py; the rerun of that task
+    # on a worker runs on): that worker is killed while it holds a task, whatever the machine's speed
+    marker = tmp_path / "paused"
+    pause = f"task:cells#once={marker}"
+    monkeypatch.setenv(PAUSE_ENV, pause)  # the driver (this process) wraps the tasks
+    cluster2.run(lambda: os.environ.__setitem__(PAUSE_ENV, pause))  # the workers stop (a lambda: by value)
 
     def go():
         try:
@@ -237,25 +244,21 @@ def test_a_worker_killed_mid_run_changes_nothing(real_laz, tmp_path, cluster2):
         except BaseException as exc:  # pragma: no cover - reported below
             result["error"] = exc
 
-    pids = cluster2.run(os.getpid)
-    t = threading.Thread(target=go)
+    pids = set(cluster2.run(os.getpid).values())
+    t = threading.Thread(target=go, daemon=True)
     t.start()
-    killed_at = None
-    deadline = time.time() + 120
-    while t.is_alive() and time.time() < deadline:
-        try:
-            done = np.asarray(zarr.open_group(str(store), mode="r")["simplify/done"][:])
-        except Exception:
-            time.sleep(0.02)
-            continue
-        if 1 <= done.sum() < len(done) // 2:
-            killed_at = int(done.sum()), len(done)
-            os.kill(next(iter(pids.values())), signal.SIGKILL)
-            break
-        time.sleep(0.02)
-    t.join(180)
+    try:
+        deadline = time.monotonic() + 600  # a guard against a hang only
+        while t.is_alive() and time.monotonic() < deadline and not (marker.exists() and marker.read_text().strip()):
+            time.sleep(0.05)
+        assert marker.exists(), "the run did not reach its pause"
+        worker = int(marker.read_text())
+        assert worker in pids
+        os.kill(worker, signal.SIGKILL)
+        t.join(600)
+    finally:
+        cluster2.run(lambda: os.environ.pop(PAUSE_ENV, None))  # the worker replacing the killed one never had it
     assert "error" not in result, result.get("error")
-    assert killed_at is not None, "the run ended before a worker could be killed"
     assert digest(out) == digest(ref)
     cluster2.wait_for_workers(2, timeout=60)
 
@@ -270,20 +273,18 @@ def test_driver_killed_then_resume_recomputes_only_missing_cells(tmp_path):
     ref = tmp_path / "ref.laz"
     simplify(src, ref, method="km", rule="iterative", cluster_size=200, cell_size=1_500, chunk_size=5_000, seed=1, scheduler="sync")
     env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "cloudsieve", *args], env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # the run stops in its 4th cell task (one thread: 3 cells done; the test hook of engine/pause.py)
+    marker = tmp_path / "paused"
+    pause = dict(env, **{PAUSE_ENV: f"task:cells#4={marker}"})
+    proc = subprocess.Popen([sys.executable, "-m", "cloudsieve", *args], env=pause, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE)
     done_path = tmp_path / "w.zarr"
-    deadline = time.time() + 120
+    deadline = time.monotonic() + 600  # a guard against a hang only: the run stops there whatever its speed
     try:
-        while proc.poll() is None and time.time() < deadline:
-            try:
-                done = np.asarray(zarr.open_group(str(done_path), mode="r")["simplify/done"][:])
-            except Exception:
-                time.sleep(0.02)
-                continue
-            if done.sum() >= 3:
-                os.kill(proc.pid, signal.SIGKILL)
-                break
-            time.sleep(0.02)
+        while proc.poll() is None and time.monotonic() < deadline and not marker.exists():
+            time.sleep(0.05)
+        assert marker.exists(), f"the run did not reach its pause ({proc.returncode})"
+        os.kill(proc.pid, signal.SIGKILL)
         proc.wait(60)
     finally:
         if proc.poll() is None:  # pragma: no cover
@@ -292,7 +293,7 @@ def test_driver_killed_then_resume_recomputes_only_missing_cells(tmp_path):
     assert not (tmp_path / "out.laz").exists()
     done = np.asarray(zarr.open_group(str(done_path), mode="r")["simplify/done"][:]).astype(bool)
     n_done, n_cells = int(done.sum()), len(done)
-    assert 3 <= n_done < n_cells
+    assert n_done == 3 < n_cells
     out = tmp_path / "resumed.json"
     args[2] = str(tmp_path / "out.laz")
     rc = subprocess.run([sys.executable, "-m", "cloudsieve", *args, "--resume", "--json"], capture_output=True, env=env)

@@ -8,12 +8,24 @@ from scipy.spatial import cKDTree
 from test_core_entropy import oracle
 
 from cloudsieve.core.kernels.entropy import entropy_gain, entropy_weights, reverse_sums
-from cloudsieve.core.kernels.knn import knn_in_clusters
-from cloudsieve.core.kernels.radius import within_radius
+from cloudsieve.core.kernels.knn import knn_unchecked
 from cloudsieve.core.kernels.order import stable_argsort
 from cloudsieve.core.knn import canonical_order, group, knn_clusters
 from cloudsieve.core.scored_knn import knn_scored_clusters
-from cloudsieve.errors import InvalidParameterError, InvalidPointsError
+from cloudsieve.errors import InvalidParameterError
+
+
+
+def knn_in_clusters(points, indptr, k, *, query=None, threads=1):
+    """The k nearest inside clusters by the kernel: 1- and 2-D points padded with zero columns, k one per
+    cluster or one for all (the checks of the public entries are theirs: the kernel takes checked input)."""
+    P = np.asarray(points, dtype=np.float64)
+    P = np.ascontiguousarray(np.column_stack([P, np.zeros((len(P), 3 - P.shape[1]))]))
+    ip = np.asarray(indptr, dtype=np.int64)
+    kc = np.broadcast_to(np.asarray(k, dtype=np.int64), (len(ip) - 1,)).copy()
+    q = np.ones(len(P), dtype=bool) if query is None else np.asarray(query)
+    return knn_unchecked(P, ip, kc, q, threads)
+
 
 KINDS = ["random", "grid", "duplicates", "collinear", "planar"]
 
@@ -128,24 +140,6 @@ def test_query_subset_small_clusters_and_padding():
     assert d0.shape == i0.shape == (60, 0)
 
 
-def test_bad_input_messages():
-    P = np.zeros((5, 3))
-    with pytest.raises(InvalidParameterError, match=r"shape \(n, p\) with 1 <= p <= 3, got shape \(5, 4\)"):
-        knn_in_clusters(np.zeros((5, 4)), [0, 5], 2)
-    with pytest.raises(InvalidPointsError, match=r"1 non-finite rows, the first at index 2"):
-        knn_in_clusters(np.where(np.arange(5)[:, None] == 2, np.nan, P), [0, 5], 2)
-    with pytest.raises(ValueError, match=r"indptr must rise from 0 to n = 5, got first 0, last 4"):
-        knn_in_clusters(P, [0, 4], 2)
-    with pytest.raises(InvalidParameterError, match=r"with a decrease"):
-        knn_in_clusters(P, [0, 3, 2, 5], 2)
-    with pytest.raises(InvalidParameterError, match=r"k must be >= 0, got -1 for cluster 1"):
-        knn_in_clusters(P, [0, 2, 5], [1, -1])
-    with pytest.raises(InvalidParameterError, match=r"k must be an integer or 2 integers"):
-        knn_in_clusters(P, [0, 2, 5], [1, 2, 3])
-    with pytest.raises(InvalidParameterError, match=r"query must be a boolean array of shape \(5,\)"):
-        knn_in_clusters(P, [0, 5], 2, query=np.ones(4, bool))
-
-
 def _numpy_gain(cl, c, rk, rk1, nbr, kr, dim, rows, n):
     """The numpy formulas of entropy.score_points (its _weights, bincounts and _change)."""
     lr, lr1 = np.log(rk), np.log(rk1)
@@ -218,42 +212,6 @@ def test_entropy_weights_and_reverse_sums():
     np.testing.assert_array_equal(np.delete(acc_w, 7), np.delete(full_w, 7))
     with pytest.raises(InvalidParameterError, match=r"M = 500 rows and K >= max\(kr\), got shape \(500, 3\)"):
         reverse_sums(nbr[:, :3], kr, dw, dg, 500)
-
-
-@pytest.mark.parametrize("seed", range(4))
-def test_within_radius_matches_ckdtree_ball(seed):
-    P, indptr, _ = _clusters(seed, n_clusters=4)
-    rng = np.random.default_rng(seed)
-    radius = rng.uniform(0.05, 2.0, 4) * np.array([np.ptp(P[a:b], axis=0).max() / 4 + 1 for a, b in zip(indptr[:-1], indptr[1:])])
-    radius[seed % 4] = 1.0  # on the integer grids: points at exactly r
-    ptr, idx, dist = within_radius(P, indptr, radius, threads=2)
-    for j in range(4):
-        a, b = indptr[j], indptr[j + 1]
-        C = P[a:b]
-        rd, ri = _reference(C, len(C) - 1)
-        ball = cKDTree(C).query_ball_point(C, radius[j])
-        for r in range(len(C)):
-            got = idx[ptr[a + r]:ptr[a + r + 1]] - a
-            assert sorted(got.tolist()) == sorted(x for x in ball[r] if x != r)  # the same points
-            np.testing.assert_array_equal(got, ri[r, : len(got)])  # nearest first, ties by row
-            np.testing.assert_array_equal(dist[ptr[a + r]:ptr[a + r + 1]], rd[r, : len(got)])
-    p1, i1, d1 = within_radius(P, indptr, radius, threads=1)
-    assert np.array_equal(p1, ptr) and np.array_equal(i1, idx) and np.array_equal(d1, dist)
-
-
-def test_within_radius_query_and_bad_radius():
-    rng = np.random.default_rng(6)
-    P = rng.random((300, 3))
-    q = rng.random(300) < 0.3
-    ptr, idx, _ = within_radius(P, [0, 100, 300], 0.2, query=q)
-    full_ptr, full_idx, _ = within_radius(P, [0, 100, 300], 0.2)
-    assert (np.diff(ptr)[~q] == 0).all()
-    for r in np.flatnonzero(q):
-        np.testing.assert_array_equal(idx[ptr[r]:ptr[r + 1]], full_idx[full_ptr[r]:full_ptr[r + 1]])
-    with pytest.raises(InvalidParameterError, match=r"radius must be finite and >= 0, got -1.0 for cluster 1"):
-        within_radius(P, [0, 100, 300], [0.1, -1.0])
-    with pytest.raises(InvalidParameterError, match=r"radius must be a number or 2 numbers"):
-        within_radius(P, [0, 100, 300], [0.1, 0.2, 0.3])
 
 
 def _morton_reference(pts, bits):

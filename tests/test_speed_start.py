@@ -20,7 +20,8 @@ import pytest
 import cloudsieve
 from cloudsieve.cli import main
 from cloudsieve.core.kernels.compile_log import CompileLog
-from cloudsieve.core.kernels.warmup import TARGETS, targets_of, warm_up
+from cloudsieve.core.warmup import warm_up
+from cloudsieve.warmup_targets import TARGETS, targets_of
 from cloudsieve.engine.inprocess import IN_PROCESS_POINTS, local_scheduler, source_points
 
 from conftest import shared_file

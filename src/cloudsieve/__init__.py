@@ -25,7 +25,7 @@ import sys
 import types
 
 from .errors import *  # noqa: F401,F403
-from .errors import __all__ as _errors_all
+from . import errors as _errors
 
 #: where each public name lives; imported at its first use (module ``__getattr__``, PEP 562), so
 #: ``import cloudsieve`` loads no numba, dask, zarr, open3d or pymeshlab
@@ -36,7 +36,7 @@ _LAZY = {
     "PointStore": "store", "export": "store", "ingest": "store",
     "Summary": "engine", "simplify": "engine",
     "compare": "evaluate", "_evaluate": "evaluate",
-    "open_reader": "io", "open_writer": "io", "read_cloud": "io",
+    "open_reader": "io", "open_writer": "io", "read_cloud": "store",
     "load_pipeline": "pipeline", "run_pipeline": "pipeline",
 }
 
@@ -68,7 +68,7 @@ __all__ = [
     "threshold_for_count",
     "load_pipeline",
     "run_pipeline",
-    *_errors_all,
+    *_errors.__all__,
 ]
 
 

@@ -98,11 +98,9 @@ def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAU
     Streams chunk by chunk through laspy; the file is written under a temporary
     name beside *path* and renamed when complete. Returns *path*.
     """
-    import os
-
     import laspy
 
-    from .io._base import make_temp_path
+    from .atomic import make_temp_path, remove, replace
 
     header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
@@ -118,9 +116,8 @@ def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAU
                     if name != "xyz":
                         record[name] = values
                 writer.write_points(record)
-        os.replace(tmp, path)
+        replace(tmp, path)
     except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        remove(tmp)
         raise
     return path

@@ -6,52 +6,17 @@ search of :mod:`.kernels.centres`: rings of cells for a few points, per-cell
 candidate lists for many. Rows whose k distances include two equal ones
 (where the order among equals is the tree's own) are asked of the tree.
 
-:class:`Chunks` runs a compiled kernel over ranges of points on threads (the
-kernels release the GIL); every kernel writes only its own rows, so results
-do not depend on the thread count.
+The kernels run over ranges of points on threads by
+:class:`.kernels.threads.Chunks`.
 """
 
 from __future__ import annotations
-
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
 from .kernels import centres as kc
 
-__all__ = ["Chunks", "centre_tree", "cell_size", "ring_grid", "candidate_lists", "no_lists", "nearest_centres"]
-
-
-class Chunks:
-    """Runs a function of a row range over [0, n) in chunks on ``threads`` threads.
-
-    Use as a context manager (the pool is closed on exit); with one thread
-    the chunks run in the caller's thread.
-    """
-
-    def __init__(self, threads: int):
-        self.threads = max(1, int(threads))
-        self._pool = ThreadPoolExecutor(self.threads) if self.threads > 1 else None
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        if self._pool is not None:
-            self._pool.shutdown()
-
-    def map(self, fn, n: int, min_chunk: int = 4096) -> list:
-        """[fn(s, e) for consecutive ranges covering [0, n)], in range order."""
-        if self._pool is None or n <= min_chunk:
-            return [fn(0, n)]
-        step = max(min_chunk, -(-n // (4 * self.threads)))
-        return self.each(lambda s: fn(s, min(n, s + step)), range(0, n, step))
-
-    def each(self, fn, items) -> list:
-        """[fn(x) for x in items], in order, on the threads."""
-        if self._pool is None:
-            return [fn(x) for x in items]
-        return list(self._pool.map(fn, items))
+__all__ = ["centre_tree", "cell_size", "ring_grid", "candidate_lists", "no_lists", "nearest_centres"]
 
 
 def centre_tree(C: np.ndarray) -> cKDTree:
@@ -161,7 +126,7 @@ def nearest_centres(X, C, k, chunks, h, rows=None):
     C : ndarray of shape (c, p), float64
     k : int
         1 <= k <= c.
-    chunks : Chunks
+    chunks : .kernels.threads.Chunks
     h : float
         The grid side (:func:`cell_size`); only the speed depends on it.
     rows : ndarray of shape (m,), int64, optional

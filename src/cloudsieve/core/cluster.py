@@ -41,8 +41,8 @@ import warnings
 import numpy as np
 
 from ._validation import check_points
-from .centres import Chunks
-from .kernels import kmeans as kk
+from .kernels.threads import Chunks
+from .kernels import cluster as kcl
 from .knn import canonical_order
 from ..errors import ConvergenceWarning, InvalidParameterError
 
@@ -69,7 +69,7 @@ def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
     along that axis, a window found by binary search; sums and maxima of D^2
     are kept per block of _PP_BLOCK points, so a draw costs O(s / B + B) and an
     update O(window + s / B) instead of O(s). The steps are compiled
-    (:func:`.kernels.kmeans.kmeanspp_steps`), with the same draws and sums."""
+    (:func:`.kernels.cluster.kmeanspp_steps`), with the same draws and sums."""
     S = _sample(X, min(len(X), max(1000, 4 * c)), rng)
     S = S[np.argsort(S[:, 0], kind="stable")]
     s, p = S.shape
@@ -85,7 +85,7 @@ def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
     k, forced = 1, -1
     while k < c:  # compiled steps; the uniforms drawn ahead, the generator left as if drawn one by one
         state = rng.bit_generator.state
-        stop, used = kk.kmeanspp_steps(S, d2, bsum, bmax, chosen, k, rng.random(c - k), forced, B)
+        stop, used = kcl.kmeanspp_steps(S, d2, bsum, bmax, chosen, k, rng.random(c - k), forced, B)
         rng.bit_generator.state = state
         rng.random(used)
         if stop < c:  # every remaining point coincides with a centre
@@ -134,8 +134,8 @@ def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _rows(a, order, threads, kernel):
-    """A new array: the rows of ``a`` (n, ...) taken in ``order`` (``kk.take_rows``:
-    ``a[order]``) or put back from it (``kk.put_rows``: ``out[order] = a``), on threads."""
+    """A new array: the rows of ``a`` (n, ...) taken in ``order`` (``kcl.take_rows``:
+    ``a[order]``) or put back from it (``kcl.put_rows``: ``out[order] = a``), on threads."""
     out = np.empty_like(a)
     src, dst = a.reshape(len(a), -1), out.reshape(len(a), -1)
     with Chunks(threads) as chunks:
@@ -252,15 +252,15 @@ class CentroidClustering:
         c = int(self.n_clusters)
         threads = int(threads or os.cpu_count() or 1)
         order = canonical_order(X)
-        Xs = _rows(X, order, threads, kk.take_rows)
+        Xs = _rows(X, order, threads, kcl.take_rows)
         rng = np.random.default_rng(self.seed)
         C = self._start(Xs, c, rng, threads)
         labels, C, n_iter, conv, per_point = self._iterate(Xs, C, threads)
         if not conv:  # stacklevel 3: the caller of fit / fit_unchecked
             warnings.warn(self._unconverged(len(X), c), ConvergenceWarning, stacklevel=3)
-        self.labels_ = _rows(labels, order, threads, kk.put_rows)
+        self.labels_ = _rows(labels, order, threads, kcl.put_rows)
         for name, a in per_point.items():
-            setattr(self, name, _rows(a, order, threads, kk.put_rows))
+            setattr(self, name, _rows(a, order, threads, kcl.put_rows))
         self.cluster_centers_ = C
         self.n_iter_ = n_iter
         self.converged_ = conv

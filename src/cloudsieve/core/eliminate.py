@@ -5,7 +5,7 @@ CGAL's ``poisson_eliminate``): every point gets a crowding weight from its
 neighbours closer than 2 r_max, the heaviest point goes, its neighbours get
 lighter, until the count is reached. Here the key of a point x is::
 
-    key(x) = s(x) * w(x) * f(x)
+    key(x) = w(x) * f(x)
     w(x)   = sum over remaining y with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
     f(x)   = g(e(x)) / (1 + lam * c(x) / r_max^2)
 
@@ -19,17 +19,15 @@ lighter, until the count is reached. Here the key of a point x is::
   squared distances they would gain; g(e) = 1 up to r_cov = 0.8 r_max, then
   (r_cov / e)^8; lam = 10. Plain WSE leaves holes (point max 1.35-1.86x the
   best of voxel/Poisson/farthest point on the shared scans); with f, 1.02-1.16x.
-- s is the information multiplier: ``entropy`` > 0 multiplies by
-  1 - entropy * (rank of dH in its KM/FCM cluster, 0 lowest .. 1 highest), so
-  among equally crowded points the one whose removal changes the cluster's
-  entropy least goes first (:func:`cloudsieve.core.score_points`);
-  ``geometric`` > 0 gives each point an importance m = (sigma / median
-  sigma) ** geometric within [1/4, 4], sigma the surface variation
-  l0 / (l0 + l1 + l2) of its neighbourhood (Pauly et al. 2002; edges,
-  corners, vegetation high), and measures c(x) (and e(x) where m > 1) m
-  times longer: curved parts keep more points, flat parts fewer.
 
-r_max: :mod:`.radius` (from the area of the sampled surface and the count).
+The information terms (an entropy rank and a geometric importance
+multiplying the key) were measured and removed: they did not lower the
+errors (docs/benchmarks.md, "Quality: weighted sample elimination"); the
+compiled loop still takes their per-point factors, all 1.
+
+r_max: :mod:`.radius` (from the area of the sampled surface and the count). The elimination loop
+on a grid, its constants and :func:`keep_lowest` are in :mod:`.elimination` (shared with
+:mod:`.eliminate_cells`).
 
 Priorities: each point gets its key when it was removed. Keys only decrease
 as points go and the largest is always next, so priorities are
@@ -64,23 +62,14 @@ import numpy as np
 from ..errors import InvalidParameterError
 from ._validation import ratio_count
 from .cellgrid import CellGrid, check_points
-from .entropy import score_points
-from .kernels import eliminate as _ke
-from .kernels import geometry as _kgeo
 from .kernels import neighbours as _kn
-from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
+from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimination
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relocate_points
 
 __all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate_order", "eliminate", "keep_lowest", "relocate"]
 
 logger = logging.getLogger(__name__)
 
-ALPHA = 1.0  # exponent of the crowding weight (Yuksel: 8; module docstring)
-COVER_RADIUS = 0.8  # r_cov / r_max: beyond it the coverage factor falls
-COVER_GAMMA = 8.0  # exponent of the coverage factor
-COVER_LAMBDA = 10.0  # weight of the squared-error factor
-GEOMETRIC_POINTS = 16  # input points the covariance ball of the geometric term holds at least
-IMPORTANCE_SPAN = 4.0  # bounds of the geometric importance
 #: eliminate() runs over cells of at most this many points above it (module .eliminate_cells). At 1 M points and
 #: 50% kept on 2 threads (load 0.5), the cells stage took 0.67 s with cells of 8,192 points, 0.70 s with 16,384,
 #: 0.79 s with 32,768, 0.83 s with 65,536 (one elimination: 2.2 s): smaller cells fit the caches, but the halos
@@ -103,23 +92,9 @@ def _target(n: int, ratio, count) -> int:
     return int(count)
 
 
-def _strength(value, name: str) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and 0.0 <= v < 1.0):
-        raise InvalidParameterError(f"{name} must be in [0, 1), got {value!r}")
-    return v
-
-
-def _radius(pts: np.ndarray, ctx: np.ndarray, target: int) -> float:
-    if target == 0:
-        return math.inf  # nothing is kept: the order does not matter
-    areas, weight = areas_of(pts, ctx, AREA_K, AREA_SAMPLE, 0, -1)
-    return radius_of(areas, target, weight)
-
-
-def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, dh=None, halo=None,
-                    fixed=None, gone=None, alpha: float = ALPHA, coverage: bool = True, geometric: float = 0.0,
-                    entropy: float = 0.0, floor: int = 0, threads: int | None = None, halo_left: bool = False):
+def eliminate_order(points, *, r_max=None, ratio=None, count=None, halo=None, fixed=None, gone=None,
+                    alpha: float = ALPHA, coverage: bool = True, floor: int = 0, threads: int | None = None,
+                    halo_left: bool = False):
     """Priority of every point in the elimination order (larger goes first).
 
     Parameters
@@ -132,11 +107,6 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Cells of one cloud must share one r_max for their priorities to compare.
     ratio, count : optional
         The kept share in (0, 1] or count (one of them): for r_max only.
-    labels : array_like of shape (n,), int, optional
-        KM/FCM cluster of each point: dH is ranked inside them (and computed
-        in them when ``entropy`` > 0 and ``dh`` is None).
-    dh : array_like of shape (n,), float, optional
-        dH of each point in its cluster.
     halo : array_like of shape (h, 3), optional
         Points of the neighbouring cells: eliminated with the points (the
         border sees the density it will have) but given no priority.
@@ -153,8 +123,6 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
         Exponent of the crowding weight, > 0.
     coverage : bool
         Use the coverage term f (module docstring); False: plain WSE.
-    geometric, entropy : float in [0, 1)
-        Strength of the information terms (0: off).
     floor : int
         Stop when this many of the points are left (the halo's points are
         eliminated along but do not count); the points left get their keys at
@@ -176,13 +144,11 @@ def eliminate_order(points, *, r_max=None, ratio=None, count=None, labels=None, 
     left : ndarray of shape (h,), bool
         Only with ``halo_left``: the halo points not removed (nor exact copies).
     """
-    out = _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric,
-                           entropy, floor, threads, gone, halo_left)
+    out = _eliminate_order(points, r_max, ratio, count, halo, fixed, alpha, coverage, floor, threads, gone)
     return (out[0], out[2]) if halo_left else out[0]
 
 
-def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha, coverage, geometric, entropy,
-                     floor, threads, gone=None, halo_left=False) -> tuple:
+def _eliminate_order(points, r_max, ratio, count, halo, fixed, alpha, coverage, floor, threads, gone=None) -> tuple:
     """:func:`eliminate_order`, the grid of its points (None when there is none), the halo points left, each
     grid row's nearest point left (-1: not known; None without the coverage term)."""
     pts = check_points(points)
@@ -192,58 +158,20 @@ def _eliminate_order(points, r_max, ratio, count, labels, dh, halo, fixed, alpha
     gon = np.zeros((0, 3)) if gone is None else check_points(gone, "gone")
     if not (isinstance(alpha, (int, float, np.integer, np.floating)) and math.isfinite(alpha) and alpha > 0):
         raise InvalidParameterError(f"alpha must be a positive number, got {alpha!r}")
-    geometric = _strength(geometric, "geometric")
-    entropy = _strength(entropy, "entropy")
     if int(floor) != floor or not 0 <= floor <= n:
         raise InvalidParameterError(f"floor must be an integer in [0, {n}], got {floor!r}")
-    lab = None
-    if labels is not None:
-        lab = np.asarray(labels)
-        if lab.shape != (n,) or (n and not np.issubdtype(lab.dtype, np.integer)):
-            raise InvalidParameterError(f"labels must be integers of shape ({n},), got {lab.dtype} {lab.shape}")
-    if dh is not None:
-        dh = np.asarray(dh, dtype=np.float64)
-        if dh.shape != (n,) or np.isnan(dh).any():
-            raise InvalidParameterError(f"dh must be numbers of shape ({n},) without NaN, got shape {dh.shape}")
-    if entropy > 0 and dh is None and lab is None:
-        raise InvalidParameterError("the entropy term needs labels or dh: give labels= or set entropy=0")
     if r_max is None:
         target = _target(n, ratio, count)
-        r_max = _radius(pts, hal, target)
+        r_max = area_radius(pts, hal, target)
     else:
         r_max = check_r_max(r_max)
     if n == 0:
         return np.zeros(0), None, np.ones(len(hal), dtype=bool), None
-    rank = None
-    if entropy > 0:
-        if dh is None:
-            dh = score_points(pts, lab, threads=threads).delta_h
-        rank = _ranks(dh, np.zeros(n, dtype=np.int64) if lab is None else lab.astype(np.int64))
     with numba_threads(threads):
-        return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), geometric, rank, entropy, int(floor))
+        return _order(pts, hal, fix, gon, r_max, float(alpha), bool(coverage), int(floor))
 
 
-def _ranks(values: np.ndarray, groups: np.ndarray) -> np.ndarray:
-    """Rank of each value inside its group scaled to [0, 1] (0 the lowest; ties by index)."""
-    n = len(values)
-    o = np.lexsort((np.arange(n), values, groups))
-    g = groups[o]
-    start = np.r_[0, np.flatnonzero(g[1:] != g[:-1]) + 1]
-    size = np.diff(np.r_[start, n])
-    out = np.empty(n)
-    out[o] = (np.arange(n) - np.repeat(start, size)) / np.maximum(np.repeat(size, size) - 1, 1)
-    return out
-
-
-def _importance(sigma: np.ndarray, state: np.ndarray, beta: float) -> np.ndarray:
-    alive = sigma[state != 0]
-    med = float(np.median(alive)) if len(alive) else 0.0
-    if not med > 0:
-        return np.ones(len(sigma))
-    return np.clip((np.maximum(sigma, 1e-12) / med) ** beta, 1.0 / IMPORTANCE_SPAN, IMPORTANCE_SPAN)
-
-
-def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy, floor) -> tuple:
+def _order(pts, hal, fix, gon, r_max, alpha, coverage, floor) -> tuple:
     n, nh, nf = len(pts), len(hal), len(fix)
     if not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody
         allp = np.concatenate([pts, hal, fix]) if nh or nf else pts
@@ -252,12 +180,8 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
         out[grid.order[grid.copy]] = np.inf
         return out[:n], None, np.isfinite(out[n : n + nh]) if nh else np.ones(0, dtype=bool), None
     allp = np.concatenate([pts, hal, fix, gon]) if nh or nf or len(gon) else pts
-    two_r = rho = 2.0 * r_max
-    if geometric > 0:  # covariance ball: 2 r_max, or wider to hold ~GEOMETRIC_POINTS input points
-        areas = areas_of(pts, hal, AREA_K, AREA_SAMPLE, 0, -1)[0]
-        if len(areas) and np.isfinite(areas).all():
-            rho = max(two_r, math.sqrt(GEOMETRIC_POINTS * float(np.median(areas)) / math.pi))
-    grid = CellGrid(allp, rho)
+    two_r = 2.0 * r_max
+    grid = CellGrid(allp, two_r)
     src = grid.order  # internal row -> position in allp
     state = np.where(src < n + nh, 1, np.where(src < n + nh + nf, 2, 0)).astype(np.uint8)
     state[grid.copy] = 0
@@ -266,72 +190,20 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, geometric, rank, entropy,
         # copies are not (they weigh on nobody, as the cell that removed them counted them)
         rows = np.flatnonzero((src >= n + nh + nf) & ~grid.copy)
         gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)
-    scale = np.ones(len(allp))
-    imp2 = np.ones(len(allp))
-    if geometric > 0:
-        imp2 = _importance(_kgeo.surface_variation(*grid.args(), state, rho, 4), state, geometric) ** 2
-    if rank is not None:
-        inner = src < n
-        scale[inner] *= 1.0 - entropy * rank[src[inner]]
-    ialpha = _ialpha(alpha)
+    ones = np.ones(len(allp))  # the key's factors of the removed information terms (module docstring)
+    ialpha = alpha_int(alpha)
     lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, ialpha, coverage)
-    prio, rep = _run(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor)
+    prio, rep = run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, ones, ones, floor)
     logger.debug("eliminate: %d points, %d halo, %d fixed, %d gone", n, nh, nf, len(gon))
     copy = np.zeros(len(allp), dtype=bool)
     copy[src[grid.copy]] = True
     left = np.isnan(prio[n : n + nh]) & ~copy[n : n + nh]
     out = prio[:n]
     out[np.isnan(out)] = np.inf  # exact copies
-    return out, (grid if rho == two_r else None), left, rep
+    return out, grid, left, rep
 
 
-def _ialpha(alpha: float) -> int:
-    return int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
-
-
-def _run(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor) -> tuple:
-    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows; the lists may hold
-    points absent from the start: their terms only make the first bounds larger). Returns the priority of
-    every position of the grid's points (NaN: not removed nor own and left), and each grid row's rep at
-    the stop: the nearest point left (module .kernels.cover), -1 for exact copies and points none was
-    within reach of (None without the coverage term)."""
-    two_r = 2.0 * r_max
-    nptr, nbr, low, soff, w, term = lists
-    src = grid.order
-    r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
-    links = np.full((len(src), 8), -1, dtype=_kn.index_type(len(src), nptr[-1]))
-    prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,
-                                _ialpha(alpha), r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
-    logger.debug("eliminate: pops %d, stale %d, coverage %d, searches %d", *stats)
-    out = np.empty(len(src))
-    out[src] = prio
-    return out, (links[:, 2].astype(np.int64) if coverage else None)
-
-
-def keep_lowest(priority, count: int) -> np.ndarray:
-    """Keep mask (n,) bool of the ``count`` points removed last: lowest priority, ties higher index.
-
-    Over the priorities of many cells in point-index order, the same call is
-    the one global threshold.
-    """
-    p = np.asarray(priority, dtype=np.float64)
-    if p.ndim != 1 or np.isnan(p).any():
-        raise InvalidParameterError(f"priority must have shape (n,) without NaN, got shape {p.shape}")
-    n = len(p)
-    if int(count) != count or not 0 <= count <= n:
-        raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
-    keep = np.zeros(n, dtype=bool)
-    k = int(count)
-    if k == 0:
-        return keep
-    v = np.partition(p, k - 1)[k - 1]  # the count-th lowest priority: below it all go in, at it the highest indices
-    keep[p < v] = True
-    tied = np.flatnonzero(p == v)
-    keep[tied[len(tied) - (k - int(keep.sum())) :]] = True
-    return keep
-
-
-_OPTIONS = {"labels", "dh", "fixed", "alpha", "coverage", "geometric", "entropy"}
+_OPTIONS = {"fixed", "alpha", "coverage"}
 
 
 def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int = RELOCATE_STEPS,
@@ -340,18 +212,17 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
 
     The elimination (:func:`eliminate_order`) stops at the count, then
     ``relocate_steps`` restricted Lloyd steps (:func:`relocate`) lower the
-    squared error. ``options``: ``labels``, ``dh``, ``fixed``, ``alpha``,
-    ``coverage``, ``geometric``, ``entropy`` as in :func:`eliminate_order`.
+    squared error. ``options``: ``fixed``, ``alpha``, ``coverage`` as in
+    :func:`eliminate_order`.
 
     Above ``cell_points`` points (None: never), the cloud is split into
     cells of at most that many points, eliminated colour by colour on
     ``threads`` threads with their halos, as the out-of-core run does
     (:mod:`.eliminate_cells`); the kept set then differs from one
     elimination's, by as little as the engine's does. Only with the default
-    key: with any of ``options`` set (the information terms rank over the
-    whole cloud, fixed points belong to no cell), one elimination over the
-    whole cloud. The result does not depend on ``threads``, nor on the input
-    order up to ``AREA_SAMPLE`` points (above, r_max is solved on a seeded
+    key: with any of ``options`` set (fixed points belong to no cell, the
+    cells run the default key), one elimination over the whole cloud. The result does not depend on ``threads``, nor on the input
+    order up to ``.radius.AREA_SAMPLE`` points (above, r_max is solved on a seeded
     sample of rows).
 
     Examples
@@ -382,12 +253,10 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
             keep, r_max = eliminate_in_cells(pts, target, r_max, cap, int(relocate_steps), workers)
             if keep is not None:
                 return np.flatnonzero(keep).astype(np.int64)
-    r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-    opts = {"labels": None, "dh": None, "fixed": None, "alpha": ALPHA, "coverage": True, "geometric": 0.0,
-            "entropy": 0.0} | options
-    prio, grid, _, rep = _eliminate_order(pts, r_max, None, None, opts["labels"], opts["dh"], None, opts["fixed"],
-                                       opts["alpha"], opts["coverage"], opts["geometric"], opts["entropy"], target,
-                                       threads)
+    r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
+    opts = {"fixed": None, "alpha": ALPHA, "coverage": True} | options
+    prio, grid, _, rep = _eliminate_order(pts, r_max, None, None, None, opts["fixed"], opts["alpha"],
+                                          opts["coverage"], target, threads)
     keep = keep_lowest(prio, target)
     if opts["fixed"] is not None:  # the grid holds the fixed points too: relocation runs without them
         grid = None

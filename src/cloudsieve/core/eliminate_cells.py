@@ -47,7 +47,7 @@ from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
 from .duplicates import copy_rows
-from .eliminate import ALPHA, _ialpha, _radius, _run, keep_lowest
+from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimination
 from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
@@ -251,7 +251,7 @@ def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) ->
         rows = np.flatnonzero(grid.order >= len(own))
         state[rows[absent[grid.order[rows] - len(own)]]] = 0
     state[grid.copy] = 0
-    return grid, _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, _ialpha(ALPHA), True)
+    return grid, _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
 
 
 def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float) -> tuple:
@@ -282,7 +282,7 @@ def _finish(own: np.ndarray, halo: np.ndarray, grid, lists, kind: np.ndarray, r_
     rows = np.flatnonzero(halo_row & (state == 0) & ~grid.copy)  # the gone points: represented by their nearest
     gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)  # point alive
     ones = np.ones(len(src))
-    prio, rep = _run(grid, lists, state, n, gone_rep, r_max, ALPHA, True, ones, ones, int(count))
+    prio, rep = run_elimination(grid, lists, state, n, gone_rep, r_max, ALPHA, True, ones, ones, int(count))
     copy = np.zeros(len(src), dtype=bool)
     copy[src[grid.copy]] = True
     mine = prio[:n]
@@ -304,7 +304,7 @@ def eliminate_in_cells(pts: np.ndarray, target: int, r_max, cap: int, steps: int
     r_max."""
     with ThreadPoolExecutor(1) as side:
         cells = side.submit(split_cells, pts, cap, threads)
-        r_max = _radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
+        r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
         cells = cells.result()
     if not math.isfinite(r_max):
         return None, r_max

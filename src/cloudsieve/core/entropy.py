@@ -53,8 +53,8 @@ Public names: :func:`entropy_scores` (dH per point), :func:`score_points`
 (a :class:`Scores` record with dH, the unit-free score m*dH used to pick one
 threshold across cells, k, m, the duplicates and the k-NN graph); for the other
 core modules, on validated input: :func:`score_unchecked` (the kernel behind
-:func:`score_points`), :func:`entropy_terms` and :func:`entropy_change` (the
-W/A terms and dH from them).
+:func:`score_points`) and :func:`entropy_change` (dH from the W/A terms of
+:func:`.kernels.entropy.entropy_weights`).
 """
 
 from __future__ import annotations
@@ -67,11 +67,11 @@ from functools import cached_property
 import numpy as np
 
 from ._validation import check_context, check_density_params, check_labels, check_points
-from .kernels.entropy import entropy_weights, grouped_gain, graph_to_input, scores_to_input
+from .kernels.entropy import grouped_gain, graph_to_input, scores_to_input
 from .knn import group, knn_clusters, knn_context
 from .scored_knn import groups_to_lists, knn_scored_clusters
 
-__all__ = ["entropy_scores", "score_points", "Scores", "score_unchecked", "entropy_terms", "entropy_change"]
+__all__ = ["entropy_scores", "score_points", "Scores", "score_unchecked", "entropy_change"]
 
 logger = logging.getLogger(__name__)
 
@@ -230,27 +230,6 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
     if nd:
         logger.info("%d exact duplicate points scored 0 (redundant copies)", nd)
     return Scores(dh, unit, m_in, k_in, dup_in, sg, (order, indptr, kcl, koff, scored, nb))
-
-
-def entropy_terms(cl, c, rk, rk1, dim):
-    """Per scored point (cluster ids cl in 0..c-1, r_k, r_(k+1)): w, g = w (log w - A/W), W of its
-    cluster, and the changes of w and g when r_k becomes r_(k+1) (the compiled
-    :func:`.kernels.entropy.entropy_weights`).
-
-    Parameters
-    ----------
-    cl : ndarray of shape (M,), int64
-        Cluster id of each scored point, in 0..c-1.
-    c : int
-    rk, rk1 : ndarray of shape (M,), float64, > 0
-        r_k and r_(k+1) of each scored point.
-    dim : float
-
-    Returns
-    -------
-    w, g, W, dw, dg : five ndarrays of shape (M,), float64
-    """
-    return entropy_weights(cl, c, rk, rk1, dim)
 
 
 def entropy_change(dW, dG, W):

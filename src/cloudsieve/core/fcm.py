@@ -8,7 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .centres import Chunks, cell_size, centre_tree, no_lists, candidate_lists, ring_grid
+from .centres import cell_size, centre_tree, no_lists, candidate_lists, ring_grid
+from .kernels.threads import Chunks
 from .cluster import CentroidClustering
 from .kernels import fcm as kf
 from .kmeans import lloyd

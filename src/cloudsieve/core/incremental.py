@@ -251,7 +251,7 @@ class _Local:
             rows = ks.scored_rows(touched, ginv, kk, a, b)  # kk > 0: alive, distinct, in a scored cluster
             if len(rows) == 0:
                 return
-            # the terms of .entropy.entropy_terms, with numpy's log and exp
+            # the terms of .kernels.entropy.entropy_weights, with numpy's log and exp
             lw, lw1 = ks.log_weights(rows, ginv, c0, c1, np.log(self.rk[rows]), np.log(self.rk1[rows]), neg_dim)
             dW, dG, Wc = ks.entropy_deltas(rows, ginv, c0, c1, kk, self.nbx, np.exp(lw), np.exp(lw1), lw, lw1,
                                            self.acc_w, self.acc_g)

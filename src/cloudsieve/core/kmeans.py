@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .centres import Chunks, cell_size, centre_tree, nearest_centres
+from .centres import cell_size, centre_tree, nearest_centres
+from .kernels.threads import Chunks
 from .cluster import CentroidClustering
 from .kernels import kmeans as kk
 from ..errors import InvalidParameterError

@@ -6,7 +6,7 @@ then compiles the numba kernels of the run's warm-up targets (named by the
 driver in ``CLOUDSIEVE_WARM_UP``, :func:`.pool.start_forkserver`; the scoring
 path without it), or loads them from numba's cache, once, so every worker
 forked from the server inherits them
-(:func:`cloudsieve.core.kernels.warmup.warm_up`), and freezes the objects it
+(:func:`cloudsieve.core.warmup.warm_up`), and freezes the objects it
 holds (``gc.freeze``) before the first fork.
 Imported anywhere else (a test that imports every preload module) it does
 nothing: the caller is recognised by ``multiprocessing.forkserver.main`` on
@@ -18,7 +18,8 @@ import logging
 import os
 import sys
 
-from ..core.kernels.warmup import TARGETS, warm_up
+from ..core.warmup import warm_up
+from ..warmup_targets import TARGETS
 from .lifeline import die_with_parent
 from .pool import WARM_UP_ENV
 

@@ -279,7 +279,10 @@ def build_partition(
     origin = np.asarray(store.bounds[0], dtype=np.float64)
     centers = fit_centers(sample, p, seed, origin)
     k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
-    r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+    if p > 1:
+        r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+    else:  # one cell has no halo: no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
+        r_k, dim, margin = 0.0, 3.0, 0.0
     r_max = None
     if eliminate_target is not None:
         from .eliminate import global_radius

@@ -19,7 +19,7 @@ from .lifeline import die_with_parent
 __all__ = ["local_pool", "worker_context", "start_forkserver", "WARM_UP_ENV"]
 
 #: the environment variable naming the warm-up targets the fork server compiles, comma-separated
-#: (:data:`cloudsieve.core.kernels.warmup.TARGETS`; set only while :func:`start_forkserver` starts it)
+#: (:data:`cloudsieve.warmup_targets.TARGETS`; set only while :func:`start_forkserver` starts it)
 WARM_UP_ENV = "CLOUDSIEVE_WARM_UP"
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
@@ -32,7 +32,7 @@ _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.co
             "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
             "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
             # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
-            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.kernels.warmup",
+            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.warmup",
             # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
 

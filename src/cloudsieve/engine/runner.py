@@ -23,6 +23,7 @@ from typing import Any
 from ..errors import InvalidParameterError
 from ..progress import callback
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
+from .pause import pause_at, pausing_task
 from .pool import local_pool, start_forkserver, worker_context
 
 __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "stage_bar"]
@@ -74,7 +75,7 @@ class Runner:
         ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
     warm : tuple of str
         The warm-up targets of the run's tasks
-        (:func:`cloudsieve.core.kernels.warmup.targets_of`): the local
+        (:func:`cloudsieve.warmup_targets.targets_of`): the local
         process pool's fork server compiles them before it forks a worker.
     """
 
@@ -261,6 +262,8 @@ class Runner:
             return self._run(func, args, deps, stage, update)
 
     def _run(self, func, args, deps, stage, update) -> list:
+        pause_at(f"driver:{stage}")  # a test's stop (engine/pause.py); nothing unless the environment asks
+        func = pausing_task(func, stage)
         if self.client is not None:
             return self._distributed(func, args, deps, stage, update)
         return self._local(func, args, deps, update)

@@ -43,7 +43,9 @@ from ..errors import (
     UnknownFormatError,
 )
 from ..chunk import DEFAULT_CHUNK_SIZE
-from ._base import Reader, Writer, check_destination
+from ..paths import local_path, store_group
+from ..atomic import check_destination
+from ._base import Reader, Writer
 
 __all__ = [
     "Reader",
@@ -148,13 +150,11 @@ def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
     InputNotReadableError, UnknownFormatError, StoreNotFoundError
     """
     path = os.fspath(path)
-    from ..store import PointStore, local_path
-
     local = local_path(path)
     if local is None or os.path.isdir(local):
         if local is not None and not os.path.exists(os.path.join(local, "zarr.json")):
             raise InputIsDirectoryError(f"{path} is a directory, not a point cloud file or point store")
-        PointStore.open(path, "r")
+        store_group(path, "r")  # what PointStore.open accepts
         return
     check_input_file(path)
     try:
@@ -198,8 +198,6 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
     if FORMATS[fmt]["writer"] is None and fmt != "copc":  # COPC: written from a store (cloudsieve.store.copc)
         raise UnknownFormatError(
             f"{path}: writing {fmt} files is not supported; formats that can be written: {_writable_formats()}")
-    from ..store import local_path
-
     if local_path(path) is None:  # a remote URL: checked when written
         return fmt
     check_destination(path, overwrite)
@@ -242,8 +240,6 @@ def check_folder(path: str | os.PathLike) -> None:
     path = os.fspath(path)
     if "://" in path and not path.startswith("file://"):
         return
-    from ..store import local_path
-
     existing = local_path(path)
     while not os.path.exists(existing):
         existing = os.path.dirname(existing)
@@ -338,7 +334,7 @@ def open_writer(
 
 
 def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Load a whole (small) cloud: a point store (see :func:`cloudsieve.store.is_store`), else a file.
+    """Load a whole (small) cloud file (a point store: :func:`cloudsieve.store.read_cloud`).
 
     This loads everything into memory: use it for tests, tiles and small
     clouds; stream large ones with :func:`open_reader`.
@@ -348,17 +344,12 @@ def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[n
     xyz : ndarray of shape (n, 3), float64
     attributes : dict of str to ndarray of shape (n,) or (n, k)
     """
-    path = os.fspath(path)
-    from ..store import PointStore, is_store
+    with open_reader(path, format=format) as reader:
+        return concatenated([arrays for _, arrays in reader.chunks()], reader.dtypes)
 
-    if is_store(path):
-        store = PointStore.open(path)
-        parts = [arrays for _, arrays in store.chunks()]
-        dtypes = store.dtypes
-    else:
-        with open_reader(path, format=format) as reader:
-            parts = [arrays for _, arrays in reader.chunks()]
-            dtypes = reader.dtypes
+
+def concatenated(parts: list[dict[str, np.ndarray]], dtypes: dict) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The chunks *parts* of a cloud with attributes *dtypes* as one cloud ``(xyz, attributes)``."""
     out = {}
     for name, (dtype, shape) in dtypes.items():
         if parts:

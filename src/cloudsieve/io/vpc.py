@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError, InvalidParameterError
-from ._base import check_destination, make_temp_path, remove, replace
+from ..atomic import check_destination, make_temp_path, remove, replace
 
 __all__ = ["read_vpc", "write_vpc", "describe_tile", "STAC_EXTENSIONS"]
 
@@ -118,7 +118,7 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
         if not isinstance(href, str) or not href:
             raise InputFormatError(f'{path}: {name}: its data asset has no "href"')
         if href.startswith("file://"):
-            from ..store.paths import local_path
+            from ..paths import local_path
 
             href = local_path(href)
         elif "://" in href:

@@ -1,7 +1,7 @@
-"""The point store (zarr v3) and the two ways in and out of it: ingest and export."""
+"""The point store (zarr v3) and the ways in and out of it: ingest, export, read_cloud."""
 
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
-from .paths import local_path, same_path
+from ..paths import local_path, same_path
 from .pointstore import (
     STORE_ATTR,
     STORE_VERSION,
@@ -12,6 +12,7 @@ from .pointstore import (
 )
 from .ingest import ingest
 from .export import export
+from .read import read_cloud
 
 __all__ = [
     "PointStore",
@@ -26,4 +27,5 @@ __all__ = [
     "same_path",
     "ingest",
     "export",
+    "read_cloud",
 ]

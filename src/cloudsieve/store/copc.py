@@ -48,12 +48,12 @@ import numpy as np
 
 from .. import progress as _progress
 from ..errors import InvalidParameterError
-from ..io._base import check_destination, make_temp_path, remove, replace
+from ..atomic import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
 from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
-from .pointstore import PointStore
+from .pointstore import PointStore, source_and_destination
 
 __all__ = ["export_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
 
@@ -273,8 +273,6 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError, InvalidParameterError
     """
-    from .export import source_and_destination
-
     store, dst = source_and_destination(store, dst)
     if not (isinstance(leaf_points, (int, np.integer)) and isinstance(task_points, (int, np.integer))
             and 1 <= leaf_points <= task_points):

@@ -2,7 +2,8 @@
 
 Streams chunk by chunk and is atomic: the file is written under a temporary
 name beside the destination and renamed only when complete (see
-:class:`cloudsieve.io.Writer`).
+:class:`cloudsieve.io.Writer`; the LAS, COPC and tile exports through
+:mod:`cloudsieve.atomic`).
 """
 
 from __future__ import annotations
@@ -16,13 +17,13 @@ import numpy as np
 import zarr
 
 from .. import progress as _progress
-from ..errors import InvalidParameterError, SameSourceDestinationError
+from ..errors import InvalidParameterError
 from .streaming import bound_malloc, prefetch
-from .paths import local_path, same_path
+from ..paths import local_path
 from .chunk import DEFAULT_CHUNK_SIZE
-from .pointstore import PointStore
+from .pointstore import PointStore, source_and_destination
 
-__all__ = ["export", "source_and_destination"]
+__all__ = ["export"]
 
 logger = logging.getLogger(__name__)
 
@@ -53,16 +54,6 @@ def _selected(store: PointStore, take, chunk_size: int):
             rows = np.flatnonzero(take(start, start + n))
             chunk = {k: v.take(rows, axis=0) for k, v in chunk.items()}
         yield n, chunk
-
-
-def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.PathLike) -> tuple[PointStore, str]:
-    """The open store and *dst* as a string, refusing a destination that is the store (every export's first check)."""
-    dst = os.fspath(dst)
-    if not isinstance(store, PointStore):
-        store = PointStore.open(os.fspath(store))
-    if same_path(store.path, dst):
-        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
-    return store, dst
 
 
 def export(

@@ -132,7 +132,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     -------
     int : points written.
     """
-    from ..io._base import check_destination, make_temp_path, remove, replace
+    from ..atomic import check_destination, make_temp_path, remove, replace
 
     check_destination(dst, overwrite)
     n, step = store.count, store.chunk_size

@@ -25,7 +25,7 @@ from ..errors import (
     SameSourceDestinationError,
     UnknownFormatError,
 )
-from .paths import local_path, same_path
+from ..paths import local_path, same_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
 from .streaming import bound_malloc, gathered, prefetch
@@ -157,7 +157,7 @@ def ingest(
     # io is imported here, not at the top: io imports the store's Chunk and DEFAULT_CHUNK_SIZE,
     # so either package can be imported first
     from ..io import open_reader
-    from ..io._base import check_destination, make_temp_path, remove, replace
+    from ..atomic import check_destination, make_temp_path, remove, replace
     from ..io.valid import ValidPoints
 
     src, store = os.fspath(src), os.fspath(store)

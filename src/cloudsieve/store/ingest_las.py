@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import CorruptInputError, InputFormatError
 from .las_plan import LasPlan, plan_las
-from .paths import local_path
+from ..paths import local_path
 from .pointstore import PointStore
 from .streaming import bound_malloc, gathered, run_tasks
 
@@ -113,7 +113,7 @@ def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tup
 def _open_group(path: str):
     import zarr
 
-    from .paths import zarr_store
+    from ..paths import zarr_store
 
     return zarr.open_group(zarr_store(path, read_only=False), mode="r+")
 
@@ -156,7 +156,7 @@ def ingest_las(
     MismatchedInputsError, CorruptInputError, DestinationExistsError, ...
     """
     from ..errors import EmptyInputError
-    from ..io._base import check_destination, make_temp_path, remove, replace
+    from ..atomic import check_destination, make_temp_path, remove, replace
 
     store = os.fspath(store)
     plan = plan if plan is not None else plan_las(list(sources))

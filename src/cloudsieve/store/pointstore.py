@@ -35,13 +35,13 @@ import zarr
 
 from ..errors import (
     ArrayNotFoundError,
-    CloudsieveError,
     DestinationExistsError,
     InvalidParameterError,
+    SameSourceDestinationError,
     StoreNotFoundError,
 )
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
-from .paths import delete_store, local_path, path_exists, zarr_store
+from ..paths import STORE_ATTR, delete_store, is_store, path_exists, same_path, store_group, zarr_store
 from .codecs import compressors, filters
 from .streaming import gathered
 
@@ -52,24 +52,22 @@ __all__ = [
     "is_store",
     "delete_store",
     "compressors",
+    "source_and_destination",
 ]
 
 logger = logging.getLogger(__name__)
 
-STORE_ATTR = "cloudsieve"
 STORE_VERSION = 1
-def is_store(path: str | os.PathLike) -> bool:
-    """True when *path* (local path or fsspec URL) holds a complete point store.
 
-    That is, when :meth:`PointStore.open` accepts it; a missing path, a file,
-    a folder that is not a zarr group and a store left incomplete by an
-    interrupted ingest are not stores.
-    """
-    try:
-        PointStore.open(path, "r")
-    except (CloudsieveError, OSError, ValueError):
-        return False
-    return True
+
+def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.PathLike) -> tuple[PointStore, str]:
+    """The open store and *dst* as a string, refusing a destination that is the store (every export's first check)."""
+    dst = os.fspath(dst)
+    if not isinstance(store, PointStore):
+        store = PointStore.open(os.fspath(store))
+    if same_path(store.path, dst):
+        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    return store, dst
 
 
 class PointStore:
@@ -158,16 +156,8 @@ class PointStore:
         path = os.fspath(path)
         if mode not in ("r", "r+", "a"):
             raise InvalidParameterError(f"mode must be 'r', 'r+' or 'a', got {mode!r}")
-        if not path_exists(path):
-            raise StoreNotFoundError(f"{path}: no such point store")
-        local = local_path(path)
-        if local is not None and os.path.isfile(local):
-            raise StoreNotFoundError(f"{path} is a file, not a point store (ingest it first: cloudsieve ingest)")
-        try:
-            group = zarr.open_group(zarr_store(path, read_only=(mode == "r")), mode="r" if mode == "r" else "r+")
-        except (FileNotFoundError, KeyError, ValueError, zarr.errors.NodeTypeValidationError) as exc:  # type: ignore[attr-defined]
-            raise StoreNotFoundError(f"{path} is not a cloudsieve point store: {exc}") from exc
-        return cls(group, path, mode)
+        group, meta = store_group(path, mode)
+        return cls(group, path, mode, meta=meta)
 
     @classmethod
     def create(

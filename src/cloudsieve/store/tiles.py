@@ -30,7 +30,7 @@ import numpy as np
 from .. import progress as _progress
 from ..errors import InvalidParameterError, SameSourceDestinationError
 from .buckets import bucket, iter_runs, open_runs
-from .paths import local_path
+from ..paths import local_path
 from .pointstore import PointStore
 
 __all__ = ["export_tiles", "tile_keys", "tile_index", "tile_name", "VPC_NAME"]
@@ -136,7 +136,7 @@ def _check_grid(store: PointStore, tile_size: Any) -> float:
 
 
 def _check_destination(store: PointStore, dst: str, overwrite: bool) -> str:
-    from ..io._base import check_destination
+    from ..atomic import check_destination
 
     local = local_path(dst)
     if local is None:
@@ -198,7 +198,7 @@ def export_tiles(
     DestinationExistsError, DestinationNotWritableError, SameSourceDestinationError
         (the last one also when *dst_dir* holds the store).
     """
-    from ..io._base import make_temp_path, remove, replace
+    from ..atomic import make_temp_path, remove, replace
     from ..io.vpc import write_vpc
 
     if not isinstance(store, PointStore):

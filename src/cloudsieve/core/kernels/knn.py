@@ -1,8 +1,9 @@
 """Exact k nearest neighbours inside clusters, compiled with numba.
 
-:func:`knn_in_clusters` answers the query scoring needs: for every point, its
-k nearest *other* points of its own cluster, the points grouped by cluster
-(cluster j is ``points[indptr[j]:indptr[j + 1]]``). It returns what
+:func:`knn_unchecked` answers the query scoring needs (:func:`knn_scored` in
+the scores' layout): for every point, its k nearest *other* points of its own
+cluster, the points grouped by cluster (cluster j is
+``points[indptr[j]:indptr[j + 1]]``). It returns what
 ``cKDTree(cluster).query(cluster, k + 1)`` minus the first column returns
 for each cluster, with the same distance values bit for bit:
 
@@ -34,16 +35,13 @@ the GIL), and a cluster of any size costs O(m log m) plus its candidates.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
-
 import numpy as np
 from numba import njit
 
-from ...errors import InvalidParameterError, InvalidPointsError
 from .kdtree import box_gap2, build_tree, dist2, gather, kth_smallest
+from .threads import run_chunks
 
-__all__ = ["knn_in_clusters", "knn_unchecked", "knn_scored", "check_grouped", "run_chunks", "take_neighbours"]
+__all__ = ["knn_unchecked", "knn_scored", "take_neighbours"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
@@ -224,110 +222,28 @@ def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bo
             o += k
 
 
-def check_grouped(points, indptr, query):
-    """Validate points grouped by cluster: (P (n, 3) float64 C-contiguous, 1- and 2-D points
-    padded with zero columns, which add exactly 0.0 to every squared distance; indptr (c + 1,)
-    int64; query (n,) bool, all True when None)."""
-    P = np.asarray(points)
-    if P.ndim != 2 or not 1 <= P.shape[1] <= 3:
-        raise InvalidParameterError(f"points must have shape (n, p) with 1 <= p <= 3, got shape {P.shape}")
-    if not np.issubdtype(P.dtype, np.number) or np.iscomplexobj(P):
-        raise InvalidParameterError(f"points must be real numbers, got dtype {P.dtype}")
-    n = len(P)
-    if P.shape[1] == 3:
-        P = np.ascontiguousarray(P, dtype=np.float64)
-    else:
-        P = np.column_stack([P.astype(np.float64), np.zeros((n, 3 - P.shape[1]))])
-    if not np.isfinite(P).all():  # one flat pass; the rows only to name them
-        bad = ~np.isfinite(P).all(axis=1)
-        i = int(np.flatnonzero(bad)[0])
-        raise InvalidPointsError(f"points has {int(bad.sum())} non-finite rows, the first at index {i}: {P[i].tolist()}")
-    ip = np.asarray(indptr)
-    if ip.ndim != 1 or len(ip) < 1 or not np.issubdtype(ip.dtype, np.integer):
-        raise InvalidParameterError(f"indptr must be a 1-D integer array of c + 1 cluster starts, got {ip.dtype} shape {ip.shape}")
-    ip = ip.astype(np.int64)
-    if ip[0] != 0 or ip[-1] != n or (np.diff(ip) < 0).any():
-        raise InvalidParameterError(
-            f"indptr must rise from 0 to n = {n}, got first {int(ip[0])}, last {int(ip[-1])}"
-            f"{', with a decrease' if (np.diff(ip) < 0).any() else ''}")
-    if query is None:
-        q = np.ones(n, dtype=bool)
-    else:
-        q = np.asarray(query)
-        if q.shape != (n,) or q.dtype != bool:
-            raise InvalidParameterError(f"query must be a boolean array of shape ({n},), got {q.dtype} shape {q.shape}")
-    return P, ip, q
+def knn_unchecked(P, indptr, kc, query, threads=None):
+    """The kc[j] nearest other points of every point of cluster j, inside its cluster (checked input).
 
+    P (n, 3) float64 C-contiguous, grouped by cluster (cluster j is
+    ``P[indptr[j]:indptr[j + 1]]``; 1- and 2-D points padded with zero
+    columns, which add exactly 0.0 to every squared distance); indptr
+    (c + 1,) int64; kc (c,) int64 >= 0; query (n,) bool: only these rows are
+    answered (the others come back padded), their neighbours still taken from
+    the whole cluster; ``threads`` share the clusters (default: all cores),
+    the result does not depend on it.
 
-def run_chunks(fn, indptr, threads, *args):
-    """fn(*args[:3], c0, c1, *args[3:]) over chunks of clusters of about equal point counts,
-    on ``threads`` threads (the kernels release the GIL)."""
-    n = int(indptr[-1])
-    c = len(indptr) - 1
-    threads = max(1, int(threads or os.cpu_count() or 1))
-    parts = 1 if threads == 1 else min(c, 4 * threads)
-    cuts = np.unique(np.searchsorted(indptr, np.linspace(0, n, parts + 1)[1:-1]))
-    bounds = np.r_[0, cuts[(cuts > 0) & (cuts < c)], c]
-    if len(bounds) == 2:
-        fn(*args[:3], 0, c, *args[3:])
-        return
-    with ThreadPoolExecutor(min(threads, len(bounds) - 1)) as pool:
-        for f in [pool.submit(fn, *args[:3], int(a), int(b), *args[3:]) for a, b in zip(bounds[:-1], bounds[1:])]:
-            f.result()
+    Returns distances (n, K) float64, K = max(kc): row i the distances from
+    point i to its nearest, ascending, bit for bit those of cKDTree, +inf after
+    the cluster's k (or m - 1) columns; indices (n, K) int64, the rows of those
+    points (ties: lower row first), -1 where the distance is +inf.
 
-
-def knn_in_clusters(points, indptr, k, *, query=None, threads: int | None = None):
-    """The k nearest other points of every point inside its own cluster.
-
-    Parameters
-    ----------
-    points : array_like of shape (n, p), float, 1 <= p <= 3
-        Finite coordinates grouped by cluster: cluster j is
-        ``points[indptr[j]:indptr[j + 1]]``.
-    indptr : array_like of shape (c + 1,), int
-        Cluster starts, from 0 to n, non-decreasing.
-    k : int or array_like of shape (c,), int >= 0
-        Neighbours per point of each cluster (a cluster of m points has at
-        most m - 1).
-    query : array_like of shape (n,), bool, optional
-        Only these rows are answered (the others come back padded); the
-        neighbours are still taken from the whole cluster. Default: all rows.
-    threads : int, optional
-        Threads sharing the clusters (default: all cores). The result does
-        not depend on it.
-
-    Returns
-    -------
-    distances : ndarray of shape (n, K), float64
-        K = max(k): row i holds the distances from point i to its nearest,
-        ascending, bit for bit those of cKDTree; +inf after the cluster's k
-        (or m - 1) columns.
-    indices : ndarray of shape (n, K), int64
-        The rows of those points (ties: lower row first), -1 where the
-        distance is +inf.
-
-    Examples
-    --------
     >>> import numpy as np
     >>> pts = np.array([[0, 0, 0], [1, 0, 0], [3, 0, 0], [10, 0, 0], [12, 0, 0.]])
-    >>> d, i = knn_in_clusters(pts, [0, 3, 5], 2)
+    >>> d, i = knn_unchecked(pts, np.array([0, 3, 5]), np.array([2, 2]), np.ones(5, bool), 1)
     >>> d.tolist(), i.tolist()
     ([[1.0, 3.0], [1.0, 2.0], [2.0, 3.0], [2.0, inf], [2.0, inf]], [[1, 2], [0, 2], [1, 0], [4, -1], [3, -1]])
     """
-    P, ip, q = check_grouped(points, indptr, query)
-    c = len(ip) - 1
-    kc = np.asarray(k)
-    if not np.issubdtype(kc.dtype, np.integer) or kc.ndim > 1 or (kc.ndim == 1 and len(kc) != c):
-        raise InvalidParameterError(f"k must be an integer or {c} integers (one per cluster), got {kc.dtype} shape {kc.shape}")
-    kc = np.broadcast_to(kc.astype(np.int64), (c,)).copy()
-    if c and kc.min() < 0:
-        raise InvalidParameterError(f"k must be >= 0, got {int(kc.min())} for cluster {int(kc.argmin())}")
-    return knn_unchecked(P, ip, kc, q, threads)
-
-
-def knn_unchecked(P, indptr, kc, query, threads=None):
-    """:func:`knn_in_clusters` on checked input: P (n, 3) float64 C-contiguous,
-    indptr (c + 1,) int64, kc (c,) int64, query (n,) bool."""
     n = len(P)
     K = int(kc.max(initial=0))
     out_d = np.empty((n, K))

@@ -24,7 +24,8 @@ import numpy as np
 from numba import njit
 
 from .grid import nearest
-from .order import _stable_sort
+from .order import stable_sort
+from .threads import Chunks
 
 SHRINK = 1.0 - 2.0**-23  # a float64 times this, rounded to float32, is below it
 TINY = 1e-30  # terms below it are bounded by 0
@@ -153,7 +154,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
             for t in range(m):
                 soff[b + t] = t
                 kbuf[t] = dd[b + t]
-            _stable_sort(kbuf, soff[b:k], m, kbuf2, buf)
+            stable_sort(kbuf, soff[b:k], m, kbuf2, buf)
             _ties_by_tie(soff, b, k, dd, nbr, tie)
             continue
         for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]; the
@@ -203,10 +204,8 @@ def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ial
     """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
     nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
     exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal
-    distances). Ranges of at least ``rows`` rows run on numba's thread count (:class:`..centres.Chunks`;
+    distances). Ranges of at least ``rows`` rows run on numba's thread count (:class:`.threads.Chunks`;
     each row's list depends on nothing else: the same arrays on any thread count)."""
-    from ..centres import Chunks
-
     n = len(P)
     kind = index_type(n)
     w = np.zeros(n)

@@ -29,7 +29,7 @@ def _spread(x):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def _stable_sort(key, idx, m, k2, i2):
+def stable_sort(key, idx, m, k2, i2):
     """Sort idx[:m] by key[:m] (keys moved along), equal keys keeping their order:
     insertion sort of runs of 16, then bottom-up merges (k2, i2: scratch of >= m)."""
     for a in range(0, m, 16):
@@ -119,7 +119,7 @@ def _grouped_order(pts, inv, c, bits, q):
         for t in range(m):
             idx[t] = order[a + t]
             code[t] = allc[idx[t]]
-        _stable_sort(code, idx, m, k2, i2)  # equal codes keep input order
+        stable_sort(code, idx, m, k2, i2)  # equal codes keep input order
         for t in range(m):
             order[a + t] = idx[t]
     return order, start

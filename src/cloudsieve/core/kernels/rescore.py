@@ -5,7 +5,7 @@ The scores of the rows of the clusters that lost a row, from the kept lists
 change of W and of G = sum w (log w - A/W) when a row leaves (its own term
 and its reverse neighbours', whose r_k becomes r_(k+1)); ``H(R - y) - H(R)``
 follows from them (:func:`cloudsieve.core.entropy.entropy_change`). The
-terms and sums are those of :func:`cloudsieve.core.entropy.entropy_terms`,
+terms and sums are those of :func:`.entropy.entropy_weights`,
 operation for operation (cluster sums in ascending row order, as
 ``np.bincount``); the caller takes ``log`` and ``exp`` from numpy (numba's
 differ from numpy's SIMD ones in the last bit). The kernels take a cluster

@@ -1,0 +1,136 @@
+"""Atomic outputs: a file or folder written under a temporary name beside its destination, then renamed.
+
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`), used by every
+writer: the format writers (:mod:`cloudsieve.io`), the store's ingest and
+exports (:mod:`cloudsieve.store`). A failed write leaves nothing under the
+destination's name.
+
+Example
+-------
+>>> check_destination(dst, overwrite)  # doctest: +SKIP
+>>> tmp = make_temp_path(dst)
+>>> try:
+...     write(tmp)
+...     replace(tmp, dst)
+... finally:
+...     remove(tmp)  # gone after replace: nothing to do
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+
+from .errors import DestinationExistsError, DestinationNotWritableError
+
+__all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove", "write_text"]
+
+logger = logging.getLogger(__name__)
+
+
+def check_destination(path: str, overwrite: bool) -> None:
+    """Refuse a destination that exists (unless *overwrite*) or cannot be written.
+
+    Raises
+    ------
+    DestinationExistsError
+        *path* exists and *overwrite* is False.
+    DestinationNotWritableError
+        *path* is a folder, or its parent folder is missing or not a folder.
+    """
+    if os.path.isdir(path):
+        if not overwrite:
+            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
+    elif os.path.lexists(path) and not overwrite:
+        raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
+    parent = os.path.dirname(os.path.abspath(path))
+    if not os.path.exists(parent):
+        raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
+    if not os.path.isdir(parent):
+        raise DestinationNotWritableError(f"cannot write {path}: {parent} is not a folder")
+
+
+def current_umask() -> int:
+    """The process's umask (read from /proc where it can be, so it is never changed, even for a moment)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError, IndexError):
+        pass
+    mask = os.umask(0o022)  # pragma: no cover - no /proc (macOS): set and restore
+    os.umask(mask)  # pragma: no cover
+    return mask  # pragma: no cover
+
+
+def make_temp_path(path: str, *, directory: bool = False) -> str:
+    """Create (and return) a temporary file or folder beside *path*, with the mode a new file gets.
+
+    ``mkstemp``/``mkdtemp`` create 0600/0700 (private); the output renamed
+    from it gets what ``open()`` or ``mkdir`` would give under the umask
+    (0644/0755 under umask 022), as every other tool's outputs do.
+    """
+    parent = os.path.dirname(os.path.abspath(path))
+    prefix = "." + os.path.basename(path) + "."
+    try:
+        if directory:
+            tmp = tempfile.mkdtemp(prefix=prefix, suffix=".tmp", dir=parent)
+            os.chmod(tmp, 0o777 & ~current_umask())
+            return tmp
+        fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".tmp", dir=parent)
+        try:
+            os.fchmod(fd, 0o666 & ~current_umask())
+        finally:
+            os.close(fd)
+        return tmp
+    except OSError as exc:
+        raise DestinationNotWritableError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def replace(tmp: str, path: str) -> None:
+    """Move *tmp* to *path* (replacing a file or a folder there)."""
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            trash = make_temp_path(path, directory=True)
+            os.rmdir(trash)
+            os.replace(path, trash)
+            os.replace(tmp, path)
+            shutil.rmtree(trash, ignore_errors=True)
+        else:
+            os.replace(tmp, path)
+    except OSError as exc:
+        raise DestinationNotWritableError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
+def remove(path: str) -> None:
+    """Remove a temporary file or folder, ignoring errors."""
+    try:
+        if os.path.isdir(path) and not os.path.islink(path):
+            shutil.rmtree(path, ignore_errors=True)
+        elif os.path.lexists(path):
+            os.remove(path)
+    except OSError:  # pragma: no cover - best effort
+        logger.warning("could not remove temporary %s", path)
+
+
+def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
+    """Write *text* to *path* atomically: a temporary file beside it, renamed when written (replacing *path*).
+
+    Raises
+    ------
+    DestinationNotWritableError
+        The folder cannot be written.
+    """
+    path = os.fspath(path)
+    tmp = make_temp_path(path)
+    try:
+        with open(tmp, "w", encoding=encoding) as fh:
+            fh.write(text)
+        replace(tmp, path)
+    except BaseException:
+        remove(tmp)
+        raise

@@ -1,0 +1,174 @@
+"""Compile the kernels a run needs once, before it needs them: the warm-up targets.
+
+numba compiles a kernel at its first call, or loads it from its on-disk cache
+(``cache=True``: ``__pycache__`` beside the module, numba's user cache
+directory when that is read-only, or ``NUMBA_CACHE_DIR``). Measured on 2
+cores (load ~5): the kernels of the default command (targets ``common``,
+``partition``, ``eliminate``) compiled in 25.8 s into an empty cache; the
+first ``cloudsieve simplify autzen_trim.laz --ratio 0.5`` took 33.8 s
+without a warm-up (51.7 s with the code before the targets, the in-process path
+and plain-call helpers, side by side) and
+3.6 s after one.
+
+Each target calls the kernels of one part of the method on a tiny input, with
+the argument types of the real calls (so the same compiled versions):
+
+- ``common``: exact copies and the merge (every rule);
+- ``partition``: the labels and halo bands of the partition's tasks;
+- ``eliminate``: the default rule in memory (grid, neighbour lists,
+  elimination, relocation, packing counts, the radius's k-NN);
+- ``scores``: the k-NN and entropy kernels of the scoring path;
+- ``km``, ``fcm``: the refinement into small clusters;
+- ``rules``: the rounds of the iterative, target and coverage rules.
+
+:mod:`cloudsieve.warmup_targets` names the targets and those of each rule's
+cell tasks (a leaf: the options read it): the local fork server
+(:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers it
+forks inherit the code and never compile it again; ``cloudsieve warmup``
+(:mod:`cloudsieve.cli.warmup`) warms every target into the cache (setup.sh
+runs it). The warm-up drives the in-memory method, so it lives here, not in
+:mod:`.kernels`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+
+import numpy as np
+
+from ..warmup_targets import TARGETS
+
+__all__ = ["warm_up"]
+
+
+def _points(n: int = 600) -> np.ndarray:
+    """A small noisy surface (a tiny real-like cloud: 2-D spread, some relief), float64 (n, 3)."""
+    rng = np.random.default_rng(0)
+    xy = rng.random((n, 2)) * 10.0
+    return np.ascontiguousarray(np.c_[xy, 0.3 * np.sin(xy[:, 0]) + 0.01 * rng.random(n)])
+
+
+def _common() -> None:
+    from .kernels.copies import first_equal
+    from .kernels.scatter import from_groups
+
+    P = _points(24)
+    first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
+    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))  # the merge
+
+
+def _eliminate() -> None:
+    from .eliminate import eliminate
+    from .eliminate_cells import eliminate_cell
+    from .packing import packing_ladder
+    from .radius import elimination_radius, point_areas
+
+    P = _points()
+    areas, weight = point_areas(P)  # the partition's r_max (the radius's k-NN)
+    r_max = elimination_radius(areas, 300, weight=weight)
+    packing_ladder(P, r_max)
+    eliminate_cell(P[:400], 200, r_max, halo=P[400:], decided=np.zeros(200, dtype=bool),
+                   halo_keep=np.zeros(200, dtype=bool))
+    eliminate(P, ratio=0.5)
+
+
+def _partition() -> None:
+    from .kernels.bisector import within_any
+    from .kernels.closest import nearest_sites, site_tree
+
+    P = _points(200)
+    tree = site_tree(np.ascontiguousarray(P[:8]))
+    nearest_sites(tree, P, 2)  # the labels (cloudsieve.engine.label)
+    nearest_sites(tree, P[::2], 4)
+    planes = np.ascontiguousarray(P[:2])
+    within_any(P, planes, planes - P[2], np.ones(2), 0.5)  # the halo bands (cloudsieve.engine.halo)
+
+
+def _scores() -> None:
+    from .kernels.entropy import entropy_gain, graph_to_input, grouped_gain, reverse_sums, scores_to_input
+    from .kernels.knn import knn_scored, knn_unchecked, take_neighbours
+    from .kernels.order import grouped_order
+
+    rng = np.random.default_rng(0)
+    P = np.ascontiguousarray(rng.random((24, 3)))
+    indptr = np.array([0, 12, 24], dtype=np.int64)
+    kq = np.array([5, 5], dtype=np.int64)
+    d, i = knn_unchecked(P, indptr, kq, np.ones(24, dtype=bool), 1)
+    rows = np.arange(24, dtype=np.int64)
+    take_neighbours(i, rows, 5)
+    take_neighbours(i, rows, 5, rows)
+    cl = np.repeat(np.arange(2, dtype=np.int64), 12)
+    nbr = np.ascontiguousarray(i[:, :5])
+    kr = np.full(24, 4, dtype=np.int64)
+    entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24)
+    entropy_gain(rows, cl, 2, d[:, 3].copy(), d[:, 4].copy(), nbr, kr, 3.0, 24, target_cluster=cl)
+    reverse_sums(nbr, kr, d[:, 0].copy(), d[:, 1].copy(), 24)
+    # the path of the scores without context (entropy.score_unchecked)
+    order, indptr = grouped_order(P, cl, 2, 17)
+    kcl = np.array([4, 4], dtype=np.int64)
+    koff = np.array([0, 48, 96], dtype=np.int64)
+    rk, rk1, nb, _ = knn_scored(P, order, indptr, kcl, koff, 1)
+    scored = np.ones(24, dtype=bool)
+    gain = grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, 3.0)
+    scores_to_input(order, indptr, kcl, scored, ~scored, np.array([12, 12]), gain)
+    graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
+
+
+def _method(method: str) -> Callable[[], None]:
+    def warm() -> None:
+        from .simplify import simplify_points
+
+        simplify_points(_points(), method=method, rule="threshold", cluster_size=100)
+
+    return warm
+
+
+def _rules() -> None:
+    from .simplify import simplify_points
+
+    for rule in ("iterative", "target", "coverage"):
+        simplify_points(_points(), rule=rule, ratio=0.5, cluster_size=100)
+
+
+#: the function of each warm-up target (:data:`cloudsieve.warmup_targets.TARGETS`, in that order)
+_RUN: dict[str, Callable[[], None]] = {
+    "common": _common,
+    "partition": _partition,
+    "eliminate": _eliminate,
+    "scores": _scores,
+    "km": _method("km"),
+    "fcm": _method("fcm"),
+    "rules": _rules,
+}
+assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.warmup_targets has its function here"
+
+
+def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
+            report: Callable[[str, float], None] | None = None) -> float:
+    """Call the kernels of each of *targets* (names of :data:`cloudsieve.warmup_targets.TARGETS`) once on a tiny input.
+
+    Parameters
+    ----------
+    targets : iterable of str
+        Warm-up targets, run in the order given.
+    report : callable, optional
+        ``report(target, seconds)`` after each target.
+
+    Returns
+    -------
+    float
+        The seconds spent, all targets.
+
+    Raises
+    ------
+    KeyError
+        An unknown target name.
+    """
+    t_all = time.perf_counter()
+    for name in targets:
+        t0 = time.perf_counter()
+        _RUN[name]()
+        if report is not None:
+            report(name, time.perf_counter() - t0)
+    return time.perf_counter() - t_all

@@ -1,0 +1,84 @@
+"""A test hook: stop a run at a named point, so a test interrupts it there and not by racing it.
+
+``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>`` in a run's environment:
+when the run reaches *point* it appends its process id and a newline to the
+marker file (``#once``: creates it) and blocks for good (a signal ends it). Unset, or naming another
+point, it does nothing. The points (:class:`.runner.Runner`, the one task
+runner):
+
+- ``driver:<stage>``: the driver, before it starts the tasks of *stage*
+  (``cells``, ``cells: score``, ``partition: label``...);
+- ``task:<stage>``: each task of *stage*, in its worker process, before it
+  runs (the environment is the driver's: workers and the fork server
+  inherit it); ``task:<stage>#<n>``: only the n-th task of *stage* to start
+  in a process (from 1; the others run): with the "sync" or "threads"
+  scheduler, n - 1 tasks are done when the run stops;
+  ``task:<stage>#once``: only the first task of *stage* to start in any
+  process (the one that creates the marker file; the others, and the task
+  again when its worker is killed and the task rerun, run on).
+
+``tests/test_ops_orphans.py`` waits for the marker, then sends SIGKILL or
+SIGINT to the driver; ``tests/test_engine_simplify.py`` kills the driver
+after 3 cells, or the worker that holds a task.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import time
+from collections.abc import Callable
+
+__all__ = ["PAUSE_ENV", "paused", "pause_at", "pausing_task"]
+
+PAUSE_ENV = "CLOUDSIEVE_TEST_PAUSE_AT"
+
+
+_arrivals: dict[str, itertools.count] = {}  # point -> the calls of pause_at there in this process
+
+
+def paused(point: str) -> str | None:
+    """The marker file when the environment asks to pause at *point* (at one of its arrivals), else None."""
+    value = os.environ.get(PAUSE_ENV)
+    if not value:
+        return None
+    want, _, marker = value.partition("=")
+    return marker if want.partition("#")[0] == point and marker else None
+
+
+def pause_at(point: str) -> None:
+    """Block for good at *point* when the environment asks to (module docstring); return at once otherwise."""
+    marker = paused(point)
+    if marker is None:
+        return
+    nth = os.environ[PAUSE_ENV].partition("=")[0].partition("#")[2]
+    if nth == "once":
+        try:
+            fd = os.open(marker, os.O_WRONLY | os.O_CREAT | os.O_EXCL)
+        except FileExistsError:  # another task stopped first
+            return
+        os.write(fd, f"{os.getpid()}\n".encode())
+        os.close(fd)
+    else:
+        if nth and next(_arrivals.setdefault(point, itertools.count(1))) != int(nth):
+            return
+        with open(marker, "a") as fh:  # one line per process that stopped here (O_APPEND: lines never interleave)
+            fh.write(f"{os.getpid()}\n")
+    while True:
+        time.sleep(3600)  # a signal ends it (SIGINT: KeyboardInterrupt in the driver)
+
+
+def pausing_task(func: Callable, stage: str) -> Callable:
+    """*func*, or when the environment asks to pause at ``task:<stage>``, *func* after that pause."""
+    if paused(f"task:{stage}") is None:
+        return func
+    import functools
+
+    wrapped = functools.partial(_paused_call, f"task:{stage}", func)
+    wrapped.__name__ = getattr(func, "__name__", "task")  # the runner names the tasks' keys after it
+    return wrapped
+
+
+def _paused_call(point: str, func: Callable, *args):
+    pause_at(point)
+    return func(*args)  # pragma: no cover - pause_at never returns here

@@ -1,0 +1,124 @@
+"""Where clouds and stores live: local paths and fsspec URLs (``file:///...`` is the local path it names).
+
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`): :mod:`cloudsieve.io` and
+:mod:`cloudsieve.store` both use it. :func:`store_group` is the one test of whether a point store
+is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store` accept).
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+from urllib.parse import unquote, urlparse
+
+from typing import TYPE_CHECKING
+
+from .errors import CloudsieveError, StoreNotFoundError
+
+__all__ = ["local_path", "same_path", "path_exists", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
+
+STORE_ATTR = "cloudsieve"
+
+if TYPE_CHECKING:
+    import zarr
+
+
+def local_path(path: str | os.PathLike) -> str | None:
+    """The local file-system path behind *path*, or None for a remote URL.
+
+    ``file:///a/b`` and plain paths are local; ``s3://...``, ``memory://...``
+    and other fsspec URLs are not.
+    """
+    path = os.fspath(path)
+    if "://" not in path:
+        return os.path.abspath(path)
+    url = urlparse(path)
+    if url.scheme == "file":
+        return os.path.abspath(unquote(url.netloc + url.path))
+    return None
+
+
+def same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
+    """True when *a* and *b* name the same file or folder (symlinks resolved; URLs compared as text)."""
+    a, b = os.fspath(a), os.fspath(b)
+    la, lb = local_path(a), local_path(b)
+    if la is None or lb is None:
+        return a.rstrip("/") == b.rstrip("/")
+    return os.path.realpath(la) == os.path.realpath(lb)
+
+
+def zarr_store(path: str, read_only: bool):
+    """A zarr store object for a local path or an fsspec URL."""
+    import zarr  # here: importing this module (io does) loads no zarr
+
+    local = local_path(path)
+    if local is not None:
+        return zarr.storage.LocalStore(local, read_only=read_only)
+    return zarr.storage.FsspecStore.from_url(path, read_only=read_only)
+
+
+def path_exists(path: str) -> bool:
+    """True when something (file or folder) is at *path*, a local path or an fsspec URL."""
+    local = local_path(path)
+    if local is not None:
+        return os.path.exists(local)
+    import fsspec
+
+    fs, p = fsspec.core.url_to_fs(path)
+    return fs.exists(p)
+
+
+def delete_store(path: str | os.PathLike) -> None:
+    """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
+    path = os.fspath(path)
+    local = local_path(path)
+    if local is not None:
+        shutil.rmtree(local, ignore_errors=True)
+    else:  # pragma: no cover - remote stores
+        import fsspec
+
+        fs, p = fsspec.core.url_to_fs(path)
+        if fs.exists(p):
+            fs.rm(p, recursive=True)
+
+
+def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, dict]:
+    """The zarr group of the complete point store at *path* and its "cloudsieve" attributes.
+
+    *mode* "r" opens read-only, else read-write.
+
+    Raises
+    ------
+    StoreNotFoundError
+        When *path* does not exist or is not a complete point store.
+    """
+    path = os.fspath(path)
+    if not path_exists(path):
+        raise StoreNotFoundError(f"{path}: no such point store")
+    local = local_path(path)
+    if local is not None and os.path.isfile(local):
+        raise StoreNotFoundError(f"{path} is a file, not a point store (ingest it first: cloudsieve ingest)")
+    import zarr
+
+    try:
+        group = zarr.open_group(zarr_store(path, read_only=(mode == "r")), mode="r" if mode == "r" else "r+")
+    except (FileNotFoundError, KeyError, ValueError, zarr.errors.NodeTypeValidationError) as exc:  # type: ignore[attr-defined]
+        raise StoreNotFoundError(f"{path} is not a cloudsieve point store: {exc}") from exc
+    meta = group.attrs.get(STORE_ATTR)
+    if not isinstance(meta, dict) or not meta.get("complete", False):
+        raise StoreNotFoundError(f"{path} is not a complete cloudsieve point store (no 'cloudsieve' attributes)")
+    return group, meta
+
+
+def is_store(path: str | os.PathLike) -> bool:
+    """True when *path* (local path or fsspec URL) holds a complete point store.
+
+    That is, when :func:`store_group` (and so :meth:`cloudsieve.store.PointStore.open`)
+    accepts it; a missing path, a file, a folder that is not a zarr group and a
+    store left incomplete by an interrupted ingest are not stores.
+    """
+    try:
+        store_group(path)
+    except (CloudsieveError, OSError, ValueError):
+        return False
+    return True
