@@ -17,8 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: the known findings, fixed elsewhere (remove each once merged)
 EXPECTED = {
-    # evaluate/ (the other branch of issue 29: evaluate's sizes) breaks this cycle
-    "cycle": {("cloudsieve.evaluate.distances", "cloudsieve.evaluate.planes")},
+    "cycle": set(),
     "private": set(),
     # the shim kept until params.py, engine/simplify.py and cli/warmup.py import the warm-up from its new
     # homes (core/warmup.py, warmup_targets.py; the rules branch of issue 29): then delete core/kernels/warmup.py

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import write_text
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..params import COMPARE_METHODS, validate
@@ -297,7 +298,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         if points_h:
             files["point error plot"] = plot_point_errors(points_h, out_dir / "point_errors.png",
                                                           title="Point errors (original → simplified) by method")
-        (out_dir / "report.md").write_text(result["markdown"])
+        write_text(out_dir / "report.md", result["markdown"])
         files["markdown"] = str(out_dir / "report.md")
         files["html"] = _write_html(out_dir / "report.html", xyz, kept, result["markdown"], files, seed)
         files["json"] = str(out_dir / "report.json")

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import write_text
+
 __all__ = ["write_report", "write_json", "json_ready", "markdown", "field_lines", "db", "border_per_face", "holes_note",
            "plot_compactness", "plot_point_errors", "write_error_ply", "fmt"]
 
@@ -53,7 +55,7 @@ def json_ready(obj: Any) -> Any:
 
 def write_json(report: dict, path: str | os.PathLike) -> str:
     """Write *report* as JSON (NaN/inf become null); returns the path."""
-    Path(path).write_text(json.dumps(json_ready(report), indent=1, sort_keys=False) + "\n")
+    write_text(path, json.dumps(json_ready(report), indent=1, sort_keys=False) + "\n")
     return str(path)
 
 
@@ -375,7 +377,7 @@ def write_report(report: dict, directory: str | os.PathLike, *, error_points: tu
     files["json"] = str(d / "report.json")
     report["files"] = files
     md = markdown(report)
-    (d / "report.md").write_text(md)
+    write_text(d / "report.md", md)
     seed = (report.get("parameters") or {}).get("seed") or 0
     views: dict[str, Any] = {"bounds": np.asarray(p["bounds"]) if p else None}
     if error_points is not None and len(error_points[0]):
