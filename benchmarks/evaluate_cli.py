@@ -134,8 +134,7 @@ def end_to_end(n: int, workdir: Path) -> int:
         se = (sp.get("forward") or {}).get("mean_pct_se")
         print(f"\nSurface: Metro forward mean {sf['forward']['mean_pct']:.4g}% of the diagonal"
               + (f" ± {se:.2g} (standard error over {len(sf['tiles'])} tiles)" if se is not None else "")
-              + f"; pilot {smp.get('pilot', {}).get('points', '-')} points at "
-              f"{smp.get('pilot', {}).get('rate', 0):.0f} points/s; per tile (points, s): "
+              + f"; tiles sized at {smp.get('rate', 0):.0f} points/s; per tile (points, s): "
               + ", ".join(f"{t['points_original']:,}/{t['seconds']:.1f}" for t in sf["tiles"]))
     d2se = ps.get("d2_se_db") or {}
     print(f"D1 PSNR forward {ps['d1']['forward']:.2f} dB (exact); D2 PSNR forward {ps['d2']['forward']:.2f} dB"

@@ -158,12 +158,12 @@ _OPTIONS = [
            low=1, metavar="N"),
     Option("surface", BOOL, True,
            "point level only: skip the surface level (ball-pivoting meshes, Metro distances, compactness)"),
-    Option("tiles", INT, None, "surface tiles (default: evaluate, as many as its time budget allows; compare, 4)", low=1,
+    Option("tiles", INT, None, "surface tiles (default: evaluate 8, sized by its budget; compare 4)", low=1,
            metavar="T"),
     Option("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
            low=1, metavar="M"),
-    Option("surface_budget", FLOAT, 60.0, "seconds for the surface level: tiles drawn at random, sized by a timed "
-           "pilot to fit, their figures given with standard errors", low=0.0, low_open=True, metavar="SECONDS"),
+    Option("surface_budget", FLOAT, 60.0, "seconds for the surface level: random tiles sized to take this long at "
+           "the rate measured on 2 cores (not timed: the same tiles anywhere), with standard errors", low=0.0, low_open=True, metavar="SECONDS"),
     Option("surface_full", BOOL, False, "the surface level on the whole cloud (every point in a tile of about "
            "--tile-points points), no time budget: about 1 s per 3,000 original points"),
     Option("d2_sample", INT, 1_000_000, "D2 (point-to-plane) on a uniform sample of at most N points per "

@@ -21,7 +21,7 @@ def add_parser(subparsers) -> None:
             "Hausdorff, absolute and in % of the original's bounding-box diagonal; MPEG pc_error's D1/D2 PSNR "
             "and the Chamfer distance. Surface level "
             "(the paper's): ball-pivoting meshes on tiles, Metro distances both ways, triangle "
-            "compactness; by default on random tiles within a time budget, their standard errors given, or on "
+            "compactness; by default on random tiles sized for a time budget, their standard errors given, or on "
             "every point. D2 on a uniform sample, its standard error given. The original is streamed; the "
             "simplified cloud is loaded into memory."
         ),
@@ -71,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         if smp.get("mode") == "budget":
             se = f", standard error of the mean ±{fmt(sp['forward']['mean_pct_se'])}" if sp.get("forward") else ""
             print(f"surface sample  : {len(s['tiles'])} random tiles of <= {fmt(s['tile_points'])} points "
-                  f"({100 * smp.get('points_share', 0):.2f}% of the points) in a {smp['budget']:g} s budget{se} "
+                  f"({100 * smp.get('points_share', 0):.2f}% of the points) sized for {smp['budget']:g} s{se} "
                   "(--surface-full: every point)")
         on = s.get("on_surface")
         if on:

@@ -159,11 +159,12 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Also compute the paper's surface level (meshes, Metro, compactness).
     tiles, tile_points : int
         T tiles of at most M original points for the surface level (the whole
-        cloud when it has at most M points and fits the budget); T None: as
-        many as the budget allows (4 without one).
+        cloud when it has at most M points and fits the budget); T None: 8
+        with the budget (4 without one).
     surface_budget : float
-        Seconds for the surface level (60): tiles drawn at random and sized
-        by a timed pilot so that it fits, their figures' standard errors given
+        Seconds for the surface level (60): T tiles drawn at random and sized
+        to take that long at the rate measured on 2 cores (never timed at
+        run time: the same figures on any machine), their standard errors given
         (``report["surface"]["sampling"]``, :mod:`.tiles`).
     surface_full : bool
         The surface level on the whole cloud: every point in a tile of about

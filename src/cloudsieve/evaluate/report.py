@@ -204,13 +204,11 @@ def sampling_line(sf: dict) -> str:
     elif mode == "full":
         text = f"Every original point, in {n} tiles (k-means cells of about {m} points)."
     elif mode == "budget":
-        p = smp["pilot"]
         pts = [t["points_original"] for t in sf["tiles"]]
         size = fmt(pts[0]) if min(pts) == max(pts) else f"{fmt(min(pts))} to {fmt(max(pts))}"
         text = (f"A sample of {n} tiles of {size} original points{share}, centred on random original points "
-                f"(seeded), within a {smp['budget']:g} s budget; their size was set by a pilot tile "
-                f"({fmt(p['points'])} points in {p['seconds']:.1f} s, {fmt(p['rate'])} points/s) and each tile's by "
-                "the time left at the slowest rate seen. The figures are "
+                f"(seeded), sized for a {smp['budget']:g} s budget at {fmt(smp['rate'])} points/s (the rate "
+                "measured on 2 cores, not timed here: the same tiles on any machine). The figures are "
                 "those of the sampled tiles; `--surface-full` measures the whole cloud.")
     else:
         text = f"{n} tile(s) of at most {m} original points (k-means centres of a uniform sample){share}."

@@ -11,8 +11,10 @@ weighted by samples, max over tiles, compactness over all triangles.
 
 Which tiles (:mod:`.tiles`): T fixed ones as above; or, with a time
 *budget* (``cloudsieve evaluate``'s default), tiles drawn at random and
-sized by a timed pilot so that the level ends within the budget, the
-figures then those of a sample of tiles, their standard errors given; or
+sized so that the level takes about the budget at the rate measured on 2
+cores (:data:`.tiles.SURFACE_RATE`; never timed at run time, so the tiles
+and the figures are the same on any machine), the figures then those of a
+sample of tiles, their standard errors given; or
 *full*: every original point in one tile. Tiles are gathered in one
 streamed pass over the original (memory: at most M points per tile plus
 one chunk; every point with *full*), after one pass for a uniform sample;
@@ -37,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
-from .tiles import (PILOT_POINTS, BUDGET_TILES, Budget, budget_tile_points, choose_tiles, cut_tile, gather_tiles,
+from .tiles import (BUDGET_TILES, SURFACE_RATE, budget_tile_points, choose_tiles, gather_tiles,
                     partition_tiles, random_tiles, spread, uniform_sample)
 from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, crop_mesh, metro
 
@@ -143,45 +145,28 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
 
 
 def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
-          run_tile, sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
+          sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
     """The tiles (fixed, budget or full; see :mod:`.tiles`), their points, and how they were chosen."""
-    t0 = time.perf_counter()
     if budget is None and not full:
         chosen = choose_tiles(src, tiles or 4, tile_points, seed=seed)
         if chosen:
             return (chosen, gather_tiles(src, chosen, tile_points), _simplified_in(simplified, chosen),
                     {"mode": "fixed", "tile_points": int(tile_points), "population": src.count_points()})
         return _whole(src, simplified)
-    given = sample is not None
-    sample, n = sample if given else uniform_sample(src, seed=seed)
-    t_pass = 0.0 if given else time.perf_counter() - t0  # the gather pass costs about as much as this one
+    sample, n = sample if sample is not None else uniform_sample(src, seed=seed)
     if full:
         if n <= tile_points:
             return _whole(src, simplified)
         chosen, origs, simps = partition_tiles(src, sample, n, tile_points, simplified, seed=seed)
         return chosen, origs, simps, {"mode": "full", "tile_points": int(tile_points), "population": n}
-    if n <= min(PILOT_POINTS, tile_points):
-        return _whole(src, simplified)
-    rng = np.random.default_rng([seed, 8])
-    size = min(PILOT_POINTS, tile_points, len(sample))
-    _, near = cKDTree(sample).query(sample[rng.integers(len(sample))], k=size)
-    pilot = sample[np.sort(np.atleast_1d(near))]
-    started = time.perf_counter()
-    run_tile(pilot, pilot[rng.random(len(pilot)) < len(simplified) / n])
-    seconds = time.perf_counter() - started
-    rate = size / max(seconds, 1e-9)
-    remaining = budget - (time.perf_counter() - t0) - t_pass
-    sampling = {"mode": "budget", "budget": float(budget), "population": n,
-                "pilot": {"points": int(size), "seconds": seconds, "rate": rate}}
-    if n <= tile_points and n / rate <= remaining:
+    # sized by a measured rate, never by a clock: the same tiles on any machine, under any load
+    sampling = {"mode": "budget", "budget": float(budget), "population": n, "rate": float(SURFACE_RATE)}
+    if n <= tile_points and n / SURFACE_RATE <= budget:
         return (*_whole(src, simplified)[:3], {**sampling, "mode": "whole", "tile_points": n})
-    aim = tiles or BUDGET_TILES
-    m = budget_tile_points(rate, remaining, aim, tile_points)
-    fit = int(math.ceil(1.5 * remaining * rate / m)) + 1
-    count = tiles or min(64, fit, max(1, 4_000_000 // m))
-    m = min(tile_points, 2 * m)  # gathered at up to twice the pilot's size, cut to fit as tiles run
+    count = tiles or BUDGET_TILES
+    m = budget_tile_points(SURFACE_RATE, budget, count, tile_points)
     chosen = random_tiles(sample, n, count, m, seed=seed)
-    sampling.update({"tile_points": m, "candidates": len(chosen), "aim": aim})
+    sampling.update({"tile_points": m})
     return chosen, gather_tiles(src, chosen, m), _simplified_in(simplified, chosen), sampling
 
 
@@ -218,8 +203,8 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         None: 4); with *budget*, T tiles sized to fit it (fewer if they do
         not), None: as many as fit, sized for 8.
     budget : float, optional
-        Seconds: tiles drawn at random and sized by measurement so that the
-        level fits (:mod:`.tiles`); more tiles run while the next one fits.
+        Seconds: T tiles drawn at random, sized so that they take about this
+        long at the measured rate :data:`.tiles.SURFACE_RATE` (:mod:`.tiles`).
         None: T tiles of M points (k-means centres), however long they take.
     full : bool
         Every original point in one tile of about M points (no budget).
@@ -269,9 +254,8 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         ``sampling``: ``mode`` ("whole" cloud, "fixed" T tiles, "budget" or
         "full"), ``tiles`` (run), ``tile_points`` (M), ``seconds``,
         ``population`` and ``points_share`` (the share of the original's
-        points in the tiles run), with a budget ``budget``, ``pilot``
-        (``points``, ``seconds``, ``rate``) and ``candidates`` (tiles
-        gathered), and for sampled tiles ``spread`` (:func:`.tiles.spread`:
+        points in the tiles run), with a budget ``budget`` and ``rate`` (the
+        measured original points a second it was sized by), and for sampled tiles ``spread`` (:func:`.tiles.spread`:
         standard errors over the tiles).
     """
     t0 = time.perf_counter()
@@ -280,17 +264,10 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
     tick = progress or (lambda n: None)
     plan = cache.get("plan") if cache is not None else None  # compare: the first call's tiles for every method
     if plan is None:
-        plan = _plan(src, simplified, tiles, tile_points, seed, budget, full,
-                     lambda o, p: _tile_figures(o, p, diagonal or 1.0, samples, max_samples)[0], sample)
+        plan = _plan(src, simplified, tiles, tile_points, seed, budget, full, sample)
         if cache is not None:
             cache["plan"] = plan
-        run_all = False
-    else:
-        run_all = True
     chosen, origs, simps, sampling = plan
-    clock = Budget(budget, t0) if budget is not None and not full and not run_all else None
-    if clock is not None and sampling.get("pilot"):
-        clock.record(sampling["pilot"]["points"], sampling["pilot"]["seconds"])
     if diagonal is None:
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)
@@ -301,11 +278,6 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         diagonal = float(np.linalg.norm(hi - lo))
     recs, cos, css, used = [], [], [], []
     for i, (t, o, s) in enumerate(zip(chosen, origs, simps)):
-        if clock is not None and sampling["mode"] == "budget":  # the size that shares the time left
-            size = budget_tile_points(clock.rate(), budget - clock.elapsed(), max(sampling["aim"] - i, 1), len(o))
-            t, o, s = cut_tile(t, o, s, size)
-            if i and not clock.fits(len(o)):
-                break
         logger.info("surface tile: %d original, %d simplified points", len(o), len(s))
         started = time.perf_counter()
         ref = reference
@@ -313,8 +285,6 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
             ref = crop_mesh(reference, t["centre"], t["radius"])
         rec, co, cs = _tile_figures(o, s, diagonal, samples, max_samples, cache, i, ref)
         rec["seconds"] = time.perf_counter() - started
-        if clock is not None:
-            clock.record(len(o), rec["seconds"])
         recs.append({**t, **rec})
         used.append(len(o))
         cos.append(co)

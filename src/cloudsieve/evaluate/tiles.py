@@ -5,17 +5,15 @@ Three ways to choose them (:func:`.surface.surface_errors`):
 - **fixed** (:func:`choose_tiles`): T tiles, k-means centres of a uniform
   sample (spread over the cloud in proportion to its points), each the M
   original points nearest its centre;
-- **budget** (the default of ``cloudsieve evaluate``): tiles drawn at random
-  (centres uniform over the original's points, seeded: a tile is where a
-  random original point is) and sized by measurement so that the level fits
-  a time budget: a pilot tile cut from the uniform sample is meshed and
-  compared first and its rate (original points a second, on this machine
-  under its current load) sets the tile size (:func:`budget_tile_points`);
-  candidates are gathered at up to twice that size and each tile, run one
-  by one, is cut (:func:`cut_tile`) to the size that shares the time left
-  among the tiles still aimed for at the slowest rate seen so far, and runs
-  only while it still fits (:class:`Budget`). The figures are the sampled tiles' and their
-  spread is given as a standard error (:func:`spread`);
+- **budget** (the default of ``cloudsieve evaluate``): T tiles (8 unless
+  given) drawn at random (centres uniform over the original's points,
+  seeded: a tile is where a random original point is), each of the size
+  that makes the T tiles take the budget at :data:`SURFACE_RATE`, the rate
+  measured on 2 cores (:func:`budget_tile_points`). The size is set by that
+  measurement, not by a clock at run time: the tiles, and so the figures,
+  are the same on any machine and under any load, and the time scales with
+  the machine's speed. The figures are the sampled tiles' and their spread
+  is given as a standard error (:func:`spread`);
 - **full** (:func:`partition_tiles`): every original point in one tile (the
   cells of k-means centres of a uniform sample, at most about M points
   each): the surface level of the whole cloud, in time proportional to its
@@ -29,23 +27,25 @@ uniform sample (:func:`uniform_sample`).
 from __future__ import annotations
 
 import math
-import time
 from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SAMPLE_SIZE", "PILOT_POINTS", "BUDGET_TILES", "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles",
-           "partition_tiles", "budget_tile_points", "cut_tile", "Budget", "spread"]
+__all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "uniform_sample", "choose_tiles",
+           "random_tiles", "gather_tiles", "partition_tiles", "budget_tile_points", "spread"]
 
-#: points of the uniform sample the tiles are drawn from (and the pilot cut from)
+#: points of the uniform sample the tiles are drawn from 
 SAMPLE_SIZE = 200_000
-#: original points of the pilot tile that measures the rate of the surface level
-PILOT_POINTS = 10_000
+#: the smallest tile a budget makes (smaller tiles mesh too little surface to compare)
+MIN_TILE_POINTS = 10_000
+#: original points a second of the surface level (both tile meshes and both Metro directions, the two meshes
+#: in forked children at once), measured on 2 cores at a load of 2-3: 4,860 on the tiles of a 10 M-point
+#: make_scan cloud (docs/benchmarks.md), 5,500 on autzen_trim with --surface-full; a budget sizes its tiles at
+#: this rate, never by a clock, so the tiles and the figures are the same on any machine and under any load
+SURFACE_RATE = 4_000
 #: tiles a budget is sized for (at least): enough for a standard error over tiles
 BUDGET_TILES = 8
-#: at most this many original points gathered over the candidate tiles of a budget
-_GATHER_MAX = 4_000_000
 
 
 def uniform_sample(src, size: int = SAMPLE_SIZE, seed: int = 0) -> tuple[np.ndarray, int]:
@@ -187,47 +187,13 @@ def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, simplifie
     return tiles, origs, simps
 
 
-def cut_tile(tile: dict, orig: np.ndarray, simp: np.ndarray, size: int) -> tuple[dict, np.ndarray, np.ndarray]:
-    """The *size* original points of a tile nearest its centre, and the simplified points within their radius."""
-    if len(orig) <= size:
-        return tile, orig, simp
-    c = np.asarray(tile["centre"], dtype=np.float64)
-    d = np.sqrt(((orig - c) ** 2).sum(axis=1))
-    keep = np.sort(np.argsort(d, kind="stable")[:size])
-    r = float(d[keep].max())
-    return {**tile, "radius": r}, orig[keep], simp[np.sqrt(((simp - c) ** 2).sum(axis=1)) <= r]
-
-
 def budget_tile_points(rate: float, remaining: float, tiles: int, tile_points: int) -> int:
     """Tile size for a budget: *tiles* tiles of it take *remaining* seconds at *rate* points/s.
 
-    At least :data:`PILOT_POINTS` (or *tile_points* when smaller), at most *tile_points*.
+    At least :data:`MIN_TILE_POINTS` (or *tile_points* when smaller), at most *tile_points*.
     """
-    low = min(PILOT_POINTS, tile_points)
+    low = min(MIN_TILE_POINTS, tile_points)
     return int(min(tile_points, max(low, rate * max(remaining, 0.0) / max(tiles, 1))))
-
-
-class Budget:
-    """Running tiles within *seconds* from *start*: the next tile runs while it fits at the slowest rate seen."""
-
-    def __init__(self, seconds: float, start: float):
-        self.seconds, self.start = float(seconds), start
-        self.rates: list[float] = []
-
-    def elapsed(self) -> float:
-        return time.perf_counter() - self.start
-
-    def record(self, points: int, seconds: float) -> None:
-        """One tile of *points* original points took *seconds*."""
-        self.rates.append(points / max(seconds, 1e-9))
-
-    def rate(self) -> float:
-        """The slowest rate seen (original points a second)."""
-        return min(self.rates)
-
-    def fits(self, points: int) -> bool:
-        """Whether a tile of *points* points still fits (always, before any tile has run)."""
-        return not self.rates or self.elapsed() + points / self.rate() <= self.seconds
 
 
 def _weighted_se(x: np.ndarray, w: np.ndarray) -> float:
