@@ -3,6 +3,21 @@
     .venv/bin/python benchmarks/evaluate.py                       # 10 M original / 5 M simplified
     .venv/bin/python benchmarks/evaluate.py --sizes 1e6,5e5       # a small run
     .venv/bin/python benchmarks/evaluate.py --original scan.laz --ratio 0.5   # a real file (decode included)
+    .venv/bin/python benchmarks/evaluate.py --end-to-end 10e6     # the command line, as a user runs it
+
+``--end-to-end N`` makes an N-point LAZ scan (benchmarks/make_scan.py, kept
+in ``--workdir``), simplifies it at 50% (``cloudsieve simplify --ratio
+0.5``), runs ``cloudsieve evaluate ORIGINAL SIMPLIFIED --report DIR`` with
+default options, and prints its wall time by level (report.json's timing),
+the peak resident memory of the evaluate process and its children (psutil,
+sampled every 0.1 s), report.html's size and its load time in headless
+Chromium; the load average (``os.getloadavg()``) beside each figure. The
+load time is measured three ways, three runs each: the page's own time from
+navigation to its first drawn frame (the viewer writes it into
+``document.body.dataset.renderMs``, read back with ``--dump-dom``), the
+wall time of ``chromium --headless --dump-dom`` on the page, and the same
+on ``about:blank`` (the browser's start alone). Goals: evaluation <= 2
+minutes on 2 cores, report.html < 15 MB opening in < 5 s.
 
 The original is built in memory by tiling the real aerial survey
 ``autzen_trim.laz`` (110,000 points, ../shared/data) on a grid, each tile
@@ -66,7 +81,14 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--tile-points", type=int, default=200_000)
     ap.add_argument("--no-surface", action="store_true")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--end-to-end", type=float, metavar="N",
+                    help="the command line on an N-point scan: make_scan, simplify 50%%, evaluate --report, Chromium")
+    ap.add_argument("--workdir", default="/tmp/cloudsieve-bench-evaluate", help="--end-to-end's files")
     args = ap.parse_args(argv)
+    if args.end_to_end:
+        from evaluate_cli import end_to_end
+
+        return end_to_end(int(args.end_to_end), Path(args.workdir))
 
     from cloudsieve.evaluate.points import point_errors
     from cloudsieve.evaluate.surface import surface_errors

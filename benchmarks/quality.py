@@ -1,6 +1,18 @@
 """Point-level quality of the rules at equal count (issue 3, "Measured before you start").
 
 Run: ``.venv/bin/python benchmarks/quality.py [--ratio 0.5] [--method km] [FILES...]``
+or   ``.venv/bin/python benchmarks/quality.py --psnr [--ratios 0.5,0.2,0.1] [FILES...]``
+
+``--psnr``: MPEG pc_error's D1 and D2 PSNR, forward (A = original -> B =
+simplified: how well the kept points represent the original,
+:mod:`cloudsieve.evaluate.planes`), of ``eliminate`` and of the voxel,
+Poisson-disk and farthest-point baselines at the same count, on each scan
+and kept share: one ``cloudsieve compare SRC --ratio R --methods
+km,voxel,poisson,fps --no-surface`` each (its table has the same figures,
+one row per method), gathered into one table (dB, peak = the original's
+bounding-box diagonal; D2 on normals by PCA of 12 neighbours, every point
+of these scans). Default scans: every real scan of ../shared/data of at
+least 10,000 points.
 
 For each real scan (default: bun_zipper.ply, maxplanck.ply, autzen_trim.laz in
 ../shared/data), keep ``ratio`` of the points with:
@@ -115,16 +127,62 @@ def table(files, ratio: float, method: str) -> str:
     return "\n".join(rows)
 
 
+PSNR_FILES = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.laz", "append-bug.laz",
+              "vegetation_1_3.las", "pumpAVisualReferenceImage.e57"]
+PSNR_METHODS = ("eliminate", "voxel", "poisson", "fps")
+
+
+def psnr_table(files, ratios) -> str:
+    """One row per scan and kept share: forward D1 / D2 PSNR (dB) of each method, and eliminate's margin."""
+    import os
+
+    from cloudsieve.evaluate import compare
+
+    head = " | ".join(f"{m} D1 / D2" for m in PSNR_METHODS)
+    rows = [f"| scan | points | kept | {head} | eliminate - best baseline, D1 / D2 | load average |",
+            "|---|---:|---:|" + "---:|" * len(PSNR_METHODS) + "---:|---|"]
+    for name in files:
+        path = Path(name) if Path(name).is_file() else DATA / name
+        for ratio in ratios:
+            res = compare(str(path), methods=("km", "voxel", "poisson", "fps"), ratio=ratio, surface=False)
+            by = {r["method"]: r for r in res["rows"]}
+            cells, best = [], {"d1_psnr": -np.inf, "d2_psnr": -np.inf}
+            for m in PSNR_METHODS:
+                r = by.get(m)
+                if r is None or "error" in r:
+                    cells.append("-")
+                    continue
+                cells.append(f"{r['d1_psnr']:.2f} / {r['d2_psnr']:.2f}")
+                if m != "eliminate":
+                    for k in best:
+                        best[k] = max(best[k], r[k])
+            e = by.get("eliminate", {})
+            gap = (f"{e['d1_psnr'] - best['d1_psnr']:+.2f} / {e['d2_psnr'] - best['d2_psnr']:+.2f}"
+                   if "d1_psnr" in e and np.isfinite(best["d1_psnr"]) else "-")
+            la = "/".join(f"{v:.1f}" for v in os.getloadavg())
+            rows.append(f"| {path.name} | {res['points']:,} | {100 * ratio:.0f}% ({res['count']:,}) | "
+                        + " | ".join(cells) + f" | {gap} | {la} |")
+            print(rows[-1], file=sys.stderr, flush=True)
+    return "\n".join(rows)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("files", nargs="*", default=["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz"])
+    ap.add_argument("files", nargs="*")
     ap.add_argument("--ratio", type=float, default=0.5)
     ap.add_argument("--method", choices=("km", "fcm"), default="km")
+    ap.add_argument("--psnr", action="store_true", help="D1/D2 PSNR of eliminate and the baselines at equal count")
+    ap.add_argument("--ratios", default="0.5,0.2,0.1", help="--psnr's kept shares (default 0.5,0.2,0.1)")
     a = ap.parse_args(argv)
+    if a.psnr:
+        ratios = [float(v) for v in a.ratios.split(",")]
+        print("## Forward D1 / D2 PSNR (dB, original -> simplified) at equal count\n")
+        print(psnr_table(a.files or PSNR_FILES, ratios))
+        return 0
     print(f"## Point-level error at {a.ratio:.0%} kept ({a.method.upper()} clusters of ~400 points)\n")
     print("One-sided distance from every original point to the simplified cloud, as % of the "
           "bounding-box diagonal.\n")
-    print(table(a.files, a.ratio, a.method))
+    print(table(a.files or ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz"], a.ratio, a.method))
     return 0
 
 

@@ -146,3 +146,15 @@ def test_compare_notes_the_holes_of_the_original_mesh():
     om = res["original_mesh"]
     assert om["border_edges"] > 0.1 * om["faces"]
     assert f"> The original's mesh has {om['border_edges'] / om['faces']:.3f} border edges per face" in res["markdown"]
+
+
+def test_compare_states_eliminates_margin_over_the_best_baseline():
+    from cloudsieve.evaluate.compare import compare
+
+    a = np.random.default_rng(3).random((3000, 3)) * [1.0, 1.0, 0.05]
+    res = compare(a, methods=("km", "voxel", "random"), ratio=0.2, surface=False)
+    rows = {r["method"]: r for r in res["rows"]}
+    best = {k: max(rows["voxel"][k], rows["random"][k]) for k in ("d1_psnr", "d2_psnr")}
+    line = next(x for x in res["markdown"].splitlines() if x.startswith("eliminate against the best baseline"))
+    assert f"D1 {rows['eliminate']['d1_psnr'] - best['d1_psnr']:+.2f} dB" in line
+    assert f"D2 {rows['eliminate']['d2_psnr'] - best['d2_psnr']:+.2f} dB" in line

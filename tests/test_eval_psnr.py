@@ -166,3 +166,26 @@ def test_sampled_psnr_is_near_the_exact_one():
     sampled = evaluate(a, b, surface=False, sample=5000)["psnr"]
     for metric in ("d1", "d2"):
         assert sampled[metric]["symmetric"] == pytest.approx(exact[metric]["symmetric"], abs=0.3)
+
+
+def test_d2_on_a_sample_states_it_and_its_standard_error():
+    a = _surface(30_000, 3)
+    rng = np.random.default_rng(4)
+    keep = a[rng.choice(len(a), 6000, replace=False)]
+    moved = np.concatenate([keep, keep[:2000] + rng.normal(scale=0.005, size=(2000, 3))])
+    exact = point_errors(a, moved, d2_sample=None)
+    part = point_errors(a, moved, d2_sample=5000)
+    assert "d2_sample" not in exact["forward"]
+    for name in ("forward", "backward"):
+        f = part[name]
+        assert f["d2_sample"] == 5000 and f["d2_se"] > 0
+        assert abs(f["d2_mse"] - exact[name]["d2_mse"]) < 5 * f["d2_se"]  # the sample's mean, within 5 standard errors
+        assert f["mse"] == exact[name]["mse"]  # D1 stays exact
+    rep = evaluate(a, moved, surface=False, d2_sample=5000)
+    ps = rep["psnr"]
+    assert ps["d2_sample"] == {"forward": 5000, "backward": 5000}
+    mse = rep["point"]["forward"]["d2_mse"]
+    assert ps["d2_se_db"]["forward"] == pytest.approx(10 / math.log(10) * rep["point"]["forward"]["d2_se"] / mse)
+    small = evaluate(a, moved, surface=False, d2_sample=len(a))  # a sample as large as the cloud: every point
+    assert "d2_sample" not in small["psnr"]
+    assert small["point"]["forward"]["d2_mse"] == exact["forward"]["d2_mse"]

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cloudsieve.evaluate.surface import choose_tiles, surface_errors
+from cloudsieve.evaluate.tiles import SURFACE_RATE
 
 
 def _surface(n, seed=0):
@@ -69,3 +70,38 @@ def test_tiles_are_bounded_and_spread():
         assert t["points_simplified"] == int((np.linalg.norm(a[::3] - t["centre"], axis=1) <= t["radius"]).sum())
     # same seed, same tiles
     assert choose_tiles(a, 4, 3000, seed=0) == tiles
+
+
+def test_surface_budget_samples_random_tiles_and_gives_their_spread():
+    a = _surface(60_000, seed=5)
+    r = surface_errors(a, a[::2], tile_points=8000, budget=40.0, seed=1)
+    smp = r["sampling"]
+    assert smp["mode"] == "budget" and smp["budget"] == 40.0 and smp["population"] == 60_000
+    # sized by the measured rate, never by a clock: T = 4 tiles of rate * budget / T points, capped by M
+    assert smp["rate"] == SURFACE_RATE and smp["tile_points"] == min(8000, int(SURFACE_RATE * 40.0 / 4))
+    assert smp["tiles"] == len(r["tiles"]) == 4
+    for t in r["tiles"]:
+        assert 0 < t["points_original"] <= 8000 and t["seconds"] > 0
+        d = np.linalg.norm(a - t["centre"], axis=1)  # a tile: the original points nearest its centre
+        assert t["points_original"] == int((d <= t["radius"]).sum())
+    assert smp["points_share"] == pytest.approx(sum(t["points_original"] for t in r["tiles"]) / 60_000)
+    if len(r["tiles"]) > 1:
+        for name in ("forward", "backward"):
+            assert smp["spread"][name]["mean_pct_se"] >= 0
+    from cloudsieve.evaluate.report import sampling_line
+
+    assert "budget" in sampling_line(r) and "not timed" in sampling_line(r)
+    # the same tiles and figures again: nothing depends on how long a tile took
+    again = surface_errors(a, a[::2], tile_points=8000, budget=40.0, seed=1)
+    strip = lambda t: {k: v for k, v in t.items() if k != "seconds"}  # noqa: E731
+    assert [strip(t) for t in again["tiles"]] == [strip(t) for t in r["tiles"]]
+
+
+def test_surface_full_puts_every_point_in_one_tile():
+    a = _surface(9000, seed=6)
+    b = a[::3]
+    r = surface_errors(a, b, tile_points=4000, full=True, seed=0)
+    assert r["sampling"]["mode"] == "full" and len(r["tiles"]) == 3
+    assert sum(t["points_original"] for t in r["tiles"]) == len(a)
+    assert sum(t["points_simplified"] for t in r["tiles"]) == len(b)
+    assert np.isfinite(r["mean_pct"])

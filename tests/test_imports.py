@@ -17,8 +17,7 @@ SRC = Path(__file__).resolve().parents[1] / "src"
 
 #: the known findings, fixed elsewhere (remove each once merged)
 EXPECTED = {
-    # evaluate/ (the other branch of issue 29: evaluate's sizes) breaks this cycle
-    "cycle": {("cloudsieve.evaluate.distances", "cloudsieve.evaluate.planes")},
+    "cycle": set(),
     "private": set(),
     "upward": set(),
 }

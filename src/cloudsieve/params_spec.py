@@ -158,9 +158,16 @@ _OPTIONS = [
            low=1, metavar="N"),
     Option("surface", BOOL, True,
            "point level only: skip the surface level (ball-pivoting meshes, Metro distances, compactness)"),
-    Option("tiles", INT, 4, "surface tiles", low=1, metavar="T"),
+    Option("tiles", INT, None, "surface tiles (default: evaluate 8, sized by its budget; compare 4)", low=1,
+           metavar="T"),
     Option("tile_points", INT, 200_000, "at most M original points per tile (the whole cloud when it has at most M)",
            low=1, metavar="M"),
+    Option("surface_budget", FLOAT, 60.0, "seconds for the surface level: random tiles sized to take this long at "
+           "the rate measured on 2 cores (not timed: the same tiles anywhere), with standard errors", low=0.0, low_open=True, metavar="SECONDS"),
+    Option("surface_full", BOOL, False, "the surface level on the whole cloud (every point in a tile of about "
+           "--tile-points points), no time budget: about 1 s per 3,000 original points"),
+    Option("d2_sample", INT, 1_000_000, "D2 (point-to-plane) on a uniform sample of at most N points per "
+           "direction, its standard error given (D1 and Chamfer on every point)", low=1, metavar="N"),
     Option("subset", BOOL, False, "the simplified cloud must be a subset of the original (error otherwise)"),
     Option("strict", BOOL, True, "compare clouds of different CRS or units, with a warning (default: refuse them)",
            aliases=("--force",)),
@@ -245,7 +252,8 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
-        "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid"),
+        "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid",
+        "surface_budget", "surface_full", "d2_sample"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
         "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",

@@ -20,8 +20,10 @@ def add_parser(subparsers) -> None:
             "or a uniform sample with 95% confidence intervals) and back, mean/RMS/max, symmetric "
             "Hausdorff, absolute and in % of the original's bounding-box diagonal; MPEG pc_error's D1/D2 PSNR "
             "and the Chamfer distance. Surface level "
-            "(the paper's): ball-pivoting meshes on T tiles, Metro distances both ways, triangle "
-            "compactness. The original is streamed; the simplified cloud is loaded into memory."
+            "(the paper's): ball-pivoting meshes on tiles, Metro distances both ways, triangle "
+            "compactness; by default on random tiles sized for a time budget, their standard errors given, or on "
+            "every point. D2 on a uniform sample, its standard error given. The original is streamed; the "
+            "simplified cloud is loaded into memory."
         ),
     )
     p.add_argument("original", metavar="ORIGINAL", help="original cloud (LAS/LAZ/COPC/PLY/E57/XYZ file or point store)")
@@ -56,11 +58,21 @@ def run(args: argparse.Namespace) -> int:
     for m, label in (("d1", "point-to-point"), ("d2", "point-to-plane")):
         print(f"{m.upper()} PSNR (dB)    : forward {db(ps[m]['forward'])}  backward {db(ps[m]['backward'])}  "
               f"symmetric {db(ps[m]['symmetric'])}  ({label}, peak {fmt(ps['peak'])})")
+    for name, n in (ps.get("d2_sample") or {}).items():
+        if n and ps["mse"]["d2"][name] > 0:
+            print(f"D2 {name:8s}    : on a uniform sample of {fmt(n)} points, PSNR standard error "
+                  f"±{ps['d2_se_db'][name]:.3f} dB")
     print(f"chamfer         : {fmt(report['chamfer']['value'])} (mean squared NN distance, both ways summed)")
     s = report.get("surface")
     if s:
         print(f"metro (% diag)  : mean {fmt(s['mean_pct'])}  max {fmt(s['max_pct'])}  rms {fmt(s['rms_pct'])}  "
               f"[{len(s['tiles'])} tile(s)]")
+        smp, sp = s.get("sampling") or {}, (s.get("sampling") or {}).get("spread") or {}
+        if smp.get("mode") == "budget":
+            se = f", standard error of the mean ±{fmt(sp['forward']['mean_pct_se'])}" if sp.get("forward") else ""
+            print(f"surface sample  : {len(s['tiles'])} random tiles of <= {fmt(s['tile_points'])} points "
+                  f"({100 * smp.get('points_share', 0):.2f}% of the points) sized for {smp['budget']:g} s{se} "
+                  "(--surface-full: every point)")
         on = s.get("on_surface")
         if on:
             print(f"metro on surface: mean {fmt(on['mean_pct'])}  max {fmt(on['max_pct'])}  rms {fmt(on['rms_pct'])}  "

@@ -29,13 +29,14 @@ from typing import Any
 
 import numpy as np
 
+from ..atomic import write_text
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
 from ..params import COMPARE_METHODS, validate
 from ._source import load_points
-from .baselines import run_method
+from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
 from .report import border_per_face, db, fmt, holes_note, plot_compactness, plot_point_errors, write_json
 
@@ -65,6 +66,25 @@ def _row(name: str, report: dict | None, kept: int, seconds: float, error: str |
     return row
 
 
+def _margin_lines(rows: list[dict]) -> list[str]:
+    """Each entropy row's forward D1/D2 PSNR against the best baseline's (dB), one line each."""
+    ok = [r for r in rows if "error" not in r]
+    base = [r for r in ok if r["method"] in BASELINES]
+    out = []
+    for r in ok:
+        if r["method"] in BASELINES or not base:
+            continue
+        figs = []
+        for key, label in (("d1_psnr", "D1"), ("d2_psnr", "D2")):
+            best = max(base, key=lambda b: float(b[key]))
+            if not np.isfinite(float(r[key]) - float(best[key])):  # an error of 0 (infinite PSNR) on one side
+                continue
+            figs.append(f"{label} {float(r[key]) - float(best[key]):+.2f} dB (best baseline {best['method']})")
+        if figs:
+            out.append(f"{r['method']} against the best baseline, forward PSNR: " + ", ".join(figs) + ".")
+    return ["", *out] if out else []
+
+
 def compare_markdown(result: dict) -> str:
     """The comparison table (Markdown), as in report.md."""
     n = result["points"]
@@ -90,6 +110,7 @@ def compare_markdown(result: dict) -> str:
                      f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {db(r['d1_psnr'])} | "
                      f"{db(r['d2_psnr'])} | {fmt(r['chamfer'])} | {fmt(r.get('metro_mean_pct'))} | "
                      f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {fmt(r.get('metro_surface_mean_pct'))} | {_share(r.get('compact_share'))} |")
+    lines += _margin_lines(result["rows"])
     note = holes_note(result.get("original_mesh") or {})
     lines += ["", f"> {note}", ""] if note else [""]
     return "\n".join(lines)
@@ -292,7 +313,7 @@ def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
         if points_h:
             files["point error plot"] = plot_point_errors(points_h, out_dir / "point_errors.png",
                                                           title="Point errors (original → simplified) by method")
-        (out_dir / "report.md").write_text(result["markdown"])
+        write_text(out_dir / "report.md", result["markdown"])
         files["markdown"] = str(out_dir / "report.md")
         files["html"] = _write_html(out_dir / "report.html", xyz, kept, result["markdown"], files, seed)
         files["json"] = str(out_dir / "report.json")

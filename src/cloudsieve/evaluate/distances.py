@@ -14,7 +14,8 @@ The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`:
   log histogram, the bounding box, the simplified points found exactly),
   merged in any grouping and order, then turned into the final figures (with
   95% confidence intervals when sampled), as dask reductions do;
-- :func:`morton_order`, :func:`hist_edges` — query order and histogram bins.
+- :func:`hist_edges` — the histogram bins (the query order, :func:`.morton.morton_order`, is
+  re-exported here).
 
 Three shortcuts keep it fast without changing any figure: an exact-coordinate
 hash lookup answers the original points that were kept (distance 0) without a
@@ -32,7 +33,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ..errors import EmptyInputError
-from .planes import d2_sum
+from .morton import morton_order
+from .planes import d2_squares
 
 __all__ = [
     "HIST_DECADES",
@@ -45,6 +47,7 @@ __all__ = [
     "forward_chunk",
     "combine",
     "aggregate",
+    "d2_figures",
 ]
 
 #: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
@@ -68,31 +71,6 @@ def _histogram(d: np.ndarray) -> tuple[np.ndarray, int]:
     b = np.floor((np.log10(pos) - HIST_DECADES[0]) * HIST_PER_DECADE).astype(np.int64)
     np.clip(b, 0, _NBINS - 1, out=b)
     return np.bincount(b, minlength=_NBINS).astype(np.int64), int(len(d) - len(pos))
-
-
-def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
-    """Permutation sorting *points* (n, 3) along a Morton (Z-order) curve.
-
-    Used only to make k-d tree queries cache friendly; any order gives the
-    same distances.
-    """
-    n = len(points)
-    if n < 2:
-        return np.arange(n)
-    lo = points.min(axis=0)
-    span = float((points.max(axis=0) - lo).max()) or 1.0
-    q = ((points - lo) * (((1 << bits) - 1) / span)).astype(np.uint64)
-
-    def spread(v: np.ndarray) -> np.ndarray:
-        v = v & np.uint64(0x3FF)
-        v = (v | (v << np.uint64(16))) & np.uint64(0x30000FF)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x300F00F)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x30C30C3)
-        v = (v | (v << np.uint64(2))) & np.uint64(0x9249249)
-        return v
-
-    code = spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)) | (spread(q[:, 2]) << np.uint64(2))
-    return np.argsort(code, kind="stable")
 
 
 _H1, _H2, _H3 = np.uint64(0x9E3779B97F4A7C15), np.uint64(0xC2B2AE3D27D4EB4F), np.uint64(0x165667B19E3779F9)
@@ -197,6 +175,8 @@ def _empty_partial(m: int) -> dict:
         "sumsq": 0.0,
         "sum4": 0.0,
         "d2sq": 0.0,
+        "d2sq2": 0.0,
+        "d2_count": 0,
         "max": 0.0,
         "argmax": None,
         "zeros": 0,
@@ -241,7 +221,8 @@ def stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
 def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None = None,
                   backward_index: ExactIndex | None = None, n_backward: int | None = None,
                   keep: np.ndarray | None = None, normals: np.ndarray | None = None,
-                  d2_k: int | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
+                  d2_k: int | None = None,
+                  d2_rows: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
     """Partial forward statistics of one chunk of original points.
 
     Parameters
@@ -264,12 +245,15 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
     d2_k : int, optional
         Also sum the point-to-plane (D2) errors, normals estimated from this
         many neighbours in the chunk when *normals* is None
-        (:func:`.planes.d2_sum`); no D2 when None.
+        (:func:`.planes.d2_squares`); no D2 when None.
+    d2_rows : ndarray of int, optional
+        Positions among the evaluated rows (of *xyz*, or of *select*) in
+        the D2 sample; all of them when None.
 
     Returns
     -------
     partial : dict
-        ``count, sum, sumsq, sum4, d2sq, max, argmax, zeros, hist, bbox, matched``
+        ``count, sum, sumsq, sum4, d2sq, d2sq2, d2_count, max, argmax, zeros, hist, bbox, matched``
         (packed bitmask over the simplified points found exactly in this chunk)
         and ``seen`` (points read).
     ply : (ndarray (k, 3), ndarray (k,)) or None
@@ -281,9 +265,11 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
     p = stats_partial(d, q, m)
     p["seen"] = int(len(xyz))
     if d2_k is not None:
-        w = np.flatnonzero(d > 0)
+        pos = np.arange(len(q)) if d2_rows is None else d2_rows
+        w = pos[d[pos] > 0]
         rows = w if select is None else select[w]
-        p["d2sq"] = d2_sum(xyz, rows, target.points[idx[w]] - q[w], normals, d2_k)
+        sq = d2_squares(xyz, rows, target.points[idx[w]] - q[w], normals, d2_k)
+        p["d2sq"], p["d2sq2"], p["d2_count"] = float(sq.sum()), float(np.dot(sq, sq)), int(len(pos))
     if len(xyz):
         p["bbox"] = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
     mask = np.zeros(m, bool)
@@ -315,6 +301,8 @@ def combine(partials: list[dict]) -> dict:
         out["sumsq"] += p["sumsq"]
         out["sum4"] += p["sum4"]
         out["d2sq"] += p["d2sq"]
+        out["d2sq2"] += p["d2sq2"]
+        out["d2_count"] += p["d2_count"]
         out["zeros"] += p["zeros"]
         out["seen"] += p["seen"]
         out["hist"] += p["hist"]
@@ -327,6 +315,19 @@ def combine(partials: list[dict]) -> dict:
             else:
                 out["bbox"] = np.stack([np.minimum(out["bbox"][0], p["bbox"][0]),
                                         np.maximum(out["bbox"][1], p["bbox"][1])])
+    return out
+
+
+def d2_figures(partial: dict, population: int) -> dict:
+    """``d2_mse`` of a combined partial, and when its D2 sample is smaller than *population*,
+    ``d2_sample`` (its size) and ``d2_se`` (the MSE's standard error, finite-population corrected)."""
+    dn = partial["d2_count"] or partial["count"]
+    mse = partial["d2sq"] / dn if dn else 0.0
+    out: dict[str, Any] = {"d2_mse": mse}
+    if dn and population > dn:
+        fpc = math.sqrt((population - dn) / (population - 1))
+        var = max((partial["d2sq2"] - dn * mse * mse) / max(dn - 1, 1), 0.0)
+        out.update({"d2_sample": int(dn), "d2_se": math.sqrt(var / dn) * fpc})
     return out
 
 
@@ -349,7 +350,8 @@ def aggregate(partial: dict, diagonal: float, population: int | None = None) -> 
     dict
         ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``,
         ``mse`` (mean squared distance: D1) and ``d2_mse`` (mean squared
-        point-to-plane error: D2)
+        point-to-plane error: D2; with ``d2_sample`` and ``d2_se`` when
+        measured on a sample, :func:`d2_figures`)
         and, when sampled, ``ci``, ``population``, ``max_is_lower_bound``.
     """
     n = partial["count"]
@@ -371,8 +373,8 @@ def aggregate(partial: dict, diagonal: float, population: int | None = None) -> 
         "zeros": int(partial["zeros"]),
         "argmax": partial["argmax"],
         "mse": msq,
-        "d2_mse": partial["d2sq"] / n,
     }
+    out.update(d2_figures(partial, population if population is not None else n))
     if population is not None and population > n:
         fpc = math.sqrt((population - n) / (population - 1)) if population > 1 else 0.0
         var = max((partial["sumsq"] - n * mean * mean) / max(n - 1, 1), 0.0)

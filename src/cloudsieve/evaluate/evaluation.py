@@ -66,6 +66,7 @@ from .planes import field_figures
 from .points import point_errors
 from .report import write_report
 from .surface import surface_errors
+from .tiles import SAMPLE_SIZE
 
 logger = logging.getLogger(__name__)
 
@@ -137,11 +138,12 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
     return msgs
 
 
-def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
+def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int | None = None,
              tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
              metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False,
-             bars=None, psnr_peak: float | None = None, reference_mesh: str | None = None) -> dict:
+             bars=None, psnr_peak: float | None = None, reference_mesh: str | None = None,
+             surface_budget: float = 60.0, surface_full: bool = False, d2_sample: int = 1_000_000) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -157,7 +159,19 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         Also compute the paper's surface level (meshes, Metro, compactness).
     tiles, tile_points : int
         T tiles of at most M original points for the surface level (the whole
-        cloud when it has at most M points).
+        cloud when it has at most M points and fits the budget); T None: 8
+        with the budget (4 without one).
+    surface_budget : float
+        Seconds for the surface level (60): T tiles drawn at random and sized
+        to take that long at the rate measured on 2 cores (never timed at
+        run time: the same figures on any machine), their standard errors given
+        (``report["surface"]["sampling"]``, :mod:`.tiles`).
+    surface_full : bool
+        The surface level on the whole cloud: every point in a tile of about
+        M points, no budget (time proportional to the cloud's size).
+    d2_sample : int
+        D2 on a uniform seeded sample of at most this many points per
+        direction, with its standard error (D1 and Chamfer stay exact).
     seed : int
         Seeds every sample and the tile choice.
     subset : bool
@@ -212,14 +226,16 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
-        "psnr_peak": psnr_peak, "reference_mesh": reference_mesh,
+        "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_full": surface_full,
+        "surface_budget": surface_budget, "d2_sample": d2_sample,
     })
     if report_dir is not None:
         check_folder(report_dir)
     return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
                           chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
-                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh)
+                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh,
+                          surface_budget=surface_budget, surface_full=surface_full, d2_sample=d2_sample)
 
 
 def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
@@ -236,7 +252,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
                    chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
                    progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
                    drop_invalid: bool = False, bars=None, psnr_peak: float | None = None,
-                   reference_mesh: str | None = None) -> dict:
+                   reference_mesh: str | None = None, surface_budget: float | None = None,
+                   surface_full: bool = False, d2_sample: int | None = 1_000_000) -> dict:
     """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
 
     Parameters
@@ -265,7 +282,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         "simplified": {"name": str(simp_name), "count": int(len(simp)), "crs": (simp_header or {}).get("crs")},
         "parameters": {"sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
                        "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples,
-                       "psnr_peak": psnr_peak, "reference_mesh": reference_mesh},
+                       "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_budget": surface_budget,
+                       "surface_full": surface_full, "d2_sample": d2_sample},
         "warnings": list(warn),
         "timing": {},
     }
@@ -274,7 +292,9 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
     with stage_bar(bars, "point errors", src.count, "pt") as bar:
         p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
                          error_points=error_points if report_dir else 0, grid=las_grid(simp_header),
-                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress))
+                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress),
+                         d2_sample=d2_sample, keep_sample=SAMPLE_SIZE if surface and surface_budget else 0)
+    sample = p.pop("uniform_sample", None)
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p
     report["diagonal"] = p["diagonal"]
@@ -288,7 +308,9 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
             report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
                                                diagonal=p["diagonal"], samples=metro_samples,
-                                               cache=surface_cache, progress=bar, reference=reference)
+                                               cache=surface_cache, progress=bar, reference=reference,
+                                               budget=surface_budget, full=surface_full,
+                                               sample=None if sample is None else (sample, p["original_count"]))
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
     if report_dir is not None:

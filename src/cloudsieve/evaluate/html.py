@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import write_text
+
 __all__ = ["VIEW_POINTS", "view_sample", "markdown_html", "page", "write_html"]
 
 #: at most this many points in a 3D view (a uniform seeded sample)
@@ -191,5 +193,5 @@ def page(title: str, md: str, *, images: dict[str, str] | None = None, original:
 
 def write_html(path: str | os.PathLike, title: str, md: str, **views) -> str:
     """Write :func:`page` to *path*; returns the path."""
-    Path(path).write_text(page(title, md, **views), encoding="utf-8")
+    write_text(path, page(title, md, **views))
     return str(path)

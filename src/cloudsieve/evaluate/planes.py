@@ -30,6 +30,14 @@ original (``chunk_size`` points, 1 M by default): exact for a cloud of one
 chunk; at the edge of a chunk the neighbourhood may be one-sided.
 Normals are only computed where the D1 error is not zero (a zero error has a
 zero projection).
+
+On a large cloud the normals dominate the point level's time (a k-NN query
+and a 3x3 eigenproblem per dropped point: 3-6 times the D1 pass), so D2 is
+measured on a uniform seeded sample of at most ``d2_sample`` points per
+direction (:func:`cloudsieve.evaluate.points.point_errors`), every point of
+a smaller cloud: the MSE is the sample's mean squared projection, its
+standard error stated (``d2_se``; in dB, 10/ln 10 x se/MSE). D1 and the
+Chamfer distance stay exact.
 """
 
 from __future__ import annotations
@@ -40,10 +48,14 @@ import numpy as np
 from numba import njit
 from scipy.spatial import cKDTree
 
-__all__ = ["K_NORMALS", "pca_normals", "unit_normals", "d2_sum", "backward_chunk", "psnr", "field_figures"]
+from .morton import morton_order
+
+__all__ = ["K_NORMALS", "D2_SAMPLE", "pca_normals", "unit_normals", "d2_squares", "backward_chunk", "psnr", "field_figures"]
 
 #: neighbours of the PCA normal estimate (the point itself included)
 K_NORMALS = 12
+#: D2 on a uniform sample of at most this many points per direction (``d2_sample``, params.py's default)
+D2_SAMPLE = 1_000_000
 #: normals estimated per block of points (bounds the (block, k, 3) memory)
 _BLOCK = 65_536
 
@@ -142,8 +154,6 @@ def pca_normals(points: np.ndarray, centres: np.ndarray, k: int = K_NORMALS, tre
     out = np.zeros((len(centres), 3))
     if k < 3 or len(centres) == 0:
         return out
-    from .distances import morton_order  # (distances imports this module)
-
     if tree is None:
         tree = cKDTree(points, balanced_tree=False, compact_nodes=False)
     pts = np.ascontiguousarray(points, dtype=np.float64)
@@ -164,9 +174,9 @@ def unit_normals(normals: np.ndarray) -> np.ndarray:
     return np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
 
 
-def d2_sum(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: np.ndarray | None = None,
-           k: int = K_NORMALS, tree: cKDTree | None = None) -> float:
-    """Sum of squared projections of *errors* on the original's normals at ``xyz[rows]`` (a chunk kernel).
+def d2_squares(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: np.ndarray | None = None,
+               k: int = K_NORMALS, tree: cKDTree | None = None) -> np.ndarray:
+    """Squared projections of *errors* on the original's normals at ``xyz[rows]`` (a chunk kernel).
 
     Parameters
     ----------
@@ -178,16 +188,20 @@ def d2_sum(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: np.nd
         Error vectors (other point minus original point).
     normals : ndarray of shape (n, 3), optional
         The chunk's normals from the file; estimated (PCA, *k*) when None.
+
+    Returns
+    -------
+    ndarray of shape (r,), float64
     """
     if len(rows) == 0:
-        return 0.0
+        return np.zeros(0)
     n = unit_normals(normals[rows]) if normals is not None else pca_normals(xyz, xyz[rows], k, tree)
     proj = np.einsum("ij,ij->i", errors, n)
-    return float(np.dot(proj, proj))
+    return proj * proj
 
 
 def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray, *, normals: np.ndarray | None = None,
-                   k: int | None = K_NORMALS) -> tuple[np.ndarray, np.ndarray]:
+                   k: int | None = K_NORMALS, d2_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Distances from *points* (u, 3) to one chunk of original points, where they can beat *best*.
 
     Parameters
@@ -202,6 +216,8 @@ def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray, *, nor
         The chunk's normals from the file (else estimated, *k* neighbours).
     k : int or None
         Neighbours of the normal estimate; None: no D2.
+    d2_mask : ndarray of shape (u,), bool, optional
+        The points of the D2 sample (default: all); *d2* is 0 for the others.
 
     Returns
     -------
@@ -219,14 +235,13 @@ def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray, *, nor
     gap = np.linalg.norm(np.maximum(np.maximum(lo - points, points - hi), 0.0), axis=1)
     todo = np.flatnonzero(gap < best)
     if len(todo):
-        from .distances import morton_order  # (distances imports this module)
-
         tree = cKDTree(xyz, balanced_tree=False, compact_nodes=False)
         sub = todo[morton_order(points[todo])]
         d, j = tree.query(points[sub], k=1, workers=-1)
         out[sub] = d
         if k is not None:
-            w = np.flatnonzero((d < best[sub]) & (d > 0))  # pairs that can win, with an error to project
+            win = (d < best[sub]) & (d > 0)  # pairs that can win, with an error to project
+            w = np.flatnonzero(win if d2_mask is None else win & d2_mask[sub])
             if len(w):
                 rows = j[w]
                 n = unit_normals(normals[rows]) if normals is not None else pca_normals(xyz, xyz[rows], k, tree)
@@ -265,7 +280,10 @@ def field_figures(forward: dict, backward: dict, *, diagonal: float, peak: float
         ``peak``, ``peak_from`` ("diagonal" or "given"), ``formula``,
         ``normals``, ``k_normals`` (None with file normals), ``d1`` and ``d2``
         (``forward``, ``backward``, ``symmetric`` in dB), ``mse`` (the same
-        three per metric, squared cloud units).
+        three per metric, squared cloud units); when D2 was measured on a
+        sample, ``d2_sample`` (``forward``/``backward``: its size, None for
+        every point) and ``d2_se_db`` (the standard error of each D2 PSNR
+        in dB, 10/ln 10 x se/MSE; 0 for an exact one).
     chamfer : dict
         ``value`` (= ``forward`` + ``backward``), ``forward``, ``backward``
         (mean squared nearest-neighbour distances, squared cloud units),
@@ -281,6 +299,10 @@ def field_figures(forward: dict, backward: dict, *, diagonal: float, peak: float
     figures = {"peak": p, "peak_from": "diagonal" if peak is None else "given",
                "formula": "10*log10(3*peak^2/MSE) dB", "normals": normals,
                "k_normals": None if normals == "file" else int(k), **out, "mse": mse}
+    if "d2_sample" in forward or "d2_sample" in backward:
+        figures["d2_sample"] = {name: d.get("d2_sample") for name, d in (("forward", forward), ("backward", backward))}
+        figures["d2_se_db"] = {name: (10.0 / math.log(10.0)) * d.get("d2_se", 0.0) / d["d2_mse"] if d["d2_mse"] > 0
+                               else 0.0 for name, d in (("forward", forward), ("backward", backward))}
     f, b = mse["d1"]["forward"], mse["d1"]["backward"]
     chamfer = {"value": f + b, "forward": f, "backward": b,
                "value_pct2": (f + b) * 1e4 / diagonal**2 if diagonal > 0 else math.nan,

@@ -72,7 +72,7 @@ from .distances import (
     hist_edges,
     stats_partial,
 )
-from .planes import K_NORMALS, backward_chunk
+from .planes import D2_SAMPLE, K_NORMALS, backward_chunk
 
 logger = logging.getLogger(__name__)
 
@@ -136,7 +136,8 @@ def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
 def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
                  error_points: int = 0, on_error_points=None, progress=None,
-                 grid: tuple[np.ndarray, np.ndarray] | None = None, d2_k: int | None = K_NORMALS) -> dict:
+                 grid: tuple[np.ndarray, np.ndarray] | None = None, d2_k: int | None = K_NORMALS,
+                 d2_sample: int | None = D2_SAMPLE, keep_sample: int = 0) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
     Parameters
@@ -176,6 +177,15 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         Point-to-plane (D2) errors too, on the original's normals: from the
         file (``nx, ny, nz``) or estimated from this many neighbours in the
         point's chunk (:mod:`.planes`); None: D1 only (``d2_mse`` 0).
+    d2_sample : int or None
+        D2 on a uniform seeded sample of at most this many of the evaluated
+        points per direction (``d2_sample`` and ``d2_se`` in each direction
+        when smaller than it); None: every point.
+    keep_sample : int
+        Also return ``uniform_sample``: the coordinates of a uniform seeded
+        sample of this many original points (*seed*, as
+        :func:`.tiles.uniform_sample` draws it), taken on the way (for the
+        surface level's tiles; the caller removes it before writing JSON).
 
     Returns
     -------
@@ -197,7 +207,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     tick = callback(progress)
     rng = np.random.default_rng(seed)
     sampled = sample is not None
-    n = src.count_points() if sampled or error_points else src.count
+    n = src.count_points() if sampled or error_points or keep_sample else src.count
     fwd_idx = bwd_idx = None
     if sampled:
         sample = int(sample)
@@ -215,6 +225,17 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             ply_idx = fwd_idx if len(fwd_idx) <= error_points else np.sort(
                 np.random.default_rng([seed, 1]).choice(fwd_idx, int(error_points), replace=False))
 
+    d2_idx = None  # the forward D2 sample: global rows of the original (a subset of fwd_idx when sampled)
+    if d2_k is not None and d2_sample is not None and n is not None:
+        rows = fwd_idx if fwd_idx is not None else None
+        if (n if rows is None else len(rows)) > d2_sample:
+            d2rng = np.random.default_rng([seed, 2])
+            d2_idx = (_sample_indices(n, int(d2_sample), d2rng) if rows is None
+                      else np.sort(d2rng.choice(rows, int(d2_sample), replace=False)))
+
+    keep_idx = _sample_indices(n, int(keep_sample), np.random.default_rng(seed)) if keep_sample else None
+    kept_parts: list[np.ndarray] = []
+
     target = Target(simplified)
     bpoints = simplified if bwd_idx is None else simplified[bwd_idx]
     bindex = None if bwd_idx is None else ExactIndex(bpoints)
@@ -225,8 +246,13 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     def items():
         for chunk in src.chunks():
             start, stop = chunk.start, chunk.stop
-            kw = {"select": _select(fwd_idx, start, stop), "keep": _select(ply_idx, start, stop),
-                  "n_backward": nb, "normals": chunk.arrays.get("normals"), "d2_k": d2_k}
+            if keep_idx is not None:
+                kept_parts.append(chunk.xyz[_select(keep_idx, start, stop)])
+            select, d2_rows = _select(fwd_idx, start, stop), _select(d2_idx, start, stop)
+            if select is not None and d2_rows is not None:  # positions among the sampled rows
+                d2_rows = np.searchsorted(select, d2_rows)
+            kw = {"select": select, "keep": _select(ply_idx, start, stop), "n_backward": nb,
+                  "normals": chunk.arrays.get("normals"), "d2_k": d2_k, "d2_rows": d2_rows}
             yield (chunk.xyz,), kw
 
     partials = []
@@ -250,11 +276,17 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     matched = np.unpackbits(total["matched"], count=nb).astype(bool)
     bd, bd2 = np.zeros(nb), np.zeros(nb)
     todo = np.flatnonzero(~matched)
+    d2_mask = None  # the backward D2 sample
+    if d2_k is not None and d2_sample is not None and nb > d2_sample:
+        d2_mask = np.zeros(nb, bool)
+        d2_mask[_sample_indices(nb, int(d2_sample), np.random.default_rng([seed, 3]))] = True
     if len(todo):
         logger.info("backward: %d of %d simplified points not found exactly; searching the original", len(todo), nb)
         pts = bpoints[todo]
         best, best2 = np.full(len(todo), np.inf), np.zeros(len(todo))
-        items2 = (((chunk.xyz,), {"normals": chunk.arrays.get("normals"), "k": d2_k}) for chunk in src.chunks())
+        sub_mask = None if d2_mask is None else d2_mask[todo]
+        items2 = (((chunk.xyz,), {"normals": chunk.arrays.get("normals"), "k": d2_k, "d2_mask": sub_mask})
+                  for chunk in src.chunks())
         for d, d2 in imap(backward_chunk, items2, client, shared=(pts, best)):
             win = d < best
             best[win], best2[win] = d[win], d2[win]
@@ -281,14 +313,17 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
             f"{n_out} of {nb} {'sampled ' if bwd_idx is not None else ''}simplified points are not points of "
             f"the original {src.name} ({example}), but a subset was claimed")
     bpart = stats_partial(bd, bpoints, 0)
-    bpart["d2sq"] = float(bd2.sum())
+    bsq = bd2 if d2_mask is None else bd2[d2_mask]
+    bpart["d2sq"], bpart["d2sq2"], bpart["d2_count"] = float(bsq.sum()), float(np.dot(bsq, bsq)), int(len(bsq))
     backward = aggregate(bpart, diagonal, population=len(simplified) if bwd_idx is not None and nb < len(simplified) else None)
     haus = max(forward["max"], backward["max"])
     fh, bh = total["hist"], bpart["hist"]
     nz = np.flatnonzero((fh + bh) > 0)
     lo, hi = (int(nz[0]), int(nz[-1]) + 1) if len(nz) else (0, 0)
     edges = np.log10(hist_edges())
+    out = {} if keep_idx is None else {"uniform_sample": np.concatenate(kept_parts) if kept_parts else np.zeros((0, 3))}
     return {
+        **out,
         "mode": "sampled" if sampled else "exact",
         "sample": int(sample) if sampled else None,
         "seed": int(seed),

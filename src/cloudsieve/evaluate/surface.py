@@ -9,9 +9,16 @@ measured (see :mod:`.mesh` for each, and for why Metro runs in a forked
 child). Per-tile figures are aggregated over tiles: Metro mean and RMS
 weighted by samples, max over tiles, compactness over all triangles.
 
-Tiles are gathered in one streamed pass over the original (memory: at most
-M points per tile plus one chunk), after one pass for the sample of tile
-centres; the simplified cloud is in memory.
+Which tiles (:mod:`.tiles`): T fixed ones as above; or, with a time
+*budget* (``cloudsieve evaluate``'s default), tiles drawn at random and
+sized so that the level takes about the budget at the rate measured on 2
+cores (:data:`.tiles.SURFACE_RATE`; never timed at run time, so the tiles
+and the figures are the same on any machine), the figures then those of a
+sample of tiles, their standard errors given; or
+*full*: every original point in one tile. Tiles are gathered in one
+streamed pass over the original (memory: at most M points per tile plus
+one chunk; every point with *full*), after one pass for a uniform sample;
+the simplified cloud is in memory.
 
 Cost: ball pivoting dominates (pymeshlab, one core per mesh; the original's
 and the simplified tile meshes are built at once in two forked children):
@@ -24,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import math
+import time
 from typing import Any
 
 import numpy as np
@@ -31,74 +39,13 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
+from .tiles import (BUDGET_TILES, SURFACE_RATE, budget_tile_points, choose_tiles, gather_tiles,
+                    partition_tiles, random_tiles, spread, uniform_sample)
 from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, crop_mesh, metro
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["choose_tiles", "surface_errors"]
-
-
-def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
-    """Pick *tiles* tile centres spread over the cloud and a first radius each.
-
-    Returns a list of ``{"centre": [x, y, z], "radius": r}``; an empty list
-    when the cloud has at most *tile_points* points (then the whole cloud is
-    one tile). Centres are k-means centres (seeded) of a uniform sample of the
-    cloud, snapped to a sample point; the radius holds about *tile_points*
-    points by the sample's density.
-    """
-    from scipy.cluster.vq import kmeans2
-
-    src = open_source(source)
-    n = src.count_points()
-    if n <= tile_points:
-        return []
-    rng = np.random.default_rng(seed)
-    s = min(n, sample_size)
-    idx = np.sort(rng.choice(n, size=s, replace=False))
-    parts = []
-    for chunk in src.chunks():
-        a, b = np.searchsorted(idx, [chunk.start, chunk.stop])
-        parts.append(chunk.xyz[idx[a:b] - chunk.start])
-    sample = np.concatenate(parts)
-    tiles = int(min(tiles, max(1, n // tile_points)))
-    centres, _ = kmeans2(sample, tiles, seed=rng, minit="++")
-    tree = cKDTree(sample)
-    _, nearest = tree.query(centres)
-    centres = sample[nearest]
-    k = max(8, min(len(sample), int(round(tile_points * len(sample) / n))))
-    d, _ = tree.query(centres, k=k)
-    radii = d[:, -1] if d.ndim == 2 else d
-    return [{"centre": c.tolist(), "radius": float(r)} for c, r in zip(centres, radii)]
-
-
-def _gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
-    """Stream the original, keeping per tile the points within its radius (at most M nearest)."""
-    centres = np.array([t["centre"] for t in tiles])
-    radii = np.array([t["radius"] for t in tiles], dtype=np.float64)
-    kept: list[list[np.ndarray]] = [[] for _ in tiles]
-    dist: list[list[np.ndarray]] = [[] for _ in tiles]
-    counts = np.zeros(len(tiles), np.int64)
-    for chunk in src.chunks():
-        xyz = chunk.xyz
-        for i, c in enumerate(centres):
-            d = np.sqrt(((xyz - c) ** 2).sum(axis=1))
-            w = d <= radii[i]
-            if w.any():
-                kept[i].append(xyz[w])
-                dist[i].append(d[w])
-                counts[i] += int(w.sum())
-            if counts[i] > tile_points:  # keep the M nearest, shrink the radius
-                p, q = np.concatenate(kept[i]), np.concatenate(dist[i])
-                o = np.argsort(q, kind="stable")[:tile_points]
-                radii[i] = q[o[-1]]
-                o = np.flatnonzero(q <= radii[i])
-                kept[i], dist[i], counts[i] = [p[o]], [q[o]], len(o)
-    out = []
-    for i, t in enumerate(tiles):
-        t["radius"] = float(radii[i])
-        out.append(np.concatenate(kept[i]) if kept[i] else np.zeros((0, 3)))
-    return out
 
 
 def _mesh_figures(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, dict]:
@@ -197,10 +144,52 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
             "max_pct": mx * scale, "samples": int(n.sum())}
 
 
-def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, tile_points: int = 200_000,
+def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
+          sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
+    """The tiles (fixed, budget or full; see :mod:`.tiles`), their points, and how they were chosen."""
+    if budget is None and not full:
+        chosen = choose_tiles(src, tiles or 4, tile_points, seed=seed)
+        if chosen:
+            return (chosen, gather_tiles(src, chosen, tile_points), _simplified_in(simplified, chosen),
+                    {"mode": "fixed", "tile_points": int(tile_points), "population": src.count_points()})
+        return _whole(src, simplified)
+    sample, n = sample if sample is not None else uniform_sample(src, seed=seed)
+    if full:
+        if n <= tile_points:
+            return _whole(src, simplified)
+        chosen, origs, simps = partition_tiles(src, sample, n, tile_points, simplified, seed=seed)
+        return chosen, origs, simps, {"mode": "full", "tile_points": int(tile_points), "population": n}
+    # sized by a measured rate, never by a clock: the same tiles on any machine, under any load
+    sampling = {"mode": "budget", "budget": float(budget), "population": n, "rate": float(SURFACE_RATE)}
+    if n <= tile_points and n / SURFACE_RATE <= budget:
+        return (*_whole(src, simplified)[:3], {**sampling, "mode": "whole", "tile_points": n})
+    count = tiles or BUDGET_TILES
+    m = budget_tile_points(SURFACE_RATE, budget, count, tile_points)
+    chosen = random_tiles(sample, n, count, m, seed=seed)
+    sampling.update({"tile_points": m})
+    return chosen, gather_tiles(src, chosen, m), _simplified_in(simplified, chosen), sampling
+
+
+def _whole(src, simplified: np.ndarray):
+    origs = [np.concatenate([chunk.xyz for chunk in src.chunks()])]
+    return ([{"centre": None, "radius": None, "whole_cloud": True}], origs, [simplified],
+            {"mode": "whole", "tile_points": len(origs[0]), "population": len(origs[0])})
+
+
+def _simplified_in(simplified: np.ndarray, chosen: list[dict]) -> list[np.ndarray]:
+    stree = cKDTree(simplified)
+    out = []
+    for t in chosen:
+        ids = np.sort(stree.query_ball_point(t["centre"], t["radius"], workers=-1, return_sorted=False))
+        out.append(simplified[ids.astype(np.int64)])
+    return out
+
+
+def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None = 4, tile_points: int = 200_000,
                    seed: int = 0, diagonal: float | None = None, samples: int | None = None,
                    max_samples: int = 500_000, progress=None, cache: dict | None = None,
-                   reference: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+                   reference: tuple[np.ndarray, np.ndarray] | None = None, budget: float | None = None,
+                   full: bool = False, sample: tuple[np.ndarray, int] | None = None) -> dict:
     """The paper's surface-level figures on tiles of the cloud.
 
     Parameters
@@ -209,8 +198,19 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         Streamed (tiles gathered in one pass).
     simplified : ndarray of shape (m, 3)
         In memory.
-    tiles : int
-        Number of tiles T (fewer when the cloud has fewer than T*M points).
+    tiles : int or None
+        Number of tiles T (fewer when the cloud has fewer than T*M points;
+        None: 4); with *budget*, T tiles sized to fit it (fewer if they do
+        not), None: as many as fit, sized for 8.
+    budget : float, optional
+        Seconds: T tiles drawn at random, sized so that they take about this
+        long at the measured rate :data:`.tiles.SURFACE_RATE` (:mod:`.tiles`).
+        None: T tiles of M points (k-means centres), however long they take.
+    full : bool
+        Every original point in one tile of about M points (no budget).
+    sample : (ndarray (s, 3), int), optional
+        A uniform sample of the original and its point count, when one is
+        at hand (saves a pass over the original).
     tile_points : int
         At most M original points per tile; the whole cloud is one tile when
         it has at most M points.
@@ -250,23 +250,24 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
         ``simplified`` mesh totals (``vertices, border_edges, faces,
         compact_share, compact, compactness_mean, compactness_hist``;
         border edges: :func:`.mesh.border_edges`), and for the simplified
-        mesh at the top level ``vertices, faces, compact_share, compact``.
+        mesh at the top level ``vertices, faces, compact_share, compact``;
+        ``sampling``: ``mode`` ("whole" cloud, "fixed" T tiles, "budget" or
+        "full"), ``tiles`` (run), ``tile_points`` (M), ``seconds``,
+        ``population`` and ``points_share`` (the share of the original's
+        points in the tiles run), with a budget ``budget`` and ``rate`` (the
+        measured original points a second it was sized by), and for sampled tiles ``spread`` (:func:`.tiles.spread`:
+        standard errors over the tiles).
     """
+    t0 = time.perf_counter()
     src = open_source(original)
     simplified = np.ascontiguousarray(simplified, dtype=np.float64)
     tick = progress or (lambda n: None)
-    chosen = choose_tiles(src, tiles, tile_points, seed=seed)
-    if not chosen:
-        origs = [np.concatenate([chunk.xyz for chunk in src.chunks()])]
-        simps = [simplified]
-        chosen = [{"centre": None, "radius": None, "whole_cloud": True}]
-    else:
-        origs = _gather_tiles(src, chosen, tile_points)
-        stree = cKDTree(simplified)
-        simps = []
-        for t in chosen:
-            ids = np.sort(stree.query_ball_point(t["centre"], t["radius"], workers=-1, return_sorted=False)).astype(np.int64)
-            simps.append(simplified[ids])
+    plan = cache.get("plan") if cache is not None else None  # compare: the first call's tiles for every method
+    if plan is None:
+        plan = _plan(src, simplified, tiles, tile_points, seed, budget, full, sample)
+        if cache is not None:
+            cache["plan"] = plan
+    chosen, origs, simps, sampling = plan
     if diagonal is None:
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)
@@ -275,18 +276,27 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int = 4, til
             if len(xyz):
                 lo, hi = np.minimum(lo, xyz.min(0)), np.maximum(hi, xyz.max(0))
         diagonal = float(np.linalg.norm(hi - lo))
-    recs, cos, css = [], [], []
+    recs, cos, css, used = [], [], [], []
     for i, (t, o, s) in enumerate(zip(chosen, origs, simps)):
         logger.info("surface tile: %d original, %d simplified points", len(o), len(s))
+        started = time.perf_counter()
         ref = reference
         if reference is not None and t.get("centre") is not None:
             ref = crop_mesh(reference, t["centre"], t["radius"])
         rec, co, cs = _tile_figures(o, s, diagonal, samples, max_samples, cache, i, ref)
+        rec["seconds"] = time.perf_counter() - started
         recs.append({**t, **rec})
+        used.append(len(o))
         cos.append(co)
         css.append(cs)
         tick(1)
-    out: dict[str, Any] = {"tiles": recs, "tile_points": int(tile_points), "diagonal": diagonal,
+    sampling = {**sampling, "tiles": len(recs), "seconds": time.perf_counter() - t0}
+    if sampling.get("population"):
+        sampling["points_share"] = float(sum(used)) / sampling["population"]
+    if sampling["mode"] in ("budget", "fixed") and len(recs) > 1:
+        sampling["spread"] = spread(recs, diagonal)
+    out: dict[str, Any] = {"tiles": recs, "tile_points": int(sampling.get("tile_points", tile_points)),
+                           "diagonal": diagonal, "sampling": sampling,
                            "ball_pivoting": "pymeshlab, radii r and 2r, r = median mean 6-NN distance",
                            "compact_threshold": COMPACT_THRESHOLD}
     for name in ("forward", "backward"):
