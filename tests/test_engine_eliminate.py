@@ -25,7 +25,6 @@ from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
 from cloudsieve.engine.halo import read_band_halo, read_halo
 from cloudsieve.engine.runs import cell_runs
-from cloudsieve.engine.runner import Runner
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.store import PointStore
 from cloudsieve.engine.runner import NO_HTTP_PORT

@@ -21,8 +21,6 @@ import termios
 import threading
 from contextlib import contextmanager
 
-import pytest
-
 from cloudsieve import evaluate, simplify
 from conftest import ROOT, shared_file
 

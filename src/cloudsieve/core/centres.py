@@ -12,9 +12,14 @@ The kernels run over ranges of points on threads by
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from .kernels import centres as kc
+
+if TYPE_CHECKING:
+    from scipy.spatial import cKDTree
 
 __all__ = ["centre_tree", "cell_size", "ring_grid", "candidate_lists", "no_lists", "nearest_centres"]
 

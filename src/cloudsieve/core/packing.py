@@ -27,7 +27,6 @@ and returns each cell's packing size there: the expected kept points that
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 
