@@ -212,11 +212,8 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     """
     pts = check_points(points)
     n = len(pts)
-    if int(count) != count or not 0 <= count <= n:
-        raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
+    # count and steps come from the engine (kept_counts: in [0, n]) and from params (relocate_steps), not checked here
     r_max = check_r_max(r_max)
-    if int(steps) != steps or steps < 0:
-        raise InvalidParameterError(f"steps must be an integer >= 0, got {steps!r}")
     hal = np.zeros((0, 3)) if halo is None else check_points(halo, "halo")
     dec = np.zeros(len(hal), dtype=bool) if decided is None else np.asarray(decided)
     hk = np.zeros(len(hal), dtype=bool) if halo_keep is None else np.asarray(halo_keep)

@@ -72,9 +72,7 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     p = np.asarray(priority, dtype=np.float64)
     if p.ndim != 1 or np.isnan(p).any():
         raise InvalidParameterError(f"priority must have shape (n,) without NaN, got shape {p.shape}")
-    n = len(p)
-    if int(count) != count or not 0 <= count <= n:
-        raise InvalidParameterError(f"count must be an integer in [0, {n}], got {count!r}")
+    n = len(p)  # count: in [0, n], from a validated option or the engine's kept_counts (not checked here)
     keep = np.zeros(n, dtype=bool)
     k = int(count)
     if k == 0:
