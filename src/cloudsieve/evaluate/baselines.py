@@ -20,7 +20,7 @@ deterministic.
   exactly *count* points, mapped back to original indices by exact
   coordinates; O(n x count), refused beyond ``FPS_MAX_WORK`` = 2e10
   (about 20 s on one core; 110k -> 99k points is 1.1e10).
-- ``km`` / ``fcm``: entropy simplification (:func:`cloudsieve.prune.simplify_points`,
+- ``km`` / ``fcm``: entropy simplification (:func:`cloudsieve.core.simplify.simplify_points`,
   rule ``target`` with the count by default).
 
 Everything here works on clouds in memory (compare is for choosing a method
@@ -190,7 +190,7 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
 
 def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = MEMORY_RULE,
                    seed: int = 0, **options) -> np.ndarray:
-    """Entropy simplification (KM or FCM) via :func:`cloudsieve.prune.simplify_points`.
+    """Entropy simplification (KM or FCM) via :func:`cloudsieve.core.simplify.simplify_points`.
 
     *count* is passed to every rule that takes one (``target``,
     ``iterative`` and ``coverage`` then stop at the count); with ``threshold``

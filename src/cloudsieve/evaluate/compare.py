@@ -203,7 +203,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         Drop the source's points with NaN or infinite coordinates (a warning
         gives their count) instead of refusing it.
     **entropy_options
-        Passed to :func:`cloudsieve.prune.simplify_points`: ``threshold``,
+        Passed to :func:`cloudsieve.core.simplify.simplify_points`: ``threshold``,
         ``cluster_size``, ``k0``, ``k_min`` (:mod:`cloudsieve.params`).
 
     Every option is checked first (:func:`cloudsieve.params.validate`),

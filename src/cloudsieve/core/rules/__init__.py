@@ -10,7 +10,7 @@ engine cell with a target, its warm-up targets, and its in-memory selection
 rule names are written as strings.
 
 This module imports no numba and no scipy: :mod:`cloudsieve.params` reads it
-to build the ``rule`` option. The functions of the old ``core/rules.py``
+to build the ``rule`` option. The rules' entry points on arrays
 (:func:`prune`, :func:`unit_free_scores`, :func:`threshold_for_count`,
 :func:`check_rule_args`, :func:`prune_unchecked`) are in :mod:`.dispatch` and
 imported from here at their first use.
