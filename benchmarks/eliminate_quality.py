@@ -1,4 +1,4 @@
-"""Quality of the ``eliminate`` rule against voxel, Poisson disk and farthest point at equal count (issue 12).
+"""Quality of the ``eliminate`` rule against voxel, Poisson disk and farthest point at equal count.
 
 Run: ``.venv/bin/python benchmarks/eliminate_quality.py [--ratios 0.5,0.2,0.1] [--cache FILE] [FILES...]``
 
@@ -15,7 +15,7 @@ in each variant:
 - ``one cell``: the same, one elimination over the whole cloud (with ``--one-cell``).
 
 (The ``entropy`` and ``geometric`` variants of docs/benchmarks.md ran the
-information terms, removed since: issue 29.)
+information terms, removed since.)
 
 Figures, from :func:`cloudsieve.evaluate.evaluate` (``subset=True``; its ``run_evaluation``, which keeps the
 original's tile meshes between calls): point

@@ -13,7 +13,7 @@ resident memory (``resource.getrusage(RUSAGE_SELF).ru_maxrss``):
 * ingest: ``cloudsieve.store.ingest`` LAZ -> zarr point store;
 * export: ``cloudsieve.store.export`` store -> LAZ (all points).
 
-Goals (issue 2): ingest >= 80% of laspy's decode speed; peak RSS < 1 GB and
+Goals: ingest >= 80% of laspy's decode speed; peak RSS < 1 GB and
 within 20% between the smallest and the largest size (flat in N).
 """
 

@@ -1,4 +1,4 @@
-"""Where Metro's distance comes from (issue 12's Metro goals).
+"""Where Metro's distance comes from (the Metro goals of the eliminate rule).
 
 Run: ``.venv/bin/python benchmarks/metro_reach.py [--ratios 0.5,0.2,0.1] [--scans a.ply,b.laz]``
 
@@ -13,7 +13,7 @@ directions), and of the backward direction (samples on the simplified mesh, dist
 share of samples within two point spacings of the original mesh's border, and their share of its mean.
 
 Its part 2, "the evaluator in the loop" (docs/benchmarks.md), eliminated around fixed points with
-``eliminate(fixed=)``, an option removed with issue 29 (no caller in src); it runs at commit 1850bb2.
+``eliminate(fixed=)``, an option removed from src (no caller there); it runs at commit 1850bb2.
 
 No timing here is a speed claim (load average printed).
 """

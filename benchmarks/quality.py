@@ -1,4 +1,4 @@
-"""Point-level quality of the rules at equal count (issue 3, "Measured before you start").
+"""Point-level quality of the rules at equal count.
 
 Run: ``.venv/bin/python benchmarks/quality.py [--ratio 0.5] [--method km] [FILES...]``
 or   ``.venv/bin/python benchmarks/quality.py --psnr [--ratios 0.5,0.2,0.1] [FILES...]``

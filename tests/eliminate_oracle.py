@@ -1,6 +1,6 @@
 """The reference elimination of the tests: the priority of every point, with every option of the kernels.
 
-``eliminate_order`` was :func:`cloudsieve.core.eliminate.eliminate_order` until issue 29 (no caller in src):
+``eliminate_order`` was :func:`cloudsieve.core.eliminate.eliminate_order` before it left src (no caller there):
 one elimination over the points with a halo (eliminated along, given no priority), fixed points (weigh, never
 removed), gone points (removed already, each represented by its nearest point), any ``alpha``, with or without
 the coverage term, stopped at a ``floor``. The tests check against it what src runs: the brute force of

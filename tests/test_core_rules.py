@@ -132,7 +132,7 @@ def test_coverage_with_threshold_is_a_subset_rule(cloud):
 def _reference_rounds(pts, labels, rule, S=1e-3, target=None, coverage=1.0):
     """The iterative/coverage rules by full rescoring of the remaining points every round.
 
-    Exact copies go first, as in every rule (issue 13, item 3: the rules run on the distinct points).
+    Exact copies go first, as in every rule (the rules run on the distinct points).
     """
     from cloudsieve.core.knn import canonical_order
     from cloudsieve.core.rounds import _covered
@@ -191,7 +191,7 @@ def test_first_independent_with_row_lengths():
     np.testing.assert_array_equal(_first_independent(cand, padded_n, n), _first_independent(cand, cut, n))
 
 
-# ----------------------------------------------------------------- eliminate (issue 12)
+# ----------------------------------------------------------------- eliminate
 
 
 def test_eliminate_rule_is_the_core_eliminate_with_an_exact_count():

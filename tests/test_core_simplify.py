@@ -34,11 +34,11 @@ def test_simplify_points_invariant_to_order_and_units(method, rule, kw):
 def test_duplicates_are_dropped():
     pts = surface(1000)
     dup = np.concatenate([pts, pts[:50]])
-    # issue 13, item 3: the copies are kept only when asked (keep_duplicates), whatever the rule
+    # the copies are kept only when asked (keep_duplicates), whatever the rule
     kept = simplify_points(dup, method="km", rule="target", ratio=1.0, cluster_size=200, keep_duplicates=True)
     assert len(kept) == 1050  # ratio 1: nothing goes, and the copies stay with their first point
     kept = simplify_points(dup, method="km", rule="target", ratio=1.0, cluster_size=200)
-    assert len(kept) == 1000  # by default the copies go even when nothing else does (S >= 0: issue 29)
+    assert len(kept) == 1000  # by default the copies go even when nothing else does (S >= 0)
     kept = simplify_points(dup, method="km", rule="threshold", threshold=0.0, cluster_size=200)
     assert not np.isin(np.arange(1000, 1050), kept).any()
 

@@ -388,7 +388,7 @@ def test_cli_says_eliminate_needs_a_ratio_or_a_count(tmp_path, capsys):
     src = shared_file("simple.las")
     rc = main(["simplify", str(src), str(tmp_path / "o.laz"), "--rule", "eliminate", "--threshold", "0.01"])
     err = capsys.readouterr().err
-    assert rc == 2  # the API's one message (issue 29: the command line checks nothing itself)
+    assert rc == 2  # the API's one message (the command line checks nothing itself)
     assert err == "cloudsieve simplify: error: rule 'eliminate' needs a ratio or a count\n"
     assert main(["simplify", str(src), str(tmp_path / "o.laz"), "--rule", "eliminate"]) == 2
     assert capsys.readouterr().err.strip().endswith("rule 'eliminate' needs a ratio or a count")

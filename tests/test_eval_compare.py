@@ -109,7 +109,7 @@ def test_compare_bad_arguments_are_clear(crop, capsys):
         compare(crop, methods=["kmeans"], ratio=0.5)
     with pytest.raises(InvalidParameterError, match=r"unknown rule\(s\) \['fast'\]"):
         compare(crop, rule="iterative,fast", ratio=0.5)
-    # a count above the points keeps them all, as on every surface (issue 29), and says the count kept
+    # a count above the points keeps them all, as on every surface, and says the count kept
     assert compare(crop, methods=["random"], count=7000, surface=False)["count"] == len(crop)
     assert main(["compare", str(shared_file("simple.las")), "--methods", "random,bogus", "--ratio", "0.5",
                  "--no-progress"]) == 2

@@ -1,4 +1,4 @@
-"""report.html (issue 30): self-contained, offline, and rendered by a real browser (headless Chromium)."""
+"""report.html: self-contained, offline, and rendered by a real browser (headless Chromium)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Metro where the original's mesh has surface (issue 30): samples facing a hole are left out and counted."""
+"""Metro where the original's mesh has surface: samples facing a hole are left out and counted."""
 
 from __future__ import annotations
 

@@ -145,7 +145,7 @@ def test_dask_localcluster_equals_local():
         assert remote[name]["count"] == local[name]["count"]
         assert remote[name]["max"] == local[name]["max"]
         assert_allclose(remote[name]["mean"], local[name]["mean"], rtol=1e-12)
-        assert_allclose(remote[name]["d2_mse"], local[name]["d2_mse"], rtol=1e-12)  # D2 too (issue 30)
+        assert_allclose(remote[name]["d2_mse"], local[name]["d2_mse"], rtol=1e-12)  # D2 too
     assert remote["histogram"] == local["histogram"]
 
 

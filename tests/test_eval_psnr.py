@@ -1,4 +1,4 @@
-"""D1/D2 PSNR and Chamfer (issue 30): against an independent k-d tree computation."""
+"""D1/D2 PSNR and Chamfer: against an independent k-d tree computation."""
 
 from __future__ import annotations
 

@@ -1,10 +1,9 @@
-"""The package's import graph (issue 29): no cycles, no private names across modules, kernels import no core.
+"""The package's import graph: no cycles, no private names across modules, kernels import no core.
 
 Imports inside functions count: a lazy import is still a dependency. The
 graph is read from the source (``ast``), nothing is imported.
 
-``EXPECTED`` lists what is known and fixed on other branches (issue 29):
-each entry names its owner. Remove an entry once its fix is merged; an
+``EXPECTED`` lists known exceptions, each with its reason (none today); an
 entry that no longer occurs fails the test too, so the list stays exact.
 """
 
@@ -15,7 +14,7 @@ from pathlib import Path
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 
-#: the known findings, fixed elsewhere (remove each once merged)
+#: known exceptions (none): a finding listed here must occur, or the test fails
 EXPECTED = {
     "cycle": set(),
     "private": set(),

@@ -1,4 +1,4 @@
-"""No process of a run outlives its driver (issue 13, item 2).
+"""No process of a run outlives its driver.
 
 A ``kill -9`` of ``cloudsieve simplify`` used to leave the fork server, its
 workers and the resource tracker running. The test starts a real run in a

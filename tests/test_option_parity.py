@@ -1,4 +1,4 @@
-"""One option spec, one check at every public entry (issue 29): the same bad value, the same error.
+"""One option spec, one check at every public entry: the same bad value, the same error.
 
 Each of 12 bad values is fed to the four surfaces:
 

@@ -1,4 +1,4 @@
-"""The default rule (issue 12): eliminate with a ratio or count, threshold with a threshold alone, an error with neither.
+"""The default rule: eliminate with a ratio or count, threshold with a threshold alone, an error with neither.
 
 Resolved once in :func:`cloudsieve.params.validate`; the CLI, the pipelines
 and the API give the same answer, the resolved rule is what a work store records.

@@ -144,7 +144,7 @@ def test_reader_writer_without_filter_converts(tmp_path):
 
 def test_compare_validates_its_options_once_on_the_command_line_and_in_a_pipeline(tmp_path, monkeypatch, capsys):
     """The CLI validates to size its bar and a pipeline when it is loaded; both then run run_compare, which
-    checks no option again (issue 29)."""
+    checks no option again."""
     import importlib
 
     import cloudsieve.params as params

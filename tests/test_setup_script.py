@@ -1,4 +1,4 @@
-"""setup.sh decides reliably whether libusb-1.0 is installed (issue 13, item 1).
+"""setup.sh decides reliably whether libusb-1.0 is installed.
 
 `ldconfig -p | grep -q` under `set -o pipefail` failed about 1 run in 20: grep
 exits at the first match, ldconfig gets SIGPIPE, the pipeline fails, and setup

@@ -1,4 +1,4 @@
-"""First contact (issue 28): lazy imports, small inputs in the calling process, ``cloudsieve warmup``.
+"""First contact: lazy imports, small inputs in the calling process, ``cloudsieve warmup``.
 
 No wall times here: the timings are in the README ("Start-up"). These tests
 check what the timings rely on: ``import cloudsieve`` and ``cloudsieve --help``

@@ -1,4 +1,4 @@
-"""The default rule (issue 12), resolved once, by :func:`cloudsieve.params.validate`.
+"""The default rule, resolved once, by :func:`cloudsieve.params.validate`.
 
 Without a rule, a ratio or a count selects :data:`DEFAULT_RULE`
 (``eliminate``: weighted sample elimination, an exact count) and a threshold

@@ -1,4 +1,4 @@
-"""Helper processes die with the process that started them (issue 13, item 2).
+"""Helper processes die with the process that started them.
 
 A ``kill -9`` of a running ``cloudsieve simplify`` gives its children no chance
 to clean up: the fork server and the worker processes it forked used to stay

@@ -13,7 +13,7 @@ __all__ = ["Summary", "missed_target"]
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
                   keep_duplicates: bool = False, exact: bool = False) -> str | None:
-    """What to say when a ratio or count was asked and the kept count differs (issue 13, item 4).
+    """What to say when a ratio or count was asked and the kept count differs.
 
     Returns
     -------

@@ -1,4 +1,4 @@
-"""Compiled (numba) kernels for the per-point loops of the method (issue 11).
+"""Compiled (numba) kernels for the per-point loops of the method.
 
 numba's threading layer (the few ``parallel=True`` kernels) is chosen here,
 before any kernel runs: GNU OpenMP, else numba's own workqueue. numba's

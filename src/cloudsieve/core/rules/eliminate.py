@@ -1,4 +1,4 @@
-"""Rule eliminate (cloudsieve's, issue 12; the default): weighted sample elimination to an exact count.
+"""Rule eliminate (cloudsieve's; the default): weighted sample elimination to an exact count.
 
 Exactly ``target`` points kept (:func:`cloudsieve.core.eliminate.eliminate`;
 its entropy and geometric terms are off here, so labels and scores are not
