@@ -136,13 +136,15 @@ def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_
 
 
 @contextlib.contextmanager
-def task_runner(no_progress: bool) -> Iterator[Any]:
-    """The local worker processes of a command's tasks (ingest, export), one bar per stage; closed on exit."""
+def task_runner(label: str, total: int | None, no_progress: bool) -> Iterator[tuple[Any, Callable[[int], None]]]:
+    """(the local worker processes of a command's tasks (ingest, export), one bar per stage; the command's own
+    bar *label* of *total* points, its ``update(n)``); both closed on exit."""
     from .. import progress
     from ..engine.runner import Runner
 
     runner = Runner(bars=lambda stage, n, unit: progress.bar(stage, n, unit=unit, enabled=not no_progress))
     try:
-        yield runner
+        with progress.bar(label, total, enabled=not no_progress) as update:
+            yield runner, update
     finally:
         runner.close()

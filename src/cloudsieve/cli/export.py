@@ -30,7 +30,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import progress
     from ..store import export
     from ..errors import ArrayNotFoundError
     from ..store import PointStore
@@ -40,8 +39,7 @@ def run(args: argparse.Namespace) -> int:
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
     total = store.count if args.mask is None else None  # the points written: a mask's count is not known yet
-    with task_runner(args.no_progress) as runner, \
-            progress.bar(f"export {args.dst}", total, enabled=not args.no_progress) as update:
+    with task_runner(f"export {args.dst}", total, args.no_progress) as (runner, update):
         export(
             store,
             args.dst,

@@ -29,7 +29,6 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .. import progress
     from ..io import open_reader
     from ..io.sources import is_many
     from ..store import ingest
@@ -45,8 +44,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         with open_reader(args.src, format=args.format, **options) as reader:
             total = reader.count
-    with task_runner(args.no_progress) as runner, \
-            progress.bar(f"ingest {args.src}", total, enabled=not args.no_progress) as update:
+    with task_runner(f"ingest {args.src}", total, args.no_progress) as (runner, update):
         store = ingest.unchecked(  # validated above, with delimiter and columns
             args.src,
             args.store,
