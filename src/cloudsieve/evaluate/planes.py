@@ -244,9 +244,7 @@ def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray, *, nor
             w = np.flatnonzero(win if d2_mask is None else win & d2_mask[sub])
             if len(w):
                 rows = j[w]
-                n = unit_normals(normals[rows]) if normals is not None else pca_normals(xyz, xyz[rows], k, tree)
-                proj = np.einsum("ij,ij->i", points[sub[w]] - xyz[rows], n)
-                out2[sub[w]] = proj * proj
+                out2[sub[w]] = d2_squares(xyz, rows, points[sub[w]] - xyz[rows], normals, k, tree)
     return out, out2
 
 

@@ -73,6 +73,7 @@ from .distances import (
     stats_partial,
 )
 from .planes import D2_SAMPLE, K_NORMALS, backward_chunk
+from .tiles import sample_indices
 
 logger = logging.getLogger(__name__)
 
@@ -84,12 +85,6 @@ def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray 
         return None
     a, b = np.searchsorted(sorted_idx, [start, stop])
     return sorted_idx[a:b] - start
-
-
-def _sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
-    if size >= n:
-        return np.arange(n, dtype=np.int64)
-    return np.sort(rng.choice(n, size=size, replace=False)).astype(np.int64)
 
 
 def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
@@ -213,27 +208,27 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         sample = int(sample)
         if sample <= 0:
             raise InvalidParameterError(f"sample must be a positive number of points, got {sample}")
-        fwd_idx = _sample_indices(n, sample, rng)
-        bwd_idx = _sample_indices(len(simplified), sample, rng)
+        fwd_idx = sample_indices(n, sample, rng)
+        bwd_idx = sample_indices(len(simplified), sample, rng)
         sampled = len(fwd_idx) < n or len(bwd_idx) < len(simplified)
     if n == 0:
         raise EmptyInputError(f"the original cloud is empty (0 points): {src.name}")
     ply_idx = None
     if error_points:
-        ply_idx = _sample_indices(n, int(error_points), np.random.default_rng([seed, 1]))
+        ply_idx = sample_indices(n, int(error_points), np.random.default_rng([seed, 1]))
         if fwd_idx is not None:  # errors are known only for the sampled points
             ply_idx = fwd_idx if len(fwd_idx) <= error_points else np.sort(
                 np.random.default_rng([seed, 1]).choice(fwd_idx, int(error_points), replace=False))
 
     d2_idx = None  # the forward D2 sample: global rows of the original (a subset of fwd_idx when sampled)
     if d2_k is not None and d2_sample is not None and n is not None:
-        rows = fwd_idx if fwd_idx is not None else None
+        rows = fwd_idx
         if (n if rows is None else len(rows)) > d2_sample:
             d2rng = np.random.default_rng([seed, 2])
-            d2_idx = (_sample_indices(n, int(d2_sample), d2rng) if rows is None
+            d2_idx = (sample_indices(n, int(d2_sample), d2rng) if rows is None
                       else np.sort(d2rng.choice(rows, int(d2_sample), replace=False)))
 
-    keep_idx = _sample_indices(n, int(keep_sample), np.random.default_rng(seed)) if keep_sample else None
+    keep_idx = sample_indices(n, int(keep_sample), np.random.default_rng(seed)) if keep_sample else None
     kept_parts: list[np.ndarray] = []
 
     target = Target(simplified)
@@ -279,7 +274,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     d2_mask = None  # the backward D2 sample
     if d2_k is not None and d2_sample is not None and nb > d2_sample:
         d2_mask = np.zeros(nb, bool)
-        d2_mask[_sample_indices(nb, int(d2_sample), np.random.default_rng([seed, 3]))] = True
+        d2_mask[sample_indices(nb, int(d2_sample), np.random.default_rng([seed, 3]))] = True
     if len(todo):
         logger.info("backward: %d of %d simplified points not found exactly; searching the original", len(todo), nb)
         pts = bpoints[todo]

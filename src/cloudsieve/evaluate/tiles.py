@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "uniform_sample", "choose_tiles",
+__all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "sample_indices", "sample_rows", "uniform_sample", "choose_tiles",
            "random_tiles", "gather_tiles", "partition_tiles", "budget_tile_points", "spread"]
 
 #: points of the uniform sample the tiles are drawn from 
@@ -48,16 +48,27 @@ SURFACE_RATE = 4_000
 BUDGET_TILES = 8
 
 
-def uniform_sample(src, size: int = SAMPLE_SIZE, seed: int = 0) -> tuple[np.ndarray, int]:
-    """(a uniform seeded sample of at most *size* points of *src* (one streamed pass), the cloud's count)."""
-    n = src.count_points()
-    rng = np.random.default_rng(seed)
-    idx = np.sort(rng.choice(n, size=min(n, size), replace=False))
+def sample_indices(n: int, size: int, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices (int64) of a uniform sample of *size* of *n* points drawn with *rng* (all of them when
+    size >= n)."""
+    if size >= n:
+        return np.arange(n, dtype=np.int64)
+    return np.sort(rng.choice(n, size=size, replace=False)).astype(np.int64)
+
+
+def sample_rows(src, idx: np.ndarray) -> np.ndarray:
+    """The coordinates (len(idx), 3) of the sorted global rows *idx* of *src*, in one streamed pass."""
     parts = []
     for chunk in src.chunks():
         a, b = np.searchsorted(idx, [chunk.start, chunk.stop])
         parts.append(chunk.xyz[idx[a:b] - chunk.start])
-    return (np.concatenate(parts) if parts else np.zeros((0, 3))), int(n)
+    return np.concatenate(parts) if parts else np.zeros((0, 3))
+
+
+def uniform_sample(src, size: int = SAMPLE_SIZE, seed: int = 0) -> tuple[np.ndarray, int]:
+    """(a uniform seeded sample of at most *size* points of *src* (one streamed pass), the cloud's count)."""
+    n = src.count_points()
+    return sample_rows(src, sample_indices(n, size, np.random.default_rng(seed))), int(n)
 
 
 def _radii(tree: cKDTree, centres: np.ndarray, tile_points: int, n: int, margin: float = 1.0) -> np.ndarray:
@@ -84,13 +95,7 @@ def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sa
     if n <= tile_points:
         return []
     rng = np.random.default_rng(seed)
-    s = min(n, sample_size)
-    idx = np.sort(rng.choice(n, size=s, replace=False))
-    parts = []
-    for chunk in src.chunks():
-        a, b = np.searchsorted(idx, [chunk.start, chunk.stop])
-        parts.append(chunk.xyz[idx[a:b] - chunk.start])
-    sample = np.concatenate(parts)
+    sample = sample_rows(src, np.sort(rng.choice(n, size=min(n, sample_size), replace=False)))  # rng goes on below
     tiles = int(min(tiles, max(1, n // tile_points)))
     centres, _ = kmeans2(sample, tiles, seed=rng, minit="++")
     tree = cKDTree(sample)
