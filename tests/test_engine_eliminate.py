@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from cloudsieve.cli import main
 from cloudsieve.core.colours import cell_colours
 from cloudsieve.core.eliminate import eliminate
-from cloudsieve.core.eliminate_cells import kept_counts
+from cloudsieve.core.packing import kept_counts
 from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
 from cloudsieve.engine import simplify
@@ -250,14 +250,15 @@ def test_a_partition_for_another_count_is_not_reused(reference, scan, tmp_path):
 
 
 def test_one_cell_equals_the_core_eliminate(tmp_path):
-    """One cell, no halo, the whole cloud as the partition's sample: the same r_max, order, cut and relocation."""
+    """One cell, no halo, the whole cloud as the partition's sample: the same r_max, k-d cells, order, cut and
+    relocation."""
     src = shared_file("bun_zipper.ply")  # 35,947 points: the sample is the whole cloud
     store = tmp_path / "w.zarr"
     s = simplify(src, tmp_path / "o.ply", rule="eliminate", ratio=0.3, cell_size=50_000, store=store,
                  scheduler="sync")
     st, keep, xyz = store_arrays(store)
     assert s.cells == 1
-    core = eliminate(xyz, ratio=0.3, cell_points=None)
+    core = eliminate(xyz, ratio=0.3)  # over k-d cells of CELL_POINTS, as the engine's cell
     assert np.array_equal(np.flatnonzero(keep), core)
 
 

@@ -33,7 +33,10 @@ cloud within 1% (README).
 
 :func:`eliminate_cell` is one cell of the out-of-core run
 (:mod:`cloudsieve.engine.eliminate`), which builds its lists without the
-points its lower colours removed: the same priorities but for ties.
+points its lower colours removed: the same priorities but for ties. Above
+``cell_points`` it runs :func:`eliminate_cells` on the cell, the halo's
+points with their decisions around the k-d cells: without a halo, the
+in-memory :func:`~cloudsieve.core.eliminate.eliminate` of the cell.
 """
 
 from __future__ import annotations
@@ -51,10 +54,10 @@ from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimina
 from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
-from .packing import LADDER, ladder_shares
+from .packing import LADDER, kept_counts, ladder_shares
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_points
 
-__all__ = ["HALO_RADII", "cell_cap", "split_cells", "kept_counts", "eliminate_cell", "eliminate_cells",
+__all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_cells",
            "eliminate_in_cells"]
 
 #: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
@@ -118,60 +121,6 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3)
 
 
-def kept_counts(expected, distinct, target: int) -> np.ndarray:
-    """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
-
-    The shares *expected* scaled to the target, each clipped to its cell's
-    *distinct* points (the excess spread over the others, again in
-    proportion), then rounded by largest remainder (ties by cell id). Exact
-    copies never count: a target above the distinct points is not met (the
-    run says so). Deterministic.
-
-    Parameters
-    ----------
-    expected : array_like of shape (P,), float >= 0
-    distinct : array_like of shape (P,), int
-        Distinct points of each cell.
-    target : int
-
-    Returns
-    -------
-    ndarray of shape (P,), int64
-        q_j in [0, distinct_j]; sum min(target, sum distinct).
-
-    Examples
-    --------
-    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], 5).tolist()
-    [1, 1, 3]
-    """
-    e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
-    cap = np.asarray(distinct, dtype=np.int64)
-    goal = min(int(target), int(cap.sum()))
-    x = np.zeros(len(cap))
-    full = cap <= 0
-    while goal > 0:  # at most P rounds: every round clips at least one more cell
-        if full.all():
-            x = cap.astype(np.float64)
-            break
-        w = np.where(full, 0.0, e)
-        if not w.sum() > 0:
-            w = np.where(full, 0.0, cap.astype(np.float64))
-        x = np.where(full, cap, w * ((goal - cap[full].sum()) / w.sum()))
-        over = ~full & (x >= cap)
-        if not over.any():
-            break
-        full |= over
-    q = np.minimum(np.floor(x).astype(np.int64), cap)
-    order = np.lexsort((np.arange(len(cap)), -(x - q)))  # largest remainder, ties by cell id
-    while q.sum() < goal:
-        room = order[q[order] < cap[order]]
-        q[room[: goal - int(q.sum())]] += 1
-    while q.sum() > goal:  # rounding of the scaled shares only
-        has = order[::-1][q[order[::-1]] > 0]
-        q[has[: int(q.sum()) - goal]] -= 1
-    return q  # exact copies never fill a count (the duplicates policy): the run says when it is missed
-
-
 def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
     """For each cell, the other cells whose boxes come within *margin* of its box."""
     lo, hi = boxes[:, 0] - margin, boxes[:, 1] + margin
@@ -183,7 +132,8 @@ def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
 
 
 def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
-                   steps: int = RELOCATE_STEPS, threads: int | None = None) -> np.ndarray:
+                   steps: int = RELOCATE_STEPS, threads: int | None = None,
+                   cell_points: int | None = None) -> np.ndarray:
     """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
 
     The halo points already ``decided`` (a neighbouring cell's final
@@ -192,6 +142,12 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     Then ``steps`` steps of :func:`relocate` with every kept halo point
     pulling on the regions, on the same grid (one grid for both: the same
     points).
+
+    Above ``cell_points`` points (None: never; :func:`cell_cap`) the cell
+    is cut into k-d cells eliminated as :func:`eliminate_cells` does, the
+    halo's points with their decisions around them: the engine's cells run
+    at the in-memory kernel's speed (one elimination of 200,000 points
+    waits on memory, cells of 16,384 fit the caches).
 
     Parameters
     ----------
@@ -204,6 +160,7 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     decided, halo_keep : array_like of shape (h,), bool, optional
         Which halo points are decided, and which of those are kept.
     threads : int, optional
+    cell_points : int, optional
 
     Returns
     -------
@@ -226,6 +183,11 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
         # elimination, every distinct point has the same priority, its copies +inf: the last `count` distinct stay
         return keep_lowest(np.where(copy_rows(pts), np.inf, 0.0), int(count))
     kind = np.where(dec, np.where(hk, 2, 0), 1).astype(np.uint8)  # free, fixed (kept), gone (removed)
+    cap = n if cell_points is None else cell_cap(n, int(count), int(cell_points))
+    if n > cap:
+        workers = max(1, int(threads or 1))
+        return eliminate_cells(pts, int(count), r_max, split_cells(pts, cap, workers), int(steps), workers,
+                               (hal, kind))
     with numba_threads(threads):
         grid, lists = _grid_lists(pts, hal, r_max, kind == 0)
         return _finish(pts, hal, grid, lists, kind, r_max, int(count), int(steps))
@@ -251,11 +213,11 @@ def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) ->
     return grid, _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
 
 
-def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float) -> tuple:
+def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
     """What the elimination of a cell needs before its halo's decisions are known: the grid and the
-    neighbour lists of [own, halo] (every halo point alive), the cell's packing sizes along ``LADDER``
-    (module .packing, over the lists) and its distinct points."""
-    grid, lists = _grid_lists(own, halo, r_max)
+    neighbour lists of [own, halo] (every halo point alive but the ``absent`` ones, known to be gone), the
+    cell's packing sizes along ``LADDER`` (module .packing, over the lists) and its distinct points."""
+    grid, lists = _grid_lists(own, halo, r_max, absent)
     join = ((grid.order < len(own)) & ~grid.copy).astype(np.uint8)
     rad = np.array(LADDER) * r_max
     counts = _kp.packing_from_lists(grid.P, lists[0], lists[1], join, rad * rad)
@@ -309,11 +271,13 @@ def eliminate_in_cells(pts: np.ndarray, target: int, r_max, cap: int, steps: int
 
 
 def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, steps: int,
-                    threads: int) -> np.ndarray:
+                    threads: int, outer: tuple | None = None) -> np.ndarray:
     """Keep mask (n,) of exactly *target* points of *pts* (valid; r_max finite, 0 < target < n) split into
     *cells* (:func:`split_cells` of :func:`cell_cap` points), with *steps* relocation steps per cell,
-    *threads* cells at once."""
+    *threads* cells at once. *outer*: points (h, 3) around *pts* and their kinds (h,) uint8 (1 eliminated
+    along, 2 fixed, 0 gone: :func:`eliminate_cell`), in the halo of every cell they come near."""
     n = len(pts)
+    opts, okind = (np.zeros((0, 3)), np.zeros(0, dtype=np.uint8)) if outer is None else outer
     idx, starts, boxes = cells
     ncell = len(starts) - 1
     size = np.diff(starts)
@@ -326,16 +290,19 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
     bands = [o[band[o]] for o in own]  # each cell's points a neighbour's halo may hold
 
-    def halo(j: int) -> np.ndarray:
+    def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
+        """The cell's halo: rows of *pts* in the other cells' bands, and rows of *outer*, within the margin."""
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
         parts = [b[np.all((pts[b] >= lo) & (pts[b] <= hi), axis=1)] for b in (bands[i] for i in near[j])]
-        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        inner = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        return inner, np.flatnonzero(np.all((opts >= lo) & (opts <= hi), axis=1))
 
-    halos = [np.zeros(0, dtype=np.int64)] * ncell
+    halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
 
     def prepare(j: int) -> tuple:
-        halos[j] = halo(j)
-        return _one_thread(_prepare, pts[own[j]], pts[halos[j]], r_max)
+        halos[j] = h, o = halo(j)
+        absent = np.r_[np.zeros(len(h), dtype=bool), okind[o] == 0]
+        return _one_thread(_prepare, pts[own[j]], np.concatenate([pts[h], opts[o]]), r_max, absent)
 
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
         prepared = list(pool.map(prepare, range(ncell)))
@@ -350,11 +317,12 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             for i in near[j]:  # the lower colours' cells of its halo: their keep masks are final
                 if colour[i] < colour[j]:
                     done[i].result()
-            h = halos[j]
+            h, o = halos[j]
             lower = colour[cell[h]] < colour[j]
-            kind = np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8)
+            kind = np.r_[np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8), okind[o]]
             grid, lists = prepared[j][:2]
-            keep[own[j]] = _one_thread(_finish, pts[own[j]], pts[h], grid, lists, kind, r_max, int(q[j]), steps)
+            keep[own[j]] = _one_thread(_finish, pts[own[j]], np.concatenate([pts[h], opts[o]]), grid, lists, kind,
+                                       r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not

@@ -22,7 +22,7 @@ to 1% (README, "eliminate in cells").
 r_max in one pass; :func:`ladder_shares` finds, for all cells together, the
 radius at which the packings total the target (linear between two rungs)
 and returns each cell's packing size there: the expected kept points that
-:func:`.eliminate_cells.kept_counts` turns into exact integer counts.
+:func:`kept_counts` turns into exact integer counts.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ import numpy as np
 from .cellgrid import CellGrid
 from .kernels import packing as _kp
 
-__all__ = ["LADDER", "packing_ladder", "ladder_shares"]
+__all__ = ["LADDER", "packing_ladder", "ladder_shares", "kept_counts"]
 
 #: packing radii in r_max: the radius at which the packings total the target was 1.06-1.46 r_max on the shared
 #: scans at 50%, 20% and 10% kept
@@ -66,3 +66,57 @@ def ladder_shares(counts, target: int) -> np.ndarray:
     k = int(np.flatnonzero(total >= target)[-1])  # total[k] >= target > total[k + 1]
     t = (total[k] - target) / (total[k] - total[k + 1])
     return c[:, k] + t * (c[:, k + 1] - c[:, k])
+
+
+def kept_counts(expected, distinct, target: int) -> np.ndarray:
+    """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
+
+    The shares *expected* scaled to the target, each clipped to its cell's
+    *distinct* points (the excess spread over the others, again in
+    proportion), then rounded by largest remainder (ties by cell id). Exact
+    copies never count: a target above the distinct points is not met (the
+    run says so). Deterministic.
+
+    Parameters
+    ----------
+    expected : array_like of shape (P,), float >= 0
+    distinct : array_like of shape (P,), int
+        Distinct points of each cell.
+    target : int
+
+    Returns
+    -------
+    ndarray of shape (P,), int64
+        q_j in [0, distinct_j]; sum min(target, sum distinct).
+
+    Examples
+    --------
+    >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], 5).tolist()
+    [1, 1, 3]
+    """
+    e = np.maximum(np.nan_to_num(np.asarray(expected, dtype=np.float64)), 0.0)
+    cap = np.asarray(distinct, dtype=np.int64)
+    goal = min(int(target), int(cap.sum()))
+    x = np.zeros(len(cap))
+    full = cap <= 0
+    while goal > 0:  # at most P rounds: every round clips at least one more cell
+        if full.all():
+            x = cap.astype(np.float64)
+            break
+        w = np.where(full, 0.0, e)
+        if not w.sum() > 0:
+            w = np.where(full, 0.0, cap.astype(np.float64))
+        x = np.where(full, cap, w * ((goal - cap[full].sum()) / w.sum()))
+        over = ~full & (x >= cap)
+        if not over.any():
+            break
+        full |= over
+    q = np.minimum(np.floor(x).astype(np.int64), cap)
+    order = np.lexsort((np.arange(len(cap)), -(x - q)))  # largest remainder, ties by cell id
+    while q.sum() < goal:
+        room = order[q[order] < cap[order]]
+        q[room[: goal - int(q.sum())]] += 1
+    while q.sum() > goal:  # rounding of the scaled shares only
+        has = order[::-1][q[order[::-1]] > 0]
+        q[has[: int(q.sum()) - goal]] -= 1
+    return q  # exact copies never fill a count (the duplicates policy): the run says when it is missed

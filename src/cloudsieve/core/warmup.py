@@ -71,6 +71,10 @@ def _eliminate() -> None:
     packing_ladder(P, r_max)
     eliminate_cell(P[:400], 200, r_max, halo=P[400:], decided=np.zeros(200, dtype=bool),
                    halo_keep=np.zeros(200, dtype=bool))
+    Q = _points(3_000)  # an engine cell over k-d cells (above 2 x MIN_KEPT kept: cut in two at least)
+    areas, weight = point_areas(Q)
+    eliminate_cell(Q[:2_600], 1_300, elimination_radius(areas, 1_500, weight=weight), halo=Q[2_600:],
+                   decided=np.ones(400, dtype=bool), halo_keep=np.arange(400) % 2 == 0, cell_points=1_000)
     eliminate(P, ratio=0.5)
 
 

@@ -22,7 +22,7 @@ elimination per cell:
    the radius where they total the target
    (:func:`~cloudsieve.core.packing.ladder_shares`) and turns
    them into integer counts q_j summing exactly to the target
-   (:func:`~cloudsieve.core.eliminate_cells.kept_counts`: proportional, clipped to each cell's distinct
+   (:func:`~cloudsieve.core.packing.kept_counts`: proportional, clipped to each cell's distinct
    points, largest remainder, ties by cell id; exact copies only when the
    distinct points do not suffice).
 3. **the elimination** (:func:`apply_task`), colour by colour
@@ -38,6 +38,11 @@ elimination per cell:
    points gone: represented by their nearest point, so the coverage term
    sees the area they leave) and the points of its higher-colour neighbours
    as halo (eliminated along, not counted), and keeps its q_j points left.
+   Above :data:`~cloudsieve.core.eliminate.CELL_POINTS` points the cell is
+   eliminated over k-d cells, as the in-memory rule is, its halo around them
+   (10 M points, 2 workers, side by side: cells stage 15.2-17.7 s against
+   20.8 s for one elimination per cell, whose arrays no longer fit the
+   caches; D1/D2 PSNR of the shared scans within 0.12 dB, docs/benchmarks.md).
    Without the lower colours' decisions both sides of a border remove their
    border points, each expecting the other's to stay: holes at the borders
    (autzen_trim at 50% in 14 cells). Then one restricted Lloyd step,
@@ -68,8 +73,7 @@ import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
 from ..core.colours import cell_colours
-from ..core.eliminate_cells import kept_counts
-from ..core.packing import ladder_shares
+from ..core.packing import kept_counts, ladder_shares
 from .halo import band_mask, read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
@@ -203,7 +207,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     ----------
     task : CellTask
     count : int
-        q_j of :func:`~cloudsieve.core.eliminate_cells.kept_counts`, in [0, n].
+        q_j of :func:`~cloudsieve.core.packing.kept_counts`, in [0, n].
     colours : dict int -> int
         Colour (:func:`~cloudsieve.core.colours.cell_colours`) of the cell
         and of each of its halo sources; cells of lower colours must be done.
@@ -212,6 +216,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
+    from ..core.eliminate import CELL_POINTS
     from ..core.eliminate_cells import eliminate_cell
 
     t0 = time.perf_counter()
@@ -226,7 +231,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
         if earlier:
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
         keep = eliminate_cell(core, int(count), r_max, halo=halo, decided=fixed, halo_keep=halo_keep,
-                              threads=_threads(task))
+                              threads=_threads(task), cell_points=CELL_POINTS)
     if task.params.get("keep_duplicates") and n:  # every copy of a kept point too
         from ..core.duplicates import first_copies
 
@@ -240,7 +245,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
 
 
 def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target: int) -> tuple[int, int, int, None]:
-    """The cells stage of the eliminate rule: the shares, the counts, one elimination per cell (resumable).
+    """The cells stage of the eliminate rule: the shares, the counts, the elimination of each cell (resumable).
 
     Parameters
     ----------
