@@ -304,6 +304,30 @@ def test_no_seam_on_autzen_at_20_percent(tmp_path):
     assert _point_max(xyz, keep) <= 1.1 * _point_max(xyz, core)
 
 
+def test_cells_above_cell_points_run_over_k_d_cells_with_no_seam_and_the_same_bytes(tmp_path):
+    """Engine cells of about 37,000 points (above CELL_POINTS: each eliminated over k-d cells, the engine
+    cell's halo around them): the same bytes on the synchronous and process schedulers, the exact count, and
+    the kept density at the engine cells' borders and the point max of one elimination in memory within 5%
+    and 10% (no seam between engine cells nor between the k-d cells inside them)."""
+    from cloudsieve.core.eliminate import CELL_POINTS
+
+    src, store = shared_file("autzen_trim.laz"), tmp_path / "w.zarr"
+    kw = dict(rule="eliminate", ratio=0.2, cell_size=40_000, chunk_size=20_000, seed=3)
+    s = simplify(src, tmp_path / "a.laz", store=store, scheduler="sync", **kw)
+    simplify(src, tmp_path / "b.laz", scheduler="processes", workers=2, **kw)
+    assert digest(tmp_path / "a.laz") == digest(tmp_path / "b.laz")
+    st, keep, xyz = store_arrays(store)
+    cells = np.asarray(st.group["partition/cell"][:])
+    assert s.cells == 3 and np.bincount(cells).min() > CELL_POINTS and keep.sum() == 22_000
+    part = P.Partition.load(st)
+    core = np.zeros(len(xyz), dtype=bool)
+    core[eliminate(xyz, count=s.kept, r_max=part.r_max, cell_points=None)] = True
+    near = _border_distance(xyz, cells, part.centers) < 2 * part.r_max
+    assert near.sum() > 2_000
+    assert abs(_near_over_interior(keep, near) / _near_over_interior(core, near) - 1) <= 0.05
+    assert _point_max(xyz, keep) <= 1.1 * _point_max(xyz, core)
+
+
 def _point_max(xyz, keep):
     """Largest distance from a point of the cloud to the nearest kept point."""
     return float(cKDTree(xyz[keep]).query(xyz)[0].max())
