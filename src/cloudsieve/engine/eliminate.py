@@ -1,7 +1,7 @@
 """The cells stage of the ``eliminate`` rule: weighted sample elimination across cells, exact count.
 
-The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core, one
-elimination per cell:
+The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core, cell
+by cell:
 
 1. **r_max** -- one global elimination radius, solved before the cells on
    the partition's uniform sample (:func:`global_radius`, called by
@@ -38,11 +38,6 @@ elimination per cell:
    points gone: represented by their nearest point, so the coverage term
    sees the area they leave) and the points of its higher-colour neighbours
    as halo (eliminated along, not counted), and keeps its q_j points left.
-   Above :data:`~cloudsieve.core.eliminate.CELL_POINTS` points the cell is
-   eliminated over k-d cells, as the in-memory rule is, its halo around them
-   (10 M points, 2 workers, side by side: cells stage 15.2-17.7 s against
-   20.8 s for one elimination per cell, whose arrays no longer fit the
-   caches; D1/D2 PSNR of the shared scans within 0.12 dB, docs/benchmarks.md).
    Without the lower colours' decisions both sides of a border remove their
    border points, each expecting the other's to stay: holes at the borders
    (autzen_trim at 50% in 14 cells). Then one restricted Lloyd step,
@@ -51,6 +46,11 @@ elimination per cell:
    have not decided, the points this elimination left), on the same grid.
    The count does not change. Writes
    ``simplify/keep_cells``, then ``simplify/done[cell]``.
+   Above :data:`~cloudsieve.core.eliminate.CELL_POINTS` points the cell is
+   eliminated over k-d cells, as the in-memory rule is, its halo around them
+   (10 M points, 2 workers, side by side: cells stage 15.2-17.7 s against
+   20.8 s for one elimination per cell, whose arrays no longer fit the
+   caches; D1/D2 PSNR of the shared scans within 0.12 dB, docs/benchmarks.md).
 
 A crash anywhere resumes from the markers: cells with a share are not read
 again, the counts are recomputed from the stored shares (the same), and
