@@ -219,7 +219,6 @@ def test_one_cell_is_one_elimination_and_cell_points_is_checked():
             eliminate(P, ratio=0.2, cell_points=bad)
 
 
-
 # ----------------------------------------------------------------- one engine cell over k-d cells
 
 
