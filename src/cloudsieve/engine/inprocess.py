@@ -1,16 +1,24 @@
 """Small inputs run in the calling process: no process pool, no fork server.
 
-A cloud of at most :data:`IN_PROCESS_POINTS` points is one cell at the
-default ``cell_size`` (200,000): one cell task, nothing for worker processes to
-share, and starting them (a fork server that imports the engine and loads the
-kernels, then the workers) cost more than the whole run. Measured on 2 cores,
-the whole ``cloudsieve simplify SRC DST --ratio 0.5`` (warm numba cache,
-side by side, load 7.1-7.8): autzen_trim.laz (110,000 points) 6.61-6.75 s
-with the process pool, 3.67-5.65 s in process; simple.las (1,065 points)
-6.57-7.63 s and 3.34-3.82 s. The tasks are the same and run in the same order on dask's
-synchronous scheduler (:class:`~.runner.Runner` "sync"), so the output is the
-same, byte for byte (tests/test_speed_start.py), and a cell's k-NN and kernels
-use every core.
+Below :data:`IN_PROCESS_POINTS` points the run's tasks run one after the
+other in this process, on dask's synchronous scheduler (:class:`~.runner.Runner`
+"sync"), each cell's kernels on every core: starting the local process pool (a
+fork server that imports the engine and loads the kernels, then the workers:
+1.4-1.7 s) costs more than two workers gain. The tasks are the same and run in
+the same order, so the output is the same, byte for byte
+(tests/test_speed_start.py). Measured on 2 cores, ``cloudsieve simplify
+SRC DST --ratio 0.5`` of make_scan LAZ files, the two alternating (load
+1.3-1.4):
+
+==========  ===================  =================  ======================
+points      process pool (s)     in process (s)     peak memory, pool / in
+==========  ===================  =================  ======================
+300,000     6.55-8.72            4.64-4.77
+500,000     7.04-7.05            5.42-5.59
+1,000,000   6.42-8.49            6.19-7.49          1,089-1,131 / 488-493 MiB
+1,500,000   9.36-9.38            8.58-8.92          1,226 / 497-499 MiB
+2,000,000   11.62-11.92          11.62-11.76
+==========  ===================  =================  ======================
 
 Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
 """
@@ -24,8 +32,9 @@ __all__ = ["IN_PROCESS_POINTS", "source_points", "local_scheduler"]
 
 logger = logging.getLogger(__name__)
 
-#: at most this many input points run in the calling process (the default cell size: one cell)
-IN_PROCESS_POINTS = 200_000
+#: at most this many input points run in the calling process (module docstring: the process pool is no faster
+#: below about 2 M points on 2 cores)
+IN_PROCESS_POINTS = 1_500_000
 #: the formats whose count is read from the header, silently
 _HEADER_COUNTS = ("las", "laz", "copc", "ply")
 
