@@ -24,7 +24,7 @@ from ..errors import CorruptInputError, InputFormatError
 from .las_plan import LasPlan, plan_las
 from ..paths import local_path
 from .pointstore import PointStore
-from .streaming import bound_malloc, gathered, run_tasks
+from .streaming import bound_malloc, gathered, in_process, run_tasks
 
 __all__ = ["ingest_las", "ingest_task"]
 
@@ -33,15 +33,18 @@ logger = logging.getLogger(__name__)
 _INT32 = (-(2**31), 2**31 - 1)
 
 
-def _read_piece(path: str, first: int, n: int, names: list[str]) -> tuple[np.ndarray, dict]:
-    """Points ``first .. first + n - 1`` of the LAS/LAZ file *path*: raw X, Y, Z (n, 3) int64 and the attributes."""
+def _read_piece(path: str, first: int, n: int, names: list[str], parallel: bool) -> tuple[np.ndarray, dict]:
+    """Points ``first .. first + n - 1`` of the LAS/LAZ file *path*: raw X, Y, Z (n, 3) int64 and the attributes
+    (LAZ decoded on every core when *parallel*)."""
     import laspy
 
     from ..io.las import decode_error, record_arrays
     from ..io.las_checks import QUIET_READS
 
-    # one thread per task: the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the cores)
-    with laspy.open(path, laz_backend=laspy.LazBackend.Lazrs) as reader:
+    # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
+    # cores); the tasks of a run in this process decode on every core (1 M points: 0.25-0.28 s against 0.55-0.57 s)
+    backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
+    with laspy.open(path, laz_backend=backend) as reader:
         try:
             with QUIET_READS.reading():
                 _seek(reader, first)
@@ -76,8 +79,9 @@ def _seek(reader, first: int) -> None:
         left -= got
 
 
-def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tuple]) -> dict:
-    """Write rows ``[row_start, row_stop)`` of the store from *pieces* (a task; see :meth:`LasPlan.tasks`).
+def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tuple], parallel: bool = False) -> dict:
+    """Write rows ``[row_start, row_stop)`` of the store from *pieces* (a task; see :meth:`LasPlan.tasks`), LAZ
+    decoded on every core when *parallel* (the tasks run in this process, one after the other).
 
     Returns
     -------
@@ -89,7 +93,7 @@ def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tup
     names = [n for n in group.array_keys() if n != "xyz"]
     parts_xyz, parts, mins, maxs = [], [], [], []
     for path, first, n, factors in pieces:
-        raw, arrays = _read_piece(path, int(first), int(n), names)
+        raw, arrays = _read_piece(path, int(first), int(n), names, parallel)
         mult, add = np.asarray(factors, dtype=np.int64)
         if np.any(mult != 1) or np.any(add != 0):
             raw = raw * mult + add  # exact: integer factors (see las_plan)
@@ -177,7 +181,9 @@ def ingest_las(
     try:
         new = PointStore.create(target, dtypes=plan.dtypes, chunk_size=chunk_size, count=plan.total,
                           overwrite=overwrite or local is not None, xyz_encoding=encoding)
-        args = [(target, lo, hi, pieces) for lo, hi, pieces in plan.tasks(chunk_size)]
+        tasks = plan.tasks(chunk_size)
+        parallel = in_process(run, len(tasks))
+        args = [(target, lo, hi, pieces, parallel) for lo, hi, pieces in tasks]
         results = run_tasks(run, ingest_task, args, "ingest: read")
         lo = np.min([r["mins"] for r in results], axis=0) * plan.scale + plan.offset
         hi = np.max([r["maxs"] for r in results], axis=0) * plan.scale + plan.offset

@@ -10,7 +10,7 @@ import queue
 import sys
 import threading
 
-__all__ = ["prefetch", "gathered", "bound_malloc", "run_tasks"]
+__all__ = ["prefetch", "gathered", "bound_malloc", "in_process", "run_tasks"]
 
 logger = logging.getLogger(__name__)
 
@@ -134,6 +134,12 @@ def prefetch(chunks, depth: int = 1):
             except queue.Empty:
                 pass
             thread.join(timeout=0.05)
+
+
+def in_process(run, n_tasks: int) -> bool:
+    """Whether :func:`run_tasks` runs *n_tasks* tasks through *run* in this process, one after the other."""
+    return run is None or getattr(run, "local", None) == "sync" or (
+        n_tasks <= 1 and getattr(run, "client", None) is None)
 
 
 def run_tasks(run, func, args: list, stage: str) -> list:
