@@ -1,6 +1,6 @@
 """Small inputs run in the calling process: no process pool, no fork server.
 
-Below :data:`IN_PROCESS_POINTS` points the run's tasks run one after the
+Up to :data:`IN_PROCESS_POINTS` points the run's tasks run one after the
 other in this process, on dask's synchronous scheduler (:class:`~.runner.Runner`
 "sync"), each cell's kernels on every core: starting the local process pool (a
 fork server that imports the engine and loads the kernels, then the workers:
