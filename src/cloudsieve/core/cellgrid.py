@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..chunk import xyz_bounds
 from ..errors import InvalidParameterError
 from ._validation import check_points as core_check_points
 from .kernels import grid as _kg
@@ -59,9 +60,8 @@ class CellGrid:
     """
 
     def __init__(self, points: np.ndarray, h: float):
-        # per column: a strided 1-D reduction is ~10x faster than points.min(axis=0) on (n, 3)
-        lo = np.array([points[:, j].min() for j in range(3)]) if len(points) else np.zeros(3)
-        span = max(float(points[:, j].max() - lo[j]) for j in range(3)) if len(points) else 0.0
+        lo, hi = xyz_bounds(points) if len(points) else (np.zeros(3), np.zeros(3))
+        span = float((hi - lo).max())
         h = max(float(h), span / (2.0**21 - 2), 1e-300)
         codes = _kg.cell_codes(points, lo, h)
         order = np.argsort(codes, kind="stable")

@@ -46,6 +46,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..chunk import xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
@@ -85,8 +86,7 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     idx = np.arange(n, dtype=np.int64)
     vals = np.empty(n)
     tmp = np.empty(n, dtype=np.int64)
-    lo = np.array([points[:, j].min() for j in range(3)]) if n else np.zeros(3)
-    hi = np.array([points[:, j].max() for j in range(3)]) if n else np.zeros(3)
+    lo, hi = xyz_bounds(points) if n else (np.zeros(3), np.zeros(3))
 
     def split(node):  # node: (path, s, e, box, lower and upper extent); the halves, or None for a cell
         path, s, e, box, a, b = node

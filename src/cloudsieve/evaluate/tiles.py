@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "sample_indices", "sample_rows", "uniform_sample", "choose_tiles",
-           "random_tiles", "gather_tiles", "partition_tiles", "budget_tile_points", "spread"]
+__all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "sample_indices", "sample_rows",
+           "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles", "partition_tiles", "budget_tile_points",
+           "spread"]
 
 #: points of the uniform sample the tiles are drawn from 
 SAMPLE_SIZE = 200_000

@@ -20,6 +20,7 @@ import os
 
 import numpy as np
 
+from ..chunk import xyz_bounds
 from ..errors import CorruptInputError, InputFormatError
 from .las_plan import LasPlan, plan_las
 from ..paths import local_path
@@ -97,10 +98,7 @@ def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tup
         mult, add = np.asarray(factors, dtype=np.int64)
         if np.any(mult != 1) or np.any(add != 0):
             raw = raw * mult + add  # exact: integer factors (see las_plan)
-        # per column: a strided 1-D reduction is ~5x faster than raw.min(axis=0) on (n, 3) (52 against 11 ms
-        # for the pair on 1 M points); the stored int32 have the same extremes (checked to fit)
-        lo = np.array([raw[:, j].min() for j in range(3)])
-        hi = np.array([raw[:, j].max() for j in range(3)])
+        lo, hi = xyz_bounds(raw)  # the stored int32 have the same extremes (checked to fit below)
         mins.append(lo)
         maxs.append(hi)
         if np.any(lo < _INT32[0]) or np.any(hi > _INT32[1]):

@@ -136,10 +136,14 @@ def prefetch(chunks, depth: int = 1):
             thread.join(timeout=0.05)
 
 
+def _direct(run, n_tasks: int) -> bool:
+    """Whether :func:`run_tasks` calls the *n_tasks* tasks itself, without *run*."""
+    return run is None or (n_tasks <= 1 and getattr(run, "client", None) is None)
+
+
 def in_process(run, n_tasks: int) -> bool:
     """Whether :func:`run_tasks` runs *n_tasks* tasks through *run* in this process, one after the other."""
-    return run is None or getattr(run, "local", None) == "sync" or (
-        n_tasks <= 1 and getattr(run, "client", None) is None)
+    return _direct(run, n_tasks) or getattr(run, "local", None) == "sync"
 
 
 def run_tasks(run, func, args: list, stage: str) -> list:
@@ -149,6 +153,6 @@ def run_tasks(run, func, args: list, stage: str) -> list:
     is a single task and no dask.distributed cluster: a local worker process
     would only add its start-up (about 1.5 s) to that task.
     """
-    if run is None or (len(args) <= 1 and getattr(run, "client", None) is None):
+    if _direct(run, len(args)):
         return [func(*a) for a in args]
     return run(func, args, stage)
