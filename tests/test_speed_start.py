@@ -98,6 +98,31 @@ def test_after_the_eliminate_warm_up_the_default_command_compiles_nothing(tmp_pa
     assert dict(log.seconds) == {}
 
 
+def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
+    """Each kernel of the default rule's warm-up holds one signature (an int32 index where another call
+    passed an int64 compiled the kernel and its callees again: 5 s of the first start), and the radius's
+    k-NN is scipy's (the compiled k-NN cost 6-7 s)."""
+    probe = (
+        "import sys\n"
+        "from numba.core.registry import CPUDispatcher\n"
+        "from cloudsieve.core.warmup import warm_up\n"
+        "from cloudsieve.warmup_targets import targets_of\n"
+        "warm_up(targets_of('eliminate'))\n"
+        "from cloudsieve.core.kernels import knn\n"
+        "print(len(knn._chunk.signatures))\n"
+        "for name, mod in list(sys.modules.items()):\n"
+        "    for key, f in vars(mod).items():\n"
+        "        if name.startswith('cloudsieve') and isinstance(f, CPUDispatcher) and f.__module__ == name "
+        "and len(f.signatures) > 1:\n"
+        "            print(name, key, len(f.signatures))\n"
+    )
+    # an empty cache: a kernel loaded from the cache registers no signature on the kernels it calls
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", ""),
+           "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.splitlines() == ["0"]
+
+
 def test_cli_warmup_exits_0_and_names_each_target(capsys):
     assert main(["warmup", "--targets", "common,scores"]) == 0
     out = capsys.readouterr().out

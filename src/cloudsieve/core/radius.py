@@ -24,7 +24,6 @@ import numpy as np
 from ..errors import InvalidParameterError
 from .cellgrid import check_points
 from .duplicates import first_rows
-from .kernels import knn as _kknn
 
 __all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
 
@@ -96,27 +95,37 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, w
 def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
     """Distance from each of the first m rows of allp (>= k + 1 rows) to its k-th nearest other row.
 
-    The compiled k-NN kernel (one cluster: the whole sample): the distances of
-    cKDTree bit for bit (its k + 1-th, self included) in about two thirds of
-    its time on one thread. Among the distinct rows: a row with c exact copies
-    (itself included) has c - 1 others at distance 0, then each distinct row
-    as often as it is copied. Searched row by row, a pile of c copies costs
+    scipy's cKDTree over the distinct rows (the compiled k-NN of the scores,
+    :mod:`.kernels.knn`, gives the same distances bit for bit, but compiling it
+    cost 6-7 s of the default run's first start; on the 50,000-point sample the
+    two take the same 0.07-0.09 s). Among the distinct rows: a row with c exact
+    copies (itself included) has c - 1 others at distance 0, then each distinct
+    row as often as it is copied. Searched row by row, a pile of c copies costs
     c^2 distances (a sample of 300,000 points, 60,000 of them at one spot:
     258 s, against 0.2 s for the distinct rows).
     """
+    from scipy.spatial import cKDTree  # imported here: only the radius uses it (0.13-0.17 s)
+
     first = first_rows(allp)
     lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
     group = np.searchsorted(lead, first)  # each row's distinct row
     mult = np.bincount(group, minlength=len(lead))
-    query = np.zeros(len(lead), dtype=bool)
-    query[group[:m]] = True
-    d, i = _kknn.knn_unchecked(np.ascontiguousarray(allp[lead]), np.array([0, len(lead)], dtype=np.int64),
-                               np.array([k], dtype=np.int64), query, None if workers < 0 else workers)
-    q = np.flatnonzero(query)  # the other rows of d, i are not written
-    d, i = d[q], i[q]
+    q = np.unique(group[:m])  # the distinct rows asked for
+    if len(lead) == 1:  # one spot: every row has its k others (>= k + 1 rows) at distance 0
+        return np.zeros(m)
+    rows = allp[lead]
+    kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
+    d, i = cKDTree(rows).query(rows[q], k=kk, workers=workers)
+    d, i = d.reshape(len(q), kk), i.reshape(len(q), kk)
+    is_self = i == q[:, None]  # first unless another distinct row is at a distance that rounds to 0
+    drop = np.where(is_self.any(axis=1), np.argmax(is_self, axis=1), kk - 1)
+    other = np.ones((len(q), kk), dtype=bool)
+    other[np.arange(len(q)), drop] = False
+    d, i = d[other].reshape(len(q), kk - 1), i[other].reshape(len(q), kk - 1)
     need = k - (mult[q] - 1)  # others still needed after the copies at distance 0
-    cum = np.cumsum(np.where(i >= 0, mult[np.maximum(i, 0)], 0), axis=1)
-    col = np.argmax(cum >= np.maximum(need, 1)[:, None], axis=1)  # every row has k others: cum reaches need
+    cum = np.cumsum(mult[i], axis=1)
+    # a row whose copies already make k others (need <= 0) is at distance 0; the others reach need
+    col = np.argmax(cum >= np.maximum(need, 1)[:, None], axis=1)
     out = np.zeros(len(lead))
     out[q] = np.where(need > 0, d[np.arange(len(q)), col], 0.0)
     return out[group[:m]]

@@ -16,7 +16,7 @@ the argument types of the real calls (so the same compiled versions):
 - ``common``: exact copies and the merge (every rule);
 - ``partition``: the labels and halo bands of the partition's tasks;
 - ``eliminate``: the default rule in memory (grid, neighbour lists,
-  elimination, relocation, packing counts, the radius's k-NN);
+  elimination, relocation, packing counts; the radius's k-NN is scipy's);
 - ``scores``: the k-NN and entropy kernels of the scoring path;
 - ``km``, ``fcm``: the refinement into small clusters;
 - ``rules``: the rounds of the iterative, target and coverage rules.
@@ -66,7 +66,7 @@ def _eliminate() -> None:
     from .radius import elimination_radius, point_areas
 
     P = _points()
-    areas, weight = point_areas(P)  # the partition's r_max (the radius's k-NN)
+    areas, weight = point_areas(P)  # the partition's r_max
     r_max = elimination_radius(areas, 300, weight=weight)
     packing_ladder(P, r_max)
     eliminate_cell(P[:400], 200, r_max, halo=P[400:], decided=np.zeros(200, dtype=bool),

@@ -67,9 +67,9 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
     alts are current: the search only finds again that there is none)."""
     e2 = 0.0
     c2 = 0.0
-    p = head[x]
+    p = np.int64(head[x])
     while p >= 0:
-        a = alt[p]
+        a = np.int64(alt[p])
         if a >= 0 and state[a] != 0:
             d2 = altd2[p]
         else:
@@ -82,7 +82,7 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
         dy = P[p, 1] - P[x, 1]
         dz = P[p, 2] - P[x, 2]
         c2 += d2 - (dx * dx + dy * dy + dz * dz)
-        p = nxt[p]
+        p = np.int64(nxt[p])
     e2 *= max(imp2[x], 1.0)
     c2 *= imp2[x]
     f = 1.0
@@ -107,7 +107,7 @@ def _better(a, b, rec, tie):
 def _replay(win, v, i, rec, tie):
     """After the key of point i fell (or i left), replay the matches above node v that i had won."""
     while v >= 1 and win[v] == i:
-        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
+        win[v] = _better(np.int64(win[2 * v]), np.int64(win[2 * v + 1]), rec, tie)
         v >>= 1
 
 
@@ -206,15 +206,15 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             if tie[i] < nown:
                 left += 1
     for v in range(m - 1, 0, -1):
-        win[v] = _better(win[2 * v], win[2 * v + 1], rec, tie)
+        win[v] = _better(np.int64(win[2 * v]), np.int64(win[2 * v + 1]), rec, tie)
     while left > floor:
-        i = win[1]
+        i = np.int64(win[1])
         ti = tie[i]
         stats[0] += 1
-        r = -1  # the next largest bound: the best of the matches i won
+        r = np.int64(-1)  # the next largest bound: the best of the matches i won
         v = m + i
         while v > 1:
-            r = _better(r, win[v ^ 1], rec, tie)
+            r = _better(r, np.int64(win[v ^ 1]), rec, tie)
             v >>= 1
         k2 = rec[r, 3] if r >= 0 else -1.0
         t2 = tie[r] if r >= 0 else 0
@@ -240,10 +240,10 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
         win[m + i] = -1
         _replay(win, (m + i) >> 1, i, rec, tie)
         if cover:
-            p = head[i]  # the points i represented move to their alt
+            p = np.int64(head[i])  # the points i represented move to their alt
             while p >= 0:
-                q = nxt[p]
-                a = alt[p]
+                q = np.int64(nxt[p])
+                a = np.int64(alt[p])
                 if a < 0:
                     rep[p] = -1
                 else:
@@ -261,10 +261,10 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
                         _fall(a, rec, win, m, tie)
                 p = q
             head[i] = -1
-            p = ahead[i]  # the points whose alt was i get the next one
+            p = np.int64(ahead[i])  # the points whose alt was i get the next one
             while p >= 0:
-                q = anext[p]
-                x = rep[p]
+                q = np.int64(anext[p])
+                x = np.int64(rep[p])
                 stats[3] += 1
                 add_gain(x, -gain(p, x, altd2[p], P), c2b, cerr)  # its gain to the old alt goes
                 take_alt(p, x, resume_at(p, sp, nptr), P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff,
@@ -276,7 +276,7 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
                 p = q
             ahead[i] = -1
         for t in range(nptr[i], nptr[i + 1]):  # the neighbours' bounds fall
-            j = nbr[t]
+            j = np.int64(nbr[t])
             if state[j] != 1:
                 continue
             rec[j, 0] -= low[t]

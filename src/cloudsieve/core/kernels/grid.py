@@ -195,6 +195,7 @@ def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
     """Nearest kept point (kept != 0) of each point of ``rows`` (equal distances: lower ``tie``), -1 when
     none is in its 27 cells."""
     out = np.empty(len(rows), dtype=np.int64)
+    none = np.int64(-1)  # not the literal -1: the elimination's signature of nearest, compiled once
     for u in range(len(rows)):
-        out[u] = nearest(rows[u], -1, P, cell, cstart, nstart, ncells, kept, tie)[0]
+        out[u] = nearest(rows[u], none, P, cell, cstart, nstart, ncells, kept, tie)[0]
     return out
