@@ -120,7 +120,7 @@ def _fall(y, rec, win, m, tie):
         _replay(win, (m + y) >> 1, y, rec, tie)
 
 
-@njit(cache=True, nogil=True)
+# A plain function: its allocations in numpy (compiled, they cost the first start 0.9 s), the work in the kernel
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep):
     """Remove removable points, largest key first, until ``floor`` of the own ones remain.
@@ -149,9 +149,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
     cf = np.zeros((n, 8))
     rec = np.empty((n, 4))
     stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
-    m = 1
-    while m < n:
-        m *= 2
+    m = 1 << (max(n, 1) - 1).bit_length()  # the least power of 2 >= n
     win = np.full(2 * m, -1, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
     prio = np.full(n, np.nan)
     _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
@@ -290,16 +288,23 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             prio[i] = cur
 
 
-@njit(cache=True, nogil=True)
 def relocate(P, near, kept, movable, tie, rcon2):
     """One restricted Lloyd step: each movable kept point k moves to the movable point of its Voronoi
     region (the points whose ``near`` is k) nearest the region's centroid, unless that would take some
     point of the region farther than max(the region's current farthest, sqrt(rcon2)). Near-ties
-    (relative 1e-9) keep k, then the lower ``tie``, so rounding never decides. Returns the new flags."""
+    (relative 1e-9) keep k, then the lower ``tie``, so rounding never decides. Returns the new flags.
+
+    A plain function, as :func:`eliminate`: its allocations in numpy, the work in :func:`_relocate`."""
     n = len(P)
-    cnt = np.zeros(n)
-    cen = np.zeros((n, 3))
-    far = np.zeros(n)
+    out = kept.copy()
+    _relocate(P, near, movable, tie, rcon2, np.zeros(n), np.zeros((n, 3)), np.zeros(n), np.full(n, -1, dtype=np.int64),
+              np.full(n, np.inf), np.zeros(n), out)
+    return out
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _relocate(P, near, movable, tie, rcon2, cnt, cen, far, best, bd, worst, out):
+    n = len(P)
     for p in range(n):
         k = near[p]
         if k < 0:
@@ -312,8 +317,6 @@ def relocate(P, near, kept, movable, tie, rcon2):
         if cnt[k] > 0:
             for j in range(3):
                 cen[k, j] /= cnt[k]
-    best = np.full(n, -1, dtype=np.int64)
-    bd = np.full(n, np.inf)
     for k in range(n):
         if cnt[k] > 0 and movable[k] != 0:
             best[k] = k
@@ -332,16 +335,13 @@ def relocate(P, near, kept, movable, tie, rcon2):
         elif d2 < bd[k] * slack or (d2 <= bd[k] / slack and tie[p] < tie[b]):
             best[k] = p
             bd[k] = min(d2, bd[k])
-    worst = np.zeros(n)
     for p in range(n):
         k = near[p]
         if k >= 0 and best[k] >= 0 and best[k] != k:
             b = best[k]
             worst[k] = max(worst[k], (P[p, 0] - P[b, 0]) ** 2 + (P[p, 1] - P[b, 1]) ** 2 + (P[p, 2] - P[b, 2]) ** 2)
-    out = kept.copy()
     for k in range(n):
         b = best[k]
         if b >= 0 and b != k and worst[k] <= max(far[k], rcon2) * (1.0 + 1e-9):
             out[k] = 0
             out[b] = 1
-    return out
