@@ -115,6 +115,12 @@ def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
         "        if name.startswith('cloudsieve') and isinstance(f, CPUDispatcher) and f.__module__ == name "
         "and len(f.signatures) > 1:\n"
         "            print(name, key, len(f.signatures))\n"
+        "warm_up(['scores'])\n"
+        "for name, mod in list(sys.modules.items()):\n"
+        "    for key, f in vars(mod).items():\n"
+        "        if name.startswith('cloudsieve') and isinstance(f, CPUDispatcher) and f.__module__ == name "
+        "and 'Literal' in str(f.signatures):\n"
+        "            print(name, key, f.signatures)\n"
     )
     # an empty cache: a kernel loaded from the cache registers no signature on the kernels it calls
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", ""),

@@ -98,7 +98,7 @@ def site_tree(sites: np.ndarray) -> tuple:
     node = np.empty((cap, 4), dtype=np.int64)
     box = np.empty((cap, 6))
     stack = np.empty(cap, dtype=np.int64)
-    nnode = build_tree(C, 0, m, LEAF, perm, S, node, box, stack)
+    nnode = build_tree(C, np.int64(0), m, LEAF, perm, S, node, box, stack)
     return S, perm, node[:nnode].copy(), box[:nnode].copy()
 
 

@@ -56,7 +56,7 @@ def memberships(d2, e, u, r):
         r[q] = dmin / d2[q]
         if e != 1.0:
             r[q] = r[q] ** e
-    s = 0.0 + pairwise_sum(r, 0, L)
+    s = 0.0 + pairwise_sum(r, np.int64(0), L)
     for q in range(L):
         u[q] = r[q] / s
 

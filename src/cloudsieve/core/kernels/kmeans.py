@@ -113,7 +113,7 @@ def _rowsum_sqdist(X, i, C, t, buf):
     for j in range(p):
         diff = X[i, j] - C[t, j]
         buf[j] = diff * diff
-    return 0.0 + pairwise_sum(buf, 0, p)
+    return 0.0 + pairwise_sum(buf, np.int64(0), p)
 
 
 @njit(cache=True, nogil=True)

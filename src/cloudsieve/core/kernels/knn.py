@@ -165,7 +165,7 @@ def _scratch(mmax, lmax):
 @njit(cache=True, nogil=True)
 def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, trim, out_d, out_i):
     """Clusters c0..c1-1, with scratch arrays allocated once."""
-    mmax = 1
+    mmax = np.int64(1)  # not the literal 1: one signature of _scratch
     kmax = 1
     for c in range(c0, c1):
         mmax = max(mmax, indptr[c + 1] - indptr[c])
@@ -182,7 +182,7 @@ def _chunk(P, indptr, kc, c0, c1, K, query, leaf_min, leaf_extra, bound_node, tr
 def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bound_node, trim, rk, rk1, nb, flag):
     """Clusters c0..c1-1 with kcl > 0, their points pts[order[indptr[c]:indptr[c + 1]]]: r_k, r_(k+1)
     and the k nearest (grouped positions) of each point, or flag[c] when a point has a copy."""
-    mmax = 1
+    mmax = np.int64(1)  # not the literal 1: one signature of _scratch
     kmax = 1
     for c in range(c0, c1):
         if kcl[c] > 0:
@@ -206,7 +206,7 @@ def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bo
             for d in range(p):
                 Pc[t, d] = pts[i, d]
         leaf = max(leaf_min, k + 1 + leaf_extra)
-        _cluster(Pc, 0, m, k + 1, k + 1, q, leaf, bound_node, trim, od, oi, w)
+        _cluster(Pc, np.int64(0), m, k + 1, k + 1, q, leaf, bound_node, trim, od, oi, w)
         z = False
         for t in range(m):
             z |= od[t, 0] == 0.0

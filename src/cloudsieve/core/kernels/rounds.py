@@ -284,7 +284,7 @@ def select_clusters(starts, c0, c1, alive, val, threshold, any_finite, tie, nb, 
     out = np.empty(starts[c1] - base, dtype=np.int64)
     t = 0
     for c in range(c0, c1):
-        m = 0
+        m = np.int64(0)  # not the literal 0: one signature of _radix_order
         for i in range(starts[c], starts[c + 1]):
             if alive[i] and (np.isfinite(val[i]) if any_finite else val[i] <= threshold):
                 cand[m] = i
