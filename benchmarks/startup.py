@@ -32,6 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from engine import open3d_same_count  # benchmarks/engine.py, beside this script
+
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
 PY = sys.executable
@@ -71,28 +73,6 @@ def simplify_cmd(src: Path, dst: Path) -> list[str]:
     return [PY, "-m", "cloudsieve", "simplify", str(src), str(dst), "--ratio", "0.5", "--overwrite", "--no-progress"]
 
 
-def voxel_for(src: Path, count: int) -> float:
-    """The voxel size at which Open3D's ``voxel_down_sample`` keeps about *count* points of *src* (bisection)."""
-    import laspy
-    import numpy as np
-    import open3d as o3d
-
-    las = laspy.read(str(src))
-    xyz = np.c_[las.x, las.y, las.z]
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz - xyz.min(axis=0)))
-    ext = float((xyz.max(axis=0) - xyz.min(axis=0)).max())
-    lo, hi, best = 1e-6 * ext, ext, None
-    for _ in range(50):
-        mid = (lo * hi) ** 0.5
-        k = len(pcd.voxel_down_sample(mid).points)
-        if best is None or abs(k - count) < abs(best[1] - count):
-            best = (mid, k)
-        if abs(k - count) <= 0.005 * count:
-            break
-        lo, hi = (mid, hi) if k > count else (lo, mid)
-    return best[0]
-
-
 def cold(src: Path, work: Path) -> None:
     print(f"\nFirst runs, `{src.name}`, `--ratio 0.5`, an empty `NUMBA_CACHE_DIR` each:\n")
     print("| run | wall (s) | load before / after |")
@@ -122,7 +102,7 @@ def warm(files: list[Path], work: Path, repeat: int) -> None:
     for src in files:
         with laspy.open(str(src)) as reader:
             n = int(reader.header.point_count)
-        voxel = voxel_for(src, n // 2)
+        voxel = open3d_same_count(src, n // 2)[2]  # the voxel size keeping about half (bisection, untimed)
         timed(simplify_cmd(src, work / "warm.laz"))  # fills the cache if this file needs a kernel not yet in it
         ours, theirs, l0 = [], [], load()
         for _ in range(repeat):
