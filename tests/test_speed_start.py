@@ -129,6 +129,29 @@ def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
     assert out.stdout.splitlines() == ["0"]
 
 
+def test_an_empty_cache_compiles_the_elimination_ahead_in_a_second_process(tmp_path):
+    """Into an empty numba cache, a second process compiles the elimination's loop while the run compiles
+    the rest (engine/ahead.py): the same bytes as a warm run, the loop's cache file written, and no
+    process left when the command returns."""
+    import psutil
+
+    src = shared_file("simple.las")
+    warm = tmp_path / "warm.las"
+    cloudsieve.simplify(src, warm, ratio=0.5, scheduler="sync")
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", ""),
+           "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    out = subprocess.run([sys.executable, "-m", "cloudsieve", "-v", "simplify", str(src), str(tmp_path / "cold.las"),
+                          "--ratio", "0.5"], capture_output=True, text=True, env=env)
+    assert out.returncode == 0, out.stderr
+    assert "numba's cache lacks the kernels of eliminate: process" in out.stderr
+    assert (tmp_path / "cold.las").read_bytes() == warm.read_bytes()
+    assert list((tmp_path / "cache").rglob("eliminate._eliminate-*.nbi"))
+    assert not [p for p in psutil.process_iter(["cmdline"]) if "cloudsieve.engine.ahead" in (p.info["cmdline"] or [])]
+    from cloudsieve.core.warmup import ahead_parts
+
+    assert ahead_parts(["common", "partition", "eliminate"]) == []  # this process's cache is warm: none
+
+
 def test_cli_warmup_exits_0_and_names_each_target(capsys):
     assert main(["warmup", "--targets", "common,scores"]) == 0
     out = capsys.readouterr().out

@@ -38,7 +38,7 @@ import numpy as np
 from . import rules
 from ..warmup_targets import TARGETS
 
-__all__ = ["warm_up"]
+__all__ = ["warm_up", "AHEAD", "ahead_parts", "warm_ahead"]
 
 
 def _points(n: int = 600) -> np.ndarray:
@@ -118,6 +118,23 @@ def _scores() -> None:
     graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
 
 
+def _elimination_loop() -> None:
+    """The elimination's loop and relocation (:mod:`.kernels.eliminate`) alone, on two points with the
+    argument types of the real calls (the grid, lists and links :mod:`.elimination` passes), without
+    the grid and lists kernels that lead to them: a second process compiles these ahead (:data:`AHEAD`)."""
+    from .kernels import eliminate as ke
+
+    P = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
+    i8 = np.array([0, 0], dtype=np.int64)
+    ones = np.ones(2)
+    # one grid cell holding both points, each the other's only neighbour
+    ke.eliminate(P, i8, np.array([0, 2]), np.array([0, 1]), np.array([0]), np.array([0, 1, 2]),
+                 np.array([1, 0], dtype=np.int32), np.full(2, 0.5, dtype=np.float32), ones / 2,
+                 np.zeros(2, dtype=np.uint8), np.ones(2, dtype=np.uint8), ones, ones, ones / 2, np.array([0, 1]),
+                 1.0, 1.0, 1, 0.4, 8.0, 10.0, 1, 2, np.full((2, 8), -1, dtype=np.int32), i8 - 1)
+    ke.relocate(P, i8, np.array([1, 0], dtype=np.uint8), np.ones(2, dtype=np.uint8), np.array([0, 1]), 0.25)
+
+
 def _method(method: str) -> Callable[[], None]:
     def warm() -> None:
         from .simplify import simplify_points
@@ -146,6 +163,41 @@ _RUN: dict[str, Callable[[], None]] = {
     "rules": _rules,
 }
 assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.warmup_targets has its function here"
+
+#: the part of a target a second process can compile while this one compiles the rest (the kernels the
+#: part's function calls, from inputs of their real argument types; the target loads them from the
+#: cache when it reaches them), and the kernel whose cache file tells whether it is compiled
+AHEAD: dict[str, tuple[Callable[[], None], str]] = {"eliminate": (_elimination_loop, "eliminate._eliminate")}
+
+
+def ahead_parts(targets: Iterable[str]) -> list[str]:
+    """The targets of *targets* with a part in :data:`AHEAD` whose kernel numba's cache does not hold.
+
+    Read from the cache's index file of the kernel (numba's ``FunctionCache``); when that cannot be read
+    (another numba, caching off), none: the run then compiles as usual.
+    """
+    import importlib
+    import os
+
+    out = []
+    for name in targets:
+        if name not in AHEAD:
+            continue
+        module, kernel = AHEAD[name][1].rsplit(".", 1)
+        try:
+            dispatcher = getattr(importlib.import_module(f"{__package__}.kernels.{module}"), kernel)
+            cached = os.path.exists(dispatcher._cache._cache_file._index_path)
+        except Exception:  # noqa: BLE001 - numba's internals: unknown means "do not compile ahead"
+            continue
+        if not cached:
+            out.append(name)
+    return out
+
+
+def warm_ahead(targets: Iterable[str]) -> None:
+    """Compile the :data:`AHEAD` parts of *targets* (in the second process)."""
+    for name in targets:
+        AHEAD[name][0]()
 
 
 def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,

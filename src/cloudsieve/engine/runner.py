@@ -91,6 +91,7 @@ class Runner:
         self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
         self.task_cpu = 0.0  # CPU seconds of the local worker processes' tasks (the "processes" pool)
         self._cpu_start: dict | None = None  # each dask.distributed worker's CPU time when the run began
+        self._ahead = None  # a process compiling kernels ahead into an empty numba cache (:mod:`.ahead`)
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
             self._cpu_start = _workers_cpu(client)
@@ -133,6 +134,9 @@ class Runner:
             )
         self.local = "sync" if scheduler == "synchronous" else scheduler
         self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
+        from . import ahead
+
+        self._ahead = ahead.start(warm)  # this process (or the fork server) compiles the rest meanwhile
         if self.local == "processes":
             # one pool for the whole run: dask would start (and import into) a
             # new pool at every compute() otherwise, seconds per stage
@@ -216,6 +220,11 @@ class Runner:
 
     def close(self) -> None:
         """Shut down the process pool and the client/cluster this runner started (again: nothing)."""
+        if self._ahead is not None:
+            from . import ahead
+
+            ahead.finish(self._ahead)
+            self._ahead = None
         if self._pool is not None:
             if self._prestart is not None:
                 self._prestart.join()

@@ -1,0 +1,64 @@
+"""A second core compiles ahead: the first run into an empty numba cache.
+
+numba compiles a kernel in the process that first calls it, one kernel at a
+time, so a run into an empty cache (an install without ``cloudsieve warmup``,
+a new container or cluster worker) compiles on one core while the other
+waits. When the run's warm-up targets have a part a second process can
+compile from inputs of the real calls' types
+(:data:`cloudsieve.core.warmup.AHEAD`: the elimination's loop and
+relocation) and numba's cache does not hold it, :func:`start` runs
+``python -m cloudsieve.engine.ahead TARGET...`` beside the run. The run
+compiles the kernels that come first (the partition's, the grid's, the
+neighbour lists'); reaching the loop, it loads it from the cache (numba
+writes each file under a temporary name and renames it), or compiles it
+itself if the other process has not finished. Either way the code is the
+same, so the results are too.
+
+The process dies with the run (:func:`~.lifeline.die_with_parent`), and
+:func:`finish` ends it with the run, so none outlives the command.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import subprocess
+import sys
+from collections.abc import Iterable
+
+__all__ = ["start", "finish"]
+
+logger = logging.getLogger(__name__)
+
+
+def start(targets: Iterable[str]) -> subprocess.Popen | None:
+    """Start compiling ahead the parts of *targets* numba's cache lacks; None when there is none to compile
+    or one core only."""
+    from ..core.warmup import ahead_parts
+
+    parts = ahead_parts(targets)
+    if not parts or (os.cpu_count() or 1) < 2:
+        return None
+    proc = subprocess.Popen([sys.executable, "-m", __name__, *parts], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    logger.info("numba's cache lacks the kernels of %s: process %d compiles part of them ahead",
+                ", ".join(parts), proc.pid)
+    return proc
+
+
+def finish(proc: subprocess.Popen | None) -> None:
+    """End the process :func:`start` started, if any: the run is over (an interrupted or failed one too),
+    so it stops now if it has not finished (numba renames each cache file into place when complete:
+    nothing is left half written)."""
+    if proc is not None:
+        if proc.poll() is None:
+            proc.terminate()
+        proc.wait()
+
+
+if __name__ == "__main__":
+    from ..core.warmup import warm_ahead
+    from .lifeline import die_with_parent
+
+    die_with_parent()
+    warm_ahead(sys.argv[1:])
