@@ -118,21 +118,27 @@ def _scores() -> None:
     graph_to_input(order, indptr, kcl, koff, scored, nb, 4)
 
 
-def _elimination_loop() -> None:
-    """The elimination's loop and relocation (:mod:`.kernels.eliminate`) alone, on two points with the
-    argument types of the real calls (the grid, lists and links :mod:`.elimination` passes), without
-    the grid and lists kernels that lead to them: a second process compiles these ahead (:data:`AHEAD`)."""
+def _elimination_tail() -> None:
+    """The kernels a run of the default rule calls last, alone, on two points with the argument types of
+    the real calls: the packing counts over the neighbour lists, the elimination's loop, the relocation
+    (:mod:`.kernels.eliminate`) and the merge's scatter; not the grid and lists kernels that lead to them.
+    A second process compiles these ahead (:data:`AHEAD`)."""
     from .kernels import eliminate as ke
+    from .kernels.grid import nearest_kept
+    from .kernels.packing import packing_from_lists
+    from .kernels.scatter import from_groups
 
     P = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
-    i8 = np.array([0, 0], dtype=np.int64)
-    ones = np.ones(2)
-    # one grid cell holding both points, each the other's only neighbour
-    ke.eliminate(P, i8, np.array([0, 2]), np.array([0, 1]), np.array([0]), np.array([0, 1, 2]),
-                 np.array([1, 0], dtype=np.int32), np.full(2, 0.5, dtype=np.float32), ones / 2,
-                 np.zeros(2, dtype=np.uint8), np.ones(2, dtype=np.uint8), ones, ones, ones / 2, np.array([0, 1]),
-                 1.0, 1.0, 1, 0.4, 8.0, 10.0, 1, 2, np.full((2, 8), -1, dtype=np.int32), i8 - 1)
-    ke.relocate(P, i8, np.array([1, 0], dtype=np.uint8), np.ones(2, dtype=np.uint8), np.array([0, 1]), 0.25)
+    cell, cstart, nstart, ncells = np.array([0, 0]), np.array([0, 2]), np.array([0, 1]), np.array([0])  # one cell
+    nptr, nbr = np.array([0, 1, 2]), np.array([1, 0], dtype=np.int32)  # each point the other's only neighbour
+    tie, flags, ones = np.array([0, 1]), np.array([1, 0], dtype=np.uint8), np.ones(2)
+    packing_from_lists(P, nptr, nbr, np.ones(2, dtype=np.uint8), np.array([0.25, 0.5]))
+    ke.eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, np.full(2, 0.5, dtype=np.float32), ones / 2,
+                 np.zeros(2, dtype=np.uint8), np.ones(2, dtype=np.uint8), ones, ones, ones / 2, tie,
+                 1.0, 1.0, 1, 0.4, 8.0, 10.0, 1, 2, np.full((2, 8), -1, dtype=np.int32), np.array([-1, -1]))
+    nearest_kept(P, cell, cstart, nstart, ncells, flags, tie, np.array([0, 1]))  # in the order the run calls them
+    ke.relocate(P, cell, flags, np.ones(2, dtype=np.uint8), tie, 0.25)
+    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))
 
 
 def _method(method: str) -> Callable[[], None]:
@@ -167,7 +173,7 @@ assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.warmup_targets 
 #: the part of a target a second process can compile while this one compiles the rest (the kernels the
 #: part's function calls, from inputs of their real argument types; the target loads them from the
 #: cache when it reaches them), and the kernel whose cache file tells whether it is compiled
-AHEAD: dict[str, tuple[Callable[[], None], str]] = {"eliminate": (_elimination_loop, "eliminate._eliminate")}
+AHEAD: dict[str, tuple[Callable[[], None], str]] = {"eliminate": (_elimination_tail, "eliminate._eliminate")}
 
 
 def ahead_parts(targets: Iterable[str]) -> list[str]:

@@ -128,7 +128,7 @@ def label_chunk(
     centers = np.asarray(g["partition/centers"][:])
     xyz = st.read("xyz", start, stop)
     n = len(xyz)
-    tree = site_tree(centers)
+    tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
     labels = np.empty(n, dtype=np.int64)
     pairs = []
     block = _LABEL_BLOCK
