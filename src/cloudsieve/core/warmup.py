@@ -3,10 +3,11 @@
 numba compiles a kernel at its first call, or loads it from its on-disk cache
 (``cache=True``: ``__pycache__`` beside the module, numba's user cache
 directory when that is read-only, or ``NUMBA_CACHE_DIR``). Measured on 2
-cores (``benchmarks/startup.py``, load 0.6-1.0): the kernels of the default
-command (targets ``common``, ``partition``, ``eliminate``) compiled in 24.8 s
+cores (``benchmarks/startup.py``, load 1.2-1.4): the kernels of the default
+command (targets ``common``, ``partition``, ``eliminate``) compiled in 19.7 s
 into an empty cache; the first ``cloudsieve simplify autzen_trim.laz --ratio
-0.5`` took 24.3 s without a warm-up and 3.3 s after one.
+0.5`` took 12.4 s without a warm-up (a second process compiles the end of it
+ahead, :data:`AHEAD`) and 3.1 s after one.
 
 Each target calls the kernels of one part of the method on a tiny input, with
 the argument types of the real calls (so the same compiled versions):
