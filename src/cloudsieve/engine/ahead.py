@@ -13,8 +13,9 @@ grid's, the packing's, the k-d cut's, the neighbour lists'); reaching the
 others, it loads them from the cache (numba writes each file under a
 temporary name and renames it), or compiles one itself if the other process
 has not finished it. Either way the code is the same, so the results are
-too. Measured on 2 cores (autzen_trim.laz, ``--ratio 0.5``, alternating):
-9.7-13.5 s against 25.8-36.3 s for one process (docs/benchmarks.md).
+too. Measured on 2 cores (autzen_trim.laz, ``--ratio 0.5``, alternating
+with the code before it, load 1.0-1.3): 13.3 and 14.2 s against 24.1 and
+21.3 s (docs/benchmarks.md).
 
 The process dies with the run (:func:`~.lifeline.die_with_parent`), and
 :func:`finish` ends it with the run, so none outlives the command.
