@@ -100,8 +100,9 @@ def test_after_the_eliminate_warm_up_the_default_command_compiles_nothing(tmp_pa
 
 def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
     """Each kernel of the default rule's warm-up holds one signature (an int32 index where another call
-    passed an int64 compiled the kernel and its callees again: 5 s of the first start), and the radius's
-    k-NN is scipy's (the compiled k-NN cost 6-7 s)."""
+    passed an int64 compiled the kernel and its callees again: 5 s of the first start), the radius's
+    k-NN is scipy's (the compiled k-NN cost 6-7 s), and no kernel of the scores is compiled for a literal
+    argument (``_cluster(Pc, 0, ...)`` compiled the k-d tree and the k-NN a second time)."""
     probe = (
         "import sys\n"
         "from numba.core.registry import CPUDispatcher\n"
@@ -130,9 +131,9 @@ def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
 
 
 def test_an_empty_cache_compiles_the_elimination_ahead_in_a_second_process(tmp_path):
-    """Into an empty numba cache, a second process compiles the elimination's loop while the run compiles
-    the rest (engine/ahead.py): the same bytes as a warm run, the loop's cache file written, and no
-    process left when the command returns."""
+    """Into an empty numba cache, a second process compiles the kernels the run reaches last (the
+    elimination's loop among them) while the run compiles the rest (engine/ahead.py): the same bytes as
+    a warm run, the loop's cache file written, and no process left when the command returns."""
     import psutil
 
     src = shared_file("simple.las")
