@@ -38,6 +38,8 @@ HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
 PY = sys.executable
 
+# engine.py's open3d_end_to_end as a script: the user's process imports laspy, numpy and open3d only, and
+# its imports are timed with it (importing engine.py would add cloudsieve's to Open3D's side)
 OPEN3D = r"""
 import sys
 import laspy, numpy as np, open3d as o3d

@@ -110,9 +110,9 @@ def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
     lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
     group = np.searchsorted(lead, first)  # each row's distinct row
     mult = np.bincount(group, minlength=len(lead))
-    q = np.unique(group[:m])  # the distinct rows asked for
     if len(lead) == 1:  # one spot: every row has its k others (>= k + 1 rows) at distance 0
         return np.zeros(m)
+    q = np.unique(group[:m])  # the distinct rows asked for
     rows = allp[lead]
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
     d, i = cKDTree(rows).query(rows[q], k=kk, workers=workers)

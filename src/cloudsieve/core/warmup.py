@@ -49,13 +49,19 @@ def _points(n: int = 600) -> np.ndarray:
     return np.ascontiguousarray(np.c_[xy, 0.3 * np.sin(xy[:, 0]) + 0.01 * rng.random(n)])
 
 
+def _merge_scatter() -> None:
+    """The merge's scatter of the keep masks back to input order (every rule's last kernel)."""
+    from .kernels.scatter import from_groups
+
+    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))
+
+
 def _common() -> None:
     from .kernels.copies import first_equal
-    from .kernels.scatter import from_groups
 
     P = _points(24)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
-    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))  # the merge
+    _merge_scatter()
 
 
 def _eliminate() -> None:
@@ -127,7 +133,6 @@ def _elimination_tail() -> None:
     from .kernels import eliminate as ke
     from .kernels.grid import nearest_kept
     from .kernels.packing import packing_from_lists
-    from .kernels.scatter import from_groups
 
     P = np.array([[0.0, 0.0, 0.0], [0.5, 0.0, 0.0]])
     cell, cstart, nstart, ncells = np.array([0, 0]), np.array([0, 2]), np.array([0, 1]), np.array([0])  # one cell
@@ -139,7 +144,7 @@ def _elimination_tail() -> None:
                  1.0, 1.0, 1, 0.4, 8.0, 10.0, 1, 2, np.full((2, 8), -1, dtype=np.int32), np.array([-1, -1]))
     nearest_kept(P, cell, cstart, nstart, ncells, flags, tie, np.array([0, 1]))  # in the order the run calls them
     ke.relocate(P, cell, flags, np.ones(2, dtype=np.uint8), tie, 0.25)
-    from_groups(np.zeros(2, dtype=np.int32), np.zeros(1, dtype=np.int64), np.ones(2, dtype=bool))
+    _merge_scatter()
 
 
 def _method(method: str) -> Callable[[], None]:

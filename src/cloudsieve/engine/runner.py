@@ -134,7 +134,7 @@ class Runner:
             )
         self.local = "sync" if scheduler == "synchronous" else scheduler
         self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
-        from . import ahead
+        from . import ahead  # here, not at the top: ``python -m cloudsieve.engine.ahead`` imports this package
 
         self._ahead = ahead.start(warm)  # this process (or the fork server) compiles the rest meanwhile
         if self.local == "processes":
