@@ -1,4 +1,4 @@
-"""Issue 13, item 8: a distributed run reports its workers' peak memory, not the client's.
+"""A distributed run reports its workers' peak memory, not the client's.
 
 A real LocalCluster of two worker processes on loopback, reached through a
 given client (API) and through ``--scheduler tcp://...`` (CLI): each worker
@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import json
 import resource
+import threading
 
 import pytest
 
 from cloudsieve import simplify
 from cloudsieve.cli import main
-from cloudsieve.engine.memory import LOCAL_SCOPE, worker_rss
+from cloudsieve.engine.memory import LOCAL_SCOPE, PeakMemory, worker_rss
 from conftest import shared_file
 from cloudsieve.engine.runner import NO_HTTP_PORT
 
@@ -63,3 +64,30 @@ def test_the_cli_on_a_scheduler_address_reports_the_workers(cluster, tmp_path, c
 def test_a_local_run_reports_this_process_and_its_children(tmp_path):
     s = simplify(shared_file("simple.las"), tmp_path / "o.las", rule="iterative", scheduler="sync")
     assert s.peak_memory_of == LOCAL_SCOPE and s.peak_memory > 0
+
+
+def test_sampling_the_workers_stops_before_their_client_closes(cluster):
+    """A ``client.run`` in flight when its client closes never returns: stop() ends the sampling first.
+
+    Sampling without a pause, closing the client straight after stop(): the
+    order the run uses. The other order hung within five rounds.
+    """
+    from distributed import Client
+
+    c, _ = cluster
+    for _ in range(8):
+        client = Client(c.scheduler_address)
+        with PeakMemory(worker_interval=0.0) as peak:
+            peak.watch_workers(client)
+            peak.stop()
+            assert "cloudsieve-peak-memory" not in {t.name for t in threading.enumerate()}
+            client.close()
+        assert peak.peak > 0 and peak.workers == 2
+
+
+def test_a_run_exporting_in_the_driver_counts_the_workers_cpu(cluster, tmp_path):
+    """PLY out: the client closes before the driver's export; the workers' CPU is taken before it closes."""
+    c, _ = cluster
+    s = simplify(shared_file("simple.las"), tmp_path / "o.ply", rule="iterative", scheduler=c.scheduler_address)
+    assert s.cpu_seconds["workers"] > 0
+    assert s.peak_memory_of == LABEL

@@ -22,6 +22,8 @@ logger = logging.getLogger(__name__)
 
 #: what a local measure covers
 LOCAL_SCOPE = "this process and its children"
+#: how long stopping waits for a sample in flight (a worker's answer takes milliseconds)
+JOIN_SECONDS = 60
 
 
 def process_tree_rss() -> int:
@@ -114,8 +116,22 @@ class PeakMemory:
         self._thread.start()
         return self
 
-    def __exit__(self, *exc) -> None:
+    def stop(self) -> None:
+        """Stop sampling and take one last sample (again: nothing).
+
+        Call it before the watched client closes: a ``client.run`` still in
+        flight when its client closes never returns (dask.distributed
+        2026.8), and the run would wait on it for ever.
+        """
+        if self._stop.is_set():
+            return
         self._stop.set()
         if self._thread is not None:
-            self._thread.join()
+            self._thread.join(timeout=JOIN_SECONDS)
+            if self._thread.is_alive():  # a worker that does not answer: the run goes on without its sample
+                logger.warning("peak memory: the sampling thread did not stop within %d s", JOIN_SECONDS)
+                return
         self._sample()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

@@ -91,6 +91,7 @@ class Runner:
         self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
         self.task_cpu = 0.0  # CPU seconds of the local worker processes' tasks (the "processes" pool)
         self._cpu_start: dict | None = None  # each dask.distributed worker's CPU time when the run began
+        self._cpu_closed: float | None = None  # :meth:`worker_cpu` when this runner closed its client
         self._ahead = None  # a process compiling kernels ahead into an empty numba cache (:mod:`.ahead`)
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
@@ -213,6 +214,8 @@ class Runner:
         "threads" schedulers run the tasks in this process: their CPU is
         this process's own.
         """
+        if self._cpu_closed is not None:
+            return self._cpu_closed
         if self.client is not None and self._cpu_start is not None:
             now = _workers_cpu(self.client)
             return float(sum(max(0.0, v - self._cpu_start.get(w, 0.0)) for w, v in now.items()))
@@ -231,6 +234,7 @@ class Runner:
             self._pool.shutdown(wait=True)
             self._pool = None
         if self._own_client and self.client is not None:
+            self._cpu_closed = self.worker_cpu()  # a closed client asks its workers nothing
             self.client.close()
             self._own_client = False
         if self._cluster is not None:

@@ -275,6 +275,12 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
 
     with PeakMemory() as peak:
         runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
+
+        def close_runner():
+            if runner.remote_client is not None:  # no worker sample in flight on the client that closes
+                peak.stop()
+            runner.close()
+
         summary.scheduler = runner.name
         if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
             peak.watch_workers(runner.remote_client)
@@ -358,7 +364,7 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                     export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar),
                            run=runner, counts=kept_counts, tile_size=tile_size)
             else:
-                runner.close()  # the export streams here: the workers' memory goes now
+                close_runner()  # the export streams here: the workers' memory goes now
                 with stage_bar(bars, "export", summary.kept, "pt") as bar:
                     export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
             summary.seconds["export"] = time.perf_counter() - t0
@@ -368,7 +374,7 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                 delete_store(store_path)
             raise
         finally:
-            runner.close()
+            close_runner()
     summary.seconds["total"] = time.perf_counter() - t_start
     summary.cpu_seconds["driver"] = time.process_time() - cpu0
     summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
