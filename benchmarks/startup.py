@@ -9,8 +9,9 @@ timed whole by this driver, as a user's shell would time it:
 1. **cold**: ``cloudsieve simplify FILE OUT --ratio 0.5`` of the first file
    with ``NUMBA_CACHE_DIR`` an empty folder (a fresh install, a new CI runner
    or container); then ``cloudsieve warmup --targets common,partition,eliminate``
-   into another empty folder (what ``setup.sh`` runs, for the default rule),
-   and the first ``simplify`` after it;
+   into another empty folder (the default rule's kernels) and the first
+   ``simplify`` after it; then the whole ``cloudsieve warmup`` (what
+   ``setup.sh`` runs) into a third;
 2. **warm**: per file, after one untimed run, ``--repeat`` runs of
    ``cloudsieve simplify FILE OUT --ratio 0.5`` alternating with what an
    Open3D user runs on the same file: laspy reads it, Open3D's
@@ -93,6 +94,11 @@ def cold(src: Path, work: Path) -> None:
         l0 = load()
         wall, _ = timed(simplify_cmd(src, work / "cold.laz"), env)
         print(f"| `simplify`, first run after that warm-up | {wall:.1f} | {l0} / {load()} |")
+    with tempfile.TemporaryDirectory(dir=work) as cache:
+        env["NUMBA_CACHE_DIR"] = cache
+        l0 = load()
+        wall, _ = timed([PY, "-m", "cloudsieve", "warmup"], env)
+        print(f"| `warmup`, every target (what setup.sh runs) | {wall:.1f} | {l0} / {load()} |")
 
 
 def warm(files: list[Path], work: Path, repeat: int) -> None:

@@ -20,7 +20,8 @@ import pytest
 import cloudsieve
 from cloudsieve.cli import main
 from cloudsieve.core.kernels.compile_log import CompileLog
-from cloudsieve.core.warmup import warm_up
+from cloudsieve.core.warmup import split_targets, warm_up
+from cloudsieve.engine import ahead
 from cloudsieve.warmup_targets import TARGETS, targets_of
 from cloudsieve.engine.inprocess import IN_PROCESS_POINTS, local_scheduler, source_points
 
@@ -159,6 +160,30 @@ def test_cli_warmup_exits_0_and_names_each_target(capsys):
     assert main(["warmup", "--targets", "common", "--json"]) == 0
     record = json.loads(capsys.readouterr().out)
     assert list(record["targets"]) == ["common"] and record["seconds"] >= 0 and record["cache"]
+
+
+def test_warmup_splits_the_targets_between_two_processes_scores_first():
+    assert split_targets(TARGETS) == (["scores", "common", "partition", "eliminate"], ["km", "fcm", "rules"])
+    assert split_targets(["rules", "common"]) == (["common"], ["rules"])
+    assert split_targets(["common", "scores"]) == (["common", "scores"], [])  # one side empty: one process
+    assert split_targets(["fcm", "km"]) == (["fcm", "km"], [])
+
+
+def test_cli_warmup_on_two_processes_reports_every_target_in_order_and_leaves_none(capsys):
+    """Every target: the second process compiles (here: loads) km, fcm and rules; one report, in order."""
+    import psutil
+
+    assert main(["warmup", "--json"]) == 0
+    record = json.loads(capsys.readouterr().out)
+    assert list(record["targets"]) == list(TARGETS)
+    assert all(set(t) == {"seconds", "compile_seconds", "compiled"} for t in record["targets"].values())
+    assert not [p for p in psutil.process_iter(["cmdline"]) if "cloudsieve.engine.ahead" in (p.info["cmdline"] or [])]
+
+
+def test_a_failed_second_process_reports_none():
+    """Its targets then compile in the calling process (cloudsieve.cli.warmup)."""
+    proc = ahead.start_targets(["nope"])
+    assert ahead.report_of(proc) is None and proc.returncode != 0
 
 
 def test_cli_warmup_refuses_an_unknown_target(capsys):

@@ -7,12 +7,17 @@ instead of compiling them for minutes. The cache is numba's: ``__pycache__``
 beside the kernels' modules, numba's user cache directory when that is
 read-only, or ``NUMBA_CACHE_DIR`` (one directory the workers of a cluster
 can share).
+
+With two cores or more a second process compiles the refinements' and
+rounds' targets (:data:`cloudsieve.core.warmup.SECOND`) while this one
+compiles the others; the report is one, in the order of ``--targets``.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 
 from ._common import add_options, option_values
@@ -27,8 +32,9 @@ def add_parser(subparsers) -> None:
         description=(
             "Compile the numba kernels of cloudsieve into numba's on-disk cache (NUMBA_CACHE_DIR when set, else "
             "__pycache__ beside the modules or numba's user cache directory), so that later runs load them "
-            "instead of compiling them: minutes into an empty cache, about a second from a full one. Prints "
-            "each target, the kernels it compiled and the seconds. Run it once after installing (setup.sh does), "
+            "instead of compiling them: minutes into an empty cache, about a second from a full one. With two "
+            "cores or more, two processes compile side by side. Prints each target, the kernels it compiled "
+            "and the seconds. Run it once after installing (setup.sh does), "
             "when building a container image, and on cluster workers that do not share a cache directory."
         ),
     )
@@ -45,27 +51,39 @@ def _cache_dir() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..core.kernels.compile_log import CompileLog
-    from ..core.warmup import warm_up
+    from ..core.warmup import split_targets, warm_report
+    from ..engine import ahead
 
     targets = option_values(args, "warmup", check=True)["targets"]
     record: dict = {"cache": _cache_dir(), "targets": {}}
     t0 = time.perf_counter()
-    for name in targets:
-        with CompileLog() as log:
-            seconds = warm_up([name])
-        kernels = {k: round(v, 3) for k, v in sorted(log.seconds.items(), key=lambda kv: -kv[1])
-                   if k.startswith("cloudsieve.")}
-        record["targets"][name] = {"seconds": round(seconds, 3), "compile_seconds": round(log.total, 3),
-                                   "compiled": kernels}
-        if not args.json:
-            print(f"{name}: {seconds:.2f} s, {len(kernels)} kernels compiled"
-                  + ("" if kernels else " (all loaded from the cache)"), flush=True)
-            for kernel, s in kernels.items():
-                print(f"  {s:7.2f} s  {kernel.removeprefix('cloudsieve.core.kernels.')}")
+    mine, theirs = split_targets(targets) if (os.cpu_count() or 1) >= 2 else (list(targets), [])
+    second = ahead.start_targets(theirs) if theirs else None
+    show = None if args.json else _print_target
+    try:
+        done = warm_report(mine, show)
+        if second is not None:
+            report = ahead.report_of(second)
+            if report is None:  # the second process failed: its targets compile here
+                report = warm_report(theirs, show)
+            elif show is not None:
+                for name, entry in report.items():
+                    show(name, entry)
+            done.update(report)
+    finally:
+        ahead.finish(second)
+    record["targets"] = {name: done[name] for name in targets}
     record["seconds"] = round(time.perf_counter() - t0, 3)
     if args.json:
         print(json.dumps(record, indent=2))
     else:
         print(f"cloudsieve warmup: {record['seconds']:.2f} s; cache: {record['cache']}")
     return 0
+
+
+def _print_target(name: str, entry: dict) -> None:
+    kernels = entry["compiled"]
+    print(f"{name}: {entry['seconds']:.2f} s, {len(kernels)} kernels compiled"
+          + ("" if kernels else " (all loaded from the cache)"), flush=True)
+    for kernel, s in kernels.items():
+        print(f"  {s:7.2f} s  {kernel.removeprefix('cloudsieve.core.kernels.')}")

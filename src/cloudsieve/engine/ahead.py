@@ -17,19 +17,24 @@ too. Measured on 2 cores (autzen_trim.laz, ``--ratio 0.5``, alternating
 with the code before it, load 1.0-1.3): 13.3 and 14.2 s against 24.1 and
 21.3 s (docs/benchmarks.md).
 
+``cloudsieve warmup`` uses the same process for whole targets
+(:func:`start_targets`, :data:`cloudsieve.core.warmup.SECOND`): it prints
+what it compiled as JSON, which the command merges into its report.
+
 The process dies with the run (:func:`~.lifeline.die_with_parent`), and
 :func:`finish` ends it with the run, so none outlives the command.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import subprocess
 import sys
 from collections.abc import Iterable
 
-__all__ = ["start", "finish"]
+__all__ = ["start", "start_targets", "report_of", "finish"]
 
 logger = logging.getLogger(__name__)
 
@@ -49,6 +54,21 @@ def start(targets: Iterable[str]) -> subprocess.Popen | None:
     return proc
 
 
+def start_targets(targets: Iterable[str]) -> subprocess.Popen:
+    """Start compiling the warm-up *targets* whole in a second process; :func:`report_of` reads its report."""
+    return subprocess.Popen([sys.executable, "-m", __name__, "--targets", *targets], stdin=subprocess.DEVNULL,
+                            stdout=subprocess.PIPE, text=True)
+
+
+def report_of(proc: subprocess.Popen) -> dict | None:
+    """The report (:func:`cloudsieve.core.warmup.warm_report`) of a :func:`start_targets` process once it
+    ends; None when it failed (its error went to this process's stderr)."""
+    out, _ = proc.communicate()
+    if proc.returncode != 0:
+        return None
+    return json.loads(out)
+
+
 def finish(proc: subprocess.Popen | None) -> None:
     """End the process :func:`start` started, if any: the run is over (an interrupted or failed one too),
     so it stops now if it has not finished (numba renames each cache file into place when complete:
@@ -60,8 +80,11 @@ def finish(proc: subprocess.Popen | None) -> None:
 
 
 if __name__ == "__main__":
-    from ..core.warmup import warm_ahead
+    from ..core.warmup import warm_ahead, warm_report
     from .lifeline import die_with_parent
 
     die_with_parent()
-    warm_ahead(sys.argv[1:])
+    if sys.argv[1:2] == ["--targets"]:
+        print(json.dumps(warm_report(sys.argv[2:])))
+    else:
+        warm_ahead(sys.argv[1:])
