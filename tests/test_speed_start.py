@@ -147,7 +147,7 @@ def test_an_empty_cache_compiles_the_elimination_ahead_in_a_second_process(tmp_p
     assert "numba's cache lacks the kernels of eliminate: process" in out.stderr
     assert (tmp_path / "cold.las").read_bytes() == warm.read_bytes()
     assert list((tmp_path / "cache").rglob("eliminate._eliminate-*.nbi"))
-    assert not [p for p in psutil.process_iter(["cmdline"]) if "cloudsieve.engine.ahead" in (p.info["cmdline"] or [])]
+    assert not [p for p in psutil.process_iter(["cmdline"]) if ahead.COMPILER in (p.info["cmdline"] or [])]
     from cloudsieve.core.warmup import ahead_parts
 
     assert ahead_parts(["common", "partition", "eliminate"]) == []  # this process's cache is warm: none
@@ -177,7 +177,7 @@ def test_cli_warmup_on_two_processes_reports_every_target_in_order_and_leaves_no
     record = json.loads(capsys.readouterr().out)
     assert list(record["targets"]) == list(TARGETS)
     assert all(set(t) == {"seconds", "compile_seconds", "compiled"} for t in record["targets"].values())
-    assert not [p for p in psutil.process_iter(["cmdline"]) if "cloudsieve.engine.ahead" in (p.info["cmdline"] or [])]
+    assert not [p for p in psutil.process_iter(["cmdline"]) if ahead.COMPILER in (p.info["cmdline"] or [])]
 
 
 def test_a_failed_second_process_reports_none():

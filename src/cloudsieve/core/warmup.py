@@ -276,3 +276,16 @@ def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
         if report is not None:
             report(name, time.perf_counter() - t0)
     return time.perf_counter() - t_all
+
+
+if __name__ == "__main__":  # the second process of a run or of ``cloudsieve warmup`` (cloudsieve.engine.ahead)
+    import json
+    import sys
+
+    from ..lifeline import die_with_parent
+
+    die_with_parent()
+    if sys.argv[1:2] == ["--targets"]:  # whole targets: what each compiled, as JSON
+        print(json.dumps(warm_report(sys.argv[2:])))
+    else:
+        warm_ahead(sys.argv[1:])

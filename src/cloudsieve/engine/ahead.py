@@ -7,7 +7,7 @@ waits. When the run's warm-up targets have a part a second process can
 compile from inputs of the real calls' types
 (:data:`cloudsieve.core.warmup.AHEAD`: the kernels the default rule reaches
 last, its elimination loop among them) and numba's cache does not hold it,
-:func:`start` runs ``python -m cloudsieve.engine.ahead TARGET...`` beside
+:func:`start` runs ``python -m cloudsieve.core.warmup TARGET...`` beside
 the run. The run compiles the kernels that come first (the copies', the
 grid's, the packing's, the k-d cut's, the neighbour lists'); reaching the
 others, it loads them from the cache (numba writes each file under a
@@ -21,7 +21,7 @@ with the code before it, load 1.0-1.3): 13.3 and 14.2 s against 24.1 and
 (:func:`start_targets`, :data:`cloudsieve.core.warmup.SECOND`): it prints
 what it compiled as JSON, which the command merges into its report.
 
-The process dies with the run (:func:`~.lifeline.die_with_parent`), and
+The process dies with the run (:func:`cloudsieve.lifeline.die_with_parent`), and
 :func:`finish` ends it with the run, so none outlives the command.
 """
 
@@ -38,6 +38,10 @@ __all__ = ["start", "start_targets", "report_of", "finish"]
 
 logger = logging.getLogger(__name__)
 
+#: the second process's module: it imports the kernels and the warm-up alone, not the engine (whose
+#: zarr and dask imports took 0.7-1.0 s of its start)
+COMPILER = "cloudsieve.core.warmup"
+
 
 def start(targets: Iterable[str]) -> subprocess.Popen | None:
     """Start compiling ahead the parts of *targets* numba's cache lacks; None when there is none to compile
@@ -47,7 +51,7 @@ def start(targets: Iterable[str]) -> subprocess.Popen | None:
     parts = ahead_parts(targets)
     if not parts or (os.cpu_count() or 1) < 2:
         return None
-    proc = subprocess.Popen([sys.executable, "-m", __name__, *parts], stdin=subprocess.DEVNULL,
+    proc = subprocess.Popen([sys.executable, "-m", COMPILER, *parts], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     logger.info("numba's cache lacks the kernels of %s: process %d compiles part of them ahead",
                 ", ".join(parts), proc.pid)
@@ -56,7 +60,7 @@ def start(targets: Iterable[str]) -> subprocess.Popen | None:
 
 def start_targets(targets: Iterable[str]) -> subprocess.Popen:
     """Start compiling the warm-up *targets* whole in a second process; :func:`report_of` reads its report."""
-    return subprocess.Popen([sys.executable, "-m", __name__, "--targets", *targets], stdin=subprocess.DEVNULL,
+    return subprocess.Popen([sys.executable, "-m", COMPILER, "--targets", *targets], stdin=subprocess.DEVNULL,
                             stdout=subprocess.PIPE, text=True)
 
 
@@ -79,12 +83,3 @@ def finish(proc: subprocess.Popen | None) -> None:
         proc.wait()
 
 
-if __name__ == "__main__":
-    from ..core.warmup import warm_ahead, warm_report
-    from .lifeline import die_with_parent
-
-    die_with_parent()
-    if sys.argv[1:2] == ["--targets"]:
-        print(json.dumps(warm_report(sys.argv[2:])))
-    else:
-        warm_ahead(sys.argv[1:])

@@ -1,4 +1,4 @@
-"""Imported by the local fork server at start-up (see :mod:`cloudsieve.engine.lifeline`).
+"""Imported by the local fork server at start-up (see :mod:`cloudsieve.lifeline`).
 
 It is the last module of the fork server's preload list: imported there, it
 asks the kernel to kill the fork server when its parent, the driver, dies,
@@ -20,7 +20,7 @@ import sys
 
 from ..core.warmup import warm_up
 from ..warmup_targets import TARGETS
-from .lifeline import die_with_parent
+from ..lifeline import die_with_parent
 from .pool import WARM_UP_ENV
 
 

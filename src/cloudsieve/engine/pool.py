@@ -3,7 +3,7 @@
 :func:`local_pool` is the one process pool of a run (:class:`.runner.Runner`
 with dask's "processes" scheduler). Its workers are forked by a fork server
 that has imported the engine once (:func:`worker_context`, ``_PRELOAD``),
-die with it (:mod:`.lifeline`), keep glibc's heap thresholds fixed
+die with it (:mod:`cloudsieve.lifeline`), keep glibc's heap thresholds fixed
 (:func:`~cloudsieve.store.streaming.bound_malloc`) and are replaced after
 ``_TASKS_PER_CHILD`` tasks.
 """
@@ -14,7 +14,7 @@ import os
 from collections.abc import Iterable
 from concurrent.futures import ProcessPoolExecutor
 
-from .lifeline import die_with_parent
+from ..lifeline import die_with_parent
 
 __all__ = ["local_pool", "worker_context", "start_forkserver", "WARM_UP_ENV"]
 
@@ -33,7 +33,7 @@ _PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.co
             "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
             # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
             "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.warmup",
-            # last: the fork server asks to die with the driver (see engine/lifeline.py) and warms up the kernels
+            # last: the fork server asks to die with the driver (see cloudsieve/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
 
 

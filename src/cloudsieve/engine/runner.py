@@ -22,6 +22,7 @@ from typing import Any
 
 from ..errors import InvalidParameterError
 from ..progress import callback
+from . import ahead
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
 from .pause import pause_at, pausing_task
 from .pool import local_pool, start_forkserver, worker_context
@@ -135,8 +136,6 @@ class Runner:
             )
         self.local = "sync" if scheduler == "synchronous" else scheduler
         self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
-        from . import ahead  # here, not at the top: ``python -m cloudsieve.engine.ahead`` imports this package
-
         self._ahead = ahead.start(warm)  # this process (or the fork server) compiles the rest meanwhile
         if self.local == "processes":
             # one pool for the whole run: dask would start (and import into) a
@@ -224,8 +223,6 @@ class Runner:
     def close(self) -> None:
         """Shut down the process pool and the client/cluster this runner started (again: nothing)."""
         if self._ahead is not None:
-            from . import ahead
-
             ahead.finish(self._ahead)
             self._ahead = None
         if self._pool is not None:
