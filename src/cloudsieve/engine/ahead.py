@@ -81,5 +81,3 @@ def finish(proc: subprocess.Popen | None) -> None:
         if proc.poll() is None:
             proc.terminate()
         proc.wait()
-
-
