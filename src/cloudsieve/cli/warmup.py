@@ -1,9 +1,10 @@
 """``cloudsieve warmup``: compile every kernel into numba's on-disk cache, once (thin wiring over
-:func:`cloudsieve.core.warmup.warm_up`).
+:func:`cloudsieve.core.warmup.warm_report`).
 
 For a fresh install (setup.sh runs it), a container image or a cluster
 worker: afterwards a run loads its kernels from the cache in about a second
-instead of compiling them for minutes. The cache is numba's: ``__pycache__``
+instead of compiling them (the default rule's first run into an empty cache:
+12-16 s on 2 cores; every kernel: 43-46 s). The cache is numba's: ``__pycache__``
 beside the kernels' modules, numba's user cache directory when that is
 read-only, or ``NUMBA_CACHE_DIR`` (one directory the workers of a cluster
 can share).
@@ -32,7 +33,7 @@ def add_parser(subparsers) -> None:
         description=(
             "Compile the numba kernels of cloudsieve into numba's on-disk cache (NUMBA_CACHE_DIR when set, else "
             "__pycache__ beside the modules or numba's user cache directory), so that later runs load them "
-            "instead of compiling them: minutes into an empty cache, about a second from a full one. With two "
+            "instead of compiling them: tens of seconds into an empty cache, about a second from a full one. With two "
             "cores or more, two processes compile side by side. Prints each target, the kernels it compiled "
             "and the seconds. Run it once after installing (setup.sh does), "
             "when building a container image, and on cluster workers that do not share a cache directory."
