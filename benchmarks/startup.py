@@ -80,25 +80,21 @@ def cold(src: Path, work: Path) -> None:
     print(f"\nFirst runs, `{src.name}`, `--ratio 0.5`, an empty `NUMBA_CACHE_DIR` each:\n")
     print("| run | wall (s) | load before / after |")
     print("|---|---:|---|")
+    warmup = [PY, "-m", "cloudsieve", "warmup"]
+    caches = [  # the runs into each empty cache, in turn
+        [("`simplify`, nothing compiled", simplify_cmd(src, work / "cold.laz"))],
+        [("`warmup --targets common,partition,eliminate`", [*warmup, "--targets", "common,partition,eliminate"]),
+         ("`simplify`, first run after that warm-up", simplify_cmd(src, work / "cold.laz"))],
+        [("`warmup`, every target (what setup.sh runs)", warmup)],
+    ]
     env = {**os.environ}
-    with tempfile.TemporaryDirectory(dir=work) as cache:
-        env["NUMBA_CACHE_DIR"] = cache
-        l0 = load()
-        wall, _ = timed(simplify_cmd(src, work / "cold.laz"), env)
-        print(f"| `simplify`, nothing compiled | {wall:.1f} | {l0} / {load()} |")
-    with tempfile.TemporaryDirectory(dir=work) as cache:
-        env["NUMBA_CACHE_DIR"] = cache
-        l0 = load()
-        wall, _ = timed([PY, "-m", "cloudsieve", "warmup", "--targets", "common,partition,eliminate"], env)
-        print(f"| `warmup --targets common,partition,eliminate` | {wall:.1f} | {l0} / {load()} |")
-        l0 = load()
-        wall, _ = timed(simplify_cmd(src, work / "cold.laz"), env)
-        print(f"| `simplify`, first run after that warm-up | {wall:.1f} | {l0} / {load()} |")
-    with tempfile.TemporaryDirectory(dir=work) as cache:
-        env["NUMBA_CACHE_DIR"] = cache
-        l0 = load()
-        wall, _ = timed([PY, "-m", "cloudsieve", "warmup"], env)
-        print(f"| `warmup`, every target (what setup.sh runs) | {wall:.1f} | {l0} / {load()} |")
+    for runs in caches:
+        with tempfile.TemporaryDirectory(dir=work) as cache:
+            env["NUMBA_CACHE_DIR"] = cache
+            for label, cmd in runs:
+                l0 = load()
+                wall, _ = timed(cmd, env)
+                print(f"| {label} | {wall:.1f} | {l0} / {load()} |")
 
 
 def warm(files: list[Path], work: Path, repeat: int) -> None:
