@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 
 from ._common import add_options, option_values
@@ -58,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     targets = option_values(args, "warmup", check=True)["targets"]
     record: dict = {"cache": _cache_dir(), "targets": {}}
     t0 = time.perf_counter()
-    mine, theirs = split_targets(targets) if (os.cpu_count() or 1) >= 2 else (list(targets), [])
+    mine, theirs = split_targets(targets) if ahead.second_core() else (list(targets), [])
     second = ahead.start_targets(theirs) if theirs else None
     show = None if args.json else _print_target
     try:

@@ -34,7 +34,7 @@ import subprocess
 import sys
 from collections.abc import Iterable
 
-__all__ = ["start", "start_targets", "report_of", "finish"]
+__all__ = ["second_core", "start", "start_targets", "report_of", "finish"]
 
 logger = logging.getLogger(__name__)
 
@@ -43,13 +43,18 @@ logger = logging.getLogger(__name__)
 COMPILER = "cloudsieve.core.warmup"
 
 
+def second_core() -> bool:
+    """Whether a second process can compile beside this one (two cores or more)."""
+    return (os.cpu_count() or 1) >= 2
+
+
 def start(targets: Iterable[str]) -> subprocess.Popen | None:
     """Start compiling ahead the parts of *targets* numba's cache lacks; None when there is none to compile
     or one core only."""
     from ..core.warmup import ahead_parts
 
     parts = ahead_parts(targets)
-    if not parts or (os.cpu_count() or 1) < 2:
+    if not parts or not second_core():
         return None
     proc = subprocess.Popen([sys.executable, "-m", COMPILER, *parts], stdin=subprocess.DEVNULL,
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
