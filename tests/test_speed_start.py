@@ -59,7 +59,7 @@ def test_public_names_resolve_lazily_and_evaluate_stays_the_function():
         cloudsieve.nope  # noqa: B018
 
 
-@pytest.mark.parametrize("name, cell_size", [("simple.las", 200_000), ("autzen_trim.laz", 40_000)])
+@pytest.mark.parametrize("name, cell_size", [("simple.las", 400), ("autzen_trim.laz", 40_000)])  # several cells: the store
 def test_small_input_in_process_writes_the_same_bytes_as_the_process_pool(name, cell_size, tmp_path):
     src = shared_file(name)
     assert local_scheduler([str(src)]) == "sync"  # below IN_PROCESS_POINTS: the in-process path

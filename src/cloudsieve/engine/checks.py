@@ -14,7 +14,8 @@ from ..io.sources import expand_sources
 from ..scheduler import check_scheduler
 from ..store import is_store
 from . import workstore
-from .inprocess import local_scheduler
+from .inprocess import scheduler_for, source_points
+from .small import fits_in_memory
 
 __all__ = ["RunChecks", "check_run"]
 
@@ -35,6 +36,8 @@ class RunChecks:
     default_store: bool
     #: the work store to reuse (its parameters recorded), None when SRC is ingested anew
     store: object | None
+    #: a small input that runs in memory, without a work store (:mod:`.small`)
+    in_memory: bool = False
 
 
 def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> RunChecks:
@@ -56,8 +59,10 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
     else:
         check_tile_folder(dst, opts["format"])
     src_is_store = is_store(src)
+    points = None  # counted only when the run's scheduler is this module's choice
     if scheduler is None and client is None and opts["memory_limit"] is None and opts["workers"] is None:
-        scheduler = local_scheduler(sources, src if src_is_store else None)  # small: in process
+        points = source_points(sources, src if src_is_store else None)
+        scheduler = scheduler_for(points)  # small: in process
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
     # a work store of another source or other options is refused before any scheduler is contacted
     st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite,
@@ -66,5 +71,7 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         workstore.record_params(st, params, overwrite)
     if client is None and scheduler is not None and "://" in scheduler:
         check_scheduler(scheduler)
+    in_memory = points is not None and st is None and not src_is_store and fits_in_memory(sources, dst, opts, points)
     return RunChecks(sources=sources, dst_local=dst_local, src_is_store=src_is_store, scheduler=scheduler,
-                     store_path=store_path, default_store=store is None and not src_is_store, store=st)
+                     store_path=store_path, default_store=store is None and not src_is_store, store=st,
+                     in_memory=in_memory)

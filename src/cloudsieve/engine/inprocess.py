@@ -22,6 +22,7 @@ points      process pool (s)     in process (s)     peak memory (MiB)
 ==========  ===================  =================  ======================
 
 Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
+A LAS/LAZ/COPC input of one cell needs no work store either (:mod:`.small`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 
-__all__ = ["IN_PROCESS_POINTS", "source_points", "local_scheduler"]
+__all__ = ["IN_PROCESS_POINTS", "source_points", "local_scheduler", "scheduler_for"]
 
 logger = logging.getLogger(__name__)
 
@@ -78,8 +79,12 @@ def local_scheduler(sources: Sequence[str], store: str | None = None, *,
     limit : int
         The largest input run in the calling process.
     """
-    n = source_points(sources, store)
-    if n is not None and n <= limit:
-        logger.info("%d points: run in this process (at most %d)", n, limit)
+    return scheduler_for(source_points(sources, store), limit=limit)
+
+
+def scheduler_for(points: int | None, *, limit: int = IN_PROCESS_POINTS) -> str | None:
+    """:func:`local_scheduler` of an input of *points* points (:func:`source_points`)."""
+    if points is not None and points <= limit:
+        logger.info("%d points: run in this process (at most %d)", points, limit)
         return "sync"
     return None

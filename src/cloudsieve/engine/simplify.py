@@ -247,8 +247,6 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
-    from ..store import export
-
     t_start = time.perf_counter() if t_start is None else t_start
     src, dst = os.fspath(src), os.fspath(dst)
     (method, rule, threshold, ratio, count, cluster_size, cell_size, scheduler, workers, memory_limit, store, seed,
@@ -263,6 +261,24 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
     cpu0 = time.process_time()
     summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     checked = check_run(src, dst, opts, params, client=client)
+
+    def account(summary: Summary) -> None:  # the kept count known, DST not yet written
+        if summary.duplicates:
+            logger.info("%d exact duplicates %s", summary.duplicates,
+                        "kept (keep_duplicates)" if keep_duplicates else "removed")
+        missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
+                               keep_duplicates, exact=get_rule(rule).engine == ELIMINATION)
+        if missed and strict:
+            raise TargetNotMetError(missed)
+        if missed:
+            logger.warning("%s", missed)
+
+    if checked.in_memory:  # a small input: no work store, no dask
+        from .small import run_small
+
+        run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars)
+        return _finished(summary, t_start, cpu0)
+    from ..store import export  # zarr: imported only by a run through the work store
     st, store_path, default_store = checked.store, checked.store_path, checked.default_store
     scheduler, dst_local = checked.scheduler, checked.dst_local
 
@@ -338,9 +354,6 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
             summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
-            if summary.duplicates:
-                logger.info("%d exact duplicates %s", summary.duplicates,
-                            "kept (keep_duplicates)" if keep_duplicates else "removed")
             summary.seconds["cells"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
@@ -348,12 +361,7 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
             kept_counts = merge.run_merge(st, runner)
             summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
-            missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
-                                   keep_duplicates, exact=elim is not None)
-            if missed and strict:
-                raise TargetNotMetError(missed)
-            if missed:
-                logger.warning("%s", missed)
+            account(summary)
             update(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
 
@@ -375,12 +383,19 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
             raise
         finally:
             close_runner()
-    summary.seconds["total"] = time.perf_counter() - t_start
-    summary.cpu_seconds["driver"] = time.process_time() - cpu0
     summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
+    _finished(summary, t_start, cpu0)
     workstore.record_summary(st, summary.to_dict())
     if default_store:
         delete_store(store_path)
         summary.store = ""
-    logger.info("simplify %s -> %s: %d of %d points kept", src, dst, summary.kept, summary.points_in)
+    return summary
+
+
+def _finished(summary: Summary, t_start: float, cpu0: float) -> Summary:
+    """*summary* with the run's total time and this process's CPU, logged."""
+    summary.seconds["total"] = time.perf_counter() - t_start
+    summary.cpu_seconds["driver"] = time.process_time() - cpu0
+    logger.info("simplify %s -> %s: %d of %d points kept", summary.source, summary.destination, summary.kept,
+                summary.points_in)
     return summary

@@ -103,9 +103,9 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
     ResumeMismatchError
         The work store was ingested from another file (or the file changed).
     """
-    from ..store import PointStore
-
     if src_is_store:
+        from ..store import PointStore
+
         return PointStore.open(store_path, "r+")
     identity = source_identity(src)
     existing = is_store(store_path)
@@ -116,6 +116,8 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
         logger.info("resume: no complete work store at %s, starting from the ingest", store_path)
     if not existing:
         return None
+    from ..store import PointStore  # zarr: imported only when a store is there
+
     st = PointStore.open(store_path, "r+")
     rec = st.attrs.get(SIMPLIFY_ATTR, {}).get("source")
     if rec is not None and (rec["size"], rec["mtime_ns"]) != (identity["size"], identity["mtime_ns"]):

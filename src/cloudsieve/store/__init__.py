@@ -1,18 +1,23 @@
-"""The point store (zarr v3) and the ways in and out of it: ingest, export, read_cloud."""
+"""The point store (zarr v3) and the ways in and out of it: ingest, export, read_cloud.
 
-from .chunk import DEFAULT_CHUNK_SIZE, Chunk
-from ..paths import local_path, same_path
-from .pointstore import (
-    STORE_ATTR,
-    STORE_VERSION,
-    PointStore,
-    compressors,
-    delete_store,
-    is_store,
-)
-from .ingest import ingest
-from .export import export
-from .read import read_cloud
+Each name is imported at its first use (PEP 562), so a run that needs no
+store (a small input, :mod:`cloudsieve.engine.small`) imports no zarr.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+import types
+
+#: where each public name lives (a module of this package, or ``cloudsieve.paths``)
+_LAZY = {
+    "DEFAULT_CHUNK_SIZE": ".chunk", "Chunk": ".chunk",
+    "local_path": "..paths", "same_path": "..paths", "is_store": "..paths", "delete_store": "..paths",
+    "STORE_ATTR": ".pointstore", "STORE_VERSION": ".pointstore", "PointStore": ".pointstore",
+    "compressors": ".pointstore",
+    "ingest": ".ingest", "export": ".export", "read_cloud": ".read",
+}
 
 __all__ = [
     "PointStore",
@@ -29,3 +34,40 @@ __all__ = [
     "export",
     "read_cloud",
 ]
+
+
+def __getattr__(name: str):
+    """A public name of :data:`_LAZY`, imported from its module at its first use."""
+    if name in _LAZY:
+        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_LAZY})
+
+
+class _Package(types.ModuleType):
+    """This package's module type: ``ingest`` and ``export`` are always the functions, never the modules of
+    the same name (importing a submodule sets the parent's attribute, which would shadow the function)."""
+
+    @property
+    def ingest(self):
+        return __getattr__("ingest")
+
+    @ingest.setter
+    def ingest(self, module) -> None:  # the import system's binding of the submodule: the function stays
+        pass
+
+    @property
+    def export(self):
+        return __getattr__("export")
+
+    @export.setter
+    def export(self, module) -> None:
+        pass
+
+
+sys.modules[__name__].__class__ = _Package

@@ -42,6 +42,7 @@ from ..errors import (
 )
 from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
+from .las_read import decode_xyz
 from ..paths import STORE_ATTR, delete_store, is_store, path_exists, same_path, store_group, zarr_store
 from .codecs import compressors, filters
 from .streaming import gathered
@@ -128,11 +129,7 @@ class PointStore:
         """Coordinates (n, 3) float64 from the stored xyz rows *raw*: ``X * scale + offset`` for LAS integers."""
         if self.xyz_scale is None:
             return np.asarray(raw, dtype=np.float64)
-        out = np.empty(raw.shape, dtype=np.float64)
-        for i in range(3):  # per column: a 1-D multiply-add, no (n, 3) temporaries
-            np.multiply(raw[:, i], self.xyz_scale[i], out=out[:, i])
-            out[:, i] += self.xyz_offset[i]
-        return out
+        return decode_xyz(raw, self.xyz_scale, self.xyz_offset)
 
     # ------------------------------------------------------------------ open
     @classmethod

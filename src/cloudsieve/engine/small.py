@@ -1,0 +1,187 @@
+"""A small input in memory: the eliminate rule without a work store, dask or zarr.
+
+A LAS/LAZ/COPC cloud of at most one cell (``cell_size``) and one store chunk
+(``chunk_size``) is one cell without a halo in the out-of-core run, so
+:func:`run_small` runs that cell's steps on the same arrays, in this
+process, and writes the same bytes (tests/test_engine_small.py):
+
+1. the records, read as an ingest task reads them
+   (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
+   store decodes them;
+2. r_max from the partition's uniform sample
+   (:func:`~cloudsieve.engine.sample.plan_sample`,
+   :func:`~cloudsieve.engine.eliminate.global_radius`);
+3. the cell's count (:func:`~cloudsieve.core.packing.kept_counts`: the
+   target, at most the distinct points) and its elimination
+   (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`), every copy
+   of a kept point kept with ``keep_duplicates``;
+4. the kept points written by the export's writer
+   (:func:`cloudsieve.io.open_writer`) with the store's header, dtypes and
+   bounds (atomic: a temporary name, renamed when complete).
+
+A store costs a small run more than its points do: 217 synchronous calls of
+zarr's event loop for 110,000 points, dask's local scheduler, and importing
+both (0.6-0.9 s). Measured (docs/benchmarks.md): ``cloudsieve simplify
+autzen_trim.laz --ratio 0.5`` warm in 1.5-1.9 s here against 3.2-3.5 s through
+the store. Nothing is left to resume: a crash leaves no partial output, and a
+rerun starts again (under a second of work).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from . import ahead
+from ..warmup_targets import targets_of
+from .memory import PeakMemory
+from .runner import stage_bar
+from .summary import Summary
+
+__all__ = ["fits_in_memory", "run_small", "SCHEDULER"]
+
+logger = logging.getLogger(__name__)
+
+#: the scheduler a small run reports (no dask scheduler runs)
+SCHEDULER = "in memory"
+#: the output formats a small run writes (COPC and tiles are built from a store)
+_WRITTEN = ("las", "laz", "ply", "xyz")
+
+
+def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None) -> bool:
+    """Whether a run of the validated *opts* on *sources* (*points* in their headers) is one cell of the
+    eliminate rule that needs no work store: LAS/LAZ/COPC input of 1 to ``min(cell_size, chunk_size)``
+    points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles; the caller chose no scheduler,
+    client, workers or memory limit (checked by :func:`cloudsieve.engine.checks.check_run`)."""
+    from ..core.rules import ELIMINATION, get
+    from ..io import detect_format
+    from ..store.las_plan import is_las_source
+
+    return (points is not None and 0 < points <= min(opts["cell_size"], opts["chunk_size"])
+            and get(opts["rule"]).engine == ELIMINATION
+            and opts["store"] is None and not opts["resume"] and opts["tile_size"] is None
+            and is_las_source(sources) and detect_format(dst, opts["format"]) in _WRITTEN)
+
+
+def _read(sources: list[str], chunk_size: int) -> tuple:
+    """The cloud's records as the LAS ingest stores them: (plan, x y z float64, attributes, header, bounds)."""
+    from ..store.las_plan import plan_las
+    from ..store.las_read import decode_xyz, read_pieces
+
+    plan = plan_las(list(sources))
+    (lo_row, hi_row, pieces), = plan.tasks(chunk_size)  # one store chunk (fits_in_memory)
+    names = [n for n in plan.dtypes if n != "xyz"]
+    raw, attrs, lo, hi = read_pieces(pieces, names, parallel=True)
+    lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
+    header = dict(plan.header)
+    header["mins"], header["maxs"] = lo.tolist(), hi.tolist()
+    # the store keeps the header as JSON: the writer gets the same values (lists, not tuples)
+    header = json.loads(json.dumps(header))
+    return plan, decode_xyz(raw, plan.scale, plan.offset), attrs, header, np.array([lo, hi], dtype=np.float64)
+
+
+def _radius(xyz: np.ndarray, seed: int, target: int) -> float:
+    """r_max of the cloud *xyz*, from the partition's uniform sample, as the out-of-core partition solves it."""
+    from .eliminate import global_radius
+    from .sample import plan_sample
+
+    n = len(xyz)
+    return global_radius(xyz[plan_sample(n, 1, seed)], n, target)
+
+
+def _keep(xyz: np.ndarray, r_max: float, target: int, keep_duplicates: bool) -> tuple[np.ndarray, int]:
+    """The cell's keep mask and its distinct points, as the out-of-core cell computes them."""
+    from ..core.duplicates import copy_rows, first_copies
+    from ..core.eliminate import CELL_POINTS
+    from ..core.eliminate_cells import eliminate_cell
+    from ..core.packing import kept_counts
+
+    n = len(xyz)
+    distinct = int(n - copy_rows(xyz).sum())
+    # one cell: its share is the whole target (at most its distinct points)
+    count = int(kept_counts([float(distinct)], [distinct], target)[0])
+    keep = np.full(n, count >= n)
+    if 0 < count < n:
+        keep = eliminate_cell(xyz, count, r_max, threads=os.cpu_count() or 1, cell_points=CELL_POINTS)
+    if keep_duplicates:  # every copy of a kept point too
+        keep = keep[first_copies(xyz)]
+    return keep, distinct
+
+
+def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, account: Callable[[Summary], None],
+              progress: Callable[[int], None], bars=None) -> Summary:
+    """Simplify the small cloud *sources* into *dst* in this process (:func:`fits_in_memory` said so).
+
+    Parameters
+    ----------
+    sources : list of str
+        The input files (one cloud).
+    dst : str
+    opts : dict
+        The validated options of :func:`cloudsieve.engine.simplify`.
+    summary : Summary
+        Filled in: counts, seconds, memory, scheduler (:data:`SCHEDULER`).
+    account : callable
+        ``account(summary)`` once the kept count is known, before DST is written: logs the duplicates and
+        a missed target, or raises :class:`~cloudsieve.errors.TargetNotMetError` (strict).
+    progress : callable
+        ``progress(n)`` after each stage (n points).
+    bars : callable, optional
+        As for :func:`cloudsieve.engine.simplify`.
+    """
+    from ..core._validation import ratio_count
+    from ..io import detect_format, open_writer
+
+    summary.scheduler, summary.cells, summary.cells_computed = SCHEDULER, 1, 1
+    proc = ahead.start(targets_of(opts["rule"]))  # into an empty numba cache: a second core compiles ahead
+    try:
+        with PeakMemory() as peak:
+            t0 = time.perf_counter()
+            plan, xyz, attrs, header, bounds = _read(sources, opts["chunk_size"])
+            n = summary.points_in = len(xyz)
+            progress(n)
+            summary.seconds["ingest"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            ratio, count = opts["ratio"], opts["count"]
+            target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
+            r_max = _radius(xyz, opts["seed"], target)
+            logger.info("%d points in memory: eliminate %d, r_max %.4g", n, target, r_max)
+            summary.seconds["partition"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            keep, distinct = _keep(xyz, r_max, target, opts["keep_duplicates"])
+            summary.duplicates = n - distinct
+            summary.kept = int(keep.sum())
+            summary.removed = n - summary.kept
+            progress(n)
+            summary.seconds["cells"] = time.perf_counter() - t0
+            summary.seconds["merge"] = 0.0  # the keep mask is in input order already
+            account(summary)
+
+            t0 = time.perf_counter()
+            fmt = detect_format(dst, opts["format"])
+            rows = np.flatnonzero(keep)
+            dtypes = {name: (np.dtype(dt), tuple(shape)) for name, (dt, shape) in plan.dtypes.items()}
+            dtypes["xyz"] = (np.dtype(np.float64), (3,))
+            chunk = {name: (xyz if name == "xyz" else attrs[name]).take(rows, axis=0) for name in dtypes}
+            with stage_bar(bars, "export", len(rows), "pt") as bar:
+                # the export's writer and arguments (store/export.py; a LAS part names the whole file)
+                label = {"label": dst} if fmt in ("las", "laz") else {}
+                with open_writer(dst, header=header, dtypes=dtypes, format=opts["format"], source_format=plan.format,
+                                 overwrite=opts["overwrite"], bounds=bounds, **label) as writer:
+                    writer.write(chunk)
+                bar(len(rows))
+            if not len(rows):
+                logger.warning("%s: no point kept; wrote an empty cloud", dst)
+            summary.seconds["export"] = time.perf_counter() - t0
+    finally:
+        ahead.finish(proc)
+    summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
+    summary.store = ""
+    return summary
