@@ -2,11 +2,11 @@
 
 The store's run is forced with ``scheduler="sync"`` (a scheduler chosen by
 the caller always goes through the store); the default call of the same
-options takes the in-memory path. Every shared LAS/LAZ/COPC scan, several
-output formats, a count, a seed, copies with and without
-``keep_duplicates``, and the degenerate clouds (at most 8 points: no
-radius; one spot; copies) give the same file, the same summary counts and
-the same log lines. Then: what decides the path, that it imports no zarr
+options takes the in-memory path. Every shared LAS/LAZ/COPC scan, the PLY
+scans, several output formats, a count, a seed, copies with and without
+``keep_duplicates``, NaN points refused or dropped, and the degenerate
+clouds (at most 8 points: no radius; one spot; copies) give the same file
+(or error), the same summary counts and the same log lines. Then: what decides the path, that it imports no zarr
 or dask, and that a strict miss writes nothing.
 """
 
@@ -22,7 +22,7 @@ import pytest
 
 import cloudsieve
 from cloudsieve.engine.small import SCHEDULER, fits_in_memory
-from cloudsieve.errors import TargetNotMetError
+from cloudsieve.errors import InvalidPointsError, TargetNotMetError
 from cloudsieve.params import validate
 from conftest import LAS_FILES, shared_file
 
@@ -63,6 +63,36 @@ def test_other_formats_count_and_seed_give_the_same_bytes(ext, tmp_path):
     src = shared_file("autzen_trim.laz")  # above the 50,000 points of the radius's sample: the seed's draw
     small, store, a, b, _ = both(src, tmp_path, ext, count=12_345, seed=7)
     assert small.kept == store.kept == 12_345
+    assert a == b
+
+
+@pytest.mark.parametrize("name, ext", [("bun_zipper.ply", ".ply"), ("bun_zipper.ply", ".las"),
+                                       ("maxplanck.ply", ".xyz")])
+def test_a_ply_scan_gives_the_store_runs_bytes(name, ext, tmp_path):
+    small, store, a, b, _ = both(shared_file(name), tmp_path, ext, ratio=0.25)
+    assert [getattr(small, k) for k in COUNTS] == [getattr(store, k) for k in COUNTS]
+    assert a == b
+
+
+def _ply(path, pts):
+    """*pts* as an ASCII PLY file (NaN kept as written)."""
+    head = f"ply\nformat ascii 1.0\nelement vertex {len(pts)}\nproperty double x\nproperty double y\n" \
+           "property double z\nend_header\n"
+    path.write_text(head + "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in pts.tolist()))
+    return path
+
+
+def test_invalid_points_are_refused_or_dropped_as_the_store_run_does(tmp_path):
+    pts = np.random.default_rng(1).random((500, 3))
+    pts[[3, 70, 400], [0, 1, 2]] = [np.nan, np.inf, -np.inf]
+    src = _ply(tmp_path / "nan.ply", pts)
+    with pytest.raises(InvalidPointsError) as memory:
+        cloudsieve.simplify(src, tmp_path / "a.ply", ratio=0.5)
+    with pytest.raises(InvalidPointsError) as store:
+        cloudsieve.simplify(src, tmp_path / "b.ply", ratio=0.5, scheduler="sync")
+    assert str(memory.value) == str(store.value)
+    small, store, a, b, _ = both(src, tmp_path, ".ply", ratio=0.5, drop_invalid=True)
+    assert small.points_in == store.points_in == 497 and small.kept == store.kept == 248
     assert a == b
 
 
@@ -128,7 +158,8 @@ def test_what_runs_in_memory(tmp_path):
     assert not _fits(las, store=str(tmp_path / "w.zarr"))  # a named store is kept: the run makes it
     assert not _fits(las, resume=True)
     assert not _fits(las, rule="target") and not _fits(las, ratio=None, threshold=0.001)  # the entropy rules use the store
-    assert not _fits(shared_file("bun_zipper.ply"))
+    assert _fits(shared_file("bun_zipper.ply"))
+    assert not _fits(shared_file("pumpAVisualReferenceImage.e57"))  # E57 and XYZ go through the store
     opts = validate("simplify", {"ratio": 0.5})
     assert not fits_in_memory([str(las)], "o.las", opts, None) and not fits_in_memory([str(las)], "o.las", opts, 0)
 

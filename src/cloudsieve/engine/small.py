@@ -1,13 +1,14 @@
 """A small input in memory: the eliminate rule without a work store, dask or zarr.
 
-A LAS/LAZ/COPC cloud of at most one cell (``cell_size``) and one store chunk
-(``chunk_size``) is one cell without a halo in the out-of-core run, so
-:func:`run_small` runs that cell's steps on the same arrays, in this
+A LAS/LAZ/COPC or PLY cloud of at most one cell (``cell_size``) and one
+store chunk (``chunk_size``) is one cell without a halo in the out-of-core
+run, so :func:`run_small` runs that cell's steps on the same arrays, in this
 process, and writes the same bytes (tests/test_engine_small.py):
 
 1. the records, read as an ingest task reads them
    (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
-   store decodes them;
+   store decodes them; a PLY file as the ingest streams it (NaN or infinite
+   coordinates refused, or dropped with ``drop_invalid``);
 2. r_max from the partition's uniform sample
    (:func:`~cloudsieve.engine.sample.plan_sample`,
    :func:`~cloudsieve.engine.eliminate.global_radius`);
@@ -55,9 +56,10 @@ _WRITTEN = ("las", "laz", "ply", "xyz")
 
 def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None) -> bool:
     """Whether a run of the validated *opts* on *sources* (*points* in their headers) is one cell of the
-    eliminate rule that needs no work store: LAS/LAZ/COPC input of 1 to ``min(cell_size, chunk_size)``
-    points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles; the caller chose no scheduler,
-    client, workers or memory limit (checked by :func:`cloudsieve.engine.checks.check_run`)."""
+    eliminate rule that needs no work store: LAS/LAZ/COPC files or one PLY file, of 1 to
+    ``min(cell_size, chunk_size)`` points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles;
+    the caller chose no scheduler, client, workers or memory limit (checked by
+    :func:`cloudsieve.engine.checks.check_run`)."""
     from ..core.rules import ELIMINATION, get
     from ..io import detect_format
     from ..store.las_plan import is_las_source
@@ -65,24 +67,45 @@ def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None)
     return (points is not None and 0 < points <= min(opts["cell_size"], opts["chunk_size"])
             and get(opts["rule"]).engine == ELIMINATION
             and opts["store"] is None and not opts["resume"] and opts["tile_size"] is None
-            and is_las_source(sources) and detect_format(dst, opts["format"]) in _WRITTEN)
+            and (is_las_source(sources) or (len(sources) == 1 and detect_format(sources[0]) == "ply"))
+            and detect_format(dst, opts["format"]) in _WRITTEN)
 
 
-def _read(sources: list[str], chunk_size: int) -> tuple:
-    """The cloud's records as the LAS ingest stores them: (plan, x y z float64, attributes, header, bounds)."""
+def _read(sources: list[str], opts: dict) -> tuple:
+    """The cloud as its ingest stores it: (x y z float64, attributes, dtypes, header, bounds, source format)."""
+    from ..store.las_plan import is_las_source
+
+    if not is_las_source(sources):
+        return _read_streamed(sources[0], opts)
     from ..store.las_plan import plan_las
     from ..store.las_read import decode_xyz, read_pieces
 
     plan = plan_las(list(sources))
-    (lo_row, hi_row, pieces), = plan.tasks(chunk_size)  # one store chunk (fits_in_memory)
+    (lo_row, hi_row, pieces), = plan.tasks(opts["chunk_size"])  # one store chunk (fits_in_memory)
     names = [n for n in plan.dtypes if n != "xyz"]
     raw, attrs, lo, hi = read_pieces(pieces, names, parallel=True)
     lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
     header = dict(plan.header)
     header["mins"], header["maxs"] = lo.tolist(), hi.tolist()
-    # the store keeps the header as JSON: the writer gets the same values (lists, not tuples)
-    header = json.loads(json.dumps(header))
-    return plan, decode_xyz(raw, plan.scale, plan.offset), attrs, header, np.array([lo, hi], dtype=np.float64)
+    xyz = decode_xyz(raw, plan.scale, plan.offset)
+    return xyz, attrs, plan.dtypes, header, np.array([lo, hi], dtype=np.float64), plan.format
+
+
+def _read_streamed(src: str, opts: dict) -> tuple:
+    """:func:`_read` of a PLY file, as :func:`cloudsieve.store.ingest` streams it: NaN or infinite
+    coordinates refused, or dropped with ``drop_invalid``."""
+    from ..chunk import xyz_bounds
+    from ..errors import EmptyInputError
+    from ..io import concatenated, open_reader
+    from ..io.valid import ValidPoints
+
+    with open_reader(src, chunk_size=opts["chunk_size"]) as reader:
+        valid = ValidPoints(src, opts["drop_invalid"])
+        parts = [dict(chunk.arrays) for chunk in valid.chunks(reader.chunks())]
+        if valid.read == 0:
+            raise EmptyInputError(f"{src} holds no points")
+        xyz, attrs = concatenated(parts, reader.dtypes)
+        return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
 
 
 def _radius(xyz: np.ndarray, seed: int, target: int) -> float:
@@ -142,7 +165,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     try:
         with PeakMemory() as peak:
             t0 = time.perf_counter()
-            plan, xyz, attrs, header, bounds = _read(sources, opts["chunk_size"])
+            xyz, attrs, dtypes, header, bounds, source_format = _read(sources, opts)
+            header = json.loads(json.dumps(header))  # as the store keeps it: JSON (lists, not tuples)
             n = summary.points_in = len(xyz)
             progress(n)
             summary.seconds["ingest"] = time.perf_counter() - t0
@@ -167,13 +191,13 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             fmt = detect_format(dst, opts["format"])
             rows = np.flatnonzero(keep)
-            dtypes = {name: (np.dtype(dt), tuple(shape)) for name, (dt, shape) in plan.dtypes.items()}
+            dtypes = {name: (np.dtype(dt), tuple(shape)) for name, (dt, shape) in dtypes.items()}
             dtypes["xyz"] = (np.dtype(np.float64), (3,))
             chunk = {name: (xyz if name == "xyz" else attrs[name]).take(rows, axis=0) for name in dtypes}
             with stage_bar(bars, "export", len(rows), "pt") as bar:
                 # the export's writer and arguments (store/export.py; a LAS part names the whole file)
                 label = {"label": dst} if fmt in ("las", "laz") else {}
-                with open_writer(dst, header=header, dtypes=dtypes, format=opts["format"], source_format=plan.format,
+                with open_writer(dst, header=header, dtypes=dtypes, format=opts["format"], source_format=source_format,
                                  overwrite=opts["overwrite"], bounds=bounds, **label) as writer:
                     writer.write(chunk)
                 bar(len(rows))
