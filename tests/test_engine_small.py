@@ -179,3 +179,15 @@ def test_a_small_run_imports_no_zarr_or_dask(tmp_path):
             "print(s.scheduler, sorted(m for m in ('zarr', 'dask', 'distributed') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == f"{SCHEDULER} []"
+
+
+def test_after_ctrl_c_the_hint_names_a_work_store_only_when_there_is_one(tmp_path):
+    from cloudsieve.cli import build_parser
+    from cloudsieve.cli.simplify import interrupted_hint
+
+    src = shared_file("simple.las")
+    args = build_parser().parse_args(["simplify", str(src), str(tmp_path / "o.las"), "--ratio", "0.5"])
+    assert interrupted_hint(args) == "; nothing to resume: run the same command again"  # in memory: none
+    (tmp_path / "o.las.cloudsieve.zarr").mkdir()
+    assert interrupted_hint(args) == ("; the work store is kept: run the same command again (or add --resume) to "
+                                      "continue")

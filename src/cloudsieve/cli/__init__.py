@@ -88,9 +88,7 @@ def _main(argv: list[str] | None) -> int:
         print(f"cloudsieve {args.command}: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        hint = ""
-        if args.command == "simplify":  # the work store survives: say how to continue
-            hint = "; the work store is kept: run the same command again (or add --resume) to continue"
+        hint = getattr(args, "interrupted_hint", lambda a: "")(args)  # simplify: how to continue
         print(f"cloudsieve {args.command}: interrupted{hint}", file=sys.stderr)
         return 130
 

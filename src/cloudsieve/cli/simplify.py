@@ -38,7 +38,20 @@ def add_parser(subparsers) -> None:
     add_options(p, "simplify")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, interrupted_hint=interrupted_hint)
+
+
+def interrupted_hint(args: argparse.Namespace) -> str:
+    """What to say after Ctrl-C: the work store survives (unless the run had none yet, or ran in memory)."""
+    import os
+
+    from ..engine.workstore import work_store_path
+    from ..store import is_store
+
+    path = work_store_path(args.src, args.dst, args.store, is_store(args.src))
+    if "://" in path or os.path.exists(path):
+        return "; the work store is kept: run the same command again (or add --resume) to continue"
+    return "; nothing to resume: run the same command again"
 
 
 def run(args: argparse.Namespace) -> int:
