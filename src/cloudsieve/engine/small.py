@@ -22,10 +22,11 @@ process, and writes the same bytes (tests/test_engine_small.py):
 
 A store costs a small run more than its points do: 217 synchronous calls of
 zarr's event loop for 110,000 points, dask's local scheduler, and importing
-both (0.6-0.9 s). Measured (docs/benchmarks.md): ``cloudsieve simplify
-autzen_trim.laz --ratio 0.5`` warm in 1.5-1.9 s here against 3.2-3.5 s through
-the store. Nothing is left to resume: a crash leaves no partial output, and a
-rerun starts again (under a second of work).
+both (0.6-0.9 s). Measured (docs/benchmarks.md, alternating, load 1.4-1.8):
+``cloudsieve simplify autzen_trim.laz --ratio 0.5`` warm in 1.70-1.99 s here
+against 2.89-3.09 s through the store, simple.las 1.44-1.56 s against
+2.46-2.64 s. Nothing is left to resume: a crash leaves no partial output,
+and a rerun starts again (a second or two).
 """
 
 from __future__ import annotations
@@ -81,7 +82,7 @@ def _read(sources: list[str], opts: dict) -> tuple:
     from ..store.las_read import decode_xyz, read_pieces
 
     plan = plan_las(list(sources))
-    (lo_row, hi_row, pieces), = plan.tasks(opts["chunk_size"])  # one store chunk (fits_in_memory)
+    (_, _, pieces), = plan.tasks(opts["chunk_size"])  # one store chunk (fits_in_memory)
     names = [n for n in plan.dtypes if n != "xyz"]
     raw, attrs, lo, hi = read_pieces(pieces, names, parallel=True)
     lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
