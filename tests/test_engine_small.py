@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 
 import cloudsieve
+from cloudsieve.engine.inprocess import IN_PROCESS_POINTS
 from cloudsieve.engine.small import SCHEDULER, fits_in_memory
 from cloudsieve.errors import InvalidPointsError, TargetNotMetError
 from cloudsieve.params import validate
@@ -96,6 +97,19 @@ def test_invalid_points_are_refused_or_dropped_as_the_store_run_does(tmp_path):
     assert a == b
 
 
+CELLS = [("autzen_trim.laz", 40_000, {"ratio": 0.5}), ("autzen_trim.laz", 20_000, {"count": 7_000, "seed": 3}),
+         ("autzen_trim_7.las", 30_000, {"ratio": 0.1}), ("append-bug.laz", 10_000, {"ratio": 0.5}),
+         ("Megaplot.laz", 25_000, {"ratio": 0.3, "keep_duplicates": True}), ("bun_zipper.ply", 10_000, {"ratio": 0.5})]
+
+
+@pytest.mark.parametrize("name, cell_size, options", CELLS, ids=[f"{n}-{c}" for n, c, _ in CELLS])
+def test_several_cells_give_the_store_runs_bytes(name, cell_size, options, tmp_path):
+    small, store, a, b, _ = both(shared_file(name), tmp_path, ".las", cell_size=cell_size, **options)
+    assert small.cells == store.cells >= 3
+    assert [getattr(small, k) for k in COUNTS] == [getattr(store, k) for k in COUNTS]
+    assert a == b
+
+
 def _las(path, pts):
     """*pts* as a LAS 1.2 file (scale 1e-6: distinct points stay distinct, copies stay copies)."""
     header = laspy.LasHeader(point_format=3, version="1.2")
@@ -122,6 +136,7 @@ CLOUDS = {
     "copies2000": _with_copies(2_000, 3),
 }
 TABLE = [(c, r, k) for c in CLOUDS for r in (0.5, 0.1) for k in (False, True)]
+CELL_SIZES = {"copies2000": 400}  # several cells of copies
 
 
 @pytest.mark.parametrize("cloud,ratio,keep_duplicates", TABLE,
@@ -130,7 +145,8 @@ def test_small_and_degenerate_clouds_give_the_same_file_counts_and_words(cloud, 
                                                                         caplog):
     src = _las(tmp_path / f"{cloud}.las", CLOUDS[cloud])
     with caplog.at_level(logging.INFO, logger="cloudsieve"):
-        small, store, a, b, logs = both(src, tmp_path, ".las", caplog, ratio=ratio, keep_duplicates=keep_duplicates)
+        small, store, a, b, logs = both(src, tmp_path, ".las", caplog, ratio=ratio, keep_duplicates=keep_duplicates,
+                                        cell_size=CELL_SIZES.get(cloud, 200_000))
     assert [getattr(small, k) for k in COUNTS] == [getattr(store, k) for k in COUNTS]
     assert a == b
     assert logs[0] == logs[1]  # the duplicates and a missed target, said the same way
@@ -151,8 +167,11 @@ def _fits(src, dst="o.las", **options):
 def test_what_runs_in_memory(tmp_path):
     las = shared_file("simple.las")
     assert _fits(las) and _fits(las, "o.ply") and _fits(las, "o.xyz") and _fits(las, count=10)
-    assert _fits(las, cell_size=1_065) and not _fits(las, cell_size=1_064)  # one cell
+    assert _fits(las, cell_size=1_065) and _fits(las, cell_size=400)  # one cell or several
     assert not _fits(las, chunk_size=1_000)  # one store chunk
+    opts = validate("simplify", {"ratio": 0.5, "chunk_size": 2_000_000})
+    assert fits_in_memory([str(las)], "o.las", opts, IN_PROCESS_POINTS)
+    assert not fits_in_memory([str(las)], "o.las", opts, IN_PROCESS_POINTS + 1)
     assert not _fits(las, "o.copc.laz")  # COPC is built from a store
     assert not _fits(las, tile_size=100.0)
     assert not _fits(las, store=str(tmp_path / "w.zarr"))  # a named store is kept: the run makes it

@@ -19,9 +19,10 @@ def add_parser(subparsers) -> None:
         description=(
             "Simplify SRC into DST out of core: the cloud is ingested into a zarr point store (the work store), "
             "cut into coarse cells (one dask task each), each cell pruned by the rule, and the kept points "
-            "written with every attribute and the header (with the eliminate rule and no --scheduler, --workers "
-            "or --store, a LAS/LAZ/COPC or PLY input of at most --cell-size points runs in memory, without the store, "
-            "to the same bytes). The default rule, eliminate (weighted sample "
+            "written with every attribute and the header (with the eliminate rule and none of --scheduler, "
+            "--workers, --memory-limit, --store, --resume or --tile-size, a LAS/LAZ/COPC or PLY input of one "
+            "--chunk-size, up to 1,000,000 points by default, runs in memory, without the store, to the same "
+            "bytes). The default rule, eliminate (weighted sample "
             "elimination: the most crowded point goes first; no clusters, no entropy), keeps exactly --ratio R "
             "or --count N points. --threshold S alone runs the paper's rule (Mahdaoui et al. 2017: small "
             "K-means/FCM clusters, each point scored by how much it changes the entropy of its cluster's "

@@ -16,12 +16,12 @@ import numpy as np
 
 from ..core.kernels.closest import nearest_sites, site_tree
 
-__all__ = ["label_block", "label_chunk", "HALO_NEIGHBOURS"]
+__all__ = ["label_block", "label_chunk", "HALO_NEIGHBOURS", "LABEL_BLOCK"]
 
 #: nearest centres tested per point when listing halo sources
 HALO_NEIGHBOURS = 5
 #: points labelled at once inside a chunk task (bounds the k-d tree query arrays)
-_LABEL_BLOCK = 131072
+LABEL_BLOCK = 131072
 
 
 def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
@@ -131,7 +131,7 @@ def label_chunk(
     tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
     labels = np.empty(n, dtype=np.int64)
     pairs = []
-    block = _LABEL_BLOCK
+    block = LABEL_BLOCK
     for a in range(0, n, block):
         lab, pr = label_block(centers, xyz[a : a + block], margin, tree, halo)
         labels[a : a + block] = lab

@@ -1,22 +1,23 @@
 """A small input in memory: the eliminate rule without a work store, dask or zarr.
 
-A LAS/LAZ/COPC or PLY cloud of at most one cell (``cell_size``) and one
-store chunk (``chunk_size``) is one cell without a halo in the out-of-core
-run, so :func:`run_small` runs that cell's steps on the same arrays, in this
-process, and writes the same bytes (tests/test_engine_small.py):
+A LAS/LAZ/COPC or PLY cloud of at most one store chunk (``chunk_size``) and
+:data:`~.inprocess.IN_PROCESS_POINTS` points runs the out-of-core run's steps
+on the same arrays, in this process, and writes the same bytes
+(tests/test_engine_small.py):
 
 1. the records, read as an ingest task reads them
    (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
    store decodes them; a PLY file as the ingest streams it (NaN or infinite
    coordinates refused, or dropped with ``drop_invalid``);
-2. r_max from the partition's uniform sample
-   (:func:`~cloudsieve.engine.sample.plan_sample`,
-   :func:`~cloudsieve.engine.eliminate.global_radius`);
-3. the cell's count (:func:`~cloudsieve.core.packing.kept_counts`: the
-   target, at most the distinct points) and its elimination
+2. one cell (``cell_size`` points or fewer): r_max from the partition's
+   uniform sample (:func:`~cloudsieve.engine.sample.plan_sample`,
+   :func:`~cloudsieve.engine.eliminate.global_radius`), the cell's count
+   (:func:`~cloudsieve.core.packing.kept_counts`: the target, at most the
+   distinct points) and its elimination
    (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`), every copy
-   of a kept point kept with ``keep_duplicates``;
-4. the kept points written by the export's writer
+   of a kept point kept with ``keep_duplicates``; several cells: the
+   partition and the cells stage on arrays (:mod:`.small_cells`);
+3. the kept points written by the export's writer
    (:func:`cloudsieve.io.open_writer`) with the store's header, dtypes and
    bounds (atomic: a temporary name, renamed when complete).
 
@@ -56,16 +57,17 @@ _WRITTEN = ("las", "laz", "ply", "xyz")
 
 
 def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None) -> bool:
-    """Whether a run of the validated *opts* on *sources* (*points* in their headers) is one cell of the
-    eliminate rule that needs no work store: LAS/LAZ/COPC files or one PLY file, of 1 to
-    ``min(cell_size, chunk_size)`` points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles;
-    the caller chose no scheduler, client, workers or memory limit (checked by
-    :func:`cloudsieve.engine.checks.check_run`)."""
+    """Whether a run of the validated *opts* on *sources* (*points* in their headers) needs no work store:
+    the eliminate rule on LAS/LAZ/COPC files or one PLY file of 1 to ``min(IN_PROCESS_POINTS, chunk_size)``
+    points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles; the caller chose no scheduler,
+    client, workers or memory limit (checked by :func:`cloudsieve.engine.checks.check_run`)."""
     from ..core.rules import ELIMINATION, get
     from ..io import detect_format
     from ..store.las_plan import is_las_source
 
-    return (points is not None and 0 < points <= min(opts["cell_size"], opts["chunk_size"])
+    from .inprocess import IN_PROCESS_POINTS
+
+    return (points is not None and 0 < points <= min(IN_PROCESS_POINTS, opts["chunk_size"])
             and get(opts["rule"]).engine == ELIMINATION
             and opts["store"] is None and not opts["resume"] and opts["tile_size"] is None
             and (is_las_source(sources) or (len(sources) == 1 and detect_format(sources[0]) == "ply"))
@@ -160,8 +162,10 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer
+    from .sample import n_cells_for
+    from .small_cells import eliminate_cells, partition
 
-    summary.scheduler, summary.cells, summary.cells_computed = SCHEDULER, 1, 1
+    summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # into an empty numba cache: a second core compiles ahead
     try:
         with PeakMemory() as peak:
@@ -175,12 +179,21 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
-            r_max = _radius(xyz, opts["seed"], target)
-            logger.info("%d points in memory: eliminate %d, r_max %.4g", n, target, r_max)
+            one = n_cells_for(n, opts["cell_size"]) == 1
+            if one:  # no partition: the cell is the cloud
+                r_max = _radius(xyz, opts["seed"], target)
+            else:
+                cells = partition(xyz, bounds[0], opts, target, opts["chunk_size"])
+                r_max = cells.r_max
+            summary.cells = summary.cells_computed = 1 if one else cells.n_cells
+            logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, summary.cells, target, r_max)
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            keep, distinct = _keep(xyz, r_max, target, opts["keep_duplicates"])
+            if one:
+                keep, distinct = _keep(xyz, r_max, target, opts["keep_duplicates"])
+            else:
+                keep, distinct = eliminate_cells(xyz, cells, target, opts["keep_duplicates"])
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())
             summary.removed = n - summary.kept

@@ -1,0 +1,138 @@
+"""The partition and the cells of a small input in memory: the eliminate rule's stages on arrays.
+
+:mod:`.small` reads a cloud of up to one store chunk into memory; when it
+holds more than one cell, this module runs the out-of-core run's stages 2
+and 3 on it with the same functions, in the same order, so the kept set is
+the work store's (tests/test_engine_small.py):
+
+1. the partition (:func:`partition`): the uniform sample
+   (:func:`~.sample.plan_sample`), its K-means centres
+   (:func:`~.partition.fit_centers`), the margin
+   (:func:`~.partition.estimate_margin`, at least
+   :data:`~.partition.ELIMINATE_RADII` r_max), r_max
+   (:func:`~.eliminate.global_radius`), and every point's cell and the
+   cells' halo sources (:func:`~.label.label_block`, block by block as a
+   label task reads its chunk);
+2. the shares (:func:`~cloudsieve.core.packing.packing_ladder`) and bands
+   (:func:`~.halo.band_mask`) of the cells, their counts
+   (:func:`~cloudsieve.core.packing.kept_counts`);
+3. the elimination of each cell colour by colour
+   (:func:`~cloudsieve.core.colours.cell_colours`), its halo the points of
+   its sources' bands within the margin (:func:`~.halo.halo_mask`), in the
+   order :func:`~.halo.read_band_halo` reads them, the lower colours' final
+   decisions fixed (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`).
+
+A cell's points are in input order, as the store's cell runs hold them.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+__all__ = ["Cells", "partition", "eliminate_cells"]
+
+
+class Cells:
+    """A small cloud's partition: the cell of each point, the centres, the halo sources, r_max, the margin."""
+
+    def __init__(self, labels: np.ndarray, centers: np.ndarray, halo_ptr: np.ndarray, halo_src: np.ndarray,
+                 r_max: float, margin: float) -> None:
+        self.labels, self.centers, self.r_max, self.margin = labels, centers, r_max, margin
+        self.halo_ptr, self.halo_src = halo_ptr, halo_src
+        order = np.argsort(labels, kind="stable")  # each cell's points in input order
+        bounds = np.searchsorted(labels[order], np.arange(len(centers) + 1))
+        self.members = [order[bounds[j] : bounds[j + 1]] for j in range(len(centers))]
+
+    @property
+    def n_cells(self) -> int:
+        return len(self.centers)
+
+    def halo_sources(self, cell: int) -> np.ndarray:
+        return self.halo_src[self.halo_ptr[cell] : self.halo_ptr[cell + 1]]
+
+
+def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int, chunk_size: int) -> Cells:
+    """:func:`~.partition.build_partition` of the eliminate rule (a halo, r_max for *target*) on *xyz*."""
+    from ..core import neighbour_count
+    from .eliminate import global_radius
+    from .label import LABEL_BLOCK, label_block
+    from .partition import ELIMINATE_RADII, estimate_margin, fit_centers
+    from .sample import n_cells_for, plan_sample
+
+    n = len(xyz)
+    p = n_cells_for(n, opts["cell_size"])
+    seed = opts["seed"]
+    sample = xyz[plan_sample(n, p, seed)]
+    centers = fit_centers(sample, p, seed, origin)
+    k = int(neighbour_count(opts["cluster_size"], opts["k0"], opts["k_min"]))
+    margin = estimate_margin(sample - origin, n, k, seed)[2] if p > 1 else 0.0
+    r_max = global_radius(sample, n, int(target))
+    if math.isfinite(r_max):
+        margin = max(margin, ELIMINATE_RADII * r_max)
+    labels = np.zeros(n, dtype=np.int64)
+    pairs = [np.empty((0, 2), dtype=np.int64)]
+    if p > 1:
+        from ..core.kernels.closest import site_tree
+
+        tree = site_tree(centers)
+        for start in range(0, n, chunk_size):  # as the label tasks: chunk by chunk, block by block
+            stop = min(start + chunk_size, n)
+            for a in range(start, stop, LABEL_BLOCK):
+                b = min(a + LABEL_BLOCK, stop)
+                labels[a:b], got = label_block(centers, xyz[a:b], margin, tree, True)
+                pairs.append(got)
+    pairs = np.unique(np.concatenate(pairs, axis=0), axis=0)
+    halo_ptr = np.zeros(p + 1, dtype=np.int64)
+    np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
+    return Cells(labels, centers, halo_ptr, pairs[:, 1].astype(np.int64), r_max, margin)
+
+
+def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates: bool) -> tuple[np.ndarray, int]:
+    """The keep mask (input order) and the distinct points of the stage :func:`~.eliminate.run_eliminate`
+    on *cells*: the shares, the counts, then each cell's elimination colour by colour."""
+    from ..core.colours import cell_colours
+    from ..core.duplicates import copy_rows, first_copies
+    from ..core.eliminate import CELL_POINTS
+    from ..core.eliminate_cells import eliminate_cell
+    from ..core.packing import LADDER, kept_counts, ladder_shares, packing_ladder
+    from .halo import band_mask, halo_mask
+
+    p, r_max, margin, c = cells.n_cells, cells.r_max, cells.margin, cells.centers
+    threads = os.cpu_count() or 1
+    owner = np.repeat(np.arange(p), np.diff(cells.halo_ptr))  # the cells that read each cell's band
+    readers = [owner[cells.halo_src == j] for j in range(p)]
+    shares, distinct, bands = np.zeros((p, len(LADDER))), np.zeros(p, dtype=np.int64), []
+    for j in range(p):  # share_task
+        core = xyz[cells.members[j]]
+        if len(core) and math.isfinite(r_max):
+            shares[j], distinct[j] = packing_ladder(core, r_max)
+        elif len(core):
+            distinct[j] = len(core) - copy_rows(core).sum()
+        deps = {int(i): c[i] for i in sorted(set(readers[j].tolist()))}
+        bands.append(np.flatnonzero(band_mask(core, {**deps, j: c[j]}, j, deps, margin)))
+    expected = ladder_shares(shares, int(target)) if math.isfinite(r_max) else distinct
+    q = kept_counts(expected, distinct, int(target))
+    colours = cell_colours(cells.halo_ptr, cells.halo_src)
+    keep = np.zeros(len(xyz), dtype=bool)
+    for j in sorted(range(p), key=lambda j: (colours[j], -len(cells.members[j]), j)):  # apply_task
+        own = cells.members[j]
+        core = xyz[own]
+        n = len(core)
+        mine = np.full(n, q[j] >= n)
+        if 0 < q[j] < n:
+            sources = sorted(int(s) for s in cells.halo_sources(j))
+            parts = [(s, cells.members[s][bands[s]]) for s in sources if len(bands[s])]
+            rows = [b[halo_mask(xyz[b], {j: c[j], s: c[s]}, j, s, margin)] for s, b in parts]
+            src_of = np.concatenate([np.full(len(r), s) for (s, _), r in zip(parts, rows)] + [np.zeros(0, int)])
+            rows = np.concatenate(rows + [np.zeros(0, dtype=np.int64)])
+            fixed = np.isin(src_of, [s for s in sources if colours[s] < colours[j]])
+            halo_keep = fixed & keep[rows]
+            mine = eliminate_cell(core, int(q[j]), r_max, halo=xyz[rows], decided=fixed, halo_keep=halo_keep,
+                                  threads=threads, cell_points=CELL_POINTS)
+        if keep_duplicates and n:  # every copy of a kept point too
+            mine = mine[first_copies(core)]
+        keep[own] = mine
+    return keep, int(distinct.sum())
