@@ -21,8 +21,7 @@ import numpy as np
 import pytest
 
 import cloudsieve
-from cloudsieve.engine.inprocess import IN_PROCESS_POINTS
-from cloudsieve.engine.small import SCHEDULER, fits_in_memory
+from cloudsieve.engine.small import IN_MEMORY_POINTS, SCHEDULER, fits_in_memory
 from cloudsieve.errors import InvalidPointsError, TargetNotMetError
 from cloudsieve.params import validate
 from conftest import LAS_FILES, shared_file
@@ -102,6 +101,15 @@ CELLS = [("autzen_trim.laz", 40_000, {"ratio": 0.5}), ("autzen_trim.laz", 20_000
          ("Megaplot.laz", 25_000, {"ratio": 0.3, "keep_duplicates": True}), ("bun_zipper.ply", 10_000, {"ratio": 0.5})]
 
 
+def test_several_store_chunks_give_the_store_runs_bytes(tmp_path):
+    """Store chunks of 25,000 points: labelled chunk by chunk, written chunk by chunk; the LAS export in parts
+    spliced (parts of 50,000 kept points) against one stream here."""
+    for ext in (".laz", ".ply"):
+        small, store, a, b, _ = both(shared_file("autzen_trim.laz"), tmp_path, ext, ratio=0.8, cell_size=30_000,
+                                     chunk_size=25_000)
+        assert small.kept == store.kept == 88_000 and a == b
+
+
 @pytest.mark.parametrize("name, cell_size, options", CELLS, ids=[f"{n}-{c}" for n, c, _ in CELLS])
 def test_several_cells_give_the_store_runs_bytes(name, cell_size, options, tmp_path):
     small, store, a, b, _ = both(shared_file(name), tmp_path, ".las", cell_size=cell_size, **options)
@@ -168,10 +176,10 @@ def test_what_runs_in_memory(tmp_path):
     las = shared_file("simple.las")
     assert _fits(las) and _fits(las, "o.ply") and _fits(las, "o.xyz") and _fits(las, count=10)
     assert _fits(las, cell_size=1_065) and _fits(las, cell_size=400)  # one cell or several
-    assert not _fits(las, chunk_size=1_000)  # one store chunk
-    opts = validate("simplify", {"ratio": 0.5, "chunk_size": 2_000_000})
-    assert fits_in_memory([str(las)], "o.las", opts, IN_PROCESS_POINTS)
-    assert not fits_in_memory([str(las)], "o.las", opts, IN_PROCESS_POINTS + 1)
+    assert _fits(las, chunk_size=1_000)  # several store chunks: written chunk by chunk
+    opts = validate("simplify", {"ratio": 0.5})
+    assert fits_in_memory([str(las)], "o.las", opts, IN_MEMORY_POINTS)
+    assert not fits_in_memory([str(las)], "o.las", opts, IN_MEMORY_POINTS + 1)
     assert not _fits(las, "o.copc.laz")  # COPC is built from a store
     assert not _fits(las, tile_size=100.0)
     assert not _fits(las, store=str(tmp_path / "w.zarr"))  # a named store is kept: the run makes it

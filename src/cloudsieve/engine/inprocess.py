@@ -22,7 +22,7 @@ points      process pool (s)     in process (s)     peak memory (MiB)
 ==========  ===================  =================  ======================
 
 Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
-A LAS/LAZ/COPC or PLY input of one store chunk needs no work store either (:mod:`.small`).
+A LAS/LAZ/COPC or PLY input of the eliminate rule needs no work store either (:mod:`.small`).
 """
 
 from __future__ import annotations

@@ -1,9 +1,8 @@
 """A small input in memory: the eliminate rule without a work store, dask or zarr.
 
-A LAS/LAZ/COPC or PLY cloud of at most one store chunk (``chunk_size``) and
-:data:`~.inprocess.IN_PROCESS_POINTS` points runs the out-of-core run's steps
-on the same arrays, in this process, and writes the same bytes
-(tests/test_engine_small.py):
+A LAS/LAZ/COPC or PLY cloud of at most :data:`IN_MEMORY_POINTS` points runs
+the out-of-core run's steps on the same arrays, in this process, and writes
+the same bytes (tests/test_engine_small.py):
 
 1. the records, read as an ingest task reads them
    (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
@@ -19,7 +18,8 @@ on the same arrays, in this process, and writes the same bytes
    partition and the cells stage on arrays (:mod:`.small_cells`);
 3. the kept points written by the export's writer
    (:func:`cloudsieve.io.open_writer`) with the store's header, dtypes and
-   bounds (atomic: a temporary name, renamed when complete).
+   bounds, store chunk by store chunk (atomic: a temporary name, renamed
+   when complete).
 
 A store costs a small run more than its points do: 217 synchronous calls of
 zarr's event loop for 110,000 points, dask's local scheduler, and importing
@@ -54,20 +54,24 @@ logger = logging.getLogger(__name__)
 SCHEDULER = "in memory"
 #: the output formats a small run writes (COPC and tiles are built from a store)
 _WRITTEN = ("las", "laz", "ply", "xyz")
+#: at most this many input points run in memory. Measured (docs/benchmarks.md, make_scan LAZ, ``--ratio 0.5``,
+#: 2 cores): in memory 7.3 s and 512 MiB at 3 M points, 12.8 s and 727 MiB at 5 M, 23.4 s and 1,081 MiB at
+#: 10 M, against 10.3 s / 1,255 MiB, 17.2 s / 1,328 MiB and 30.0 s / 1,282 MiB for the local process pool.
+#: Faster at every size, so the limit is one of memory: the whole cloud is held (about 0.1 GB a million points
+#: above the kernels' 0.3 GB), where the out-of-core run holds cells only
+IN_MEMORY_POINTS = 5_000_000
 
 
 def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None) -> bool:
     """Whether a run of the validated *opts* on *sources* (*points* in their headers) needs no work store:
-    the eliminate rule on LAS/LAZ/COPC files or one PLY file of 1 to ``min(IN_PROCESS_POINTS, chunk_size)``
-    points, written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles; the caller chose no scheduler,
+    the eliminate rule on LAS/LAZ/COPC files or one PLY file of 1 to :data:`IN_MEMORY_POINTS` points,
+    written to LAS/LAZ/PLY/XYZ; no named store, no resume, no tiles; the caller chose no scheduler,
     client, workers or memory limit (checked by :func:`cloudsieve.engine.checks.check_run`)."""
     from ..core.rules import ELIMINATION, get
     from ..io import detect_format
     from ..store.las_plan import is_las_source
 
-    from .inprocess import IN_PROCESS_POINTS
-
-    return (points is not None and 0 < points <= min(IN_PROCESS_POINTS, opts["chunk_size"])
+    return (points is not None and 0 < points <= IN_MEMORY_POINTS
             and get(opts["rule"]).engine == ELIMINATION
             and opts["store"] is None and not opts["resume"] and opts["tile_size"] is None
             and (is_las_source(sources) or (len(sources) == 1 and detect_format(sources[0]) == "ply"))
@@ -84,7 +88,7 @@ def _read(sources: list[str], opts: dict) -> tuple:
     from ..store.las_read import decode_xyz, read_pieces
 
     plan = plan_las(list(sources))
-    (_, _, pieces), = plan.tasks(opts["chunk_size"])  # one store chunk (fits_in_memory)
+    (_, _, pieces), = plan.tasks(plan.total)  # every record in one task
     names = [n for n in plan.dtypes if n != "xyz"]
     raw, attrs, lo, hi = read_pieces(pieces, names, parallel=True)
     lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
@@ -207,13 +211,17 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             rows = np.flatnonzero(keep)
             dtypes = {name: (np.dtype(dt), tuple(shape)) for name, (dt, shape) in dtypes.items()}
             dtypes["xyz"] = (np.dtype(np.float64), (3,))
-            chunk = {name: (xyz if name == "xyz" else attrs[name]).take(rows, axis=0) for name in dtypes}
+            step = opts["chunk_size"]
+            ends = np.searchsorted(rows, np.arange(step, n + step, step))  # the kept rows of each store chunk
             with stage_bar(bars, "export", len(rows), "pt") as bar:
                 # the export's writer and arguments (store/export.py; a LAS part names the whole file)
                 label = {"label": dst} if fmt in ("las", "laz") else {}
                 with open_writer(dst, header=header, dtypes=dtypes, format=opts["format"], source_format=source_format,
                                  overwrite=opts["overwrite"], bounds=bounds, **label) as writer:
-                    writer.write(chunk)
+                    for a, b in zip(np.r_[0, ends[:-1]], ends):  # as the export reads the store: chunk by chunk
+                        take = rows[a:b]
+                        writer.write({name: (xyz if name == "xyz" else attrs[name]).take(take, axis=0)
+                                      for name in dtypes})
                 bar(len(rows))
             if not len(rows):
                 logger.warning("%s: no point kept; wrote an empty cloud", dst)

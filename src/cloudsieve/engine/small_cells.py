@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import math
 import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -104,15 +105,19 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
     threads = os.cpu_count() or 1
     owner = np.repeat(np.arange(p), np.diff(cells.halo_ptr))  # the cells that read each cell's band
     readers = [owner[cells.halo_src == j] for j in range(p)]
-    shares, distinct, bands = np.zeros((p, len(LADDER))), np.zeros(p, dtype=np.int64), []
-    for j in range(p):  # share_task
+    shares, distinct = np.zeros((p, len(LADDER))), np.zeros(p, dtype=np.int64)
+
+    def share(j: int) -> np.ndarray:  # share_task: the cell's packing sizes and distinct points; its band
         core = xyz[cells.members[j]]
         if len(core) and math.isfinite(r_max):
             shares[j], distinct[j] = packing_ladder(core, r_max)
         elif len(core):
             distinct[j] = len(core) - copy_rows(core).sum()
         deps = {int(i): c[i] for i in sorted(set(readers[j].tolist()))}
-        bands.append(np.flatnonzero(band_mask(core, {**deps, j: c[j]}, j, deps, margin)))
+        return np.flatnonzero(band_mask(core, {**deps, j: c[j]}, j, deps, margin))
+
+    with ThreadPoolExecutor(threads) as pool:  # the cells at once, as the workers run the share tasks
+        bands = list(pool.map(share, range(p)))
     expected = ladder_shares(shares, int(target)) if math.isfinite(r_max) else distinct
     q = kept_counts(expected, distinct, int(target))
     colours = cell_colours(cells.halo_ptr, cells.halo_src)
