@@ -21,11 +21,10 @@ evaluation needs them).
 from __future__ import annotations
 
 import logging
-import sys
-import types
 
 from .errors import *  # noqa: F401,F403
 from . import errors as _errors
+from .lazy import keep_functions
 
 #: where each public name lives; imported at its first use (module ``__getattr__``, PEP 562), so
 #: ``import cloudsieve`` loads no numba, dask, zarr, open3d or pymeshlab
@@ -88,18 +87,5 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *(name.lstrip("_") for name in _LAZY)})
 
 
-class _Package(types.ModuleType):
-    """This package's module type: ``cloudsieve.evaluate`` is always the function, never the subpackage of
-    the same name (importing a submodule sets the parent's attribute; the function shadowed it when the
-    package imported it eagerly, and still does)."""
-
-    @property
-    def evaluate(self):
-        return __getattr__("_evaluate")
-
-    @evaluate.setter
-    def evaluate(self, module) -> None:  # the import system's binding of the subpackage: the function stays
-        pass
-
-
-sys.modules[__name__].__class__ = _Package
+# cloudsieve.evaluate is always the function, never the subpackage of the same name
+keep_functions(__name__, __getattr__, {"evaluate": "_evaluate"})

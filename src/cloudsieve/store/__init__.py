@@ -7,8 +7,8 @@ store (a small input, :mod:`cloudsieve.engine.small`) imports no zarr.
 from __future__ import annotations
 
 import importlib
-import sys
-import types
+
+from ..lazy import keep_functions
 
 #: where each public name lives (a module of this package, or ``cloudsieve.paths``)
 _LAZY = {
@@ -49,25 +49,5 @@ def __dir__() -> list[str]:
     return sorted({*globals(), *_LAZY})
 
 
-class _Package(types.ModuleType):
-    """This package's module type: ``ingest`` and ``export`` are always the functions, never the modules of
-    the same name (importing a submodule sets the parent's attribute, which would shadow the function)."""
-
-    @property
-    def ingest(self):
-        return __getattr__("ingest")
-
-    @ingest.setter
-    def ingest(self, module) -> None:  # the import system's binding of the submodule: the function stays
-        pass
-
-    @property
-    def export(self):
-        return __getattr__("export")
-
-    @export.setter
-    def export(self, module) -> None:
-        pass
-
-
-sys.modules[__name__].__class__ = _Package
+# ingest and export are always the functions, never the modules of the same name
+keep_functions(__name__, __getattr__, {"ingest": "ingest", "export": "export"})
