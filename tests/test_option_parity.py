@@ -142,7 +142,7 @@ def test_params_is_a_leaf():
     loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
                             env=env).stdout.split()
     assert sorted(loaded) == ["cloudsieve", "cloudsieve.address", "cloudsieve.core", "cloudsieve.core.rules",
-                              "cloudsieve.errors", "cloudsieve.formats", "cloudsieve.params",
+                              "cloudsieve.errors", "cloudsieve.formats", "cloudsieve.lazy", "cloudsieve.params",
                               "cloudsieve.params_spec", "cloudsieve.rule_default", "cloudsieve.warmup_targets"]
 
 

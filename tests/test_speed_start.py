@@ -59,14 +59,13 @@ def test_public_names_resolve_lazily_and_evaluate_stays_the_function():
         cloudsieve.nope  # noqa: B018
 
 
-# chunks smaller than the cloud: the work store's run (a cloud of one chunk runs in memory, test_engine_small.py)
-@pytest.mark.parametrize("name, cell_size, chunk_size", [("simple.las", 200_000, 1_000),
-                                                         ("autzen_trim.laz", 40_000, 100_000)])
-def test_small_input_in_process_writes_the_same_bytes_as_the_process_pool(name, cell_size, chunk_size, tmp_path):
+# a named work store: the store's run (without one, the cloud runs in memory, test_engine_small.py)
+@pytest.mark.parametrize("name, cell_size", [("simple.las", 200_000), ("autzen_trim.laz", 40_000)])
+def test_small_input_in_process_writes_the_same_bytes_as_the_process_pool(name, cell_size, tmp_path):
     src = shared_file(name)
     assert local_scheduler([str(src)]) == "sync"  # below IN_PROCESS_POINTS: the in-process path
-    inproc = cloudsieve.simplify(src, tmp_path / "a.laz", ratio=0.5, cell_size=cell_size, chunk_size=chunk_size)
-    pooled = cloudsieve.simplify(src, tmp_path / "b.laz", ratio=0.5, cell_size=cell_size, chunk_size=chunk_size,
+    inproc = cloudsieve.simplify(src, tmp_path / "a.laz", ratio=0.5, cell_size=cell_size, store=tmp_path / "a.zarr")
+    pooled = cloudsieve.simplify(src, tmp_path / "b.laz", ratio=0.5, cell_size=cell_size, store=tmp_path / "b.zarr",
                                  scheduler="processes", workers=2)
     assert inproc.scheduler == "sync" and pooled.scheduler.startswith("processes")
     assert inproc.cells == pooled.cells >= (3 if cell_size < 100_000 else 1)

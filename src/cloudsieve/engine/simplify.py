@@ -19,8 +19,9 @@ and each in its own module:
 5. **export** of the kept points, every attribute and the header
    (:func:`cloudsieve.store.export`, atomic).
 
-Every batch of tasks goes through one :class:`~.runner.Runner` (any dask
-scheduler). Only a few numbers pass through the scheduler, never an array of
+A small input needs none of this: :mod:`.small` runs the same steps in
+memory (no store, no dask). Every batch of tasks goes through one
+:class:`~.runner.Runner` (any dask scheduler). Only a few numbers pass through the scheduler, never an array of
 size P or N: every task opens the store by path and reads its own runs there.
 Results do not depend on the scheduler, the number of workers or task
 completion order: a cell's points are in input order, its seed is
@@ -247,18 +248,16 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
-    t_start = time.perf_counter() if t_start is None else t_start
-    src, dst = os.fspath(src), os.fspath(dst)
-    (method, rule, threshold, ratio, count, cluster_size, cell_size, scheduler, workers, memory_limit, store, seed,
-     resume, overwrite, format, chunk_size, halo_context, k0, k_min, drop_invalid, keep_duplicates, strict,
-     tile_size) = (opts[name] for name in _OPTION_NAMES)
+    t_start, src, dst = time.perf_counter() if t_start is None else t_start, os.fspath(src), os.fspath(dst)
+    (method, rule, threshold, ratio, count, cluster_size, cell_size, scheduler, workers, memory_limit, store, seed, resume,
+     overwrite, format, chunk_size, halo_context, k0, k_min, drop_invalid, keep_duplicates, strict, tile_size) = (
+        opts[name] for name in _OPTION_NAMES)
     if tile_size is not None and len(dst) > 1:
         dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     context = opts["halo_context"]
-    update = callback(progress)
-    cpu0 = time.process_time()
+    update, cpu0 = callback(progress), time.process_time()
     summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     checked = check_run(src, dst, opts, params, client=client)
 
