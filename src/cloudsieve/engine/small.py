@@ -8,14 +8,11 @@ the same bytes (tests/test_engine_small.py):
    (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
    store decodes them; a PLY file as the ingest streams it (NaN or infinite
    coordinates refused, or dropped with ``drop_invalid``);
-2. one cell (``cell_size`` points or fewer): r_max from the partition's
-   uniform sample (:func:`~cloudsieve.engine.sample.plan_sample`,
-   :func:`~cloudsieve.engine.eliminate.global_radius`), the cell's count
-   (:func:`~cloudsieve.core.packing.kept_counts`: the target, at most the
-   distinct points) and its elimination
+2. the partition and the cells stage on arrays (:mod:`.small_cells`): r_max
+   from the partition's uniform sample, the cells and their halos, each
+   cell's count and its elimination colour by colour
    (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`), every copy
-   of a kept point kept with ``keep_duplicates``; several cells: the
-   partition and the cells stage on arrays (:mod:`.small_cells`);
+   of a kept point kept with ``keep_duplicates``;
 3. the kept points written by the export's writer
    (:func:`cloudsieve.io.open_writer`) with the store's header, dtypes and
    bounds, store chunk by store chunk (atomic: a temporary name, renamed
@@ -34,7 +31,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import time
 from collections.abc import Callable
 
@@ -115,34 +111,6 @@ def _read_streamed(src: str, opts: dict) -> tuple:
         return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
 
 
-def _radius(xyz: np.ndarray, seed: int, target: int) -> float:
-    """r_max of the cloud *xyz*, from the partition's uniform sample, as the out-of-core partition solves it."""
-    from .eliminate import global_radius
-    from .sample import plan_sample
-
-    n = len(xyz)
-    return global_radius(xyz[plan_sample(n, 1, seed)], n, target)
-
-
-def _keep(xyz: np.ndarray, r_max: float, target: int, keep_duplicates: bool) -> tuple[np.ndarray, int]:
-    """The cell's keep mask and its distinct points, as the out-of-core cell computes them."""
-    from ..core.duplicates import copy_rows, first_copies
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-    from ..core.packing import kept_counts
-
-    n = len(xyz)
-    distinct = int(n - copy_rows(xyz).sum())
-    # one cell: its share is the whole target (at most its distinct points)
-    count = int(kept_counts([float(distinct)], [distinct], target)[0])
-    keep = np.full(n, count >= n)
-    if 0 < count < n:
-        keep = eliminate_cell(xyz, count, r_max, threads=os.cpu_count() or 1, cell_points=CELL_POINTS)
-    if keep_duplicates:  # every copy of a kept point too
-        keep = keep[first_copies(xyz)]
-    return keep, distinct
-
-
 def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, account: Callable[[Summary], None],
               progress: Callable[[int], None], bars=None) -> Summary:
     """Simplify the small cloud *sources* into *dst* in this process (:func:`fits_in_memory` said so).
@@ -166,7 +134,6 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer
-    from .sample import n_cells_for
     from .small_cells import eliminate_cells, partition
 
     summary.scheduler = SCHEDULER
@@ -183,21 +150,14 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
-            one = n_cells_for(n, opts["cell_size"]) == 1
-            if one:  # no partition: the cell is the cloud
-                r_max = _radius(xyz, opts["seed"], target)
-            else:
-                cells = partition(xyz, bounds[0], opts, target, opts["chunk_size"])
-                r_max = cells.r_max
-            summary.cells = summary.cells_computed = 1 if one else cells.n_cells
-            logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, summary.cells, target, r_max)
+            cells = partition(xyz, bounds[0], opts, target, opts["chunk_size"])
+            summary.cells = summary.cells_computed = cells.n_cells
+            logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, cells.n_cells, target,
+                        cells.r_max)
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            if one:
-                keep, distinct = _keep(xyz, r_max, target, opts["keep_duplicates"])
-            else:
-                keep, distinct = eliminate_cells(xyz, cells, target, opts["keep_duplicates"])
+            keep, distinct = eliminate_cells(xyz, cells, target, opts["keep_duplicates"])
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())
             summary.removed = n - summary.kept

@@ -1,9 +1,8 @@
 """The partition and the cells of a small input in memory: the eliminate rule's stages on arrays.
 
-:mod:`.small` reads a cloud of up to one store chunk into memory; when it
-holds more than one cell, this module runs the out-of-core run's stages 2
-and 3 on it with the same functions, in the same order, so the kept set is
-the work store's (tests/test_engine_small.py):
+:mod:`.small` reads a small cloud into memory; this module runs the
+out-of-core run's stages 2 and 3 on it with the same functions, in the same
+order, so the kept set is the work store's (tests/test_engine_small.py):
 
 1. the partition (:func:`partition`): the uniform sample
    (:func:`~.sample.plan_sample`), its K-means centres
@@ -109,7 +108,7 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
 
     def share(j: int) -> np.ndarray:  # share_task: the cell's packing sizes and distinct points; its band
         core = xyz[cells.members[j]]
-        if len(core) and math.isfinite(r_max):
+        if len(core) and math.isfinite(r_max) and p > 1:  # one cell's count is the target: no share to weigh
             shares[j], distinct[j] = packing_ladder(core, r_max)
         elif len(core):
             distinct[j] = len(core) - copy_rows(core).sum()
