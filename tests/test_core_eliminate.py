@@ -439,6 +439,37 @@ def test_point_areas_are_those_of_the_kd_tree(n, q, sample, piles):
     assert weight == n / len(own)
 
 
+def _geometry(name: str, n: int, rng) -> np.ndarray:
+    """Clouds that take each way of the radius's grid k-NN: a surface (one grid), a volume and a line (the
+    first grid's side guessed again), a dense spot (crowded cells on finer grids), far outliers (coarser
+    grids, then the few searched against every row), and a lattice (ties at every distance)."""
+    u = rng.random((n, 3))
+    if name == "surface":
+        return np.c_[u[:, :2] * 100, np.sin(u[:, 0] * 6)]
+    if name == "volume":
+        return u
+    if name == "line":
+        return np.c_[u[:, 0], np.zeros(n), np.zeros(n)]
+    if name == "spot":
+        return np.r_[u[: n // 2] * [100, 100, 1], u[n // 2 :] * 0.01 + 50]
+    if name == "outliers":
+        return np.r_[u[:-40] * [100, 100, 1], u[-40:] * 1e5]
+    return np.round(u * [30, 30, 2], 1)  # lattice
+
+
+@pytest.mark.parametrize("name", ["surface", "volume", "line", "spot", "outliers", "lattice"])
+def test_point_areas_on_every_way_of_the_grid_are_the_kd_tree_s(name):
+    """The radius's k-NN on the elimination's grids gives cKDTree's 9th distance bit for bit whichever grids
+    each point needs (the oracle: scipy's tree)."""
+    rng = np.random.default_rng(3)
+    pts = np.unique(_geometry(name, 20_000, rng), axis=0)  # copies: test_point_areas_are_those_of_the_kd_tree
+    pts = pts[rng.permutation(len(pts))]
+    areas, weight = point_areas(pts, sample=len(pts))
+    d = cKDTree(pts).query(pts, k=9)[0][:, 8]
+    assert areas.tolist() == (np.pi * np.square(d) / 8).tolist()
+    assert weight == 1.0
+
+
 def test_eliminate_cell_checks_its_masks():
     P = sheet(200)
     with pytest.raises(InvalidParameterError, match=r"decided must be a bool mask of shape \(10,\)"):

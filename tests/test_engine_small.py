@@ -200,10 +200,11 @@ def test_a_chosen_scheduler_or_a_work_store_left_goes_through_the_store(tmp_path
     assert cloudsieve.simplify(src, tmp_path / "b.las", ratio=0.5).scheduler == "sync"
 
 
-def test_a_small_run_imports_no_zarr_or_dask(tmp_path):
+def test_a_small_run_imports_no_zarr_dask_or_scipy_spatial(tmp_path):
+    """One cell: no store, no scheduler, and the radius's k-NN on the grid (scipy.spatial: 0.25 s to import)."""
     code = ("import sys, cloudsieve\n"
             f"s = cloudsieve.simplify({str(shared_file('autzen_trim.laz'))!r}, {str(tmp_path / 'o.laz')!r}, ratio=0.5)\n"
-            "print(s.scheduler, sorted(m for m in ('zarr', 'dask', 'distributed') if m in sys.modules))")
+            "print(s.scheduler, sorted(m for m in ('zarr', 'dask', 'distributed', 'scipy.spatial') if m in sys.modules))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == f"{SCHEDULER} []"
 

@@ -35,7 +35,7 @@ def area_radius(pts: np.ndarray, ctx: np.ndarray, target: int) -> float:
     """r_max for *target* of the points *pts* from the areas around them (*ctx*: context points; inf for 0)."""
     if target == 0:
         return math.inf  # nothing is kept: the order does not matter
-    areas, weight = areas_of(pts, ctx, AREA_K, AREA_SAMPLE, 0, -1)
+    areas, weight = areas_of(pts, ctx, AREA_K, AREA_SAMPLE, 0)
     return radius_of(areas, target, weight)
 
 

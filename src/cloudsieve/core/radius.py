@@ -21,9 +21,11 @@ import math
 
 import numpy as np
 
+from ..chunk import xyz_bounds
 from ..errors import InvalidParameterError
-from .cellgrid import check_points
+from .cellgrid import CellGrid, check_points
 from .duplicates import first_rows
+from .kernels import grid as _kg
 
 __all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
 
@@ -32,8 +34,8 @@ AREA_SAMPLE = 50_000  # points of the seeded sample the areas are estimated on
 HEX = 2.0 * math.sqrt(3.0)  # area of the hexagon around a disk of radius 1 in a hexagonal packing
 
 
-def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAMPLE, seed: int = 0,
-                workers: int | None = None) -> tuple[np.ndarray, float]:
+def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAMPLE,
+                seed: int = 0) -> tuple[np.ndarray, float]:
     """Area around each point of the sampled surface: pi r_k^2 / k.
 
     r_k is the distance to the k-th nearest other point; pi r_k^2 / k is an
@@ -51,8 +53,6 @@ def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAM
     sample : int
         At least k + 1.
     seed : int
-    workers : int, optional
-        Threads of the k-d tree query (the result does not depend on it).
 
     Returns
     -------
@@ -68,10 +68,10 @@ def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAM
         raise InvalidParameterError(f"k must be an integer >= 1, got {k!r}")
     if int(sample) != sample or sample < k + 1:
         raise InvalidParameterError(f"sample must be an integer >= k + 1 = {k + 1}, got {sample!r}")
-    return areas_of(pts, ctx, int(k), int(sample), seed, workers or -1)
+    return areas_of(pts, ctx, int(k), int(sample), seed)
 
 
-def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, workers: int):
+def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int):
     """:func:`point_areas` on valid arrays."""
     n, q = len(pts), len(ctx)
     if n + q > sample:
@@ -88,24 +88,19 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int, w
         return np.zeros(0), 1.0
     if len(allp) < k + 1:
         return np.full(m, math.inf), n / m
-    d = _kth_other(np.ascontiguousarray(allp), m, k, workers)
+    d = _kth_other(np.ascontiguousarray(allp), m, k)
     return np.pi * np.square(d) / k * rate, n / m  # the sample is thinner by `rate`
 
 
-def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
+def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     """Distance from each of the first m rows of allp (>= k + 1 rows) to its k-th nearest other row.
 
-    scipy's cKDTree over the distinct rows (the compiled k-NN of the scores,
-    :mod:`.kernels.knn`, gives the same distances bit for bit, but compiling it
-    cost 6-7 s of the default run's first start; on the 50,000-point sample the
-    two take the same 0.07-0.09 s). Among the distinct rows: a row with c exact
+    The k-NN of the distinct rows (:func:`_nearest`). Among the distinct rows: a row with c exact
     copies (itself included) has c - 1 others at distance 0, then each distinct
     row as often as it is copied. Searched row by row, a pile of c copies costs
     c^2 distances (a sample of 300,000 points, 60,000 of them at one spot:
     258 s, against 0.2 s for the distinct rows).
     """
-    from scipy.spatial import cKDTree  # imported here: only the radius uses it (0.13-0.17 s)
-
     first = first_rows(allp)
     lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
     group = np.searchsorted(lead, first)  # each row's distinct row
@@ -115,8 +110,7 @@ def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
     q = np.unique(group[:m])  # the distinct rows asked for
     rows = allp[lead]
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
-    d, i = cKDTree(rows).query(rows[q], k=kk, workers=workers)
-    d, i = d.reshape(len(q), kk), i.reshape(len(q), kk)
+    d, i = _nearest(rows, q, kk)
     is_self = i == q[:, None]  # first unless another distinct row is at a distance that rounds to 0
     drop = np.where(is_self.any(axis=1), np.argmax(is_self, axis=1), kk - 1)
     other = np.ones((len(q), kk), dtype=bool)
@@ -129,6 +123,83 @@ def _kth_other(allp: np.ndarray, m: int, k: int, workers: int) -> np.ndarray:
     out = np.zeros(len(lead))
     out[q] = np.where(need > 0, d[np.arange(len(q)), col], 0.0)
     return out[group[:m]]
+
+
+#: points a grid cell holds on average at the first grid's side (about 1.5 times the 8th distance on a surface
+#: or in a volume), reached in at most OCCUPANCY_STEPS guesses
+OCCUPANCY = 6.0
+OCCUPANCY_STEPS = 6
+#: at most this many points left unsure are searched against every row (a few far points: no grid to build)
+FEW = 32
+#: a point with more than this many points times k in the 27 cells around it is searched on a grid 8 times
+#: finer (a dense spot: its candidates would cost a square of its size)
+CROWD = 64
+#: the grid's reach as a fraction of its cell side: a k-th distance below it is sure (the cells' floors
+#: are computed with rounding errors of about 1e-9 cell)
+REACH = 1.0 - 1e-6
+
+
+def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.ndarray]:
+    """What ``cKDTree(rows).query(rows[q], k=kk)`` returns for distinct *rows* (at least 2): the distances
+    bit for bit (:func:`.kernels.grid.nearest_rows` sums them as cKDTree does), the rows among equal
+    distances possibly others.
+
+    On :class:`.cellgrid.CellGrid` grids, not scipy's tree: ``scipy.spatial`` takes 0.25 s to import, a
+    quarter of the run of a 1,000-point file. The first grid's side (about 1.5 times the k-th distance on a
+    uniform surface, :data:`OCCUPANCY`) makes most answers sure at once (the 27 cells around a point hold every point within a
+    side of it); the others are asked again on grids twice as coarse, those of crowded cells (:data:`CROWD`)
+    first on grids 8 times finer.
+    """
+    m = len(rows)
+    lo, hi = xyz_bounds(rows)
+    span = float((hi - lo).max())  # > 0: two distinct rows at least
+    side, finest = span * math.sqrt(kk / m), span * 2.0**-20
+    for _ in range(OCCUPANCY_STEPS):  # about OCCUPANCY points a cell, as on a surface (the usual cloud)
+        o = m / len(np.unique(_kg.cell_codes(rows, lo, side)))
+        if OCCUPANCY / 2 <= o <= 2 * OCCUPANCY:
+            break
+        side = max(side * math.sqrt(OCCUPANCY / o), finest)
+    d, i = np.empty((len(q), kk)), np.empty((len(q), kk), dtype=np.int64)
+    coarser: dict[int, list] = {}
+
+    def ask(at: np.ndarray, level: int, crowd: int) -> tuple[np.ndarray, np.ndarray]:
+        """Search the positions *at* of q on the grid of side ``side * 2**level``; store the sure ones,
+        return the positions in the order searched and their statuses."""
+        grid = CellGrid(rows, side * 2.0**level)
+        inv = np.empty(m, dtype=np.int64)
+        inv[grid.order] = np.arange(m)
+        g = inv[q[at]]
+        o = np.argsort(g)  # in the grid's order: the searches walk memory in order
+        at, g = at[o], g[o]
+        dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2)
+        sure = status == 0
+        d[at[sure]] = np.sqrt(dd[sure])
+        i[at[sure]] = np.where(ii[sure] >= 0, grid.order[ii[sure]], -1)
+        unsure = np.flatnonzero(status == 1)  # to the grid that surely covers its k-th distance so far
+        far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 16 times coarser
+        with np.errstate(divide="ignore"):
+            up = np.where(np.isfinite(far), np.ceil(np.log2(far)), level + 4)
+        up = np.maximum(up, level + 1).astype(np.int64)
+        for lv in np.unique(up).tolist():
+            coarser.setdefault(lv, []).append(at[unsure[up == lv]])
+        return at, status
+
+    at, level = np.arange(len(q)), 0
+    while len(at):  # the crowded to finer grids, while there are finer ones
+        fine = side * 2.0 ** (level - 3) > finest
+        at, status = ask(at, level, CROWD * kk if fine else -1)
+        at, level = at[status == 2], level - 3
+    while coarser:  # the unsure to coarser grids: a grid of one cell holds every point
+        level = min(coarser)
+        at = np.concatenate(coarser.pop(level))
+        if len(at) > FEW:
+            ask(at, level, -1)
+        elif len(at):  # every row searched, without a grid
+            one = np.zeros(1, dtype=np.int64)
+            dd, i[at], _ = _kg.nearest_rows(rows, np.zeros(m, dtype=np.int64), np.array([0, m]), np.array([0, 1]),
+                                            one, q[at], kk, math.inf, -1, True)
+            d[at] = np.sqrt(dd)
+    return d, i
 
 
 def elimination_radius(areas, count: int, *, weight=1.0) -> float:

@@ -15,7 +15,7 @@ the argument types of the real calls (so the same compiled versions):
 - ``common``: exact copies and the merge (every rule);
 - ``partition``: the labels and halo bands of the partition's tasks;
 - ``eliminate``: the default rule in memory (grid, neighbour lists,
-  elimination, relocation, packing counts; the radius's k-NN is scipy's);
+  elimination, relocation, packing counts, the radius's k-NN);
 - ``scores``: the k-NN and entropy kernels of the scoring path;
 - ``km``, ``fcm``: the refinement into small clusters;
 - ``rules``: the rounds of the iterative, target and coverage rules.
