@@ -10,7 +10,8 @@ import pytest
 
 from cloudsieve.engine import pool as pool_module
 from cloudsieve.engine.calls import forked, imap
-from cloudsieve.engine.runner import PeakMemory, Runner, stage_bar
+from cloudsieve.engine.runner import PeakMemory, Runner
+from cloudsieve.progress import stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
 
 

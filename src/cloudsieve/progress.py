@@ -40,6 +40,16 @@ def callback(progress: ProgressCallback | None) -> ProgressCallback:
     return progress if progress is not None else _noop
 
 
+@contextlib.contextmanager
+def stage_bar(bars, stage: str, total: int | None, unit: str) -> Iterator[ProgressCallback]:
+    """``bars(stage, total, unit)`` as a context yielding ``update(n)``, or a no-op when *bars* is None."""
+    if bars is None:
+        yield callback(None)
+    else:
+        with bars(stage, total, unit) as upd:
+            yield callback(upd)
+
+
 def both(*progress: ProgressCallback | None) -> ProgressCallback:
     """One callback calling each of the given ones (None ignored)."""
     calls = [p for p in progress if p is not None]

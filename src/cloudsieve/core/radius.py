@@ -27,7 +27,7 @@ from .cellgrid import CellGrid, check_points
 from .duplicates import first_rows
 from .kernels import grid as _kg
 
-__all__ = ["point_areas", "elimination_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
+__all__ = ["point_areas", "elimination_radius", "global_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
 
 AREA_K = 8  # k of the k-NN area estimate
 AREA_SAMPLE = 50_000  # points of the seeded sample the areas are estimated on
@@ -123,6 +123,36 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     out = np.zeros(len(lead))
     out[q] = np.where(need > 0, d[np.arange(len(q)), col], 0.0)
     return out[group[:m]]
+
+
+def global_radius(sample: np.ndarray, n: int, target: int) -> float:
+    """The one r_max of a cloud of *n* points keeping *target*, from a uniform sample of it.
+
+    :func:`point_areas` on the sample (S points) are
+    areas at the sample's density: scaled by S / n to the cloud's, each
+    standing for n / S of its points, they give
+    :func:`elimination_radius`. With the whole cloud
+    as the sample (S = n <= 50,000) this is the r_max of
+    :func:`cloudsieve.core.eliminate.eliminate`.
+
+    Parameters
+    ----------
+    sample : ndarray of shape (S, 3), float64
+    n : int
+        Points in the cloud.
+    target : int
+        Points kept.
+
+    Returns
+    -------
+    float
+        r_max; inf when every point is kept (or nothing is: *target* 0).
+    """
+    s = len(sample)
+    if target <= 0 or s == 0:
+        return math.inf
+    areas, weight = point_areas(sample)
+    return float(elimination_radius(areas * (s / n), int(target), weight=weight * n / s))
 
 
 #: points a grid cell holds on average at the first grid's side (about 1.5 times the 8th distance on a surface

@@ -4,7 +4,7 @@ The in-memory rule (:mod:`cloudsieve.core.eliminate`) run out of core, cell
 by cell:
 
 1. **r_max** -- one global elimination radius, solved before the cells on
-   the partition's uniform sample (:func:`global_radius`, called by
+   the partition's uniform sample (:func:`cloudsieve.core.radius.global_radius`, called by
    :func:`cloudsieve.engine.partition.build_partition`, recorded in the
    partition's attributes, so a resumed run uses the same one); the halo
    margin is at least 2.2 r_max (the elimination and the relocation reach
@@ -79,39 +79,7 @@ from .halo import band_mask, read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
 
-__all__ = ["global_radius", "share_task", "apply_task", "run_eliminate"]
-
-
-def global_radius(sample: np.ndarray, n: int, target: int) -> float:
-    """The one r_max of a cloud of *n* points keeping *target*, from a uniform sample of it.
-
-    :func:`~cloudsieve.core.radius.point_areas` on the sample (S points) are
-    areas at the sample's density: scaled by S / n to the cloud's, each
-    standing for n / S of its points, they give
-    :func:`~cloudsieve.core.radius.elimination_radius`. With the whole cloud
-    as the sample (S = n <= 50,000) this is the r_max of
-    :func:`cloudsieve.core.eliminate.eliminate`.
-
-    Parameters
-    ----------
-    sample : ndarray of shape (S, 3), float64
-    n : int
-        Points in the cloud.
-    target : int
-        Points kept.
-
-    Returns
-    -------
-    float
-        r_max; inf when every point is kept (or nothing is: *target* 0).
-    """
-    from ..core.radius import elimination_radius, point_areas
-
-    s = len(sample)
-    if target <= 0 or s == 0:
-        return math.inf
-    areas, weight = point_areas(sample)
-    return float(elimination_radius(areas * (s / n), int(target), weight=weight * n / s))
+__all__ = ["share_task", "apply_task", "run_eliminate"]
 
 
 # ---------------------------------------------------------------- the tasks

@@ -39,7 +39,7 @@ points), r_k estimated on the sample and scaled to full density with the
 sample's intrinsic dimension. Halo points are density context only, never
 pruned. For the ``eliminate`` rule (``eliminate_target``), the one global
 elimination radius r_max is solved on the same sample
-(:func:`cloudsieve.engine.eliminate.global_radius`), recorded as ``r_max``,
+(:func:`cloudsieve.core.radius.global_radius`), recorded as ``r_max``,
 and the margin is at least ``ELIMINATE_RADII`` r_max (the elimination and the
 relocation reach 2 r_max).
 """
@@ -92,12 +92,12 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
     ndarray of shape (n_cells, 3), float64, sorted lexicographically (x, y, z)
     so that cell ids do not depend on the K-means initialisation order.
     """
-    from ..core import KMeans
-
     rel = sample - origin
     if n_cells <= 1:
         centers = rel.mean(axis=0, keepdims=True) if len(rel) else np.zeros((1, 3))
     else:
+        from ..core import KMeans  # here: one cell needs no K-means (its modules: 0.02 s to import)
+
         km = KMeans(n_clusters=n_cells, seed=int(seed)).fit(rel)
         centers = np.asarray(km.cluster_centers_, dtype=np.float64)
     centers = centers + origin
@@ -285,7 +285,7 @@ def build_partition(
         r_k, dim, margin = 0.0, 3.0, 0.0
     r_max = None
     if eliminate_target is not None:
-        from .eliminate import global_radius
+        from ..core.radius import global_radius
 
         r_max = global_radius(sample, n, int(eliminate_target))
         if math.isfinite(r_max):

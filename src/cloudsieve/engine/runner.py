@@ -21,28 +21,18 @@ from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from ..errors import InvalidParameterError
-from ..progress import callback
+from ..progress import stage_bar
 from . import ahead
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
 from .pause import pause_at, pausing_task
 from .pool import local_pool, start_forkserver, worker_context
 
-__all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER", "stage_bar"]
+__all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER"]
 
 logger = logging.getLogger(__name__)
 
 #: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
 DEFAULT_SCHEDULER = "processes"
-@contextlib.contextmanager
-def stage_bar(bars, stage: str, total: int | None, unit: str) -> Iterator[Callable[[int], None]]:
-    """``bars(stage, total, unit)`` as a context yielding ``update(n)``, or a no-op when *bars* is None."""
-    if bars is None:
-        yield callback(None)
-    else:
-        with bars(stage, total, unit) as upd:
-            yield callback(upd)
-
-
 #: the scheduler of a LocalCluster without a dashboard still serves HTTP (health checks), on port 8787 unless told
 #: otherwise: any free port instead, so no "Port 8787 is already in use" warning beside another cluster
 NO_HTTP_PORT = {"dashboard_address": ":0"}

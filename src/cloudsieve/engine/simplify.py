@@ -36,22 +36,13 @@ import os
 import time
 from collections.abc import Callable
 
-from ..core._validation import ratio_count
 from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
-from ..io import detect_format
 from ..params import run_record, validate
 from ..progress import callback
-from ..store import DEFAULT_CHUNK_SIZE, delete_store
-from . import cells, merge, workstore
-from . import threshold as thresholds  # threshold is a parameter of simplify()
-from ..warmup_targets import targets_of
+from ..store import DEFAULT_CHUNK_SIZE
 from .checks import check_run
-from .eliminate import run_eliminate
-from .partition import build_partition, reusable_partition
-from .sample import IngestSample
-from .runner import PeakMemory, Runner, stage_bar
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
 
@@ -238,25 +229,17 @@ def simplify(
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
 
 
-#: the options :func:`run_simplify` reads, as local names
-_OPTION_NAMES = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
-                 "memory_limit", "store", "seed", "resume", "overwrite", "format", "chunk_size", "halo_context", "k0",
-                 "k_min", "drop_invalid", "keep_duplicates", "strict", "tile_size")
-
-
 def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, client=None, progress=None, bars=None,
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
     t_start, src, dst = time.perf_counter() if t_start is None else t_start, os.fspath(src), os.fspath(dst)
-    (method, rule, threshold, ratio, count, cluster_size, cell_size, scheduler, workers, memory_limit, store, seed, resume,
-     overwrite, format, chunk_size, halo_context, k0, k_min, drop_invalid, keep_duplicates, strict, tile_size) = (
-        opts[name] for name in _OPTION_NAMES)
+    ratio, count, keep_duplicates, strict, tile_size = (
+        opts[name] for name in ("ratio", "count", "keep_duplicates", "strict", "tile_size"))
     if tile_size is not None and len(dst) > 1:
         dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
-    context = opts["halo_context"]
     update, cpu0 = callback(progress), time.process_time()
     summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
     checked = check_run(src, dst, opts, params, client=client)
@@ -277,118 +260,10 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
 
         run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars)
         return _finished(summary, t_start, cpu0)
-    from ..store import export  # zarr: imported only by a run through the work store
-    st, store_path, default_store = checked.store, checked.store_path, checked.default_store
-    scheduler, dst_local = checked.scheduler, checked.dst_local
+    from .outofcore import run_store  # the work store, dask and the stages: imported only by a run that needs them
 
-    def both(bar):  # a stage's bar and the caller's progress
-        def up(n):
-            bar(n)
-            update(n)
-
-        return up
-
-    with PeakMemory() as peak:
-        runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
-
-        def close_runner():
-            if runner.remote_client is not None:  # no worker sample in flight on the client that closes
-                peak.stop()
-            runner.close()
-
-        summary.scheduler = runner.name
-        if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
-            peak.watch_workers(runner.remote_client)
-        if runner.dashboard_link:
-            logger.info("dask dashboard: %s", runner.dashboard_link)
-            if notify is not None:
-                notify(f"dask dashboard: {runner.dashboard_link}")
-        try:
-            t0 = time.perf_counter()
-            taken = None  # the partition's sample, taken while ingesting (a streamed format only)
-            if st is None:
-                runner.prestart()  # the workers start while the driver plans (or streams) the ingest
-                taken = IngestSample(cell_size, seed)
-                st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=update,
-                                             drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
-                workstore.record_params(st, params, overwrite)
-            summary.store = store_path
-            summary.points_in = st.count
-            summary.seconds["ingest"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            target = None
-            if ratio is not None or count is not None:
-                target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
-            # the elimination's r_max and margin come with the partition
-            elim = target if get_rule(rule).engine == ELIMINATION else None
-            halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
-            part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
-                                      eliminate_target=elim)
-            if part is None:
-                workstore.clear_derived(st)
-                part = build_partition(
-                    st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
-                    halo=halo, eliminate_target=elim, sample=taken.sample(st.count) if taken else None,
-                )
-            update(st.count)
-            summary.cells = part.n_cells
-            summary.seconds["partition"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            block = workstore.region_block(cell_size)
-            regions, total = workstore.regions(part.cell_counts, block)
-            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions)
-            if target is None:
-                computed, reused, points = cells.run_keep(st, part, regions, params, runner)
-                update(points)
-            elif elim is not None:
-                computed, reused, points, summary.threshold = run_eliminate(st, part, regions, params, runner, target)
-                update(points)
-            else:
-                reused, points = cells.run_score(st, part, regions, params, runner)
-                update(points)
-                with runner.stage("cells: threshold"):  # its histogram rounds: one bar
-                    summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
-                computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
-            summary.cells_computed, summary.cells_reused = computed, reused
-            summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
-            summary.seconds["cells"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            workstore.ensure_keep_array(st)
-            kept_counts = merge.run_merge(st, runner)
-            summary.kept = sum(kept_counts)
-            summary.removed = summary.points_in - summary.kept
-            account(summary)
-            update(st.count)
-            summary.seconds["merge"] = time.perf_counter() - t0
-
-            t0 = time.perf_counter()
-            if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
-                # tasks write the parts (or the tiles)
-                with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar),
-                           run=runner, counts=kept_counts, tile_size=tile_size)
-            else:
-                close_runner()  # the export streams here: the workers' memory goes now
-                with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
-            summary.seconds["export"] = time.perf_counter() - t0
-            summary.cpu_seconds["workers"] = runner.worker_cpu()
-        except TargetNotMetError:
-            if default_store:  # the run is complete and would end the same: nothing is left behind
-                delete_store(store_path)
-            raise
-        finally:
-            close_runner()
-    summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
-    _finished(summary, t_start, cpu0)
-    workstore.record_summary(st, summary.to_dict())
-    if default_store:
-        delete_store(store_path)
-        summary.store = ""
-    return summary
+    return run_store(checked, src, dst, opts, params, summary, account=account, progress=update, bars=bars,
+                     notify=notify, client=client, finished=lambda s: _finished(s, t_start, cpu0))
 
 
 def _finished(summary: Summary, t_start: float, cpu0: float) -> Summary:

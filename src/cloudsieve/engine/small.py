@@ -38,8 +38,8 @@ import numpy as np
 
 from . import ahead
 from ..warmup_targets import targets_of
+from ..progress import stage_bar
 from .memory import PeakMemory
-from .runner import stage_bar
 from .summary import Summary
 
 __all__ = ["fits_in_memory", "run_small", "SCHEDULER"]

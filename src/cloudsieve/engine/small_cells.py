@@ -9,7 +9,7 @@ order, so the kept set is the work store's (tests/test_engine_small.py):
    (:func:`~.partition.fit_centers`), the margin
    (:func:`~.partition.estimate_margin`, at least
    :data:`~.partition.ELIMINATE_RADII` r_max), r_max
-   (:func:`~.eliminate.global_radius`), and every point's cell and the
+   (:func:`~cloudsieve.core.radius.global_radius`), and every point's cell and the
    cells' halo sources (:func:`~.label.label_block`, block by block as a
    label task reads its chunk);
 2. the shares (:func:`~cloudsieve.core.packing.packing_ladder`) and bands
@@ -57,8 +57,7 @@ class Cells:
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int, chunk_size: int) -> Cells:
     """:func:`~.partition.build_partition` of the eliminate rule (a halo, r_max for *target*) on *xyz*."""
     from ..core import neighbour_count
-    from .eliminate import global_radius
-    from .label import LABEL_BLOCK, label_block
+    from ..core.radius import global_radius
     from .partition import ELIMINATE_RADII, estimate_margin, fit_centers
     from .sample import n_cells_for, plan_sample
 
@@ -76,6 +75,7 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int, chun
     pairs = [np.empty((0, 2), dtype=np.int64)]
     if p > 1:
         from ..core.kernels.closest import site_tree
+        from .label import LABEL_BLOCK, label_block
 
         tree = site_tree(centers)
         for start in range(0, n, chunk_size):  # as the label tasks: chunk by chunk, block by block

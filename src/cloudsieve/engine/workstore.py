@@ -149,7 +149,7 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
 
     from ..io.sources import expand_sources
     from ..store.las_plan import is_las_source
-    from .runner import stage_bar
+    from ..progress import stage_bar
 
     identity = source_identity(src)
     with stage_bar(bars, "ingest", None, "pt") as bar:  # one line, in points, whether tasks read or this process

@@ -56,7 +56,7 @@ import numpy as np
 
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
-from ..engine.runner import stage_bar
+from ..progress import stage_bar
 from ..params import validate
 from ..progress import both
 from ..store import DEFAULT_CHUNK_SIZE

@@ -3,7 +3,6 @@ a read-ahead thread, zarr calls in one event-loop call, a bounded heap."""
 
 from __future__ import annotations
 
-import asyncio
 import logging
 import os
 import queue
@@ -71,6 +70,8 @@ def gathered(calls) -> list:
     chunk's arrays read together, export of 5 M of 10 M points 1.83-1.90 ->
     1.54-1.75 s.
     """
+    import asyncio  # here, as zarr: a run without a store (engine.small) imports neither
+
     from zarr.core.sync import sync
 
     calls = list(calls)

@@ -1,0 +1,160 @@
+"""The out-of-core run of :func:`cloudsieve.engine.simplify.run_simplify`: the work store and the stages on dask.
+
+:func:`run_store` runs the stages the module docstring of :mod:`.simplify`
+lists, through one :class:`~.runner.Runner`, on a run already checked
+(:func:`.checks.check_run`). A small input's run (:mod:`.small`) imports
+none of this: the store, zarr, dask and the stages' modules (0.1 s of a
+1,000-point file's run).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+
+from ..core._validation import ratio_count
+from ..core.rules import ELIMINATION
+from ..core.rules import get as get_rule
+from ..errors import TargetNotMetError
+from ..io import detect_format
+from ..store import delete_store, export
+from ..warmup_targets import targets_of
+from . import cells, merge, workstore
+from . import threshold as thresholds
+from .checks import RunChecks
+from .eliminate import run_eliminate
+from .partition import build_partition, reusable_partition
+from ..progress import stage_bar
+from .runner import PeakMemory, Runner
+from .sample import IngestSample
+from .summary import Summary
+
+__all__ = ["run_store"]
+
+logger = logging.getLogger("cloudsieve.engine.simplify")  # the run's messages, under the name users filter on
+
+
+def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, summary: Summary, *,
+              account: Callable[[Summary], None], progress: Callable[[int], None], bars=None, notify=None,
+              client=None, finished: Callable[[Summary], Summary]) -> Summary:
+    """The run through the work store of *checked*: ingest (unless the store holds it), partition, cells, merge,
+    export; *account* is called once the kept count is known, before DST is written, and *finished* with the
+    summary before it is recorded in the store. Returns *summary*."""
+    (rule, ratio, count, cluster_size, cell_size, workers, memory_limit, seed, overwrite, format, chunk_size,
+     halo_context, k0, k_min, drop_invalid, tile_size) = (
+        opts[name] for name in ("rule", "ratio", "count", "cluster_size", "cell_size", "workers", "memory_limit",
+                                "seed", "overwrite", "format", "chunk_size", "halo_context", "k0", "k_min",
+                                "drop_invalid", "tile_size"))
+    context, update = halo_context, progress
+    st, store_path, default_store = checked.store, checked.store_path, checked.default_store
+    scheduler, dst_local = checked.scheduler, checked.dst_local
+
+    def both(bar):  # a stage's bar and the caller's progress
+        def up(n):
+            bar(n)
+            update(n)
+
+        return up
+
+    with PeakMemory() as peak:
+        runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
+
+        def close_runner():
+            if runner.remote_client is not None:  # no worker sample in flight on the client that closes
+                peak.stop()
+            runner.close()
+
+        summary.scheduler = runner.name
+        if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
+            peak.watch_workers(runner.remote_client)
+        if runner.dashboard_link:
+            logger.info("dask dashboard: %s", runner.dashboard_link)
+            if notify is not None:
+                notify(f"dask dashboard: {runner.dashboard_link}")
+        try:
+            t0 = time.perf_counter()
+            taken = None  # the partition's sample, taken while ingesting (a streamed format only)
+            if st is None:
+                runner.prestart()  # the workers start while the driver plans (or streams) the ingest
+                taken = IngestSample(cell_size, seed)
+                st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=update,
+                                             drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
+                workstore.record_params(st, params, overwrite)
+            summary.store = store_path
+            summary.points_in = st.count
+            summary.seconds["ingest"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            target = None
+            if ratio is not None or count is not None:
+                target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
+            # the elimination's r_max and margin come with the partition
+            elim = target if get_rule(rule).engine == ELIMINATION else None
+            halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
+            part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
+                                      eliminate_target=elim)
+            if part is None:
+                workstore.clear_derived(st)
+                part = build_partition(
+                    st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
+                    halo=halo, eliminate_target=elim, sample=taken.sample(st.count) if taken else None,
+                )
+            update(st.count)
+            summary.cells = part.n_cells
+            summary.seconds["partition"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            block = workstore.region_block(cell_size)
+            regions, total = workstore.regions(part.cell_counts, block)
+            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions)
+            if target is None:
+                computed, reused, points = cells.run_keep(st, part, regions, params, runner)
+                update(points)
+            elif elim is not None:
+                computed, reused, points, summary.threshold = run_eliminate(st, part, regions, params, runner, target)
+                update(points)
+            else:
+                reused, points = cells.run_score(st, part, regions, params, runner)
+                update(points)
+                with runner.stage("cells: threshold"):  # its histogram rounds: one bar
+                    summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
+                computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
+            summary.cells_computed, summary.cells_reused = computed, reused
+            summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
+            summary.seconds["cells"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            workstore.ensure_keep_array(st)
+            kept_counts = merge.run_merge(st, runner)
+            summary.kept = sum(kept_counts)
+            summary.removed = summary.points_in - summary.kept
+            account(summary)
+            update(st.count)
+            summary.seconds["merge"] = time.perf_counter() - t0
+
+            t0 = time.perf_counter()
+            if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
+                # tasks write the parts (or the tiles)
+                with stage_bar(bars, "export", summary.kept, "pt") as bar:
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar),
+                           run=runner, counts=kept_counts, tile_size=tile_size)
+            else:
+                close_runner()  # the export streams here: the workers' memory goes now
+                with stage_bar(bars, "export", summary.kept, "pt") as bar:
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
+            summary.seconds["export"] = time.perf_counter() - t0
+            summary.cpu_seconds["workers"] = runner.worker_cpu()
+        except TargetNotMetError:
+            if default_store:  # the run is complete and would end the same: nothing is left behind
+                delete_store(store_path)
+            raise
+        finally:
+            close_runner()
+    summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
+    finished(summary)
+    workstore.record_summary(st, summary.to_dict())
+    if default_store:
+        delete_store(store_path)
+        summary.store = ""
+    return summary
