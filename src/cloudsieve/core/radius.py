@@ -176,9 +176,9 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
 
     On :class:`.cellgrid.CellGrid` grids, not scipy's tree: ``scipy.spatial`` takes 0.25 s to import, a
     quarter of the run of a 1,000-point file. The first grid's side (about 1.5 times the k-th distance on a
-    uniform surface, :data:`OCCUPANCY`) makes most answers sure at once (the 27 cells around a point hold every point within a
-    side of it); the others are asked again on grids twice as coarse, those of crowded cells (:data:`CROWD`)
-    first on grids 8 times finer.
+    uniform surface, :data:`OCCUPANCY`) makes most answers sure at once (the 27 cells around a point hold
+    every point within a side of it); the others are asked again on coarser grids, those of crowded cells
+    (:data:`CROWD`) first on grids 8 times finer.
     """
     m = len(rows)
     lo, hi = xyz_bounds(rows)

@@ -18,6 +18,7 @@ from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
 from ..io import detect_format
+from ..progress import stage_bar
 from ..store import delete_store, export
 from ..warmup_targets import targets_of
 from . import cells, merge, workstore
@@ -25,7 +26,6 @@ from . import threshold as thresholds
 from .checks import RunChecks
 from .eliminate import run_eliminate
 from .partition import build_partition, reusable_partition
-from ..progress import stage_bar
 from .runner import PeakMemory, Runner
 from .sample import IngestSample
 from .summary import Summary

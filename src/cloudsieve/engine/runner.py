@@ -33,6 +33,7 @@ logger = logging.getLogger(__name__)
 
 #: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
 DEFAULT_SCHEDULER = "processes"
+
 #: the scheduler of a LocalCluster without a dashboard still serves HTTP (health checks), on port 8787 unless told
 #: otherwise: any free port instead, so no "Port 8787 is already in use" warning beside another cluster
 NO_HTTP_PORT = {"dashboard_address": ":0"}
