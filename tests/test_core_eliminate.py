@@ -453,7 +453,7 @@ def _geometry(name: str, n: int, rng) -> np.ndarray:
     if name == "spot":
         return np.r_[u[: n // 2] * [100, 100, 1], u[n // 2 :] * 0.01 + 50]
     if name == "outliers":
-        return np.r_[u[:-40] * [100, 100, 1], u[-40:] * 1e5]
+        return np.r_[u[:-100] * [100, 100, 1], u[-100:] * 1e5]
     return np.round(u * [30, 30, 2], 1)  # lattice
 
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 from ..chunk import xyz_bounds
@@ -160,7 +161,7 @@ def global_radius(sample: np.ndarray, n: int, target: int) -> float:
 OCCUPANCY = 6.0
 OCCUPANCY_STEPS = 6
 #: at most this many points left unsure are searched against every row (a few far points: no grid to build)
-FEW = 32
+FEW = 64
 #: a point with more than this many points times k in the 27 cells around it is searched on a grid 8 times
 #: finer (a dense spot: its candidates would cost a square of its size)
 CROWD = 64
@@ -201,14 +202,15 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
         g = inv[q[at]]
         o = np.argsort(g)  # in the grid's order: the searches walk memory in order
         at, g = at[o], g[o]
-        dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2)
+        dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2,
+                                          numba.get_num_threads())
         sure = status == 0
         d[at[sure]] = np.sqrt(dd[sure])
         i[at[sure]] = np.where(ii[sure] >= 0, grid.order[ii[sure]], -1)
         unsure = np.flatnonzero(status == 1)  # to the grid that surely covers its k-th distance so far
-        far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 16 times coarser
+        far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 4 times coarser
         with np.errstate(divide="ignore"):
-            up = np.where(np.isfinite(far), np.ceil(np.log2(far)), level + 4)
+            up = np.where(np.isfinite(far), np.ceil(np.log2(far)), level + 2)
         up = np.maximum(up, level + 1).astype(np.int64)
         for lv in np.unique(up).tolist():
             coarser.setdefault(lv, []).append(at[unsure[up == lv]])

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .threads import Chunks
+
 _M1 = np.int64(0x1F00000000FFFF)
 _M2 = np.int64(0x1F0000FF0000FF)
 _M3 = np.int64(0x100F00F00F00F00F)
@@ -202,18 +204,21 @@ def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
 
 
 # A plain function, as .eliminate.eliminate: its allocations in numpy (compiled, they tripled the compile time:
-# 1.2 s against 0.4 s), the work in _nearest_rows
-def nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, complete):
+# 1.2 s against 0.4 s), the work in _nearest_rows, on ranges of rows on threads
+def nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, complete, threads=1):
     """The k nearest points (itself included) of each of ``rows`` in the 27 cells around it: squared distances
     (len(rows), k) ascending (equal ones: lower row first; +inf after the points there are), their rows (-1
     there), and each one's status: 0 sure (its k-th squared distance is below ``reach2``, which the 27 cells
     surely cover, or they hold every point: ``complete``), 1 not sure (points farther out may be nearer), 2 not
     searched: more than ``crowd`` points in its 27 cells (crowd < 0: never). A squared distance is summed as
-    scipy's cKDTree sums it, ``(dx*dx + dy*dy) + dz*dz``."""
+    scipy's cKDTree sums it, ``(dx*dx + dy*dy) + dz*dz``. Each row's answer is its own: the same on any number
+    of ``threads``."""
     d = np.full((len(rows), k), np.inf)
     idx = np.full((len(rows), k), -1, dtype=np.int64)
     status = np.zeros(len(rows), dtype=np.uint8)
-    _nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, complete, d, idx, status)
+    with Chunks(threads) as chunks:
+        chunks.map(lambda s, e: _nearest_rows(P, cell, cstart, nstart, ncells, rows[s:e], k, reach2, crowd, complete,
+                                              d[s:e], idx[s:e], status[s:e]), len(rows))
     return d, idx, status
 
 
