@@ -6,9 +6,7 @@ Each name is imported at its first use (PEP 562): a small input's run
 
 from __future__ import annotations
 
-import importlib
-
-from ..lazy import keep_functions
+from ..lazy import keep_functions, lazy_names
 
 #: where each public name lives (a module of this package)
 _LAZY = {"simplify": ".simplify", "Summary": ".summary", "DEFAULT_SCHEDULER": ".runner", "SIMPLIFY_ATTR": ".workstore",
@@ -17,18 +15,7 @@ _LAZY = {"simplify": ".simplify", "Summary": ".summary", "DEFAULT_SCHEDULER": ".
 __all__ = ["simplify", "Summary", "DEFAULT_SCHEDULER", "SIMPLIFY_ATTR", "cell_seed"]
 
 
-def __getattr__(name: str):
-    """A public name of :data:`_LAZY`, imported from its module at its first use."""
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
-
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
 
 # simplify is always the function, never the module of the same name
 keep_functions(__name__, __getattr__, {"simplify": "simplify"})

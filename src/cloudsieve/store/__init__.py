@@ -6,9 +6,7 @@ store (a small input, :mod:`cloudsieve.engine.small`) imports no zarr.
 
 from __future__ import annotations
 
-import importlib
-
-from ..lazy import keep_functions
+from ..lazy import keep_functions, lazy_names
 
 #: where each public name lives (a module of this package, or ``cloudsieve.paths``)
 _LAZY = {
@@ -36,18 +34,7 @@ __all__ = [
 ]
 
 
-def __getattr__(name: str):
-    """A public name of :data:`_LAZY`, imported from its module at its first use."""
-    if name in _LAZY:
-        value = getattr(importlib.import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
-
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
 
 # ingest and export are always the functions, never the modules of the same name
 keep_functions(__name__, __getattr__, {"ingest": "ingest", "export": "export"})
