@@ -184,7 +184,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
     m = len(rows)
     lo, hi = xyz_bounds(rows)
     span = float((hi - lo).max())  # > 0: two distinct rows at least
-    side, finest = span * math.sqrt(kk / m), span * 2.0**-20
+    side, finest = span * math.sqrt(kk / m), max(span * 2.0**-20, 1e-300)  # as CellGrid bounds its side
     for _ in range(OCCUPANCY_STEPS):  # about OCCUPANCY points a cell, as on a surface (the usual cloud)
         o = m / len(np.unique(_kg.cell_codes(rows, lo, side)))
         if OCCUPANCY / 2 <= o <= 2 * OCCUPANCY:
