@@ -16,7 +16,7 @@ import numpy as np
 
 from ..core.kernels.closest import nearest_sites, site_tree
 
-__all__ = ["label_block", "label_chunk", "HALO_NEIGHBOURS", "LABEL_BLOCK"]
+__all__ = ["label_block", "label_points", "label_chunk", "HALO_NEIGHBOURS", "LABEL_BLOCK"]
 
 #: nearest centres tested per point when listing halo sources
 HALO_NEIGHBOURS = 5
@@ -102,6 +102,19 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
     return labels, pairs
 
 
+def label_points(centers: np.ndarray, xyz: np.ndarray, margin: float, halo: bool = True) -> tuple[np.ndarray,
+                                                                                                 np.ndarray]:
+    """:func:`label_block` of *xyz* ``LABEL_BLOCK`` points at a time (each point's label is its own): the
+    labels (n,) and the distinct halo pairs (q, 2) of all the blocks."""
+    tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
+    labels = np.empty(len(xyz), dtype=np.int64)
+    pairs = [np.empty((0, 2), dtype=np.int64)]
+    for a in range(0, len(xyz), LABEL_BLOCK):
+        labels[a : a + LABEL_BLOCK], got = label_block(centers, xyz[a : a + LABEL_BLOCK], margin, tree, halo)
+        pairs.append(got)
+    return labels, np.unique(np.concatenate(pairs, axis=0), axis=0)
+
+
 def label_chunk(
     store_path: str, chunk: int, start: int, stop: int, margin: float, halo: bool = True
 ) -> tuple[np.ndarray, int]:
@@ -128,14 +141,7 @@ def label_chunk(
     centers = np.asarray(g["partition/centers"][:])
     xyz = st.read("xyz", start, stop)
     n = len(xyz)
-    tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
-    labels = np.empty(n, dtype=np.int64)
-    pairs = []
-    block = LABEL_BLOCK
-    for a in range(0, n, block):
-        lab, pr = label_block(centers, xyz[a : a + block], margin, tree, halo)
-        labels[a : a + block] = lab
-        pairs.append(pr)
+    labels, pairs = label_points(centers, xyz, margin, halo)
     order = np.argsort(labels, kind="stable")
     sl = labels[order]
     heads = np.flatnonzero(np.r_[True, sl[1:] != sl[:-1]]) if n else np.empty(0, np.int64)
@@ -145,8 +151,4 @@ def label_chunk(
     g["partition/xyz"][chunk, :n] = xyz[order]
     if len(cells):
         g["partition/label_runs"][chunk, : len(cells)] = np.stack([cells, counts], axis=1).astype(np.int64)
-    if pairs:
-        u = np.unique(np.concatenate(pairs, axis=0), axis=0)
-    else:
-        u = np.empty((0, 2), dtype=np.int64)
-    return u, int(len(cells))
+    return pairs, int(len(cells))

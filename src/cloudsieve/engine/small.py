@@ -150,7 +150,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
-            cells = partition(xyz, bounds[0], opts, target, opts["chunk_size"])
+            cells = partition(xyz, bounds[0], opts, target)
             summary.cells = summary.cells_computed = cells.n_cells
             logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, cells.n_cells, target,
                         cells.r_max)

@@ -10,8 +10,8 @@ order, so the kept set is the work store's (tests/test_engine_small.py):
    (:func:`~.partition.estimate_margin`, at least
    :data:`~.partition.ELIMINATE_RADII` r_max), r_max
    (:func:`~cloudsieve.core.radius.global_radius`), and every point's cell and the
-   cells' halo sources (:func:`~.label.label_block`, block by block as a
-   label task reads its chunk);
+   cells' halo sources (:func:`~.label.label_points`, as a label task labels
+   its chunk);
 2. the shares (:func:`~cloudsieve.core.packing.packing_ladder`) and bands
    (:func:`~.halo.band_mask`) of the cells, their counts
    (:func:`~cloudsieve.core.packing.kept_counts`);
@@ -54,7 +54,7 @@ class Cells:
         return self.halo_src[self.halo_ptr[cell] : self.halo_ptr[cell + 1]]
 
 
-def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int, chunk_size: int) -> Cells:
+def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> Cells:
     """:func:`~.partition.build_partition` of the eliminate rule (a halo, r_max for *target*) on *xyz*."""
     from ..core import neighbour_count
     from ..core.radius import global_radius
@@ -71,20 +71,11 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int, chun
     r_max = global_radius(sample, n, int(target))
     if math.isfinite(r_max):
         margin = max(margin, ELIMINATE_RADII * r_max)
-    labels = np.zeros(n, dtype=np.int64)
-    pairs = [np.empty((0, 2), dtype=np.int64)]
-    if p > 1:
-        from ..core.kernels.closest import site_tree
-        from .label import LABEL_BLOCK, label_block
+    labels, pairs = np.zeros(n, dtype=np.int64), np.empty((0, 2), dtype=np.int64)
+    if p > 1:  # as the label tasks (each point's label is its own: the store's chunks do not matter)
+        from .label import label_points
 
-        tree = site_tree(centers)
-        for start in range(0, n, chunk_size):  # as the label tasks: chunk by chunk, block by block
-            stop = min(start + chunk_size, n)
-            for a in range(start, stop, LABEL_BLOCK):
-                b = min(a + LABEL_BLOCK, stop)
-                labels[a:b], got = label_block(centers, xyz[a:b], margin, tree, True)
-                pairs.append(got)
-    pairs = np.unique(np.concatenate(pairs, axis=0), axis=0)
+        labels, pairs = label_points(centers, xyz, margin)
     halo_ptr = np.zeros(p + 1, dtype=np.int64)
     np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
     return Cells(labels, centers, halo_ptr, pairs[:, 1].astype(np.int64), r_max, margin)
