@@ -18,7 +18,7 @@ from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
 from ..io import detect_format
-from ..progress import stage_bar
+from ..progress import both, stage_bar
 from ..store import delete_store, export
 from ..warmup_targets import targets_of
 from . import cells, merge, workstore
@@ -42,20 +42,12 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
     export; *account* is called once the kept count is known, before DST is written, and *finished* with the
     summary before it is recorded in the store. Returns *summary*."""
     (rule, ratio, count, cluster_size, cell_size, workers, memory_limit, seed, overwrite, format, chunk_size,
-     halo_context, k0, k_min, drop_invalid, tile_size) = (
+     context, k0, k_min, drop_invalid, tile_size) = (
         opts[name] for name in ("rule", "ratio", "count", "cluster_size", "cell_size", "workers", "memory_limit",
                                 "seed", "overwrite", "format", "chunk_size", "halo_context", "k0", "k_min",
                                 "drop_invalid", "tile_size"))
-    context, update = halo_context, progress
     st, store_path, default_store = checked.store, checked.store_path, checked.default_store
     scheduler, dst_local = checked.scheduler, checked.dst_local
-
-    def both(bar):  # a stage's bar and the caller's progress
-        def up(n):
-            bar(n)
-            update(n)
-
-        return up
 
     with PeakMemory() as peak:
         runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
@@ -78,7 +70,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             if st is None:
                 runner.prestart()  # the workers start while the driver plans (or streams) the ingest
                 taken = IngestSample(cell_size, seed)
-                st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=update,
+                st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=progress,
                                              drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
                 workstore.record_params(st, params, overwrite)
             summary.store = store_path
@@ -100,7 +92,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                     st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
                     halo=halo, eliminate_target=elim, sample=taken.sample(st.count) if taken else None,
                 )
-            update(st.count)
+            progress(st.count)
             summary.cells = part.n_cells
             summary.seconds["partition"] = time.perf_counter() - t0
 
@@ -110,13 +102,13 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions)
             if target is None:
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
-                update(points)
+                progress(points)
             elif elim is not None:
                 computed, reused, points, summary.threshold = run_eliminate(st, part, regions, params, runner, target)
-                update(points)
+                progress(points)
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
-                update(points)
+                progress(points)
                 with runner.stage("cells: threshold"):  # its histogram rounds: one bar
                     summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
@@ -130,19 +122,19 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
             account(summary)
-            update(st.count)
+            progress(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
             if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
                 # tasks write the parts (or the tiles)
                 with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar),
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
                            run=runner, counts=kept_counts, tile_size=tile_size)
             else:
                 close_runner()  # the export streams here: the workers' memory goes now
                 with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar))
+                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress))
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"] = runner.worker_cpu()
         except TargetNotMetError:

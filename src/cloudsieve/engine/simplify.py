@@ -241,7 +241,7 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
     update, cpu0 = callback(progress), time.process_time()
-    summary = Summary(source=src, destination=dst, duplicates_kept=opts["keep_duplicates"])
+    summary = Summary(source=src, destination=dst, duplicates_kept=keep_duplicates)
     checked = check_run(src, dst, opts, params, client=client)
 
     def account(summary: Summary) -> None:  # the kept count known, DST not yet written

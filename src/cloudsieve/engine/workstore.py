@@ -149,20 +149,15 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
 
     from ..io.sources import expand_sources
     from ..store.las_plan import is_las_source
-    from ..progress import stage_bar
+    from ..progress import both, stage_bar
 
     identity = source_identity(src)
     with stage_bar(bars, "ingest", None, "pt") as bar:  # one line, in points, whether tasks read or this process
-
-        def both(n):
-            bar(n)
-            if progress is not None:
-                progress(n)
-
+        update = both(bar, progress)
         if is_las_source(expand_sources(src)):
-            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both, run=run)
+            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=update, run=run)
         else:
-            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=both,
+            ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=update,
                              drop_invalid=drop_invalid, on_chunk=on_chunk)
     st = PointStore.open(store_path, "r+")
     st.group.attrs.update({SIMPLIFY_ATTR: {"source": identity}})
