@@ -62,7 +62,8 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
         c = cell[i]
         for t in range(nstart[c], nstart[c + 1]):
             cc = ncells[t]
-            for j in range(cstart[cc], cstart[cc + 1]):
+            # only rows visited before i can be in a packing (mask 0 from i on): the cells after i are skipped
+            for j in range(cstart[cc], min(cstart[cc + 1], i)):
                 m = mask[j] & ~blocked
                 if m != 0:
                     blocked |= _blocked(P, i, j, m, r2, full)
