@@ -10,9 +10,11 @@ import pytest
 
 from cloudsieve.engine import pool as pool_module
 from cloudsieve.engine.calls import forked, imap
+from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
 from cloudsieve.engine.runner import PeakMemory, Runner
 from cloudsieve.progress import stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
+from cloudsieve.warmup_targets import TARGETS, targets_of
 
 
 @pytest.mark.parametrize("scheduler, workers", [("sync", None), ("threads", 2), ("processes", 2)])
@@ -78,8 +80,15 @@ def test_task_threads_share_the_cores():
 
 def test_every_preloaded_module_imports():
     """The fork server imports these once; a stale name would only show as slower workers."""
-    for name in pool_module._PRELOAD:
+    for name in pool_module.preload(TARGETS):
         importlib.import_module(name)
+
+
+def test_the_default_rule_s_fork_server_imports_no_scoring_path():
+    """scipy's tree and the scoring kernels (0.25-0.3 s of the fork server's start) only for the runs that score."""
+    assert not {"scipy.spatial", "cloudsieve.core.kernels.knn"} & set(pool_module.preload(targets_of(DEFAULT_RULE)))
+    assert "scipy.spatial" in pool_module.preload(targets_of(THRESHOLD_RULE))
+    assert pool_module.preload(TARGETS)[-1] == "cloudsieve.engine.forkserver_init"  # last: it warms up
 
 
 def test_imap_in_process_streams_in_order_with_shared_arguments():

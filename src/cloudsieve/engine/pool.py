@@ -16,7 +16,7 @@ from concurrent.futures import ProcessPoolExecutor
 
 from ..lifeline import die_with_parent
 
-__all__ = ["local_pool", "worker_context", "start_forkserver", "WARM_UP_ENV"]
+__all__ = ["local_pool", "worker_context", "preload", "start_forkserver", "WARM_UP_ENV"]
 
 #: the environment variable naming the warm-up targets the fork server compiles, comma-separated
 #: (:data:`cloudsieve.warmup_targets.TARGETS`; set only while :func:`start_forkserver` starts it)
@@ -24,17 +24,21 @@ WARM_UP_ENV = "CLOUDSIEVE_WARM_UP"
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
 #: process; the heap's thresholds are fixed by bound_malloc). A replaced worker's first task costs
-#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks (until 2026-11-27), the workers
-#: took 14.4-14.6 s for the 10 M run's cells stage, never replaced 12.9-13.3 s
+#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks, the workers took 14.4-14.6 s for
+#: the 10 M run's cells stage, never replaced 12.9-13.3 s
 _TASKS_PER_CHILD = 64
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
-_PRELOAD = ["numpy", "scipy.spatial", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
+_PRELOAD = ["numpy", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
             "cloudsieve.engine.partition", "cloudsieve.engine.label", "cloudsieve.engine.runs", "cloudsieve.engine.halo",
             "cloudsieve.engine.cells", "cloudsieve.engine.threshold", "cloudsieve.engine.merge",
             # numba and the compiled kernels (forkserver_init warms them up: workers inherit the code)
-            "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy", "cloudsieve.core.warmup",
+            "cloudsieve.core.warmup",
             # last: the fork server asks to die with the driver (see cloudsieve/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
+#: what only the scoring path's tasks (the entropy rules, evaluate) import: scipy's k-d tree and the scoring
+#: kernels. A run of the default rule leaves them out: the fork server's imports took 0.54-0.60 s without them,
+#: 0.82-0.87 s with them, and the first tasks of a run wait for it
+_SCORING = ["scipy.spatial", "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy"]
 
 
 def worker_context():
@@ -53,10 +57,21 @@ def worker_context():
     from dask.multiprocessing import get_context
 
     if dask.config.get("multiprocessing.context", None) is None and "forkserver" in mp.get_all_start_methods():
-        ctx = mp.get_context("forkserver")
-        ctx.set_forkserver_preload(_PRELOAD)
-        return ctx
+        return mp.get_context("forkserver")  # its preload list: start_forkserver's, for the run's targets
     return get_context()
+
+
+def preload(targets: Iterable[str]) -> list[str]:
+    """The fork server's preload list for worker tasks whose kernels are warm-up *targets*: the scoring
+    path's modules only when a target scores (every target but the default rule's).
+
+    >>> "scipy.spatial" in preload(("common", "partition", "eliminate"))
+    False
+    >>> "scipy.spatial" in preload(("common", "partition", "scores"))
+    True
+    """
+    scoring = not set(targets) <= {"common", "partition", "eliminate"}
+    return _PRELOAD[:-2] + (_SCORING if scoring else []) + _PRELOAD[-2:]
 
 
 def start_forkserver(context, targets: Iterable[str]) -> None:
@@ -73,6 +88,8 @@ def start_forkserver(context, targets: Iterable[str]) -> None:
         return
     from multiprocessing import forkserver
 
+    targets = tuple(targets)
+    context.set_forkserver_preload(preload(targets))
     before = os.environ.get(WARM_UP_ENV)
     os.environ[WARM_UP_ENV] = ",".join(targets)  # the fork server's environment is this process's
     try:
