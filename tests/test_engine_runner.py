@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
+from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
 from cloudsieve.engine import pool as pool_module
 from cloudsieve.engine.calls import forked, imap
-from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
 from cloudsieve.engine.runner import PeakMemory, Runner
 from cloudsieve.progress import stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
