@@ -39,6 +39,6 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test,e57]"
 
-# Compile every numba kernel into numba's on-disk cache now, once (43-46 s on 2 cores), so the
+# Compile every numba kernel into numba's on-disk cache now, once (28-45 s on 2 cores), so the
 # first run loads them in about a second instead of compiling them (`cloudsieve warmup --help`).
 .venv/bin/python -m cloudsieve warmup
