@@ -126,15 +126,14 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            if tile_size is not None or (detect_format(dst, format) in ("las", "laz", "copc") and dst_local is not None):
-                # tasks write the parts (or the tiles)
-                with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
-                           run=runner, counts=kept_counts, tile_size=tile_size)
-            else:
-                close_runner()  # the export streams here: the workers' memory goes now
-                with stage_bar(bars, "export", summary.kept, "pt") as bar:
-                    export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress))
+            # tasks write the parts (or the tiles); otherwise the export streams here
+            tasks = tile_size is not None or (dst_local is not None
+                                              and detect_format(dst, format) in ("las", "laz", "copc"))
+            if not tasks:
+                close_runner()  # the workers' memory goes now
+            with stage_bar(bars, "export", summary.kept, "pt") as bar:
+                export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
+                       run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"] = runner.worker_cpu()
         except TargetNotMetError:

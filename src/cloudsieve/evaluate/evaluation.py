@@ -56,9 +56,8 @@ import numpy as np
 
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
-from ..progress import stage_bar
 from ..params import validate
-from ..progress import both
+from ..progress import both, stage_bar
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
 from .mesh import load_mesh
