@@ -24,16 +24,27 @@ def brute_neighbours(ukeys):
     return nstart, out
 
 
-@pytest.mark.parametrize("case", ["sheet", "far apart", "one", "none"])
+@pytest.mark.parametrize("case", ["sheet", "far apart", "corners", "one", "none"])
 def test_cell_neighbours_equal_brute_force(case):
     rng = np.random.default_rng(7)
+    top = 2.0**21 - 2  # "corners": a box of 2^63 cells, too many for the dense keys (the lexicographic ones)
     pts = {"sheet": np.c_[rng.random((3000, 2)) * 40, rng.random(3000)],
            "far apart": np.r_[rng.random((300, 3)), rng.random((300, 3)) * 1e6],
+           "corners": np.array([[0.0, 0.0, 0.0], [top, top, top], [0.0, top, 5.0], [1.0, 0.0, 0.0]]),
            "one": np.zeros((1, 3)), "none": np.zeros((0, 3))}[case]
     ukeys = np.unique(kg.cell_codes(pts, pts.min(axis=0) if len(pts) else np.zeros(3), 1.0))  # sorted, distinct
     expected = brute_neighbours(ukeys)
     nstart, ncells = kg.cell_neighbours(ukeys)
     assert nstart.tolist() == expected[0] and ncells.tolist() == expected[1]
+
+
+@pytest.mark.parametrize("case", ["few values", "wide", "zeros", "one", "none"])
+def test_argsort_keys_is_numpys_stable_argsort(case):
+    rng = np.random.default_rng(3)
+    key = {"few values": rng.integers(0, 5, 5000), "wide": rng.integers(0, 2**62, 5000),
+           "zeros": np.zeros(100, dtype=np.int64), "one": np.array([7]), "none": np.zeros(0, dtype=np.int64)}[case]
+    key = np.asarray(key, dtype=np.int64)
+    assert kg.argsort_keys(key).tolist() == np.argsort(key, kind="stable").tolist()
 
 
 @pytest.mark.parametrize("rows", ["all", "some"])

@@ -64,7 +64,7 @@ class CellGrid:
         span = float((hi - lo).max())
         h = max(float(h), span / (2.0**21 - 2), 1e-300)
         codes = _kg.cell_codes(points, lo, h)
-        order = np.argsort(codes, kind="stable")
+        order = _kg.argsort_keys(codes)
         sc = codes[order]
         new = np.ones(len(sc), dtype=bool)
         new[1:] = sc[1:] != sc[:-1]
