@@ -56,7 +56,7 @@ from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
 from .packing import LADDER, kept_counts, ladder_shares
-from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_points
+from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_on_grid
 
 __all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_cells",
            "eliminate_in_cells"]
@@ -190,7 +190,7 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
                                (hal, kind))
     with numba_threads(threads):
         grid, lists = _grid_lists(pts, hal, r_max, kind == 0)
-        return _finish(pts, hal, grid, lists, kind, r_max, int(count), int(steps))
+        return _finish(n, grid, lists, kind, r_max, int(count), int(steps))
 
 
 def _one_thread(fn, *args):
@@ -224,12 +224,11 @@ def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tu
     return grid, lists, counts, int(join.sum())
 
 
-def _finish(own: np.ndarray, halo: np.ndarray, grid, lists, kind: np.ndarray, r_max: float, count: int,
-            steps: int) -> np.ndarray:
-    """Keep mask of a cell on its grid and lists (:func:`_grid_lists`): the elimination to *count* of its
-    points with its halo points free (``kind`` 1: eliminated along), fixed (2: kept by a lower colour) or
-    gone (0: removed by one), then *steps* relocation steps on the same grid."""
-    n = len(own)
+def _finish(n: int, grid, lists, kind: np.ndarray, r_max: float, count: int, steps: int) -> np.ndarray:
+    """Keep mask of a cell of *n* points on its grid and lists (:func:`_grid_lists`; the grid holds the points):
+    the elimination to *count* of its points with its halo points free (``kind`` (h,) 1: eliminated along),
+    fixed (2: kept by a lower colour) or gone (0: removed by one), then *steps* relocation steps on the same
+    grid."""
     if count == n or count == 0:
         return np.full(n, count == n)
     src = grid.order
@@ -248,7 +247,7 @@ def _finish(own: np.ndarray, halo: np.ndarray, grid, lists, kind: np.ndarray, r_
     mine[np.isnan(mine)] = np.inf  # exact copies
     keep = keep_lowest(mine, int(count))
     kept_halo = (np.isnan(prio[n:]) & ~copy[n:] & (kind == 1)) | (kind == 2)
-    return relocate_points(own, keep, halo, kept_halo, r_max, int(steps), grid, rep) if steps else keep
+    return relocate_on_grid(n, keep, kept_halo, r_max, int(steps), grid, rep) if steps else keep
 
 
 def cell_cap(n: int, target: int, cell_points: int) -> int:
@@ -321,8 +320,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             lower = colour[cell[h]] < colour[j]
             kind = np.r_[np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8), okind[o]]
             grid, lists = prepared[j][:2]
-            keep[own[j]] = _one_thread(_finish, pts[own[j]], np.concatenate([pts[h], opts[o]]), grid, lists, kind,
-                                       r_max, int(q[j]), steps)
+            keep[own[j]] = _one_thread(_finish, len(own[j]), grid, lists, kind, r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not

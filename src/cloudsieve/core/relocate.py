@@ -104,10 +104,14 @@ def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None, near=None) -
     (the elimination's), or None to build one; ``near`` (with ``grid``): per grid row, its nearest kept
     point as the elimination stopped with these kept points found it (:func:`.kernels.grid.nearest_kept`'s
     answer), -1 where unknown (searched here)."""
-    n = len(pts)
-    allp = np.concatenate([pts, hal]) if len(hal) else pts
     if grid is None:  # else the grid the elimination built on the same points and cell side
-        grid = CellGrid(allp, 2.0 * r_max)
+        grid = CellGrid(np.concatenate([pts, hal]) if len(hal) else pts, 2.0 * r_max)
+    return relocate_on_grid(len(pts), kp, hk, r_max, iterations, grid, near)
+
+
+def relocate_on_grid(n, kp, hk, r_max, iterations, grid, near=None) -> np.ndarray:
+    """:func:`relocate_points` on the grid of the n points and the halo's (the points themselves not needed:
+    the grid holds them)."""
     src = grid.order
     kept = np.concatenate([kp, hk])[src].astype(np.uint8)
     movable = (src < n).astype(np.uint8)
@@ -123,6 +127,6 @@ def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None, near=None) -
         if np.array_equal(new, kept):
             break
         kept = new
-    out = np.empty(len(allp), dtype=bool)
+    out = np.empty(len(src), dtype=bool)
     out[src] = kept.astype(bool)
     return out[:n]
