@@ -93,14 +93,12 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
 
 @njit(cache=True)
 def _better(a, b, rec, tie):
-    """The entry that goes first of points a and b (-1: none): larger stored key rec[., 3], then lower tie."""
-    if a < 0:
-        return b
-    if b < 0:
-        return a
-    if rec[a, 3] > rec[b, 3] or (rec[a, 3] == rec[b, 3] and tie[a] < tie[b]):
-        return a
-    return b
+    """The entry that goes first of points a and b (n: none, its key -inf and tie the largest): larger stored
+    key rec[., 3], then lower tie. Without branches (a select): which one wins is a coin toss for the
+    processor, a mispredicted branch each match."""
+    ka = rec[a, 3]
+    kb = rec[b, 3]
+    return a if (ka > kb) | ((ka == kb) & (tie[a] < tie[b])) else b
 
 
 @njit(cache=True)
@@ -147,13 +145,17 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
     """
     n = len(P)
     cf = np.zeros((n, 8))
-    rec = np.empty((n, 4))
+    rec = np.empty((n + 1, 4))  # row n: the tree's "none", key -inf
+    rec[n, 3] = -np.inf
+    tk = np.empty(n + 1, dtype=np.int64)  # the ties, "none" last
+    tk[:n] = tie
+    tk[n] = np.iinfo(np.int64).max
     stats = np.zeros(4, dtype=np.int64)  # pops, stale pops, coverage evaluations, nearest searches
     m = 1 << (max(n, 1) - 1).bit_length()  # the least power of 2 >= n
-    win = np.full(2 * m, -1, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
+    win = np.full(2 * m, n, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
     prio = np.full(n, np.nan)
     _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
-               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio)
+               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk)
     return prio, stats
 
 
@@ -161,7 +163,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
 # was counted in and out with atomic operations on each removal, about a fifth of the time
 @njit(cache=True, nogil=True, _nrt=False)
 def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
-               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio):
+               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk):
     n = len(P)
     inv2r = 1.0 / two_r
     inv_r2 = 4.0 * inv2r * inv2r
@@ -204,18 +206,18 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             if tie[i] < nown:
                 left += 1
     for v in range(m - 1, 0, -1):
-        win[v] = _better(np.int64(win[2 * v]), np.int64(win[2 * v + 1]), rec, tie)
+        win[v] = _better(np.int64(win[2 * v]), np.int64(win[2 * v + 1]), rec, tk)
     while left > floor:
         i = np.int64(win[1])
         ti = tie[i]
         stats[0] += 1
-        r = np.int64(-1)  # the next largest bound: the best of the matches i won
+        r = np.int64(n)  # the next largest bound: the best of the matches i won
         v = m + i
         while v > 1:
-            r = _better(r, np.int64(win[v ^ 1]), rec, tie)
+            r = _better(r, np.int64(win[v ^ 1]), rec, tk)
             v >>= 1
-        k2 = rec[r, 3] if r >= 0 else -1.0
-        t2 = tie[r] if r >= 0 else 0
+        k2 = rec[r, 3] if r < n else -1.0
+        t2 = tie[r] if r < n else 0
         wi = term_weight(i, nptr, nbr, state, term)
         rec[i, 0] = wi + (nptr[i + 1] - nptr[i] + 2) * 2.0**-50 * w[i]
         cur = scale[i] * wi
@@ -229,14 +231,14 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
         if not (cur > k2 or (cur == k2 and ti < t2)):  # stale: store the exact key
             stats[1] += 1
             rec[i, 3] = cur
-            _replay(win, (m + i) >> 1, i, rec, tie)
+            _replay(win, (m + i) >> 1, i, rec, tk)
             continue
         prio[i] = cur
         state[i] = 0
         if ti < nown:
             left -= 1
-        win[m + i] = -1
-        _replay(win, (m + i) >> 1, i, rec, tie)
+        win[m + i] = n
+        _replay(win, (m + i) >> 1, i, rec, tk)
         if cover:
             p = np.int64(head[i])  # the points i represented move to their alt
             while p >= 0:
@@ -256,7 +258,7 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
                     if state[a] == 1:
                         rec[a, 2] = min(rec[a, 2], fbound(a, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                            inv_r2))
-                        _fall(a, rec, win, m, tie)
+                        _fall(a, rec, win, m, tk)
                 p = q
             head[i] = -1
             p = np.int64(ahead[i])  # the points whose alt was i get the next one
@@ -270,7 +272,7 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
                 if state[x] == 1:
                     rec[x, 2] = min(rec[x, 2], fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam,
                                                        inv_r2))
-                    _fall(x, rec, win, m, tie)
+                    _fall(x, rec, win, m, tk)
                 p = q
             ahead[i] = -1
         for t in range(nptr[i], nptr[i + 1]):  # the neighbours' bounds fall
@@ -278,7 +280,7 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             if state[j] != 1:
                 continue
             rec[j, 0] -= low[t]
-            _fall(j, rec, win, m, tie)
+            _fall(j, rec, win, m, tk)
     for i in range(n):  # the own points left: their keys at the stop
         if state[i] == 1 and tie[i] < nown:
             cur = scale[i] * term_weight(i, nptr, nbr, state, term)
