@@ -120,28 +120,29 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
         if state[i] == 0:
             continue
         c = cell[i]
-        s = 0.0
+        b = k
+        x0, y0, z0 = P[i, 0], P[i, 1], P[i, 2]
         for t in range(nstart[c], nstart[c + 1]):
             cc = ncells[t]
             for j in range(cstart[cc], cstart[cc + 1]):
-                if j == i or state[j] == 0:
-                    continue
-                dx = P[j, 0] - P[i, 0]
-                dy = P[j, 1] - P[i, 1]
-                dz = P[j, 2] - P[i, 2]
+                if k == cap:
+                    return i, nptr[i - lo]
+                dx = P[j, 0] - x0
+                dy = P[j, 1] - y0
+                dz = P[j, 2] - z0
                 d2 = dx * dx + dy * dy + dz * dz
-                if d2 < r2:
-                    if k == cap:
-                        return i, nptr[i - lo]
-                    u = ipow(1.0 - math.sqrt(d2) * inv2r, alpha, ialpha)
-                    s += u
-                    term[k] = u
-                    nbr[k] = j
-                    low[k] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
-                    dd[k] = d2
-                    k += 1
+                # every candidate written, the entry kept by moving on (a quarter of the candidates are
+                # within 2 r_max: a branch on it was mispredicted often)
+                nbr[k] = j
+                dd[k] = d2
+                k += (d2 < r2) & (j != i) & (state[j] != 0)
+        s = 0.0
+        for t in range(b, k):  # the terms in the walk's order: the same sum
+            u = ipow(1.0 - math.sqrt(dd[t]) * inv2r, alpha, ialpha)
+            s += u
+            term[t] = u
+            low[t] = np.float32(u * SHRINK) if u > TINY else np.float32(0.0)
         w[i] = s
-        b = nptr[i - lo]
         m = k - b
         if not nearest_first or m == 0:
             continue
