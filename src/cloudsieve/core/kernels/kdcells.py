@@ -88,13 +88,11 @@ def _cut_at(idx, vals, few, below, v, tmp):
         n_left = at  # v is the smallest value: the rows at v go first
     a = 0
     c = n_left
-    for t in range(m):
-        if vals[t] < v or (not strict and vals[t] == v):
-            tmp[a] = idx[t]
-            a += 1
-        else:
-            tmp[c] = idx[t]
-            c += 1
+    for t in range(m):  # the side a select, not a branch (which side is a coin toss: mispredicted half the time)
+        first = (vals[t] < v) | ((not strict) & (vals[t] == v))
+        tmp[a if first else c] = idx[t]
+        a += first
+        c += not first
     for t in range(m):
         idx[t] = tmp[t]
     return n_left
