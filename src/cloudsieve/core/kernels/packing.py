@@ -29,10 +29,10 @@ def _blocked(P, i, j, m, r2, full):
     dy = P[j, 1] - P[i, 1]
     dz = P[j, 2] - P[i, 2]
     d2 = dx * dx + dy * dy + dz * dz
-    for k in range(len(r2)):  # within radius k, so within every larger one
-        if d2 < r2[k]:
-            return m & (full << k)
-    return 0
+    k = 0  # the radii d2 is not within: within radius k, so within every larger one (none: full << L is 0 in m)
+    for t in range(len(r2)):  # counted without a branch (which radius is a coin toss for the processor)
+        k += d2 >= r2[t]
+    return m & (full << k)
 
 
 @njit(cache=True, nogil=True, inline="always")
