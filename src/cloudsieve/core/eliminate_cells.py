@@ -285,18 +285,15 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     margin = HALO_RADII * r_max
     near = _neighbours(boxes, margin)
     colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
-    band = _kk.band_flags(pts, idx, starts, boxes, margin)
     own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
-    bands = [o[band[o]] for o in own]  # each cell's points a neighbour's halo may hold
+    halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
+    bands = (np.zeros(0, dtype=np.int64), np.zeros(ncell + 1, dtype=np.int64))
 
     def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
         """The cell's halo: rows of *pts* in the other cells' bands, and rows of *outer*, within the margin."""
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
-        parts = [b[np.all((pts[b] >= lo) & (pts[b] <= hi), axis=1)] for b in (bands[i] for i in near[j])]
-        inner = np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+        inner = _kk.halo_rows(pts, *bands, near[j], lo, hi)
         return inner, np.flatnonzero(np.all((opts >= lo) & (opts <= hi), axis=1))
-
-    halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
 
     def prepare(j: int) -> tuple:
         halos[j] = h, o = halo(j)
@@ -304,6 +301,9 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
         return _one_thread(_prepare, pts[own[j]], np.concatenate([pts[h], opts[o]]), r_max, absent)
 
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
+        # each cell's points a neighbour's halo may hold, all cells at once
+        parts = list(pool.map(lambda j: _kk.band_rows(pts, own[j], boxes[j], margin), range(ncell)))
+        bands = (np.concatenate(parts), np.r_[0, np.cumsum([len(b) for b in parts])].astype(np.int64))
         prepared = list(pool.map(prepare, range(ncell)))
         distinct = np.array([p[3] for p in prepared])
         if distinct.sum() < target:  # exact copies fill the count, as in one elimination (they go first, so are

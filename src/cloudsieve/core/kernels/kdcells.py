@@ -13,18 +13,40 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def band_flags(P, idx, starts, boxes, margin):
-    """For every point: whether it lies within ``margin`` of a face of its cell's box (``boxes`` (C, 2, 3),
-    the points of cell c are ``idx[starts[c]:starts[c + 1]]``), i.e. may be in a neighbour's halo."""
-    out = np.zeros(len(P), dtype=np.bool_)
-    for c in range(len(starts) - 1):
-        for t in range(starts[c], starts[c + 1]):
-            i = idx[t]
+def band_rows(P, rows, box, margin):
+    """The rows of one cell (``rows``, box ``box`` (2, 3)) within ``margin`` of a face of its box, in their
+    order: the points a neighbour's halo may hold."""
+    out = np.empty(len(rows), dtype=np.int64)
+    k = 0
+    for t in range(len(rows)):
+        i = rows[t]
+        near = False
+        for j in range(3):
+            near |= (P[i, j] < box[0, j] + margin) | (P[i, j] > box[1, j] - margin)
+        out[k] = i
+        k += near
+    return out[:k].copy()
+
+
+@njit(cache=True, nogil=True)
+def halo_rows(P, band, bstart, cells, lo, hi):
+    """The rows of the bands of ``cells`` (cell c's: ``band[bstart[c]:bstart[c + 1]]``) inside the box [lo,
+    hi] (closed), cell after cell, each band in its order. numpy took a gathered copy and three boolean
+    arrays a neighbour: 2.8% of a 1 M-point elimination's time."""
+    m = 0
+    for c in cells:
+        m += bstart[c + 1] - bstart[c]
+    out = np.empty(m, dtype=np.int64)
+    k = 0
+    for c in cells:
+        for t in range(bstart[c], bstart[c + 1]):
+            i = band[t]
+            inside = True
             for j in range(3):
-                if P[i, j] < boxes[c, 0, j] + margin or P[i, j] > boxes[c, 1, j] - margin:
-                    out[i] = True
-                    break
-    return out
+                inside &= (P[i, j] >= lo[j]) & (P[i, j] <= hi[j])
+            out[k] = i
+            k += inside
+    return out[:k].copy()
 
 
 def median_cut(P, idx, axis, lo, hi, vals, tmp, counts):
