@@ -95,7 +95,7 @@ def _eliminated(pts: np.ndarray, r_max: float, target: int, threads) -> tuple:
         ones = np.ones(n)  # the key's factors of the removed information terms (module docstring)
         lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
         prio, rep = run_elimination(grid, lists, state, n, np.full(n, -1, dtype=np.int64), r_max, ALPHA, True,
-                                    ones, ones, target)
+                                    ones, ones, target, False)  # the keys of the points left: not needed
     prio[np.isnan(prio)] = np.inf  # exact copies
     return keep_lowest(prio, target), grid, rep
 

@@ -44,19 +44,21 @@ def alpha_int(alpha: float) -> int:
     return int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
 
 
-def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor) -> tuple:
+def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor,
+                    keys_left: bool = True) -> tuple:
     """The elimination on a grid and its neighbour lists (``state`` of the grid's rows; the lists may hold
     points absent from the start: their terms only make the first bounds larger). Returns the priority of
-    every position of the grid's points (NaN: not removed nor own and left), and each grid row's rep at
-    the stop: the nearest point left (module .kernels.cover), -1 for exact copies and points none was
-    within reach of (None without the coverage term)."""
+    every position of the grid's points (NaN: not removed nor own and left; the own points left: their
+    keys at the stop, or -1.0 without ``keys_left``, the same points kept by :func:`keep_lowest`), and each
+    grid row's rep at the stop: the nearest point left (module .kernels.cover), -1 for exact copies and
+    points none was within reach of (None without the coverage term)."""
     two_r = 2.0 * r_max
     nptr, nbr, low, soff, w, term = lists
     src = grid.order
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     links = np.full((len(src), 8), -1, dtype=_kn.index_type(len(src), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,
-                                alpha_int(alpha), r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep)
+                                alpha_int(alpha), r_cov, COVER_GAMMA, lam, floor, n, links, gone_rep, keys_left)
     logger.debug("eliminate: pops %d, stale %d, coverage %d, searches %d", *stats)
     out = np.empty(len(src))
     out[src] = prio

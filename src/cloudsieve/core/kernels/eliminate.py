@@ -120,7 +120,7 @@ def _fall(y, rec, win, m, tie):
 
 # A plain function: its allocations in numpy (compiled, they cost the first start 0.9 s), the work in the kernel
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
-              ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep):
+              ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, keys_left=True):
     """Remove removable points, largest key first, until ``floor`` of the own ones remain.
 
     Own points are those with ``tie`` < ``nown`` (the caller's points; the
@@ -130,8 +130,10 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
     (n,) the crowding sums of :mod:`.neighbours` (before the scale);
     ``imp2`` (n,) the squared importance of each point: its coverage and
     squared-error terms are measured in distances times its importance. Returns priority (n,): the key of each point when it was
-    removed (non-increasing along the removals), for the points left their
-    keys at the stop (<= every removed key), NaN for points that were not
+    removed (non-increasing along the removals), for the own points left their
+    keys at the stop (<= every removed key; -1.0, below every key, without
+    ``keys_left``: the points left are the same, their keys cost a coverage
+    evaluation each, about a tenth of the loop), NaN for points that were not
     removable; ``gone_rep`` (n,) the alive point representing each point
     already gone from the start (-1: none); ``state`` and ``ci`` (n, 8), all -1, int32 when the lists
     hold fewer than 2^31 entries (the links of the coverage data) are
@@ -155,7 +157,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
     win = np.full(2 * m, n, dtype=ci.dtype)  # the winner tree over the stored keys (leaves m .. m + n)
     prio = np.full(n, np.nan)
     _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
-               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk)
+               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk, keys_left)
     return prio, stats
 
 
@@ -163,7 +165,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
 # was counted in and out with atomic operations on each removal, about a fifth of the time
 @njit(cache=True, nogil=True, _nrt=False)
 def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
-               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk):
+               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk, keys_left):
     n = len(P)
     inv2r = 1.0 / two_r
     inv_r2 = 4.0 * inv2r * inv2r
@@ -282,7 +284,9 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             rec[j, 0] -= low[t]
             _fall(j, rec, win, m, tk)
     for i in range(n):  # the own points left: their keys at the stop
-        if state[i] == 1 and tie[i] < nown:
+        if state[i] == 1 and tie[i] < nown and not keys_left:
+            prio[i] = -1.0
+        elif state[i] == 1 and tie[i] < nown:
             cur = scale[i] * term_weight(i, nptr, nbr, state, term)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,
