@@ -19,7 +19,7 @@ def add_parser(subparsers) -> None:
         description=(
             "Simplify SRC into DST out of core: the cloud is ingested into a zarr point store (the work store), "
             "cut into coarse cells (one dask task each), each cell pruned by the rule, and the kept points "
-            "written with every attribute and the header. A LAS/LAZ/COPC or PLY input of at most 5,000,000 "
+            "written with every attribute and the header. A LAS/LAZ/COPC or PLY input of at most 10,000,000 "
             "points runs in memory instead, without the store, to the same bytes, when the rule is eliminate "
             "and no scheduler, worker count, memory limit, store, resume or tiles are asked for. The default "
             "rule, eliminate (weighted sample "
