@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .order import radix_passes
 from .threads import Chunks
 
 _M1 = np.int64(0x1F00000000FFFF)
@@ -75,36 +76,12 @@ def argsort_keys(key):
     while top > 0:
         passes += 1
         top >>= 8
-    idx = np.arange(n)
-    if passes == 0:
-        return idx
-    hist = np.zeros((passes, 256), np.int64)
+    u = key.copy().view(np.uint64)  # non-negative: the same order as unsigned integers
+    hist = np.zeros((max(passes, 1), 256), np.int64)
     for i in range(n):
-        u = key[i]
         for p in range(passes):
-            hist[p, (u >> (8 * p)) & 255] += 1
-    k1 = key.copy()
-    k2 = np.empty(n, np.int64)
-    i2 = np.empty(n, np.int64)
-    pos = np.empty(256, np.int64)
-    for p in range(passes):  # least significant byte first: each pass stable
-        if hist[p].max() == n:  # one value of this byte: the order stays
-            continue
-        acc = 0
-        for b in range(256):
-            pos[b] = acc
-            acc += hist[p, b]
-        sh = 8 * p
-        for i in range(n):
-            u = k1[i]
-            b = (u >> sh) & 255
-            j = pos[b]
-            k2[j] = u
-            i2[j] = idx[i]
-            pos[b] = j + 1
-        k1, k2 = k2, k1
-        idx, i2 = i2, idx
-    return idx
+            hist[p, (u[i] >> np.uint64(8 * p)) & np.uint64(255)] += 1
+    return radix_passes(u, hist, passes)
 
 
 @njit(cache=True, nogil=True)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["grouped_order", "stable_argsort"]
+__all__ = ["grouped_order", "radix_passes", "stable_argsort"]
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -163,14 +163,23 @@ def _radix_argsort(x):
         key[i] = u
         for p in range(8):
             hist[p, (u >> np.uint64(8 * p)) & np.uint64(255)] += 1
+    return radix_passes(key, hist, 8)
+
+
+@njit(cache=True, nogil=True)
+def radix_passes(key, hist, passes):
+    """The stable order (n,) int64 of the uint64 ``key`` (n,) by its ``passes`` lowest bytes, ``hist``
+    (>= passes, 256) the counts of each byte's values: one LSD pass a byte, least significant first, a byte
+    all keys share skipped. ``key`` is consumed."""
+    n = len(key)
     idx = np.arange(n)
     k2 = np.empty(n, np.uint64)
     i2 = np.empty(n, np.int64)
-    for p in range(8):  # least significant byte first: each pass stable
+    pos = np.empty(256, np.int64)
+    for p in range(passes):  # each pass stable
         h = hist[p]
         if h.max() == n:
             continue
-        pos = np.empty(256, np.int64)
         acc = 0
         for b in range(256):
             pos[b] = acc
