@@ -67,7 +67,7 @@ def argsort_keys(key):
     """``np.argsort(key, kind="stable")`` of non-negative int64 keys: an LSD radix sort by bytes, over the
     bytes the largest key uses (a cell's codes and keys are small: 2-3 passes). Written here because numpy's
     stable sort of int64 is a merge sort: 0.81 ms for the 16,359 codes of a 16,384-point cell, against
-    0.12 ms here, of a grid built in 2.4 ms."""
+    0.14 ms here, of a grid built in 2.4 ms."""
     n = len(key)
     top = np.int64(0)
     for i in range(n):
