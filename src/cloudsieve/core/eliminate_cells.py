@@ -287,10 +287,10 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
     own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
     halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
-    bands = (np.zeros(0, dtype=np.int64), np.zeros(ncell + 1, dtype=np.int64))
 
     def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
-        """The cell's halo: rows of *pts* in the other cells' bands, and rows of *outer*, within the margin."""
+        """The cell's halo: rows of *pts* in the other cells' bands (set below, before any prepare), and rows of
+        *outer*, within the margin."""
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
         inner = _kk.halo_rows(pts, *bands, near[j], lo, hi)
         return inner, np.flatnonzero(np.all((opts >= lo) & (opts <= hi), axis=1))

@@ -284,9 +284,10 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
             rec[j, 0] -= low[t]
             _fall(j, rec, win, m, tk)
     for i in range(n):  # the own points left: their keys at the stop
-        if state[i] == 1 and tie[i] < nown and not keys_left:
-            prio[i] = -1.0
-        elif state[i] == 1 and tie[i] < nown:
+        if state[i] == 1 and tie[i] < nown:
+            if not keys_left:
+                prio[i] = -1.0
+                continue
             cur = scale[i] * term_weight(i, nptr, nbr, state, term)
             if cover and cur > 0:
                 cur *= min(rec[i, 2], _coverage(i, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt,

@@ -85,10 +85,10 @@ def argsort_keys(key):
 
 
 @njit(cache=True, nogil=True)
-def _dense_keys(xyz):
-    """Keys (C,) in the lexicographic order of the integer coordinates ``xyz`` (C, 3), numbered from the
-    smallest of each axis: smaller than ``_lex_keys``' (fewer radix passes), the same order. Empty when
-    the box of the cells holds 2^62 cells or more (the keys of ``_lex_keys`` then)."""
+def _sweep_keys(xyz, key):
+    """Keys (C,) in the lexicographic order of the integer coordinates ``xyz`` (C >= 1, 3) for the sweep's
+    sort: numbered in the cells' box (smaller than ``_lex_keys``' ``key``: fewer radix passes, the same
+    order), or ``key`` itself when the box holds 2^62 cells or more."""
     C = len(xyz)
     lo = xyz[0].copy()
     hi = xyz[0].copy()
@@ -99,7 +99,7 @@ def _dense_keys(xyz):
     ny = hi[1] - lo[1] + 1
     nz = hi[2] - lo[2] + 1
     if hi[0] - lo[0] + 1 > (np.int64(1) << 62) // (ny * nz):  # ny * nz <= 2^42: no overflow
-        return np.empty(0, dtype=np.int64)
+        return key
     out = np.empty(C, dtype=np.int64)
     for c in range(C):
         out[c] = ((xyz[c, 0] - lo[0]) * ny + (xyz[c, 1] - lo[1])) * nz + (xyz[c, 2] - lo[2])
@@ -211,8 +211,7 @@ def cell_neighbours(ukeys):
     lists). numpy's stable sort: the keys come in Z order, partly sorted.
     """
     xyz, key = _lex_keys(ukeys)
-    dense = _dense_keys(xyz) if len(ukeys) else key
-    L = argsort_keys(dense if len(dense) == len(key) else key)
+    L = argsort_keys(_sweep_keys(xyz, key) if len(ukeys) else key)
     return _column_sweep(xyz, L, key[L])
 
 
