@@ -33,22 +33,17 @@ sys.path.insert(0, sys.argv[1])
 from core import surface
 n, ratio, what, calls = int(sys.argv[2]), float(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 pts = surface(n)
-times, cpu, md5 = [], 0.0, ""
+times, cpu, kept = [], 0.0, ""
 if what == "open3d":
     import open3d as o3d
+    from engine import voxel_same_count
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts - pts.min(axis=0)))
-    target, lo, hi = round(ratio * n), 1e-6, float(np.ptp(pts, axis=0).max())
-    for _ in range(40):  # the voxel that keeps about as many points (untimed)
-        mid = (lo * hi) ** 0.5
-        k = len(pcd.voxel_down_sample(mid).points)
-        if abs(k - target) <= 0.005 * target:
-            break
-        lo, hi = (mid, hi) if k > target else (lo, mid)
+    voxel = voxel_same_count(pcd, round(ratio * n))  # the voxel that keeps about as many points (untimed)
     for _ in range(calls):
         t = time.perf_counter()
-        k = len(pcd.voxel_down_sample(mid).points)
+        k = len(pcd.voxel_down_sample(voxel).points)
         times.append(time.perf_counter() - t)
-    md5 = f"{k:,} points"
+    kept = f"{k:,} points"
 else:
     from cloudsieve.core.eliminate import eliminate
     threads = int(what)
@@ -60,8 +55,8 @@ else:
         times.append(time.perf_counter() - t)
     r1 = resource.getrusage(resource.RUSAGE_SELF)
     cpu = (r1.ru_utime - r0.ru_utime + r1.ru_stime - r0.ru_stime) / calls
-    md5 = hashlib.md5(kept.tobytes()).hexdigest()[:12]
-print(json.dumps({"times": times, "cpu": cpu, "md5": md5}))
+    kept = hashlib.md5(kept.tobytes()).hexdigest()[:12]
+print(json.dumps({"times": times, "cpu": cpu, "kept": kept}))
 """
 
 
@@ -91,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
             res = run(n, args.ratio, what, args.calls)
             t = sorted(res["times"])
             cpu = f"{res['cpu']:.2f}" if what != "open3d" else ""
-            print(f"| {r} | {name} | {t[0]:.3f} / {t[len(t) // 2]:.3f} | {n / t[0]:,.0f} | {cpu} | {res['md5']} | "
+            print(f"| {r} | {name} | {t[0]:.3f} / {t[len(t) // 2]:.3f} | {n / t[0]:,.0f} | {cpu} | {res['kept']} | "
                   f"{res['load']:.1f} |", flush=True)
     return 0
 

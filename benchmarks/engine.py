@@ -126,6 +126,15 @@ def open3d_same_count(src: Path, count: int) -> tuple[float, int, float]:
     xyz -= xyz.min(axis=0)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
     del xyz
+    voxel = voxel_same_count(pcd, count)
+    t0 = time.perf_counter()
+    k = len(pcd.voxel_down_sample(voxel).points)
+    return time.perf_counter() - t0, k, voxel
+
+
+def voxel_same_count(pcd, count: int) -> float:
+    """The voxel size at which Open3D's ``voxel_down_sample`` of *pcd* keeps about *count* points
+    (bisection, within 0.5% or the closest of 40 tries)."""
     ext = np.asarray(pcd.get_max_bound()) - np.asarray(pcd.get_min_bound())
     lo, hi = 1e-6 * float(ext.max()), float(ext.max())
     best = None
@@ -140,10 +149,7 @@ def open3d_same_count(src: Path, count: int) -> tuple[float, int, float]:
             lo = mid
         else:
             hi = mid
-    voxel = best[0]
-    t0 = time.perf_counter()
-    k = len(pcd.voxel_down_sample(voxel).points)
-    return time.perf_counter() - t0, k, voxel
+    return best[0]
 
 
 def open3d_end_to_end(src: Path, voxel: float, dst: Path) -> float:
