@@ -12,7 +12,7 @@ ahead, :data:`AHEAD`) and 3.1 s after one.
 Each target calls the kernels of one part of the method on a tiny input, with
 the argument types of the real calls (so the same compiled versions):
 
-- ``common``: exact copies and the merge (every rule);
+- ``common``: a LAS/LAZ input's coordinates, exact copies and the merge (every rule);
 - ``partition``: the labels and halo bands of the partition's tasks;
 - ``eliminate``: the default rule in memory (grid, neighbour lists,
   elimination, relocation, packing counts, the radius's k-NN);
@@ -58,9 +58,13 @@ def _merge_scatter() -> None:
 
 def _common() -> None:
     from .kernels.copies import first_equal
+    from .kernels.records import las_xyz
 
     P = _points(24)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
+    i64, f64 = np.zeros(3, dtype=np.int64), np.zeros(3)
+    las_xyz(np.zeros((2, 20), dtype=np.uint8), i64, i64, i64, f64, f64, np.zeros((2, 3), dtype=np.int32),
+            np.zeros((0, 3)), 0, 2, i64.copy(), i64.copy())  # a LAS/LAZ input's X, Y, Z (store/las_read.py)
     _merge_scatter()
 
 

@@ -81,16 +81,15 @@ def _read(sources: list[str], opts: dict) -> tuple:
     if not is_las_source(sources):
         return _read_streamed(sources[0], opts)
     from ..store.las_plan import plan_las
-    from ..store.las_read import decode_xyz, read_pieces
+    from ..store.las_read import read_pieces
 
     plan = plan_las(list(sources))
     (_, _, pieces), = plan.tasks(plan.total)  # every record in one task
     names = [n for n in plan.dtypes if n != "xyz"]
-    raw, attrs, lo, hi = read_pieces(pieces, names, parallel=True)
+    xyz, attrs, lo, hi = read_pieces(pieces, names, parallel=True, decode=(plan.scale, plan.offset))
     lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
     header = dict(plan.header)
     header["mins"], header["maxs"] = lo.tolist(), hi.tolist()
-    xyz = decode_xyz(raw, plan.scale, plan.offset)
     return xyz, attrs, plan.dtypes, header, np.array([lo, hi], dtype=np.float64), plan.format
 
 

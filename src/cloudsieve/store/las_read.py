@@ -7,9 +7,10 @@ hold the same integers and attributes.
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 
-from ..chunk import xyz_bounds
 from ..errors import CorruptInputError, InputFormatError
 
 __all__ = ["read_pieces", "decode_xyz"]
@@ -26,8 +27,8 @@ def decode_xyz(raw: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> np.nda
     return out
 
 
-def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False) -> tuple[np.ndarray, dict, np.ndarray,
-                                                                                        np.ndarray]:
+def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
+                decode: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray]:
     """The records of *pieces* (:meth:`.las_plan.LasPlan.tasks`: ``(path, first, n, factors)``), in order.
 
     Parameters
@@ -37,44 +38,65 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False) -
         The attributes read (the plan's dtypes but "xyz").
     parallel : bool
         Decode LAZ on every core (the tasks run one after the other in this process).
+    decode : (scale, offset), optional
+        Return the coordinates instead of the integers: ``X * scale + offset`` as :func:`decode_xyz`
+        gives them from the integers, without the integers.
 
     Returns
     -------
-    xyz : ndarray of shape (n, 3), int32
+    xyz : ndarray of shape (n, 3), int32 (float64 with *decode*)
         X, Y, Z in the cloud's scale and offset (re-quantised by the pieces' integer factors).
     attributes : dict of str to ndarray
     lo, hi : ndarray of shape (3,), int64
-        Per-axis extremes of *xyz*.
+        Per-axis extremes of the integers.
 
     Raises
     ------
     CorruptInputError, InputFormatError
     """
-    parts_xyz, parts, mins, maxs = [], [], [], []
-    for path, first, n, factors in pieces:
-        raw, arrays = _read_piece(path, int(first), int(n), names, parallel)
-        mult, add = np.asarray(factors, dtype=np.int64)
-        if np.any(mult != 1) or np.any(add != 0):
-            raw = raw * mult + add  # exact: integer factors (see las_plan)
-        lo, hi = xyz_bounds(raw)  # the stored int32 have the same extremes (checked to fit below)
-        mins.append(lo)
-        maxs.append(hi)
-        if np.any(lo < _INT32[0]) or np.any(hi > _INT32[1]):
-            raise InputFormatError(f"{path}: re-quantised to the cloud's scale and offset, its coordinates do not "
-                                   f"fit LAS int32 (points {first} to {first + n - 1})")
-        parts_xyz.append(raw.astype(np.int32))
-        parts.append(arrays)
-    xyz = parts_xyz[0] if len(parts_xyz) == 1 else np.concatenate(parts_xyz)
+    from ..core.kernels.records import las_xyz
+    from ..io.las import record_arrays
+
+    total = sum(int(n) for _, _, n, _ in pieces)
+    scale, offset = (np.zeros(3), np.zeros(3)) if decode is None else (np.asarray(a, dtype=np.float64) for a in decode)
+    ints = np.empty((0 if decode else total, 3), dtype=np.int32)
+    coords = np.empty((total if decode else 0, 3), dtype=np.float64)
+    pool = ThreadPoolExecutor(2) if parallel else None  # the attributes beside X, Y, Z (both release the GIL)
+    parts, mins, maxs = [], [], []
+    at = 0
+    try:
+        for path, first, n, factors in pieces:
+            rec, offs, points = _read_piece(path, int(first), int(n), parallel)
+            mult, add = np.asarray(factors, dtype=np.int64)  # exact: integer factors (see las_plan)
+            lo, hi = np.full(3, np.iinfo(np.int64).max), np.full(3, np.iinfo(np.int64).min)
+            end = at + int(n)
+            if pool is None:
+                las_xyz(rec, offs, mult, add, scale, offset, ints[at:end], coords[at:end], 0, int(n), lo, hi)
+                parts.append(record_arrays(points, names))
+            else:
+                xyz = pool.submit(las_xyz, rec, offs, mult, add, scale, offset, ints[at:end], coords[at:end], 0,
+                                  int(n), lo, hi)
+                parts.append(dict(zip(names, pool.map(lambda name: record_arrays(points, [name])[name], names))))
+                xyz.result()
+            at = end
+            mins.append(lo)
+            maxs.append(hi)
+            if np.any(lo < _INT32[0]) or np.any(hi > _INT32[1]):
+                raise InputFormatError(f"{path}: re-quantised to the cloud's scale and offset, its coordinates do "
+                                       f"not fit LAS int32 (points {first} to {first + n - 1})")
+    finally:
+        if pool is not None:
+            pool.shutdown()
     block = {name: parts[0][name] if len(parts) == 1 else np.concatenate([p[name] for p in parts]) for name in names}
-    return xyz, block, np.min(mins, axis=0), np.max(maxs, axis=0)
+    return coords if decode else ints, block, np.min(mins, axis=0), np.max(maxs, axis=0)
 
 
-def _read_piece(path: str, first: int, n: int, names: list[str], parallel: bool) -> tuple[np.ndarray, dict]:
-    """Points ``first .. first + n - 1`` of the LAS/LAZ file *path*: raw X, Y, Z (n, 3) int64 and the attributes
-    (LAZ decoded on every core when *parallel*)."""
+def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarray, np.ndarray, object]:
+    """Points ``first .. first + n - 1`` of the LAS/LAZ file *path*: the records (n, size) uint8, the byte
+    offsets (3,) of X, Y, Z in a record, and laspy's record (LAZ decoded on every core when *parallel*)."""
     import laspy
 
-    from ..io.las import decode_error, record_arrays
+    from ..io.las import decode_error
     from ..io.las_checks import QUIET_READS
 
     # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
@@ -91,11 +113,9 @@ def _read_piece(path: str, first: int, n: int, names: list[str], parallel: bool)
     if len(points) != n:
         raise CorruptInputError(f"{path}: the header says {first + n} points or more but only {first + len(points)} "
                                 f"could be read (truncated or corrupt)")
-    array = points.array
-    raw = np.empty((n, 3), dtype=np.int64)
-    for i, dim in enumerate(("X", "Y", "Z")):
-        raw[:, i] = array[dim]
-    return raw, record_arrays(points, names)
+    array = np.ascontiguousarray(points.array)
+    offs = np.array([array.dtype.fields[dim][1] for dim in ("X", "Y", "Z")], dtype=np.int64)
+    return array.view(np.uint8).reshape(n, array.dtype.itemsize), offs, points
 
 
 def _seek(reader, first: int) -> None:

@@ -1,0 +1,47 @@
+"""Compiled kernel of the LAS records' coordinates (numba; private: inputs are assumed valid).
+
+Written here because numpy reads a field of a structured array (a record's
+stride apart) through its generic strided loop, one element at a time:
+X, Y, Z of 10 M records copied into an (n, 3) int64 array, re-quantised,
+cast to int32 and decoded to float64 took 1.8 s on one core (0.76 s of
+it the copy), against 0.1-0.2 s for one pass over the record bytes here
+(docs/benchmarks.md). laspy keeps the records as bytes; no library reads
+three fields of them into one array.
+
+:func:`las_xyz` takes a range of rows, so the caller may run disjoint ranges
+on threads (``nogil``); the result does not depend on the ranges.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["las_xyz"]
+
+
+@njit(cache=True, nogil=True)
+def las_xyz(rec, offs, mult, add, scale, offset, ints, coords, s, e, lo, hi):
+    """Rows s..e-1 of the records *rec* (n, size) uint8: X, Y, Z the little-endian int32 at the byte
+    offsets ``offs`` (3,) int64, re-quantised ``v = X * mult + add`` (int64, (3,) each).
+
+    Written to *ints* (n, 3) int32 when *coords* has no rows, else to *coords* (n, 3) float64 as
+    ``v * scale + offset`` (the store's decoding: numpy's ``np.multiply(raw, scale) + offset``, the same
+    two roundings). *lo*, *hi* (3,) int64 take the extremes of v over the rows (min / max with their
+    values on entry); a v outside int32 is written truncated (the caller checks lo and hi).
+    """
+    decode = coords.shape[0] > 0
+    for i in range(s, e):
+        for j in range(3):
+            o = offs[j]
+            u = (np.uint32(rec[i, o]) | (np.uint32(rec[i, o + 1]) << np.uint32(8))
+                 | (np.uint32(rec[i, o + 2]) << np.uint32(16)) | (np.uint32(rec[i, o + 3]) << np.uint32(24)))
+            v = np.int64(np.int32(u)) * mult[j] + add[j]
+            if v < lo[j]:
+                lo[j] = v
+            if v > hi[j]:
+                hi[j] = v
+            if decode:
+                coords[i, j] = np.float64(v) * scale[j] + offset[j]
+            else:
+                ints[i, j] = np.int32(v)
