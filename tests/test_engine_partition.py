@@ -344,3 +344,14 @@ def test_the_sample_taken_while_ingesting_is_the_one_read_from_the_store(tmp_pat
     taken = P.IngestSample(cell_size=2_000, seed=5)
     st = ingest(txt, tmp_path / "b.zarr", chunk_size=1_000, drop_invalid=True, on_chunk=taken)
     assert st.count == 4_999 and taken.sample(st.count) is None
+
+
+def test_label_points_on_threads_gives_the_labels_and_pairs_of_one_thread(monkeypatch):
+    monkeypatch.setattr(L, "LABEL_BLOCK", 1_000)  # many blocks
+    rng = np.random.default_rng(7)
+    xyz = rng.random((20_500, 3)) * [100.0, 50.0, 5.0]
+    centers = np.ascontiguousarray(xyz[rng.choice(len(xyz), 12, replace=False)])
+    one = L.label_points(centers, xyz, 2.0)
+    two = L.label_points(centers, xyz, 2.0, threads=2)
+    assert one[0].tolist() == two[0].tolist() and one[1].tolist() == two[1].tolist()
+    assert len(one[1]) and one[0].tolist() == L.label_block(centers, xyz, 2.0)[0].tolist()

@@ -102,17 +102,27 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
     return labels, pairs
 
 
-def label_points(centers: np.ndarray, xyz: np.ndarray, margin: float, halo: bool = True) -> tuple[np.ndarray,
-                                                                                                 np.ndarray]:
-    """:func:`label_block` of *xyz* ``LABEL_BLOCK`` points at a time (each point's label is its own): the
-    labels (n,) and the distinct halo pairs (q, 2) of all the blocks."""
+def label_points(centers: np.ndarray, xyz: np.ndarray, margin: float, halo: bool = True,
+                 threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`label_block` of *xyz* ``LABEL_BLOCK`` points at a time, the blocks on *threads* threads (each
+    point's label is its own, so neither changes a label): the labels (n,) and the distinct halo pairs
+    (q, 2) of all the blocks."""
     tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
     labels = np.empty(len(xyz), dtype=np.int64)
-    pairs = [np.empty((0, 2), dtype=np.int64)]
-    for a in range(0, len(xyz), LABEL_BLOCK):
+
+    def block(a: int) -> np.ndarray:
         labels[a : a + LABEL_BLOCK], got = label_block(centers, xyz[a : a + LABEL_BLOCK], margin, tree, halo)
-        pairs.append(got)
-    return labels, np.unique(np.concatenate(pairs, axis=0), axis=0)
+        return got
+
+    starts = range(0, len(xyz), LABEL_BLOCK)
+    if threads > 1 and len(starts) > 1:  # the tree's queries release the GIL
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(int(threads), len(starts))) as pool:
+            pairs = list(pool.map(block, starts))
+    else:
+        pairs = [block(a) for a in starts]
+    return labels, np.unique(np.concatenate([np.empty((0, 2), dtype=np.int64), *pairs], axis=0), axis=0)
 
 
 def label_chunk(

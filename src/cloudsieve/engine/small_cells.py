@@ -42,8 +42,11 @@ class Cells:
                  r_max: float, margin: float) -> None:
         self.labels, self.centers, self.r_max, self.margin = labels, centers, r_max, margin
         self.halo_ptr, self.halo_src = halo_ptr, halo_src
-        order = np.argsort(labels, kind="stable")  # each cell's points in input order
-        bounds = np.searchsorted(labels[order], np.arange(len(centers) + 1))
+        # each cell's points in input order (numpy's stable sort of 16-bit keys is a radix sort: 0.07 s for
+        # 10 M labels, against 0.3-0.7 s for int64 ones)
+        keys = labels.astype(np.uint16) if len(centers) <= 2**16 else labels
+        order = np.argsort(keys, kind="stable")
+        bounds = np.r_[0, np.cumsum(np.bincount(labels, minlength=len(centers)))]
         self.members = [order[bounds[j] : bounds[j + 1]] for j in range(len(centers))]
 
     @property
@@ -75,7 +78,7 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> C
     if p > 1:  # as the label tasks (each point's label is its own: the store's chunks do not matter)
         from .label import label_points
 
-        labels, pairs = label_points(centers, xyz, margin)
+        labels, pairs = label_points(centers, xyz, margin, threads=os.cpu_count() or 1)
     halo_ptr = np.zeros(p + 1, dtype=np.int64)
     np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
     return Cells(labels, centers, halo_ptr, pairs[:, 1].astype(np.int64), r_max, margin)
