@@ -68,10 +68,12 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> C
     p = n_cells_for(n, opts["cell_size"])
     seed = opts["seed"]
     sample = xyz[plan_sample(n, p, seed)]
-    centers = fit_centers(sample, p, seed, origin)
-    k = int(neighbour_count(opts["cluster_size"], opts["k0"], opts["k_min"]))
-    margin = estimate_margin(sample - origin, n, k, seed)[2] if p > 1 else 0.0
-    r_max = global_radius(sample, n, int(target))
+    with ThreadPoolExecutor(1) as side:  # the centres beside the margin and r_max: each a function of the sample
+        centers = side.submit(fit_centers, sample, p, seed, origin)
+        k = int(neighbour_count(opts["cluster_size"], opts["k0"], opts["k_min"]))
+        margin = estimate_margin(sample - origin, n, k, seed)[2] if p > 1 else 0.0
+        r_max = global_radius(sample, n, int(target))
+        centers = centers.result()
     if math.isfinite(r_max):
         margin = max(margin, ELIMINATE_RADII * r_max)
     labels, pairs = np.zeros(n, dtype=np.int64), np.empty((0, 2), dtype=np.int64)

@@ -62,6 +62,8 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
     ints = np.empty((0 if decode else total, 3), dtype=np.int32)
     coords = np.empty((total if decode else 0, 3), dtype=np.float64)
     pool = ThreadPoolExecutor(2) if parallel else None  # the attributes beside X, Y, Z (both release the GIL)
+    if pool is not None:
+        pool.submit(_first_call)  # while the LAZ decodes
     parts, mins, maxs = [], [], []
     at = 0
     try:
@@ -89,6 +91,15 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
             pool.shutdown()
     block = {name: parts[0][name] if len(parts) == 1 else np.concatenate([p[name] for p in parts]) for name in names}
     return coords if decode else ints, block, np.min(mins, axis=0), np.max(maxs, axis=0)
+
+
+def _first_call() -> None:
+    """:func:`las_xyz` on no rows: numba's first call in a process (0.3 s: its registries)."""
+    from ..core.kernels.records import las_xyz
+
+    i64 = np.zeros(3, dtype=np.int64)
+    las_xyz(np.zeros((0, 16), dtype=np.uint8), i64, i64, i64, np.zeros(3), np.zeros(3), np.zeros((0, 3), dtype=np.int32),
+            np.zeros((0, 3)), 0, 0, i64.copy(), i64.copy())
 
 
 def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarray, np.ndarray, object]:
