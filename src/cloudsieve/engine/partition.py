@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -277,17 +278,20 @@ def build_partition(
         parts = run(sample_chunk, args, "partition: sample")
         sample = np.concatenate(parts, axis=0) if parts else np.empty((0, 3))
     origin = np.asarray(store.bounds[0], dtype=np.float64)
-    centers = fit_centers(sample, p, seed, origin)
-    k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
-    if p > 1:
-        r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
-    else:  # one cell has no halo: no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
-        r_k, dim, margin = 0.0, 3.0, 0.0
-    r_max = None
-    if eliminate_target is not None:
-        from ..core.radius import global_radius
+    with ThreadPoolExecutor(1) as side:  # the centres beside the margin and r_max: each a function of the sample
+        centers = side.submit(fit_centers, sample, p, seed, origin)
+        k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
+        if p > 1:
+            r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+        else:  # one cell has no halo: no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
+            r_k, dim, margin = 0.0, 3.0, 0.0
+        r_max = None
+        if eliminate_target is not None:
+            from ..core.radius import global_radius
 
-        r_max = global_radius(sample, n, int(eliminate_target))
+            r_max = global_radius(sample, n, int(eliminate_target))
+        centers = centers.result()
+    if r_max is not None:
         if math.isfinite(r_max):
             margin = max(margin, ELIMINATE_RADII * r_max)
         logger.info("partition: eliminate %d of %d points, r_max %.4g, margin %.4g", eliminate_target, n, r_max,
