@@ -16,6 +16,7 @@ from conftest import LAS_FILES, shared_file
 
 from cloudsieve.core.kernels.records import las_xyz
 from cloudsieve.errors import InputFormatError
+from cloudsieve.store import las_read
 from cloudsieve.store.las_read import decode_xyz, read_pieces
 
 # a record with X, Y, Z not at the start, and a size no multiple of 4
@@ -70,7 +71,7 @@ def test_the_integers_are_re_quantised_in_int64():
 
 
 @pytest.mark.parametrize("name", ["autzen_trim.laz", "simple.las", "extrabytes.las", "1_4_w_evlr.laz"])
-def test_read_pieces_gives_laspys_records(name):
+def test_read_pieces_gives_laspys_records(name, monkeypatch):
     assert name in LAS_FILES
     path = shared_file(name)
     las = laspy.read(path)
@@ -85,17 +86,21 @@ def test_read_pieces_gives_laspys_records(name):
     for x in names:
         assert np.asarray(attrs[x]).tolist() == np.asarray(las[x]).tolist()
     scale, offset = np.asarray(las.header.scales), np.asarray(las.header.offsets)
+    monkeypatch.setattr(las_read, "THREADED_POINTS", 1)  # the attributes on threads beside X, Y, Z
     coords, attrs2, lo2, hi2 = read_pieces(pieces, names, parallel=True, decode=(scale, offset))
     assert coords.view(np.uint64).tolist() == decode_xyz(ints, scale, offset).view(np.uint64).tolist()
     assert lo2.tolist() == lo.tolist() and hi2.tolist() == hi.tolist()
     assert all(np.array_equal(attrs2[x], attrs[x]) for x in names)
 
 
-def test_integers_beyond_int32_after_re_quantising_name_the_file_and_points():
+@pytest.mark.parametrize("threaded", [False, True])
+def test_integers_beyond_int32_after_re_quantising_name_the_file_and_points(threaded, monkeypatch):
+    if threaded:
+        monkeypatch.setattr(las_read, "THREADED_POINTS", 1)
     path = shared_file("simple.las")
     n = laspy.read(path).header.point_count
     pieces = [(path, 0, 10, ((1, 1, 1), (0, 0, 0))), (path, 10, n - 10, ((1, 2**20, 1), (0, 0, 0)))]
     with pytest.raises(InputFormatError, match=re.escape(
             f"{path}: re-quantised to the cloud's scale and offset, its coordinates do not fit LAS int32 "
             f"(points 10 to {n - 1})")):
-        read_pieces(pieces, [], parallel=True)
+        read_pieces(pieces, ["intensity"], parallel=True)

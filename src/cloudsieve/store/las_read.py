@@ -16,6 +16,8 @@ from ..errors import CorruptInputError, InputFormatError
 __all__ = ["read_pieces", "decode_xyz"]
 
 _INT32 = (-(2**31), 2**31 - 1)
+#: a read of at least this many points on every core (``parallel``) runs the attributes on threads
+THREADED_POINTS = 1_000_000
 
 
 def decode_xyz(raw: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
@@ -61,9 +63,11 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
     scale, offset = (np.zeros(3), np.zeros(3)) if decode is None else (np.asarray(a, dtype=np.float64) for a in decode)
     ints = np.empty((0 if decode else total, 3), dtype=np.int32)
     coords = np.empty((total if decode else 0, 3), dtype=np.float64)
-    pool = ThreadPoolExecutor(2) if parallel else None  # the attributes beside X, Y, Z (both release the GIL)
+    # the attributes beside X, Y, Z on threads (both release the GIL), numba's first call while the LAZ decodes;
+    # not for a small input, whose run is mostly Python's (simple.las: 0.05 s slower on threads)
+    pool = ThreadPoolExecutor(2) if parallel and total >= THREADED_POINTS else None
     if pool is not None:
-        pool.submit(_first_call)  # while the LAZ decodes
+        pool.submit(_first_call)
     parts, mins, maxs = [], [], []
     at = 0
     try:
