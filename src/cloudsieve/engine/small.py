@@ -51,8 +51,8 @@ SCHEDULER = "in memory"
 #: the output formats a small run writes (COPC and tiles are built from a store)
 _WRITTEN = ("las", "laz", "ply", "xyz")
 #: at most this many input points run in memory. Measured (docs/benchmarks.md, benchmarks/small.py, make_scan
-#: LAZ, ``--ratio 0.5``, 2 cores): in memory 8.2 s and 720 MiB at 5 M points, 16.3-17.9 s and 1,089 MiB at 10 M,
-#: against 10.7-11.6 s / 1,377 MiB and 19.0-24.5 s / 1,362 MiB for the local process pool. Faster at every size
+#: LAZ, ``--ratio 0.5``, 2 cores): in memory 8.2 s and 720 MiB at 5 M points, 13.3-14.9 s and 1,060 MiB at 10 M,
+#: against 10.7-11.6 s / 1,377 MiB and 17.0-17.7 s / 1,300 MiB for the local process pool. Faster at every size
 #: and, up to 10 M points, in less memory than the pool: the whole cloud is held (about 0.1 GB a million points
 #: above the kernels' 0.3 GB), where the out-of-core run holds cells only, so the limit is one of memory
 IN_MEMORY_POINTS = 10_000_000
