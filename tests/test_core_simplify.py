@@ -85,3 +85,24 @@ def test_threads_do_not_change_results(method):
     a = simplify_points(pts, method=method, cluster_size=200, seed=1, threads=1)
     b = simplify_points(pts, method=method, cluster_size=200, seed=1, threads=2)
     assert np.array_equal(a, b)
+
+
+def test_the_point_check_against_the_rows_test():
+    """check_points takes a finite sum for every coordinate finite: the rows' test (the obvious oracle) on
+    NaN, +-inf, an inf beside a -inf (their sum NaN) and finite coordinates whose sum overflows."""
+    import warnings
+
+    from cloudsieve.core._validation import check_points
+    from cloudsieve.errors import InvalidPointsError
+
+    big = np.full((4, 3), 1e308)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warning either
+        assert check_points(big) is big
+    for row, bad in ((0, [np.inf, -np.inf, 0.0]), (2, [0.0, np.nan, 0.0]), (3, [1e308, 1e308, -np.inf])):
+        pts = big.copy()
+        pts[row] = bad
+        assert (~np.isfinite(pts).all(axis=1)).sum() == 1
+        with pytest.raises(InvalidPointsError, match=rf"points has 1 non-finite \(NaN or infinite\) rows, the first at index {row}"):
+            check_points(pts)
+    assert check_points(np.zeros((0, 3))).shape == (0, 3)

@@ -83,6 +83,10 @@ def check_points(points, name: str = "points") -> np.ndarray:
     if not np.issubdtype(pts.dtype, np.number) or np.iscomplexobj(pts):
         raise InvalidParameterError(f"{name} must be real numbers, got dtype {pts.dtype}")
     pts = np.ascontiguousarray(pts, dtype=np.float64)
+    with np.errstate(over="ignore", invalid="ignore"):
+        total = np.add.reduce(pts, axis=None)
+    if np.isfinite(total):  # NaN and inf carry through a sum: every coordinate finite (1.5 ms for 1 M points,
+        return pts  # against 13 ms for the rows' test; a sum that overflows tests the rows)
     bad = ~np.isfinite(pts).all(axis=1)
     if bad.any():
         first = int(np.flatnonzero(bad)[0])
