@@ -103,6 +103,7 @@ def test_the_point_check_against_the_rows_test():
         pts = big.copy()
         pts[row] = bad
         assert (~np.isfinite(pts).all(axis=1)).sum() == 1
-        with pytest.raises(InvalidPointsError, match=rf"points has 1 non-finite \(NaN or infinite\) rows, the first at index {row}"):
+        want = rf"points has 1 non-finite \(NaN or infinite\) rows, the first at index {row}:"
+        with pytest.raises(InvalidPointsError, match=want):
             check_points(pts)
     assert check_points(np.zeros((0, 3))).shape == (0, 3)
