@@ -4,7 +4,7 @@ Written here because numpy reads a field of a structured array (a record's
 stride apart) through its generic strided loop, one element at a time:
 X, Y, Z of 10 M records copied into an (n, 3) int64 array, re-quantised,
 cast to int32 and decoded to float64 took 1.8 s on one core (0.76 s of
-it the copy), against 0.1-0.2 s for one pass over the record bytes here
+it the copy), against 0.06-0.08 s for one pass over the record bytes here
 (docs/benchmarks.md). laspy keeps the records as bytes; no library reads
 three fields of them into one array.
 
