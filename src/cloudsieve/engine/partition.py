@@ -69,6 +69,7 @@ __all__ = [
     "IngestSample",
     "fit_centers",
     "estimate_margin",
+    "fit_sample",
     "build_partition",
     "reusable_partition",
 ]
@@ -230,6 +231,28 @@ def row_layout(chunk_size: int) -> tuple[int, int]:
     return -(-chunk_size // inner) * inner, inner
 
 
+def fit_sample(sample: np.ndarray, n: int, n_cells: int, seed: int, origin: np.ndarray, k: int,
+               eliminate_target: int | None) -> tuple[np.ndarray, tuple[float, float, float], float | None]:
+    """What the partition draws from its sample of a cloud of *n* points: the centres (:func:`fit_centers`),
+    ``(r_k, dimension, margin)`` (:func:`estimate_margin`; zeros for one cell, which has no halo) and r_max
+    for *eliminate_target* (None without), the margin then at least ``ELIMINATE_RADII`` r_max. The K-means
+    runs on a second thread beside the margin and r_max (each a function of the sample alone)."""
+    with ThreadPoolExecutor(1) as side:
+        centers = side.submit(fit_centers, sample, n_cells, seed, origin)
+        if n_cells > 1:
+            r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
+        else:  # no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
+            r_k, dim, margin = 0.0, 3.0, 0.0
+        r_max = None
+        if eliminate_target is not None:
+            from ..core.radius import global_radius
+
+            r_max = global_radius(sample, n, int(eliminate_target))
+            if math.isfinite(r_max):
+                margin = max(margin, ELIMINATE_RADII * r_max)
+        return centers.result(), (r_k, dim, margin), r_max
+
+
 def build_partition(
     store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True,
     eliminate_target: int | None = None, sample: np.ndarray | None = None,
@@ -278,22 +301,9 @@ def build_partition(
         parts = run(sample_chunk, args, "partition: sample")
         sample = np.concatenate(parts, axis=0) if parts else np.empty((0, 3))
     origin = np.asarray(store.bounds[0], dtype=np.float64)
-    with ThreadPoolExecutor(1) as side:  # the centres beside the margin and r_max: each a function of the sample
-        centers = side.submit(fit_centers, sample, p, seed, origin)
-        k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
-        if p > 1:
-            r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
-        else:  # one cell has no halo: no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
-            r_k, dim, margin = 0.0, 3.0, 0.0
-        r_max = None
-        if eliminate_target is not None:
-            from ..core.radius import global_radius
-
-            r_max = global_radius(sample, n, int(eliminate_target))
-        centers = centers.result()
+    k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
+    centers, (r_k, dim, margin), r_max = fit_sample(sample, n, p, seed, origin, k, eliminate_target)
     if r_max is not None:
-        if math.isfinite(r_max):
-            margin = max(margin, ELIMINATE_RADII * r_max)
         logger.info("partition: eliminate %d of %d points, r_max %.4g, margin %.4g", eliminate_target, n, r_max,
                     margin)
     logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)

@@ -5,11 +5,9 @@ out-of-core run's stages 2 and 3 on it with the same functions, in the same
 order, so the kept set is the work store's (tests/test_engine_small.py):
 
 1. the partition (:func:`partition`): the uniform sample
-   (:func:`~.sample.plan_sample`), its K-means centres
-   (:func:`~.partition.fit_centers`), the margin
-   (:func:`~.partition.estimate_margin`, at least
-   :data:`~.partition.ELIMINATE_RADII` r_max), r_max
-   (:func:`~cloudsieve.core.radius.global_radius`), and every point's cell and the
+   (:func:`~.sample.plan_sample`), its K-means centres, the margin (at least
+   :data:`~.partition.ELIMINATE_RADII` r_max) and r_max
+   (:func:`~.partition.fit_sample`), and every point's cell and the
    cells' halo sources (:func:`~.label.label_points`, as a label task labels
    its chunk);
 2. the shares (:func:`~cloudsieve.core.packing.packing_ladder`) and bands
@@ -60,22 +58,15 @@ class Cells:
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> Cells:
     """:func:`~.partition.build_partition` of the eliminate rule (a halo, r_max for *target*) on *xyz*."""
     from ..core import neighbour_count
-    from ..core.radius import global_radius
-    from .partition import ELIMINATE_RADII, estimate_margin, fit_centers
+    from .partition import fit_sample
     from .sample import n_cells_for, plan_sample
 
     n = len(xyz)
     p = n_cells_for(n, opts["cell_size"])
     seed = opts["seed"]
     sample = xyz[plan_sample(n, p, seed)]
-    with ThreadPoolExecutor(1) as side:  # the centres beside the margin and r_max: each a function of the sample
-        centers = side.submit(fit_centers, sample, p, seed, origin)
-        k = int(neighbour_count(opts["cluster_size"], opts["k0"], opts["k_min"]))
-        margin = estimate_margin(sample - origin, n, k, seed)[2] if p > 1 else 0.0
-        r_max = global_radius(sample, n, int(target))
-        centers = centers.result()
-    if math.isfinite(r_max):
-        margin = max(margin, ELIMINATE_RADII * r_max)
+    k = int(neighbour_count(opts["cluster_size"], opts["k0"], opts["k_min"]))
+    centers, (_, _, margin), r_max = fit_sample(sample, n, p, seed, origin, k, int(target))
     labels, pairs = np.zeros(n, dtype=np.int64), np.empty((0, 2), dtype=np.int64)
     if p > 1:  # as the label tasks (each point's label is its own: the store's chunks do not matter)
         from .label import label_points
