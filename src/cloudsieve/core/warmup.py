@@ -58,13 +58,11 @@ def _merge_scatter() -> None:
 
 def _common() -> None:
     from .kernels.copies import first_equal
-    from .kernels.records import las_xyz
+    from .kernels.records import first_call
 
     P = _points(24)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
-    i64, f64 = np.zeros(3, dtype=np.int64), np.zeros(3)
-    las_xyz(np.zeros((2, 20), dtype=np.uint8), i64, i64, i64, f64, f64, np.zeros((2, 3), dtype=np.int32),
-            np.zeros((0, 3)), 0, 2, i64.copy(), i64.copy())  # a LAS/LAZ input's X, Y, Z (store/las_read.py)
+    first_call()  # a LAS/LAZ input's X, Y, Z (store/las_read.py)
     _merge_scatter()
 
 

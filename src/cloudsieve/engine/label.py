@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..core.kernels.closest import nearest_sites, site_tree
+from ..core.kernels.threads import Chunks
 
 __all__ = ["label_block", "label_points", "label_chunk", "HALO_NEIGHBOURS", "LABEL_BLOCK"]
 
@@ -115,13 +116,8 @@ def label_points(centers: np.ndarray, xyz: np.ndarray, margin: float, halo: bool
         return got
 
     starts = range(0, len(xyz), LABEL_BLOCK)
-    if threads > 1 and len(starts) > 1:  # the tree's queries release the GIL
-        from concurrent.futures import ThreadPoolExecutor
-
-        with ThreadPoolExecutor(min(int(threads), len(starts))) as pool:
-            pairs = list(pool.map(block, starts))
-    else:
-        pairs = [block(a) for a in starts]
+    with Chunks(min(int(threads), len(starts))) as chunks:  # the tree's queries release the GIL
+        pairs = chunks.each(block, starts)
     return labels, np.unique(np.concatenate([np.empty((0, 2), dtype=np.int64), *pairs], axis=0), axis=0)
 
 

@@ -7,7 +7,8 @@ hold the same integers and attributes.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+import threading
+from functools import partial
 
 import numpy as np
 
@@ -56,54 +57,42 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
     ------
     CorruptInputError, InputFormatError
     """
-    from ..core.kernels.records import las_xyz
+    from ..core.kernels.records import first_call, las_xyz
+    from ..core.kernels.threads import Chunks
     from ..io.las import record_arrays
 
     total = sum(int(n) for _, _, n, _ in pieces)
-    scale, offset = (np.zeros(3), np.zeros(3)) if decode is None else (np.asarray(a, dtype=np.float64) for a in decode)
+    if decode is None:
+        scale, offset = np.zeros(3), np.zeros(3)
+    else:
+        scale, offset = np.asarray(decode[0], dtype=np.float64), np.asarray(decode[1], dtype=np.float64)
     ints = np.empty((0 if decode else total, 3), dtype=np.int32)
     coords = np.empty((total if decode else 0, 3), dtype=np.float64)
     # the attributes beside X, Y, Z on threads (both release the GIL), numba's first call while the LAZ decodes;
     # not for a small input, whose run is mostly Python's (simple.las: 0.05 s slower on threads)
-    pool = ThreadPoolExecutor(2) if parallel and total >= THREADED_POINTS else None
-    if pool is not None:
-        pool.submit(_first_call)
+    threads = 2 if parallel and total >= THREADED_POINTS else 1
+    if threads > 1:
+        threading.Thread(target=first_call, daemon=True, name="cloudsieve-first-call").start()
     parts, mins, maxs = [], [], []
     at = 0
-    try:
+    with Chunks(threads) as chunks:
         for path, first, n, factors in pieces:
             rec, offs, points = _read_piece(path, int(first), int(n), parallel)
             mult, add = np.asarray(factors, dtype=np.int64)  # exact: integer factors (see las_plan)
             lo, hi = np.full(3, np.iinfo(np.int64).max), np.full(3, np.iinfo(np.int64).min)
             end = at + int(n)
-            if pool is None:
-                las_xyz(rec, offs, mult, add, scale, offset, ints[at:end], coords[at:end], 0, int(n), lo, hi)
-                parts.append(record_arrays(points, names))
-            else:
-                xyz = pool.submit(las_xyz, rec, offs, mult, add, scale, offset, ints[at:end], coords[at:end], 0,
-                                  int(n), lo, hi)
-                parts.append(dict(zip(names, pool.map(lambda name: record_arrays(points, [name])[name], names))))
-                xyz.result()
+            jobs = [partial(las_xyz, rec, offs, mult, add, scale, offset, ints[at:end], coords[at:end], 0, int(n),
+                            lo, hi)]
+            jobs += [partial(lambda name: record_arrays(points, [name])[name], name) for name in names]
+            parts.append(dict(zip(names, chunks.each(lambda job: job(), jobs)[1:])))  # [0]: X, Y, Z
             at = end
             mins.append(lo)
             maxs.append(hi)
             if np.any(lo < _INT32[0]) or np.any(hi > _INT32[1]):
                 raise InputFormatError(f"{path}: re-quantised to the cloud's scale and offset, its coordinates do "
                                        f"not fit LAS int32 (points {first} to {first + n - 1})")
-    finally:
-        if pool is not None:
-            pool.shutdown()
     block = {name: parts[0][name] if len(parts) == 1 else np.concatenate([p[name] for p in parts]) for name in names}
     return coords if decode else ints, block, np.min(mins, axis=0), np.max(maxs, axis=0)
-
-
-def _first_call() -> None:
-    """:func:`las_xyz` on no rows: numba's first call in a process (0.3 s: its registries)."""
-    from ..core.kernels.records import las_xyz
-
-    i64 = np.zeros(3, dtype=np.int64)
-    las_xyz(np.zeros((0, 16), dtype=np.uint8), i64, i64, i64, np.zeros(3), np.zeros(3), np.zeros((0, 3), dtype=np.int32),
-            np.zeros((0, 3)), 0, 0, i64.copy(), i64.copy())
 
 
 def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarray, np.ndarray, object]:

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["las_xyz"]
+__all__ = ["las_xyz", "first_call"]
 
 
 @njit(cache=True, nogil=True)
@@ -45,3 +45,11 @@ def las_xyz(rec, offs, mult, add, scale, offset, ints, coords, s, e, lo, hi):
                 coords[i, j] = np.float64(v) * scale[j] + offset[j]
             else:
                 ints[i, j] = np.int32(v)
+
+
+def first_call() -> None:
+    """:func:`las_xyz` on no rows, with the argument types of the real calls: numba's first call in a
+    process (0.3 s: its registries) or the warm-up's compile."""
+    i64 = np.zeros(3, dtype=np.int64)
+    las_xyz(np.zeros((0, 16), dtype=np.uint8), i64, i64, i64, np.zeros(3), np.zeros(3),
+            np.zeros((0, 3), dtype=np.int32), np.zeros((0, 3)), 0, 0, i64.copy(), i64.copy())
