@@ -39,6 +39,11 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip
 .venv/bin/python -m pip install -q -e ".[test,e57]"
 
+# The package's bytecode, written once now, as a non-editable pip install does: an editable install
+# writes it at the first import, and never where PYTHONDONTWRITEBYTECODE is set; then every start
+# compiles ~100 modules from source (a 1,000-point file: 1.16 s median against 0.95 s, measured).
+.venv/bin/python -m compileall -q src
+
 # Compile every numba kernel into numba's on-disk cache now, once (28-45 s on 2 cores), so the
 # first run loads them in about a second instead of compiling them (`cloudsieve warmup --help`).
 .venv/bin/python -m cloudsieve warmup
