@@ -477,12 +477,16 @@ def test_eliminate_cell_checks_its_masks():
 
 
 def test_keep_lowest_is_the_lexsort_oracle_with_ties_and_copies():
-    """keep_lowest (a partition) keeps what sorting by (priority, -index) keeps: ties go to higher indices."""
+    """keep_lowest (a partition, or the minimum's entries when they are exactly the count) keeps what sorting by
+    (priority, -index) keeps: ties go to higher indices. Half the arrays hold -1.0, as an elimination's points
+    left do, the other keys 0 or more."""
     rng = np.random.default_rng(1)
-    for _ in range(200):
+    for t in range(200):
         n = int(rng.integers(1, 50))
         p = rng.integers(0, 5, n).astype(float)
         p[rng.random(n) < 0.2] = np.inf
+        if t % 2:
+            p[rng.random(n) < 0.4] = -1.0
         for count in range(n + 1):
             ref = np.zeros(n, dtype=bool)
             ref[np.lexsort((-np.arange(n), p))[:count]] = True
