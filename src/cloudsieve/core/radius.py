@@ -108,7 +108,9 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     mult = np.bincount(group, minlength=len(lead))
     if len(lead) == 1:  # one spot: every row has its k others (>= k + 1 rows) at distance 0
         return np.zeros(m)
-    q = np.unique(group[:m])  # the distinct rows asked for
+    asked = np.zeros(len(lead), dtype=bool)  # the distinct rows asked for, ascending (np.unique's answer: numpy
+    asked[group[:m]] = True  # 2.4's took 9 ms for 50,000 rows, a mask 0.1 ms)
+    q = np.flatnonzero(asked)
     rows = allp[lead]
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
     d, i = _nearest(rows, q, kk)
@@ -186,7 +188,8 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
     span = float((hi - lo).max())  # > 0: two distinct rows at least
     side, finest = span * math.sqrt(kk / m), max(span * 2.0**-20, 1e-300)  # as CellGrid bounds its side
     for _ in range(OCCUPANCY_STEPS):  # about OCCUPANCY points a cell, as on a surface (the usual cloud)
-        o = m / len(np.unique(_kg.cell_codes(rows, lo, side)))
+        codes = np.sort(_kg.cell_codes(rows, lo, side))  # the occupied cells: 2.4 ms for 50,000, np.unique 12
+        o = m / (np.count_nonzero(codes[1:] != codes[:-1]) + 1)
         if OCCUPANCY / 2 <= o <= 2 * OCCUPANCY:
             break
         side = max(side * math.sqrt(OCCUPANCY / o), finest)
