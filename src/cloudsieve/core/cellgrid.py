@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..chunk import xyz_bounds
+from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from ._validation import check_points as core_check_points
 from .kernels import grid as _kg
@@ -76,7 +76,7 @@ class CellGrid:
             q = points[run]
             order[a:b] = run[np.lexsort((q[:, 2], q[:, 1], q[:, 0]))]
         self.order = order.astype(np.int64)
-        self.P = np.ascontiguousarray(points[order])
+        self.P = take_rows(points, order)
         self.cell = (np.cumsum(new) - 1).astype(np.int64)
         self.cstart = cstart
         self.nstart, self.ncells = _kg.cell_neighbours(sc[new])

@@ -46,7 +46,7 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from ..chunk import xyz_bounds
+from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .colours import cell_colours
@@ -298,7 +298,8 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     def prepare(j: int) -> tuple:
         halos[j] = h, o = halo(j)
         absent = np.r_[np.zeros(len(h), dtype=bool), okind[o] == 0]
-        return _one_thread(_prepare, pts[own[j]], np.concatenate([pts[h], opts[o]]), r_max, absent)
+        return _one_thread(_prepare, take_rows(pts, own[j]), np.concatenate([take_rows(pts, h), opts[o]]), r_max,
+                           absent)
 
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
         # each cell's points a neighbour's halo may hold, all cells at once

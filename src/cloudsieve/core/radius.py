@@ -22,7 +22,7 @@ import math
 import numba
 import numpy as np
 
-from ..chunk import xyz_bounds
+from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .duplicates import first_rows
@@ -78,7 +78,7 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int):
     if n + q > sample:
         pick = np.sort(np.random.default_rng(seed).choice(n + q, sample, replace=False))
         own = pick[pick < n]
-        allp = np.concatenate([pts[own], ctx[pick[pick >= n] - n]])
+        allp = np.concatenate([take_rows(pts, own), ctx[pick[pick >= n] - n]])
         rate = sample / (n + q)
     else:
         allp = np.concatenate([pts, ctx]) if q else pts
@@ -111,7 +111,7 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     asked = np.zeros(len(lead), dtype=bool)  # the distinct rows asked for, ascending (np.unique's answer: numpy
     asked[group[:m]] = True  # 2.4's took 9 ms for 50,000 rows, a mask 0.1 ms)
     q = np.flatnonzero(asked)
-    rows = allp[lead]
+    rows = take_rows(allp, lead)
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
     d, i = _nearest(rows, q, kk)
     is_self = i == q[:, None]  # first unless another distinct row is at a distance that rounds to 0

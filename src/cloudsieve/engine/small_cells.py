@@ -30,6 +30,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
+from ..chunk import take_rows
+
 __all__ = ["Cells", "partition", "eliminate_cells"]
 
 
@@ -94,7 +96,7 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
     shares, distinct = np.zeros((p, len(LADDER))), np.zeros(p, dtype=np.int64)
 
     def share(j: int) -> np.ndarray:  # share_task: the cell's packing sizes and distinct points; its band
-        core = xyz[cells.members[j]]
+        core = take_rows(xyz, cells.members[j])
         if len(core) and math.isfinite(r_max) and p > 1:  # one cell's count is the target: no share to weigh
             shares[j], distinct[j] = packing_ladder(core, r_max)
         elif len(core):
@@ -110,18 +112,18 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
     keep = np.zeros(len(xyz), dtype=bool)
     for j in sorted(range(p), key=lambda j: (colours[j], -len(cells.members[j]), j)):  # apply_task
         own = cells.members[j]
-        core = xyz[own]
+        core = take_rows(xyz, own)
         n = len(core)
         mine = np.full(n, q[j] >= n)
         if 0 < q[j] < n:
             sources = sorted(int(s) for s in cells.halo_sources(j))
             parts = [(s, cells.members[s][bands[s]]) for s in sources if len(bands[s])]
-            rows = [b[halo_mask(xyz[b], {j: c[j], s: c[s]}, j, s, margin)] for s, b in parts]
+            rows = [b[halo_mask(take_rows(xyz, b), {j: c[j], s: c[s]}, j, s, margin)] for s, b in parts]
             src_of = np.concatenate([np.full(len(r), s) for (s, _), r in zip(parts, rows)] + [np.zeros(0, int)])
             rows = np.concatenate(rows + [np.zeros(0, dtype=np.int64)])
             fixed = np.isin(src_of, [s for s in sources if colours[s] < colours[j]])
             halo_keep = fixed & keep[rows]
-            mine = eliminate_cell(core, int(q[j]), r_max, halo=xyz[rows], decided=fixed, halo_keep=halo_keep,
+            mine = eliminate_cell(core, int(q[j]), r_max, halo=take_rows(xyz, rows), decided=fixed, halo_keep=halo_keep,
                                   threads=threads, cell_points=CELL_POINTS)
         if keep_duplicates and n:  # every copy of a kept point too
             mine = mine[first_copies(core)]
