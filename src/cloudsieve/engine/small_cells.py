@@ -31,6 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..chunk import take_rows
+from ..core.kernels.scatter import group_rows
 
 __all__ = ["Cells", "partition", "eliminate_cells"]
 
@@ -42,11 +43,9 @@ class Cells:
                  r_max: float, margin: float) -> None:
         self.labels, self.centers, self.r_max, self.margin = labels, centers, r_max, margin
         self.halo_ptr, self.halo_src = halo_ptr, halo_src
-        # each cell's points in input order (numpy's stable sort of 16-bit keys is a radix sort: 0.07 s for
-        # 10 M labels, against 0.3-0.7 s for int64 ones)
-        keys = labels.astype(np.uint16) if len(centers) <= 2**16 else labels
-        order = np.argsort(keys, kind="stable")
-        bounds = np.r_[0, np.cumsum(np.bincount(labels, minlength=len(centers)))]
+        # each cell's points in input order, counted on the cores (numpy's stable sort of 16-bit labels: 0.11-0.38 s
+        # for 10 M on one)
+        order, bounds = group_rows(labels, len(centers), os.cpu_count() or 1)
         self.members = [order[bounds[j] : bounds[j + 1]] for j in range(len(centers))]
 
     @property

@@ -1,11 +1,13 @@
-"""Rows in input order from rows grouped by label (numba; private, inputs assumed valid)."""
+"""Rows grouped by label and back to input order (numba; private, inputs assumed valid)."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["from_groups"]
+from .threads import Chunks
+
+__all__ = ["from_groups", "group_rows"]
 
 
 @njit(cache=True)
@@ -23,3 +25,38 @@ def from_groups(labels, offset, src):
         out[i] = src[pos[c]]
         pos[c] += 1
     return out
+
+
+@njit(cache=True, nogil=True)
+def _label_counts(labels, start, stop, counts):
+    """counts[c] = rows of [start, stop) with label c."""
+    for i in range(start, stop):
+        counts[labels[i]] += 1
+
+
+@njit(cache=True, nogil=True)
+def _place_rows(labels, start, stop, pos, out):
+    """Each row i of [start, stop), ascending, to ``out[pos[labels[i]]]``, that position then moved on."""
+    for i in range(start, stop):
+        c = labels[i]
+        out[pos[c]] = i
+        pos[c] += 1
+
+
+def group_rows(labels, n_labels: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """``np.argsort(labels, kind="stable")`` of labels in [0, n_labels), and each label's bounds (n_labels + 1,)
+    in it, by counting: each of *threads* ranges of rows counts its labels, then places its rows after
+    the lower ranges' rows of the same label (the same array on any thread count). numpy's stable sort of
+    10 M 16-bit labels took 0.11-0.38 s on one core."""
+    n = len(labels)
+    parts = max(1, min(int(threads), n // 1_000_000 + 1))
+    cuts = np.linspace(0, n, parts + 1).astype(np.int64)
+    counts = np.zeros((parts, n_labels), dtype=np.int64)
+    with Chunks(parts) as chunks:
+        chunks.each(lambda t: _label_counts(labels, cuts[t], cuts[t + 1], counts[t]), range(parts))
+        bounds = np.zeros(n_labels + 1, dtype=np.int64)
+        np.cumsum(counts.sum(axis=0), out=bounds[1:])
+        pos = bounds[:-1] + np.cumsum(counts, axis=0) - counts  # where each range's rows of each label start
+        out = np.empty(n, dtype=np.int64)
+        chunks.each(lambda t: _place_rows(labels, cuts[t], cuts[t + 1], pos[t], out), range(parts))
+    return out, bounds
