@@ -79,9 +79,11 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     k = int(count)
     if k == 0:
         return keep
+    # the k lowest are the minimum's when it occurs k times: an elimination's points left, all -1.0 without their
+    # keys (numpy's partition of that array, half its values equal, took 1.1 ms a 16,384-point cell)
     at_min = p == p.min()
-    if np.count_nonzero(at_min) == k:  # the k lowest are the minimum's: an elimination's points left (all -1.0
-        return at_min  # without their keys). numpy's partition of that half of equal values took 1.1 ms a cell
+    if np.count_nonzero(at_min) == k:
+        return at_min
     v = np.partition(p, k - 1)[k - 1]  # the count-th lowest priority: below it all go in, at it the highest indices
     keep[p < v] = True
     tied = np.flatnonzero(p == v)
