@@ -14,7 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..chunk import take_rows
 from ..core.kernels.closest import nearest_sites, site_tree
+from ..core.kernels.scatter import group_rows
 from ..core.kernels.threads import Chunks
 
 __all__ = ["label_block", "label_points", "label_chunk", "HALO_NEIGHBOURS", "LABEL_BLOCK"]
@@ -148,13 +150,12 @@ def label_chunk(
     xyz = st.read("xyz", start, stop)
     n = len(xyz)
     labels, pairs = label_points(centers, xyz, margin, halo)
-    order = np.argsort(labels, kind="stable")
-    sl = labels[order]
-    heads = np.flatnonzero(np.r_[True, sl[1:] != sl[:-1]]) if n else np.empty(0, np.int64)
-    cells = sl[heads]
-    counts = np.diff(np.r_[heads, n])
+    order, bounds = group_rows(labels, len(centers))  # the chunk's points cell by cell, each cell's in input order
+    sizes = np.diff(bounds)
+    cells = np.flatnonzero(sizes)
+    counts = sizes[cells]
     g["partition/cell"][start:stop] = labels.astype(np.int32)
-    g["partition/xyz"][chunk, :n] = xyz[order]
+    g["partition/xyz"][chunk, :n] = take_rows(xyz, order)
     if len(cells):
         g["partition/label_runs"][chunk, : len(cells)] = np.stack([cells, counts], axis=1).astype(np.int64)
     return pairs, int(len(cells))

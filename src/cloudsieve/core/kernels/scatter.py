@@ -43,13 +43,17 @@ def _place_rows(labels, start, stop, pos, out):
         pos[c] += 1
 
 
+#: rows a thread of :func:`group_rows` takes at least (below, a thread's start costs more than its share)
+GROUP_ROWS = 1_000_000
+
+
 def group_rows(labels, n_labels: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """``np.argsort(labels, kind="stable")`` of labels in [0, n_labels), and each label's bounds (n_labels + 1,)
     in it, by counting: each of *threads* ranges of rows counts its labels, then places its rows after
     the lower ranges' rows of the same label (the same array on any thread count). numpy's stable sort of
     10 M 16-bit labels took 0.11-0.38 s on one core."""
     n = len(labels)
-    parts = max(1, min(int(threads), n // 1_000_000 + 1))
+    parts = max(1, min(int(threads), n // GROUP_ROWS + 1))
     cuts = np.linspace(0, n, parts + 1).astype(np.int64)
     counts = np.zeros((parts, n_labels), dtype=np.int64)
     with Chunks(parts) as chunks:
