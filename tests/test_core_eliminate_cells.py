@@ -37,8 +37,9 @@ def greedy_oracle(P, order, radius):
 
 def test_cells_cover_every_point_once_within_their_boxes():
     P = sheet(20_000, seed=1)
-    idx, starts, boxes = split_cells(P, 3_000)
+    idx, starts, boxes, ordered = split_cells(P, 3_000)
     assert np.array_equal(np.sort(idx), np.arange(len(P)))
+    assert np.array_equal(ordered, P[idx])  # the points moved with their rows
     size = np.diff(starts)
     assert (size <= 3_000).all() and (size > 0).all() and len(size) == 8
     for j in range(len(size)):
@@ -49,12 +50,13 @@ def test_cells_cover_every_point_once_within_their_boxes():
 
 def test_cells_do_not_depend_on_order_unit_or_threads():
     P = sheet(10_000, seed=2) + [5.0, -2.0, 1.0]
-    idx, starts, boxes = split_cells(P, 1_000)
+    idx, starts, boxes, _ = split_cells(P, 1_000)
     cells = [set(idx[starts[j] : starts[j + 1]].tolist()) for j in range(len(starts) - 1)]
     perm = np.random.default_rng(0).permutation(len(P))
-    i2, s2, _ = split_cells(P[perm], 1_000, threads=2)
+    i2, s2, _, q2 = split_cells(P[perm], 1_000, threads=2)
+    assert np.array_equal(q2, P[perm][i2])
     assert [set(perm[i2[s2[j] : s2[j + 1]]].tolist()) for j in range(len(s2) - 1)] == cells
-    i3, s3, b3 = split_cells(P * 1000.0, 1_000)
+    i3, s3, b3, _ = split_cells(P * 1000.0, 1_000)
     assert np.array_equal(i3, idx) and np.array_equal(s3, starts)
     assert np.allclose(b3[np.isfinite(b3)], 1000.0 * boxes[np.isfinite(boxes)])
 
@@ -72,8 +74,10 @@ def test_median_cut_is_the_partition_oracle(seed):
     P = np.c_[np.zeros(m), x, np.zeros(m)]
     idx = rng.permutation(m).astype(np.int64)
     before = idx.copy()
-    v, cut = _kk.median_cut(P, idx, 1, x.min(), x.max(), np.empty(m), np.empty(m, dtype=np.int64),
-                            np.zeros(64, dtype=np.int64))
+    Q = P[idx]
+    v, cut = _kk.median_cut(Q, idx, 1, x.min(), x.max(), np.empty(m), np.empty(m, dtype=np.int64),
+                            np.empty((m, 3)), np.zeros(64, dtype=np.int64))
+    assert np.array_equal(Q, P[idx])  # the points moved with their rows
     vals = x[before]
     assert v == np.partition(vals, m // 2)[m // 2]
     first = vals < v if (vals < v).any() else vals == v
@@ -85,10 +89,10 @@ def test_cells_of_ties_and_copies():
     """Every point on one x: the cut moves to the next axis; a pile of copies stays one cell."""
     rng = np.random.default_rng(3)
     P = np.c_[np.zeros(4_000), rng.random((4_000, 2))]
-    idx, starts, _ = split_cells(P, 1_000)
+    idx, starts, _, _ = split_cells(P, 1_000)
     assert len(starts) - 1 == 4
     pile = np.repeat([[1.0, 2.0, 3.0]], 2_000, axis=0)
-    idx, starts, _ = split_cells(pile, 1_000)
+    idx, starts, _, _ = split_cells(pile, 1_000)
     assert starts.tolist() == [0, 2_000]
 
 
@@ -152,7 +156,7 @@ def test_cells_keep_the_whole_elimination_density_at_their_borders():
     """Kept density within 2 r_max of the k-d cuts against the interior: as the one elimination's, within 5%."""
     rng = np.random.default_rng(7)
     P = np.c_[rng.random((40_000, 2)) * [2.0, 1.0], 0.01 * rng.random(40_000)]
-    idx, starts, boxes = split_cells(P, 5_000)
+    idx, starts, boxes, _ = split_cells(P, 5_000)
     assert len(starts) - 1 == 8
     keep = np.zeros(len(P), dtype=bool)
     keep[eliminate(P, ratio=0.1, cell_points=5_000)] = True

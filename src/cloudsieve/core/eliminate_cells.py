@@ -68,7 +68,7 @@ HALO_RADII = 2.2
 
 
 def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray,
-                                                                              np.ndarray]:
+                                                                              np.ndarray, np.ndarray]:
     """Split *points* (n, 3) into k-d cells of at most *cell_points* points (the halves of a level on
     *threads* threads: the result does not depend on them).
 
@@ -81,11 +81,15 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     boxes : ndarray of shape (C, 2, 3), float64
         Lower and upper corner of each cell's region (+-inf on the cloud's outer sides); the regions tile
         space, touching on the cuts.
+    ordered : ndarray of shape (n, 3), float64
+        ``points[idx]``: each cell's points a contiguous block.
     """
     n = len(points)
     idx = np.arange(n, dtype=np.int64)
+    ordered = np.array(points, dtype=np.float64, order="C")  # moved with idx, cut after cut
     vals = np.empty(n)
     tmp = np.empty(n, dtype=np.int64)
+    tmpq = np.empty((n, 3))
     lo, hi = xyz_bounds(points) if n else (np.zeros(3), np.zeros(3))
 
     def split(node):  # node: (path, s, e, box, lower and upper extent); the halves, or None for a cell
@@ -96,8 +100,8 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
         for axis in np.argsort(-ext, kind="stable"):  # the longest side; if every point ties on it, the next
             if not ext[axis] > 0:
                 return None
-            v, cut = _kk.median_cut(points, idx[s:e], int(axis), a[axis], b[axis], vals[s:e], tmp[s:e],
-                                    np.zeros(4096, dtype=np.int64))
+            v, cut = _kk.median_cut(ordered[s:e], idx[s:e], int(axis), a[axis], b[axis], vals[s:e], tmp[s:e],
+                                    tmpq[s:e], np.zeros(4096, dtype=np.int64))
             mid = s + cut
             if s < mid < e:
                 break
@@ -112,13 +116,13 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     level = [((), 0, n, np.array([[-np.inf] * 3, [np.inf] * 3]), lo, hi)]
     cells = []
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
-        while level:  # the nodes of one level own disjoint ranges of idx, vals, tmp
+        while level:  # the nodes of one level own disjoint ranges of idx, ordered and the scratch
             halves = list(pool.map(split, level))
             cells += [node for node, h in zip(level, halves) if h is None]
             level = [x for h in halves if h is not None for x in h]
     cells.sort(key=lambda c: c[0])  # depth first, lower side first: a pure function of the coordinates
     starts = np.array([c[1] for c in cells] + [n], dtype=np.int64)
-    return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3)
+    return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3), ordered
 
 
 def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
@@ -277,40 +281,40 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     along, 2 fixed, 0 gone: :func:`eliminate_cell`), in the halo of every cell they come near."""
     n = len(pts)
     opts, okind = (np.zeros((0, 3)), np.zeros(0, dtype=np.uint8)) if outer is None else outer
-    idx, starts, boxes = cells
+    # the work runs on the points in cell order (Q: each cell's a block, positions instead of rows): read through
+    # the rows, the input's order (a random one at 1 M points), the bands took 0.04-0.06 s, in order 0.003 s
+    idx, starts, boxes, Q = cells
     ncell = len(starts) - 1
     size = np.diff(starts)
-    cell = np.empty(n, dtype=np.int64)  # the cell of every point
-    cell[idx] = np.repeat(np.arange(ncell), size)
+    cell = np.repeat(np.arange(ncell), size)  # the cell of every position
     margin = HALO_RADII * r_max
     near = _neighbours(boxes, margin)
     colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
-    own = [idx[starts[j] : starts[j + 1]] for j in range(ncell)]
+    own = [slice(starts[j], starts[j + 1]) for j in range(ncell)]
     halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
 
     def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
-        """The cell's halo: rows of *pts* in the other cells' bands (set below, before any prepare), and rows of
+        """The cell's halo: positions in the other cells' bands (set below, before any prepare), and rows of
         *outer*, within the margin."""
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
-        inner = _kk.halo_rows(pts, *bands, near[j], lo, hi)
+        inner = _kk.halo_rows(Q, *bands, near[j], lo, hi)
         return inner, np.flatnonzero(np.all((opts >= lo) & (opts <= hi), axis=1))
 
     def prepare(j: int) -> tuple:
         halos[j] = h, o = halo(j)
         absent = np.r_[np.zeros(len(h), dtype=bool), okind[o] == 0]
-        return _one_thread(_prepare, take_rows(pts, own[j]), np.concatenate([take_rows(pts, h), opts[o]]), r_max,
-                           absent)
+        return _one_thread(_prepare, Q[own[j]], np.concatenate([take_rows(Q, h), opts[o]]), r_max, absent)
 
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
         # each cell's points a neighbour's halo may hold, all cells at once
-        parts = list(pool.map(lambda j: _kk.band_rows(pts, own[j], boxes[j], margin), range(ncell)))
+        parts = list(pool.map(lambda j: _kk.band_rows(Q[own[j]], boxes[j], margin) + starts[j], range(ncell)))
         bands = (np.concatenate(parts), np.r_[0, np.cumsum([len(b) for b in parts])].astype(np.int64))
         prepared = list(pool.map(prepare, range(ncell)))
         distinct = np.array([p[3] for p in prepared])
         if distinct.sum() < target:  # exact copies fill the count, as in one elimination (they go first, so are
             distinct = size  # kept last)
         q = kept_counts(ladder_shares(np.array([p[2] for p in prepared]), target), distinct, target)
-        keep = np.zeros(n, dtype=bool)
+        keep = np.zeros(n, dtype=bool)  # by position
         done = {}
 
         def one(j: int) -> None:
@@ -321,7 +325,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             lower = colour[cell[h]] < colour[j]
             kind = np.r_[np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8), okind[o]]
             grid, lists = prepared[j][:2]
-            keep[own[j]] = _one_thread(_finish, len(own[j]), grid, lists, kind, r_max, int(q[j]), steps)
+            keep[own[j]] = _one_thread(_finish, int(size[j]), grid, lists, kind, r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
@@ -331,4 +335,6 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             done[j] = pool.submit(one, j)
         for f in done.values():
             f.result()
-    return keep
+    out = np.empty(n, dtype=bool)
+    out[idx] = keep
+    return out
