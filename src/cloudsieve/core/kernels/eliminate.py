@@ -50,7 +50,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .cover import add_gain, fbound, gain, resume_at, take_alt, unlink
+from .cover import add_gain, falloff, fbound, gain, resume_at, take_alt, unlink
 from .neighbours import list_nearest, term_weight
 
 # The helpers here, in .cover and .neighbours (list_nearest, term_weight) and .grid.nearest are plain calls, not
@@ -87,7 +87,7 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
     c2 *= imp2[x]
     f = 1.0
     if rc2 > 0 and e2 > rc2:
-        f = (rc2 / e2) ** (0.5 * gamma)
+        f = falloff(rc2 / e2, gamma)
     return f / (1.0 + lam * c2 * inv_r2)
 
 
