@@ -114,17 +114,9 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     rows = take_rows(allp, lead)
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
     d, i = _nearest(rows, q, kk)
-    is_self = i == q[:, None]  # first unless another distinct row is at a distance that rounds to 0
-    drop = np.where(is_self.any(axis=1), np.argmax(is_self, axis=1), kk - 1)
-    other = np.ones((len(q), kk), dtype=bool)
-    other[np.arange(len(q)), drop] = False
-    d, i = d[other].reshape(len(q), kk - 1), i[other].reshape(len(q), kk - 1)
-    need = k - (mult[q] - 1)  # others still needed after the copies at distance 0
-    cum = np.cumsum(mult[i], axis=1)
-    # a row whose copies already make k others (need <= 0) is at distance 0; the others reach need
-    col = np.argmax(cum >= np.maximum(need, 1)[:, None], axis=1)
     out = np.zeros(len(lead))
-    out[q] = np.where(need > 0, d[np.arange(len(q)), col], 0.0)
+    out[q] = _kg.kth_others(d, i, q, mult, k)  # self: first unless another distinct row is at a distance that
+    # rounds to 0; a row whose copies already make k others is at distance 0
     return out[group[:m]]
 
 
@@ -207,9 +199,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
         at, g = at[o], g[o]
         dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2,
                                           numba.get_num_threads())
-        sure = status == 0
-        d[at[sure]] = np.sqrt(dd[sure])
-        i[at[sure]] = np.where(ii[sure] >= 0, grid.order[ii[sure]], -1)
+        _kg.store_sure(d, i, at, dd, ii, status, grid.order)
         unsure = np.flatnonzero(status == 1)  # to the grid that surely covers its k-th distance so far
         far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 4 times coarser
         with np.errstate(divide="ignore"):
