@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from cloudsieve.core.cellgrid import CellGrid
 from cloudsieve.core.eliminate import eliminate, relocate
 from cloudsieve.core.elimination import COVER_GAMMA, COVER_LAMBDA, COVER_RADIUS, keep_lowest
 from cloudsieve.core.eliminate_cells import eliminate_cell
@@ -444,7 +445,8 @@ def test_point_areas_are_those_of_the_kd_tree(n, q, sample, piles):
 def _geometry(name: str, n: int, rng) -> np.ndarray:
     """Clouds that take each way of the radius's grid k-NN: a surface (one grid), a volume and a line (the
     first grid's side guessed again), a dense spot (crowded cells on finer grids), far outliers (coarser
-    grids, then the few searched against every row), and a lattice (ties at every distance)."""
+    grids, then the few searched against every row), and a lattice (ties at every distance), also at map
+    coordinates."""
     u = rng.random((n, 3))
     if name == "surface":
         return np.c_[u[:, :2] * 100, np.sin(u[:, 0] * 6)]
@@ -456,10 +458,12 @@ def _geometry(name: str, n: int, rng) -> np.ndarray:
         return np.r_[u[: n // 2] * [100, 100, 1], u[n // 2 :] * 0.01 + 50]
     if name == "outliers":
         return np.r_[u[:-100] * [100, 100, 1], u[-100:] * 1e5]
+    if name == "utm":  # a lattice at map coordinates: the grid's gaps to skip cells far from its corner's zero
+        return np.round(u * [30, 30, 2], 2) + [637_000.0, 849_000.0, 400.0]
     return np.round(u * [30, 30, 2], 1)  # lattice
 
 
-@pytest.mark.parametrize("name", ["surface", "volume", "line", "spot", "outliers", "lattice"])
+@pytest.mark.parametrize("name", ["surface", "volume", "line", "spot", "outliers", "lattice", "utm"])
 def test_point_areas_on_every_way_of_the_grid_are_the_kd_tree_s(name):
     """The radius's k-NN on the elimination's grids gives cKDTree's 9th distance bit for bit whichever grids
     each point needs (the oracle: scipy's tree)."""
@@ -470,6 +474,22 @@ def test_point_areas_on_every_way_of_the_grid_are_the_kd_tree_s(name):
     d = cKDTree(pts).query(pts, k=9)[0][:, 8]
     assert areas.tolist() == (np.pi * np.square(d) / 8).tolist()
     assert weight == 1.0
+
+
+@pytest.mark.parametrize("name", ["surface", "spot", "lattice", "utm"])
+def test_nearest_rows_skip_only_cells_beyond_the_kth_distance(name):
+    """With the grid's corner and side, the k-NN search skips cells: the same distances, rows and statuses as
+    the search of every cell around each row."""
+    from cloudsieve.core.kernels.grid import nearest_rows
+
+    pts = _geometry(name, 5_000, np.random.default_rng(4))
+    for side in (0.3, 1.0, 4.0):
+        grid = CellGrid(pts, side)
+        rows = np.arange(len(pts))
+        every = nearest_rows(*grid.args(), rows, 9, grid.h**2, -1, False)
+        skipping = nearest_rows(*grid.args(), rows, 9, grid.h**2, -1, False, 2, grid.lo, grid.h)
+        for a, b in zip(every, skipping):
+            np.testing.assert_array_equal(a, b)
 
 
 def test_eliminate_cell_checks_its_masks():

@@ -57,6 +57,8 @@ class CellGrid:
         The first row of each row's group of exact copies (the row itself when it is no copy).
     h : float
         The cell side used.
+    lo : ndarray of shape (3,)
+        The grid's corner: the points' minimum.
     """
 
     def __init__(self, points: np.ndarray, h: float):
@@ -81,6 +83,7 @@ class CellGrid:
         self.cstart = cstart
         self.nstart, self.ncells = _kg.cell_neighbours(sc[new])
         self.h = h
+        self.lo = lo
         self.copy = np.zeros(len(sc), dtype=bool)
         P = self.P
         self.copy[1:] = ~new[1:] & (P[1:, 0] == P[:-1, 0]) & (P[1:, 1] == P[:-1, 1]) & (P[1:, 2] == P[:-1, 2])

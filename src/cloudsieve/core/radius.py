@@ -198,7 +198,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
         o = np.argsort(g)  # in the grid's order: the searches walk memory in order
         at, g = at[o], g[o]
         dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2,
-                                          numba.get_num_threads())
+                                          numba.get_num_threads(), grid.lo, grid.h)
         _kg.store_sure(d, i, at, dd, ii, status, grid.order)
         unsure = np.flatnonzero(status == 1)  # to the grid that surely covers its k-th distance so far
         far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 4 times coarser
