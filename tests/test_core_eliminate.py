@@ -480,7 +480,7 @@ def test_point_areas_on_every_way_of_the_grid_are_the_kd_tree_s(name):
 def test_nearest_rows_skip_only_cells_beyond_the_kth_distance(name):
     """With the grid's corner and side, the k-NN search skips cells: the same distances, rows and statuses as
     the search of every cell around each row."""
-    from cloudsieve.core.kernels.grid import nearest_rows
+    from cloudsieve.core.kernels.area_knn import nearest_rows
 
     pts = _geometry(name, 5_000, np.random.default_rng(4))
     for side in (0.3, 1.0, 4.0):

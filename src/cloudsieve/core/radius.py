@@ -26,6 +26,7 @@ from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
 from .duplicates import first_rows
+from .kernels import area_knn as _ka
 from .kernels import grid as _kg
 
 __all__ = ["point_areas", "elimination_radius", "global_radius", "AREA_K", "AREA_SAMPLE", "HEX"]
@@ -115,7 +116,7 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
     d, i = _nearest(rows, q, kk)
     out = np.zeros(len(lead))
-    out[q] = _kg.kth_others(d, i, q, mult, k)  # self: first unless another distinct row is at a distance that
+    out[q] = _ka.kth_others(d, i, q, mult, k)  # self: first unless another distinct row is at a distance that
     # rounds to 0; a row whose copies already make k others is at distance 0
     return out[group[:m]]
 
@@ -166,7 +167,7 @@ REACH = 1.0 - 1e-6
 
 def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.ndarray]:
     """What ``cKDTree(rows).query(rows[q], k=kk)`` returns for distinct *rows* (at least 2): the distances
-    bit for bit (:func:`.kernels.grid.nearest_rows` sums them as cKDTree does), the rows among equal
+    bit for bit (:func:`.kernels.area_knn.nearest_rows` sums them as cKDTree does), the rows among equal
     distances possibly others.
 
     On :class:`.cellgrid.CellGrid` grids, not scipy's tree: ``scipy.spatial`` takes 0.25 s to import, a
@@ -197,9 +198,9 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
         g = inv[q[at]]
         o = np.argsort(g)  # in the grid's order: the searches walk memory in order
         at, g = at[o], g[o]
-        dd, ii, status = _kg.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2,
+        dd, ii, status = _ka.nearest_rows(*grid.args(), g, kk, (REACH * grid.h) ** 2, crowd, len(grid.cstart) == 2,
                                           numba.get_num_threads(), grid.lo, grid.h)
-        _kg.store_sure(d, i, at, dd, ii, status, grid.order)
+        _ka.store_sure(d, i, at, dd, ii, status, grid.order)
         unsure = np.flatnonzero(status == 1)  # to the grid that surely covers its k-th distance so far
         far = np.sqrt(dd[unsure, -1]) / (REACH * side)  # inf: fewer than kk found, 4 times coarser
         with np.errstate(divide="ignore"):
@@ -221,7 +222,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
             ask(at, level, -1)
         elif len(at):  # every row searched, without a grid
             one = np.zeros(1, dtype=np.int64)
-            dd, i[at], _ = _kg.nearest_rows(rows, np.zeros(m, dtype=np.int64), np.array([0, m]), np.array([0, 1]),
+            dd, i[at], _ = _ka.nearest_rows(rows, np.zeros(m, dtype=np.int64), np.array([0, m]), np.array([0, 1]),
                                             one, q[at], kk, math.inf, -1, True)
             d[at] = np.sqrt(dd)
     return d, i
