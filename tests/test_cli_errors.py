@@ -136,7 +136,7 @@ def test_missing_source_as_a_command_no_traceback(tmp_path):
 
 def test_the_command_is_run_and_run_returns_mains_code(tmp_path):
     """``cloudsieve`` (the console script) and ``python -m cloudsieve`` both go through cli.run, which
-    freezes the objects left before the exit: the same codes and messages as main()."""
+    tunes the process and ends it without the modules' teardown: the same codes and messages as main()."""
     import tomllib
 
     scripts = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["scripts"]
@@ -149,3 +149,15 @@ def test_the_command_is_run_and_run_returns_mains_code(tmp_path):
     bad = subprocess.run([sys.executable, "-c", code.format(["info", str(missing)])], capture_output=True, text=True,
                          env=env)
     assert (bad.returncode, bad.stderr) == (2, f"cloudsieve info: error: {missing}: no such file\n")
+
+
+def test_the_command_ends_its_threads_and_runs_the_exit_handlers(tmp_path):
+    """cli.run leaves by os._exit, but as the interpreter would: a thread still running is waited for, then
+    every exit handler runs, and stdout holds it all."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
+    code = ("import atexit, sys, threading, time; from cloudsieve.cli import run; atexit.register(print, 'handler'); "
+            "threading.Thread(target=lambda: (time.sleep(0.5), print('thread'))).start(); "
+            f"sys.argv[1:] = ['info', {str(shared_file('simple.las'))!r}]; sys.exit(run())")
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert (proc.returncode, proc.stderr) == (0, "")
+    assert "simple.las" in proc.stdout and "thread\n" in proc.stdout and proc.stdout.endswith("handler\n")
