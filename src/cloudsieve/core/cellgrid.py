@@ -67,27 +67,21 @@ class CellGrid:
         h = max(float(h), span / (2.0**21 - 2), 1e-300)
         codes = _kg.cell_codes(points, lo, h)
         order = _kg.argsort_keys(codes)
-        sc = codes[order]
-        new = np.ones(len(sc), dtype=bool)
-        new[1:] = sc[1:] != sc[:-1]
-        cstart = np.append(np.flatnonzero(new), len(sc)).astype(np.int64)
+        cell, cstart, ukeys = _kg.cell_runs(codes, order)
         _kg.sort_cells(points, codes, order, _RUN)  # the runs of at most _RUN points; the longer ones here
         size = np.diff(cstart)
         for a, b in zip(cstart[:-1][size > _RUN].tolist(), cstart[1:][size > _RUN].tolist()):
             run = order[a:b]  # by index (the argsort is stable), then (stable) by coordinates
             q = points[run]
             order[a:b] = run[np.lexsort((q[:, 2], q[:, 1], q[:, 0]))]
-        self.order = order.astype(np.int64)
+        self.order = order
         self.P = take_rows(points, order)
-        self.cell = (np.cumsum(new) - 1).astype(np.int64)
+        self.cell = cell
         self.cstart = cstart
-        self.nstart, self.ncells = _kg.cell_neighbours(sc[new])
+        self.nstart, self.ncells = _kg.cell_neighbours(ukeys)
         self.h = h
         self.lo = lo
-        self.copy = np.zeros(len(sc), dtype=bool)
-        P = self.P
-        self.copy[1:] = ~new[1:] & (P[1:, 0] == P[:-1, 0]) & (P[1:, 1] == P[:-1, 1]) & (P[1:, 2] == P[:-1, 2])
-        self.lead = np.maximum.accumulate(np.where(self.copy, 0, np.arange(len(sc), dtype=np.int64)))
+        self.copy, self.lead = _kg.copy_runs(self.P, cell)
 
     def nearest_kept(self, kept: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """:func:`.kernels.grid.nearest_kept` of ascending ``rows``, searched once per group of exact copies.
