@@ -68,14 +68,15 @@ class CellGrid:
         codes = _kg.cell_codes(points, lo, h)
         order = _kg.argsort_keys(codes)
         cell, cstart, ukeys = _kg.cell_runs(codes, order)
-        _kg.sort_cells(points, codes, order, _RUN)  # the runs of at most _RUN points; the longer ones here
+        P = take_rows(points, order)
+        _kg.sort_cells(P, cstart, order, _RUN)  # the runs of at most _RUN points; the longer ones here
         size = np.diff(cstart)
         for a, b in zip(cstart[:-1][size > _RUN].tolist(), cstart[1:][size > _RUN].tolist()):
-            run = order[a:b]  # by index (the argsort is stable), then (stable) by coordinates
-            q = points[run]
-            order[a:b] = run[np.lexsort((q[:, 2], q[:, 1], q[:, 0]))]
+            q = P[a:b]  # by index (the argsort is stable), then (stable) by coordinates
+            by = np.lexsort((q[:, 2], q[:, 1], q[:, 0]))
+            order[a:b], P[a:b] = order[a:b][by], q[by]
         self.order = order
-        self.P = take_rows(points, order)
+        self.P = P
         self.cell = cell
         self.cstart = cstart
         self.nstart, self.ncells = _kg.cell_neighbours(ukeys)

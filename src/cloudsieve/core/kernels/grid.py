@@ -106,34 +106,38 @@ def _sweep_keys(xyz, key):
 
 
 @njit(cache=True, _nrt=False)
-def _less(P, a, b):
-    for j in range(3):
-        if P[a, j] != P[b, j]:
-            return P[a, j] < P[b, j]
-    return a < b
+def _less(Q, order, i, v, q0, q1, q2):
+    """Whether the row (q0, q1, q2) of index v sorts before row i of Q (index order[i]): by coordinates,
+    then index."""
+    if q0 != Q[i, 0]:
+        return q0 < Q[i, 0]
+    if q1 != Q[i, 1]:
+        return q1 < Q[i, 1]
+    if q2 != Q[i, 2]:
+        return q2 < Q[i, 2]
+    return v < order[i]
 
 
 @njit(cache=True, nogil=True)
-def sort_cells(P, codes, order, longest):
-    """Inside each run of equal codes in ``order`` of at most ``longest`` points, sort by coordinates then
-    index (insertion sort, in place); longer runs are left as they are."""
-    n = len(order)
-    s = 0
-    while s < n:
-        e = s + 1
-        while e < n and codes[order[e]] == codes[order[s]]:
-            e += 1
+def sort_cells(Q, cstart, order, longest):
+    """Inside each run ``cstart[c]:cstart[c + 1]`` of at most ``longest`` rows, sort the rows of *Q* (n, 3)
+    and their indices ``order`` by coordinates then index (insertion sort, both in place); longer runs are
+    left as they are. On the rows already gathered in run order: comparing through ``order`` (the points
+    in input order, a random read each) took 4-5 times as long."""
+    for c in range(len(cstart) - 1):
+        s, e = cstart[c], cstart[c + 1]
         if e - s > longest:
-            s = e
             continue
         for i in range(s + 1, e):
             v = order[i]
+            q0, q1, q2 = Q[i, 0], Q[i, 1], Q[i, 2]
             j = i - 1
-            while j >= s and _less(P, v, order[j]):
+            while j >= s and _less(Q, order, j, v, q0, q1, q2):
                 order[j + 1] = order[j]
+                Q[j + 1, 0], Q[j + 1, 1], Q[j + 1, 2] = Q[j, 0], Q[j, 1], Q[j, 2]
                 j -= 1
             order[j + 1] = v
-        s = e
+            Q[j + 1, 0], Q[j + 1, 1], Q[j + 1, 2] = q0, q1, q2
 
 
 @njit(cache=True, nogil=True)
