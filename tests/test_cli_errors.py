@@ -152,12 +152,17 @@ def test_the_command_is_run_and_run_returns_mains_code(tmp_path):
 
 
 def test_the_command_ends_its_threads_and_runs_the_exit_handlers(tmp_path):
-    """cli.run leaves by os._exit, but as the interpreter would: a thread still running is waited for, then
+    """cli.run leaves by os._exit, but as the interpreter would: a thread still running is waited for, a
+    thread pool never shut down is stopped (its worker waits for work: joined first, it never ends), then
     every exit handler runs, and stdout holds it all."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])}
-    code = ("import atexit, sys, threading, time; from cloudsieve.cli import run; atexit.register(print, 'handler'); "
+    code = ("import atexit, sys, threading, time; from concurrent.futures import ThreadPoolExecutor; "
+            "from cloudsieve.cli import run; atexit.register(print, 'handler'); "
             "threading.Thread(target=lambda: (time.sleep(0.5), print('thread'))).start(); "
+            "pool = ThreadPoolExecutor(1); pool.submit(print, 'pool'); "
             f"sys.argv[1:] = ['info', {str(shared_file('simple.las'))!r}]; sys.exit(run())")
-    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path)
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, cwd=tmp_path,
+                          timeout=300)
     assert (proc.returncode, proc.stderr) == (0, "")
-    assert "simple.las" in proc.stdout and "thread\n" in proc.stdout and proc.stdout.endswith("handler\n")
+    assert "simple.las" in proc.stdout and "thread\n" in proc.stdout and "pool\n" in proc.stdout
+    assert proc.stdout.endswith("handler\n")

@@ -108,7 +108,7 @@ def _silence_stdout() -> None:
     os.close(devnull)
 
 
-def run() -> int:
+def run() -> NoReturn:
     """The ``cloudsieve`` command: :func:`main` in a process tuned for one run, which then exits.
 
     - glibc's malloc takes blocks of up to 32 MiB from its heaps and keeps
@@ -134,8 +134,9 @@ def _keep_freed_memory() -> None:
     By default a freed block of more than the mmap threshold goes back to the
     system, and the next one faults its pages in again, zeroed by the kernel
     (7% of a 10 M-point simplify's CPU on this project's test machine). Set
-    so, the 10 M-point simplify faulted 186,000-189,000 pages instead of
-    228,000-235,000. Other C libraries have no ``mallopt``: nothing is done.
+    so, the 10 M-point simplify faulted 179,000-206,000 pages instead of
+    228,000-276,000 (docs/benchmarks.md). Other C libraries have no
+    ``mallopt``: nothing is done.
     """
     import ctypes
 
@@ -152,11 +153,15 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 
 
 def _exit(code: int) -> NoReturn:
-    """End the process as the interpreter would, less the teardown of its modules (0.1-0.35 s of a 1 k-point run)."""
-    for thread in threading.enumerate():  # the interpreter's order: the threads end, then the exit handlers run
-        if thread is not threading.current_thread() and not thread.daemon:
-            thread.join()
-    atexit._run_exitfuncs()  # logging's last flush, multiprocessing's children, temporary folders
+    """End the process as the interpreter's exit does, less the teardown of its modules (0.1-0.35 s of a
+    1 k-point run): CPython's own two steps first, threading's shutdown (the thread pools told to stop,
+    then every non-daemon thread joined) and the exit handlers (logging's last flush, multiprocessing's
+    children, temporary folders). Elsewhere than CPython, the interpreter's exit."""
+    shutdown = getattr(threading, "_shutdown", None)
+    if shutdown is None:  # pragma: no cover
+        sys.exit(code)
+    shutdown()
+    atexit._run_exitfuncs()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):
             stream.flush()
