@@ -128,6 +128,10 @@ def run() -> NoReturn:
     _exit(main())
 
 
+#: glibc's malloc.h
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+
+
 def _keep_freed_memory() -> None:
     """glibc's ``mallopt``: blocks up to 32 MiB (its largest threshold) from the heap, never trimmed below 1 GiB.
 
@@ -146,10 +150,6 @@ def _keep_freed_memory() -> None:
         return
     mallopt(M_MMAP_THRESHOLD, 32 << 20)
     mallopt(M_TRIM_THRESHOLD, 1 << 30)
-
-
-#: glibc's malloc.h
-M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 
 
 def _exit(code: int) -> NoReturn:

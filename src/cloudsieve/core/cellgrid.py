@@ -67,7 +67,7 @@ class CellGrid:
         h = max(float(h), span / (2.0**21 - 2), 1e-300)
         codes = _kg.cell_codes(points, lo, h)
         order = _kg.argsort_keys(codes)
-        cell, cstart, ukeys = _kg.cell_runs(codes, order)
+        cell, cstart, ukeys = _kg.code_runs(codes, order)
         P = take_rows(points, order)
         _kg.sort_cells(P, cstart, order, _RUN)  # the runs of at most _RUN points; the longer ones here
         size = np.diff(cstart)

@@ -169,7 +169,6 @@ def _column_sweep(L, K):
     C = len(K)
     cur = np.zeros(9, dtype=np.int64)
     tmp = np.empty(27 * C, dtype=np.int64)
-    cnt = np.empty(C, dtype=np.int64)  # by sweep position
     nstart = np.zeros(C + 1, dtype=np.int64)
     t = 0
     for u in range(C):
@@ -192,17 +191,16 @@ def _column_sweep(L, K):
                         t += 1
                         k += 1
                 col += 1
-        cnt[u] = t - t0
         nstart[L[u] + 1] = t - t0
     for c in range(C):
         nstart[c + 1] += nstart[c]
     out = np.empty(t, dtype=np.int64)
     s = 0
     for u in range(C):
-        o = nstart[L[u]]
-        for j in range(cnt[u]):
+        o, m = nstart[L[u]], nstart[L[u] + 1] - nstart[L[u]]
+        for j in range(m):
             out[o + j] = tmp[s + j]
-        s += cnt[u]
+        s += m
     return nstart, out
 
 
@@ -221,7 +219,7 @@ def cell_neighbours(ukeys):
 
 
 @njit(cache=True, nogil=True)
-def cell_runs(codes, order):
+def code_runs(codes, order):
     """The runs of equal codes along ``codes[order]`` (sorted): the run of each row (n,), the first row of
     each run and n (C + 1,), and each run's code (C,). One pass, where numpy's mask, flatnonzero, cumsum and
     masked copy took four, with their temporaries."""
