@@ -190,3 +190,53 @@ def test_a_failed_second_process_reports_none():
 def test_cli_warmup_refuses_an_unknown_target(capsys):
     assert main(["warmup", "--targets", "common,nope"]) == 2
     assert "nope" in capsys.readouterr().err
+
+
+def test_the_blas_probe_skipped_leaves_scipy_linalg_unloaded_then_importable():
+    code = (
+        "import sys\n"
+        "from cloudsieve.blas_probe import skip_blas_probe, _FINDER\n"
+        "skip_blas_probe()\n"
+        "import numpy as np\n"
+        "from cloudsieve.core.kernels import grid\n"
+        "x = np.arange(12.0).reshape(4, 3)\n"
+        "grid.cell_codes(x, x.min(0), 1.0)\n"
+        "import numba.np.arraymath as am\n"
+        "print('scipy.linalg' in sys.modules, _FINDER in sys.meta_path, am._HAVE_BLAS)\n"
+        "from scipy.spatial import cKDTree\n"
+        "import scipy.linalg.cython_blas\n"
+        "print(cKDTree(x).query(x[:1])[0][0], float(scipy.linalg.norm(x[1] - x[0])) ** 2)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
+    assert out.stdout.split() == ["False", "False", "False", "0.0", "27.0"]
+
+
+def _compiled_functions(tree):
+    """The functions of a module's syntax tree decorated with numba's njit (bare or called)."""
+    import ast
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef):
+            for dec in node.decorator_list:
+                target = dec.func if isinstance(dec, ast.Call) else dec
+                if getattr(target, "id", getattr(target, "attr", None)) in ("njit", "jit"):
+                    yield node
+
+
+def test_no_compiled_kernel_calls_blas():
+    """The premise of skipping numba's BLAS probe (cloudsieve.blas_probe): no njit function uses np.dot,
+    np.vdot, np.matmul, np.inner, @ or np.linalg (numba would compile them without BLAS)."""
+    import ast
+
+    blas = {"dot", "vdot", "matmul", "inner", "linalg", "outer", "tensordot", "einsum"}
+    found, checked = [], 0
+    for path in sorted(Path(SRC, "cloudsieve").rglob("*.py")):
+        tree = ast.parse(path.read_text(), str(path))
+        for fn in _compiled_functions(tree):
+            checked += 1
+            for node in ast.walk(fn):
+                if isinstance(node, ast.BinOp) and isinstance(node.op, ast.MatMult) or (
+                        isinstance(node, ast.Attribute) and node.attr in blas):
+                    found.append(f"{path.name}:{fn.name}:{node.lineno}")
+    assert checked > 100 and found == []

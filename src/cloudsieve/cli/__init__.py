@@ -117,13 +117,18 @@ def run() -> NoReturn:
     - The objects of the imports (numpy, numba, scipy, zarr) are frozen
       (``gc.freeze``): the collector no longer walks them (the collections of
       a 10 M-point simplify took 0.12 s instead of 0.23-0.25 s).
+    - numba's BLAS probe is skipped (:mod:`cloudsieve.blas_probe`): the first
+      kernel load does not import ``scipy.linalg``.
     - The exit (:func:`_exit`) ends the threads and runs the exit handlers as
       the interpreter's would, then skips tearing the modules down: every
       file is closed by then.
 
     Not for a process that goes on (tests call :func:`main`).
     """
+    from ..blas_probe import skip_blas_probe
+
     _keep_freed_memory()
+    skip_blas_probe()
     gc.freeze()
     _exit(main())
 
