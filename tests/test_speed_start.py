@@ -192,24 +192,47 @@ def test_cli_warmup_refuses_an_unknown_target(capsys):
     assert "nope" in capsys.readouterr().err
 
 
-def test_the_blas_probe_skipped_leaves_scipy_linalg_unloaded_then_importable():
+def _run(code: str) -> list[str]:
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env=env).stdout.split()
+
+
+_UNUSED = "[m for m in ('scipy.linalg', 'requests', 'pyproj') if m in __import__('sys').modules]"
+
+
+def test_the_skipped_imports_stay_unloaded_then_import_as_usual():
+    megaplot = shared_file("Megaplot.laz")  # its CRS in GeoTIFF keys only: laspy's parse_crs needs pyproj
     code = (
         "import sys\n"
-        "from cloudsieve.blas_probe import skip_blas_probe, _FINDER\n"
-        "skip_blas_probe()\n"
-        "import numpy as np\n"
+        "from cloudsieve.lean_start import skip_unused_imports, _FINDER\n"
+        "skip_unused_imports()\n"
+        "import numpy as np, laspy\n"
         "from cloudsieve.core.kernels import grid\n"
         "x = np.arange(12.0).reshape(4, 3)\n"
         "grid.cell_codes(x, x.min(0), 1.0)\n"
         "import numba.np.arraymath as am\n"
-        "print('scipy.linalg' in sys.modules, _FINDER in sys.meta_path, am._HAVE_BLAS)\n"
+        f"print(len({_UNUSED}), _FINDER in sys.meta_path, am._HAVE_BLAS, laspy.copc.requests)\n"
         "from scipy.spatial import cKDTree\n"
-        "import scipy.linalg.cython_blas\n"
-        "print(cKDTree(x).query(x[:1])[0][0], float(scipy.linalg.norm(x[1] - x[0])) ** 2)\n"
+        "import scipy.linalg.cython_blas, requests\n"
+        f"print(laspy.open({str(megaplot)!r}).header.parse_crs().to_epsg(), cKDTree(x).query(x[:1])[0][0],\n"
+        "      float(scipy.linalg.norm(x[1] - x[0])) ** 2)\n"
     )
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env)
-    assert out.stdout.split() == ["False", "False", "False", "0.0", "27.0"]
+    assert _run(code) == ["0", "False", "False", "None", "26917", "0.0", "27.0"]
+
+
+def test_the_fork_server_skips_the_unused_imports_for_its_workers():
+    code = (
+        "from cloudsieve.core.rules import DEFAULT_RULE\n"
+        "from cloudsieve.engine.pool import local_pool, start_forkserver, worker_context\n"
+        "from cloudsieve.warmup_targets import targets_of\n"
+        "ctx = worker_context()\n"
+        "start_forkserver(ctx, targets_of(DEFAULT_RULE))\n"
+        "with local_pool(1, ctx) as pool:\n"
+        "    print(ctx.get_start_method(), pool.submit(eval, \"__import__('laspy').copc.requests\").result(),\n"
+        f"          pool.submit(eval, {_UNUSED!r}).result())\n"
+    )
+    assert _run(code) == ["forkserver", "None", "[]"]
 
 
 def _compiled_functions(tree):
@@ -225,7 +248,7 @@ def _compiled_functions(tree):
 
 
 def test_no_compiled_kernel_calls_blas():
-    """The premise of skipping numba's BLAS probe (cloudsieve.blas_probe): no njit function uses np.dot,
+    """The premise of skipping numba's BLAS probe (cloudsieve.lean_start): no njit function uses np.dot,
     np.vdot, np.matmul, np.inner, @ or np.linalg (numba would compile them without BLAS)."""
     import ast
 

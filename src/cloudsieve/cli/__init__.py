@@ -125,10 +125,10 @@ def run() -> NoReturn:
 
     Not for a process that goes on (tests call :func:`main`).
     """
-    from ..blas_probe import skip_blas_probe
+    from ..lean_start import skip_unused_imports
 
     _keep_freed_memory()
-    skip_blas_probe()
+    skip_unused_imports()
     gc.freeze()
     _exit(main())
 

@@ -2,9 +2,10 @@
 
 It is the last module of the fork server's preload list: imported there, it
 asks the kernel to kill the fork server when its parent, the driver, dies,
-skips numba's BLAS probe (:mod:`cloudsieve.blas_probe`), then compiles the numba kernels of the run's warm-up targets (named by the
-driver in ``CLOUDSIEVE_WARM_UP``, :func:`.pool.start_forkserver`; the scoring
-path without it), or loads them from numba's cache, once, so every worker
+skips the imports of :mod:`cloudsieve.lean_start` (so do the workers forked
+from it), then compiles the numba kernels of the run's warm-up targets (named
+by the driver in ``CLOUDSIEVE_WARM_UP``, :func:`.pool.start_forkserver`; the
+scoring path without it), or loads them from numba's cache, once, so every worker
 forked from the server inherits them
 (:func:`cloudsieve.core.warmup.warm_up`), and freezes the objects it
 holds (``gc.freeze``) before the first fork.
@@ -18,10 +19,10 @@ import logging
 import os
 import sys
 
-from ..blas_probe import skip_blas_probe
 from ..core.warmup import warm_up
 from ..warmup_targets import TARGETS
 from ..lifeline import die_with_parent
+from ..lean_start import skip_unused_imports
 from .pool import WARM_UP_ENV
 
 
@@ -36,7 +37,7 @@ def _in_forkserver_main() -> bool:
 
 if _in_forkserver_main():
     die_with_parent()
-    skip_blas_probe()
+    skip_unused_imports()  # before the warm-up loads numba's array module; the workers inherit the hook
     try:
         _targets = [t for t in os.environ.get(WARM_UP_ENV, "common,partition,scores").split(",") if t in TARGETS]
         logging.getLogger(__name__).debug("kernels of %s warmed up in %.2f s", _targets, warm_up(_targets))

@@ -1,0 +1,100 @@
+"""Imports that the package's own processes (the command, the local fork server) skip at start.
+
+Three modules the command loads import, at their own import, what a run never
+uses:
+
+- ``numba.np.arraymath`` (loaded with the first kernel numba takes from its
+  cache or compiles) checks that ``np.dot`` could call BLAS by importing
+  ``scipy.linalg.cython_blas``: all of ``scipy.linalg``, with a second OpenBLAS
+  and its threads. No compiled kernel of this package calls ``np.dot``,
+  ``np.vdot``, ``@`` or ``np.linalg`` (tests/test_speed_start.py reads their
+  sources); numba then takes BLAS as absent, so an ``np.dot`` compiled later
+  in the process would be numba's loop.
+- ``laspy.copc`` imports ``requests`` for COPC files over HTTP (this package
+  reads local files only; laspy's HTTP reader then says "HTTP support requires
+  the 'requests' package").
+- ``laspy.vlrs.geotiff`` imports ``pyproj`` for type hints (laspy's
+  ``parse_crs`` imports it again where it needs it, as
+  :mod:`cloudsieve.store.copc_file` does).
+
+On this project's test machine the first kernel load of a process took
+0.26-0.31 s without the BLAS probe against 0.48-0.58 s, and ``import laspy``
+0.14-0.17 s without pyproj against 0.17-0.23 s (``requests``: 0.12 s more), of
+a 1,065-point file's whole run of about 1 s (docs/benchmarks.md).
+
+:func:`skip_unused_imports` installs an import hook that, while each of these
+three modules and only it is executed, makes the import of what it would not
+need fail at once (a module that is already loaded is left: it costs nothing
+there), then removes the block: ``scipy.linalg``, ``pyproj`` and ``requests``
+import as usual afterwards (``evaluate``'s k-d trees, a CRS from GeoTIFF keys).
+Not for a process that is not the package's: user code in it may compile
+``np.dot`` or read COPC over HTTP.
+"""
+
+from __future__ import annotations
+
+import importlib.machinery
+import sys
+
+__all__ = ["skip_unused_imports", "SKIPPED"]
+
+#: the module executed -> what it imports that a run does not use, and the module whose presence makes it free
+SKIPPED = {
+    "numba.np.arraymath": ("scipy.linalg.cython_blas", "scipy.linalg"),
+    "laspy.copc": ("requests", "requests"),
+    "laspy.vlrs.geotiff": ("pyproj", "pyproj"),
+}
+
+
+class _Loader:
+    """A module's own loader, executing it with one import blocked (the protocol of ``importlib.abc.Loader``,
+    whose own import pulls in ``importlib.resources``: 17 ms)."""
+
+    def __init__(self, loader, blocked: str, loaded: str):
+        self._loader = loader
+        self._blocked, self._loaded = blocked, loaded
+
+    def __getattr__(self, name):  # get_source, get_filename, is_package...: the real loader's
+        return getattr(self._loader, name)
+
+    def create_module(self, spec):
+        return self._loader.create_module(spec)
+
+    def exec_module(self, module):
+        block = self._loaded not in sys.modules and self._blocked not in sys.modules
+        if block:
+            sys.modules[self._blocked] = None  # its import raises ImportError (ModuleNotFoundError)
+        try:
+            self._loader.exec_module(module)
+        finally:
+            if block and self._blocked in sys.modules and sys.modules[self._blocked] is None:
+                del sys.modules[self._blocked]
+
+
+class _Finder:
+    """Finds each module of ``SKIPPED`` as the path finder would, with :class:`_Loader` around its loader;
+    once each, and gone from ``sys.meta_path`` after the last."""
+
+    def __init__(self):
+        self.left = set()
+
+    def find_spec(self, name, path, target=None):
+        if name not in self.left:
+            return None
+        self.left.discard(name)
+        if not self.left and self in sys.meta_path:
+            sys.meta_path.remove(self)
+        spec = importlib.machinery.PathFinder.find_spec(name, path, target)
+        if spec is not None and spec.loader is not None:
+            spec.loader = _Loader(spec.loader, *SKIPPED[name])
+        return spec
+
+
+_FINDER = _Finder()
+
+
+def skip_unused_imports() -> None:
+    """Skip, in this process, the imports of ``SKIPPED`` (module docstring) of the modules not loaded yet."""
+    _FINDER.left = {name for name in SKIPPED if name not in sys.modules}
+    if _FINDER.left and _FINDER not in sys.meta_path:
+        sys.meta_path.insert(0, _FINDER)
