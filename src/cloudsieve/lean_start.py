@@ -17,10 +17,11 @@ uses:
   ``parse_crs`` imports it again where it needs it, as
   :mod:`cloudsieve.store.copc_file` does).
 
-On this project's test machine the first kernel load of a process took
-0.26-0.31 s without the BLAS probe against 0.48-0.58 s, and ``import laspy``
-0.14-0.17 s without pyproj against 0.17-0.23 s (``requests``: 0.12 s more), of
-a 1,065-point file's whole run of about 1 s (docs/benchmarks.md).
+On this project's test machine (five alternating processes each) the first
+kernel load of a process took 0.25-0.33 s without the BLAS probe against
+0.46-0.66 s, and ``import laspy`` (numpy loaded) 0.035-0.052 s without
+requests and pyproj against 0.163-0.236 s: a 1,065-point file's whole run
+took 1.03-1.23 s against 1.45-1.75 s (docs/benchmarks.md).
 
 :func:`skip_unused_imports` installs an import hook that, while each of these
 three modules and only it is executed, makes the import of what it would not
