@@ -158,6 +158,19 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
             stable_sort(kbuf, soff[b:k], m, kbuf2, buf)
             _ties_by_tie(soff, b, k, dd, nbr, tie)
             continue
+        if m <= 16:  # each position's rank by counting: no branch on the comparisons (an insertion sort
+            # mispredicted about one a shift); (squared distance, tie) are distinct, so the ranks are too
+            for t in range(m):
+                kbuf[t] = dd[b + t]
+                kbuf2[t] = tie[nbr[b + t]]
+            for t in range(m):
+                v = kbuf[t]
+                tv = kbuf2[t]
+                rank = 0
+                for u in range(m):
+                    rank += (kbuf[u] < v) | ((kbuf[u] == v) & (kbuf2[u] < tv))
+                soff[b + rank] = t
+            continue
         for t in range(m):  # insertion sort of the positions by (squared distance, tie), in soff[b:k]; the
             # sorted distances beside them in kbuf (one load a comparison instead of two dependent ones)
             v = dd[b + t]
