@@ -23,7 +23,7 @@ def test_from_groups_inverts_a_stable_sort_by_label(n, groups):
     assert np.array_equal(from_groups(labels, offset, src), expected)
 
 
-@pytest.mark.parametrize("n, groups", [(0, 1), (1, 1), (5000, 7), (2_100_001, 50)])
+@pytest.mark.parametrize("n, groups", [(0, 1), (1, 1), (5000, 1), (5000, 7), (2_100_001, 50)])
 @pytest.mark.parametrize("threads", [1, 2, 3])
 def test_group_rows_is_numpy_s_stable_argsort(n, groups, threads):
     """The oracle: np.argsort(kind="stable") and the bincount's bounds, on any thread count (2.1 M rows: two
