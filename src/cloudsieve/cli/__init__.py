@@ -117,8 +117,9 @@ def run() -> NoReturn:
     - The objects of the imports (numpy, numba, scipy, zarr) are frozen
       (``gc.freeze``): the collector no longer walks them (the collections of
       a 10 M-point simplify took 0.12 s instead of 0.23-0.25 s).
-    - numba's BLAS probe is skipped (:mod:`cloudsieve.blas_probe`): the first
-      kernel load does not import ``scipy.linalg``.
+    - Three imports no run uses are skipped (:mod:`cloudsieve.lean_start`):
+      the first kernel load does not import ``scipy.linalg`` (numba's BLAS
+      probe), laspy neither ``requests`` nor ``pyproj``.
     - The exit (:func:`_exit`) ends the threads and runs the exit handlers as
       the interpreter's would, then skips tearing the modules down: every
       file is closed by then.
