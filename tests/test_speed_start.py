@@ -9,6 +9,7 @@ warm-up of the default rule leaves nothing for the default command to compile.
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import subprocess
@@ -31,12 +32,16 @@ HEAVY = ("dask", "zarr", "open3d", "pymeshlab", "distributed")
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 
 
+def _run(code: str) -> list[str]:
+    """The words *code* prints in a fresh interpreter that imports this checkout's package."""
+    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                          env=env).stdout.split()
+
+
 def _loaded_after(code: str) -> list[str]:
     """The HEAVY modules a fresh interpreter holds after running *code*."""
-    probe = f"import sys\n{code}\nprint(' '.join(m for m in {HEAVY!r} if m in sys.modules))"
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, env=env)
-    return out.stdout.split()
+    return _run(f"import sys\n{code}\nprint(' '.join(m for m in {HEAVY!r} if m in sys.modules))")
 
 
 def test_import_cloudsieve_loads_no_dask_zarr_open3d_pymeshlab():
@@ -192,12 +197,6 @@ def test_cli_warmup_refuses_an_unknown_target(capsys):
     assert "nope" in capsys.readouterr().err
 
 
-def _run(code: str) -> list[str]:
-    env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                          env=env).stdout.split()
-
-
 _UNUSED = "[m for m in ('scipy.linalg', 'requests', 'pyproj') if m in __import__('sys').modules]"
 
 
@@ -238,8 +237,6 @@ def test_the_fork_server_skips_the_unused_imports_for_its_workers():
 
 def _compiled_functions(tree):
     """The functions of a module's syntax tree decorated with numba's njit (bare or called)."""
-    import ast
-
     for node in ast.walk(tree):
         if isinstance(node, ast.FunctionDef):
             for dec in node.decorator_list:
@@ -251,8 +248,6 @@ def _compiled_functions(tree):
 def test_no_compiled_kernel_calls_blas():
     """The premise of skipping numba's BLAS probe (cloudsieve.lean_start): no njit function uses np.dot,
     np.vdot, np.matmul, np.inner, @ or np.linalg (numba would compile them without BLAS)."""
-    import ast
-
     blas = {"dot", "vdot", "matmul", "inner", "linalg", "outer", "tensordot", "einsum"}
     found, checked = [], 0
     for path in sorted(Path(SRC, "cloudsieve").rglob("*.py")):

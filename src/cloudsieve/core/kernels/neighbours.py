@@ -162,7 +162,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
             # mispredicted about one a shift); (squared distance, tie) are distinct, so the ranks are too
             for t in range(m):
                 kbuf[t] = dd[b + t]
-                kbuf2[t] = tie[nbr[b + t]]
+                kbuf2[t] = tie[nbr[b + t]]  # the ids as float64: exact below 2^53
             for t in range(m):
                 v = kbuf[t]
                 tv = kbuf2[t]
