@@ -221,6 +221,41 @@ def test_the_skipped_imports_stay_unloaded_then_import_as_usual():
     assert _run(code) == ["0", "False", "False", "None", "26917", "0.0", "27.0", "True"]
 
 
+def test_cache_loads_install_no_registries_and_a_later_compile_has_them():
+    """The kernels taken from numba's cache run on numba's runtime alone (cloudsieve.lean_start): the same
+    result as in this process, numba's array and typed-container registries not imported; a function
+    compiled afterwards in that process gets every registry (np.sort, np.cumsum, a typed list)."""
+    import hashlib
+
+    import numpy as np
+
+    from cloudsieve.core.kernels import grid
+
+    x = np.random.default_rng(0).random((500, 3))
+    expected = hashlib.md5(grid.cell_codes(x, x.min(0), 0.25).tobytes()).hexdigest()  # in the cache from here on
+    code = (
+        "import hashlib, sys\n"
+        "import numpy as np\n"
+        "from cloudsieve.lean_start import skip_unused_imports\n"
+        "skip_unused_imports()\n"
+        "from cloudsieve.core.kernels import grid\n"
+        "x = np.random.default_rng(0).random((500, 3))\n"
+        "got = hashlib.md5(grid.cell_codes(x, x.min(0), 0.25).tobytes()).hexdigest()\n"
+        "print(got, sum(grid.cell_codes.stats.cache_hits.values()),\n"
+        "      [m for m in ('numba.np.arraymath', 'numba.typed.typedlist') if m in sys.modules])\n"
+        "import numba\n"
+        "from numba.typed import List\n"
+        "@numba.njit\n"
+        "def f(a):\n"
+        "    out = List()\n"
+        "    for v in np.cumsum(np.sort(a)):\n"
+        "        out.append(v)\n"
+        "    return out\n"
+        "print(list(f(x[:, 0])) == list(np.cumsum(np.sort(x[:, 0]))), 'numba.np.arraymath' in sys.modules)\n"
+    )
+    assert _run(code) == [expected, "1", "[]", "True", "True"]
+
+
 def test_the_fork_server_skips_the_unused_imports_for_its_workers():
     code = (
         "from cloudsieve.core.rules import DEFAULT_RULE\n"

@@ -1,4 +1,4 @@
-"""Imports that the package's own processes (the command, the local fork server) skip at start.
+"""What the package's own processes (the command, the local fork server) skip at start.
 
 Three modules the command loads import, at their own import, what a run never
 uses:
@@ -23,6 +23,19 @@ kernel load of a process took 0.25-0.33 s without the BLAS probe against
 requests and pyproj against 0.163-0.236 s: a 1,065-point file's whole run
 took 1.03-1.23 s against 1.45-1.75 s (docs/benchmarks.md).
 
+And numba's cache (``numba.core.caching.Cache.load_overload``) refreshes the
+compiler's target context before each load: it imports and installs every
+typing and lowering registry of numba (its array, random, typed-container
+and polynomial modules; 251 overload templates initialised), which only a
+compilation reads. A kernel taken from the cache is machine code; what its
+run needs of numba is the runtime (NRT, its allocator), which the refresh
+also initialises. :func:`load_without_registries` makes the loads initialise
+the runtime only; a compilation still refreshes both contexts first
+(``numba.core.compiler.compile_extra``), so a kernel compiled later in the
+process, a cache miss included, sees every registry. A 1,065-point file's
+run in one process took 0.27 s instead of 0.56 s from its start to its end
+(docs/benchmarks.md, "Cache loads without the compiler's registries").
+
 :func:`skip_unused_imports` installs an import hook that, while each of these
 three modules and only it is executed, makes the import of what it would not
 need fail at once (a module that is already loaded is left: it costs nothing
@@ -37,7 +50,7 @@ from __future__ import annotations
 import importlib.machinery
 import sys
 
-__all__ = ["skip_unused_imports", "SKIPPED"]
+__all__ = ["skip_unused_imports", "load_without_registries", "SKIPPED", "AFTER"]
 
 #: the module executed -> what it imports that a run does not use, and the module whose presence makes it free
 SKIPPED = {
@@ -47,13 +60,36 @@ SKIPPED = {
 }
 
 
-class _Loader:
-    """A module's own loader, executing it with one import blocked (the protocol of ``importlib.abc.Loader``,
-    whose own import pulls in ``importlib.resources``: 17 ms)."""
+def load_without_registries(caching) -> None:
+    """Make the cache loads of numba's module *caching* (``numba.core.caching``) initialise numba's runtime
+    instead of refreshing the target context (module docstring). A numba without the private methods this
+    relies on (``Cache._load_overload``, ``Cache._guard_against_spurious_io_errors``) is left as it is."""
+    cache = getattr(caching, "Cache", None)
+    if not all(hasattr(cache, m) for m in ("load_overload", "_load_overload", "_guard_against_spurious_io_errors")):
+        return
 
-    def __init__(self, loader, blocked: str, loaded: str):
+    def load_overload(self, sig, target_context):
+        from numba.core.runtime import rtsys
+
+        rtsys.initialize(target_context)  # what a loaded kernel needs of the refresh: NRT's allocator
+        with self._guard_against_spurious_io_errors():
+            return self._load_overload(sig, target_context)
+
+    load_overload.__doc__ = cache.load_overload.__doc__
+    cache.load_overload = load_overload
+
+
+#: the module executed -> what is done to it after (module docstring)
+AFTER = {"numba.core.caching": load_without_registries}
+
+
+class _Loader:
+    """A module's own loader, executing it with one import blocked or a change made after (the protocol of
+    ``importlib.abc.Loader``, whose own import pulls in ``importlib.resources``: 17 ms)."""
+
+    def __init__(self, loader, blocked: str | None = None, loaded: str | None = None, after=None):
         self._loader = loader
-        self._blocked, self._loaded = blocked, loaded
+        self._blocked, self._loaded, self._after = blocked, loaded, after
 
     def __getattr__(self, name):  # get_source, get_filename, is_package...: the real loader's
         return getattr(self._loader, name)
@@ -62,7 +98,7 @@ class _Loader:
         return self._loader.create_module(spec)
 
     def exec_module(self, module):
-        block = self._loaded not in sys.modules and self._blocked not in sys.modules
+        block = self._blocked is not None and self._loaded not in sys.modules and self._blocked not in sys.modules
         if block:
             sys.modules[self._blocked] = None  # its import raises ImportError (ModuleNotFoundError)
         try:
@@ -70,11 +106,13 @@ class _Loader:
         finally:
             if block and self._blocked in sys.modules and sys.modules[self._blocked] is None:
                 del sys.modules[self._blocked]
+        if self._after is not None:
+            self._after(module)
 
 
 class _Finder:
-    """Finds each module of ``SKIPPED`` as the path finder would, with :class:`_Loader` around its loader;
-    once each, and gone from ``sys.meta_path`` after the last."""
+    """Finds each module of ``SKIPPED`` and ``AFTER`` as the path finder would, with :class:`_Loader` around
+    its loader; once each, and gone from ``sys.meta_path`` after the last."""
 
     def __init__(self):
         self.left = set()
@@ -87,7 +125,7 @@ class _Finder:
             sys.meta_path.remove(self)
         spec = importlib.machinery.PathFinder.find_spec(name, path, target)
         if spec is not None and spec.loader is not None:
-            spec.loader = _Loader(spec.loader, *SKIPPED[name])
+            spec.loader = _Loader(spec.loader, *SKIPPED.get(name, (None, None)), AFTER.get(name))
         return spec
 
 
@@ -95,7 +133,10 @@ _FINDER = _Finder()
 
 
 def skip_unused_imports() -> None:
-    """Skip, in this process, the imports of ``SKIPPED`` (module docstring) of the modules not loaded yet."""
-    _FINDER.left = {name for name in SKIPPED if name not in sys.modules}
+    """Skip, in this process, the imports of ``SKIPPED`` and the registries of numba's cache loads (module
+    docstring), for the modules not loaded yet (numba's cache loads, when loaded, at once)."""
+    if "numba.core.caching" in sys.modules:
+        load_without_registries(sys.modules["numba.core.caching"])
+    _FINDER.left = {name for name in (*SKIPPED, *AFTER) if name not in sys.modules}
     if _FINDER.left and _FINDER not in sys.meta_path:
         sys.meta_path.insert(0, _FINDER)
