@@ -32,11 +32,11 @@ HEAVY = ("dask", "zarr", "open3d", "pymeshlab", "distributed")
 SRC = str(Path(__file__).resolve().parents[1] / "src")
 
 
-def _run(code: str) -> list[str]:
+def _run(code: str, cwd=None) -> list[str]:
     """The words *code* prints in a fresh interpreter that imports this checkout's package."""
     env = {**os.environ, "PYTHONPATH": SRC + os.pathsep + os.environ.get("PYTHONPATH", "")}
     return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
-                          env=env).stdout.split()
+                          env=env, cwd=cwd).stdout.split()
 
 
 def _loaded_after(code: str) -> list[str]:
@@ -197,7 +197,10 @@ def test_cli_warmup_refuses_an_unknown_target(capsys):
     assert "nope" in capsys.readouterr().err
 
 
-_UNUSED = "[m for m in ('scipy.linalg', 'requests', 'pyproj') if m in __import__('sys').modules]"
+_LOADED = "[m for m in {} if m in __import__('sys').modules]"
+_UNUSED = _LOADED.format(('scipy', 'yaml', 'requests', 'pyproj'))
+#: in a worker: the fork server imports numba (and so scipy and yaml) before its hook (cloudsieve.engine.pool)
+_UNUSED_IN_WORKERS = _LOADED.format(('scipy.linalg', 'requests', 'pyproj'))
 
 
 def test_the_skipped_imports_stay_unloaded_then_import_as_usual():
@@ -219,6 +222,15 @@ def test_the_skipped_imports_stay_unloaded_then_import_as_usual():
         "      float(scipy.linalg.norm(x[1] - x[0])) ** 2, requests)\n"
     )
     assert _run(code) == ["0", "False", "False", "None", "26917", "0.0", "27.0", "True"]
+
+
+def test_numbas_config_file_still_reads_with_yaml(tmp_path):
+    """numba's yaml import is skipped only where no .numba_config.yaml would be read (the working folder)."""
+    code = ("import sys\nfrom cloudsieve.lean_start import skip_unused_imports\nskip_unused_imports()\n"
+            "import numba\nprint('yaml' in sys.modules, numba.config.DEBUG_CACHE)\n")
+    assert _run(code, cwd=tmp_path) == ["False", "0"]
+    (tmp_path / ".numba_config.yaml").write_text("debug_cache: 1\n")
+    assert _run(code, cwd=tmp_path) == ["True", "1"]
 
 
 def test_cache_loads_install_no_registries_and_a_later_compile_has_them():
@@ -265,7 +277,7 @@ def test_the_fork_server_skips_the_unused_imports_for_its_workers():
         "start_forkserver(ctx, targets_of(DEFAULT_RULE))\n"
         "with local_pool(1, ctx) as pool:\n"
         "    print(ctx.get_start_method(), pool.submit(eval, \"__import__('laspy').copc.requests\").result(),\n"
-        f"          pool.submit(eval, {_UNUSED!r}).result())\n"
+        f"          pool.submit(eval, {_UNUSED_IN_WORKERS!r}).result())\n"
     )
     assert _run(code) == ["forkserver", "None", "[]"]
 

@@ -48,16 +48,21 @@ Not for a process that is not the package's: user code in it may compile
 from __future__ import annotations
 
 import importlib.machinery
+import os
 import sys
 
-__all__ = ["skip_unused_imports", "load_without_registries", "SKIPPED", "AFTER"]
+__all__ = ["skip_unused_imports", "load_without_registries", "SKIPPED", "WHEN", "AFTER"]
 
 #: the module executed -> what it imports that a run does not use, and the module whose presence makes it free
 SKIPPED = {
+    "numba": ("scipy", "scipy"),
+    "numba.core.config": ("yaml", "yaml"),
     "numba.np.arraymath": ("scipy.linalg.cython_blas", "scipy.linalg"),
     "laspy.copc": ("requests", "requests"),
     "laspy.vlrs.geotiff": ("pyproj", "pyproj"),
 }
+#: the skips of ``SKIPPED`` made only when this holds at the module's import (else it imports as usual)
+WHEN = {"numba.core.config": lambda: not os.path.isfile(".numba_config.yaml")}  # numba's config file, read by yaml
 
 
 def load_without_registries(caching) -> None:
@@ -87,9 +92,9 @@ class _Loader:
     """A module's own loader, executing it with one import blocked or a change made after (the protocol of
     ``importlib.abc.Loader``, whose own import pulls in ``importlib.resources``: 17 ms)."""
 
-    def __init__(self, loader, blocked: str | None = None, loaded: str | None = None, after=None):
+    def __init__(self, loader, blocked: str | None = None, loaded: str | None = None, after=None, when=None):
         self._loader = loader
-        self._blocked, self._loaded, self._after = blocked, loaded, after
+        self._blocked, self._loaded, self._after, self._when = blocked, loaded, after, when
 
     def __getattr__(self, name):  # get_source, get_filename, is_package...: the real loader's
         return getattr(self._loader, name)
@@ -98,7 +103,8 @@ class _Loader:
         return self._loader.create_module(spec)
 
     def exec_module(self, module):
-        block = self._blocked is not None and self._loaded not in sys.modules and self._blocked not in sys.modules
+        block = (self._blocked is not None and self._loaded not in sys.modules and self._blocked not in sys.modules
+                 and (self._when is None or self._when()))
         if block:
             sys.modules[self._blocked] = None  # its import raises ImportError (ModuleNotFoundError)
         try:
@@ -125,7 +131,7 @@ class _Finder:
             sys.meta_path.remove(self)
         spec = importlib.machinery.PathFinder.find_spec(name, path, target)
         if spec is not None and spec.loader is not None:
-            spec.loader = _Loader(spec.loader, *SKIPPED.get(name, (None, None)), AFTER.get(name))
+            spec.loader = _Loader(spec.loader, *SKIPPED.get(name, (None, None)), AFTER.get(name), WHEN.get(name))
         return spec
 
 

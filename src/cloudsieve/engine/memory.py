@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import threading
 
 __all__ = ["PeakMemory", "process_tree_rss", "worker_rss"]
@@ -26,8 +27,42 @@ LOCAL_SCOPE = "this process and its children"
 JOIN_SECONDS = 60
 
 
+def _proc_tree_rss() -> int | None:
+    """:func:`process_tree_rss` from Linux's /proc (None elsewhere), as psutil reads it there (each process's
+    parent from ``/proc/<pid>/stat``, its resident pages from ``/proc/<pid>/statm``). Read here because
+    psutil's import alone took 35-54 ms on this project's test machine, a twentieth of a 1,065-point run."""
+    try:
+        names = os.listdir("/proc")
+        page = os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, AttributeError):
+        return None
+    children: dict[int, list[int]] = {}
+    for name in names:
+        if name.isdigit():
+            try:
+                with open(f"/proc/{name}/stat", "rb") as f:
+                    stat = f.read()
+            except OSError:  # gone since the listing
+                continue
+            ppid = int(stat[stat.rindex(b")") + 2 :].split(maxsplit=2)[1])  # after "pid (name) state"
+            children.setdefault(ppid, []).append(int(name))
+    total, todo = 0, [os.getpid()]
+    while todo:
+        pid = todo.pop()
+        todo += children.get(pid, [])
+        try:
+            with open(f"/proc/{pid}/statm", "rb") as f:
+                total += int(f.read().split()[1]) * page
+        except (OSError, IndexError, ValueError):
+            continue
+    return total
+
+
 def process_tree_rss() -> int:
     """Resident memory of this process and its children now (bytes)."""
+    rss = _proc_tree_rss()
+    if rss is not None:
+        return rss
     try:
         import psutil
     except ImportError:  # pragma: no cover
