@@ -1,10 +1,13 @@
 """What the package's own processes (the command, the local fork server) skip at start.
 
-Three modules the command loads import, at their own import, what a run never
+Five modules the command loads import, at their own import, what a run never
 uses:
 
-- ``numba.np.arraymath`` (loaded with the first kernel numba takes from its
-  cache or compiles) checks that ``np.dot`` could call BLAS by importing
+- ``numba`` imports scipy for a version check only.
+- ``numba.core.config`` imports yaml to read a ``.numba_config.yaml`` in the
+  working folder: skipped only where there is none (``WHEN``).
+- ``numba.np.arraymath`` (loaded with the first kernel numba compiles)
+  checks that ``np.dot`` could call BLAS by importing
   ``scipy.linalg.cython_blas``: all of ``scipy.linalg``, with a second OpenBLAS
   and its threads. No compiled kernel of this package calls ``np.dot``,
   ``np.vdot``, ``@`` or ``np.linalg`` (tests/test_speed_start.py reads their
@@ -17,11 +20,11 @@ uses:
   ``parse_crs`` imports it again where it needs it, as
   :mod:`cloudsieve.store.copc_file` does).
 
-On this project's test machine (five alternating processes each) the first
-kernel load of a process took 0.25-0.33 s without the BLAS probe against
-0.46-0.66 s, and ``import laspy`` (numpy loaded) 0.035-0.052 s without
-requests and pyproj against 0.163-0.236 s: a 1,065-point file's whole run
-took 1.03-1.23 s against 1.45-1.75 s (docs/benchmarks.md).
+:func:`skip_unused_imports` installs an import hook that, while each of these
+modules and only it is executed, makes the import of what it would not need
+fail at once (a module that is already loaded is left: it costs nothing
+there), then removes the block: scipy, yaml, pyproj and requests import as
+usual afterwards (``evaluate``'s k-d trees, a CRS from GeoTIFF keys).
 
 And numba's cache (``numba.core.caching.Cache.load_overload``) refreshes the
 compiler's target context before each load: it imports and installs every
@@ -29,20 +32,18 @@ typing and lowering registry of numba (its array, random, typed-container
 and polynomial modules; 251 overload templates initialised), which only a
 compilation reads. A kernel taken from the cache is machine code; what its
 run needs of numba is the runtime (NRT, its allocator), which the refresh
-also initialises. :func:`load_without_registries` makes the loads initialise
-the runtime only; a compilation still refreshes both contexts first
+also initialises (without it the process crashes). The hook makes the loads
+initialise the runtime only (:func:`load_without_registries`, ``AFTER``); a
+compilation still refreshes both contexts first
 (``numba.core.compiler.compile_extra``), so a kernel compiled later in the
-process, a cache miss included, sees every registry. A 1,065-point file's
-run in one process took 0.27 s instead of 0.56 s from its start to its end
-(docs/benchmarks.md, "Cache loads without the compiler's registries").
+process, a cache miss included, sees every registry.
 
-:func:`skip_unused_imports` installs an import hook that, while each of these
-three modules and only it is executed, makes the import of what it would not
-need fail at once (a module that is already loaded is left: it costs nothing
-there), then removes the block: ``scipy.linalg``, ``pyproj`` and ``requests``
-import as usual afterwards (``evaluate``'s k-d trees, a CRS from GeoTIFF keys).
+On this project's test machine a 1,065-point file's run took 0.76-0.98 s
+against 1.0-1.4 s without the last four skips and the loads' change, and
+1.45-1.75 s without any (alternating; docs/benchmarks.md, "Imports the
+command skips" and "Cache loads without the compiler's registries").
 Not for a process that is not the package's: user code in it may compile
-``np.dot`` or read COPC over HTTP.
+``np.dot``, read COPC over HTTP or rely on numba's registries at run time.
 """
 
 from __future__ import annotations

@@ -117,9 +117,10 @@ def run() -> NoReturn:
     - The objects of the imports (numpy, numba, scipy, zarr) are frozen
       (``gc.freeze``): the collector no longer walks them (the collections of
       a 10 M-point simplify took 0.12 s instead of 0.23-0.25 s).
-    - Three imports no run uses are skipped (:mod:`cloudsieve.lean_start`):
-      the first kernel load does not import ``scipy.linalg`` (numba's BLAS
-      probe), laspy neither ``requests`` nor ``pyproj``.
+    - What no run uses is skipped (:mod:`cloudsieve.lean_start`): numba
+      imports neither scipy nor yaml (without a ``.numba_config.yaml``
+      here), its cache loads install none of the compiler's registries,
+      laspy imports neither ``requests`` nor ``pyproj``.
     - The exit (:func:`_exit`) ends the threads and runs the exit handlers as
       the interpreter's would, then skips tearing the modules down: every
       file is closed by then.

@@ -2,7 +2,7 @@
 
 :class:`PeakMemory` samples in a thread. A local run (every scheduler that
 starts its workers here, a LocalCluster included) measures the resident
-memory of this process and all its children. A run on a dask.distributed
+memory of this process and all its children (read from /proc on Linux). A run on a dask.distributed
 cluster whose workers live elsewhere (``--scheduler tcp://...`` or a given
 client) measures the workers instead: each worker reports its own resident
 memory (psutil, through ``client.run``), and the peak of their sum is
