@@ -2,12 +2,13 @@
 
 :class:`PeakMemory` samples in a thread. A local run (every scheduler that
 starts its workers here, a LocalCluster included) measures the resident
-memory of this process and all its children (read from /proc on Linux). A run on a dask.distributed
-cluster whose workers live elsewhere (``--scheduler tcp://...`` or a given
-client) measures the workers instead: each worker reports its own resident
-memory (psutil, through ``client.run``), and the peak of their sum is
-reported, labelled with the number of workers (:attr:`PeakMemory.scope`); the
-client's own memory is not part of it.
+memory of this process and all its children (read from /proc on Linux). A
+run on a dask.distributed cluster whose workers live elsewhere
+(``--scheduler tcp://...`` or a given client) measures the workers instead:
+each worker reports its own resident memory (psutil, through
+``client.run``), and the peak of their sum is reported, labelled with the
+number of workers (:attr:`PeakMemory.scope`); the client's own memory is not
+part of it.
 """
 
 from __future__ import annotations
