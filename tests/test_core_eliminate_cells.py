@@ -63,7 +63,8 @@ def test_cells_do_not_depend_on_order_unit_or_threads():
 
 @pytest.mark.parametrize("seed", range(4))
 def test_median_cut_is_the_partition_oracle(seed):
-    """The histogram median is numpy's partition's, with ties, piles and one value; the rows split stably."""
+    """The histogram median is numpy's partition's, with ties, piles and one value; the rows split stably into
+    the second pair of buffers, the first left as it was."""
     from cloudsieve.core.kernels import kdcells as _kk
 
     rng = np.random.default_rng(seed)
@@ -75,14 +76,15 @@ def test_median_cut_is_the_partition_oracle(seed):
     idx = rng.permutation(m).astype(np.int64)
     before = idx.copy()
     Q = P[idx]
-    v, cut = _kk.median_cut(Q, idx, 1, x.min(), x.max(), np.empty(m), np.empty(m, dtype=np.int64),
-                            np.empty((m, 3)), np.zeros(64, dtype=np.int64))
-    assert np.array_equal(Q, P[idx])  # the points moved with their rows
+    out, outq = np.empty(m, dtype=np.int64), np.empty((m, 3))
+    v, cut = _kk.median_cut(Q, idx, 1, x.min(), x.max(), np.empty(m), out, outq, np.zeros(64, dtype=np.int64))
+    assert np.array_equal(idx, before) and np.array_equal(Q, P[before])  # read only
+    assert np.array_equal(outq, P[out])  # the points moved with their rows
     vals = x[before]
     assert v == np.partition(vals, m // 2)[m // 2]
     first = vals < v if (vals < v).any() else vals == v
     assert cut == first.sum()
-    assert np.array_equal(idx, np.r_[before[first], before[~first]])
+    assert np.array_equal(out, np.r_[before[first], before[~first]])
 
 
 def test_cells_of_ties_and_copies():

@@ -85,23 +85,25 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
         ``points[idx]``: each cell's points a contiguous block.
     """
     n = len(points)
-    idx = np.arange(n, dtype=np.int64)
-    ordered = np.array(points, dtype=np.float64, order="C")  # moved with idx, cut after cut
+    # the rows and their points, moved cut after cut between two pairs of buffers: a cut reads a node's range
+    # of one pair and writes its halves into the other, a cell's range is copied back into the first pair once
+    # at the end (1 M points into 64 cells on 2 threads: 0.055-0.058 s fastest of 20, against 0.065-0.072 s
+    # with a copy back after every cut)
+    idx = (np.arange(n, dtype=np.int64), np.empty(n, dtype=np.int64))
+    ordered = (np.array(points, dtype=np.float64, order="C"), np.empty((n, 3)))
     vals = np.empty(n)
-    tmp = np.empty(n, dtype=np.int64)
-    tmpq = np.empty((n, 3))
     lo, hi = xyz_bounds(points) if n else (np.zeros(3), np.zeros(3))
 
-    def split(node):  # node: (path, s, e, box, lower and upper extent); the halves, or None for a cell
-        path, s, e, box, a, b = node
+    def split(node):  # node: (path, s, e, box, lower and upper extent, its pair); the halves, or None for a cell
+        path, s, e, box, a, b, at = node
         if e - s <= cell_points:
             return None
         ext = b - a
         for axis in np.argsort(-ext, kind="stable"):  # the longest side; if every point ties on it, the next
             if not ext[axis] > 0:
                 return None
-            v, cut = _kk.median_cut(ordered[s:e], idx[s:e], int(axis), a[axis], b[axis], vals[s:e], tmp[s:e],
-                                    tmpq[s:e], np.zeros(4096, dtype=np.int64))
+            v, cut = _kk.median_cut(ordered[at][s:e], idx[at][s:e], int(axis), a[axis], b[axis], vals[s:e],
+                                    idx[1 - at][s:e], ordered[1 - at][s:e], np.zeros(4096, dtype=np.int64))
             mid = s + cut
             if s < mid < e:
                 break
@@ -111,15 +113,20 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
         upper[0, axis] = ub[axis] = v
         lower, lb = box.copy(), b.copy()
         lower[1, axis] = lb[axis] = v
-        return (path + (0,), s, mid, lower, a, lb), (path + (1,), mid, e, upper, ub, b)
+        return (path + (0,), s, mid, lower, a, lb, 1 - at), (path + (1,), mid, e, upper, ub, b, 1 - at)
 
-    level = [((), 0, n, np.array([[-np.inf] * 3, [np.inf] * 3]), lo, hi)]
+    level = [((), 0, n, np.array([[-np.inf] * 3, [np.inf] * 3]), lo, hi, 0)]
     cells = []
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
-        while level:  # the nodes of one level own disjoint ranges of idx, ordered and the scratch
+        while level:  # the nodes of one level own disjoint ranges of both pairs and the scratch
             halves = list(pool.map(split, level))
             cells += [node for node, h in zip(level, halves) if h is None]
             level = [x for h in halves if h is not None for x in h]
+    for _, s, e, *_, at in cells:
+        if at:
+            idx[0][s:e] = idx[1][s:e]
+            ordered[0][s:e] = ordered[1][s:e]
+    idx, ordered = idx[0], ordered[0]
     cells.sort(key=lambda c: c[0])  # depth first, lower side first: a pure function of the coordinates
     starts = np.array([c[1] for c in cells] + [n], dtype=np.int64)
     return idx, starts, np.array([c[3] for c in cells]).reshape(-1, 2, 3), ordered
