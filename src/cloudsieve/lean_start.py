@@ -5,7 +5,7 @@ uses:
 
 - ``numba`` imports scipy for a version check only.
 - ``numba.core.config`` imports yaml to read a ``.numba_config.yaml`` in the
-  working folder: skipped only where there is none (``WHEN``).
+  working folder: skipped only where there is none.
 - ``numba.np.arraymath`` (loaded with the first kernel numba compiles)
   checks that ``np.dot`` could call BLAS by importing
   ``scipy.linalg.cython_blas``: all of ``scipy.linalg``, with a second OpenBLAS
@@ -33,7 +33,7 @@ and polynomial modules; 251 overload templates initialised), which only a
 compilation reads. A kernel taken from the cache is machine code; what its
 run needs of numba is the runtime (NRT, its allocator), which the refresh
 also initialises (without it the process crashes). The hook makes the loads
-initialise the runtime only (:func:`load_without_registries`, ``AFTER``); a
+initialise the runtime only (:func:`load_without_registries`); a
 compilation still refreshes both contexts first
 (``numba.core.compiler.compile_extra``), so a kernel compiled later in the
 process, a cache miss included, sees every registry.
@@ -51,19 +51,9 @@ from __future__ import annotations
 import importlib.machinery
 import os
 import sys
+from typing import Callable, NamedTuple
 
-__all__ = ["skip_unused_imports", "load_without_registries", "SKIPPED", "WHEN", "AFTER"]
-
-#: the module executed -> what it imports that a run does not use, and the module whose presence makes it free
-SKIPPED = {
-    "numba": ("scipy", "scipy"),
-    "numba.core.config": ("yaml", "yaml"),
-    "numba.np.arraymath": ("scipy.linalg.cython_blas", "scipy.linalg"),
-    "laspy.copc": ("requests", "requests"),
-    "laspy.vlrs.geotiff": ("pyproj", "pyproj"),
-}
-#: the skips of ``SKIPPED`` made only when this holds at the module's import (else it imports as usual)
-WHEN = {"numba.core.config": lambda: not os.path.isfile(".numba_config.yaml")}  # numba's config file, read by yaml
+__all__ = ["skip_unused_imports", "load_without_registries", "MODULES"]
 
 
 def load_without_registries(caching) -> None:
@@ -85,17 +75,38 @@ def load_without_registries(caching) -> None:
     cache.load_overload = load_overload
 
 
-#: the module executed -> what is done to it after (module docstring)
-AFTER = {"numba.core.caching": load_without_registries}
+class Change(NamedTuple):
+    """What is done to one module: the import skipped while it is executed (``blocked``, None: none), unless
+    ``loaded`` is present (then that import is free) or ``when`` (a test at its import) fails; and ``after``,
+    called with the module once it is executed (or at once, when it is already loaded)."""
+
+    blocked: str | None = None
+    loaded: str | None = None
+    when: Callable[[], bool] | None = None
+    after: Callable[[object], None] | None = None
+
+
+def _no_numba_config() -> bool:
+    return not os.path.isfile(".numba_config.yaml")  # numba's config file in the working folder, read by yaml
+
+
+#: the module executed -> what is done to it (module docstring)
+MODULES = {
+    "numba": Change("scipy", "scipy"),
+    "numba.core.config": Change("yaml", "yaml", when=_no_numba_config),
+    "numba.core.caching": Change(after=load_without_registries),
+    "numba.np.arraymath": Change("scipy.linalg.cython_blas", "scipy.linalg"),
+    "laspy.copc": Change("requests", "requests"),
+    "laspy.vlrs.geotiff": Change("pyproj", "pyproj"),
+}
 
 
 class _Loader:
-    """A module's own loader, executing it with one import blocked or a change made after (the protocol of
-    ``importlib.abc.Loader``, whose own import pulls in ``importlib.resources``: 17 ms)."""
+    """A module's own loader, executing it with its :class:`Change` (the protocol of ``importlib.abc.Loader``,
+    whose own import pulls in ``importlib.resources``: 17 ms)."""
 
-    def __init__(self, loader, blocked: str | None = None, loaded: str | None = None, after=None, when=None):
-        self._loader = loader
-        self._blocked, self._loaded, self._after, self._when = blocked, loaded, after, when
+    def __init__(self, loader, change: Change):
+        self._loader, self._change = loader, change
 
     def __getattr__(self, name):  # get_source, get_filename, is_package...: the real loader's
         return getattr(self._loader, name)
@@ -104,22 +115,23 @@ class _Loader:
         return self._loader.create_module(spec)
 
     def exec_module(self, module):
-        block = (self._blocked is not None and self._loaded not in sys.modules and self._blocked not in sys.modules
-                 and (self._when is None or self._when()))
+        blocked, loaded, when, after = self._change
+        block = (blocked is not None and loaded not in sys.modules and blocked not in sys.modules
+                 and (when is None or when()))
         if block:
-            sys.modules[self._blocked] = None  # its import raises ImportError (ModuleNotFoundError)
+            sys.modules[blocked] = None  # its import raises ImportError (ModuleNotFoundError)
         try:
             self._loader.exec_module(module)
         finally:
-            if block and self._blocked in sys.modules and sys.modules[self._blocked] is None:
-                del sys.modules[self._blocked]
-        if self._after is not None:
-            self._after(module)
+            if block and blocked in sys.modules and sys.modules[blocked] is None:
+                del sys.modules[blocked]
+        if after is not None:
+            after(module)
 
 
 class _Finder:
-    """Finds each module of ``SKIPPED`` and ``AFTER`` as the path finder would, with :class:`_Loader` around
-    its loader; once each, and gone from ``sys.meta_path`` after the last."""
+    """Finds each module of ``MODULES`` as the path finder would, with :class:`_Loader` around its loader;
+    once each, and gone from ``sys.meta_path`` after the last."""
 
     def __init__(self):
         self.left = set()
@@ -132,7 +144,7 @@ class _Finder:
             sys.meta_path.remove(self)
         spec = importlib.machinery.PathFinder.find_spec(name, path, target)
         if spec is not None and spec.loader is not None:
-            spec.loader = _Loader(spec.loader, *SKIPPED.get(name, (None, None)), AFTER.get(name), WHEN.get(name))
+            spec.loader = _Loader(spec.loader, MODULES[name])
         return spec
 
 
@@ -140,10 +152,11 @@ _FINDER = _Finder()
 
 
 def skip_unused_imports() -> None:
-    """Skip, in this process, the imports of ``SKIPPED`` and the registries of numba's cache loads (module
-    docstring), for the modules not loaded yet (numba's cache loads, when loaded, at once)."""
-    if "numba.core.caching" in sys.modules:
-        load_without_registries(sys.modules["numba.core.caching"])
-    _FINDER.left = {name for name in (*SKIPPED, *AFTER) if name not in sys.modules}
+    """Make, in this process, the changes of ``MODULES`` (module docstring): at their import for the modules
+    not loaded yet; for those already loaded, the ``after`` changes at once (their imports are done)."""
+    for name, change in MODULES.items():
+        if name in sys.modules and change.after is not None:
+            change.after(sys.modules[name])
+    _FINDER.left = {name for name in MODULES if name not in sys.modules}
     if _FINDER.left and _FINDER not in sys.meta_path:
         sys.meta_path.insert(0, _FINDER)
