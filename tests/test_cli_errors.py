@@ -166,3 +166,19 @@ def test_the_command_ends_its_threads_and_runs_the_exit_handlers(tmp_path):
     assert (proc.returncode, proc.stderr) == (0, "")
     assert "simple.las" in proc.stdout and "thread\n" in proc.stdout and "pool\n" in proc.stdout
     assert proc.stdout.endswith("handler\n")
+
+
+def test_the_command_puts_numpys_arrays_on_small_pages_unless_told():
+    """cli.run's _small_pages: numpy, already imported, stops asking for huge pages, and so does every process
+    started from it (the environment); NUMPY_MADVISE_HUGEPAGE set by the user is left as it is."""
+    code = ("import os, subprocess, sys, numpy; from cloudsieve.cli import _small_pages; "
+            "from numpy._core.multiarray import _set_madvise_hugepage as huge; _small_pages(); was = huge(False); "
+            "child = subprocess.run([sys.executable, '-c', 'from numpy._core.multiarray import "
+            "_set_madvise_hugepage as h; print(h(False))'], capture_output=True, text=True).stdout.strip(); "
+            "print(was, os.environ['NUMPY_MADVISE_HUGEPAGE'], child)")
+    base = {k: v for k, v in os.environ.items() if k != "NUMPY_MADVISE_HUGEPAGE"}
+    base["PYTHONPATH"] = os.pathsep.join([str(ROOT / "src"), os.environ.get("PYTHONPATH", "")])
+    for preset, out in ((None, "False 0 False"), ("1", "True 1 True")):
+        env = base if preset is None else {**base, "NUMPY_MADVISE_HUGEPAGE": preset}
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+        assert (proc.returncode, proc.stdout.strip(), proc.stderr) == (0, out, "")
