@@ -147,6 +147,28 @@ def test_process_tree_rss_from_proc_is_psutils_sum():
         child.communicate(b"")
 
 
+
+def test_small_pages_turns_numpys_huge_pages_off_inside_and_obeys_the_variable(monkeypatch):
+    """engine.memory.small_pages: numpy's huge-page advice off inside, as it was after (on or off); with
+    NUMPY_MADVISE_HUGEPAGE set, numpy's switch is left alone."""
+    from cloudsieve.engine.memory import HUGEPAGE_ENV, set_huge_pages, small_pages
+
+    monkeypatch.delenv(HUGEPAGE_ENV, raising=False)
+    before = set_huge_pages(True)
+    try:
+        for outside in (True, False):
+            set_huge_pages(outside)
+            with small_pages():
+                assert set_huge_pages(False) is False
+            assert set_huge_pages(outside) is outside
+        monkeypatch.setenv(HUGEPAGE_ENV, "1")
+        set_huge_pages(True)
+        with small_pages():
+            assert set_huge_pages(True) is True
+    finally:
+        set_huge_pages(before)
+
+
 def _fail():
     raise ZeroDivisionError("boom")
 

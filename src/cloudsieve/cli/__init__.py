@@ -138,32 +138,18 @@ def run() -> NoReturn:
     _exit(main())
 
 
-#: numpy's own switch, read when numpy is imported
-HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
-
-
 def _small_pages() -> None:
-    """numpy's arrays of 4 MiB and more on the kernel's 4 KiB pages, unless ``NUMPY_MADVISE_HUGEPAGE`` is set.
+    """numpy's large arrays on 4 KiB pages in this process and every process started from it
+    (:func:`cloudsieve.engine.memory.small_pages`), unless ``NUMPY_MADVISE_HUGEPAGE`` is set: the variable
+    set to 0, which numpy reads at its import (the fork server, the workers), and numpy told at once if
+    already imported. ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default."""
+    from ..engine.memory import HUGEPAGE_ENV, set_huge_pages
 
-    On Linux numpy asks for transparent huge pages (``madvise``) for such
-    arrays, and the kernel zeroes a whole 2 MiB page at its first touch. On
-    this project's test machine (a 2-core VM) that zeroing took 1.5-3.3 s a
-    GiB of new arrays against 0.72-0.75 s on 4 KiB pages, and a 10 M-point
-    simplify spent 10.4-10.8 s of system time against 2.3-2.8 s
-    (docs/benchmarks.md). Set in the environment, so the fork server, the
-    workers and any process started from here do the same; numpy already
-    imported is told at once. ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's
-    default.
-    """
     if HUGEPAGE_ENV in os.environ:
         return
     os.environ[HUGEPAGE_ENV] = "0"
     if "numpy" in sys.modules:
-        try:
-            from numpy._core.multiarray import _set_madvise_hugepage
-        except ImportError:  # numpy 1
-            from numpy.core.multiarray import _set_madvise_hugepage
-        _set_madvise_hugepage(False)
+        set_huge_pages(False)
 
 
 #: glibc's malloc.h

@@ -39,7 +39,7 @@ import numpy as np
 from . import ahead
 from ..warmup_targets import targets_of
 from ..progress import stage_bar
-from .memory import PeakMemory
+from .memory import PeakMemory, small_pages
 from .summary import Summary
 
 __all__ = ["fits_in_memory", "run_small", "SCHEDULER"]
@@ -138,7 +138,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # into an empty numba cache: a second core compiles ahead
     try:
-        with PeakMemory() as peak:
+        with PeakMemory() as peak, small_pages():
             t0 = time.perf_counter()
             xyz, attrs, dtypes, header, bounds, source_format = _read(sources, opts)
             header = json.loads(json.dumps(header))  # as the store keeps it: JSON (lists, not tuples)
