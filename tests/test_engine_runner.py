@@ -147,7 +147,6 @@ def test_process_tree_rss_from_proc_is_psutils_sum():
         child.communicate(b"")
 
 
-
 def test_small_pages_turns_numpys_huge_pages_off_inside_and_obeys_the_variable(monkeypatch):
     """engine.memory.small_pages: numpy's huge-page advice off inside, as it was after (on or off); with
     NUMPY_MADVISE_HUGEPAGE set, numpy's switch is left alone."""
