@@ -34,12 +34,17 @@ HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
 
 
 def set_huge_pages(on: bool) -> bool:
-    """Tell numpy (imported) whether to advise huge pages for its large arrays; returns what it did before."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:  # numpy 1
-        from numpy.core.multiarray import _set_madvise_hugepage
-    return bool(_set_madvise_hugepage(bool(on)))
+    """Tell numpy whether to advise huge pages for its large arrays; returns what it did before (False, and
+    nothing changed, for a numpy without the switch: it is private)."""
+    import importlib
+
+    for module in ("numpy._core.multiarray", "numpy.core.multiarray"):  # numpy 2, numpy 1
+        try:
+            switch = importlib.import_module(module)._set_madvise_hugepage
+        except (ImportError, AttributeError):
+            continue
+        return bool(switch(bool(on)))
+    return False
 
 
 @contextlib.contextmanager
