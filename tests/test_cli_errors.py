@@ -169,10 +169,10 @@ def test_the_command_ends_its_threads_and_runs_the_exit_handlers(tmp_path):
 
 
 def test_the_command_puts_numpys_arrays_on_small_pages_unless_told():
-    """cli.run's _small_pages: numpy, already imported, stops asking for huge pages, and so does every process
+    """cli.run's engine.memory.small_pages_from_here: numpy, already imported, stops asking for huge pages, and so does every process
     started from it (the environment); NUMPY_MADVISE_HUGEPAGE set by the user is left as it is."""
-    code = ("import os, subprocess, sys, numpy; from cloudsieve.cli import _small_pages; "
-            "from numpy._core.multiarray import _set_madvise_hugepage as huge; _small_pages(); was = huge(False); "
+    code = ("import os, subprocess, sys, numpy; from cloudsieve.engine.memory import small_pages_from_here; "
+            "from numpy._core.multiarray import _set_madvise_hugepage as huge; small_pages_from_here(); was = huge(False); "
             "child = subprocess.run([sys.executable, '-c', 'from numpy._core.multiarray import "
             "_set_madvise_hugepage as h; print(h(False))'], capture_output=True, text=True).stdout.strip(); "
             "print(was, os.environ['NUMPY_MADVISE_HUGEPAGE'], child)")

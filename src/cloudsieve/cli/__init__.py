@@ -115,7 +115,8 @@ def run() -> NoReturn:
       what is freed there (:func:`_keep_freed_memory`): a cell's arrays
       reuse the pages of the cell before instead of faulting in new ones.
     - numpy's large arrays go on ordinary pages, not transparent huge pages
-      (:func:`_small_pages`), here and in every process it starts.
+      (:func:`cloudsieve.engine.memory.small_pages_from_here`), here and in
+      every process it starts; ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default.
     - The objects of the imports (numpy, numba, scipy, zarr) are frozen
       (``gc.freeze``): the collector no longer walks them (the collections of
       a 10 M-point simplify took 0.12 s instead of 0.23-0.25 s).
@@ -129,27 +130,14 @@ def run() -> NoReturn:
 
     Not for a process that goes on (tests call :func:`main`).
     """
+    from ..engine.memory import small_pages_from_here
     from ..lean_start import skip_unused_imports
 
     _keep_freed_memory()
-    _small_pages()
+    small_pages_from_here()
     skip_unused_imports()
     gc.freeze()
     _exit(main())
-
-
-def _small_pages() -> None:
-    """numpy's large arrays on 4 KiB pages in this process and every process started from it
-    (:func:`cloudsieve.engine.memory.small_pages`), unless ``NUMPY_MADVISE_HUGEPAGE`` is set: the variable
-    set to 0, which numpy reads at its import (the fork server, the workers), and numpy told at once if
-    already imported. ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default."""
-    from ..engine.memory import HUGEPAGE_ENV, set_huge_pages
-
-    if HUGEPAGE_ENV in os.environ:
-        return
-    os.environ[HUGEPAGE_ENV] = "0"
-    if "numpy" in sys.modules:
-        set_huge_pages(False)
 
 
 #: glibc's malloc.h

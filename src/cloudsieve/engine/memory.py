@@ -11,17 +11,21 @@ number of workers (:attr:`PeakMemory.scope`); the client's own memory is not
 part of it.
 
 :func:`small_pages` keeps numpy's large arrays off transparent huge pages
-while a cloud is simplified in memory.
+while a cloud is simplified in memory; :func:`small_pages_from_here` for
+the rest of the process and every process it starts (the command).
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import os
+import sys
 import threading
 
-__all__ = ["HUGEPAGE_ENV", "PeakMemory", "process_tree_rss", "small_pages", "worker_rss"]
+__all__ = ["HUGEPAGE_ENV", "PeakMemory", "process_tree_rss", "small_pages", "small_pages_from_here",
+           "worker_rss"]
 
 logger = logging.getLogger(__name__)
 
@@ -36,8 +40,6 @@ HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
 def set_huge_pages(on: bool) -> bool:
     """Tell numpy whether to advise huge pages for its large arrays; returns what it did before (False, and
     nothing changed, for a numpy without the switch: it is private)."""
-    import importlib
-
     for module in ("numpy._core.multiarray", "numpy.core.multiarray"):  # numpy 2, numpy 1
         try:
             switch = importlib.import_module(module)._set_madvise_hugepage
@@ -69,6 +71,17 @@ def small_pages():
     finally:
         set_huge_pages(was)
 
+
+
+def small_pages_from_here() -> None:
+    """:func:`small_pages` for the rest of this process and every process started from it, unless
+    ``NUMPY_MADVISE_HUGEPAGE`` is set: the variable set to 0, which numpy reads at its import (the fork
+    server, the workers), and numpy told at once if already imported."""
+    if HUGEPAGE_ENV in os.environ:
+        return
+    os.environ[HUGEPAGE_ENV] = "0"
+    if "numpy" in sys.modules:
+        set_huge_pages(False)
 
 def _proc_tree_rss() -> int | None:
     """:func:`process_tree_rss` from Linux's /proc (None elsewhere), as psutil reads it there (each process's
