@@ -16,7 +16,16 @@ timed whole by this driver, as a user's shell would time it:
    ``cloudsieve simplify FILE OUT --ratio 0.5`` alternating with what an
    Open3D user runs on the same file: laspy reads it, Open3D's
    ``voxel_down_sample`` at the voxel size that keeps about as many points
-   (found by bisection, untimed), laspy writes the LAZ.
+   (found by bisection, untimed), laspy writes the LAZ; and, where
+   CloudCompare is installed (Debian's ``cloudcompare``; its LAS plugin is
+   not built there), what a CloudCompare user runs: ``CloudCompare -SILENT``
+   reads the file's x, y, z as a binary PLY (written beforehand, untimed),
+   subsamples with ``-SS SPATIAL`` at the step that keeps about as many
+   points (bisection, untimed) and writes a binary PLY, beside
+   ``cloudsieve simplify`` of the same PLY to a PLY (every run timed whole).
+   Then the CPU seconds of each tool's fastest run (user + system, from
+   ``getrusage`` of the children): on 2 cores, half of them is the least
+   wall time that run could take.
 
 The load average is printed beside each row: the machine's speed varies, so
 compare rows of one run.
@@ -26,18 +35,24 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
+import resource
 import shutil
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 from engine import open3d_same_count  # benchmarks/engine.py, beside this script
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
 PY = sys.executable
+#: CloudCompare's command-line binary (Debian's ``cloudcompare``), None when not installed; run without a display
+CLOUDCOMPARE = shutil.which("CloudCompare")
+CC_ENV = {**os.environ, "QT_QPA_PLATFORM": "offscreen"}
 
 # engine.py's open3d_end_to_end as a script: the user's process imports laspy, numpy and open3d only, and
 # its imports are timed with it (importing engine.py would add cloudsieve's to Open3D's side)
@@ -62,14 +77,22 @@ def load() -> str:
     return "{:.1f}".format(os.getloadavg()[0])
 
 
-def timed(cmd: list[str], env: dict | None = None) -> tuple[float, str]:
-    """Wall seconds of *cmd* (a fresh process) and its stdout; raises when it fails."""
+class Run(NamedTuple):
+    wall: float  # seconds, timed whole by this driver
+    out: str  # its stdout
+    cpu: float  # user + system seconds of the process and its children
+
+
+def timed(cmd: list[str], env: dict | None = None) -> Run:
+    """Run *cmd* (a fresh process); raises when it fails."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-3000:]}")
-    return wall, proc.stdout
+    return Run(wall, proc.stdout, after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
 
 
 def simplify_cmd(src: Path, dst: Path) -> list[str]:
@@ -93,28 +116,104 @@ def cold(src: Path, work: Path) -> None:
             env["NUMBA_CACHE_DIR"] = cache
             for label, cmd in runs:
                 l0 = load()
-                wall, _ = timed(cmd, env)
+                wall = timed(cmd, env).wall
                 print(f"| {label} | {wall:.1f} | {l0} / {load()} |")
+
+
+def cloudcompare_cmd(src: Path, step: float, dst: Path | None = None) -> list[str]:
+    """CloudCompare's command line: SRC (PLY) subsampled by ``-SS SPATIAL`` at *step*, saved as a binary PLY to
+    *dst* (None: not saved). Coordinates this large are shifted to the origin (``-GLOBAL_SHIFT AUTO``), as its
+    dialog proposes."""
+    cmd = [CLOUDCOMPARE, "-SILENT", "-AUTO_SAVE", "OFF", "-O", "-GLOBAL_SHIFT", "AUTO", str(src), "-SS", "SPATIAL",
+           repr(step)]
+    if dst is not None:
+        cmd += ["-C_EXPORT_FMT", "PLY", "-PLY_EXPORT_FMT", "BINARY_LE", "-SAVE_CLOUDS", "FILE", str(dst)]
+    return cmd
+
+
+def cloudcompare_kept(out: str) -> int:
+    """The points CloudCompare's log says ``-SS`` kept."""
+    return int(re.search(r"Result: (\d+) points", out).group(1))
+
+
+def spatial_same_count(ply: Path, count: int, voxel: float) -> float:
+    """The ``-SS SPATIAL`` step at which CloudCompare keeps about *count* points of *ply* (bisection from
+    Open3D's voxel size *voxel*: within 1% or the closest of 12 runs; a larger step keeps fewer)."""
+    lo, hi, best = voxel / 8, voxel * 2, None
+    for _ in range(12):
+        mid = (lo * hi) ** 0.5
+        k = cloudcompare_kept(timed(cloudcompare_cmd(ply, mid), CC_ENV).out)
+        if best is None or abs(k - count) < abs(best[1] - count):
+            best = (mid, k)
+        if abs(k - count) <= 0.01 * count:
+            break
+        lo, hi = (mid, hi) if k > count else (lo, mid)
+    return best[0]
+
+
+def write_ply(src: Path, dst: Path) -> None:
+    """x, y, z of the LAS/LAZ file *src* as a binary little-endian PLY of doubles (CloudCompare's input)."""
+    import laspy
+    import numpy as np
+
+    las = laspy.read(str(src))
+    xyz = np.ascontiguousarray(np.c_[las.x, las.y, las.z], dtype="<f8")
+    with open(dst, "wb") as f:
+        f.write(f"ply\nformat binary_little_endian 1.0\nelement vertex {len(xyz)}\nproperty double x\n"
+                f"property double y\nproperty double z\nend_header\n".encode())
+        f.write(xyz.tobytes())
+
+
+#: the tools of the warm table, as its CPU lines name them
+NAMES = {"ours": "cloudsieve", "open3d": "laspy + Open3D", "ours_ply": "cloudsieve PLY to PLY",
+         "cloudcompare": "CloudCompare"}
+
+
+def times(ts: list[float]) -> str:
+    return ", ".join(f"{t:.2f}" for t in ts)
 
 
 def warm(files: list[Path], work: Path, repeat: int) -> None:
     import laspy
 
+    cc = CLOUDCOMPARE is not None
+    cpu = []
     print(f"\nWarm runs, `--ratio 0.5`, alternating, {repeat} each (fresh processes):\n")
-    print("| file | points | `cloudsieve simplify` (s) | laspy + Open3D voxel + laspy (s) | ratio | load |")
-    print("|---|---:|---|---|---:|---|")
+    print("| file | points | `cloudsieve simplify` (s) | laspy + Open3D voxel + laspy (s) | ratio | "
+          "`cloudsieve simplify`, PLY to PLY (s) | CloudCompare `-SS SPATIAL`, PLY to PLY (s) | ratio | load |")
+    print("|---|---:|---|---|---:|---|---|---:|---|")
     for src in files:
         with laspy.open(str(src)) as reader:
             n = int(reader.header.point_count)
         voxel = open3d_same_count(src, n // 2)[2]  # the voxel size keeping about half (bisection, untimed)
         timed(simplify_cmd(src, work / "warm.laz"))  # fills the cache if this file needs a kernel not yet in it
-        ours, theirs, l0 = [], [], load()
+        ply = work / (src.stem + ".ply")
+        if cc:
+            write_ply(src, ply)
+            step = spatial_same_count(ply, n // 2, voxel)
+            timed(simplify_cmd(ply, work / "warm.ply"))
+        runs: dict[str, list[Run]] = {"ours": [], "open3d": [], "ours_ply": [], "cloudcompare": []}
+        l0 = load()
         for _ in range(repeat):
-            ours.append(timed(simplify_cmd(src, work / "warm.laz"))[0])
-            theirs.append(timed([PY, "-c", OPEN3D, str(src), str(work / "o3d.laz"), repr(voxel)])[0])
-        ratio = min(ours) / min(theirs)
-        print(f"| {src.name} | {n:,} | {', '.join(f'{t:.2f}' for t in ours)} | "
-              f"{', '.join(f'{t:.2f}' for t in theirs)} | {ratio:.1f}x | {l0}-{load()} |")
+            runs["ours"].append(timed(simplify_cmd(src, work / "warm.laz")))
+            runs["open3d"].append(timed([PY, "-c", OPEN3D, str(src), str(work / "o3d.laz"), repr(voxel)]))
+            if cc:
+                runs["ours_ply"].append(timed(simplify_cmd(ply, work / "warm.ply")))
+                runs["cloudcompare"].append(timed(cloudcompare_cmd(ply, step, work / "cc.ply"), CC_ENV))
+        wall = {k: [r.wall for r in v] for k, v in runs.items()}
+        if cc:
+            side = (f"{times(wall['ours_ply'])} | {times(wall['cloudcompare'])} "
+                    f"({cloudcompare_kept(runs['cloudcompare'][-1].out):,} points, step {step:.4g}) | "
+                    f"{min(wall['ours_ply']) / min(wall['cloudcompare']):.1f}x")
+        else:
+            side = "| CloudCompare not installed (`apt-get install cloudcompare`) |"
+        print(f"| {src.name} | {n:,} | {times(wall['ours'])} | {times(wall['open3d'])} | "
+              f"{min(wall['ours']) / min(wall['open3d']):.1f}x | {side} | {l0}-{load()} |")
+        fastest = {k: min(v, key=lambda r: r.wall) for k, v in runs.items() if v}
+        cpu.append(f"{src.name}: " + ", ".join(f"{NAMES[k]} {r.cpu:.2f}" for k, r in fastest.items()))
+    print("\nCPU seconds (user + system, the process and its children) of each tool's fastest run:\n")
+    for line in cpu:
+        print(f"- {line}")
 
 
 def main(argv: list[str] | None = None) -> int:
