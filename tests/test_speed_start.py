@@ -92,6 +92,27 @@ def test_the_in_process_limit_counts_the_headers(tmp_path):
     assert source_points([str(shared_file("pumpAVisualReferenceImage.e57"))]) is None
 
 
+def test_an_in_memory_run_of_several_cells_imports_scipy_spatial_while_it_reads(tmp_path):
+    code = ("import sys\n"
+            "from cloudsieve.engine.small import import_beside\n"
+            "print(import_beside(None, 1000), import_beside(1000, 1000))\n"  # no count; one cell
+            "print('scipy' in sys.modules)\n"
+            "t = import_beside(1001, 1000)\n"  # two cells
+            "t.join()\n"
+            "print(t.name.replace(' ', '-'), 'scipy.spatial' in sys.modules, import_beside(1001, 1000))\n")
+    assert _run(code) == ["None", "None", "False", "import-scipy.spatial", "True", "None"]
+
+
+def test_the_in_memory_run_is_told_the_headers_count(tmp_path):
+    from cloudsieve.engine.checks import check_run
+    from cloudsieve.params import run_record, validate
+
+    autzen = str(shared_file("autzen_trim.laz"))
+    opts = validate("simplify", {"ratio": 0.5})
+    checked = check_run(autzen, str(tmp_path / "o.laz"), opts, run_record(opts))
+    assert checked.in_memory and checked.points == 110_000
+
+
 def test_targets_of_a_run():
     assert targets_of("eliminate") == ("common", "partition", "eliminate")
     assert targets_of("threshold") == targets_of("iterative") == targets_of(None) == ("common", "partition", "scores")

@@ -38,6 +38,8 @@ class RunChecks:
     store: object | None
     #: a small input that runs in memory, without a work store (:mod:`.small`)
     in_memory: bool = False
+    #: the input's points from its headers, when counted (the scheduler is this module's choice) and known
+    points: int | None = None
 
 
 def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> RunChecks:
@@ -74,4 +76,4 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
     in_memory = points is not None and st is None and not src_is_store and fits_in_memory(sources, dst, opts, points)
     return RunChecks(sources=sources, dst_local=dst_local, src_is_store=src_is_store, scheduler=scheduler,
                      store_path=store_path, default_store=store is None and not src_is_store, store=st,
-                     in_memory=in_memory)
+                     in_memory=in_memory, points=points)

@@ -258,7 +258,8 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
     if checked.in_memory:  # a small input: no work store, no dask
         from .small import run_small
 
-        run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars)
+        run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars,
+                  points=checked.points)
         return _finished(summary, t_start, cpu0)
     from .outofcore import run_store  # the work store, dask and the stages: imported only by a run that needs them
 

@@ -29,8 +29,11 @@ and a rerun starts again (a second or two).
 
 from __future__ import annotations
 
+import importlib
 import json
 import logging
+import sys
+import threading
 import time
 from collections.abc import Callable
 
@@ -42,7 +45,7 @@ from ..progress import stage_bar
 from .memory import PeakMemory, small_pages
 from .summary import Summary
 
-__all__ = ["fits_in_memory", "run_small", "SCHEDULER"]
+__all__ = ["fits_in_memory", "import_beside", "run_small", "SCHEDULER"]
 
 logger = logging.getLogger(__name__)
 
@@ -110,8 +113,39 @@ def _read_streamed(src: str, opts: dict) -> tuple:
         return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
 
 
+def import_beside(points: int | None, cell_size: int) -> threading.Thread | None:
+    """Start importing ``scipy.spatial`` on a thread while the cloud is read, when the partition will need it:
+    an input of *points* (from its headers) in more than one cell of *cell_size* points. Returns the thread
+    (join it before the run returns), or None.
+
+    The partition's margin and its K-means centres query scipy's cKDTree; importing ``scipy.spatial`` there
+    took 0.5-0.6 s, during which the partition waited. A PLY's read leaves the second core idle and laspy's
+    LAZ decode lets the import go on beside it. Measured at 10 M points on 2 cores, alternating with the
+    import left to the partition (load 1.0-1.9, the same bytes): the partition took 1.06-1.53 s (median
+    1.44) against 1.41-2.17 s (1.80) on a PLY in six pairs, 1.15-1.21 s against 1.16-1.37 s on a LAZ in
+    four, the read no slower; the whole runs' differences were within the machine's swings (docs/
+    benchmarks.md). A one-cell run never imports scipy."""
+    from .sample import n_cells_for
+
+    if points is None or n_cells_for(points, cell_size) <= 1 or "scipy.spatial" in sys.modules:
+        return None
+    thread = threading.Thread(target=_import_quietly, args=("scipy.spatial",), name="import scipy.spatial")
+    thread.start()
+    return thread
+
+
+def _import_quietly(name: str) -> None:
+    """Import *name*; a failure is left to the import that needs it (the partition's, which reports it): an
+    import may fail here only while :mod:`cloudsieve.lean_start` holds back one of its modules for a moment
+    (``scipy.linalg.cython_blas``, while numba's first compile imports ``numba.np.arraymath``)."""
+    try:
+        importlib.import_module(name)
+    except ImportError:
+        pass
+
+
 def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, account: Callable[[Summary], None],
-              progress: Callable[[int], None], bars=None) -> Summary:
+              progress: Callable[[int], None], bars=None, points: int | None = None) -> Summary:
     """Simplify the small cloud *sources* into *dst* in this process (:func:`fits_in_memory` said so).
 
     Parameters
@@ -130,6 +164,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
         ``progress(n)`` after each stage (n points).
     bars : callable, optional
         As for :func:`cloudsieve.engine.simplify`.
+    points : int, optional
+        The input's points from its headers (:func:`import_beside`).
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer
@@ -137,6 +173,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
 
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # into an empty numba cache: a second core compiles ahead
+    importing = import_beside(points, opts["cell_size"])
     try:
         with PeakMemory() as peak, small_pages():
             t0 = time.perf_counter()
@@ -187,6 +224,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             summary.seconds["export"] = time.perf_counter() - t0
     finally:
         ahead.finish(proc)
+        if importing is not None:
+            importing.join()
     summary.peak_memory, summary.peak_memory_of = int(peak.peak), peak.scope
     summary.store = ""
     return summary
