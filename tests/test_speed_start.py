@@ -92,7 +92,7 @@ def test_the_in_process_limit_counts_the_headers(tmp_path):
     assert source_points([str(shared_file("pumpAVisualReferenceImage.e57"))]) is None
 
 
-def test_an_in_memory_run_of_several_cells_imports_scipy_spatial_while_it_reads(tmp_path):
+def test_an_in_memory_run_of_several_cells_imports_scipy_spatial_while_it_reads():
     code = ("import sys\n"
             "from cloudsieve.engine.small import import_beside\n"
             "print(import_beside(None, 1000), import_beside(1000, 1000))\n"  # no count; one cell
