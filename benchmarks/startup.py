@@ -152,16 +152,16 @@ def spatial_same_count(ply: Path, count: int, voxel: float) -> float:
 
 
 def write_ply(src: Path, dst: Path) -> None:
-    """x, y, z of the LAS/LAZ file *src* as a binary little-endian PLY of doubles (CloudCompare's input)."""
-    import laspy
+    """x, y, z of *src* as a binary PLY (CloudCompare's input: its Debian build reads no LAS), streamed chunk by
+    chunk through cloudsieve's own reader and writer."""
     import numpy as np
 
-    las = laspy.read(str(src))
-    xyz = np.ascontiguousarray(np.c_[las.x, las.y, las.z], dtype="<f8")
-    with open(dst, "wb") as f:
-        f.write(f"ply\nformat binary_little_endian 1.0\nelement vertex {len(xyz)}\nproperty double x\n"
-                f"property double y\nproperty double z\nend_header\n".encode())
-        f.write(xyz.tobytes())
+    from cloudsieve.io import open_reader, open_writer
+
+    xyz = {"xyz": (np.dtype(np.float64), (3,))}
+    with open_reader(src) as reader, open_writer(dst, header={}, dtypes=xyz, overwrite=True) as writer:
+        for chunk in reader.chunks():
+            writer.write({"xyz": chunk.arrays["xyz"]})
 
 
 #: the tools of the warm table, as its CPU lines name them
