@@ -136,19 +136,22 @@ def voxel_same_count(pcd, count: int) -> float:
     """The voxel size at which Open3D's ``voxel_down_sample`` of *pcd* keeps about *count* points
     (bisection, within 0.5% or the closest of 40 tries)."""
     ext = np.asarray(pcd.get_max_bound()) - np.asarray(pcd.get_min_bound())
-    lo, hi = 1e-6 * float(ext.max()), float(ext.max())
+    return size_same_count(lambda v: len(pcd.voxel_down_sample(v).points), count, 1e-6 * float(ext.max()),
+                           float(ext.max()), 0.005, 40)
+
+
+def size_same_count(kept, count: int, lo: float, hi: float, tolerance: float, tries: int) -> float:
+    """The size in [lo, hi] at which ``kept(size)`` (points kept, fewer for a larger size) is within
+    *tolerance* of *count*, by geometric bisection; else the closest of *tries*."""
     best = None
-    for _ in range(40):
+    for _ in range(tries):
         mid = (lo * hi) ** 0.5
-        k = len(pcd.voxel_down_sample(mid).points)
+        k = kept(mid)
         if best is None or abs(k - count) < abs(best[1] - count):
             best = (mid, k)
-        if abs(k - count) <= 0.005 * count:
+        if abs(k - count) <= tolerance * count:
             break
-        if k > count:
-            lo = mid
-        else:
-            hi = mid
+        lo, hi = (mid, hi) if k > count else (lo, mid)
     return best[0]
 
 

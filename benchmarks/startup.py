@@ -45,7 +45,7 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
-from engine import open3d_same_count  # benchmarks/engine.py, beside this script
+from engine import open3d_same_count, size_same_count  # benchmarks/engine.py, beside this script
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE.parent.parent / "shared" / "data"
@@ -138,17 +138,9 @@ def cloudcompare_kept(out: str) -> int:
 
 def spatial_same_count(ply: Path, count: int, voxel: float) -> float:
     """The ``-SS SPATIAL`` step at which CloudCompare keeps about *count* points of *ply* (bisection from
-    Open3D's voxel size *voxel*: within 1% or the closest of 12 runs; a larger step keeps fewer)."""
-    lo, hi, best = voxel / 8, voxel * 2, None
-    for _ in range(12):
-        mid = (lo * hi) ** 0.5
-        k = cloudcompare_kept(timed(cloudcompare_cmd(ply, mid), CC_ENV).out)
-        if best is None or abs(k - count) < abs(best[1] - count):
-            best = (mid, k)
-        if abs(k - count) <= 0.01 * count:
-            break
-        lo, hi = (mid, hi) if k > count else (lo, mid)
-    return best[0]
+    Open3D's voxel size *voxel*: within 1% or the closest of 12 runs)."""
+    return size_same_count(lambda step: cloudcompare_kept(timed(cloudcompare_cmd(ply, step), CC_ENV).out), count,
+                           voxel / 8, voxel * 2, 0.01, 12)
 
 
 def write_ply(src: Path, dst: Path) -> None:
