@@ -158,3 +158,24 @@ def test_compare_states_eliminates_margin_over_the_best_baseline():
     line = next(x for x in res["markdown"].splitlines() if x.startswith("eliminate against the best baseline"))
     assert f"D1 {rows['eliminate']['d1_psnr'] - best['d1_psnr']:+.2f} dB" in line
     assert f"D2 {rows['eliminate']['d2_psnr'] - best['d2_psnr']:+.2f} dB" in line
+
+
+@pytest.mark.parametrize("tile_points", [200_000, 2_500])  # the whole crop as one tile; two tiles of 2,500 points
+def test_compare_gives_each_method_its_own_surface_figures(crop, tile_points):
+    """Each row's surface figures are those of that method's points alone, not the first method's."""
+    from cloudsieve.evaluate import compare
+    from cloudsieve.evaluate.baselines import run_method
+    from cloudsieve.evaluate.surface import surface_errors
+
+    methods = ("random", "voxel", "fps")
+    res = compare(crop, methods=methods, ratio=0.5, tile_points=tile_points, seed=0)
+    rows = {r["method"]: r for r in res["rows"]}
+    keys = ("metro_mean_pct", "metro_max_pct", "metro_rms_pct", "compact_share", "faces", "metro_surface_mean_pct")
+    assert len({tuple(rows[m][k] for k in keys) for m in methods}) == len(methods)
+    for m in methods:
+        idx = run_method(m, crop, res["count"], seed=0)
+        alone = surface_errors(crop, crop[idx], tiles=4, tile_points=tile_points, seed=0)
+        assert len(alone["tiles"]) == (1 if tile_points > len(crop) else 2)
+        assert [rows[m][k] for k in keys] == [alone["mean_pct"], alone["max_pct"], alone["rms_pct"],
+                                              alone["compact_share"], alone["faces"],
+                                              alone["on_surface"]["mean_pct"]], m

@@ -39,7 +39,7 @@ from scipy.spatial import cKDTree
 
 from ..engine.calls import forked
 from ._source import open_source
-from .tiles import (BUDGET_TILES, SURFACE_RATE, budget_tile_points, choose_tiles, gather_tiles,
+from .tiles import (BUDGET_TILES, SURFACE_RATE, budget_tile_points, cell_points, choose_tiles, gather_tiles,
                     partition_tiles, random_tiles, spread, uniform_sample)
 from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, compactness_summary, crop_mesh, metro
 
@@ -144,39 +144,47 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
             "max_pct": mx * scale, "samples": int(n.sum())}
 
 
-def _plan(src, simplified: np.ndarray, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
-          sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], list[np.ndarray], dict]:
-    """The tiles (fixed, budget or full; see :mod:`.tiles`), their points, and how they were chosen."""
+def _plan(src, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
+          sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], dict, np.ndarray | None]:
+    """The tiles (fixed, budget or full; see :mod:`.tiles`), their original points, how they were chosen, and with
+    *full* the centres of the cells (:func:`_simplified_tiles` finds a simplified cloud's points in each tile)."""
     if budget is None and not full:
         chosen = choose_tiles(src, tiles or 4, tile_points, seed=seed)
         if chosen:
-            return (chosen, gather_tiles(src, chosen, tile_points), _simplified_in(simplified, chosen),
-                    {"mode": "fixed", "tile_points": int(tile_points), "population": src.count_points()})
-        return _whole(src, simplified)
+            return (chosen, gather_tiles(src, chosen, tile_points),
+                    {"mode": "fixed", "tile_points": int(tile_points), "population": src.count_points()}, None)
+        return _whole(src)
     sample, n = sample if sample is not None else uniform_sample(src, seed=seed)
     if full:
         if n <= tile_points:
-            return _whole(src, simplified)
-        chosen, origs, simps = partition_tiles(src, sample, n, tile_points, simplified, seed=seed)
-        return chosen, origs, simps, {"mode": "full", "tile_points": int(tile_points), "population": n}
+            return _whole(src)
+        chosen, origs, centres = partition_tiles(src, sample, n, tile_points, seed=seed)
+        return chosen, origs, {"mode": "full", "tile_points": int(tile_points), "population": n}, centres
     # sized by a measured rate, never by a clock: the same tiles on any machine, under any load
     sampling = {"mode": "budget", "budget": float(budget), "population": n, "rate": float(SURFACE_RATE)}
     if n <= tile_points and n / SURFACE_RATE <= budget:
-        return (*_whole(src, simplified)[:3], {**sampling, "mode": "whole", "tile_points": n})
+        chosen, origs, _, _ = _whole(src)
+        return chosen, origs, {**sampling, "mode": "whole", "tile_points": n}, None
     count = tiles or BUDGET_TILES
     m = budget_tile_points(SURFACE_RATE, budget, count, tile_points)
     chosen = random_tiles(sample, n, count, m, seed=seed)
     sampling.update({"tile_points": m})
-    return chosen, gather_tiles(src, chosen, m), _simplified_in(simplified, chosen), sampling
+    return chosen, gather_tiles(src, chosen, m), sampling, None
 
 
-def _whole(src, simplified: np.ndarray):
+def _whole(src):
     origs = [np.concatenate([chunk.xyz for chunk in src.chunks()])]
-    return ([{"centre": None, "radius": None, "whole_cloud": True}], origs, [simplified],
-            {"mode": "whole", "tile_points": len(origs[0]), "population": len(origs[0])})
+    return ([{"centre": None, "radius": None, "whole_cloud": True}], origs,
+            {"mode": "whole", "tile_points": len(origs[0]), "population": len(origs[0])}, None)
 
 
-def _simplified_in(simplified: np.ndarray, chosen: list[dict]) -> list[np.ndarray]:
+def _simplified_tiles(simplified: np.ndarray, chosen: list[dict], centres: np.ndarray | None) -> list[np.ndarray]:
+    """The points of *simplified* in each tile of a plan: all of them for the whole cloud, those nearest each
+    cell's centre for *full*, else those within each tile's ball."""
+    if chosen and chosen[0].get("whole_cloud"):
+        return [simplified]
+    if centres is not None:
+        return cell_points(simplified, centres, chosen)
     stree = cKDTree(simplified)
     out = []
     for t in chosen:
@@ -224,8 +232,10 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
     progress : callable, optional
         Called with 1 per tile done.
     cache : dict, optional
-        Keeps the original's tile meshes between calls on the same original
-        (compare evaluates several simplifications of one cloud).
+        Keeps the original's tiles, their points and meshes between calls on
+        the same original with the same tile options (compare evaluates
+        several simplifications of one cloud); each call finds its own
+        simplified points in the tiles.
     reference : (vertices (v, 3), faces (f, 3)), optional
         A mesh of the scanned surface (:func:`.mesh.load_mesh`): the
         simplified and the original tile meshes are compared with it by Metro
@@ -262,12 +272,14 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
     src = open_source(original)
     simplified = np.ascontiguousarray(simplified, dtype=np.float64)
     tick = progress or (lambda n: None)
-    plan = cache.get("plan") if cache is not None else None  # compare: the first call's tiles for every method
+    # the original's tiles depend on the original alone: compare plans them once for every method
+    plan = cache.get("original_tiles") if cache is not None else None
     if plan is None:
-        plan = _plan(src, simplified, tiles, tile_points, seed, budget, full, sample)
+        plan = _plan(src, tiles, tile_points, seed, budget, full, sample)
         if cache is not None:
-            cache["plan"] = plan
-    chosen, origs, simps, sampling = plan
+            cache["original_tiles"] = plan
+    chosen, origs, sampling, centres = plan
+    simps = _simplified_tiles(simplified, chosen, centres)
     if diagonal is None:
         lo = np.full(3, np.inf)
         hi = np.full(3, -np.inf)

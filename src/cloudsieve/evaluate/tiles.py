@@ -33,8 +33,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 __all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "sample_indices", "sample_rows",
-           "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles", "partition_tiles", "budget_tile_points",
-           "spread"]
+           "uniform_sample", "choose_tiles", "random_tiles", "gather_tiles", "partition_tiles", "cell_points",
+           "budget_tile_points", "spread"]
 
 #: points of the uniform sample the tiles are drawn from 
 SAMPLE_SIZE = 200_000
@@ -159,13 +159,15 @@ def gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
     return out
 
 
-def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, simplified: np.ndarray, *,
-                    seed: int = 0) -> tuple[list[dict], list[np.ndarray], list[np.ndarray]]:
+def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, *,
+                    seed: int = 0) -> tuple[list[dict], list[np.ndarray], np.ndarray]:
     """Every point in one tile: the cells of ceil(n / M) k-means centres of *sample* (one streamed pass).
 
-    Returns (tiles, original points per tile, simplified points per tile);
-    each tile's ``centre`` is its k-means centre and ``radius`` the distance
-    of its farthest original point (for cropping a reference mesh).
+    Returns (tiles, original points per tile, every centre); each tile's
+    ``centre`` is its k-means centre, ``cell`` the centre's index and
+    ``radius`` the distance of its farthest original point (for cropping a
+    reference mesh). Cells without an original point make no tile.
+    :func:`cell_points` gives another cloud's points per tile.
     """
     from scipy.cluster.vq import kmeans2
 
@@ -180,17 +182,21 @@ def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, simplifie
             bounds = np.searchsorted(lab[o], np.arange(count + 1))
             for i in np.flatnonzero(np.diff(bounds)):
                 parts[i].append(chunk.xyz[o[bounds[i]:bounds[i + 1]]])
-    _, slab = tree.query(simplified, workers=-1)
-    tiles, origs, simps = [], [], []
+    tiles, origs = [], []
     for i in range(count):
         if not parts[i]:
             continue
         pts = np.concatenate(parts[i])
         r = float(np.sqrt(((pts - centres[i]) ** 2).sum(axis=1)).max())
-        tiles.append({"centre": centres[i].tolist(), "radius": r, "cell": True})
+        tiles.append({"centre": centres[i].tolist(), "radius": r, "cell": i})
         origs.append(pts)
-        simps.append(simplified[np.flatnonzero(slab == i)])
-    return tiles, origs, simps
+    return tiles, origs, centres
+
+
+def cell_points(xyz: np.ndarray, centres: np.ndarray, tiles: list[dict]) -> list[np.ndarray]:
+    """The points of *xyz* (in memory) in each of *tiles* of :func:`partition_tiles`: those nearest its centre."""
+    _, lab = cKDTree(centres).query(xyz, workers=-1)
+    return [xyz[np.flatnonzero(lab == t["cell"])] for t in tiles]
 
 
 def budget_tile_points(rate: float, remaining: float, tiles: int, tile_points: int) -> int:
