@@ -54,10 +54,11 @@ def test_write_read_round_trip_in_wrench_layout(tiles, tmp_path):
         assert p["datetime"] == "2015-09-10T00:00:00Z"  # the header's creation date
         assert p["proj:wkt2"] == wkt and "proj:epsg" not in p  # the WKT VLR; no EPSG code in its top level
         box = [*h.mins, *h.maxs]
-        assert f["bbox"] == p["proj:bbox"] == pytest.approx(box, abs=0, rel=0)
+        assert p["proj:bbox"] == pytest.approx(box, abs=0, rel=0)  # native; bbox in WGS 84 (test_vpc_wgs84.py)
         (x0, y0, _, x1, y1, _) = box
-        assert f["geometry"] == p["proj:geometry"] == {
+        assert p["proj:geometry"] == {
             "type": "Polygon", "coordinates": [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]}
+        assert -124 < f["bbox"][0] < f["bbox"][3] < -123 and 44 < f["bbox"][1] < f["bbox"][4] < 45  # Eugene, OR
         names = [s["name"] for s in p["pc:schemas"]]
         assert names[:3] == ["X", "Y", "Z"] and "intensity" in names and "gps_time" in names
         assert {"name": "gps_time", "type": "floating", "size": 8} in p["pc:schemas"]
@@ -147,10 +148,10 @@ def test_write_vpc_refusals_and_dates(tiles, tmp_path):
     write_vpc(tmp_path / "s.vpc", [simple])
     props = json.loads((tmp_path / "s.vpc").read_text())["features"][0]["properties"]
     assert props["proj:wkt2"] == "" and "proj:epsg" not in props
-    mega = describe_tile(shared_file("Megaplot.laz"))  # GeoTIFF keys only: the EPSG code, no WKT
+    mega = describe_tile(shared_file("Megaplot.laz"))  # GeoTIFF keys only: the EPSG code's WKT2
     write_vpc(tmp_path / "m.vpc", [mega])
     props = json.loads((tmp_path / "m.vpc").read_text())["features"][0]["properties"]
-    assert props["proj:wkt2"] == "" and props["proj:epsg"] == 26917
+    assert props["proj:wkt2"].startswith('PROJCRS["NAD83 / UTM zone 17N",') and props["proj:epsg"] == 26917
     assert _datetime([366, 2020]) == "2020-12-31T00:00:00Z"
     assert _datetime([366, 2021]) == "2021-01-01T00:00:00Z"  # out of range: the 1st of January, as wrench
     assert _datetime([60, 2024]) == "2024-02-29T00:00:00Z"

@@ -205,7 +205,7 @@ def test_export_tiles_round_trip(autzen, tmp_path):
         h = laspy.open(str(out / name)).header
         assert f["id"] == name[:-4] and f["assets"]["data"]["href"] == f"./{name}"
         assert f["properties"]["pc:count"] == h.point_count
-        assert f["bbox"] == [*h.mins, *h.maxs]
+        assert f["properties"]["proj:bbox"] == [*h.mins, *h.maxs]
         assert f["properties"]["proj:wkt2"].startswith('PROJCS["NAD_1983_HARN_Lambert_Conformal_Conic"')
     assert sum(f["properties"]["pc:count"] for f in doc["features"]) == keep.sum()
 

@@ -10,21 +10,31 @@ one STAC item per file, carrying the pointcloud and projection extensions
        "stac_extensions": ["https://stac-extensions.github.io/pointcloud/v1.0.0/schema.json",
                            "https://stac-extensions.github.io/projection/v1.1.0/schema.json"],
        "id": "tiles_6360_8489",
-       "geometry": {"type": "Polygon", "coordinates": [[[x0, y0], [x1, y0], [x1, y1], [x0, y1], [x0, y0]]]},
-       "bbox": [x0, y0, z0, x1, y1, z1],
+       "geometry": {"type": "Polygon", "coordinates": [[[lon, lat], ...]]},     # WGS 84
+       "bbox": [lon0, lat0, z0, lon1, lat1, z1],
        "properties": {"datetime": "2015-09-10T00:00:00Z", "pc:count": 27340, "pc:type": "lidar",
                       "pc:encoding": "?", "pc:schemas": [{"name": "X", "type": "floating", "size": 8}, ...],
-                      "proj:wkt2": "PROJCS[...]", "proj:geometry": {...}, "proj:bbox": [...]},
+                      "proj:wkt2": "PROJCS[...]",
+                      "proj:geometry": {"type": "Polygon", "coordinates": [[[x0, y0], [x1, y0], ...]]},
+                      "proj:bbox": [x0, y0, z0, x1, y1, z1]},
        "links": [],
        "assets": {"data": {"href": "./tiles_6360_8489.laz", "roles": ["data"]}}}]}
 
-Geometry and bbox are in the files' own CRS: wrench reprojects them to WGS 84
-with PROJ when it can, which cloudsieve does not depend on; ``proj:bbox`` and
-``proj:geometry``, which wrench and QGIS read first, are exact either way.
-``proj:wkt2`` is the WKT of the file's WKT VLR ("" when it has none, as
-wrench writes it), plus ``proj:epsg`` when the GeoTIFF keys give a code.
-:func:`read_vpc` reads any such file: the ``href`` of each item's data asset
-(the first asset when none has the "data" role), relative to the VPC's folder.
+``proj:bbox`` and ``proj:geometry``, which wrench and QGIS read, are the
+file's header bounds in its own CRS; ``bbox`` and ``geometry`` are the same
+box in WGS 84 longitude/latitude, heights as in the file
+(:mod:`cloudsieve.io.vpc_crs`), as GeoJSON requires. A file with no CRS, or
+one that does not reproject to WGS 84 (a local frame), keeps its own
+coordinates there too, as wrench does. ``proj:wkt2`` is the WKT of the file's
+WKT VLR, else the WKT2 of the CRS its GeoTIFF keys name by EPSG code, "" when
+it has no CRS (as wrench writes it); ``proj:epsg`` is added when the header
+gives one code for the whole CRS.
+
+:func:`read_vpc` reads any such file, and those whose ``bbox`` is in the
+files' own coordinates: the ``href`` of each item's data asset (the first
+asset when none has the "data" role), relative to the VPC's folder.
+:func:`read_vpc_items` adds each item's count, CRS and native bounds
+(``proj:bbox`` first).
 """
 
 from __future__ import annotations
@@ -40,7 +50,7 @@ import numpy as np
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError, InvalidParameterError
 from ..atomic import check_destination, make_temp_path, remove, replace
 
-__all__ = ["read_vpc", "write_vpc", "describe_tile", "STAC_EXTENSIONS"]
+__all__ = ["read_vpc", "read_vpc_items", "write_vpc", "describe_tile", "STAC_EXTENSIONS"]
 
 logger = logging.getLogger(__name__)
 
@@ -80,9 +90,51 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
         *path*, or a file it lists, does not exist.
     InputFormatError
         Not JSON, not a FeatureCollection, an item without a data asset, a
-        remote asset (http, s3, ...), or a file listed twice.
+        remote asset (http, s3, ...), a file listed twice, or a ``bbox`` or
+        ``proj:bbox`` that is not 4 or 6 finite numbers.
     EmptyInputError
         The VPC lists no files.
+    """
+    return [item["path"] for item in read_vpc_items(path)]
+
+
+def _box(value, where: str) -> list[list[float | None]]:
+    """[[xmin, ymin, zmin], [xmax, ymax, zmax]] of a STAC bbox of 6 numbers (4: z None)."""
+    ok = isinstance(value, list) and len(value) in (4, 6) and all(
+        isinstance(v, (int, float)) and not isinstance(v, bool) and np.isfinite(v) for v in value)
+    if not ok:
+        raise InputFormatError(f"{where} is not 4 or 6 finite numbers: {json.dumps(value)[:80]}")
+    if len(value) == 4:
+        return [[float(value[0]), float(value[1]), None], [float(value[2]), float(value[3]), None]]
+    return [[float(v) for v in value[:3]], [float(v) for v in value[3:]]]
+
+
+def _native_bounds(f: dict, props: dict, where: str) -> list | None:
+    """The item's bounds in its files' own CRS: ``proj:bbox``, else ``bbox`` for an item without CRS, else None."""
+    if props.get("proj:bbox") is not None:
+        return _box(props["proj:bbox"], f'{where}: its "proj:bbox"')
+    has_crs = props.get("proj:wkt2") or props.get("proj:epsg") or props.get("proj:projjson")
+    if f.get("bbox") is not None and not has_crs:  # no CRS: bbox is in the files' coordinates
+        return _box(f["bbox"], f'{where}: its "bbox"')
+    return None
+
+
+def read_vpc_items(path: str | os.PathLike) -> list[dict]:
+    """The items of a VPC, in its order: each file with its count, CRS and native bounds.
+
+    Returns
+    -------
+    list of dict
+        ``path`` (as :func:`read_vpc` gives it), ``count`` (``pc:count``, or
+        None), ``wkt`` (``proj:wkt2``, else ``EPSG:code`` of ``proj:epsg``,
+        else None), ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]] in the
+        file's own CRS: ``proj:bbox`` when the item has one (wrench, QGIS and
+        cloudsieve write it), else ``bbox`` for an item without a CRS; None
+        when neither gives them (a ``bbox`` in WGS 84 only). A 2D box has z None.
+
+    Raises
+    ------
+    The errors of :func:`read_vpc`.
     """
     from . import check_input_file
 
@@ -104,7 +156,7 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
     if not features:
         raise EmptyInputError(f'{path}: the VPC lists no files (its "features" list is empty)')
     folder = os.path.dirname(os.path.abspath(path))
-    out: list[str] = []
+    out: list[dict] = []
     seen: dict[str, int] = {}
     for i, f in enumerate(features):
         if not isinstance(f, dict) or f.get("type") != "Feature":
@@ -129,7 +181,15 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
         if full in seen:
             raise InputFormatError(f"{path}: features {seen[full]} and {i} both list {full}")
         seen[full] = i
-        out.append(full)
+        props = f.get("properties") if isinstance(f.get("properties"), dict) else {}
+        count = props.get("pc:count")
+        epsg = props.get("proj:epsg")
+        out.append({
+            "path": full,
+            "count": int(count) if isinstance(count, int) and not isinstance(count, bool) else None,
+            "wkt": props.get("proj:wkt2") or (f"EPSG:{epsg}" if epsg else None),
+            "bounds": _native_bounds(f, props, f"{path}: {name}"),
+        })
     return out
 
 
@@ -169,7 +229,8 @@ def describe_tile(path: str | os.PathLike) -> dict:
     -------
     dict
         ``path`` (absolute), ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax,
-        ymax, zmax]], ``wkt`` (the WKT VLR's, or None), ``epsg`` (or None),
+        ymax, zmax]], ``wkt`` (the WKT VLR's; else the WKT2 of the CRS the
+        GeoTIFF keys name by EPSG code; else None), ``epsg`` (or None),
         ``datetime`` and ``schemas``.
 
     Raises
@@ -185,18 +246,24 @@ def describe_tile(path: str | os.PathLike) -> dict:
     with open_reader(path) as reader:
         h, dtypes = reader.header, reader.dtypes
     crs = h.get("crs") or {}
+    wkt, epsg = crs.get("wkt"), crs.get("epsg")
+    if not wkt and epsg:  # GeoTIFF keys only
+        from .vpc_crs import geotiff_wkt
+
+        wkt, epsg = geotiff_wkt(path)
     return {
         "path": path,
         "count": int(h["point_count"]),
         "bounds": [list(map(float, h["mins"])), list(map(float, h["maxs"]))],
-        "wkt": crs.get("wkt"),
-        "epsg": crs.get("epsg"),
+        "wkt": wkt,
+        "epsg": epsg,
         "datetime": _datetime(h.get("creation_day_year")),
         "schemas": _schemas(dtypes),
     }
 
 
-def _feature(entry: dict, folder: str, i: int) -> dict:
+def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
+    """The STAC item of *entry*; a CRS that does not reproject to WGS 84 is added to *unprojected* with the reason."""
     try:
         tile = os.path.abspath(os.fspath(entry["path"]))
         count = int(entry["count"])
@@ -210,13 +277,22 @@ def _feature(entry: dict, folder: str, i: int) -> dict:
     bbox = [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]
     ring = [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]], [lo[0], lo[1]]]
     geometry = {"type": "Polygon", "coordinates": [ring]}
+    wkt = entry.get("wkt") or ""
+    wgs84_bbox, wgs84_geometry = bbox, geometry  # no CRS: the files' own coordinates, as wrench writes them
+    if wkt:
+        from .vpc_crs import wgs84_extent
+
+        try:
+            wgs84_bbox, wgs84_geometry = wgs84_extent(wkt, lo, hi)
+        except ValueError as exc:
+            unprojected.setdefault(wkt, str(exc))
     props = {
         "datetime": entry.get("datetime") or _datetime(None),
         "pc:count": count,
         "pc:type": "lidar",
         "pc:encoding": "?",
         "pc:schemas": list(entry.get("schemas") or []),
-        "proj:wkt2": entry.get("wkt") or "",
+        "proj:wkt2": wkt,
     }
     if entry.get("epsg"):
         props["proj:epsg"] = int(entry["epsg"])
@@ -228,8 +304,8 @@ def _feature(entry: dict, folder: str, i: int) -> dict:
         "stac_version": "1.0.0",
         "stac_extensions": list(STAC_EXTENSIONS),
         "id": str(entry.get("id") or Path(name).stem),
-        "geometry": geometry,
-        "bbox": bbox,
+        "geometry": wgs84_geometry,
+        "bbox": wgs84_bbox,
         "properties": props,
         "links": [],
         "assets": {"data": {"href": "./" + rel, "roles": ["data"]}},  # wrench resolves "./" hrefs only
@@ -265,7 +341,9 @@ def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = F
     """
     path = os.fspath(path)
     folder = os.path.dirname(os.path.abspath(path))
-    doc = {"type": "FeatureCollection", "features": [_feature(t, folder, i) for i, t in enumerate(tiles)]}
+    unprojected: dict[str, str] = {}
+    doc = {"type": "FeatureCollection", "features": [_feature(t, folder, i, unprojected)
+                                                     for i, t in enumerate(tiles)]}
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     check_destination(path, overwrite)
     tmp = make_temp_path(path)
@@ -276,5 +354,8 @@ def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = F
     except BaseException:
         remove(tmp)
         raise
+    for wkt, reason in unprojected.items():
+        logger.warning("%s: the CRS %.60s... does not reproject to WGS 84 (%s): bbox and geometry are in the "
+                       "files' own coordinates", path, wkt, reason)
     logger.info("wrote %s listing %d files", path, len(tiles))
     return path
