@@ -22,6 +22,7 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 
 from .errors import DestinationExistsError, DestinationNotWritableError
 
@@ -30,22 +31,42 @@ __all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "r
 logger = logging.getLogger(__name__)
 
 
-def check_destination(path: str, overwrite: bool) -> None:
-    """Refuse a destination that exists (unless *overwrite*) or cannot be written.
+def check_destination(path: str, overwrite: bool, *, folder: bool = False,
+                      foreign: Callable[[str], str | None] | None = None) -> None:
+    """Refuse a destination that exists (unless *overwrite*), is of the other kind, or cannot be written.
+
+    *folder* says the destination is a folder (tiles, a point store), else a
+    file. A folder is never replaced by a file nor a file by a folder, with
+    or without *overwrite*; an existing folder is replaced only when
+    ``foreign(path)`` finds nothing in it that cloudsieve did not write (it
+    returns None, else a description of what it found, for the message).
 
     Raises
     ------
     DestinationExistsError
-        *path* exists and *overwrite* is False.
+        *path* exists and *overwrite* is False; *path* is of the other kind;
+        the folder holds anything but cloudsieve's own output.
     DestinationNotWritableError
-        *path* is a folder, or its parent folder is missing or not a folder.
+        Its parent folder is missing or not a folder.
     """
     if os.path.isdir(path):
+        if not folder:
+            raise DestinationExistsError(f"{path} is a folder: cloudsieve never replaces a folder with a file "
+                                         "(remove it, or choose another name)")
         if not overwrite:
             raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
                                          advice={"overwrite": True})
-    elif os.path.lexists(path) and not overwrite:
-        raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
+        found = foreign(path) if foreign is not None else None
+        if found is not None:
+            raise DestinationExistsError(f"{path} holds {found}: cloudsieve replaces only a folder of its own "
+                                         "output (remove it, or choose another name)")
+    elif os.path.lexists(path):
+        if folder:
+            raise DestinationExistsError(f"{path} is a file: cloudsieve never replaces a file with a folder "
+                                         "(remove it, or choose another name)")
+        if not overwrite:
+            raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.exists(parent):
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")

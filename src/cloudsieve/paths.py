@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 
 from .errors import CloudsieveError, StoreNotFoundError
 
-__all__ = ["local_path", "same_path", "path_exists", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
+__all__ = ["local_path", "same_path", "holds", "store_foreign", "path_exists", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
 
 STORE_ATTR = "cloudsieve"
 
@@ -45,6 +45,40 @@ def same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
     if la is None or lb is None:
         return a.rstrip("/") == b.rstrip("/")
     return os.path.realpath(la) == os.path.realpath(lb)
+
+
+def holds(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
+    """True when *path* is *folder* or lies inside it (symlinks resolved; URLs compared as text), so that
+    replacing or deleting *folder* would remove *path*."""
+    folder, path = os.fspath(folder), os.fspath(path)
+    lf, lp = local_path(folder), local_path(path)
+    if lf is None or lp is None:
+        if (lf is None) != (lp is None):
+            return False
+        f, p = folder.rstrip("/"), path.rstrip("/")
+        return p == f or p.startswith(f + "/")
+    f, p = os.path.realpath(lf), os.path.realpath(lp)
+    return os.path.commonpath([f, p]) == f
+
+
+def store_foreign(path: str | os.PathLike) -> str | None:
+    """None when the local folder *path* is empty or a cloudsieve point store (complete or not: a zarr
+    group whose attributes hold "cloudsieve"), else what it holds instead, for a message; read from its
+    ``zarr.json`` alone (no zarr import)."""
+    import json
+
+    path = os.fspath(path)
+    names = sorted(os.listdir(path))
+    if not names:
+        return None
+    try:
+        with open(os.path.join(path, "zarr.json"), encoding="utf-8") as fh:
+            attrs = json.load(fh).get("attributes", {})
+        if isinstance(attrs, dict) and STORE_ATTR in attrs:
+            return None
+    except (OSError, ValueError, AttributeError):
+        pass
+    return f"{len(names)} entr{'y' if len(names) == 1 else 'ies'} ({names[0]}{', ...' if len(names) > 1 else ''}) and no cloudsieve point store"
 
 
 def zarr_store(path: str, read_only: bool):

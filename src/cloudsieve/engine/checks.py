@@ -8,10 +8,13 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-from ..errors import DestinationExistsError, SameSourceDestinationError
-from ..io import check_readable, check_tile_folder, check_writable
+import numpy as np
+
+from ..errors import DestinationExistsError, InvalidParameterError, SameSourceDestinationError, UnknownFormatError
+from ..io import check_readable, check_writable
 from ..io.sources import expand_sources
 from ..scheduler import check_scheduler
+from ..paths import holds, local_path, same_path, store_foreign
 from ..store import is_store
 from . import workstore
 from .inprocess import scheduler_for, source_points
@@ -45,27 +48,40 @@ class RunChecks:
 def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> RunChecks:
     """Check SRC, DST, the work store and the scheduler of a run on the validated *opts*; *params*: the run's
     record (:func:`cloudsieve.params.run_record`), stored in a reused work store."""
-    from ..store import local_path, same_path
-
     overwrite, scheduler, store = opts["overwrite"], opts["scheduler"], opts["store"]
+    tiles = opts["tile_size"] is not None
+    if tiles:  # the folder's own name, as the tiles are written (``out/`` is ``out``)
+        dst = dst.rstrip("/") or dst
     dst_local = local_path(dst)
     sources = expand_sources(src)
-    if any(same_path(p, dst) for p in sources):  # first: overwriting would not help, so it is not suggested
-        raise SameSourceDestinationError(f"{dst} is the source: cloudsieve never overwrites its input")
-    if dst_local is not None and os.path.exists(dst_local) and not overwrite:
+    # first: overwriting would not help, so it is not suggested
+    _refuse_inputs_inside(dst, sources, "destination")
+    src_is_store = is_store(src)
+    if src_is_store and holds(src, dst):
+        raise SameSourceDestinationError(
+            f"destination {dst} lies inside the source store {src}: cloudsieve never writes into its input")
+    if dst_local is not None and os.path.exists(dst_local) and not overwrite and os.path.isdir(dst_local) == tiles:
         raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     for path in sources:
         check_readable(path)
-    if opts["tile_size"] is None:
-        check_writable(dst, opts["format"], overwrite=True)  # an existing DST was refused above unless overwrite
+    if not tiles:
+        check_writable(dst, opts["format"], overwrite=overwrite)
     else:
-        check_tile_folder(dst, opts["format"])
-    src_is_store = is_store(src)
+        from ..store.tiles import check_grid, check_tile_destination
+
+        if opts["format"] is not None and opts["format"].lower().lstrip(".") != "laz":
+            raise UnknownFormatError(f"{dst}: tiles are written as LAZ, not {opts['format']}")
+        check_tile_destination(dst, overwrite, sources)
+        bounds = _header_bounds(src, sources)
+        if bounds is not None:
+            check_grid(bounds, opts["tile_size"], src)
     points = None  # counted only when the run's scheduler is this module's choice
     if scheduler is None and client is None and opts["memory_limit"] is None and opts["workers"] is None:
         points = source_points(sources, src if src_is_store else None)
         scheduler = scheduler_for(points)  # small: in process
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
+    if not src_is_store:
+        _check_work_store(store_path, dst if tiles else None, sources)
     # a work store of another source or other options is refused before any scheduler is contacted
     st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite,
                                   resume=opts["resume"])
@@ -77,3 +93,55 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
     return RunChecks(sources=sources, dst_local=dst_local, src_is_store=src_is_store, scheduler=scheduler,
                      store_path=store_path, default_store=store is None and not src_is_store, store=st,
                      in_memory=in_memory, points=points)
+
+
+def _refuse_inputs_inside(path: str, sources: list[str], what: str) -> None:
+    """Refuse *path* (the destination or the work store) when it is one of *sources* or a folder holding
+    one: writing or replacing it would delete the input."""
+    for source in sources:
+        if same_path(source, path):
+            raise SameSourceDestinationError(f"{path} is the source: cloudsieve never overwrites its input")
+        if holds(path, source):
+            raise SameSourceDestinationError(
+                f"{what} {path} holds the source {source}: cloudsieve never overwrites its input")
+
+
+def _check_work_store(store_path: str, tile_folder: str | None, sources: list[str]) -> None:
+    """Refuse a work store that is or holds an input, lies in the tile folder written (replaced at the
+    end), or is an existing folder or file that is not a cloudsieve point store (never deleted)."""
+    _refuse_inputs_inside(store_path, sources, "work store")
+    if tile_folder is not None and holds(tile_folder, store_path):
+        raise InvalidParameterError(f"work store {store_path} lies in the tile folder {tile_folder}, "
+                                    "which is replaced when the tiles are written: choose a store outside it")
+    local = local_path(store_path)
+    if local is None:
+        return
+    if os.path.isdir(local):
+        found = store_foreign(local)
+        if found is not None:
+            raise DestinationExistsError(f"work store {store_path} holds {found}: cloudsieve replaces only "
+                                         "its own point stores (choose another store)")
+    elif os.path.lexists(local):
+        raise DestinationExistsError(f"work store {store_path} is a file: cloudsieve never replaces a file "
+                                     "with a point store (choose another store)")
+
+
+def _header_bounds(src: str, sources: list[str]) -> np.ndarray | None:
+    """The cloud's bounds (2 x 3) from its LAS/LAZ/COPC headers or its point store, None for other formats."""
+    from ..io import detect_format
+
+    if is_store(src):
+        from ..store import PointStore
+
+        return PointStore.open(src).bounds
+    if any(detect_format(p) not in ("las", "laz", "copc") for p in sources):
+        return None
+    import laspy
+
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for path in sources:
+        with laspy.open(path) as reader:
+            if reader.header.point_count:
+                lo = np.minimum(lo, reader.header.mins)
+                hi = np.maximum(hi, reader.header.maxs)
+    return np.stack([lo, hi])

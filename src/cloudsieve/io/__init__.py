@@ -56,7 +56,6 @@ __all__ = [
     "check_readable",
     "check_writable",
     "check_folder",
-    "check_tile_folder",
     "open_reader",
     "open_writer",
     "read_cloud",
@@ -202,26 +201,6 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
     if not os.access(parent, os.W_OK | os.X_OK):
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} is not writable")
     return fmt
-
-
-def check_tile_folder(path: str | os.PathLike, format: str | None = None) -> None:
-    """Raise unless a folder of LAZ tiles can be written at *path* (nothing is created).
-
-    *path* may exist only with overwrite (checked by the caller); its parent
-    folder must exist and be writable; *format*, when given, must be laz.
-
-    Raises
-    ------
-    UnknownFormatError, DestinationNotWritableError
-    """
-    path = os.fspath(path)
-    if format is not None and format.lower().lstrip(".") != "laz":
-        raise UnknownFormatError(f"{path}: tiles are written as LAZ, not {format}")
-    parent = os.path.dirname(os.path.abspath(path))
-    if not os.path.isdir(parent):
-        raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise DestinationNotWritableError(f"cannot write {path}: folder {parent} is not writable")
 
 
 def check_folder(path: str | os.PathLike) -> None:

@@ -25,7 +25,7 @@ from ..errors import (
     SameSourceDestinationError,
     UnknownFormatError,
 )
-from ..paths import local_path, same_path
+from ..paths import holds, local_path, same_path, store_foreign
 from ..chunk import xyz_bounds
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore
@@ -172,13 +172,13 @@ def ingest(
     from .las_plan import is_las_source
 
     sources = expand_sources(src)
+    for path in sources:
+        if holds(store, path):
+            raise SameSourceDestinationError(
+                f"destination {store} is or holds the source {path}: cloudsieve never overwrites its input")
     if format is None and not reader_options and is_las_source(sources):
         from .ingest_las import ingest_las
 
-        for path in sources:
-            if same_path(path, store):
-                raise SameSourceDestinationError(
-                    f"destination {store} is the source {path}: cloudsieve never overwrites its input")
         st = ingest_las(sources, store, run=run, chunk_size=chunk_size, overwrite=overwrite)
         update(st.count)
         return st
@@ -188,7 +188,7 @@ def ingest(
     local = local_path(store)
     with open_reader(src, format=format, chunk_size=chunk_size, **reader_options) as reader:
         if local is not None:
-            check_destination(local, overwrite)
+            check_destination(local, overwrite, folder=True, foreign=store_foreign)
             target = make_temp_path(local, directory=True)
         else:
             target = store

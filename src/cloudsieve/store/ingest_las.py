@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import CorruptInputError
 from .las_plan import LasPlan, plan_las
 from .las_read import read_pieces
-from ..paths import local_path
+from ..paths import local_path, store_foreign
 from .pointstore import PointStore
 from .streaming import bound_malloc, gathered, in_process, run_tasks
 
@@ -107,7 +107,7 @@ def ingest_las(
         raise EmptyInputError(f"{sources[0] if len(sources) == 1 else sources[0] + ' and the rest'} holds no points")
     local = local_path(store)
     if local is not None:
-        check_destination(local, overwrite)
+        check_destination(local, overwrite, folder=True, foreign=store_foreign)
         target = make_temp_path(local, directory=True)
     else:
         target = store

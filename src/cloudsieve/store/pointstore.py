@@ -43,7 +43,7 @@ from ..errors import (
 from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .las_read import decode_xyz
-from ..paths import STORE_ATTR, delete_store, is_store, path_exists, same_path, store_group, zarr_store
+from ..paths import STORE_ATTR, delete_store, holds, is_store, path_exists, same_path, store_group, zarr_store
 from .codecs import compressors, filters
 from .streaming import gathered
 
@@ -69,6 +69,12 @@ def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.
         store = PointStore.open(os.fspath(store))
     if same_path(store.path, dst):
         raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
+    if holds(dst, store.path):
+        raise SameSourceDestinationError(
+            f"destination {dst} holds the source {store.path}: cloudsieve never overwrites its input")
+    if holds(store.path, dst):
+        raise SameSourceDestinationError(
+            f"destination {dst} lies inside the source store {store.path}: cloudsieve never writes into its input")
     return store, dst
 
 

@@ -21,19 +21,22 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 from functools import partial
 from typing import Any
 
 import numpy as np
 
 from .. import progress as _progress
-from ..errors import InvalidParameterError, SameSourceDestinationError
-from ..params import check
+from ..errors import (DestinationNotWritableError, InvalidParameterError, SameSourceDestinationError,
+                      UnknownFormatError)
+from ..params import check, named
 from .buckets import bucket, iter_runs, open_runs
-from ..paths import local_path
+from ..paths import holds, local_path
 from .pointstore import PointStore
 
-__all__ = ["export_tiles", "tile_keys", "tile_index", "tile_name", "VPC_NAME"]
+__all__ = ["export_tiles", "check_grid", "check_tile_destination", "tiles_foreign", "tile_keys", "tile_index",
+           "tile_name", "VPC_NAME"]
 
 logger = logging.getLogger(__name__)
 
@@ -119,32 +122,75 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
     return describe_tile(path)
 
 
-def _check_grid(store: PointStore, tile_size: Any) -> float:
+def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
+    """The checked *tile_size* for a cloud of *bounds* (2 x 3, from its headers or its store), named *what*
+    in messages: the option's own check, then the grid's bound (tile indices within 32 bits).
+
+    Raises
+    ------
+    InvalidParameterError
+        *tile_size* not a positive number, or too small for the cloud's coordinates.
+    """
     size = check("tile_size", tile_size)  # the option's one check (params); the grid's own bound below
     if size is None:  # an optional option elsewhere; required here
-        raise InvalidParameterError("tile_size must be a finite number > 0, got None")
-    if store.count:
-        extent = np.abs(store.bounds[:, :2]).max() / size
-        if not extent < 2.0**31 - 1:
-            raise InvalidParameterError(
-                f"tile_size {size} is too small for {store.path}: coordinates up to "
-                f"{np.abs(store.bounds[:, :2]).max():.6g} give tile indices beyond 32 bits")
+        raise named(InvalidParameterError("tile_size must be a finite number > 0, got None"), "tile_size")
+    reach = float(np.abs(np.asarray(bounds, dtype=np.float64)[:, :2]).max())
+    if np.isfinite(reach) and not reach / size < 2.0**31 - 1:
+        raise named(InvalidParameterError(
+            f"tile_size {size} is too small for {what}: coordinates up to {reach:.6g} give tile indices "
+            f"beyond 32 bits (tile_size must be at least {reach / (2.0**31 - 2):.3g})"), "tile_size")
     return size
 
 
-def _check_destination(store: PointStore, dst: str, overwrite: bool) -> str:
+def tiles_foreign(stem: str):
+    """A ``foreign`` check for :func:`cloudsieve.atomic.check_destination`: None when a folder holds only
+    tiles named for *stem* (``{stem}_{ix}_{iy}.laz``) and ``index.vpc``, else what else it holds."""
+    pattern = re.compile(re.escape(stem) + r"_-?\d+_-?\d+\.laz")
+
+    def foreign(folder: str) -> str | None:
+        other = sorted(n for n in os.listdir(folder) if n != VPC_NAME and not pattern.fullmatch(n))
+        if not other:
+            return None
+        return (f"{len(other)} entr{'y' if len(other) == 1 else 'ies'} other than its tiles and {VPC_NAME} "
+                f"({other[0]}{', ...' if len(other) > 1 else ''})")
+
+    return foreign
+
+
+def check_tile_destination(dst: str, overwrite: bool, sources=()) -> str:
+    """Check the tile folder *dst* before any work; returns it as a local path.
+
+    Refused: a URL; a name with a point cloud file's extension (``x.copc.laz``,
+    ``x.ply``: one file, not a folder of tiles); a folder that is or holds one
+    of *sources* (replacing it would delete the input); an existing file; an
+    existing folder (unless *overwrite*) or one holding anything but this
+    folder's tiles and ``index.vpc``.
+
+    Raises
+    ------
+    InvalidParameterError, SameSourceDestinationError, DestinationExistsError, DestinationNotWritableError
+    """
     from ..atomic import check_destination
+    from ..io import detect_format
 
     local = local_path(dst)
     if local is None:
         raise InvalidParameterError(f"{dst}: tiles are written to a local folder, not a URL")
-    src = local_path(store.path)
-    if src is not None:
-        a, b = os.path.realpath(src), os.path.realpath(local)
-        if os.path.commonpath([a, b]) == b:
+    try:
+        fmt = detect_format(dst)
+    except UnknownFormatError:
+        fmt = None
+    if fmt is not None:
+        raise named(InvalidParameterError(
+            f"{dst}: tile_size writes a folder of LAZ tiles and {VPC_NAME}, and this name is a "
+            f"{fmt.upper()} file's; give a folder name, or leave out tile_size for one file"), "tile_size")
+    for path in sources:
+        if holds(local, path):
             raise SameSourceDestinationError(
-                f"destination {dst} is or holds the source store {store.path}: cloudsieve never overwrites its input")
-    check_destination(local, overwrite)
+                f"destination {dst} is or holds the source {path}: cloudsieve never overwrites its input")
+    check_destination(dst, overwrite, folder=True, foreign=tiles_foreign(os.path.basename(local)))
+    if not os.access(os.path.dirname(local), os.W_OK | os.X_OK):
+        raise DestinationNotWritableError(f"cannot write {dst}: folder {os.path.dirname(local)} is not writable")
     return local
 
 
@@ -200,8 +246,8 @@ def export_tiles(
 
     if not isinstance(store, PointStore):
         store = PointStore.open(os.fspath(store), "r")
-    size = _check_grid(store, tile_size)
-    dst = _check_destination(store, os.fspath(dst_dir).rstrip("/") or os.fspath(dst_dir), overwrite)
+    size = check_grid(store.bounds, tile_size, store.path)
+    dst = check_tile_destination(os.fspath(dst_dir).rstrip("/") or os.fspath(dst_dir), overwrite, [store.path])
     stem = os.path.basename(dst.rstrip(os.sep))
     update = _progress.callback(progress)
     tmp = make_temp_path(dst, directory=True)
