@@ -146,3 +146,25 @@ def test_tiles_replace_their_own_folder(layout, monkeypatch):
     assert again.kept < first.kept
     assert "index.vpc" in os.listdir(layout / "tiles")
     assert not any(n.endswith(".cloudsieve.zarr") for n in os.listdir(layout) + os.listdir(layout / "tiles"))
+
+
+def test_tile_checks_run_before_any_work(layout):
+    """A tile size too small for the headers' bounds and a file name for a folder of tiles: status 2,
+    the option named as its flag, nothing written (no work store, no folder)."""
+    before = _tree(layout)
+    runs = [
+        (["in/a.laz", "t", "--ratio", "0.5", "--tile-size", "1e-9", "--workers", "2"],
+         "cloudsieve simplify: error: --tile-size 1e-09 is too small for in/a.laz: coordinates up to 853535 "
+         "give tile indices beyond 32 bits (--tile-size must be at least 0.000397)"),
+        (["in/a.laz", "x.copc.laz", "--ratio", "0.5", "--tile-size", "500"],
+         "cloudsieve simplify: error: x.copc.laz: --tile-size writes a folder of LAZ tiles and index.vpc, and "
+         "this name is a COPC file's; give a folder name, or leave out --tile-size for one file"),
+        (["in/a.laz", "x.ply", "--ratio", "0.5", "--tile-size", "500"],
+         "cloudsieve simplify: error: x.ply: --tile-size writes a folder of LAZ tiles and index.vpc, and "
+         "this name is a PLY file's; give a folder name, or leave out --tile-size for one file"),
+    ]
+    for args, message in runs:
+        proc = subprocess.run([sys.executable, "-m", "cloudsieve", "simplify", *args], cwd=layout,
+                              capture_output=True, text=True)
+        assert (proc.returncode, proc.stderr.strip().splitlines()[-1]) == (2, message)
+        assert _tree(layout) == before
