@@ -118,8 +118,8 @@ def test_scales_and_offsets_policy(tmp_path):
     odd.change_scaling(scales=las.header.scales / 2.5)
     odd.write(tmp_path / "b.las")
     with pytest.raises(MismatchedInputsError, match=re.escape(
-            f"{tmp_path / 'a.las'}: the x scale 0.01 is 2.5 steps of the cloud's scale (from {tmp_path / 'a.las'}), not "
-            f"a whole number: its records are not exactly representable")):
+            f"{tmp_path / 'a.las'}: the x scale 0.01 is 2.5 steps of the cloud's x scale 0.004 (the finest, from "
+            f"{tmp_path / 'b.las'}), not a whole number: its records are not exactly representable")):
         ingest(str(tmp_path / "*.las"), tmp_path / "t.zarr")
     assert not (tmp_path / "t.zarr").exists()
 

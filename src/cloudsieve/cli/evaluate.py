@@ -88,5 +88,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"border edges    : original {border_per_face(s['original'])} per face, simplified "
               f"{border_per_face(s['simplified'])} (holes of the ball-pivoting meshes)")
     if args.report_dir:
-        print(f"report: {args.report_dir}/report.html (and report.md, report.json)")
+        print(f"report: {report['files']['html']} (and report.md, report.json)")
     return 0

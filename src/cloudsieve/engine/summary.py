@@ -31,6 +31,8 @@ def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0
         return None
     if asked > n:
         why = f"the input holds only {n:,} points"
+        if duplicates and not keep_duplicates:
+            why += f", {duplicates:,} of them exact duplicates, kept once (keep_duplicates keeps them)"
     elif duplicates and keep_duplicates and kept > asked:
         why = "the exact copies of kept points are kept too (keep_duplicates)"
     elif duplicates and asked > n - duplicates:

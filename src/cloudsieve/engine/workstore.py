@@ -80,12 +80,15 @@ def source_identity(src: str) -> dict:
 def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_store: bool) -> str:
     """The store a run works in: SRC itself when it is a store, else *store* or ``DST + ".cloudsieve.zarr"``.
 
-    A local path is made absolute: workers may run elsewhere (another cwd).
+    A DST folder given with a trailing slash (``out/``) has its store beside
+    it (``out.cloudsieve.zarr``), not inside. A local path is made absolute:
+    workers may run elsewhere (another cwd).
     """
     if src_is_store:
         path = src
     else:
-        path = os.fspath(store) if store is not None else dst + ".cloudsieve.zarr"
+        folder = dst.rstrip("/") if len(dst) > 1 else dst
+        path = os.fspath(store) if store is not None else folder + ".cloudsieve.zarr"
     if "://" not in path:
         path = os.path.abspath(path)
     return path

@@ -25,6 +25,7 @@ agree, fixes the store's integer encoding and cuts the rows into tasks
 
 from __future__ import annotations
 
+import base64
 import math
 from dataclasses import dataclass
 
@@ -32,7 +33,7 @@ import numpy as np
 
 from ..errors import MismatchedInputsError
 
-__all__ = ["LasPlan", "plan_las", "is_las_source", "LAS_FORMATS"]
+__all__ = ["LasPlan", "plan_las", "is_las_source", "crs_label", "LAS_FORMATS"]
 
 #: formats whose records the task ingest copies as LAS integers
 LAS_FORMATS = ("las", "laz", "copc")
@@ -116,13 +117,45 @@ def _attributes(header: dict) -> list:
     return [(e["name"], e["kind"], e["num_elements"]) for e in header.get("extra_dimensions", [])]
 
 
-def _integer(value: float, what: str, path: str, first: str) -> int:
+def _integer(value: float, before: str, after: str) -> int:
+    """*value* as an integer; when it is none, MismatchedInputsError ``before value after, not a whole number``."""
     near = round(value)
     if not math.isfinite(value) or abs(value - near) > 1e-6 * max(1.0, abs(value)):
         raise MismatchedInputsError(
-            f"{path}: {what} is {value:.9g} steps of the cloud's scale (from {first}), not a whole number: its "
-            f"records are not exactly representable; re-quantise the files to one scale and offset first")
+            f"{before} {value:.9g} {after}, not a whole number: its records are not exactly representable; "
+            f"re-quantise the files to one scale and offset first")
     return int(near)
+
+
+def _geotiff_citation(header: dict) -> str | None:
+    """The citation of a header's GeoTIFF keys (PCS, else GT, else geographic citation), or None."""
+    records = {record_id: base64.b64decode(data) for record_id, data in _projection(header)}
+    if 34735 not in records or 34737 not in records:  # GeoKeyDirectoryTag, GeoAsciiParamsTag
+        return None
+    keys = np.frombuffer(records[34735][: len(records[34735]) // 2 * 2], dtype="<u2")
+    text = records[34737].decode("ascii", errors="replace")
+    found = {int(k[0]): text[int(k[3]):int(k[3]) + int(k[2])].strip("|\0 ")
+             for k in keys[4:].reshape(-1, 4)[: int(keys[3]) if len(keys) > 3 else 0] if int(k[1]) == 34737}
+    return next((found[k] for k in (3073, 1026, 2049) if found.get(k)), None)
+
+
+def crs_label(header: dict) -> str:
+    """The CRS of a LAS *header* in words: its WKT's name (and EPSG code), else its GeoTIFF keys' EPSG code
+    (``EPSG:2992``), else their citation (``GeoTIFF keys without an EPSG code: "..."``), else what its
+    projection records lack; "none" without projection records."""
+    crs = header.get("crs") or {}
+    name, epsg = crs.get("name"), crs.get("epsg")
+    if name:
+        return f"{name}, EPSG:{epsg}" if epsg else name
+    if epsg:
+        return f"EPSG:{epsg}"
+    records = _projection(header)
+    if not records:
+        return "none"
+    if any(record_id == 34735 for record_id, _ in records):
+        citation = _geotiff_citation(header)
+        return "GeoTIFF keys without an EPSG code" + (f': "{citation}"' if citation else "")
+    return "projection records without a WKT name or EPSG code"
 
 
 def _merge_records(headers: list[dict], key: str) -> list[dict]:
@@ -167,21 +200,24 @@ def plan_las(paths: list[str]) -> LasPlan:
                 f"{path}: extra attributes {[a[0] for a in _attributes(h)]}, but {paths[0]} has "
                 f"{[a[0] for a in _attributes(first)]}: the files of one cloud must share their attributes")
         if _projection(h) != _projection(first):
-            crs = (h.get("crs") or {}).get("name") or "none"
-            crs0 = (first.get("crs") or {}).get("name") or "none"
+            crs, crs0 = crs_label(h), crs_label(first)
+            what = f"its CRS ({crs}) differs from" if crs != crs0 else f"its CRS records ({crs}) differ from"
             raise MismatchedInputsError(
-                f"{path}: its CRS ({crs}) differs from that of {paths[0]} ({crs0}): the files of one cloud must "
-                f"share their CRS; reproject them first")
+                f"{path}: {what} that of {paths[0]} ({crs0}): the files of one cloud must share their CRS; "
+                f"reproject them first")
     scales = np.array([h["scales"] for h in headers], dtype=np.float64)
     offsets = np.array([h["offsets"] for h in headers], dtype=np.float64)
     scale, offset = scales.min(axis=0), offsets[0]
     factors = np.zeros((len(paths), 2, 3), dtype=np.int64)
+    finest = [paths[int(np.argmin(scales[:, i]))] for i in range(3)]  # the first file of the finest scale
     for f, path in enumerate(paths):
-        for i in range(3):
-            factors[f, 0, i] = _integer(scales[f, i] / scale[i], f"the {'xyz'[i]} scale {scales[f, i]:g}", path,
-                                        paths[0])
+        for i, axis in enumerate("xyz"):
+            step = f"of the cloud's {axis} scale {scale[i]:g} (the finest, from {finest[i]})"
+            factors[f, 0, i] = _integer(scales[f, i] / scale[i], f"{path}: the {axis} scale {scales[f, i]:g} is",
+                                        f"steps {step}")
             factors[f, 1, i] = _integer((offsets[f, i] - offset[i]) / scale[i],
-                                        f"the {'xyz'[i]} offset {offsets[f, i]:g}", path, paths[0])
+                                        f"{path}: the {axis} offset {offsets[f, i]:g} is",
+                                        f"steps {step} from the cloud's {axis} offset {offset[i]:g} (from {paths[0]})")
     header = dict(first)
     header.update({
         "version": max((h["version"] for h in headers), key=lambda v: tuple(int(x) for x in v.split("."))),
