@@ -54,6 +54,8 @@ def good_and_bad(option: params.Option, command: str) -> tuple[list, list]:
             good.append(Path("some/where"))
     elif k == params.SIZE:
         good, bad = [1, "2GB", "auto"], [0, "lots", 2.5]
+    elif k == params.JSON:
+        good, bad = [{}, {"anon": True}, '{"anon": true}'], ["{nope", "[1]", 3]
     else:  # scheduler
         good, bad = ["sync", "threads", "processes", "tcp://127.0.0.1:1"], ["fast", "tcp://nohost", 3]
     (good if optional else bad).append(None)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import functools
 import inspect
+import json
 import math
 import numbers
 import os
@@ -49,7 +50,7 @@ from .address import host_port
 from .core import rules
 from .errors import InvalidParameterError
 from .params_spec import *  # noqa: F401,F403 - the options, re-exported
-from .params_spec import (BOOL, CHOICE, CHOICES, COMMANDS, FLOAT, FORMAT, INT, LOCAL_SCHEDULERS, MEMORY_COMMANDS,
+from .params_spec import (BOOL, CHOICE, CHOICES, COMMANDS, FLOAT, FORMAT, INT, JSON, LOCAL_SCHEDULERS, MEMORY_COMMANDS,
                           OPTIONS, PATH, SIZE, TEXT, Option)
 from .params_spec import __all__ as _spec_all
 from .rule_default import DEFAULT_RULE, Metavar, resolve_rule
@@ -125,6 +126,21 @@ def _size(option: Option, value: Any) -> int | str:
     raise _refuse(option, value)
 
 
+def _json(option: Option, value: Any) -> dict:
+    """A dict, or JSON text of an object (the command line's form). The message never shows the value: it
+    may hold credentials."""
+    if isinstance(value, str):
+        try:
+            value = json.loads(value)
+        except ValueError as exc:
+            raise named(InvalidParameterError(f"{option.name} must be a JSON object: {exc.msg} at character "
+                                              f"{exc.pos}"), option.name) from None
+    if not isinstance(value, dict):
+        raise named(InvalidParameterError(f"{option.name} must be a JSON object (a dict), got "
+                                          f"{type(value).__name__}"), option.name)
+    return value
+
+
 def _choices(option: Option, value: Any) -> list[str]:
     items = value.split(",") if isinstance(value, str) else value
     if not isinstance(items, (list, tuple)) or not all(isinstance(v, str) for v in items):
@@ -176,6 +192,8 @@ def check(option: Option | str, value: Any) -> Any:
         return value
     if kind == SIZE:
         return _size(option, value)
+    if kind == JSON:
+        return _json(option, value)
     return _scheduler(option, value)
 
 

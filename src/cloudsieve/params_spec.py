@@ -28,11 +28,11 @@ __all__ = [
     "TARGET_RULES",
     "WARM_TARGETS",
     "MEMORY_COMMANDS",
-    "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER",
+    "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER", "JSON",
 ]
 
-INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER = (
-    "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler")
+INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER, JSON = (
+    "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler", "json")
 
 #: the refinements into small clusters: fuzzy C-means, K-means (:mod:`cloudsieve.core.refine`)
 METHODS = ("fcm", "km")
@@ -151,6 +151,10 @@ _OPTIONS = [
            "checked before any work: one made from another source or with other options is refused (--overwrite "
            "discards it); default DST.cloudsieve.zarr, removed on success", metavar="PATH"),
     Option("resume", BOOL, False, "continue a crashed run from its work store"),
+    Option("storage_options", JSON, None,
+           "options of the object store's fsspec filesystem for every URL, as a JSON object, e.g. "
+           "'{\"endpoint_url\": \"http://host:8333\", \"profile\": \"lidar\"}' (default: the store's own chain: "
+           "AWS_* environment variables incl. AWS_ENDPOINT_URL, config files, instance roles)", metavar="JSON"),
     Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
     Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
     # -- evaluation
@@ -249,19 +253,21 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", "keep_duplicates", "tile_size", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
+        "drop_invalid", "keep_duplicates", "tile_size", "storage_options", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid",
-        "surface_budget", "surface_full", "d2_sample"),
+        "surface_budget", "surface_full", "d2_sample", "storage_options"),
     "compare": _command(
         "methods", "rule", "threshold", "ratio", "count", "cluster_size", "report_dir", "tiles", "tile_points",
         "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",
-        extra=(_RULE_LIST,)),
-    "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite",
+        "storage_options", extra=(_RULE_LIST,)),
+    "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", "storage_options",
                        extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
-    "export": _command("mask", "chunk_size", "overwrite", "tile_size", extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
-    "pipeline": _command("scheduler", "workers"),  # a pipeline's top-level keys
+    "export": _command("mask", "chunk_size", "overwrite", "tile_size", "storage_options",
+                       extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
+    "info": _command("storage_options"),
+    "pipeline": _command("scheduler", "workers", "storage_options"),  # a pipeline's top-level keys
     "warmup": _command("targets"),
     # the in-memory API: cloudsieve.core.simplify_points, prune, score_points, refine_labels
     "simplify_points": _memory("method", "rule", "threshold", "ratio", "count", "cluster_size", "seed", "k0",

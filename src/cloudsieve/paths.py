@@ -1,6 +1,6 @@
 """Where clouds and stores live: local paths and fsspec URLs (``file:///...`` is the local path it names).
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`): :mod:`cloudsieve.io` and
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage`): :mod:`cloudsieve.io` and
 :mod:`cloudsieve.store` both use it. :func:`store_group` is the one test of whether a point store
 is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store` accept).
 """
@@ -8,12 +8,11 @@ is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store`
 from __future__ import annotations
 
 import os
-import shutil
-from urllib.parse import unquote, urlparse
-
 from typing import TYPE_CHECKING
 
+from . import storage
 from .errors import CloudsieveError, StoreNotFoundError
+from .storage import local as local_path
 
 __all__ = ["local_path", "same_path", "holds", "store_foreign", "path_exists", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
 
@@ -21,21 +20,6 @@ STORE_ATTR = "cloudsieve"
 
 if TYPE_CHECKING:
     import zarr
-
-
-def local_path(path: str | os.PathLike) -> str | None:
-    """The local file-system path behind *path*, or None for a remote URL.
-
-    ``file:///a/b`` and plain paths are local; ``s3://...``, ``memory://...``
-    and other fsspec URLs are not.
-    """
-    path = os.fspath(path)
-    if "://" not in path:
-        return os.path.abspath(path)
-    url = urlparse(path)
-    if url.scheme == "file":
-        return os.path.abspath(unquote(url.netloc + url.path))
-    return None
 
 
 def same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
@@ -88,32 +72,17 @@ def zarr_store(path: str, read_only: bool):
     local = local_path(path)
     if local is not None:
         return zarr.storage.LocalStore(local, read_only=read_only)
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only)
+    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=storage.fs_options(path))
 
 
 def path_exists(path: str) -> bool:
     """True when something (file or folder) is at *path*, a local path or an fsspec URL."""
-    local = local_path(path)
-    if local is not None:
-        return os.path.exists(local)
-    import fsspec
-
-    fs, p = fsspec.core.url_to_fs(path)
-    return fs.exists(p)
+    return storage.exists(path)
 
 
 def delete_store(path: str | os.PathLike) -> None:
     """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
-    path = os.fspath(path)
-    local = local_path(path)
-    if local is not None:
-        shutil.rmtree(local, ignore_errors=True)
-    else:  # pragma: no cover - remote stores
-        import fsspec
-
-        fs, p = fsspec.core.url_to_fs(path)
-        if fs.exists(p):
-            fs.rm(p, recursive=True)
+    storage.remove(os.fspath(path), recursive=True)
 
 
 def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, dict]:

@@ -69,6 +69,7 @@ import os
 from pathlib import Path
 from typing import Any
 
+from . import storage
 from .errors import CloudsieveError, PipelineError, UnknownFormatError
 from .pipeline_load import READERS, WRITERS, Pipeline, load_pipeline, stage_options
 
@@ -161,6 +162,14 @@ def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None
         One entry per input: ``{"input": path, "output": path or None,
         "summary": ..., "report": ...}``.
     """
+    from .params import check
+
+    # the pipeline's top-level key (validated at load), for every stage
+    with storage.using(check("storage_options", pipeline.options.get("storage_options"))):
+        return _run_pipeline(pipeline, client=client, progress=progress, bars=bars)
+
+
+def _run_pipeline(pipeline: Pipeline, *, client: Any, progress: Any, bars: Any) -> list[dict]:
     check_inputs(pipeline)
     drop_invalid = bool(pipeline.reader.get("drop_invalid", False))
     results = []

@@ -83,7 +83,7 @@ def _main(argv: list[str] | None) -> int:
     # without a terminal, each stage's progress is one INFO line of this logger (--no-progress: none)
     logging.getLogger("cloudsieve.progress").setLevel(min(level, logging.INFO))
     try:
-        return int(args.func(args) or 0)
+        return int(_with_storage(args) or 0)
     except CloudsieveError as exc:
         from ._common import cli_message, flag_wording
 
@@ -106,6 +106,18 @@ def _silence_stdout() -> None:
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, fd)
     os.close(devnull)
+
+
+def _with_storage(args: argparse.Namespace):
+    """The command, with its ``--storage-options`` (checked once, here) in force for every URL it opens."""
+    raw = getattr(args, "storage_options", None)
+    if raw is None:
+        return args.func(args)
+    from .. import storage
+    from ..params import check
+
+    with storage.using(check("storage_options", raw)):
+        return args.func(args)
 
 
 def run() -> NoReturn:

@@ -20,6 +20,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
+from .. import storage
 from ..errors import InvalidParameterError
 from ..progress import stage_bar
 from . import ahead
@@ -264,7 +265,7 @@ class Runner:
 
     def _run(self, func, args, deps, stage, update) -> list:
         pause_at(f"driver:{stage}")  # a test's stop (engine/pause.py); nothing unless the environment asks
-        func = pausing_task(func, stage)
+        func = storage.bound(pausing_task(func, stage))  # the run's storage options, in whichever process
         if self.client is not None:
             return self._distributed(func, args, deps, stage, update)
         return self._local(func, args, deps, update)

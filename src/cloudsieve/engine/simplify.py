@@ -42,6 +42,7 @@ from ..errors import TargetNotMetError
 from ..params import run_record, validate
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
+from .. import storage
 from .checks import check_run
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
@@ -85,6 +86,7 @@ def simplify(
     keep_duplicates: bool = False,
     strict: bool = False,
     tile_size: float | None = None,
+    storage_options: dict | None = None,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -192,6 +194,12 @@ def simplify(
         Write DST as a folder of square LAZ tiles of this edge (the CRS's
         units, a grid anchored at 0), each written by a task, and
         ``DST/index.vpc`` listing them (:func:`cloudsieve.store.tiles.export_tiles`).
+    storage_options : dict, optional
+        Options of the fsspec filesystem of every URL the run reads or writes
+        (SRC, DST, the store), as pandas, dask and xarray take them: s3fs's
+        ``{"key", "secret", "endpoint_url", "profile", ...}``. Default: the
+        object store's own chain (``AWS_*`` variables, config files, roles).
+        Handed to every task; never logged, recorded or printed.
 
     Returns
     -------
@@ -225,6 +233,7 @@ def simplify(
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
         "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
+        "storage_options": storage_options,
     })
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
 
@@ -233,6 +242,12 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
+    with storage.using(opts.get("storage_options")):  # every URL of the run, here and in its tasks
+        return _run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify,
+                             t_start=t_start)
+
+
+def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_start) -> Summary:
     t_start, src, dst = time.perf_counter() if t_start is None else t_start, os.fspath(src), os.fspath(dst)
     ratio, count, keep_duplicates, strict, tile_size = (
         opts[name] for name in ("ratio", "count", "keep_duplicates", "strict", "tile_size"))

@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import storage
 from ..atomic import write_text
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
@@ -169,7 +170,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
             ratio: float | None = None, count: int | None = None, report_dir: str | os.PathLike | None = None,
             surface: bool = True, tiles: int = 4, tile_points: int = 200_000, seed: int = 0,
             metro_samples: int | None = None, psnr_peak: float | None = None, progress=None,
-            drop_invalid: bool = False, **entropy_options) -> dict:
+            drop_invalid: bool = False, storage_options: dict | None = None, **entropy_options) -> dict:
     """Run *methods* on *source* to the same count, evaluate each, one table.
 
     Parameters
@@ -202,6 +203,9 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     drop_invalid : bool
         Drop the source's points with NaN or infinite coordinates (a warning
         gives their count) instead of refusing it.
+    storage_options : dict, optional
+        Options of the fsspec filesystem of URL inputs and a URL report folder
+        (:mod:`cloudsieve.storage`); default: the object store's own chain.
     **entropy_options
         Passed to :func:`cloudsieve.core.simplify.simplify_points`: ``threshold``,
         ``cluster_size``, ``k0``, ``k_min`` (:mod:`cloudsieve.params`).
@@ -225,7 +229,8 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
     opts = validate("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid, **entropy_options,
+        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid,
+        "storage_options": storage_options, **entropy_options,
     })
     return run_compare(source, opts, progress=progress)
 
@@ -237,6 +242,11 @@ ENTROPY_OPTIONS = ("threshold", "cluster_size", "k0", "k_min", "keep_duplicates"
 def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
     """:func:`compare` with options already validated (``opts``, from :func:`cloudsieve.params.validate` for
     ``compare``: the command line, a pipeline stage); no option is checked again."""
+    with storage.using(opts.get("storage_options")):
+        return _run_compare(source, opts, progress=progress)
+
+
+def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
     (methods, rules, ratio, count, report_dir, surface, tiles, tile_points, seed, metro_samples, psnr_peak,
      drop_invalid) = (opts[k] for k in ("methods", "rule", "ratio", "count", "report_dir", "surface", "tiles",
                                         "tile_points", "seed", "metro_samples", "psnr_peak", "drop_invalid"))

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import storage
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
 from ..params import validate
@@ -142,7 +143,8 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
              report_dir: str | None = None, error_points: int = 2_000_000, chunk_size: int = DEFAULT_CHUNK_SIZE,
              metro_samples: int | None = None, client: Any = None, progress=None, drop_invalid: bool = False,
              bars=None, psnr_peak: float | None = None, reference_mesh: str | None = None,
-             surface_budget: float = 60.0, surface_full: bool = False, d2_sample: int = 1_000_000) -> dict:
+             surface_budget: float = 60.0, surface_full: bool = False, d2_sample: int = 1_000_000,
+             storage_options: dict | None = None) -> dict:
     """Evaluate a simplified cloud against its original; returns the report dict.
 
     Parameters
@@ -200,6 +202,9 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     drop_invalid : bool
         Drop the points of either file whose coordinates are NaN or infinite
         (a warning gives their count) instead of refusing the file.
+    storage_options : dict, optional
+        Options of the fsspec filesystem of URL inputs and a URL report folder
+        (:mod:`cloudsieve.storage`); default: the object store's own chain.
     bars : callable, optional
         ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
         (e.g. :func:`cloudsieve.progress.bar`): one per stage, "point errors"
@@ -221,12 +226,12 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     InvalidPointsError
         A file has NaN or infinite coordinates and *drop_invalid* is False.
     """
-    validate("evaluate", {
+    opts = validate("evaluate", {
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
         "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_full": surface_full,
-        "surface_budget": surface_budget, "d2_sample": d2_sample,
+        "surface_budget": surface_budget, "d2_sample": d2_sample, "storage_options": storage_options,
     })
     if report_dir is not None:
         check_folder(report_dir)
@@ -234,7 +239,8 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
                           seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
                           chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
                           drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh,
-                          surface_budget=surface_budget, surface_full=surface_full, d2_sample=d2_sample)
+                          surface_budget=surface_budget, surface_full=surface_full, d2_sample=d2_sample,
+                          storage_options=opts["storage_options"])
 
 
 def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
@@ -245,6 +251,7 @@ def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(header["scales"], dtype=np.float64), np.asarray(header["offsets"], dtype=np.float64)
 
 
+@storage.takes_options
 def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
                    tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
                    report_dir: str | None = None, error_points: int = 2_000_000,
@@ -265,6 +272,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         Meshes of the original's tiles, filled by the first call and reused
         by the next ones on the same original (compare evaluates several
         simplified clouds of one original).
+    storage_options : dict, optional
+        The fsspec filesystem's options for URLs (:mod:`cloudsieve.storage`).
     """
     t0 = time.perf_counter()
     src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)

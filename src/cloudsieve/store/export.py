@@ -17,7 +17,9 @@ import numpy as np
 import zarr
 
 from .. import progress as _progress
+from .. import storage
 from ..errors import InvalidParameterError
+from ..params import check
 from .streaming import bound_malloc, prefetch
 from ..paths import local_path
 from .chunk import DEFAULT_CHUNK_SIZE
@@ -68,6 +70,7 @@ def export(
     run=None,
     counts: list[int] | None = None,
     tile_size: float | None = None,
+    storage_options: dict | None = None,
 ) -> str:
     """Write the points of *store* (all, or those kept by *mask*) to *dst*.
 
@@ -106,6 +109,9 @@ def export(
         Write *dst* as a folder of square LAZ tiles of this edge and
         ``dst/index.vpc`` (:func:`.tiles.export_tiles`, as tasks; *mask* a
         store array name or None).
+    storage_options : dict, optional
+        Options of the fsspec filesystem of a URL *store* or *dst*
+        (:mod:`cloudsieve.storage`); default: the object store's own chain.
 
     Returns
     -------
@@ -117,6 +123,10 @@ def export(
     StoreNotFoundError, SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError, UnknownFormatError
     """
+    if storage_options is not None:
+        with storage.using(check("storage_options", storage_options)):  # JSON text as a dict
+            return export(store, dst, format=format, mask=mask, chunk_size=chunk_size, overwrite=overwrite,
+                          progress=progress, run=run, counts=counts, tile_size=tile_size)
     from ..io import open_writer  # here, not at the top: see ingest()
 
     store, dst = source_and_destination(store, dst)

@@ -19,7 +19,8 @@ import numpy as np
 import zarr
 
 from .. import progress as _progress
-from ..params import validate_params
+from .. import storage
+from ..params import check, validate_params
 from ..errors import (
     EmptyInputError,
     SameSourceDestinationError,
@@ -105,6 +106,7 @@ def ingest(
     progress: _progress.ProgressCallback | None = None,
     on_chunk: Callable[[int, np.ndarray, int | None], None] | None = None,
     run=None,
+    storage_options: dict | None = None,
     **reader_options: Any,
 ) -> PointStore:
     """Stream the point cloud file *src* into a new point store *store*.
@@ -141,6 +143,9 @@ def ingest(
     run : Runner, optional
         Runs the ingest tasks of a LAS source (:class:`cloudsieve.engine.runner.Runner`);
         None: one after the other in this process.
+    storage_options : dict, optional
+        Options of the fsspec filesystem of a URL *src* or *store*
+        (:mod:`cloudsieve.storage`); default: the object store's own chain.
     **reader_options
         Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
 
@@ -156,6 +161,11 @@ def ingest(
     SameSourceDestinationError, DestinationExistsError,
     DestinationNotWritableError
     """
+    if storage_options is not None:
+        with storage.using(check("storage_options", storage_options)):  # JSON text as a dict
+            return ingest.unchecked(src, store, format=format, chunk_size=chunk_size, drop_invalid=drop_invalid,
+                                    overwrite=overwrite, progress=progress, on_chunk=on_chunk, run=run,
+                                    **reader_options)
     # io is imported here, not at the top: io imports the store's Chunk and DEFAULT_CHUNK_SIZE,
     # so either package can be imported first
     from ..io import open_reader

@@ -1,0 +1,338 @@
+"""Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
+reading, ``memory://``), with a run's storage options.
+
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`). Every module that opens, lists or
+removes a cloud, a list, a VPC or a store goes through it, so a URL works wherever a path does:
+:func:`open_input` reads by ranged requests (a LAZ file's chunk table, then only its chunks: never
+a whole-file download), :func:`open_output` writes (multipart on S3 above the block size).
+
+Storage options follow pandas, dask and xarray: a dict passed to the filesystem of the URL's protocol
+(``{"key": ..., "secret": ..., "endpoint_url": ...}`` for s3fs). With none, each filesystem uses the
+ecosystem's own chain (``AWS_*`` environment variables including ``AWS_ENDPOINT_URL``, config files,
+instance roles). :func:`using` sets them for the calling process (the driver); the task runner
+(:class:`cloudsieve.engine.runner.Runner`) hands them to every task with :func:`bound`, on any
+scheduler, so workers that share no disk and no environment with the driver get them too. They are
+never logged, written to a store, a VPC or a report, nor printed in an error (:func:`redact`).
+
+Example
+-------
+>>> with using({"anon": False}):  # doctest: +SKIP
+...     with open_input("s3://bucket/tiles/a.laz") as fh:
+...         head = fh.read(375)
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import os
+import posixpath
+import re
+from collections.abc import Callable, Iterator
+from urllib.parse import unquote, urlparse
+
+from .errors import (CloudsieveError, DestinationNotWritableError, InputNotFoundError, InputNotReadableError,
+                     InvalidParameterError)
+
+__all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
+           "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity",
+           "remove", "redact", "remote_errors", "READ_BLOCK"]
+
+#: a remote file's read-ahead: one ranged request fetches this many bytes (a LAZ chunk of 50,000 points is
+#: 0.3-1 MB; a store chunk's part of a file a few MB)
+READ_BLOCK = 8 * 2**20
+#: a remote file's write buffer: a multipart upload's part (S3's minimum part size is 5 MiB)
+WRITE_BLOCK = 16 * 2**20
+
+_OPTIONS: dict = {}
+#: the options an S3 filesystem gets unless the run's own say otherwise: a bounded connect time and retries
+#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried
+_S3_DEFAULTS = {"config_kwargs": {"connect_timeout": 10, "read_timeout": 60,
+                                  "retries": {"max_attempts": 4, "mode": "standard"}}}
+
+
+def is_url(path: str | os.PathLike) -> bool:
+    """True for an fsspec URL other than ``file://`` (that one is the local path it names)."""
+    path = os.fspath(path)
+    return "://" in path and not path.startswith("file://")
+
+
+def local(path: str | os.PathLike) -> str | None:
+    """The local file-system path behind *path* (absolute), or None for a remote URL."""
+    path = os.fspath(path)
+    if "://" not in path:
+        return os.path.abspath(path)
+    url = urlparse(path)
+    if url.scheme == "file":
+        return os.path.abspath(unquote(url.netloc + url.path))
+    return None
+
+
+def protocol(path: str | os.PathLike) -> str:
+    """The URL's protocol ("s3", "gs", ...), "file" for a local path."""
+    path = os.fspath(path)
+    return path.split("://", 1)[0].lower() if "://" in path else "file"
+
+
+def current() -> dict:
+    """The storage options in force in this process (a copy)."""
+    return dict(_OPTIONS)
+
+
+@contextlib.contextmanager
+def using(options: dict | None) -> Iterator[None]:
+    """Run the block with *options* as this process's storage options (restored after); None keeps the
+    options in force (a pipeline's, around its stages)."""
+    global _OPTIONS
+    if options is not None and not isinstance(options, dict):
+        raise InvalidParameterError(f"storage_options must be a dict of the filesystem's options, got "
+                                    f"{type(options).__name__}")
+    saved = _OPTIONS
+    _OPTIONS = dict(saved if options is None else options)
+    try:
+        yield
+    finally:
+        _OPTIONS = saved
+
+
+def takes_options(func: Callable) -> Callable:
+    """Decorate *func* with a keyword ``storage_options``: the call runs :func:`using` them."""
+
+    @functools.wraps(func)
+    def wrapper(*args, storage_options: dict | None = None, **kwargs):
+        with using(storage_options):
+            return func(*args, **kwargs)
+
+    return wrapper
+
+
+def _call_with(options: dict, func: Callable, *args):
+    with using(options):
+        return func(*args)
+
+
+def bound(func: Callable, options: dict | None = None) -> Callable:
+    """*func* run with *options* (default: this process's) as its storage options, wherever it runs (a task)."""
+    options = current() if options is None else options
+    if not options:
+        return func
+    wrapped = functools.partial(_call_with, options, func)
+    wrapped.__name__ = getattr(func, "__name__", "task")  # the runner names the tasks' keys after it
+    return wrapped
+
+
+def fs_options(path: str) -> dict:
+    """The options the filesystem of *path* is made with: the run's, with S3's bounded time-outs and retries."""
+    return _options_for(protocol(path))
+
+
+def _options_for(proto: str) -> dict:
+    options = dict(_OPTIONS)
+    if proto in ("s3", "s3a"):
+        config = {**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})}
+        options["config_kwargs"] = config
+    return options
+
+
+def filesystem(path: str | os.PathLike):
+    """``(fs, path_in_fs)`` of *path*: its fsspec filesystem, made with the run's storage options."""
+    import fsspec
+
+    path = os.fspath(path)
+    proto = protocol(path)
+    with remote_errors(path):
+        return fsspec.core.url_to_fs(path, **(_options_for(proto) if proto != "file" else {}))
+
+
+def open_input(path: str | os.PathLike):
+    """A binary file object for reading *path*; a URL reads by ranged requests of :data:`READ_BLOCK`."""
+    path = os.fspath(path)
+    if not is_url(path):
+        return open(local(path), "rb")
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        return fs.open(p, "rb", block_size=READ_BLOCK, cache_type="readahead")
+
+
+def open_output(path: str | os.PathLike):
+    """A binary file object writing *path* (a URL: uploaded in parts of :data:`WRITE_BLOCK`, complete only
+    when closed without error)."""
+    path = os.fspath(path)
+    if not is_url(path):
+        return open(local(path), "wb")
+    fs, p = filesystem(path)
+    with remote_errors(path, writing=True):
+        return fs.open(p, "wb", block_size=WRITE_BLOCK)
+
+
+def exists(path: str | os.PathLike) -> bool:
+    path = os.fspath(path)
+    if not is_url(path):
+        return os.path.exists(local(path))
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        return fs.exists(p)
+
+
+def isfile(path: str | os.PathLike) -> bool:
+    path = os.fspath(path)
+    if not is_url(path):
+        return os.path.isfile(local(path))
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        return fs.isfile(p)
+
+
+def isdir(path: str | os.PathLike) -> bool:
+    """A local folder; for a URL, a prefix holding at least one object (object stores have no folders)."""
+    path = os.fspath(path)
+    if not is_url(path):
+        return os.path.isdir(local(path))
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        return fs.isdir(p)
+
+
+def listdir(path: str | os.PathLike) -> list[str]:
+    """The names of the files (not folders) directly in the folder or prefix *path*, sorted."""
+    path = os.fspath(path)
+    if not is_url(path):
+        folder = local(path)
+        return sorted(n for n in os.listdir(folder) if os.path.isfile(os.path.join(folder, n)))
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        entries = fs.ls(p, detail=True)
+    return sorted(posixpath.basename(e["name"].rstrip("/")) for e in entries if e.get("type") == "file")
+
+
+def glob(pattern: str) -> list[str]:
+    """The files matching *pattern*, sorted, as URLs of the pattern's protocol (local: paths)."""
+    import glob as _glob
+
+    if not is_url(pattern):
+        return sorted(p for p in _glob.glob(pattern) if os.path.isfile(p))
+    fs, p = filesystem(pattern)
+    with remote_errors(pattern):
+        found = fs.glob(p, detail=True)
+    proto = protocol(pattern)
+    return sorted(f"{proto}://{k.lstrip('/')}" for k, v in found.items() if v.get("type") == "file")
+
+
+def join(base: str, relative: str) -> str:
+    """*relative* resolved against the folder *base* (a URL stays a URL; an absolute path or URL is kept)."""
+    if "://" in relative or os.path.isabs(relative) and not is_url(base):
+        return relative
+    if is_url(base):
+        proto, rest = base.split("://", 1)
+        return f"{proto}://{posixpath.normpath(posixpath.join(rest, relative))}"
+    return os.path.join(base, relative)
+
+
+def parent(path: str) -> str:
+    """The folder (or prefix) holding *path*."""
+    if is_url(path):
+        proto, rest = path.rstrip("/").split("://", 1)
+        return f"{proto}://{posixpath.dirname(rest)}"
+    return os.path.dirname(os.path.abspath(path))
+
+
+def name(path: str) -> str:
+    """The last part of *path*."""
+    return posixpath.basename(path.rstrip("/")) if is_url(path) else os.path.basename(path.rstrip("/"))
+
+
+def identity(path: str) -> tuple[int, str]:
+    """``(size in bytes, version)`` of the file *path*: what tells a changed file for a resume (the
+    modification time in ns locally; the ETag, else the modification time, of an object)."""
+    if not is_url(path):
+        st = os.stat(local(path))
+        return int(st.st_size), str(st.st_mtime_ns)
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        info = fs.info(p)
+    version = info.get("ETag") or info.get("etag") or info.get("LastModified") or info.get("mtime") or ""
+    return int(info.get("size") or 0), str(version).strip('"')
+
+
+def remove(path: str, recursive: bool = False) -> None:
+    """Remove the file (or with *recursive* the folder or prefix) *path*; a missing one is ignored."""
+    import shutil
+
+    if not is_url(path):
+        p = local(path)
+        if os.path.isdir(p) and not os.path.islink(p):
+            if recursive:
+                shutil.rmtree(p, ignore_errors=True)
+        elif os.path.lexists(p):
+            os.remove(p)
+        return
+    fs, p = filesystem(path)
+    with remote_errors(path, writing=True):
+        try:
+            fs.rm(p, recursive=recursive)
+        except FileNotFoundError:
+            pass
+
+
+_SECRET = re.compile(r"(?i)(secret|token|password|key|signature|credential)[\"']?\s*[:=]\s*[\"']?[^\s\"',}&]+")
+
+
+def redact(text: str) -> str:
+    """*text* with anything that looks like a credential (``secret=...``, ``"key": "..."``) masked."""
+    text = _SECRET.sub(lambda m: m.group(1) + "=***", text)
+    for value in _secret_values():
+        text = text.replace(value, "***")
+    return text
+
+
+def _secret_values() -> list[str]:
+    out = []
+    for k, v in _OPTIONS.items():
+        if isinstance(v, str) and len(v) >= 4 and re.search(r"(?i)secret|token|key|password|session", k):
+            out.append(v)
+    return out
+
+
+def _endpoint() -> str | None:
+    return (_OPTIONS.get("endpoint_url") or _OPTIONS.get("client_kwargs", {}).get("endpoint_url")
+            or os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL"))
+
+
+def _reason(exc: BaseException) -> str:
+    text = str(exc).strip() or type(exc).__name__
+    return redact(text.splitlines()[0])
+
+
+@contextlib.contextmanager
+def remote_errors(path: str, writing: bool = False) -> Iterator[None]:
+    """Turn an object store's errors about *path* into cloudsieve's own, one line naming *path* (and the
+    endpoint when it cannot be reached), with no credential in it."""
+    try:
+        yield
+    except CloudsieveError:
+        raise
+    except FileNotFoundError as exc:
+        if not is_url(path):
+            raise
+        raise InputNotFoundError(f"{path}: no such file or bucket ({_reason(exc)})") from None
+    except PermissionError as exc:
+        if not is_url(path):
+            raise
+        error = DestinationNotWritableError if writing else InputNotReadableError
+        raise error(f"{path}: access denied: cannot {'write' if writing else 'read'} it with these credentials "
+                    f"({_reason(exc)})") from None
+    except Exception as exc:  # noqa: BLE001 - the object store's own exceptions (botocore, aiohttp, ...)
+        if not is_url(path):
+            raise
+        kind = type(exc).__name__
+        if kind in ("ParamValidationError", "InvalidBucketName") or "Invalid bucket name" in str(exc):
+            raise InvalidParameterError(f"{path}: invalid bucket name ({_reason(exc)})") from None
+        if kind in ("EndpointConnectionError", "ConnectTimeoutError", "ConnectionError", "ClientConnectorError",
+                    "ConnectTimeout", "ReadTimeoutError") or "Could not connect" in str(exc):
+            where = _endpoint() or "the default endpoint"
+            error = DestinationNotWritableError if writing else InputNotReadableError
+            raise error(f"{path}: cannot reach the object store at {where} ({_reason(exc)})") from None
+        if isinstance(exc, (OSError, ValueError)):
+            error = DestinationNotWritableError if writing else InputNotReadableError
+            raise error(f"{path}: {_reason(exc)}") from None
+        raise
