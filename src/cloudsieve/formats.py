@@ -18,6 +18,6 @@ FORMAT_TABLE: dict[str, tuple[tuple[str, ...], str | None, str | None]] = {
     "e57": ((".e57",), "cloudsieve.io.e57:E57Reader", None),
     "xyz": ((".xyz", ".txt", ".csv", ".pts"), "cloudsieve.io.xyz:XyzReader", "cloudsieve.io.xyz:XyzWriter"),
 }
-#: the formats cloudsieve reads / writes
+#: the formats cloudsieve reads / writes (COPC is written from a point store, by cloudsieve.store.copc)
 READABLE = tuple(name for name, (_, reader, _) in FORMAT_TABLE.items() if reader is not None)
-WRITABLE = tuple(name for name, (_, _, writer) in FORMAT_TABLE.items() if writer is not None)
+WRITABLE = tuple(name for name, (_, _, writer) in FORMAT_TABLE.items() if writer is not None or name == "copc")

@@ -13,7 +13,7 @@ ORDER = 30
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "export",
-        help="write a point store to LAS/LAZ/PLY/XYZ",
+        help="write a point store to LAS/LAZ/COPC/PLY/XYZ",
         description=(
             "Write the points of STORE to DST (format by extension or --format) in chunks, with "
             "every attribute and, for LAS sources, the original header (counts and bounds "
@@ -22,8 +22,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
-    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .ply, .xyz/.txt/.csv/.pts), or with --tile-size "
-                   "a folder of LAZ tiles and index.vpc")
+    p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .copc.laz, .ply, .xyz/.txt/.csv/.pts; or "
+                   "--format), or with --tile-size a folder of LAZ tiles and index.vpc")
     add_options(p, "export")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run)

@@ -1,4 +1,5 @@
-"""``cloudsieve info PATH``: format, count, bounds, attributes and CRS of a file or store."""
+"""``cloudsieve info PATH``: format, count, bounds, attributes and CRS of a file or store, or of the files of
+one cloud (a glob, a directory, a list file or a VPC: one line per file and the total)."""
 
 from __future__ import annotations
 
@@ -15,14 +16,17 @@ ORDER = 10
 def add_parser(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "info",
-        help="show format, point count, bounds, attributes and CRS of a file or point store",
+        help="show format, point count, bounds, attributes and CRS of a file, files or point store",
         description=(
-            "Describe PATH, a point cloud file (LAS/LAZ/COPC/PLY/E57/XYZ) or a point store. The "
+            "Describe PATH, a point cloud file (LAS/LAZ/COPC/PLY/E57/XYZ) or a point store, or the files "
+            "simplify reads as one cloud: one line per file (format, count, bounds, CRS) and the total. The "
             "count and bounds come from the header where the format has one (LAS, E57 count); "
             "otherwise (PLY bounds, XYZ) the file is streamed once, chunk by chunk."
         ),
     )
-    p.add_argument("path", metavar="PATH", help="file or point store (folder or fsspec URL)")
+    p.add_argument("path", metavar="PATH", help="file, point store (folder or fsspec URL), or files as one cloud: a "
+                   "quoted glob ('tiles/*.laz'), a directory, a list file (.lst: one path per line, relative to the "
+                   "list's folder) or a VPC (.vpc)")
     p.add_argument("--format", help="file format (default: from the extension)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
     p.set_defaults(func=run)
@@ -129,20 +133,55 @@ def _describe_file(path: str, format: str | None) -> dict:
         }
 
 
+def _describe_many(path: str, files: list[str], format: str | None) -> dict:
+    """Each file of the cloud *path* (:func:`_describe_file`) and the total: files, count and bounds."""
+    infos = [_describe_file(f, format) for f in files]
+    counts = [i["count"] for i in infos]
+    boxes = [i["bounds"] for i in infos]
+    bounds = None
+    if all(b is not None for b in boxes):
+        bounds = [np.min([b[0] for b in boxes], axis=0).tolist(), np.max([b[1] for b in boxes], axis=0).tolist()]
+    total = {"files": len(infos), "count": None if None in counts else int(sum(counts)), "bounds": bounds}
+    return {"path": path, "kind": "files", "files": infos, "total": total}
+
+
+def _range_text(bounds, scales) -> str:
+    if not bounds:
+        return ""
+    return "".join(f", {axis} {coordinate_text(a, s)} .. {coordinate_text(b, s)}"
+                   for axis, a, b, s in zip("xyz", *bounds, scales or [None] * 3))
+
+
+def _print_many(info: dict) -> None:
+    total = info["total"]
+    print(f"{info['path']}: {total['files']} files read as one cloud")
+    every = [f["header"].get("scales") for f in info["files"]]
+    scales = np.min(every, axis=0).tolist() if all(every) else None  # the cloud's: the finest per axis
+    for f in info["files"]:
+        count = f"{f['count']:,} points" if f["count"] is not None else "points unknown"
+        print(f"  {f['path']}: {f['format']}, {count}{_range_text(f['bounds'], f['header'].get('scales'))}, "
+              f"CRS {f['crs'] or 'none'}")
+    count = f"{total['count']:,} points" if total["count"] is not None else "points unknown"
+    print(f"  total: {total['files']} files, {count}{_range_text(total['bounds'], scales)}")
+
+
 def run(args: argparse.Namespace) -> int:
+    from ..io.sources import expand_sources, is_many
     from ..store import is_store, local_path
 
     local = local_path(args.path)
     if is_store(args.path):
         info = _describe_store(args.path)
-    elif local is not None and os.path.isdir(local):
-        from ..errors import InputIsDirectoryError
-
-        raise InputIsDirectoryError(f"{args.path} is a directory, not a point cloud file or point store")
+    elif local is not None and (os.path.isdir(local) or is_many(local)):
+        named = args.path if "://" not in args.path else local  # the user's words in a message
+        info = _describe_many(args.path, expand_sources(named), args.format)  # a directory without LAS/LAZ: refused
     else:
         info = _describe_file(args.path, args.format)
     if args.json:
         print(json.dumps(info, indent=2))
+        return 0
+    if info["kind"] == "files":
+        _print_many(info)
         return 0
     print(f"{info['path']}: {info['format']}")
     print(f"  points      {info['count']:,}" if info["count"] is not None else "  points      unknown")

@@ -21,7 +21,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("src", metavar="SRC", help="input file (format by extension, or --format), or LAS/LAZ/COPC files "
-                   "as one cloud: a quoted glob ('tiles/*.laz'), a directory, a list file (.lst) or a VPC (.vpc)")
+                   "as one cloud: a quoted glob ('tiles/*.laz'), a directory, a list file (.lst: one path per line, "
+                   "relative to the list's folder) or a VPC (.vpc)")
     p.add_argument("store", metavar="STORE", help="point store to create (folder or fsspec URL)")
     add_options(p, "ingest")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

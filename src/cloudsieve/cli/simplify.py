@@ -33,9 +33,9 @@ def add_parser(subparsers) -> None:
     )
     p.add_argument("src", metavar="SRC", help="input file (LAS/LAZ/COPC/PLY/E57/XYZ), a point store, or LAS/LAZ/COPC "
                    "files as one cloud: a quoted glob ('tiles/*.laz'), a directory, a list file (.lst: one path per "
-                   "line) or a VPC (.vpc)")
-    p.add_argument("dst", metavar="DST", help="output file (LAS/LAZ/PLY/XYZ, by extension), or with --tile-size a "
-                   "folder of LAZ tiles and index.vpc")
+                   "line, relative to the list's folder) or a VPC (.vpc)")
+    p.add_argument("dst", metavar="DST", help="output file (LAS/LAZ/COPC (.copc.laz)/PLY/XYZ, by extension or "
+                   "--format), or with --tile-size a folder of LAZ tiles and index.vpc")
     add_options(p, "simplify")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
