@@ -27,7 +27,7 @@ from ..errors import CorruptInputError, InputFormatError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
 from .las_checks import QUIET_READS, check_layout, decodable_points
-from .las_header import build_header, header_from_dict, header_to_dict, vlr_from_dict
+from .las_header import build_header, clip_to_dimension, header_from_dict, header_to_dict, vlr_from_dict
 
 __all__ = ["LasReader", "LasWriter", "record_arrays", "laz_backend", "decode_error"]
 
@@ -278,6 +278,13 @@ class LasWriter(Writer):
                     logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self._label,
                                    name, values.min(), values.max(), las_name)
                 values = np.clip(np.round(values * 65535.0), 0, 65535).astype(np.uint16)
+            elif how == "int":
+                dim = self._pf.dimension_by_name(las_name)
+                values, outside = clip_to_dimension(values, dim)
+                if outside and name not in self._said:  # once a file
+                    self._said.add(name)
+                    logger.warning("%s: %s has values outside LAS %s's %d..%d (%d..%d): clipped", self._label, name,
+                                   las_name, dim.min, dim.max, *outside)
             try:
                 if las_name in self._packed:
                     rec.array[las_name] = values

@@ -34,7 +34,8 @@ from laspy.point.dims import DimensionInfo, DimensionKind
 from laspy.vlrs.known import vlr_factory
 from laspy.vlrs.vlrlist import VLRList
 
-__all__ = ["header_to_dict", "header_from_dict", "build_header", "vlr_from_dict", "COPC_USER_ID", "LASZIP_USER_ID"]
+__all__ = ["header_to_dict", "header_from_dict", "build_header", "clip_to_dimension", "vlr_from_dict", "COPC_USER_ID",
+           "LASZIP_USER_ID"]
 
 logger = logging.getLogger(__name__)
 
@@ -267,6 +268,16 @@ def _fits(dtype: np.dtype, target: np.dtype) -> bool:
     return np.can_cast(dtype, target, casting="safe")
 
 
+def clip_to_dimension(values: np.ndarray, dimension: DimensionInfo) -> tuple[np.ndarray, tuple[int, int] | None]:
+    """Integer *values* clipped to the range of a LAS *dimension* (laspy's, bit fields included), and the
+    values' (min, max) when some lay outside it (None when all fit)."""
+    lo, hi = int(dimension.min), int(dimension.max)
+    if len(values) == 0:
+        return values, None
+    vmin, vmax = int(values.min()), int(values.max())
+    return np.clip(values, lo, hi), ((vmin, vmax) if vmin < lo or vmax > hi else None)
+
+
 def _extra_name(name: str, taken: set) -> str:
     out = re.sub(r"[^0-9A-Za-z_]", "_", name)[:32] or "extra"
     while out in taken:
@@ -285,6 +296,8 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
     (8-bit values x 257, floats taken as 0..1 x 65535), a float ``intensity``
     (E57, PLY: normally 0..1) goes to LAS intensity as round(v x 65535),
     clipped, *and* unchanged to the extra-bytes dimension ``intensity_``;
+    integers of a LAS name wider than its dimension (a text file's int64)
+    go to it unchanged, values beyond its range clipped ("int");
     everything else becomes extra bytes (names sanitised to 32 characters).
 
     Returns
@@ -293,10 +306,10 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
         As :func:`header_to_dict`.
     mapping : list of (str, str, str)
         (attribute, LAS dimension name, conversion "copy" | "color8" |
-        "unit16"), one attribute possibly to several dimensions.
+        "unit16" | "int"), one attribute possibly to several dimensions.
     """
     color = _color_source(dtypes)
-    has_gps = "gps_time" in dtypes and np.dtype(dtypes["gps_time"][0]).kind == "f"
+    has_gps = "gps_time" in dtypes and np.dtype(dtypes["gps_time"][0]).kind in "fiu"
     pf_id = 3 if (color and has_gps) else (2 if color else (1 if has_gps else 0))
     pf = laspy.PointFormat(pf_id)
     std = {d.name: np.dtype(d.dtype) if d.dtype is not None else np.dtype("u1") for d in pf.dimensions}
@@ -316,13 +329,17 @@ def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "")
         dtype = np.dtype(dtype)
         if color and name in color:
             las_name = ("red", "green", "blue")[color.index(name)]
-            how = "unit16" if dtype.kind == "f" else ("color8" if dtype.itemsize == 1 else "copy")
+            how = ("unit16" if dtype.kind == "f" else "color8" if dtype.itemsize == 1
+                   else "copy" if _fits(dtype, np.dtype("u2")) else "int")
             mapping.append((name, las_name, how))
             continue
         if shape == () and name in _STANDARD_NAMES and name in std and dtype.kind in "uif":
             target = np.dtype("u1") if name in sub_fields else std[name]
-            if (dtype.kind in "ui" and _fits(dtype, target)) or (dtype.kind == "f" and target.kind == "f"):
+            if (dtype.kind in "ui" and _fits(dtype, target)) or target.kind == "f":
                 mapping.append((name, name, "copy"))
+                continue
+            if dtype.kind in "ui" and target.kind in "ui":
+                mapping.append((name, name, "int"))
                 continue
             if name == "intensity" and dtype.kind == "f":
                 mapping.append((name, name, "unit16"))  # and, below, the exact value as extra bytes

@@ -11,8 +11,12 @@ Reading
       ``red green blue`` (6), ``intensity red green blue`` (7, the PTS
       layout), else ``col3, col4, ...``;
     * ``x``, ``y``, ``z`` are required (matched case-insensitively);
-    * every column is read as float64 (a text file carries no types); blank
-      lines and lines starting with ``#`` or ``//`` are skipped;
+    * an attribute column is read as int64 when each of its values in the
+      first :data:`TYPED_ROWS` data rows is an integer literal (``17``, not
+      ``17.0``), else as float64 (a later value with a fraction in an
+      integer column raises CorruptInputError naming its line); x, y, z are
+      float64; blank lines and lines starting with ``#`` or ``//`` are
+      skipped;
     * a bad row (wrong number of values, or a value that is not a number)
       raises CorruptInputError naming its line number.
 
@@ -20,8 +24,10 @@ Reading
 
 Writing
     A header row of column names, then one row per point, space separated
-    (comma for .csv); floats with 17 significant digits (float32 with 9), so
-    values read back exactly; (n, k) attributes as ``name_0 .. name_{k-1}``.
+    (comma for .csv); floats as the shortest text that reads back to the same
+    value, always with a decimal point or an exponent (``1.0``), so that a
+    float column reads back as floats; integers as integers; (n, k)
+    attributes as ``name_0 .. name_{k-1}``.
 """
 
 from __future__ import annotations
@@ -36,9 +42,12 @@ import numpy as np
 from ..errors import InputFormatError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
-from ._text import parse_rows
+from ._text import is_integer, parse_typed_rows
 
-__all__ = ["XyzReader", "XyzWriter"]
+__all__ = ["XyzReader", "XyzWriter", "TYPED_ROWS"]
+
+#: data rows whose values decide which attribute columns are integers
+TYPED_ROWS = 10_000
 
 logger = logging.getLogger(__name__)
 
@@ -141,28 +150,47 @@ class XyzReader(Reader):
             raise InputFormatError(f"{path}: text cloud has no {'/'.join(missing)} column (columns: {', '.join(self._names)})")
         self._xyz_index = [lower.index(c) for c in "xyz"]
         self._attr = [(i, n) for i, n in enumerate(self._names) if i not in self._xyz_index]
-        for _, name in self._attr:
-            self.dtypes[name] = (np.dtype(np.float64), ())
+        self._integers = self._integer_columns(path)
+        for i, name in self._attr:
+            self.dtypes[name] = (np.dtype(np.int64 if i in self._integers else np.float64), ())
         self.header.update({"columns": self._names, "delimiter": self._delimiter})
         self.count = None
 
-    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
-        """Blocks of at most ``chunk_size`` rows, as dicts."""
-        ncols = len(self._names)
+    def _data_rows(self) -> Iterator[tuple[int, str]]:
+        """(line number, text) of every data row, from the first on."""
         with open(self.path, encoding="utf-8", errors="replace") as fh:
             numbered = enumerate(fh, start=1)
             for _ in itertools.islice(numbered, self._start - 1):
                 pass
-            rows = ((i, line) for i, line in numbered if not _is_comment(line))
-            while True:
-                block = list(itertools.islice(rows, self.chunk_size))
-                if not block:
-                    break
-                values = parse_rows(block, ncols, self.path, self._delimiter)
-                chunk = {"xyz": np.ascontiguousarray(values[:, self._xyz_index])}
-                for i, name in self._attr:
-                    chunk[name] = np.ascontiguousarray(values[:, i])
-                yield chunk
+            yield from ((i, line) for i, line in numbered if not _is_comment(line))
+
+    def _integer_columns(self, path: str) -> dict[int, str]:
+        """Attribute columns (index -> name) whose values in the first TYPED_ROWS data rows are all integers."""
+        candidates, seen = dict(self._attr), False
+        for _, line in itertools.islice(self._data_rows(), TYPED_ROWS):
+            seen = True
+            tokens = _split(line, self._delimiter)
+            if len(tokens) != len(self._names):
+                continue  # a bad row: the read names it
+            for i in [i for i in candidates if not is_integer(tokens[i])]:
+                del candidates[i]
+            if not candidates:
+                break
+        return candidates if seen else {}
+
+    def _read_chunks(self) -> Iterator[dict[str, np.ndarray]]:
+        """Blocks of at most ``chunk_size`` rows, as dicts."""
+        ncols = len(self._names)
+        rows = self._data_rows()
+        while True:
+            block = list(itertools.islice(rows, self.chunk_size))
+            if not block:
+                break
+            values, ints = parse_typed_rows(block, ncols, self.path, self._delimiter, self._integers, TYPED_ROWS)
+            chunk = {"xyz": np.ascontiguousarray(values[:, self._xyz_index])}
+            for i, name in self._attr:
+                chunk[name] = ints[i] if i in ints else np.ascontiguousarray(values[:, i])
+            yield chunk
 
 
 class XyzWriter(Writer):
@@ -171,17 +199,19 @@ class XyzWriter(Writer):
     def _open(self) -> None:
         self._delimiter = "," if self.path.lower().endswith(".csv") else " "
         names = ["x", "y", "z"]
-        fmts = ["%.17g"] * 3
+        fmts = ["%r"] * 3  # a Python float's repr: the shortest text of the same value, with "." or "e"
         self._cols: list[tuple[str, int | None]] = []
+        self._float32: set[str] = set()  # columns written from numpy float32 scalars (their shortest text)
         for name, (dtype, shape) in self.dtypes.items():
             if name == "xyz":
                 continue
             if dtype.kind in "iub":
                 fmt = "%d"
             elif dtype == np.float32:
-                fmt = "%.9g"
+                fmt = "%s"
+                self._float32.add(name)
             elif dtype.kind == "f":
-                fmt = "%.17g"
+                fmt = "%r"
             else:
                 logger.warning("%s: attribute %r of type %s not written", self.path, name, dtype)
                 continue
@@ -198,10 +228,11 @@ class XyzWriter(Writer):
         self.file.write((self._delimiter.join(names) + "\n").encode())
 
     def _write(self, chunk: dict[str, np.ndarray]) -> None:
-        xyz = chunk["xyz"]
-        columns = [xyz[:, 0], xyz[:, 1], xyz[:, 2]]
+        xyz = np.asarray(chunk["xyz"], dtype=np.float64)
+        values = [xyz[:, 0].tolist(), xyz[:, 1].tolist(), xyz[:, 2].tolist()]
         for name, i in self._cols:
-            columns.append(chunk[name] if i is None else chunk[name][:, i])
+            c = np.asarray(chunk[name] if i is None else chunk[name][:, i])
+            values.append(list(c.astype(np.float32, copy=False)) if name in self._float32 else c.tolist())
         fmt = self._fmt
-        text = "\n".join(fmt % row for row in zip(*(c.tolist() for c in columns)))
+        text = "\n".join(fmt % row for row in zip(*values))
         self.file.write((text + "\n").encode())

@@ -39,7 +39,7 @@ import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 
 from ..errors import CorruptInputError, InputFormatError
-from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, header_from_dict
+from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, clip_to_dimension, header_from_dict
 from .copc_hierarchy import ENTRY_DTYPE, ROOT_PAGE_NODES, hierarchy_pages
 
 __all__ = ["copc_header", "point_records", "compress", "record_stats", "merge_stats", "write_copc", "laz_vlr",
@@ -84,7 +84,7 @@ def copc_header(header: dict, dtypes: dict, source_format: str | None, bounds: n
         LAS 1.4, point format 6/7/8 with the source's extra bytes, the
         WKT bit set, the source's VLRs and EVLRs but the LASzip and COPC ones.
     mapping : list of (str, str, str)
-        (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" | "angle").
+        (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" | "int" | "angle").
     """
     if source_format in ("las", "laz", "copc") or (source_format is None and "point_format" in header):
         d = dict(header)
@@ -177,6 +177,8 @@ def point_records(arrays: dict[str, np.ndarray], header: laspy.LasHeader,
             values = values.astype(np.uint16) * np.uint16(257)
         elif how == "unit16":
             values = np.clip(np.round(np.nan_to_num(values.astype(np.float64)) * 65535.0), 0, 65535).astype(np.uint16)
+        elif how == "int":  # an integer wider than the LAS dimension: clipped to its range
+            values = clip_to_dimension(values, header.point_format.dimension_by_name(las_name))[0]
         elif how == "angle":  # PDAL: std::round(float(rank) / .006f)
             values = np.round(values.astype(np.float32) / np.float32(0.006)).astype(np.int16)
         if las_name in packed:
