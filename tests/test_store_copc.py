@@ -168,6 +168,8 @@ def test_vlrs_crs_and_layout_kept(autzen_store, tmp_path):
 def test_same_bytes_sync_processes_and_local_cluster(autzen_store, tmp_path):
     from distributed import Client, LocalCluster
 
+    from cloudsieve.engine.runner import NO_HTTP_PORT
+
     a, b, c, d = (str(tmp_path / f"{n}.copc.laz") for n in "abcd")
     for path, run in ((a, Runner("sync")), (d, Runner("processes", workers=2))):
         try:
@@ -175,7 +177,7 @@ def test_same_bytes_sync_processes_and_local_cluster(autzen_store, tmp_path):
         finally:
             run.close()
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, Client(cluster) as client:
         run = Runner(client=client)
         out = export_copc(autzen_store, b, run=run, **SMALL)
     assert out["tasks"] > 4

@@ -87,9 +87,11 @@ def test_tiles_ingest_as_one_cloud_exactly(tiles, tmp_path):
 def test_ingest_tasks_same_store_on_a_local_cluster(tiles, tmp_path):
     from distributed import Client, LocalCluster
 
+    from cloudsieve.engine.runner import NO_HTTP_PORT
+
     a = ingest(str(tiles[0].parent), tmp_path / "a.zarr", chunk_size=20_000)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, Client(cluster) as client:
         run = Runner(client=client)
         b = ingest(str(tiles[0].parent), tmp_path / "b.zarr", chunk_size=20_000, run=run)
         assert run.worker_cpu() > 0

@@ -213,6 +213,8 @@ def test_export_tiles_round_trip(autzen, tmp_path):
 def test_export_tiles_same_bytes_on_any_scheduler(autzen, tmp_path):
     from distributed import Client, LocalCluster
 
+    from cloudsieve.engine.runner import NO_HTTP_PORT
+
     store, _ = autzen
     for x in "abc":
         (tmp_path / x).mkdir()
@@ -220,7 +222,7 @@ def test_export_tiles_same_bytes_on_any_scheduler(autzen, tmp_path):
     sync = Runner("sync")
     export_tiles(store.path, tmp_path / "b" / "t", tile_size=300.0, mask="simplify/keep", run=sync)
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+                      dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, Client(cluster) as client:
         run = Runner(client=client)
         export_tiles(store.path, tmp_path / "c" / "t", tile_size=300.0, mask="simplify/keep", run=run)
         pids = set(client.run(os.getpid).values())
