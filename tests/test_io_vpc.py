@@ -118,9 +118,10 @@ def test_read_vpc_errors(tiles, tmp_path):
     p = vpc({"type": "FeatureCollection", "features": [{"type": "Point"}]})
     with pytest.raises(InputFormatError, match=rf"^{p}: feature 0 is not a STAC item \(\"type\": \"Feature\"\)$"):
         read_vpc(p)
-    p = vpc({"type": "FeatureCollection", "features": [feature("https://example.org/t.laz")]})
-    with pytest.raises(InputFormatError, match=rf"^{p}: feature 0 \('t'\) lists https://example.org/t.laz, a remote "
-                                               r"file; only local files can be read$"):
+    # a URL is read as it is (here fsspec's in-memory filesystem: no object there)
+    p = vpc({"type": "FeatureCollection", "features": [feature("memory://nowhere/t.laz")]})
+    with pytest.raises(InputNotFoundError, match=rf"^{p}: feature 0 \('t'\) lists memory://nowhere/t.laz, which "
+                                                 r"does not exist$"):
         read_vpc(p)
     p = vpc({"type": "FeatureCollection", "features": [feature(str(tiles[0])), feature(f"tiles/{tiles[0].name}")]})
     with pytest.raises(InputFormatError, match=rf"^{p}: features 0 and 1 both list {tiles[0]}$"):

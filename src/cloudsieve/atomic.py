@@ -1,6 +1,9 @@
 """Atomic outputs: a file or folder written under a temporary name beside its destination, then renamed.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`), used by every
+An object store has no rename: a file there is uploaded whole (a multipart upload completes, or the object
+never appears), and a folder of tiles is committed by its ``index.vpc``, written last.
+
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage`), used by every
 writer: the format writers (:mod:`cloudsieve.io`), the store's ingest and
 exports (:mod:`cloudsieve.store`). A failed write leaves nothing under the
 destination's name.
@@ -25,6 +28,7 @@ import tempfile
 from collections.abc import Callable
 
 from .errors import DestinationExistsError, DestinationNotWritableError
+from .storage import is_url
 
 __all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove", "write_text"]
 
@@ -49,6 +53,9 @@ def check_destination(path: str, overwrite: bool, *, folder: bool = False,
     DestinationNotWritableError
         Its parent folder is missing or not a folder.
     """
+    if is_url(path):
+        _check_remote(path, overwrite, folder, foreign)
+        return
     if os.path.isdir(path):
         if not folder:
             raise DestinationExistsError(f"{path} is a folder: cloudsieve never replaces a folder with a file "
@@ -72,6 +79,38 @@ def check_destination(path: str, overwrite: bool, *, folder: bool = False,
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
     if not os.path.isdir(parent):
         raise DestinationNotWritableError(f"cannot write {path}: {parent} is not a folder")
+
+
+def _check_remote(path: str, overwrite: bool, folder: bool, foreign) -> None:
+    """:func:`check_destination` for a URL: an object (a file) or a prefix (a folder of objects); the bucket
+    must exist."""
+    from . import storage
+
+    fs, p = storage.filesystem(path)
+    bucket = p.split("/", 1)[0]
+    with storage.remote_errors(path, writing=True):
+        if not fs.exists(bucket):
+            raise DestinationNotWritableError(f"cannot write {path}: bucket {bucket} does not exist")
+        is_file = fs.isfile(p)
+        is_dir = not is_file and fs.isdir(p)
+    if is_dir:
+        if not folder:
+            raise DestinationExistsError(f"{path} is a prefix holding objects (a folder): cloudsieve never replaces "
+                                         "a folder with a file (remove it, or choose another name)")
+        if not overwrite:
+            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
+        found = foreign(path) if foreign is not None else None
+        if found is not None:
+            raise DestinationExistsError(f"{path} holds {found}: cloudsieve replaces only a folder of its own "
+                                         "output (remove it, or choose another name)")
+    elif is_file:
+        if folder:
+            raise DestinationExistsError(f"{path} is a file: cloudsieve never replaces a file with a folder "
+                                         "(remove it, or choose another name)")
+        if not overwrite:
+            raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it",
+                                         advice={"overwrite": True})
 
 
 def current_umask() -> int:

@@ -35,12 +35,13 @@ from .errors import (CloudsieveError, DestinationNotWritableError, InputNotFound
                      InvalidParameterError)
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
-           "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity",
-           "remove", "redact", "remote_errors", "READ_BLOCK"]
+           "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity", "size", "read_range", "write_bytes", "upload",
+           "remove", "redact", "remote_errors", "READ_BLOCK", "HEADER_BLOCK"]
 
-#: a remote file's read-ahead: one ranged request fetches this many bytes (a LAZ chunk of 50,000 points is
-#: 0.3-1 MB; a store chunk's part of a file a few MB)
-READ_BLOCK = 8 * 2**20
+#: a remote file's read-ahead: one ranged request fetches at least this many bytes (a LAZ chunk of 50,000
+#: points is 0.3-1 MB); :data:`HEADER_BLOCK` for reads of a header alone
+READ_BLOCK = 4 * 2**20
+HEADER_BLOCK = 64 * 2**10
 #: a remote file's write buffer: a multipart upload's part (S3's minimum part size is 5 MiB)
 WRITE_BLOCK = 16 * 2**20
 
@@ -144,14 +145,15 @@ def filesystem(path: str | os.PathLike):
         return fsspec.core.url_to_fs(path, **(_options_for(proto) if proto != "file" else {}))
 
 
-def open_input(path: str | os.PathLike):
-    """A binary file object for reading *path*; a URL reads by ranged requests of :data:`READ_BLOCK`."""
+def open_input(path: str | os.PathLike, block_size: int = READ_BLOCK):
+    """A binary file object for reading *path*; a URL reads by ranged requests of at least *block_size* bytes
+    (a header: small; a run of LAZ chunks: large)."""
     path = os.fspath(path)
     if not is_url(path):
         return open(local(path), "rb")
     fs, p = filesystem(path)
     with remote_errors(path):
-        return fs.open(p, "rb", block_size=READ_BLOCK, cache_type="readahead")
+        return fs.open(p, "rb", block_size=block_size, cache_type="readahead")
 
 
 def open_output(path: str | os.PathLike):
@@ -193,16 +195,18 @@ def isdir(path: str | os.PathLike) -> bool:
         return fs.isdir(p)
 
 
-def listdir(path: str | os.PathLike) -> list[str]:
-    """The names of the files (not folders) directly in the folder or prefix *path*, sorted."""
+def listdir(path: str | os.PathLike, files_only: bool = True) -> list[str]:
+    """The names of the files (with *files_only* False, also the folders or sub-prefixes) directly in the
+    folder or prefix *path*, sorted."""
     path = os.fspath(path)
     if not is_url(path):
         folder = local(path)
-        return sorted(n for n in os.listdir(folder) if os.path.isfile(os.path.join(folder, n)))
+        return sorted(n for n in os.listdir(folder) if not files_only or os.path.isfile(os.path.join(folder, n)))
     fs, p = filesystem(path)
     with remote_errors(path):
-        entries = fs.ls(p, detail=True)
-    return sorted(posixpath.basename(e["name"].rstrip("/")) for e in entries if e.get("type") == "file")
+        entries = fs.ls(p, detail=True, refresh=True)
+    return sorted(posixpath.basename(e["name"].rstrip("/")) for e in entries
+                  if not files_only or e.get("type") == "file")
 
 
 def glob(pattern: str) -> list[str]:
@@ -254,6 +258,39 @@ def identity(path: str) -> tuple[int, str]:
     return int(info.get("size") or 0), str(version).strip('"')
 
 
+def size(path: str) -> int:
+    """The size in bytes of the file *path*."""
+    if not is_url(path):
+        return os.path.getsize(local(path))
+    return identity(path)[0]
+
+
+def read_range(path: str, start: int, length: int) -> bytes:
+    """*length* bytes of the file *path* from *start* (one ranged request for a URL)."""
+    if not is_url(path):
+        with open(local(path), "rb") as fh:
+            fh.seek(start)
+            return fh.read(length)
+    fs, p = filesystem(path)
+    with remote_errors(path):
+        return fs.cat_file(p, start=start, end=start + length)
+
+
+def write_bytes(path: str, data: bytes) -> None:
+    """Write the small file *path* in one request (an object appears whole or not at all)."""
+    fs, p = filesystem(path)
+    with remote_errors(path, writing=True):
+        fs.pipe_file(p, data)
+
+
+def upload(local_file: str, path: str) -> None:
+    """Copy the local file *local_file* to the URL *path* (a multipart upload above s3fs's part size: the
+    object appears when every part is in, or not at all)."""
+    fs, p = filesystem(path)
+    with remote_errors(path, writing=True):
+        fs.put_file(local_file, p)
+
+
 def remove(path: str, recursive: bool = False) -> None:
     """Remove the file (or with *recursive* the folder or prefix) *path*; a missing one is ignored."""
     import shutil
@@ -288,7 +325,7 @@ def redact(text: str) -> str:
 def _secret_values() -> list[str]:
     out = []
     for k, v in _OPTIONS.items():
-        if isinstance(v, str) and len(v) >= 4 and re.search(r"(?i)secret|token|key|password|session", k):
+        if isinstance(v, str) and len(v) >= 4 and re.search(r"(?i)secret|token|key|password", k):
             out.append(v)
     return out
 

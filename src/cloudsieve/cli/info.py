@@ -10,6 +10,8 @@ import os
 
 import numpy as np
 
+from ._common import add_options
+
 ORDER = 10
 
 
@@ -29,6 +31,7 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
                    "list's folder) or a VPC (.vpc)")
     p.add_argument("--format", help="file format (default: from the extension)")
     p.add_argument("--json", action="store_true", help="print JSON instead of text")
+    add_options(p, "info")
     p.set_defaults(func=run)
 
 

@@ -14,6 +14,7 @@ from ..errors import DestinationExistsError, InvalidParameterError, SameSourceDe
 from ..io import check_readable, check_writable
 from ..io.sources import expand_sources
 from ..scheduler import check_scheduler
+from .. import storage
 from ..paths import holds, local_path, same_path, store_foreign
 from ..store import is_store
 from . import workstore
@@ -140,7 +141,7 @@ def _header_bounds(src: str, sources: list[str]) -> np.ndarray | None:
 
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
     for path in sources:
-        with laspy.open(path) as reader:
+        with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
             if reader.header.point_count:
                 lo = np.minimum(lo, reader.header.mins)
                 hi = np.maximum(hi, reader.header.maxs)

@@ -38,6 +38,7 @@ import os
 
 import numpy as np
 
+from .. import storage
 from ..core.packing import LADDER
 from ..errors import ResumeMismatchError
 from ..store import delete_store, is_store
@@ -72,9 +73,15 @@ def source_identity(src: str) -> dict:
     (:func:`cloudsieve.io.sources.expand_sources`) the sum of their sizes and the latest mtime."""
     from ..io.sources import expand_sources
 
-    stats = [os.stat(p) for p in expand_sources(src)]
-    return {"path": os.path.abspath(src) if "*" not in src else src, "size": int(sum(s.st_size for s in stats)),
-            "mtime_ns": int(max(s.st_mtime_ns for s in stats))}
+    stats = [storage.identity(p) for p in expand_sources(src)]
+    if not storage.is_url(src):
+        return {"path": os.path.abspath(src) if "*" not in src else src, "size": int(sum(s for s, _ in stats)),
+                "mtime_ns": int(max(int(v) for _, v in stats))}
+    # objects: their ETags (or modification times) stand for the version, as one digest
+    import hashlib
+
+    digest = hashlib.sha256("\n".join(v for _, v in stats).encode()).hexdigest()[:16]
+    return {"path": src, "size": int(sum(s for s, _ in stats)), "mtime_ns": digest}
 
 
 def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_store: bool) -> str:

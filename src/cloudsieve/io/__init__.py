@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import storage
 from ..errors import (
     DestinationNotWritableError,
     EmptyInputError,
@@ -124,7 +125,17 @@ def detect_format(path: str | os.PathLike, format: str | None = None) -> str:
 
 
 def check_input_file(path: str) -> None:
-    """Raise the matching error when *path* is missing, a folder or empty."""
+    """Raise the matching error when *path* is missing, a folder or empty (a URL: a missing object or bucket,
+    a prefix, an empty object, access denied, an unreachable store)."""
+    if storage.is_url(path):
+        fs, p = storage.filesystem(path)
+        with storage.remote_errors(path):
+            info = fs.info(p)
+        if info.get("type") == "directory":
+            raise InputIsDirectoryError(f"{path} is a prefix (a folder), not a point cloud file")
+        if not info.get("size"):
+            raise EmptyInputError(f"{path} is empty (0 bytes)")
+        return
     if not os.path.exists(path):
         raise InputNotFoundError(f"{path}: no such file")
     if os.path.isdir(path):
@@ -138,7 +149,8 @@ def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
 
     Checks only what can be known without reading the points: the file exists,
     is a file, is not empty, can be opened, and its format (*format*, else the
-    extension) has a reader. A folder or a URL must be a point store.
+    extension) has a reader. A folder must be a point store; a URL is a point
+    store or a file.
 
     Raises
     ------
@@ -147,17 +159,23 @@ def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
     """
     path = os.fspath(path)
     local = local_path(path)
-    if local is None or os.path.isdir(local):
-        if local is not None and not os.path.exists(os.path.join(local, "zarr.json")):
+    if local is None:  # a URL: a point store (a zarr.json at its root), else a file
+        if storage.exists(storage.join(path, "zarr.json")):
+            store_group(path, "r")
+            return
+        check_input_file(path)
+    elif os.path.isdir(local):
+        if not os.path.exists(os.path.join(local, "zarr.json")):
             raise InputIsDirectoryError(f"{path} is a directory, not a point cloud file or point store")
         store_group(path, "r")  # what PointStore.open accepts
         return
-    check_input_file(path)
-    try:
-        with open(local, "rb"):
-            pass
-    except OSError as exc:
-        raise InputNotReadableError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    else:
+        check_input_file(path)
+        try:
+            with open(local, "rb"):
+                pass
+        except OSError as exc:
+            raise InputNotReadableError(f"{path}: cannot be read: {exc.strerror or exc}") from None
     spec = FORMATS[detect_format(path, format)]["reader"]
     if spec is None:  # pragma: no cover - every format reads
         raise UnknownFormatError(f"{path}: reading {format} is not supported")
@@ -194,7 +212,8 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
     if FORMATS[fmt]["writer"] is None and fmt != "copc":  # COPC: written from a store (cloudsieve.store.copc)
         raise UnknownFormatError(
             f"{path}: writing {fmt} files is not supported; formats that can be written: {_writable_formats()}")
-    if local_path(path) is None:  # a remote URL: checked when written
+    if local_path(path) is None:  # a URL: the bucket must exist; an object there only with overwrite
+        check_destination(path, overwrite)
         return fmt
     check_destination(path, overwrite)
     parent = os.path.dirname(os.path.abspath(path))

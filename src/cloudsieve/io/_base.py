@@ -12,11 +12,13 @@ destination name.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Iterator
 from typing import Any, BinaryIO
 
 import numpy as np
 
+from .. import storage
 from ..atomic import check_destination, make_temp_path, remove, replace
 from ..chunk import DEFAULT_CHUNK_SIZE, Chunk
 
@@ -125,7 +127,10 @@ class Writer:
         self.options = options
         self.count = 0
         check_destination(path, overwrite)
-        self.tmp_path = make_temp_path(path)
+        # a URL: written in this process's temporary folder (the writers seek back to their header), then
+        # uploaded whole; a local path: beside the destination, then renamed
+        self._remote = storage.is_url(path)
+        self.tmp_path = _local_temp(path) if self._remote else make_temp_path(path)
         self.file: BinaryIO = open(self.tmp_path, "wb")  # noqa: SIM115 - closed in __exit__
         self._done = False
         try:
@@ -186,9 +191,24 @@ class Writer:
         except BaseException:
             self._abort()
             raise
-        replace(self.tmp_path, self.path)
+        if self._remote:
+            try:
+                storage.upload(self.tmp_path, self.path)
+            finally:
+                remove(self.tmp_path)
+        else:
+            replace(self.tmp_path, self.path)
         self._done = True
         logger.info("wrote %d points to %s", self.count, self.path)
 
     def _abort_hook(self) -> None:
         """Release format-specific resources after a failure (before the file is removed)."""
+
+
+def _local_temp(path: str) -> str:
+    """A new file in this process's temporary folder, named after the URL *path* (for its upload)."""
+    import tempfile
+
+    fd, tmp = tempfile.mkstemp(prefix=".cloudsieve-", suffix="-" + storage.name(path))
+    os.close(fd)
+    return tmp

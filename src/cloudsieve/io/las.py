@@ -23,6 +23,7 @@ import numpy as np
 from laspy.point.dims import ScaledArrayView
 from laspy.vlrs.vlrlist import VLRList
 
+from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
@@ -101,7 +102,7 @@ class LasReader(Reader):
         backend = options.get("laz_backend", laz_backend())
         check_layout(path)
         try:
-            self._las = laspy.open(path, mode="r", laz_backend=backend)
+            self._las = laspy.open(storage.open_input(path, 2**20), mode="r", laz_backend=backend, closefd=True)
         except (laspy.LaspyException, OSError, ValueError, EOFError, IndexError) as exc:
             raise CorruptInputError(f"{path}: not a valid LAS/LAZ file ({exc})") from exc
         h = self._las.header
@@ -115,9 +116,7 @@ class LasReader(Reader):
             raise CorruptInputError(f"{path}: cannot read the extended VLRs ({exc}); truncated or corrupt") from exc
         self.count = int(h.point_count)
         self.header = header_to_dict(h, evlrs)
-        with open(path, "rb") as fh:  # raw creation day/year: laspy reads an unset (0/0) date as None
-            fh.seek(90)
-            raw = fh.read(4)
+        raw = storage.read_range(path, 90, 4)  # raw creation day/year: laspy reads an unset (0/0) date as None
         self.header["creation_day_year"] = [int.from_bytes(raw[:2], "little"), int.from_bytes(raw[2:], "little")]
         self.dtypes = _las_dtypes(h)
         self._names = [n for n in self.dtypes if n != "xyz"]
@@ -127,7 +126,7 @@ class LasReader(Reader):
             self._check_size(h)
 
     def _check_size(self, h: laspy.LasHeader) -> None:
-        size = os.path.getsize(self.path)
+        size = storage.size(self.path)
         end = size
         if h.version.minor >= 4 and h.number_of_evlrs > 0 and 0 < h.start_of_first_evlr <= size:
             end = h.start_of_first_evlr

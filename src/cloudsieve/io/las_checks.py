@@ -20,6 +20,7 @@ import threading
 
 import laspy
 
+from .. import storage
 from ..errors import CorruptInputError
 
 __all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points"]
@@ -170,8 +171,8 @@ def check_layout(path: str) -> None:
     loops. Only what the header says about where things are is checked: the
     point data offset, then the VLRs and EVLRs walked header by header.
     """
-    size = os.path.getsize(path)
-    with open(path, "rb") as fh:
+    size = storage.size(path)
+    with storage.open_input(path, storage.HEADER_BLOCK) as fh:
         head = fh.read(375)
         if len(head) < 227 or head[:4] != b"LASF":
             return  # laspy refuses it, with its own message

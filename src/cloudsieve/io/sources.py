@@ -6,14 +6,18 @@ make one cloud:
 
 - a glob (``'tiles/*.laz'``, quoted so the shell leaves it): the matching
   files, sorted by path;
-- a directory that is not a point store: its LAS/LAZ/COPC files (not
-  recursive), sorted by name;
+- a directory (or an object store's prefix, ``s3://bucket/tiles/``) that is
+  not a point store: its LAS/LAZ/COPC files (not recursive), sorted by name;
 - a list file (``.lst``, or a ``.txt`` whose first non-blank line names an
-  existing point cloud file): one path per line, relative to the list's
-  folder; blank lines and lines starting with ``#`` are skipped;
+  existing point cloud file): one path or URL per line, a relative one taken
+  relative to the list's folder (or prefix); blank lines and lines starting
+  with ``#`` are skipped;
 - a VPC (``.vpc``, the STAC ItemCollection of PDAL wrench and QGIS): its
   tiles, in the order it lists them (:func:`cloudsieve.io.vpc.read_vpc`);
 - anything else: SRC itself, one file.
+
+Every form may be a URL (:mod:`cloudsieve.storage`): ``s3://b/tiles/*.laz``,
+``s3://b/tiles/``, ``s3://b/list.lst``, ``s3://b/index.vpc``.
 
 The order is part of the input: points are numbered file after file in it,
 which fixes the result for a seed.
@@ -21,9 +25,9 @@ which fixes the result for a seed.
 
 from __future__ import annotations
 
-import glob
 import os
 
+from .. import storage
 from ..errors import EmptyInputError, InputIsDirectoryError, InputNotFoundError
 
 __all__ = ["expand_sources", "is_many", "LIST_EXTENSIONS", "TILE_EXTENSIONS"]
@@ -36,28 +40,31 @@ _GLOB_CHARS = "*?["
 
 
 def _is_glob(src: str) -> bool:
-    return any(c in src for c in _GLOB_CHARS) and not os.path.exists(src)
+    return any(c in src for c in _GLOB_CHARS) and not storage.exists(src)
+
+
+def _first_line_names_a_cloud(src: str) -> bool:
+    """True when the first non-blank, non-comment line of the text file *src* names an existing cloud file."""
+    with storage.open_input(src) as fh:
+        head = fh.read(4096).decode("utf-8", errors="replace")
+    for line in head.splitlines():
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        return line.lower().endswith(TILE_EXTENSIONS + (".ply", ".e57")) and storage.isfile(_resolve(src, line))
+    return False
 
 
 def _is_list_file(src: str) -> bool:
     low = src.lower()
     if low.endswith(LIST_EXTENSIONS):
         return True
-    if not low.endswith(".txt") or not os.path.isfile(src):
-        return False
-    with open(src, "rb") as fh:
-        head = fh.read(4096).decode("utf-8", errors="replace")
-    for line in head.splitlines():
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        path = line if os.path.isabs(line) else os.path.join(os.path.dirname(os.path.abspath(src)), line)
-        return line.lower().endswith(TILE_EXTENSIONS + (".ply", ".e57")) and os.path.isfile(path)
-    return False
+    return low.endswith(".txt") and storage.isfile(src) and _first_line_names_a_cloud(src)
 
 
 def _is_directory_source(src: str) -> bool:
-    return os.path.isdir(src) and not os.path.exists(os.path.join(src, "zarr.json"))
+    """A folder (or, for a URL, a prefix) that is not a point store."""
+    return storage.isdir(src) and not storage.exists(storage.join(src, "zarr.json"))
 
 
 def is_many(src: str | os.PathLike) -> bool:
@@ -66,18 +73,27 @@ def is_many(src: str | os.PathLike) -> bool:
     return (_is_glob(src) or _is_directory_source(src) or src.lower().endswith(".vpc") or _is_list_file(src))
 
 
+def _resolve(list_file: str, line: str) -> str:
+    """A list's *line*: a URL or an absolute path as it is, else relative to the list's folder (or prefix)."""
+    return storage.join(storage.parent(list_file), line)
+
+
+def _absolute(path: str) -> str:
+    return path if storage.is_url(path) else os.path.abspath(path)
+
+
 def _read_list(src: str) -> list[str]:
-    base = os.path.dirname(os.path.abspath(src))
     out = []
-    with open(src, encoding="utf-8") as fh:
-        for number, line in enumerate(fh, 1):
-            line = line.strip()
-            if not line or line.startswith("#"):
-                continue
-            path = line if os.path.isabs(line) else os.path.join(base, line)
-            if not os.path.isfile(path):
-                raise InputNotFoundError(f"{src}, line {number}: {line}: no such file")
-            out.append(os.path.abspath(path))
+    with storage.open_input(src) as fh:
+        text = fh.read().decode("utf-8")
+    for number, line in enumerate(text.splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        path = _resolve(src, line)
+        if not storage.isfile(path):
+            raise InputNotFoundError(f"{src}, line {number}: {line}: no such file")
+        out.append(_absolute(path))
     return out
 
 
@@ -102,11 +118,10 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
     """
     src = os.fspath(src)
     if _is_glob(src):
-        files = sorted(p for p in glob.glob(src) if os.path.isfile(p))
+        files = storage.glob(src)
         what = f"{src}: the pattern matches no file"
     elif _is_directory_source(src):
-        files = sorted(os.path.join(src, n) for n in os.listdir(src)
-                       if n.lower().endswith(TILE_EXTENSIONS) and os.path.isfile(os.path.join(src, n)))
+        files = [storage.join(src, n) for n in storage.listdir(src) if n.lower().endswith(TILE_EXTENSIONS)]
         if not files:
             raise InputIsDirectoryError(f"{src} is a directory, not a point cloud file or point store, and holds "
                                         f"no LAS/LAZ file to read as one cloud")
@@ -123,4 +138,4 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
         return [src]
     if not files:
         raise EmptyInputError(what)
-    return [os.path.abspath(p) for p in files]
+    return [_absolute(p) for p in files]

@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import storage
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError, InvalidParameterError
 from ..atomic import check_destination, make_temp_path, remove, replace
 
@@ -82,7 +83,8 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
     -------
     list of str
         The ``href`` of each item's data asset; a relative one is taken
-        relative to the VPC's folder (a ``file://`` URL as the path it names).
+        relative to the VPC's folder or prefix, a URL (``s3://...``) as it is
+        (a ``file://`` URL as the path it names).
 
     Raises
     ------
@@ -90,7 +92,7 @@ def read_vpc(path: str | os.PathLike) -> list[str]:
         *path*, or a file it lists, does not exist.
     InputFormatError
         Not JSON, not a FeatureCollection, an item without a data asset, a
-        remote asset (http, s3, ...), a file listed twice, or a ``bbox`` or
+        file listed twice, or a ``bbox`` or
         ``proj:bbox`` that is not 4 or 6 finite numbers.
     EmptyInputError
         The VPC lists no files.
@@ -141,8 +143,8 @@ def read_vpc_items(path: str | os.PathLike) -> list[dict]:
     path = os.fspath(path)
     check_input_file(path)
     try:
-        with open(path, encoding="utf-8") as fh:
-            data = json.load(fh)
+        with storage.open_input(path) as fh:
+            data = json.loads(fh.read().decode("utf-8"))
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         where = f" at line {exc.lineno}, column {exc.colno}" if isinstance(exc, json.JSONDecodeError) else ""
         what = exc.msg if isinstance(exc, json.JSONDecodeError) else "not UTF-8 text"
@@ -155,7 +157,7 @@ def read_vpc_items(path: str | os.PathLike) -> list[dict]:
         raise InputFormatError(f'{path}: not a VPC file: no "features" list')
     if not features:
         raise EmptyInputError(f'{path}: the VPC lists no files (its "features" list is empty)')
-    folder = os.path.dirname(os.path.abspath(path))
+    folder = storage.parent(path)
     out: list[dict] = []
     seen: dict[str, int] = {}
     for i, f in enumerate(features):
@@ -170,13 +172,11 @@ def read_vpc_items(path: str | os.PathLike) -> list[dict]:
         if not isinstance(href, str) or not href:
             raise InputFormatError(f'{path}: {name}: its data asset has no "href"')
         if href.startswith("file://"):
-            from ..paths import local_path
-
-            href = local_path(href)
-        elif "://" in href:
-            raise InputFormatError(f"{path}: {name} lists {href}, a remote file; only local files can be read")
-        full = os.path.normpath(href if os.path.isabs(href) else os.path.join(folder, href))
-        if not os.path.exists(full):
+            href = storage.local(href)
+        # an absolute path or URL as it is; a relative href against the VPC's folder (or prefix)
+        full = storage.join(folder, href)
+        full = full if storage.is_url(full) else os.path.normpath(full)
+        if not storage.exists(full):
             raise InputNotFoundError(f"{path}: {name} lists {full}, which does not exist")
         if full in seen:
             raise InputFormatError(f"{path}: features {seen[full]} and {i} both list {full}")
@@ -240,7 +240,8 @@ def describe_tile(path: str | os.PathLike) -> dict:
     """
     from . import detect_format, open_reader
 
-    path = os.path.abspath(os.fspath(path))
+    path = os.fspath(path)
+    path = path if storage.is_url(path) else os.path.abspath(path)
     if detect_format(path) not in ("las", "laz", "copc"):
         raise InputFormatError(f"{path}: a VPC entry is described from a LAS/LAZ header; this is not a LAS/LAZ file")
     with open_reader(path) as reader:
@@ -265,7 +266,8 @@ def describe_tile(path: str | os.PathLike) -> dict:
 def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
     """The STAC item of *entry*; a CRS that does not reproject to WGS 84 is added to *unprojected* with the reason."""
     try:
-        tile = os.path.abspath(os.fspath(entry["path"]))
+        tile = os.fspath(entry["path"])
+        tile = tile if storage.is_url(tile) else os.path.abspath(tile)
         count = int(entry["count"])
         lo, hi = (np.asarray(entry["bounds"], dtype=np.float64).reshape(2, 3)).tolist()
     except (KeyError, TypeError, ValueError) as exc:
@@ -273,7 +275,10 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
             f"VPC entry {i} needs 'path', 'count' and 'bounds' [[xmin, ymin, zmin], [xmax, ymax, zmax]]: {exc}") from None
     if not np.all(np.isfinite(lo + hi)):
         raise InvalidParameterError(f"VPC entry {i} ({tile}): bounds {[lo, hi]} are not finite")
-    rel = os.path.relpath(tile, folder).replace(os.sep, "/")
+    if storage.is_url(folder):  # a tile under the VPC's prefix: relative; elsewhere: its URL
+        rel = tile[len(folder.rstrip("/")) + 1:] if tile.startswith(folder.rstrip("/") + "/") else None
+    else:
+        rel = os.path.relpath(tile, folder).replace(os.sep, "/")
     bbox = [lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]]
     ring = [[lo[0], lo[1]], [hi[0], lo[1]], [hi[0], hi[1]], [lo[0], hi[1]], [lo[0], lo[1]]]
     geometry = {"type": "Polygon", "coordinates": [ring]}
@@ -298,7 +303,7 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
         props["proj:epsg"] = int(entry["epsg"])
     props["proj:geometry"] = geometry
     props["proj:bbox"] = bbox
-    name = os.path.basename(tile)
+    name = storage.name(tile)
     return {
         "type": "Feature",
         "stac_version": "1.0.0",
@@ -308,7 +313,8 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
         "bbox": wgs84_bbox,
         "properties": props,
         "links": [],
-        "assets": {"data": {"href": "./" + rel, "roles": ["data"]}},  # wrench resolves "./" hrefs only
+        # wrench resolves "./" hrefs only
+        "assets": {"data": {"href": tile if rel is None else "./" + rel, "roles": ["data"]}},
     }
 
 
@@ -340,20 +346,23 @@ def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = F
     DestinationExistsError, DestinationNotWritableError
     """
     path = os.fspath(path)
-    folder = os.path.dirname(os.path.abspath(path))
+    folder = storage.parent(path)
     unprojected: dict[str, str] = {}
     doc = {"type": "FeatureCollection", "features": [_feature(t, folder, i, unprojected)
                                                      for i, t in enumerate(tiles)]}
     text = json.dumps(doc, indent=2, allow_nan=False) + "\n"
     check_destination(path, overwrite)
-    tmp = make_temp_path(path)
-    try:
-        with open(tmp, "w", encoding="utf-8") as fh:
-            fh.write(text)
-        replace(tmp, path)
-    except BaseException:
-        remove(tmp)
-        raise
+    if storage.is_url(path):  # one request: the object appears whole or not at all
+        storage.write_bytes(path, text.encode("utf-8"))
+    else:
+        tmp = make_temp_path(path)
+        try:
+            with open(tmp, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            replace(tmp, path)
+        except BaseException:
+            remove(tmp)
+            raise
     for wkt, reason in unprojected.items():
         logger.warning("%s: the CRS %.60s... does not reproject to WGS 84 (%s): bbox and geometry are in the "
                        "files' own coordinates", path, wkt, reason)

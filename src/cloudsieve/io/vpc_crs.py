@@ -47,7 +47,9 @@ def geotiff_wkt(path: str) -> tuple[str | None, int | None]:
     """
     import laspy
 
-    with laspy.open(path) as reader:
+    from .. import storage
+
+    with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
         vlrs = list(reader.header.vlrs) + list(reader.header.evlrs or [])
     directory = next((v for v in vlrs if type(v).__name__ == "GeoKeyDirectoryVlr"), None)
     if directory is None:

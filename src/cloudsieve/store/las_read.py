@@ -12,6 +12,7 @@ from functools import partial
 
 import numpy as np
 
+from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 
 __all__ = ["read_pieces", "decode_xyz"]
@@ -106,7 +107,8 @@ def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarr
     # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
     # cores); the tasks of a run in this process decode on every core (1 M points: 0.25-0.28 s against 0.55-0.57 s)
     backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
-    with laspy.open(path, laz_backend=backend) as reader:
+    # a URL is read by ranged requests: the header, the chunk table, then this piece's chunks only
+    with laspy.open(storage.open_input(path), laz_backend=backend, closefd=True) as reader:
         try:
             with QUIET_READS.reading():
                 _seek(reader, first)

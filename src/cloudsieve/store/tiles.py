@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from .. import progress as _progress
+from .. import storage
 from ..errors import (DestinationNotWritableError, InvalidParameterError, SameSourceDestinationError,
                       UnknownFormatError)
 from ..params import check, named
@@ -97,7 +98,7 @@ def tile_name(stem: str, key: int) -> str:
     return f"{stem}_{int(ix[0])}_{int(iy[0])}.laz"
 
 
-def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
+def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False) -> dict:
     """Task of :func:`export_tiles`: write the points of a tile, its *runs* in the buckets *name*, to the LAZ *path*.
 
     Reads them in blocks of at most a store chunk (memory bounded by the
@@ -116,7 +117,7 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str) -> dict:
     record = scratch[1]
     dtypes = {d: (record[d].base, record[d].shape) for d in record.names}  # as the buckets hold them
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
-                     bounds=store.bounds) as writer:
+                     bounds=store.bounds, overwrite=replace) as writer:
         for block in iter_runs(store_path, name, runs, store.chunk_size, scratch):
             writer.write(block)
     return describe_tile(path)
@@ -148,7 +149,8 @@ def tiles_foreign(stem: str):
     pattern = re.compile(re.escape(stem) + r"_-?\d+_-?\d+\.laz")
 
     def foreign(folder: str) -> str | None:
-        other = sorted(n for n in os.listdir(folder) if n != VPC_NAME and not pattern.fullmatch(n))
+        other = sorted(n for n in storage.listdir(folder, files_only=False)
+                       if n != VPC_NAME and not pattern.fullmatch(n))
         if not other:
             return None
         return (f"{len(other)} entr{'y' if len(other) == 1 else 'ies'} other than its tiles and {VPC_NAME} "
@@ -158,9 +160,9 @@ def tiles_foreign(stem: str):
 
 
 def check_tile_destination(dst: str, overwrite: bool, sources=()) -> str:
-    """Check the tile folder *dst* before any work; returns it as a local path.
+    """Check the tile folder *dst* before any work; returns it as a local path (a URL as it is).
 
-    Refused: a URL; a name with a point cloud file's extension (``x.copc.laz``,
+    Refused: a name with a point cloud file's extension (``x.copc.laz``,
     ``x.ply``: one file, not a folder of tiles); a folder that is or holds one
     of *sources* (replacing it would delete the input); an existing file; an
     existing folder (unless *overwrite*) or one holding anything but this
@@ -174,8 +176,6 @@ def check_tile_destination(dst: str, overwrite: bool, sources=()) -> str:
     from ..io import detect_format
 
     local = local_path(dst)
-    if local is None:
-        raise InvalidParameterError(f"{dst}: tiles are written to a local folder, not a URL")
     try:
         fmt = detect_format(dst)
     except UnknownFormatError:
@@ -185,10 +185,12 @@ def check_tile_destination(dst: str, overwrite: bool, sources=()) -> str:
             f"{dst}: tile_size writes a folder of LAZ tiles and {VPC_NAME}, and this name is a "
             f"{fmt.upper()} file's; give a folder name, or leave out tile_size for one file"), "tile_size")
     for path in sources:
-        if holds(local, path):
+        if holds(local or dst, path):
             raise SameSourceDestinationError(
                 f"destination {dst} is or holds the source {path}: cloudsieve never overwrites its input")
-    check_destination(dst, overwrite, folder=True, foreign=tiles_foreign(os.path.basename(local)))
+    check_destination(dst, overwrite, folder=True, foreign=tiles_foreign(storage.name(dst)))
+    if local is None:
+        return dst
     if not os.access(os.path.dirname(local), os.W_OK | os.X_OK):
         raise DestinationNotWritableError(f"cannot write {dst}: folder {os.path.dirname(local)} is not writable")
     return local
@@ -248,8 +250,10 @@ def export_tiles(
         store = PointStore.open(os.fspath(store), "r")
     size = check_grid(store.bounds, tile_size, store.path)
     dst = check_tile_destination(os.fspath(dst_dir).rstrip("/") or os.fspath(dst_dir), overwrite, [store.path])
-    stem = os.path.basename(dst.rstrip(os.sep))
+    stem = storage.name(dst)
     update = _progress.callback(progress)
+    if storage.is_url(dst):
+        return _export_remote(store, dst, stem, size, mask, run, update)
     tmp = make_temp_path(dst, directory=True)
     try:
         buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
@@ -271,3 +275,38 @@ def export_tiles(
     logger.info("exported %d points of %s as %d tiles of %g to %s", points, store.path, len(names), size, dst)
     return {"tiles": len(names), "points": points, "files": [os.path.join(dst, f) for f in names],
             "vpc": os.path.join(dst, VPC_NAME), "tile_size": size}
+
+
+def _export_remote(store: PointStore, dst: str, stem: str, size: float, mask, run, update) -> dict:
+    """:func:`export_tiles` to a URL prefix: an object store has no rename, so the tiles go under their final
+    names and ``index.vpc``, written last, commits the set. An earlier set's index is removed first (it no
+    longer describes the prefix), and its tiles that the new set does not have after the new ones are in; a
+    failure removes the new tiles and leaves no index."""
+    from ..io.vpc import write_vpc
+
+    vpc = storage.join(dst, VPC_NAME)
+    before = set(storage.listdir(dst)) if storage.isdir(dst) else set()
+    storage.remove(vpc)
+    names: list[str] = []
+    try:
+        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+        names = [tile_name(stem, int(k)) for k in buckets.keys]
+        args = [(store.path, _SCRATCH, buckets.runs(k), storage.join(dst, f), f in before)
+                for k, f in zip(buckets.keys, names)]
+        entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
+        for n in buckets.counts:
+            update(int(n))
+        for stale in sorted(before - set(names) - {VPC_NAME}):
+            storage.remove(storage.join(dst, stale))
+        write_vpc(vpc, entries)
+    except BaseException:
+        for name in names:
+            if name not in before:
+                storage.remove(storage.join(dst, name))
+        raise
+    finally:
+        store.delete_array(f"export/{_SCRATCH}")
+    points = int(buckets.counts.sum())
+    logger.info("exported %d points of %s as %d tiles of %g to %s", points, store.path, len(names), size, dst)
+    return {"tiles": len(names), "points": points, "files": [storage.join(dst, f) for f in names],
+            "vpc": vpc, "tile_size": size}
