@@ -25,6 +25,7 @@ import logging
 import os
 import shutil
 import tempfile
+import uuid
 from collections.abc import Callable
 
 from .errors import DestinationExistsError, DestinationNotWritableError
@@ -91,8 +92,12 @@ def _check_remote(path: str, overwrite: bool, folder: bool, foreign) -> None:
     with storage.remote_errors(path, writing=True):
         if not fs.exists(bucket):
             raise DestinationNotWritableError(f"cannot write {path}: bucket {bucket} does not exist")
-        is_file = fs.isfile(p)
-        is_dir = not is_file and fs.isdir(p)
+        # an empty object written and removed: credentials that cannot write fail now, before any work
+        probe = f"{p.rstrip('/')}.cloudsieve-probe-{uuid.uuid4().hex[:12]}"
+        fs.pipe_file(probe, b"")
+        fs.rm(probe)
+    is_file = storage.isfile(path)
+    is_dir = not is_file and storage.isdir(path)
     if is_dir:
         if not folder:
             raise DestinationExistsError(f"{path} is a prefix holding objects (a folder): cloudsieve never replaces "

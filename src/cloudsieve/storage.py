@@ -35,7 +35,7 @@ from .errors import (CloudsieveError, DestinationNotWritableError, InputNotFound
                      InvalidParameterError)
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
-           "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity", "size", "read_range", "write_bytes", "upload",
+           "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity", "size", "read_range", "write_bytes", "upload", "discard",
            "remove", "redact", "remote_errors", "READ_BLOCK", "HEADER_BLOCK"]
 
 #: a remote file's read-ahead: one ranged request fetches at least this many bytes (a LAZ chunk of 50,000
@@ -129,6 +129,8 @@ def fs_options(path: str) -> dict:
 
 def _options_for(proto: str) -> dict:
     options = dict(_OPTIONS)
+    # other processes (the workers) write the objects this one lists: no listing is cached
+    options.setdefault("use_listings_cache", False)
     if proto in ("s3", "s3a"):
         config = {**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})}
         options["config_kwargs"] = config
@@ -186,13 +188,14 @@ def isfile(path: str | os.PathLike) -> bool:
 
 
 def isdir(path: str | os.PathLike) -> bool:
-    """A local folder; for a URL, a prefix holding at least one object (object stores have no folders)."""
+    """A local folder; for a URL, a prefix holding at least one object (object stores have no folders; a
+    folder some of them keep once emptied counts as absent)."""
     path = os.fspath(path)
     if not is_url(path):
         return os.path.isdir(local(path))
     fs, p = filesystem(path)
     with remote_errors(path):
-        return fs.isdir(p)
+        return not fs.isfile(p) and bool(fs.find(p))
 
 
 def listdir(path: str | os.PathLike, files_only: bool = True) -> list[str]:
@@ -276,6 +279,18 @@ def read_range(path: str, start: int, length: int) -> bytes:
         return fs.cat_file(p, start=start, end=start + length)
 
 
+def discard(fh) -> None:
+    """Drop the file *fh* of :func:`open_output` after a failure: an unfinished upload is aborted (nothing
+    appears); a local file is closed (its caller removes it)."""
+    try:
+        if hasattr(fh, "discard"):
+            fh.discard()
+        else:
+            fh.close()
+    except Exception:  # noqa: BLE001 - the failure that led here is the one to report
+        pass
+
+
 def write_bytes(path: str, data: bytes) -> None:
     """Write the small file *path* in one request (an object appears whole or not at all)."""
     fs, p = filesystem(path)
@@ -351,7 +366,8 @@ def remote_errors(path: str, writing: bool = False) -> Iterator[None]:
     except FileNotFoundError as exc:
         if not is_url(path):
             raise
-        raise InputNotFoundError(f"{path}: no such file or bucket ({_reason(exc)})") from None
+        what = "no such bucket" if "bucket" in str(exc).lower() else "no such file"
+        raise InputNotFoundError(f"{path}: {what}") from None
     except PermissionError as exc:
         if not is_url(path):
             raise
@@ -363,7 +379,8 @@ def remote_errors(path: str, writing: bool = False) -> Iterator[None]:
             raise
         kind = type(exc).__name__
         if kind in ("ParamValidationError", "InvalidBucketName") or "Invalid bucket name" in str(exc):
-            raise InvalidParameterError(f"{path}: invalid bucket name ({_reason(exc)})") from None
+            raise InvalidParameterError(f"{path}: invalid bucket name (S3 bucket names are 3 to 63 lower-case "
+                                        "letters, digits, dots and hyphens)") from None
         if kind in ("EndpointConnectionError", "ConnectTimeoutError", "ConnectionError", "ClientConnectorError",
                     "ConnectTimeout", "ReadTimeoutError") or "Could not connect" in str(exc):
             where = _endpoint() or "the default endpoint"

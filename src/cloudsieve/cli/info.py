@@ -178,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
     elif local is not None and (os.path.isdir(local) or is_many(local)):
         named = args.path if "://" not in args.path else local  # the user's words in a message
         info = _describe_many(args.path, expand_sources(named), args.format)  # a directory without LAS/LAZ: refused
+    elif local is None and is_many(args.path):  # a URL's glob, prefix, list or VPC
+        info = _describe_many(args.path, expand_sources(args.path), args.format)
     else:
         info = _describe_file(args.path, args.format)
     if args.json:

@@ -21,7 +21,6 @@ from .. import storage
 from ..errors import InvalidParameterError
 from ..params import check
 from .streaming import bound_malloc, prefetch
-from ..paths import local_path
 from .chunk import DEFAULT_CHUNK_SIZE
 from .pointstore import PointStore, source_and_destination
 
@@ -154,7 +153,7 @@ def export(
         update(kept)
         _log(kept, store, dst)
         return dst
-    if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)) and local_path(dst) is not None:
+    if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)):
         from .export_las import export_las
 
         kept = export_las(store, dst, fmt=fmt, mask=mask, run=run, counts=counts, overwrite=overwrite)

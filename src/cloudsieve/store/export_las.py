@@ -20,6 +20,7 @@ import struct
 
 import numpy as np
 
+from .. import storage
 from .pointstore import PointStore
 from .streaming import bound_malloc, run_tasks
 
@@ -109,6 +110,21 @@ def _plan(counts: np.ndarray, chunk_size: int, n: int, part_size: int) -> list[l
     return parts
 
 
+def _parts_plan(store: PointStore, mask, run, counts, part_size) -> tuple[np.ndarray, list]:
+    """The kept points per store chunk (counted by tasks when not known) and the parts' plan (:func:`_plan`)."""
+    n, step = store.count, store.chunk_size
+    bounds = [(s, min(s + step, n)) for s in range(0, n, step)]
+    if counts is None:
+        if mask is None:
+            counts = [b - a for a, b in bounds]
+        else:
+            args = [(store.path, mask, a, b) for a, b in bounds]
+            counts = run_tasks(run, count_task, args, "export: count")
+    counts = np.asarray(counts, dtype=np.int64)
+    part_size = int(part_size or max(1, round(step / LAZ_CHUNK)) * LAZ_CHUNK)
+    return counts, _plan(counts, step, n, part_size)
+
+
 def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None, run=None,
                counts: list[int] | None = None, overwrite: bool = False, part_size: int | None = None) -> int:
     """Write the points of *store* kept by the bool array *mask* to the LAS/LAZ file *dst*, as tasks.
@@ -135,17 +151,9 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     from ..atomic import check_destination, make_temp_path, remove, replace
 
     check_destination(dst, overwrite)
-    n, step = store.count, store.chunk_size
-    bounds = [(s, min(s + step, n)) for s in range(0, n, step)]
-    if counts is None:
-        if mask is None:
-            counts = [b - a for a, b in bounds]
-        else:
-            args = [(store.path, mask, a, b) for a, b in bounds]
-            counts = run_tasks(run, count_task, args, "export: count")
-    counts = np.asarray(counts, dtype=np.int64)
-    part_size = int(part_size or max(1, round(step / LAZ_CHUNK)) * LAZ_CHUNK)
-    plan = _plan(counts, step, n, part_size)
+    if storage.is_url(dst):
+        return _export_remote(store, dst, fmt, mask, run, counts, part_size)
+    counts, plan = _parts_plan(store, mask, run, counts, part_size)
     tmp = make_temp_path(dst, directory=True)
     suffix = "." + fmt
     try:
@@ -167,11 +175,32 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     return int(sum(written))
 
 
+def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, part_size) -> int:
+    """:func:`export_las` to a URL: the parts go to a scratch prefix beside *dst* (each written in its
+    worker's temporary folder and uploaded), then one task streams them into *dst* (:func:`stream_splice`:
+    a multipart upload that completes only when every byte is in); the scratch is removed either way."""
+    import uuid
+
+    counts, plan = _parts_plan(store, mask, run, counts, part_size)
+    scratch = storage.join(storage.parent(dst), f".{storage.name(dst)}.parts-{uuid.uuid4().hex[:12]}")
+    try:
+        args = [(store.path, storage.join(scratch, f"part-{i:06d}.{fmt}"), fmt, mask, items, dst, i == 0)
+                for i, items in enumerate(plan)]
+        written = run_tasks(run, part_task, args, "export: write")
+        splice_args = [([a[1] for a in args], dst, fmt == "laz")]
+        # a task of its own even on a local pool: the driver handles no point bytes
+        (run(stream_splice, splice_args, "export: assemble") if run is not None
+         else [stream_splice(*a) for a in splice_args])
+    finally:
+        storage.remove(scratch, recursive=True)
+    return int(sum(written))
+
+
 # ------------------------------------------------------------------ splice
 def _header(path: str):
     import laspy
 
-    with laspy.open(path) as reader:
+    with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
         return reader.header
 
 
@@ -263,3 +292,63 @@ def _patch_header(out, headers, counts: list[int], evlr_at: int) -> None:
         struct.pack_into("<15Q", raw, 255, *[int(v) for v in by_return[:15]])
     out.seek(0)
     out.write(raw)
+
+
+def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
+    """:func:`splice` written front to back, for a destination that cannot seek (an object store's upload):
+    every header field and the chunk table are worked out from the parts' headers and tables first (small
+    ranged reads), then the bytes go out in order: the header, the points part after part (copied in blocks
+    of :data:`cloudsieve.storage.READ_BLOCK`), the chunk table, the EVLRs. The same bytes as :func:`splice`.
+    A failure discards the upload: nothing appears under *dst*."""
+    import io
+
+    import lazrs
+
+    headers = [_header(p) for p in parts]
+    h0 = headers[0]
+    start = h0.offset_to_point_data
+    counts = [int(h.point_count) for h in headers]
+    lazvlr = None
+    if compressed:
+        lazvlr = lazrs.LazVlr([v for v in h0.vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
+    spans, table = [], []
+    for path, h, cnt in zip(parts, headers, counts):
+        if compressed:
+            with storage.open_input(path, storage.HEADER_BLOCK) as src:
+                src.seek(start)
+                own = lazrs.read_chunk_table(src, lazvlr)[:-(-cnt // LAZ_CHUNK)]
+            table.extend(own)
+            spans.append((start + 8, sum(s for _, s in own)))
+        else:
+            spans.append((start, cnt * h.point_format.size))
+    table_bytes = b""
+    if compressed:
+        buf = io.BytesIO()
+        lazrs.write_chunk_table(buf, table, lazvlr)
+        table_bytes = buf.getvalue()
+    table_at = start + (8 if compressed else 0) + sum(size for _, size in spans)
+    evlr_at = table_at + len(table_bytes)
+    evlrs = b""
+    if h0.version.minor >= 4 and h0.number_of_evlrs:
+        first = int(h0.start_of_first_evlr)
+        evlrs = storage.read_range(parts[0], first, storage.size(parts[0]) - first)
+    head = io.BytesIO(storage.read_range(parts[0], 0, start))
+    _patch_header(head, headers, counts, evlr_at)
+    out = storage.open_output(dst)
+    try:
+        out.write(head.getvalue())
+        if compressed:
+            out.write(struct.pack("<q", table_at))
+        for path, (pos, size) in zip(parts, spans):
+            done = 0
+            while done < size:
+                step = min(storage.READ_BLOCK, size - done)
+                out.write(storage.read_range(path, pos + done, step))
+                done += step
+        out.write(table_bytes)
+        out.write(evlrs)
+    except BaseException:
+        storage.discard(out)
+        raise
+    with storage.remote_errors(dst, writing=True):
+        out.close()
