@@ -31,27 +31,37 @@ node at depth H (at most 7) alone holds more (a cloud denser than about
 10^6 points per 1/128 of its extent, cubed), about 165 bytes each (measured);
 the final step only copies bytes.
 
-The file is written under a temporary name beside *dst* and renamed when
-complete; scratch files live in a temporary folder beside *dst* (workers
+A local file is written under a temporary name beside *dst* and renamed
+when complete; scratch files live in a temporary folder beside *dst* (workers
 must reach it, as they reach the store) and the buckets in the store, both
 removed at the end, also on failure.
+
+A URL *dst* (an object store: no disk shared by the workers, no rename):
+the scratch files are objects under the prefix ``.<name>.scratch-<id>/``
+beside *dst*; each task writes its own in its worker's temporary folder and
+uploads it, readers fetch byte ranges (:mod:`.copc_scratch`). The final
+task writes the file front to back as one upload to *dst*
+(:func:`.copc_file.write_copc`): the object appears complete or not at all.
+The prefix is removed at the end, also on failure. The bytes are the same
+as a local *dst*'s.
 """
 
 from __future__ import annotations
 
 import logging
-import os
 import uuid
 from functools import partial
 
 import numpy as np
 
 from .. import progress as _progress
+from .. import storage
 from ..errors import InvalidParameterError
 from ..atomic import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
+from .copc_scratch import make_scratch, read_records, remove_scratch, scratch_output
 from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
 from .pointstore import PointStore, source_and_destination
 
@@ -112,8 +122,8 @@ def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, orig
 
     Writes ``scratch/nodes-<index>.bin`` (one LAZ chunk per node of the
     subtree) and ``scratch/up-<index>.bin`` (raw records of the ancestors'
-    points, shallowest ancestor first); returns their tables and the
-    statistics of every point.
+    points, shallowest ancestor first) through :func:`.copc_scratch.scratch_output`;
+    returns their tables and the statistics of every point.
     """
     hdr, _ = header_from_dict(header)
     xyz_parts, record_parts = [], []
@@ -138,12 +148,12 @@ def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, orig
     starts = ends - counts
     vlr = laz_vlr(hdr)
     up = depths < depth
-    with open(os.path.join(scratch, f"up-{index}.bin"), "wb") as f:
+    with scratch_output(scratch, f"up-{index}.bin") as f:
         for s, e in zip(starts[up], ends[up]):
             f.write(records[s:e].tobytes())
     own = np.flatnonzero(~up)
     nbytes = np.zeros(len(own), dtype=np.int64)
-    with open(os.path.join(scratch, f"nodes-{index}.bin"), "wb") as f:
+    with scratch_output(scratch, f"nodes-{index}.bin") as f:
         for j, i in enumerate(own):
             chunk = _chunk(records[starts[i]:ends[i]], vlr)
             nbytes[j] = len(chunk)
@@ -159,19 +169,26 @@ def _ancestor_task(header: dict, scratch: str, index: int, parts: list[list[tupl
     """Compress ancestor nodes: for each, its records gathered from the subtree tasks' ``up`` files.
 
     *parts*: one list per node of (task index, record offset, record count),
-    in task order. Writes ``scratch/anc-<index>.bin``; returns the chunks' sizes.
+    in task order. The nodes of a batch follow each other in (depth, key)
+    order, as every ``up`` file holds its records: one read per subtree task
+    (one ranged request for a URL) fetches its records for the whole batch.
+    Writes ``scratch/anc-<index>.bin``; returns the chunks' sizes.
     """
     hdr, _ = header_from_dict(header)
     dtype = hdr.point_format.dtype()
     vlr = laz_vlr(hdr)
+    spans: dict[int, tuple[int, int]] = {}  # task -> (first record, end record) read
+    for node in parts:
+        for task, offset, count in node:
+            lo, hi = spans.get(task, (offset, offset + count))
+            spans[task] = (min(lo, offset), max(hi, offset + count))
+    records = {task: read_records(storage.join(scratch, f"up-{task}.bin"), lo, hi - lo, dtype)
+               for task, (lo, hi) in spans.items()}
     nbytes = np.zeros(len(parts), dtype=np.int64)
-    with open(os.path.join(scratch, f"anc-{index}.bin"), "wb") as out:
+    with scratch_output(scratch, f"anc-{index}.bin") as out:
         for j, node in enumerate(parts):
-            pieces = []
-            for task, offset, count in node:
-                with open(os.path.join(scratch, f"up-{task}.bin"), "rb") as f:
-                    f.seek(offset * dtype.itemsize)
-                    pieces.append(np.frombuffer(f.read(count * dtype.itemsize), dtype=dtype))
+            pieces = [records[task][offset - spans[task][0]:offset - spans[task][0] + count]
+                      for task, offset, count in node]
             chunk = _chunk(np.concatenate(pieces), vlr)
             nbytes[j] = len(chunk)
             out.write(chunk)
@@ -248,7 +265,7 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     store : PointStore or str
         The store or its path (a URL the workers can reach).
     dst : str
-        Destination file (``.copc.laz``).
+        Destination file (``.copc.laz``): a local path or a URL (see the module's notes).
     mask : str, optional
         A boolean array of the store, one entry per point (e.g. "simplify/keep").
     run : callable, optional
@@ -285,8 +302,10 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
     origin, size = root_cube(store.bounds if mask is None else _kept_bounds(store, mask, run))
     depth = _bucket_depth(store.count, task_points)
     name = f"copc-{uuid.uuid4().hex[:12]}"
-    tmp = make_temp_path(dst)
-    scratch = make_temp_path(dst, directory=True)
+    remote = storage.is_url(dst)
+    # a URL: no rename; the final task uploads dst itself, whole or not at all
+    tmp = dst if remote else make_temp_path(dst)
+    scratch = make_scratch(dst)
     buckets = None
     try:
         buckets = bucket(store, partial(node_keys, origin=origin, size=size, depth=depth), name, mask=mask, run=run)
@@ -305,12 +324,14 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
         nodes, sources = _node_table(results, anc, anc_counts, batches, sizes, scratch)
         stats = merge_stats([r["stats"] for r in results])
         written = run(write_copc, [(tmp, header, origin, size, nodes, sources, stats)], "export: copc file")[0]
-        replace(tmp, dst)
+        if not remote:
+            replace(tmp, dst)
     except BaseException:
-        remove(tmp)
+        if not remote:
+            remove(tmp)
         raise
     finally:
-        remove(scratch)
+        remove_scratch(scratch)
         if buckets is not None:
             buckets.delete()
     out = {"path": dst, "points": int(stats["count"]), "nodes": len(nodes["depth"]),
@@ -323,7 +344,7 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
 def _node_table(results: list[dict], anc: np.ndarray, anc_counts: np.ndarray, batches: list, sizes: list,
                 scratch: str) -> tuple[dict[str, np.ndarray], list[str]]:
     """Every node (ancestors and subtrees), in (depth, Morton key) order, with its chunk's file and place."""
-    sources = [os.path.join(scratch, f"anc-{i}.bin") for i in range(len(batches))]
+    sources = [storage.join(scratch, f"anc-{i}.bin") for i in range(len(batches))]
     cols: dict[str, list] = {k: [] for k in ("depth", "key", "count", "nbytes", "source", "offset")}
     batch_of = np.repeat(np.arange(len(batches)), [len(b) for b in batches])
     anc_bytes = np.concatenate(sizes) if sizes else np.empty(0, dtype=np.int64)
@@ -335,7 +356,7 @@ def _node_table(results: list[dict], anc: np.ndarray, anc_counts: np.ndarray, ba
     cols["offset"].append(np.concatenate([np.cumsum(s) - s for s in sizes]) if sizes else np.empty(0, np.int64))
     for t, r in enumerate(results):
         own = r["nodes"]
-        sources.append(os.path.join(scratch, f"nodes-{t}.bin"))
+        sources.append(storage.join(scratch, f"nodes-{t}.bin"))
         for k in ("depth", "key", "count", "nbytes"):
             cols[k].append(own[k])
         cols["source"].append(np.full(len(own["depth"]), len(sources) - 1))

@@ -38,6 +38,7 @@ import lazrs
 import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 
+from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, clip_to_dimension, header_from_dict
 from .copc_hierarchy import ENTRY_DTYPE, ROOT_PAGE_NODES, hierarchy_pages
@@ -231,27 +232,48 @@ def _evlr(user_id: str, record_id: int, description: str, data: bytes) -> bytes:
                        description.encode("ascii", errors="replace")[:32]) + data
 
 
+def _runs(sources: np.ndarray, offsets: np.ndarray, nbytes: np.ndarray) -> list[tuple[int, int, int]]:
+    """The chunks as (source, offset, bytes) runs: chunks that follow each other in one source make one run."""
+    runs: list[list[int]] = []
+    for src, off, nb in zip(sources, offsets, nbytes):
+        src, off, nb = int(src), int(off), int(nb)
+        if runs and runs[-1][0] == src and runs[-1][1] + runs[-1][2] == off:
+            runs[-1][2] += nb
+        else:
+            runs.append([src, off, nb])
+    return [(s, o, n) for s, o, n in runs]
+
+
 def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
-    with open(path, "rb") as src:
-        src.seek(offset)
-        remaining = nbytes
-        while remaining:
-            block = src.read(min(remaining, 1 << 22))
-            if not block:
-                raise CorruptInputError(f"scratch file {path} is truncated: {remaining} bytes missing at "
-                                        f"{offset + nbytes - remaining}")
-            dst.write(block)
-            remaining -= len(block)
+    """*nbytes* of the scratch file *path* (a local path or a URL) from *offset*, appended to *dst* in reads of
+    at most :data:`cloudsieve.storage.READ_BLOCK` (one ranged request each for a URL)."""
+    done = 0
+    while done < nbytes:
+        step = min(nbytes - done, storage.READ_BLOCK)
+        block = storage.read_range(path, offset + done, step)
+        if len(block) != step:
+            raise CorruptInputError(f"scratch file {path} is truncated: {nbytes - done - len(block)} bytes missing "
+                                    f"at {offset + done + len(block)}")
+        dst.write(block)
+        done += step
 
 
 def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: dict[str, np.ndarray],
                sources: list[str], stats: dict, root_nodes: int = ROOT_PAGE_NODES) -> int:
     """Write the COPC file *path* from node chunks already compressed into *sources*.
 
+    The bytes go out front to back (every header field and the chunk table are
+    worked out before the first write), so a URL is written as one upload
+    (:func:`cloudsieve.storage.open_output`): the object appears when the file
+    is complete; a failure aborts the upload (:func:`cloudsieve.storage.discard`)
+    and leaves nothing under *path*. Chunks that follow each other in one
+    source are copied as one run, in reads of at most
+    :data:`cloudsieve.storage.READ_BLOCK`.
+
     Parameters
     ----------
     path : str
-        The file to write (replaced).
+        The file to write (replaced): a local path or a URL.
     header : dict
         From :func:`copc_header`.
     origin, size
@@ -261,7 +283,7 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
         node's key), "count" (points), "nbytes" (its LAZ chunk), "source"
         (index into *sources*) and "offset" (the chunk's place in that file).
     sources : list of str
-        Scratch files holding the chunks.
+        Scratch files holding the chunks (local paths or URLs).
     stats : dict
         :func:`merge_stats` of every point.
     root_nodes : int
@@ -324,14 +346,32 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
     head = header_bytes(info)
     if len(head) != points_at:  # pragma: no cover - the info VLR has a fixed size
         raise InputFormatError(f"cannot write {path}: the header changed size")
-    with open(path, "wb") as out:
-        out.write(head)
-        out.write(struct.pack("<q", table_at))
-        for src, off, nb in zip(nodes["source"], nodes["offset"], nbytes):
-            _copy(out, sources[int(src)], int(off), int(nb))
-        out.write(table_bytes)
-        out.write(_evlr(COPC_USER_ID, 1000, "EPT hierarchy", hierarchy))
-        for v in evlrs:
-            out.write(_evlr(v.user_id, int(v.record_id), v.description if isinstance(v.description, str)
-                            else v.description.decode(errors="replace"), v.record_data_bytes()))
-        return out.tell()
+    out = storage.open_output(path)
+    try:
+        with storage.remote_errors(path, writing=True):
+            out.write(head)
+            out.write(struct.pack("<q", table_at))
+            for src, off, nb in _runs(nodes["source"], nodes["offset"], nbytes):
+                _copy(out, sources[src], off, nb)
+            out.write(table_bytes)
+            out.write(_evlr(COPC_USER_ID, 1000, "EPT hierarchy", hierarchy))
+            for v in evlrs:
+                out.write(_evlr(v.user_id, int(v.record_id), v.description if isinstance(v.description, str)
+                                else v.description.decode(errors="replace"), v.record_data_bytes()))
+            written = out.tell()
+            out.close()  # a URL: the upload completes here
+    except BaseException:
+        _discard(out)  # also after a failed close: a multipart upload left open is aborted
+        raise
+    return written
+
+
+def _discard(out) -> None:
+    """:func:`cloudsieve.storage.discard` *out*, then mark an fsspec file closed: its finaliser would
+    otherwise flush the discarded buffer (an error printed when it is collected)."""
+    storage.discard(out)
+    if not getattr(out, "closed", True):  # a local file is closed by discard
+        try:
+            out.closed = True
+        except AttributeError:  # pragma: no cover - a file object whose ``closed`` cannot be set
+            pass
