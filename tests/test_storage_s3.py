@@ -241,3 +241,32 @@ def test_the_server_stopped_mid_run_then_resume_gives_the_same_bytes(tiles, buck
     again = _cli(["simplify", base[0], f"{bucket}/o.laz", *base[1:], "--resume"], env, timeout=300)
     assert again.returncode == 0, again.stderr
     assert _remote_sha(fs, f"{bucket}/o.laz") == _sha(tmp_path / "whole.laz")
+
+
+def test_evaluate_compare_ingest_export_and_pipelines_take_urls(tiles, bucket, s3, tmp_path):
+    """Reports go under a URL prefix (written locally, then uploaded); a pipeline reads and writes URLs; nothing
+    is made on the local disk for a URL."""
+    env = s3.env()
+    src = f"{bucket}/tiles/t0.laz"
+    run = lambda *a: _cli(list(a), env, timeout=300)  # noqa: E731
+    for args in (["simplify", src, f"{bucket}/o.laz", "--ratio", "0.5"],
+                 ["evaluate", src, f"{bucket}/o.laz", "--no-surface", "--report", f"{bucket}/rep"],
+                 ["compare", src, "--ratio", "0.5", "--no-surface", "--methods", "random", "--report", f"{bucket}/cmp"],
+                 ["ingest", src, f"{bucket}/st.zarr"],
+                 ["export", f"{bucket}/st.zarr", f"{bucket}/e.laz"]):
+        proc = run(*args)
+        assert proc.returncode == 0, proc.stderr
+    fs = s3.filesystem()
+    fs.invalidate_cache()
+    report = json.loads(fs.cat_file(f"{bucket[5:]}/rep/report.json"))
+    assert report["files"]["html"] == f"{bucket}/rep/report.html"
+    assert fs.exists(f"{bucket[5:]}/cmp/report.html")
+    pipeline = tmp_path / "p.json"
+    pipeline.write_text(json.dumps({"pipeline": [{"type": "readers.las", "filename": f"{bucket}/tiles/t*.laz"},
+                                                 {"type": "filters.entropy", "ratio": 0.5},
+                                                 {"type": "writers.las", "filename": f"{bucket}/p/{{stem}}.laz"}]}))
+    proc = _cli(["run", str(pipeline)], env, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    fs.invalidate_cache()
+    assert sorted(fs.ls(f"{bucket[5:]}/p")) == [f"{bucket[5:]}/p/t0.laz", f"{bucket[5:]}/p/t1.laz"]
+    assert not os.path.exists("s3:")

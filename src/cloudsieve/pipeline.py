@@ -180,7 +180,8 @@ def _run_pipeline(pipeline: Pipeline, *, client: Any, progress: Any, bars: Any) 
         writer = next((s for s in pipeline.stages if s["type"] in WRITERS), None)
         if writer is not None:
             dst = _fill(writer["filename"], src)
-            Path(dst).parent.mkdir(parents=True, exist_ok=True)
+            if not storage.is_url(dst):  # an object store has no folders to make
+                Path(dst).parent.mkdir(parents=True, exist_ok=True)
             out_format = WRITERS[writer["type"]]
             overwrite = bool(writer.get("overwrite", False))
             log.info("pipeline %s: %s -> %s", pipeline.source, src, dst)

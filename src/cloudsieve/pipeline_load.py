@@ -238,7 +238,12 @@ def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tu
     if merge and (reader["type"] != "readers.las" or {"evaluate", "compare"} & set(seen)):
         raise PipelineError(f"{where}: stage 1 ({reader['type']}): merge reads LAS/LAZ/COPC files as one cloud "
                             f"(readers.las) and is not used with evaluate or compare")
-    inputs = sorted(glob.glob(pattern)) if glob.has_magic(pattern) and not merge else [pattern]
+    if glob.has_magic(pattern) and not merge:  # a URL's pattern lists its objects
+        from . import storage
+
+        inputs = storage.glob(pattern) if storage.is_url(pattern) else sorted(glob.glob(pattern))
+    else:
+        inputs = [pattern]
     if not inputs:
         raise PipelineError(f"{where}: stage 1 ({reader['type']}): no file matches {pattern!r}")
     if len(inputs) > 1:

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterator
-from pathlib import Path
+import os
 from typing import Any
 
 import numpy as np
 
+from .. import storage
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError
 from ..store import DEFAULT_CHUNK_SIZE, Chunk, PointStore, is_store
 
@@ -76,10 +77,10 @@ class Source:
             self.header = dict(getattr(obj, "header", {}) or {})
             self.has_normals = all(n in obj.dimensions for n in _NORMALS)
         else:
-            path = Path(obj)
-            if not path.exists():
+            path = os.fspath(obj)  # a path or a URL (a Path would fold a URL's "//")
+            if not storage.exists(path):
                 raise InputNotFoundError(f"input not found: {path}")
-            self.name = str(path)
+            self.name = path
             if is_store(path):
                 self._store = PointStore.open(str(path))
                 self.format = "store"

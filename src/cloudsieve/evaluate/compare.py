@@ -243,7 +243,14 @@ def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
     """:func:`compare` with options already validated (``opts``, from :func:`cloudsieve.params.validate` for
     ``compare``: the command line, a pipeline stage); no option is checked again."""
     with storage.using(opts.get("storage_options")):
-        return _run_compare(source, opts, progress=progress)
+        report_dir = opts["report_dir"]
+        if report_dir is None or not storage.is_url(str(report_dir)):
+            return _run_compare(source, opts, progress=progress)
+        with storage.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
+            result = _run_compare(source, {**opts, "report_dir": folder}, progress=progress)
+        base = str(report_dir).rstrip("/")
+        result["files"] = {k: v.replace(folder, base) for k, v in result.get("files", {}).items()}
+        return result
 
 
 def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:

@@ -325,5 +325,8 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         pts = None
         if ply_parts:
             pts = (np.concatenate([a for a, _ in ply_parts]), np.concatenate([e for _, e in ply_parts]))
-        write_report(report, report_dir, error_points=pts, kept=simp)
+        with storage.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
+            write_report(report, folder, error_points=pts, kept=simp)
+        if storage.is_url(str(report_dir)):
+            report["files"] = {k: v.replace(folder, str(report_dir).rstrip("/")) for k, v in report["files"].items()}
     return report

@@ -102,7 +102,8 @@ class LasReader(Reader):
         backend = options.get("laz_backend", laz_backend())
         check_layout(path)
         try:
-            self._las = laspy.open(storage.open_input(path, 2**20), mode="r", laz_backend=backend, closefd=True)
+            self._las = laspy.open(storage.open_input(path, storage.HEADER_BLOCK), mode="r", laz_backend=backend,
+                                   closefd=True)
         except (laspy.LaspyException, OSError, ValueError, EOFError, IndexError) as exc:
             raise CorruptInputError(f"{path}: not a valid LAS/LAZ file ({exc})") from exc
         h = self._las.header

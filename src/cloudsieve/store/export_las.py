@@ -298,7 +298,7 @@ def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
     """:func:`splice` written front to back, for a destination that cannot seek (an object store's upload):
     every header field and the chunk table are worked out from the parts' headers and tables first (small
     ranged reads), then the bytes go out in order: the header, the points part after part (copied in blocks
-    of :data:`cloudsieve.storage.READ_BLOCK`), the chunk table, the EVLRs. The same bytes as :func:`splice`.
+    of :data:`cloudsieve.storage.COPY_BLOCK`), the chunk table, the EVLRs. The same bytes as :func:`splice`.
     A failure discards the upload: nothing appears under *dst*."""
     import io
 
@@ -342,7 +342,7 @@ def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
         for path, (pos, size) in zip(parts, spans):
             done = 0
             while done < size:
-                step = min(storage.READ_BLOCK, size - done)
+                step = min(storage.COPY_BLOCK, size - done)
                 out.write(storage.read_range(path, pos + done, step))
                 done += step
         out.write(table_bytes)
