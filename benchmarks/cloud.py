@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--size", type=float, default=20e6, help="points (default 20 M)")
     p.add_argument("--files", type=int, default=5, help="input tiles (default 5)")
     p.add_argument("--tile-size", type=float, default=2000.0, help="edge of the output tiles (default 2000)")
-    p.add_argument("--workdir", default=str(ROOT / ".bench"), help="scans are cached here")
+    p.add_argument("--workdir", default="/tmp/cloudsieve-bench-cloud", help="scans are cached here")
     p.add_argument("--outputs", default="tiles,laz", help="outputs: tiles, laz, copc (default tiles,laz)")
     args = p.parse_args(argv)
     n = int(args.size)

@@ -1,8 +1,9 @@
 """Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
 reading, ``memory://``), with a run's storage options.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`). Every module that opens, lists or
-removes a cloud, a list, a VPC or a store goes through it, so a URL works wherever a path does:
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage_errors`).
+Every module that opens, lists or removes a cloud, a list, a VPC or a store goes through it, so a URL
+works wherever a path does:
 :func:`open_input` reads by ranged requests (a LAZ file's chunk table, then only its chunks: never
 a whole-file download), :func:`open_output` writes (multipart on S3 above the block size).
 
@@ -32,8 +33,8 @@ import re
 from collections.abc import Callable, Iterator
 from urllib.parse import unquote, urlparse
 
-from .errors import (CloudsieveError, DestinationNotWritableError, InputNotFoundError, InputNotReadableError,
-                     InvalidParameterError)
+from . import storage_errors
+from .errors import InvalidParameterError
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
            "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent", "name", "identity", "size", "read_range", "write_bytes", "upload", "discard", "staged_folder",
@@ -364,23 +365,14 @@ def remove(path: str, recursive: bool = False) -> None:
         logger.warning("could not remove %s (the object store refused to delete it)", path)
 
 
-_SECRET = re.compile(r"(?i)(secret|token|password|key|signature|credential)[\"']?\s*[:=]\s*[\"']?[^\s\"',}&]+")
-
-
 def redact(text: str) -> str:
-    """*text* with anything that looks like a credential (``secret=...``, ``"key": "..."``) masked."""
-    text = _SECRET.sub(lambda m: m.group(1) + "=***", text)
-    for value in _secret_values():
-        text = text.replace(value, "***")
-    return text
+    """*text* with anything that looks like a credential, and the run's own secrets, masked."""
+    return storage_errors.redact(text, _secret_values())
 
 
 def _secret_values() -> list[str]:
-    out = []
-    for k, v in _OPTIONS.items():
-        if isinstance(v, str) and len(v) >= 4 and re.search(r"(?i)secret|token|key|password", k):
-            out.append(v)
-    return out
+    return [v for k, v in _OPTIONS.items()
+            if isinstance(v, str) and len(v) >= 4 and re.search(r"(?i)secret|token|key|password", k)]
 
 
 def _endpoint() -> str | None:
@@ -388,43 +380,8 @@ def _endpoint() -> str | None:
             or os.environ.get("AWS_ENDPOINT_URL_S3") or os.environ.get("AWS_ENDPOINT_URL"))
 
 
-def _reason(exc: BaseException) -> str:
-    text = str(exc).strip() or type(exc).__name__
-    return redact(text.splitlines()[0])
-
-
-@contextlib.contextmanager
-def remote_errors(path: str, writing: bool = False) -> Iterator[None]:
-    """Turn an object store's errors about *path* into cloudsieve's own, one line naming *path* (and the
-    endpoint when it cannot be reached), with no credential in it."""
-    try:
-        yield
-    except CloudsieveError:
-        raise
-    except FileNotFoundError as exc:
-        if not is_url(path):
-            raise
-        what = "no such bucket" if "bucket" in str(exc).lower() else "no such file"
-        raise InputNotFoundError(f"{path}: {what}") from None
-    except PermissionError as exc:
-        if not is_url(path):
-            raise
-        error = DestinationNotWritableError if writing else InputNotReadableError
-        raise error(f"{path}: access denied: cannot {'write' if writing else 'read'} it with these credentials "
-                    f"({_reason(exc)})") from None
-    except Exception as exc:  # noqa: BLE001 - the object store's own exceptions (botocore, aiohttp, ...)
-        if not is_url(path):
-            raise
-        kind = type(exc).__name__
-        if kind in ("ParamValidationError", "InvalidBucketName") or "Invalid bucket name" in str(exc):
-            raise InvalidParameterError(f"{path}: invalid bucket name (S3 bucket names are 3 to 63 lower-case "
-                                        "letters, digits, dots and hyphens)") from None
-        if kind in ("EndpointConnectionError", "ConnectTimeoutError", "ConnectionError", "ClientConnectorError",
-                    "ConnectTimeout", "ReadTimeoutError") or "Could not connect" in str(exc):
-            where = _endpoint() or "the default endpoint"
-            error = DestinationNotWritableError if writing else InputNotReadableError
-            raise error(f"{path}: cannot reach the object store at {where} ({_reason(exc)})") from None
-        if isinstance(exc, (OSError, ValueError)):
-            error = DestinationNotWritableError if writing else InputNotReadableError
-            raise error(f"{path}: {_reason(exc)}") from None
-        raise
+def remote_errors(path: str, writing: bool = False):
+    """A context in which an object store's errors about *path* become cloudsieve's own, one line naming
+    *path* (and the endpoint when it cannot be reached), with no credential in it
+    (:func:`cloudsieve.storage_errors.mapped`)."""
+    return storage_errors.mapped(path, is_url(path), writing, _endpoint(), _secret_values())
