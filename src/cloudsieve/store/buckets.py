@@ -242,7 +242,8 @@ def open_runs(store_path: str, name: str) -> tuple:
     from ..paths import zarr_store
 
     # the array alone: opening the store (its attributes, the header) too costs about 5 ms a task
-    arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records", mode="r")
+    arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records", mode="r",
+                          zarr_format=3)
     return arr, _record(arr)
 
 

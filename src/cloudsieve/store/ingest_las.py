@@ -58,7 +58,7 @@ def _open_group(path: str):
 
     from ..paths import zarr_store
 
-    return zarr.open_group(zarr_store(path, read_only=False), mode="r+")
+    return zarr.open_group(zarr_store(path, read_only=False), mode="r+", zarr_format=3, use_consolidated=False)
 
 
 def ingest_las(

@@ -306,13 +306,15 @@ class PointStore:
     # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:
         if self._writable is None:
-            self._writable = zarr.open_group(zarr_store(self.path, read_only=False), mode="r+")
+            self._writable = zarr.open_group(zarr_store(self.path, read_only=False), mode="r+", zarr_format=3,
+                                             use_consolidated=False)
         return self._writable
 
     def _refresh(self) -> None:
         """Keep the read handle in sync, so that ``store.read(name)`` sees arrays created or deleted."""
         if self.mode == "r":
-            self.group = zarr.open_group(zarr_store(self.path, read_only=True), mode="r")
+            self.group = zarr.open_group(zarr_store(self.path, read_only=True), mode="r", zarr_format=3,
+                                         use_consolidated=False)
 
     def _check_derived(self, name: str) -> None:
         if name in self.dimensions or name.split("/")[0] in self.dimensions:
