@@ -47,7 +47,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                                 "seed", "overwrite", "format", "chunk_size", "halo_context", "k0", "k_min",
                                 "drop_invalid", "tile_size"))
     st, store_path, default_store = checked.store, checked.store_path, checked.default_store
-    scheduler, dst_local = checked.scheduler, checked.dst_local
+    scheduler = checked.scheduler
 
     with PeakMemory() as peak:
         runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
@@ -126,9 +126,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            # tasks write the parts (or the tiles); otherwise the export streams here
-            tasks = tile_size is not None or (dst_local is not None
-                                              and detect_format(dst, format) in ("las", "laz", "copc"))
+            # tasks write the parts (or the tiles), to a path or a URL; otherwise (PLY, XYZ) the export streams here
+            tasks = tile_size is not None or detect_format(dst, format) in ("las", "laz", "copc")
             if not tasks:
                 close_runner()  # the workers' memory goes now
             with stage_bar(bars, "export", summary.kept, "pt") as bar:
