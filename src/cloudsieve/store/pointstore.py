@@ -116,6 +116,9 @@ class PointStore:
         self.path = str(path)
         self.mode = mode
         self._writable: zarr.Group | None = group if mode != "r" else None
+        #: the input arrays opened so far: written once by the ingest, never after, so their metadata is read
+        #: once per store object (on an object store, each opening is a request or two)
+        self._inputs: dict[str, zarr.Array] = {}
         self._use(meta)
 
     def _use(self, meta: dict[str, Any]) -> None:
@@ -240,7 +243,7 @@ class PointStore:
         """Input attribute name -> (dtype, per-point shape), as ``Reader.dtypes``."""
         out = {}
         for name in self.dimensions:
-            arr = self.group[name]
+            arr = self.array(name)
             out[name] = (np.dtype(arr.dtype), tuple(arr.shape[1:]))
         out["xyz"] = (np.dtype(np.float64), (3,))  # decoded from LAS integers where so stored
         return out
@@ -256,12 +259,16 @@ class PointStore:
         ArrayNotFoundError
             No array *name* (or *name* is a group).
         """
+        if name in self._inputs:
+            return self._inputs[name]
         try:
             node = self.group[name]
         except KeyError:
             raise ArrayNotFoundError(f"{self.path} has no array {name!r}; input arrays: {self.dimensions}") from None
         if not isinstance(node, zarr.Array):
             raise ArrayNotFoundError(f"{self.path}: {name!r} is a group, not an array")
+        if name in self.dimensions and self.complete:
+            self._inputs[name] = node
         return node
 
     def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
