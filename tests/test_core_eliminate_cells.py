@@ -218,8 +218,9 @@ def test_planar_and_collinear_input_over_cells():
 def test_one_cell_is_one_elimination_and_cell_points_is_checked():
     P = sheet(6_000, seed=10)
     assert np.array_equal(eliminate(P, ratio=0.2, cell_points=10_000), eliminate(P, ratio=0.2, cell_points=None))
-    # cells grow to hold MIN_KEPT kept points: 5 of 6,000 is one cell, one elimination
-    assert np.array_equal(eliminate(P, 5, cell_points=MIN_CELL_POINTS), eliminate(P, 5, cell_points=None))
+    # cells grow to hold MIN_KEPT kept points: 300 of 6,000 (the fewest kept in one elimination, not in stages:
+    # 1 in 20) is one cell, one elimination
+    assert np.array_equal(eliminate(P, 300, cell_points=MIN_CELL_POINTS), eliminate(P, 300, cell_points=None))
     for bad in (0, 100, 2_000.5, "x"):
         with pytest.raises(InvalidParameterError, match=r"cell_points must be an integer >= 1024, got"):
             eliminate(P, ratio=0.2, cell_points=bad)

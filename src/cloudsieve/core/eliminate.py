@@ -118,7 +118,10 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     cells of at most that many points, eliminated colour by colour on
     ``threads`` threads with their halos, as the out-of-core run does
     (:mod:`.eliminate_cells`); the kept set then differs from one
-    elimination's, by as little as the engine's does. The result does not
+    elimination's, by as little as the engine's does. Below 1 in
+    :data:`.staged.STAGED_BELOW` of the distinct points kept, the
+    elimination runs in stages of about half (:mod:`.staged`), each over
+    cells as above. The result does not
     depend on ``threads``, nor on the input order up to
     ``.radius.AREA_SAMPLE`` points (above, r_max is solved on a seeded sample
     of rows).
@@ -133,6 +136,17 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     pts = check_points(points)
     target = ratio_count(ratio, len(pts)) if ratio is not None else min(int(count), len(pts))
     r_max = None if r_max is None else check_r_max(r_max)
+    if 0 < target < len(pts):
+        from .eliminate_cells import eliminate_direct
+        from .staged import eliminate_staged, runs_staged
+
+        if runs_staged(pts, target):  # a small share kept: stages of about half (module .staged)
+            r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
+            if math.isfinite(r_max):
+                workers = numba.get_num_threads() if threads is None else max(1, int(threads))
+                keep = eliminate_staged(eliminate_direct, pts, target, r_max, np.zeros((0, 3)),
+                                        np.zeros(0, dtype=np.uint8), int(relocate_steps), workers, cell_points)
+                return np.flatnonzero(keep).astype(np.int64)
     if cell_points is not None and 0 < target < len(pts):
         from .eliminate_cells import cell_cap, eliminate_in_cells
 

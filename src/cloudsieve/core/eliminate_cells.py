@@ -57,14 +57,20 @@ from .kernels import neighbours as _kn
 from .kernels import packing as _kp
 from .packing import LADDER, kept_counts, ladder_shares
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_on_grid
+from .staged import eliminate_staged, runs_staged
 
-__all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_cells",
+__all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_direct", "eliminate_cells",
            "eliminate_in_cells"]
 
 #: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
 MIN_KEPT = 1_024
 #: halo margin in r_max: the elimination and the relocation reach 2 r_max (as the engine's)
 HALO_RADII = 2.2
+#: at least this share of the points kept, every cell's neighbour lists are built ahead, with the packings (about
+#: 7 entries a point at 50% kept); below it, each cell's lists are built when the cell runs, its packings walk the
+#: grid (3.6 / share entries a point: at 5% kept, autzen_trim in memory peaked at 449 MiB with its 8 cells' lists
+#: built ahead, at 310 MiB with each built when its cell runs)
+LISTS_AHEAD = 0.2
 
 
 def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray,
@@ -144,7 +150,7 @@ def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
 
 def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
                    steps: int = RELOCATE_STEPS, threads: int | None = None,
-                   cell_points: int | None = None) -> np.ndarray:
+                   cell_points: int | None = None, staged: bool | None = None) -> np.ndarray:
     """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
 
     The halo points already ``decided`` (a neighbouring cell's final
@@ -158,7 +164,11 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
     is cut into k-d cells eliminated as :func:`eliminate_cells` does, the
     halo's points with their decisions around them: the engine's cells run
     at the in-memory kernel's speed (one elimination of 200,000 points
-    waits on memory, cells of 16,384 fit the caches).
+    waits on memory, cells of 16,384 fit the caches). In stages of about
+    half when ``staged`` (:mod:`.staged`: memory and time as at 50% kept);
+    None: when the count is below 1 in :data:`.staged.STAGED_BELOW` of the
+    cell's distinct points (the engine decides for all cells of a run at once,
+    from the run's count and distinct points).
 
     Parameters
     ----------
@@ -172,6 +182,7 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
         Which halo points are decided, and which of those are kept.
     threads : int, optional
     cell_points : int, optional
+    staged : bool, optional
 
     Returns
     -------
@@ -194,6 +205,19 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
         # elimination, every distinct point has the same priority, its copies +inf: the last `count` distinct stay
         return keep_lowest(np.where(copy_rows(pts), np.inf, 0.0), int(count))
     kind = np.where(dec, np.where(hk, 2, 0), 1).astype(np.uint8)  # free, fixed (kept), gone (removed)
+    if runs_staged(pts, int(count)) if staged is None else staged:  # stages of about half (module .staged)
+        return eliminate_staged(eliminate_direct, pts, int(count), r_max, hal, kind, int(steps), threads,
+                                cell_points)
+    return eliminate_direct(pts, int(count), r_max, hal, kind, int(steps), threads, cell_points)
+
+
+def eliminate_direct(pts: np.ndarray, count: int, r_max: float, hal: np.ndarray, kind: np.ndarray, steps: int,
+                     threads, cell_points) -> np.ndarray:
+    """:func:`eliminate_cell` as one elimination (no stages) on valid input: *count* in [0, n], r_max finite,
+    the halo *hal* (h, 3) and its kinds *kind* (h,) uint8 (1 free, 2 fixed, 0 gone)."""
+    n = len(pts)
+    if count == n or count == 0:
+        return np.full(n, count == n)
     cap = n if cell_points is None else cell_cap(n, int(count), int(cell_points))
     if n > cap:
         workers = max(1, int(threads or 1))
@@ -210,29 +234,47 @@ def _one_thread(fn, *args):
         return fn(*args)
 
 
-def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
-    """The grid of [own, halo] and its neighbour lists within 2 r_max, without the halo points ``absent``
-    (the ones a lower colour removed, when known: an absent point's terms would only make the elimination's
-    first bounds larger)."""
-    two_r = 2.0 * r_max
-    grid = CellGrid(np.concatenate([own, halo]), two_r)
+def _grid_state(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
+    """The grid of [own, halo] (cells of 2 r_max) and the state its lists are built on: every point alive
+    but exact copies and the halo points ``absent`` (the ones a lower colour removed, when known: an absent
+    point's terms would only make the elimination's first bounds larger)."""
+    grid = CellGrid(np.concatenate([own, halo]), 2.0 * r_max)
     state = np.ones(len(grid.order), dtype=np.uint8)
     if absent is not None:
         rows = np.flatnonzero(grid.order >= len(own))
         state[rows[absent[grid.order[rows] - len(own)]]] = 0
     state[grid.copy] = 0
-    return grid, _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
+    return grid, state
 
 
-def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
-    """What the elimination of a cell needs before its halo's decisions are known: the grid and the
-    neighbour lists of [own, halo] (every halo point alive but the ``absent`` ones, known to be gone), the
-    cell's packing sizes along ``LADDER`` (module .packing, over the lists) and its distinct points."""
-    grid, lists = _grid_lists(own, halo, r_max, absent)
+def _lists(grid, state: np.ndarray, r_max: float) -> tuple:
+    """The neighbour lists within 2 r_max of the alive rows of *grid* (module .kernels.neighbours)."""
+    return _kn.build_lists(*grid.args(), grid.order, state, 2.0 * r_max, ALPHA, alpha_int(ALPHA), True)
+
+
+def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
+    """The grid of [own, halo] and its neighbour lists within 2 r_max, without the halo points ``absent``
+    (:func:`_grid_state`)."""
+    grid, state = _grid_state(own, halo, r_max, absent)
+    return grid, _lists(grid, state, r_max)
+
+
+def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None, ahead: bool = True) -> tuple:
+    """What the elimination of a cell needs before its halo's decisions are known: the grid of [own, halo]
+    and its lists' state (:func:`_grid_state`), the neighbour lists when ``ahead`` (else None: built when
+    the cell runs), the cell's packing sizes along ``LADDER`` (module .packing; over the lists when built,
+    else over the grid: the same sizes) and its distinct points."""
+    grid, state = _grid_state(own, halo, r_max, absent)
     join = ((grid.order < len(own)) & ~grid.copy).astype(np.uint8)
     rad = np.array(LADDER) * r_max
-    counts = _kp.packing_from_lists(grid.P, lists[0], lists[1], join, rad * rad)
-    return grid, lists, counts, int(join.sum())
+    r2 = rad * rad
+    if ahead:
+        lists = _lists(grid, state, r_max)
+        counts = _kp.packing_from_lists(grid.P, lists[0], lists[1], join, r2)
+    else:
+        lists = None
+        counts = _kp.packing_counts(*grid.args(), join == 0, r2)
+    return grid, lists, counts, int(join.sum()), state
 
 
 def _finish(n: int, grid, lists, kind: np.ndarray, r_max: float, count: int, steps: int) -> np.ndarray:
@@ -298,6 +340,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     near = _neighbours(boxes, margin)
     colour = cell_colours(np.r_[0, np.cumsum([len(x) for x in near])], np.concatenate(near + [np.zeros(0, int)]))
     own = [slice(starts[j], starts[j + 1]) for j in range(ncell)]
+    ahead = target >= LISTS_AHEAD * n
     halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
 
     def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
@@ -310,7 +353,8 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     def prepare(j: int) -> tuple:
         halos[j] = h, o = halo(j)
         absent = np.r_[np.zeros(len(h), dtype=bool), okind[o] == 0]
-        return _one_thread(_prepare, Q[own[j]], np.concatenate([take_rows(Q, h), opts[o]]), r_max, absent)
+        return _one_thread(_prepare, Q[own[j]], np.concatenate([take_rows(Q, h), opts[o]]), r_max, absent,
+                           ahead)
 
     with ThreadPoolExecutor(max(1, int(threads))) as pool:
         # each cell's points a neighbour's halo may hold, all cells at once
@@ -331,7 +375,9 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             h, o = halos[j]
             lower = colour[cell[h]] < colour[j]
             kind = np.r_[np.where(lower, np.where(keep[h], 2, 0), 1).astype(np.uint8), okind[o]]
-            grid, lists = prepared[j][:2]
+            grid, lists, _, _, state = prepared[j]
+            if lists is None:
+                lists = _one_thread(_lists, grid, state, r_max)
             keep[own[j]] = _one_thread(_finish, int(size[j]), grid, lists, kind, r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 

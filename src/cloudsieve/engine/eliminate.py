@@ -45,7 +45,11 @@ by cell:
    lower colours as the halo's kept points (for the higher colours, which
    have not decided, the points this elimination left), on the same grid.
    The count does not change. Writes
-   ``simplify/keep_cells``, then ``simplify/done[cell]``.
+   ``simplify/keep_cells``, then ``simplify/done[cell]``. A run keeping
+   less than 1 in :data:`~cloudsieve.core.staged.STAGED_BELOW` of its
+   distinct points runs every cell's elimination in stages of about half
+   (:mod:`cloudsieve.core.staged`: a cell's lists and cells as at 50%
+   kept).
    Above :data:`~cloudsieve.core.eliminate.CELL_POINTS` points the cell is
    eliminated over k-d cells, as the in-memory rule is, its halo around them
    (10 M points, 2 workers, side by side: cells stage 15.2-17.7 s against
@@ -75,6 +79,7 @@ import numpy as np
 from .cells import CellTask, cell_tasks, largest_first
 from ..core.colours import cell_colours
 from ..core.packing import kept_counts, ladder_shares
+from ..core.staged import small_share
 from .halo import band_mask, read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
@@ -200,7 +205,7 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
         if earlier:
             halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
         keep = eliminate_cell(core, int(count), r_max, halo=halo, decided=fixed, halo_keep=halo_keep,
-                              threads=_threads(task), cell_points=CELL_POINTS)
+                              threads=_threads(task), cell_points=CELL_POINTS, staged=task.params.get("staged"))
     if task.params.get("keep_duplicates") and n:  # every copy of a kept point too
         from ..core.duplicates import first_copies
 
@@ -250,6 +255,7 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     distinct = share[:, 0].astype(np.int64)
     expected = ladder_shares(share[:, 1:], int(target)) if math.isfinite(r_max) else distinct
     q = kept_counts(expected, distinct, int(target))
+    params["staged"] = small_share(int(target), int(distinct.sum()))  # one decision for every cell of the run
     todo = [j for j in range(part.n_cells) if not done[j]]
     colours = cell_colours(part.halo_ptr, part.halo_src)
     # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it

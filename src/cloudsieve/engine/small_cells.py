@@ -86,6 +86,7 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
     from ..core.eliminate import CELL_POINTS
     from ..core.eliminate_cells import eliminate_cell
     from ..core.packing import LADDER, kept_counts, ladder_shares, packing_ladder
+    from ..core.staged import small_share
     from .halo import band_mask, halo_mask
 
     p, r_max, margin, c = cells.n_cells, cells.r_max, cells.margin, cells.centers
@@ -107,6 +108,7 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
         bands = list(pool.map(share, range(p)))
     expected = ladder_shares(shares, int(target)) if math.isfinite(r_max) else distinct
     q = kept_counts(expected, distinct, int(target))
+    staged = small_share(int(target), int(distinct.sum()))  # as run_eliminate: one decision for every cell
     colours = cell_colours(cells.halo_ptr, cells.halo_src)
     keep = np.zeros(len(xyz), dtype=bool)
     for j in sorted(range(p), key=lambda j: (colours[j], -len(cells.members[j]), j)):  # apply_task
@@ -123,7 +125,7 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
             fixed = np.isin(src_of, [s for s in sources if colours[s] < colours[j]])
             halo_keep = fixed & keep[rows]
             mine = eliminate_cell(core, int(q[j]), r_max, halo=take_rows(xyz, rows), decided=fixed, halo_keep=halo_keep,
-                                  threads=threads, cell_points=CELL_POINTS)
+                                  threads=threads, cell_points=CELL_POINTS, staged=staged)
         if keep_duplicates and n:  # every copy of a kept point too
             mine = mine[first_copies(core)]
         keep[own] = mine

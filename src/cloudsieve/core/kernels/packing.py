@@ -51,10 +51,18 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
     Points are visited in grid order; a point joins packing k when no point
     already in it is closer than sqrt(r2[k]). Rows with ``skip`` join none.
     Each distance is computed once for every radius. Returns counts (L,).
+
+    Only the rows that joined a packing are compared: each cell's are listed
+    in ``joined[cstart[c]:cstart[c] + cnt[c]]`` (ascending, as the walk of the
+    cell's rows met them), so a cell holding many points and few members
+    (radii much larger than the spacing: a small kept count) costs its
+    members, not its points.
     """
     full = (1 << len(r2)) - 1
     mask = np.zeros(len(P), dtype=np.uint8)
     counts = np.zeros(len(r2), dtype=np.int64)
+    joined = np.empty(len(P), dtype=np.int64)
+    cnt = np.zeros(len(cstart), dtype=np.int64)
     for i in range(len(P)):
         if skip[i]:
             continue
@@ -62,14 +70,18 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
         c = cell[i]
         for t in range(nstart[c], nstart[c + 1]):
             cc = ncells[t]
-            # only rows visited before i can be in a packing (mask 0 from i on): the cells after i are skipped
-            for j in range(cstart[cc], min(cstart[cc + 1], i)):
+            # only rows visited before i can be in a packing: the members listed so far
+            for u in range(cstart[cc], cstart[cc] + cnt[cc]):
+                j = joined[u]
                 m = mask[j] & ~blocked
                 if m != 0:
                     blocked |= _blocked(P, i, j, m, r2, full)
             if blocked == full:
                 break
         _join(i, blocked, full, mask, counts)
+        if mask[i] != 0:
+            joined[cstart[c] + cnt[c]] = i
+            cnt[c] += 1
     return counts
 
 
