@@ -1,7 +1,7 @@
 """A shared-nothing cluster: a ``dask scheduler`` and two ``dask worker`` processes started in empty folders of
 their own (their own TMPDIR, no AWS variables), the driver in a third; every path a URL on S3 (SeaweedFS). The
 workers get what they need through the tasks (the storage options among them) and the object store alone:
-the same bytes as the same run on local disk."""
+the same bytes as the same run on local disk: one LAZ, tiles + VPC and one COPC."""
 
 from __future__ import annotations
 
@@ -83,6 +83,8 @@ def test_a_shared_nothing_cluster_gives_the_local_bytes(cluster, bucket, s3, tmp
     cloudsieve.simplify(shared_file("autzen_trim.laz"), local / "one.laz", ratio=0.5, workers=2, chunk_size=20_000)
     cloudsieve.simplify(shared_file("autzen_trim.laz"), local / "tl", ratio=0.5, workers=2, chunk_size=20_000,
                         tile_size=300.0)
+    cloudsieve.simplify(shared_file("autzen_trim.laz"), local / "o.copc.laz", ratio=0.5, workers=2,
+                        chunk_size=20_000)
     driver = tmp_path / "driver"
     driver.mkdir()
     monkeypatch.chdir(driver)
@@ -92,8 +94,10 @@ def test_a_shared_nothing_cluster_gives_the_local_bytes(cluster, bucket, s3, tmp
     run = {"ratio": 0.5, "chunk_size": 20_000, "scheduler": cluster, "storage_options": opts}
     cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/one.laz", **run)
     cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/tl", tile_size=300.0, **run)
+    cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/o.copc.laz", **run)
     fs.invalidate_cache()
     assert _sha(fs.cat_file(f"{bucket[5:]}/out/one.laz")) == _sha((local / "one.laz").read_bytes())
+    assert _sha(fs.cat_file(f"{bucket[5:]}/out/o.copc.laz")) == _sha((local / "o.copc.laz").read_bytes())
     names = sorted(os.listdir(local / "tl"))
     assert sorted(p.rsplit("/", 1)[1] for p in fs.find(f"{bucket[5:]}/out/tl")) == names
     for name in names:

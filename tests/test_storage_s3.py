@@ -73,13 +73,16 @@ def test_out_of_core_s3_to_s3_one_laz_and_a_remote_store(tiles, bucket, s3, tmp_
     local = tmp_path / "local.laz"
     cloudsieve.simplify(str(tiles / "*.laz"), local, ratio=0.5, workers=2, chunk_size=20_000)
     dst = f"{bucket}/out/small.laz"
+    fs = s3.filesystem()
+    for stale in (".small.laz.parts-0123456789ab/part-000000.laz", ".small.laz.scratch-0123456789ab/up-0.bin"):
+        fs.pipe_file(f"{bucket[5:]}/out/{stale}", b"left by a run that was killed")
     summary = cloudsieve.simplify(f"{bucket}/tiles/*.laz", dst, ratio=0.5, workers=2, chunk_size=20_000,
                                   store=f"{bucket}/work.zarr", storage_options=opts)
-    fs = s3.filesystem()
     assert summary.kept == 55_000
     assert _remote_sha(fs, dst) == _sha(local)
     fs.invalidate_cache()
-    assert sorted(fs.find(f"{bucket[5:]}/out")) == [f"{bucket[5:]}/out/small.laz"]  # no parts left
+    # no parts left, neither this run's nor those of a run killed before
+    assert sorted(fs.find(f"{bucket[5:]}/out")) == [f"{bucket[5:]}/out/small.laz"]
     from cloudsieve import storage
     from cloudsieve.store import PointStore
 

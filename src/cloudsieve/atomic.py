@@ -93,7 +93,8 @@ def _check_remote(path: str, overwrite: bool, folder: bool, foreign) -> None:
         if not fs.exists(bucket):
             raise DestinationNotWritableError(f"cannot write {path}: bucket {bucket} does not exist")
         # an empty object written and removed: credentials that cannot write fail now, before any work
-        probe = f"{p.rstrip('/')}.cloudsieve-probe-{uuid.uuid4().hex[:12]}"
+        head, _, tail = p.rstrip("/").rpartition("/")
+        probe = f"{head}/.{tail}.cloudsieve-probe-{uuid.uuid4().hex[:12]}"
         fs.pipe_file(probe, b"")
         fs.rm(probe)
     is_file = storage.isfile(path)
