@@ -273,3 +273,12 @@ def test_evaluate_compare_ingest_export_and_pipelines_take_urls(tiles, bucket, s
     fs.invalidate_cache()
     assert sorted(fs.ls(f"{bucket[5:]}/p")) == [f"{bucket[5:]}/p/t0.laz", f"{bucket[5:]}/p/t1.laz"]
     assert not os.path.exists("s3:")
+
+
+@pytest.mark.parametrize("ext", ["ply", "xyz", "copc.laz"])
+def test_other_formats_to_a_url_give_the_local_bytes(tiles, bucket, s3, tmp_path, ext):
+    opts = s3.storage_options()
+    local = tmp_path / f"o.{ext}"
+    cloudsieve.simplify(str(tiles / "t0.laz"), local, ratio=0.5)
+    cloudsieve.simplify(str(tiles / "t0.laz"), f"{bucket}/o.{ext}", ratio=0.5, storage_options=opts)
+    assert _remote_sha(s3.filesystem(), f"{bucket}/o.{ext}") == _sha(local)
