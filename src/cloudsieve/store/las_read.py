@@ -107,8 +107,10 @@ def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarr
     # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
     # cores); the tasks of a run in this process decode on every core (1 M points: 0.25-0.28 s against 0.55-0.57 s)
     backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
-    # a URL is read by ranged requests: the header, the chunk table, then this piece's chunks only
-    with laspy.open(storage.open_input(path), laz_backend=backend, closefd=True) as reader:
+    # a URL is read by ranged requests: the header and the chunk table (small reads), then this piece's chunks
+    fh = storage.open_input(path, storage.HEADER_BLOCK)
+    with laspy.open(fh, laz_backend=backend, closefd=True) as reader:
+        storage.widen(fh)
         try:
             with QUIET_READS.reading():
                 _seek(reader, first)
