@@ -57,24 +57,8 @@ def check_destination(path: str, overwrite: bool, *, folder: bool = False,
     if is_url(path):
         _check_remote(path, overwrite, folder, foreign)
         return
-    if os.path.isdir(path):
-        if not folder:
-            raise DestinationExistsError(f"{path} is a folder: cloudsieve never replaces a folder with a file "
-                                         "(remove it, or choose another name)")
-        if not overwrite:
-            raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
-                                         advice={"overwrite": True})
-        found = foreign(path) if foreign is not None else None
-        if found is not None:
-            raise DestinationExistsError(f"{path} holds {found}: cloudsieve replaces only a folder of its own "
-                                         "output (remove it, or choose another name)")
-    elif os.path.lexists(path):
-        if folder:
-            raise DestinationExistsError(f"{path} is a file: cloudsieve never replaces a file with a folder "
-                                         "(remove it, or choose another name)")
-        if not overwrite:
-            raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it",
-                                         advice={"overwrite": True})
+    is_dir = os.path.isdir(path)
+    _check_kind(path, overwrite, folder, foreign, is_dir=is_dir, is_file=not is_dir and os.path.lexists(path))
     parent = os.path.dirname(os.path.abspath(path))
     if not os.path.exists(parent):
         raise DestinationNotWritableError(f"cannot write {path}: folder {parent} does not exist")
@@ -98,11 +82,15 @@ def _check_remote(path: str, overwrite: bool, folder: bool, foreign) -> None:
         fs.pipe_file(probe, b"")
         fs.rm(probe)
     is_file = storage.isfile(path)
-    is_dir = not is_file and storage.isdir(path)
+    _check_kind(path, overwrite, folder, foreign, is_dir=not is_file and storage.isdir(path), is_file=is_file)
+
+
+def _check_kind(path: str, overwrite: bool, folder: bool, foreign, *, is_dir: bool, is_file: bool) -> None:
+    """The refusals of :func:`check_destination` for what is at *path* (a folder or prefix, a file or object)."""
     if is_dir:
         if not folder:
-            raise DestinationExistsError(f"{path} is a prefix holding objects (a folder): cloudsieve never replaces "
-                                         "a folder with a file (remove it, or choose another name)")
+            raise DestinationExistsError(f"{path} is a folder: cloudsieve never replaces a folder with a file "
+                                         "(remove it, or choose another name)")
         if not overwrite:
             raise DestinationExistsError(f"{path} exists (a folder); pass overwrite=True to replace it",
                                          advice={"overwrite": True})

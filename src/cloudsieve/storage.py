@@ -38,8 +38,7 @@ from .errors import InvalidParameterError
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
            "widen", "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent",
-           "name", "identity", "size", "read_range", "write_bytes", "upload", "discard", "staged_folder",
-           "remove_stale_scratch", "remove", "redact", "remote_errors", "READ_BLOCK", "HEADER_BLOCK", "COPY_BLOCK"]
+           "name", "identity", "size", "read_range", "write_bytes", "upload", "discard", "remove", "redact", "remote_errors", "READ_BLOCK", "HEADER_BLOCK", "COPY_BLOCK"]
 
 logger = logging.getLogger(__name__)
 
@@ -309,54 +308,6 @@ def discard(fh) -> None:
             fh.close()
     except Exception:  # noqa: BLE001 - the failure that led here is the one to report
         pass
-
-
-@contextlib.contextmanager
-def staged_folder(folder: str) -> Iterator[str]:
-    """A folder to write a report into: *folder* itself when local; for a URL, a local temporary folder
-    whose files are uploaded under *folder* when the block ends without error (the temporary folder's
-    path, where the reports name their files, becomes the URL), and removed either way."""
-    import shutil
-    import tempfile
-
-    if not is_url(folder):
-        yield folder
-        return
-    tmp = tempfile.mkdtemp(prefix=".cloudsieve-report-")
-    try:
-        yield tmp
-        base = folder.rstrip("/")
-        for root, _, names in os.walk(tmp):
-            for n in names:
-                full = os.path.join(root, n)
-                if n.endswith((".json", ".md", ".html")):
-                    with open(full, encoding="utf-8") as fh:
-                        text = fh.read()
-                    with open(full, "w", encoding="utf-8") as fh:
-                        fh.write(text.replace(tmp, base))
-                upload(full, base + "/" + os.path.relpath(full, tmp).replace(os.sep, "/"))
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-
-
-def remove_stale_scratch(dst: str) -> None:
-    """Remove what an interrupted write to the URL *dst* left beside it: the scratch prefixes of its parts
-    (``.<name>.parts-<id>``, ``.<name>.scratch-<id>``) and write probes; a local *dst* has none (its
-    temporary files are named apart and removed by the run that made them)."""
-    if not is_url(dst):
-        return
-    base = f"{parent(dst)}/.{glob_escape(name(dst))}"
-    for pattern in (base + ".parts-*", base + ".scratch-*", base + ".cloudsieve-probe-*"):
-        fs, p = filesystem(pattern)
-        with remote_errors(dst):
-            found = fs.glob(p)
-        for key in found:
-            remove(f"{protocol(dst)}://{key}", recursive=True)
-
-
-def glob_escape(text: str) -> str:
-    """*text* with the glob's special characters taken literally."""
-    return re.sub(r"([*?\[\]])", r"[\1]", text)
 
 
 def write_bytes(path: str, data: bytes) -> None:

@@ -19,7 +19,7 @@ from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
 from ..io import detect_format
 from ..progress import both, stage_bar
-from .. import storage
+from .. import staging
 from ..store import delete_store, export
 from ..warmup_targets import targets_of
 from . import cells, merge, workstore
@@ -131,7 +131,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             tasks = tile_size is not None or detect_format(dst, format) in ("las", "laz", "copc")
             if not tasks:
                 close_runner()  # the workers' memory goes now
-            storage.remove_stale_scratch(dst)  # a URL: the parts an interrupted run left beside DST
+            staging.remove_stale_scratch(dst)  # a URL: the parts an interrupted run left beside DST
             with stage_bar(bars, "export", summary.kept, "pt") as bar:
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)

@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import storage
+from .. import staging, storage
 from ..atomic import write_text
 from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
@@ -246,7 +246,7 @@ def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
         report_dir = opts["report_dir"]
         if report_dir is None or not storage.is_url(str(report_dir)):
             return _run_compare(source, opts, progress=progress)
-        with storage.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
+        with staging.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
             result = _run_compare(source, {**opts, "report_dir": folder}, progress=progress)
         base = str(report_dir).rstrip("/")
         result["files"] = {k: v.replace(folder, base) for k, v in result.get("files", {}).items()}

@@ -54,7 +54,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import storage
+from .. import staging, storage
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
 from ..params import validate
@@ -325,7 +325,7 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         pts = None
         if ply_parts:
             pts = (np.concatenate([a for a, _ in ply_parts]), np.concatenate([e for _, e in ply_parts]))
-        with storage.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
+        with staging.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
             write_report(report, folder, error_points=pts, kept=simp)
         if storage.is_url(str(report_dir)):
             report["files"] = {k: v.replace(folder, str(report_dir).rstrip("/")) for k, v in report["files"].items()}

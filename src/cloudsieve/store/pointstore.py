@@ -116,8 +116,7 @@ class PointStore:
         self.path = str(path)
         self.mode = mode
         self._writable: zarr.Group | None = group if mode != "r" else None
-        #: the input arrays opened so far: written once by the ingest, never after, so their metadata is read
-        #: once per store object (on an object store, each opening is a request or two)
+        #: input arrays opened so far (written once by the ingest: their metadata is read once per object)
         self._inputs: dict[str, zarr.Array] = {}
         self._use(meta)
 

@@ -1,0 +1,62 @@
+"""Temporary places of outputs on object stores: a report folder written locally then uploaded
+(:func:`staged_folder`), and what an interrupted write left beside a URL destination
+(:func:`remove_stale_scratch`). Built on :mod:`cloudsieve.storage`."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+from collections.abc import Iterator
+
+from .storage import filesystem, is_url, name, parent, protocol, remote_errors, remove, upload
+
+__all__ = ["staged_folder", "remove_stale_scratch"]
+
+
+@contextlib.contextmanager
+def staged_folder(folder: str) -> Iterator[str]:
+    """A folder to write a report into: *folder* itself when local; for a URL, a local temporary folder
+    whose files are uploaded under *folder* when the block ends without error (the temporary folder's
+    path, where the reports name their files, becomes the URL), and removed either way."""
+    import shutil
+    import tempfile
+
+    if not is_url(folder):
+        yield folder
+        return
+    tmp = tempfile.mkdtemp(prefix=".cloudsieve-report-")
+    try:
+        yield tmp
+        base = folder.rstrip("/")
+        for root, _, names in os.walk(tmp):
+            for n in names:
+                full = os.path.join(root, n)
+                if n.endswith((".json", ".md", ".html")):
+                    with open(full, encoding="utf-8") as fh:
+                        text = fh.read()
+                    with open(full, "w", encoding="utf-8") as fh:
+                        fh.write(text.replace(tmp, base))
+                upload(full, base + "/" + os.path.relpath(full, tmp).replace(os.sep, "/"))
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def remove_stale_scratch(dst: str) -> None:
+    """Remove what an interrupted write to the URL *dst* left beside it: the scratch prefixes of its parts
+    (``.<name>.parts-<id>``, ``.<name>.scratch-<id>``) and write probes; a local *dst* has none (its
+    temporary files are named apart and removed by the run that made them)."""
+    if not is_url(dst):
+        return
+    base = f"{parent(dst)}/.{_glob_escape(name(dst))}"
+    for pattern in (base + ".parts-*", base + ".scratch-*", base + ".cloudsieve-probe-*"):
+        fs, p = filesystem(pattern)
+        with remote_errors(dst):
+            found = fs.glob(p)
+        for key in found:
+            remove(f"{protocol(dst)}://{key}", recursive=True)
+
+
+def _glob_escape(text: str) -> str:
+    """*text* with the glob's special characters taken literally."""
+    return re.sub(r"([*?\[\]])", r"[\1]", text)
