@@ -204,18 +204,24 @@ def _header(path: str):
         return reader.header
 
 
+def _layout(parts: list[str], compressed: bool) -> tuple[list, int, list[int], object]:
+    """The parts' headers, where their points start, their counts, and the LASzip VLR (None uncompressed)."""
+    import lazrs
+
+    headers = [_header(p) for p in parts]
+    lazvlr = None
+    if compressed:
+        lazvlr = lazrs.LazVlr([v for v in headers[0].vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
+    return headers, headers[0].offset_to_point_data, [int(h.point_count) for h in headers], lazvlr
+
+
 def splice(parts: list[str], dst: str, *, compressed: bool) -> None:
     """Concatenate the LAS/LAZ files *parts* (same header and VLRs, every LAZ part but the last a whole
     number of chunks) into *dst*: one header, the points in order, one chunk table, the first part's EVLRs."""
     import lazrs
 
-    headers = [_header(p) for p in parts]
+    headers, start, counts, lazvlr = _layout(parts, compressed)
     h0 = headers[0]
-    start = h0.offset_to_point_data
-    counts = [int(h.point_count) for h in headers]
-    lazvlr = None
-    if compressed:
-        lazvlr = lazrs.LazVlr([v for v in h0.vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
     with open(dst, "r+b") as out:
         with open(parts[0], "rb") as src:
             out.write(src.read(start))
@@ -304,13 +310,8 @@ def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
 
     import lazrs
 
-    headers = [_header(p) for p in parts]
+    headers, start, counts, lazvlr = _layout(parts, compressed)
     h0 = headers[0]
-    start = h0.offset_to_point_data
-    counts = [int(h.point_count) for h in headers]
-    lazvlr = None
-    if compressed:
-        lazvlr = lazrs.LazVlr([v for v in h0.vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
     spans, table = [], []
     for path, h, cnt in zip(parts, headers, counts):
         if compressed:
