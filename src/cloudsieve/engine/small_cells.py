@@ -24,7 +24,6 @@ A cell's points are in input order, as the store's cell runs hold them.
 
 from __future__ import annotations
 
-import math
 import os
 from concurrent.futures import ThreadPoolExecutor
 
@@ -80,53 +79,35 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> C
 
 def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates: bool) -> tuple[np.ndarray, int]:
     """The keep mask (input order) and the distinct points of the stage :func:`~.eliminate.run_eliminate`
-    on *cells*: the shares, the counts, then each cell's elimination colour by colour."""
+    on *cells*, with its functions on arrays: each cell's share, the counts, then each cell's elimination
+    colour by colour, in the order of the store's run."""
     from ..core.colours import cell_colours
-    from ..core.duplicates import copy_rows, first_copies
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-    from ..core.packing import LADDER, kept_counts, ladder_shares, packing_ladder
-    from ..core.staged import small_share
-    from .halo import band_mask, halo_mask
+    from .eliminate import apply_order, cell_counts, cell_keep, cell_share
+    from .halo import band_halo
 
-    p, r_max, margin, c = cells.n_cells, cells.r_max, cells.margin, cells.centers
-    threads = os.cpu_count() or 1
+    p, r_max, margin, c, members = cells.n_cells, cells.r_max, cells.margin, cells.centers, cells.members
     owner = np.repeat(np.arange(p), np.diff(cells.halo_ptr))  # the cells that read each cell's band
     readers = [owner[cells.halo_src == j] for j in range(p)]
-    shares, distinct = np.zeros((p, len(LADDER))), np.zeros(p, dtype=np.int64)
 
-    def share(j: int) -> np.ndarray:  # share_task: the cell's packing sizes and distinct points; its band
-        core = take_rows(xyz, cells.members[j])
-        if len(core) and math.isfinite(r_max) and p > 1:  # one cell's count is the target: no share to weigh
-            shares[j], distinct[j] = packing_ladder(core, r_max)
-        elif len(core):
-            distinct[j] = len(core) - copy_rows(core).sum()
+    def share(j: int) -> tuple:  # share_task's work, the ladder only for more than one cell
         deps = {int(i): c[i] for i in sorted(set(readers[j].tolist()))}
-        return np.flatnonzero(band_mask(core, {**deps, j: c[j]}, j, deps, margin))
+        return cell_share(take_rows(xyz, members[j]), r_max, c, j, deps, margin, ladder=p > 1)
 
-    with ThreadPoolExecutor(threads) as pool:  # the cells at once, as the workers run the share tasks
-        bands = list(pool.map(share, range(p)))
-    expected = ladder_shares(shares, int(target)) if math.isfinite(r_max) else distinct
-    q = kept_counts(expected, distinct, int(target))
-    staged = small_share(int(target), int(distinct.sum()))  # as run_eliminate: one decision for every cell
+    with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # the cells at once, as the workers run the share tasks
+        shares = list(pool.map(share, range(p)))
+    sizes, distinct = np.array([s[0] for s in shares]).reshape(p, -1), np.array([s[1] for s in shares])
+    bands = [members[j][s[2]] for j, s in enumerate(shares)]  # the rows of each cell's band
+    q, staged = cell_counts(sizes, distinct, target, r_max)
     colours = cell_colours(cells.halo_ptr, cells.halo_src)
     keep = np.zeros(len(xyz), dtype=bool)
-    for j in sorted(range(p), key=lambda j: (colours[j], -len(cells.members[j]), j)):  # apply_task
-        own = cells.members[j]
-        core = take_rows(xyz, own)
-        n = len(core)
-        mine = np.full(n, q[j] >= n)
-        if 0 < q[j] < n:
+    for j in apply_order(colours, [len(m) for m in members], range(p)):  # apply_task's work
+        core = take_rows(xyz, members[j])
+        halo = None
+        if 0 < q[j] < len(core):
             sources = sorted(int(s) for s in cells.halo_sources(j))
-            parts = [(s, cells.members[s][bands[s]]) for s in sources if len(bands[s])]
-            rows = [b[halo_mask(take_rows(xyz, b), {j: c[j], s: c[s]}, j, s, margin)] for s, b in parts]
-            src_of = np.concatenate([np.full(len(r), s) for (s, _), r in zip(parts, rows)] + [np.zeros(0, int)])
-            rows = np.concatenate(rows + [np.zeros(0, dtype=np.int64)])
+            points, src_of, rows = band_halo(((s, take_rows(xyz, bands[s]), bands[s]) for s in sources
+                                              if len(bands[s])), c, j, margin)
             fixed = np.isin(src_of, [s for s in sources if colours[s] < colours[j]])
-            halo_keep = fixed & keep[rows]
-            mine = eliminate_cell(core, int(q[j]), r_max, halo=take_rows(xyz, rows), decided=fixed, halo_keep=halo_keep,
-                                  threads=threads, cell_points=CELL_POINTS, staged=staged)
-        if keep_duplicates and n:  # every copy of a kept point too
-            mine = mine[first_copies(core)]
-        keep[own] = mine
+            halo = (points, fixed, fixed & keep[rows])
+        keep[members[j]] = cell_keep(core, int(q[j]), r_max, halo, os.cpu_count() or 1, staged, keep_duplicates)
     return keep, int(distinct.sum())
