@@ -78,73 +78,12 @@ import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
 from ..core.colours import cell_colours
-from .halo import band_mask, read_band_halo
+from .cell_scheme import apply_order, cell_counts, cell_keep, cell_share
+from .halo import read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
 
-__all__ = ["cell_share", "cell_counts", "cell_keep", "apply_order", "share_task", "apply_task", "run_eliminate"]
-
-
-# ---------------------------------------------------------------- a cell's work on arrays (the tasks' and :mod:`.small_cells`')
-
-
-def cell_share(core: np.ndarray, r_max: float, centers, cell: int, dependents: dict, margin: float,
-               threads: int | None = None, ladder: bool = True) -> tuple[np.ndarray, int, np.ndarray]:
-    """The packing sizes (L,) of the points *core* (n, 3) of *cell* along
-    :data:`~cloudsieve.core.packing.LADDER` x *r_max* (zeros when r_max is infinite or not *ladder*: one
-    cell's count is the target), its distinct points, and its band: the positions of its points in the halo of
-    a cell of *dependents* (int -> centre; *centers* [cell] its own centre), on *threads* numba threads."""
-    from ..core.duplicates import copy_rows
-    from ..core.packing import LADDER, packing_ladder
-    from ..core.relocate import numba_threads
-
-    n = len(core)
-    if n and math.isfinite(r_max) and ladder:
-        with numba_threads(threads):  # the task's share of the cores
-            sizes, distinct = packing_ladder(core, r_max)
-    else:
-        sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
-    band = np.flatnonzero(band_mask(core, {**dependents, cell: centers[cell]}, cell, dependents, margin))
-    return sizes, int(distinct), band
-
-
-def cell_counts(sizes: np.ndarray, distinct: np.ndarray, target: int, r_max: float) -> tuple[np.ndarray, bool]:
-    """Each cell's kept count q (P,), summing to *target*, from the cells' packing sizes (P, L) and distinct
-    points (P,) (:func:`~cloudsieve.core.packing.kept_counts`), and whether every cell runs in stages
-    (:func:`~cloudsieve.core.staged.small_share`: one decision for the run)."""
-    from ..core.packing import kept_counts, ladder_shares
-    from ..core.staged import small_share
-
-    expected = ladder_shares(sizes, int(target)) if math.isfinite(r_max) else distinct
-    return kept_counts(expected, distinct, int(target)), small_share(int(target), int(distinct.sum()))
-
-
-def cell_keep(core: np.ndarray, count: int, r_max: float, halo: tuple, threads: int | None, staged,
-              keep_duplicates) -> np.ndarray:
-    """The keep mask (n,) of a cell's points *core* (n, 3): the elimination to *count* of them
-    (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`) with *halo* = (points (h, 3), which are the
-    lower colours' final decisions (h,), which of those are kept (h,)); every copy of a kept point with
-    *keep_duplicates*."""
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-
-    n = len(core)
-    keep = np.full(n, count >= n)
-    if 0 < count < n:
-        points, fixed, halo_keep = halo
-        keep = eliminate_cell(core, int(count), r_max, halo=points, decided=fixed, halo_keep=halo_keep,
-                              threads=threads, cell_points=CELL_POINTS, staged=staged)
-    if keep_duplicates and n:  # every copy of a kept point too
-        from ..core.duplicates import first_copies
-
-        keep = keep[first_copies(core)]
-    return keep
-
-
-def apply_order(colours: np.ndarray, counts: np.ndarray, cells) -> list[int]:
-    """*cells* colour by colour (:func:`~cloudsieve.core.colours.cell_colours`), each colour's largest
-    first (*counts*: the cells' points), ties by id: the order the elimination takes them."""
-    return sorted((int(j) for j in cells), key=lambda j: (int(colours[j]), -int(counts[j]), j))
+__all__ = ["share_task", "apply_task", "run_eliminate"]
 
 
 # ---------------------------------------------------------------- the tasks
