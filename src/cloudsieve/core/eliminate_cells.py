@@ -50,7 +50,7 @@ import numpy as np
 from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
-from .colours import cell_colours
+from .colours import apply_order, cell_colours
 from .duplicates import copy_rows
 from .elimination import ALPHA, alpha_int, keep_lowest, run_elimination
 from .kernels import kdcells as _kk
@@ -370,7 +370,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
         # the whole lower colours). The pool takes the cells in this order, so a cell waits only for cells
         # started before it
-        for j in sorted(range(ncell), key=lambda j: (colour[j], -size[j], j)):
+        for j in apply_order(colour, size, range(ncell)):
             done[j] = pool.submit(one, j)
         for f in done.values():
             f.result()

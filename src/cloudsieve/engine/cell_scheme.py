@@ -15,7 +15,7 @@ cloud's kept set does not depend on where it runs (tests/test_engine_small.py):
 2. each cell's share (:func:`cell_share`: its packing sizes, distinct points
    and band), then every cell's count (:func:`cell_counts`);
 3. the elimination of each cell (:func:`cell_keep`) in the order of
-   :func:`apply_order` (colour by colour,
+   :func:`~cloudsieve.core.colours.apply_order` (colour by colour,
    :func:`~cloudsieve.core.colours.cell_colours`), its halo the points of
    its sources' bands within the margin (:func:`~.halo.band_halo`), the
    lower colours' final decisions fixed.
@@ -36,12 +36,11 @@ from ..chunk import take_rows
 from ..core.kernels.scatter import group_rows
 from .halo import band_mask
 
-__all__ = ["Cells", "partition", "eliminate_cells", "eliminate_points", "cell_share", "cell_counts", "cell_keep",
-           "apply_order"]
+__all__ = ["Cells", "partition", "eliminate_cells", "eliminate_points", "cell_share", "cell_counts", "cell_keep"]
 
 
 class Cells:
-    """A small cloud's partition: the cell of each point, the centres, the halo sources, r_max, the margin."""
+    """A partition in memory: the cell of each point, the centres, the halo sources, r_max, the margin."""
 
     def __init__(self, labels: np.ndarray, centers: np.ndarray, halo_ptr: np.ndarray, halo_src: np.ndarray,
                  r_max: float, margin: float) -> None:
@@ -86,16 +85,15 @@ def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates:
     """The keep mask (input order) and the distinct points of the stage :func:`~.eliminate.run_eliminate`
     on *cells*, with its functions on arrays: each cell's share, the counts, then each cell's elimination
     colour by colour, in the order of the store's run."""
-    from ..core.colours import cell_colours
+    from ..core.colours import apply_order, cell_colours, readers
     from .halo import band_halo
 
     p, r_max, margin, c, members = cells.n_cells, cells.r_max, cells.margin, cells.centers, cells.members
-    owner = np.repeat(np.arange(p), np.diff(cells.halo_ptr))  # the cells that read each cell's band
-    readers = [owner[cells.halo_src == j] for j in range(p)]
+    deps = readers(cells.halo_ptr, cells.halo_src)  # the cells that read each cell's band
 
     def share(j: int) -> tuple:  # share_task's work, the ladder only for more than one cell
-        deps = {int(i): c[i] for i in sorted(set(readers[j].tolist()))}
-        return cell_share(take_rows(xyz, members[j]), r_max, c, j, deps, margin, ladder=p > 1)
+        return cell_share(take_rows(xyz, members[j]), r_max, c, j, {int(i): c[i] for i in deps[j]}, margin,
+                          ladder=p > 1)
 
     with ThreadPoolExecutor(os.cpu_count() or 1) as pool:  # the cells at once, as the workers run the share tasks
         shares = list(pool.map(share, range(p)))
@@ -185,9 +183,3 @@ def cell_keep(core: np.ndarray, count: int, r_max: float, halo: tuple, threads: 
 
         keep = keep[first_copies(core)]
     return keep
-
-
-def apply_order(colours: np.ndarray, counts: np.ndarray, cells) -> list[int]:
-    """*cells* colour by colour (:func:`~cloudsieve.core.colours.cell_colours`), each colour's largest
-    first (*counts*: the cells' points), ties by id: the order the elimination takes them."""
-    return sorted((int(j) for j in cells), key=lambda j: (int(colours[j]), -int(counts[j]), j))

@@ -77,8 +77,8 @@ from typing import Any
 import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
-from ..core.colours import cell_colours
-from .cell_scheme import apply_order, cell_counts, cell_keep, cell_share
+from ..core.colours import apply_order, cell_colours, readers
+from .cell_scheme import cell_counts, cell_keep, cell_share
 from .halo import read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
@@ -224,12 +224,8 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     scored = np.asarray(store.group["simplify/scored"][:]).astype(bool)
     todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads, halo=False)
-    # the transpose of the halo lists: the cells that read each cell's band
-    owner = np.repeat(np.arange(part.n_cells), np.diff(part.halo_ptr))
-    order = np.lexsort((owner, part.halo_src))
-    ptr = np.r_[0, np.cumsum(np.bincount(part.halo_src, minlength=part.n_cells))]
-    readers = owner[order]
-    args = [(t, {int(i): part.centers[i] for i in readers[ptr[t.cell] : ptr[t.cell + 1]]}) for t in tasks]
+    deps = readers(part.halo_ptr, part.halo_src)  # the cells that read each cell's band
+    args = [(t, {int(i): part.centers[i] for i in deps[t.cell]}) for t in tasks]
     results = runner(share_task, args, "cells: share")
     share = np.asarray(store.group["simplify/share"][:])
     q, params["staged"] = cell_counts(share[:, 1:], share[:, 0].astype(np.int64), target, r_max)
