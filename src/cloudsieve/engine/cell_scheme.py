@@ -62,7 +62,7 @@ class Cells:
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> Cells:
     """:func:`~.partition.build_partition` of the eliminate rule (a halo, r_max for *target*) on *xyz*."""
     from ..core import neighbour_count
-    from .partition import fit_sample
+    from .partition import fit_sample, halo_lists
     from .sample import n_cells_for, plan_sample
 
     n = len(xyz)
@@ -76,9 +76,7 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> C
         from .label import label_points
 
         labels, pairs = label_points(centers, xyz, margin, threads=os.cpu_count() or 1)
-    halo_ptr = np.zeros(p + 1, dtype=np.int64)
-    np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
-    return Cells(labels, centers, halo_ptr, pairs[:, 1].astype(np.int64), r_max, margin)
+    return Cells(labels, centers, *halo_lists(pairs, p), r_max, margin)
 
 
 def eliminate_cells(xyz: np.ndarray, cells: Cells, target: int, keep_duplicates: bool) -> tuple[np.ndarray, int]:
