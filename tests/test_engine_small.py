@@ -6,8 +6,9 @@ options takes the in-memory path. Every shared LAS/LAZ/COPC scan, the PLY
 scans, several output formats, a count, a seed, copies with and without
 ``keep_duplicates``, NaN points refused or dropped, and the degenerate
 clouds (at most 8 points: no radius; one spot; copies) give the same file
-(or error), the same summary counts and the same log lines. Then: what decides the path, that it imports no zarr
-or dask, and that a strict miss writes nothing.
+(or error), the same summary counts and the same log lines; ``simplify_points`` with the rule ``eliminate``
+keeps the points both write. Then: what decides the path, that it imports no zarr or dask, and that a strict
+miss writes nothing.
 """
 
 from __future__ import annotations
