@@ -6,8 +6,9 @@ options takes the in-memory path. Every shared LAS/LAZ/COPC scan, the PLY
 scans, several output formats, a count, a seed, copies with and without
 ``keep_duplicates``, NaN points refused or dropped, and the degenerate
 clouds (at most 8 points: no radius; one spot; copies) give the same file
-(or error), the same summary counts and the same log lines. Then: what decides the path, that it imports no zarr
-or dask, and that a strict miss writes nothing.
+(or error), the same summary counts and the same log lines; ``simplify_points`` with the rule ``eliminate``
+keeps the points both write. Then: what decides the path, that it imports no zarr or dask, and that a strict
+miss writes nothing.
 """
 
 from __future__ import annotations
@@ -72,6 +73,24 @@ def test_a_ply_scan_gives_the_store_runs_bytes(name, ext, tmp_path):
     small, store, a, b, _ = both(shared_file(name), tmp_path, ext, ratio=0.25)
     assert [getattr(small, k) for k in COUNTS] == [getattr(store, k) for k in COUNTS]
     assert a == b
+
+
+API = [("autzen_trim.laz", ".laz", {"ratio": 0.05}), ("bun_zipper.ply", ".ply", {"ratio": 0.3}),
+       ("autzen_trim.laz", ".laz", {"count": 12_345, "seed": 7, "cluster_size": 200, "keep_duplicates": True})]
+
+
+@pytest.mark.parametrize("name, ext, options", API, ids=[f"{n}-{sorted(o)}" for n, _, o in API])
+def test_the_in_memory_api_keeps_the_runs_points(name, ext, options, tmp_path):
+    """``simplify_points`` with the rule ``eliminate`` runs the engine's cells on the arrays: the points both
+    runs write (autzen_trim: 110,000 points in k-d cells; at 5% in stages), and ``prune`` with the defaults."""
+    xyz, _ = cloudsieve.read_cloud(shared_file(name))
+    idx = cloudsieve.simplify_points(xyz, rule="eliminate", **options)
+    _, _, a, b, _ = both(shared_file(name), tmp_path, ext, **options)
+    assert a == b
+    written, _ = cloudsieve.read_cloud(tmp_path / f"memory{ext}")
+    assert np.array_equal(xyz[idx], written)
+    if "seed" not in options:
+        assert np.array_equal(np.flatnonzero(cloudsieve.prune(xyz, rule="eliminate", **options)), idx)
 
 
 def _ply(path, pts):

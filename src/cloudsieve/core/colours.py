@@ -1,7 +1,8 @@
 """Colours of the cells: no two cells that share a halo get the same colour.
 
-Pass 2 of the ``eliminate`` rule (:mod:`cloudsieve.engine.eliminate`, and
-in memory :mod:`.eliminate_cells`) runs colour by colour: a cell reads the final keep masks of its neighbours of
+Pass 2 of the ``eliminate`` rule (:mod:`cloudsieve.engine.cell_scheme`, and
+over k-d cells :mod:`.eliminate_cells`) runs colour by colour
+(:func:`apply_order`): a cell reads the final keep masks of its neighbours of
 lower colours, so the cells of one colour must not read each other
 (they run in parallel). Two cells are neighbours when either lists the other
 among its halo sources (the partition's ``halo_ptr``/``halo_src`` CSR, made
@@ -17,7 +18,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 
-__all__ = ["halo_graph", "cell_colours"]
+__all__ = ["halo_graph", "cell_colours", "apply_order", "readers"]
 
 
 def halo_graph(halo_ptr, halo_src) -> tuple[np.ndarray, np.ndarray]:
@@ -77,3 +78,18 @@ def cell_colours(halo_ptr, halo_src) -> np.ndarray:
         taken[used[(used >= 0) & (used <= len(used))]] = True
         colour[i] = int(np.argmin(taken))
     return colour
+
+
+def apply_order(colours: np.ndarray, counts, cells) -> list[int]:
+    """*cells* colour by colour (:func:`cell_colours`), each colour's largest first (*counts*: the cells'
+    points), ties by id: the order the elimination takes them."""
+    return sorted((int(j) for j in cells), key=lambda j: (int(colours[j]), -int(counts[j]), j))
+
+
+def readers(halo_ptr, halo_src) -> list[np.ndarray]:
+    """For each cell, the cells that list it among their halo sources, ascending (the transpose of the CSR)."""
+    halo_ptr, halo_src = np.asarray(halo_ptr), np.asarray(halo_src)
+    owner = np.repeat(np.arange(len(halo_ptr) - 1), np.diff(halo_ptr))
+    order = np.lexsort((owner, halo_src))
+    ends = np.cumsum(np.bincount(halo_src, minlength=len(halo_ptr) - 1))
+    return np.split(owner[order], ends[:-1])

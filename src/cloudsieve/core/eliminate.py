@@ -39,10 +39,10 @@ points, a floor, any alpha, no coverage term), is the tests' reference
 
 After the count is reached, :func:`.relocate.relocate` moves each kept
 point to the point of its Voronoi region nearest the region's centroid (one
-restricted Lloyd step; lower squared error, coverage kept); :func:`eliminate`
-does both for a whole cloud in memory (over cells on threads above
-``cell_points`` points, :mod:`.eliminate_cells`), and
-:func:`.eliminate_cells.eliminate_cell` for one cell of a cloud with its halo.
+restricted Lloyd step; lower squared error, coverage kept):
+:func:`.eliminate_cells.eliminate_cell` does both for one cell of a cloud
+with its halo (over k-d cells on threads above ``cell_points`` points), and
+:func:`eliminate` is that function on a whole cloud without a halo.
 
 Exact duplicates (every copy of a lower-index point) get priority +inf: they
 go first and never weigh on the others. The result does not depend on the
@@ -59,10 +59,9 @@ import numpy as np
 
 from ..params import COMMANDS, validate_params
 from ._validation import ratio_count
-from .cellgrid import CellGrid, check_points
-from .kernels import neighbours as _kn
-from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimination
-from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relocate_points
+from .cellgrid import check_points
+from .elimination import area_radius, keep_lowest
+from .relocate import RELOCATE_STEPS, check_r_max, relocate
 
 __all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate", "keep_lowest", "relocate"]
 
@@ -73,29 +72,6 @@ CELL_POINTS = 16_384
 #: the smallest cell_points accepted (the option's, :mod:`cloudsieve.params_spec`): below it the halos outweigh the
 #: cells
 MIN_CELL_POINTS = int(COMMANDS["eliminate"]["cell_points"].low)
-
-
-def _eliminated(pts: np.ndarray, r_max: float, target: int, threads) -> tuple:
-    """One elimination of *pts* (valid) stopped at *target* points: the keep mask, the grid and each grid row's
-    nearest point left (module .kernels.cover), both None when no elimination ran (no points, r_max inf)."""
-    n = len(pts)
-    if not n or not math.isfinite(r_max):  # every point is kept: nobody weighs on anybody; copies go first
-        prio = np.zeros(n)
-        if n:
-            grid = CellGrid(pts, 0.0)
-            prio[grid.order[grid.copy]] = np.inf
-        return keep_lowest(prio, target), None, None
-    two_r = 2.0 * r_max
-    with numba_threads(threads):
-        grid = CellGrid(pts, two_r)
-        state = np.ones(n, dtype=np.uint8)
-        state[grid.copy] = 0
-        ones = np.ones(n)  # the key's factors of the removed information terms (module docstring)
-        lists = _kn.build_lists(*grid.args(), grid.order, state, two_r, ALPHA, alpha_int(ALPHA), True)
-        prio, rep = run_elimination(grid, lists, state, n, np.full(n, -1, dtype=np.int64), r_max, ALPHA, True,
-                                    ones, ones, target, False)  # the keys of the points left: not needed
-    prio[np.isnan(prio)] = np.inf  # exact copies
-    return keep_lowest(prio, target), grid, rep
 
 
 @validate_params("eliminate")
@@ -114,8 +90,9 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
 
     Above ``cell_points`` points (None: never), the cloud is split into
     cells of at most that many points, eliminated colour by colour on
-    ``threads`` threads with their halos, as the out-of-core run does
-    (:mod:`.eliminate_cells`); the kept set then differs from one
+    ``threads`` threads with their halos, as each cell of the out-of-core
+    run is (:func:`.eliminate_cells.eliminate_cell`, which this function
+    runs on the whole cloud); the kept set then differs from one
     elimination's, by as little as the engine's does. Below 1 in
     :data:`.staged.STAGED_BELOW` of the distinct points kept, the
     elimination runs in stages of about half (:mod:`.staged`), each over
@@ -131,33 +108,14 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
     >>> len(eliminate(pts, ratio=0.2))
     200
     """
+    from .eliminate_cells import eliminate_cell
+
     pts = check_points(points)
     target = ratio_count(ratio, len(pts)) if ratio is not None else min(int(count), len(pts))
     r_max = None if r_max is None else check_r_max(r_max)
     if 0 < target < len(pts):
-        from .eliminate_cells import eliminate_direct
-        from .staged import eliminate_staged, runs_staged
-
-        if runs_staged(pts, target):  # a small share kept: stages of about half (module .staged)
-            r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-            if math.isfinite(r_max):
-                workers = numba.get_num_threads() if threads is None else max(1, int(threads))
-                keep = eliminate_staged(eliminate_direct, pts, target, r_max, np.zeros((0, 3)),
-                                        np.zeros(0, dtype=np.uint8), int(relocate_steps), workers, cell_points)
-                return np.flatnonzero(keep).astype(np.int64)
-    if cell_points is not None and 0 < target < len(pts):
-        from .eliminate_cells import cell_cap, eliminate_in_cells
-
-        cap = cell_cap(len(pts), target, int(cell_points))
-        if len(pts) > cap:  # more than one cell
-            workers = numba.get_num_threads() if threads is None else max(1, int(threads))
-            keep, r_max = eliminate_in_cells(pts, target, r_max, cap, int(relocate_steps), workers)
-            if keep is not None:
-                return np.flatnonzero(keep).astype(np.int64)
-    r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-    keep, grid, rep = _eliminated(pts, r_max, target, threads)
-    if relocate_steps and math.isfinite(r_max) and target:
-        with numba_threads(threads):
-            keep = relocate_points(pts, keep, np.zeros((0, 3)), np.zeros(0, dtype=bool), r_max, int(relocate_steps),
-                                   grid, rep)
+        r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
+    workers = numba.get_num_threads() if threads is None else max(1, int(threads))
+    keep = eliminate_cell(pts, target, math.inf if r_max is None else r_max, steps=int(relocate_steps),
+                          threads=workers, cell_points=cell_points)
     return np.flatnonzero(keep).astype(np.int64)

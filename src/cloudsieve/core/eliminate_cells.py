@@ -1,10 +1,13 @@
-"""The ``eliminate`` rule in memory over cells on threads: the engine's cell scheme without a store.
+"""One cell of the ``eliminate`` rule: its elimination with its halo, over k-d cells on threads.
 
-One elimination over a whole cloud is sequential (the heaviest point
-anywhere goes next) and, at 1 M points, spends most of its time waiting on
-memory: its arrays no longer fit the caches. Above ``cell_points`` points,
-:func:`cloudsieve.core.eliminate.eliminate` does what the out-of-core run
-does (:mod:`cloudsieve.engine.eliminate`), on threads instead of dask:
+:func:`eliminate_cell` is the kernel of a cell of every run of the rule
+(:mod:`cloudsieve.engine.cell_scheme`: the store's tasks, a small input in
+memory, ``simplify_points``), and :func:`cloudsieve.core.eliminate.eliminate`
+is :func:`eliminate_cell` of the whole cloud without a halo. One elimination
+over many points is sequential (the heaviest point anywhere goes next) and,
+at 1 M points, spends most of its time waiting on memory: its arrays no
+longer fit the caches. Above ``cell_points`` points the cell is eliminated
+over k-d cells on threads (:func:`eliminate_cells`):
 
 1. **cells**: a k-d split (:func:`split_cells`): the longest side of a
    cell's box is cut at the median value of its points' coordinate, until
@@ -31,12 +34,10 @@ points: above, r_max is solved on a seeded sample of rows). On the shared
 scans the kept sets had the point RMS of one elimination over the whole
 cloud within 1% (README).
 
-:func:`eliminate_cell` is one cell of the out-of-core run
-(:mod:`cloudsieve.engine.eliminate`), which builds its lists without the
-points its lower colours removed: the same priorities but for ties. Above
+:func:`eliminate_cell` builds a cell's lists without the halo points its
+lower colours removed: the same priorities but for ties. Above
 ``cell_points`` it runs :func:`eliminate_cells` on the cell, the halo's
-points with their decisions around the k-d cells: without a halo, the
-in-memory :func:`~cloudsieve.core.eliminate.eliminate` of the cell.
+points with their decisions around the k-d cells.
 """
 
 from __future__ import annotations
@@ -49,9 +50,9 @@ import numpy as np
 from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
 from .cellgrid import CellGrid, check_points
-from .colours import cell_colours
+from .colours import apply_order, cell_colours
 from .duplicates import copy_rows
-from .elimination import ALPHA, alpha_int, area_radius, keep_lowest, run_elimination
+from .elimination import ALPHA, alpha_int, keep_lowest, run_elimination
 from .kernels import kdcells as _kk
 from .kernels import neighbours as _kn
 from .kernels import packing as _kp
@@ -59,8 +60,7 @@ from .packing import LADDER, kept_counts, ladder_shares
 from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate_on_grid
 from .staged import eliminate_staged, runs_staged
 
-__all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_direct", "eliminate_cells",
-           "eliminate_in_cells"]
+__all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate_direct", "eliminate_cells"]
 
 #: kept points a cell holds at least (at low ratios the cells grow): its halo stays a thin band
 MIN_KEPT = 1_024
@@ -308,20 +308,6 @@ def cell_cap(n: int, target: int, cell_points: int) -> int:
     return max(int(cell_points), math.ceil(MIN_KEPT * n / max(int(target), 1)))
 
 
-def eliminate_in_cells(pts: np.ndarray, target: int, r_max, cap: int, steps: int, threads: int) -> tuple:
-    """:func:`cloudsieve.core.eliminate.eliminate` over cells of at most *cap* points (valid input, 0 <
-    target < n): the cells are cut while r_max is solved (None: from the areas; the cut needs only the
-    count). Returns the keep mask (n,), or None when r_max is infinite (every point kept: no cells), and
-    r_max."""
-    with ThreadPoolExecutor(1) as side:
-        cells = side.submit(split_cells, pts, cap, threads)
-        r_max = area_radius(pts, np.zeros((0, 3)), target) if r_max is None else r_max
-        cells = cells.result()
-    if not math.isfinite(r_max):
-        return None, r_max
-    return eliminate_cells(pts, target, r_max, cells, steps, threads), r_max
-
-
 def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, steps: int,
                     threads: int, outer: tuple | None = None) -> np.ndarray:
     """Keep mask (n,) of exactly *target* points of *pts* (valid; r_max finite, 0 < target < n) split into
@@ -384,7 +370,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
         # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
         # the whole lower colours). The pool takes the cells in this order, so a cell waits only for cells
         # started before it
-        for j in sorted(range(ncell), key=lambda j: (colour[j], -size[j], j)):
+        for j in apply_order(colour, size, range(ncell)):
             done[j] = pool.submit(one, j)
         for f in done.values():
             f.result()

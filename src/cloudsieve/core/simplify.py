@@ -36,7 +36,10 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
     rule : str
         A rule of the registry (:data:`.rules.RULES`; default ``iterative``).
         ``eliminate`` needs no clusters: ``method``,
-        ``labels`` and the entropy options are then unused (no KM/FCM runs).
+        ``labels`` and the entropy options are then unused (no KM/FCM runs);
+        it keeps what :func:`cloudsieve.simplify` keeps with the same
+        ``seed``, ``cluster_size``, ``k0`` and ``k_min`` (the engine's cells:
+        :mod:`cloudsieve.engine.cell_scheme`).
         The default stays ``iterative`` here (the paper's in-memory method,
         which needs no ratio or count), while :func:`cloudsieve.simplify`,
         :func:`cloudsieve.compare`, the CLI and the pipelines default to
@@ -60,7 +63,8 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
         kernels of the rounds (None: all cores); the result does not depend on it.
     keep_duplicates : bool
         Keep every exact copy of a kept point (default: an exact duplicate
-        of an earlier point is never kept; see :mod:`.duplicates`).
+        of an earlier point is never kept, with ``eliminate`` unless the
+        distinct points do not make the count; see :mod:`.duplicates`).
 
     Returns
     -------
@@ -98,6 +102,12 @@ def simplify_unchecked(pts, *, method, rule, threshold, target, cluster_size, se
     from .refine import make_estimator, refine_unchecked
 
     n = len(pts)
+    if rules.get(rule).engine == rules.ELIMINATION and n:  # the engine's cells, with this seed and cluster size
+        from .rules.eliminate import select
+
+        keep = select(pts, target=target, seed=seed, cluster_size=cluster_size, k0=k0, k_min=k_min, progress=progress,
+                      keep_duplicates=bool(keep_duplicates))
+        return np.flatnonzero(keep).astype(np.int64)
     if not rules.get(rule).clusters:  # e.g. weighted sample elimination: no clusters needed
         lab = np.zeros(n, dtype=np.int64)
     elif labels is None:

@@ -95,7 +95,7 @@ def _partition() -> None:
     within_any(P, planes, planes - P[2], np.ones(2), 0.5)  # the halo bands (cloudsieve.engine.halo)
     from .kernels.scatter import group_rows
 
-    group_rows(np.zeros(2, dtype=np.int64), 2)  # the cells' members in memory (cloudsieve.engine.small_cells)
+    group_rows(np.zeros(2, dtype=np.int64), 2)  # the cells' members in memory (cloudsieve.engine.cell_scheme)
 
 
 def _scores() -> None:

@@ -76,10 +76,9 @@ from typing import Any
 import numpy as np
 
 from .cells import CellTask, cell_tasks, largest_first
-from ..core.colours import cell_colours
-from ..core.packing import kept_counts, ladder_shares
-from ..core.staged import small_share
-from .halo import band_mask, read_band_halo
+from ..core.colours import apply_order, cell_colours, readers
+from .cell_scheme import cell_counts, cell_keep, cell_share
+from .halo import read_band_halo
 from ..store.streaming import gathered
 from .runs import cell_runs, read_cell, write_slices
 
@@ -130,23 +129,14 @@ def share_task(task: CellTask, dependents: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "band", "seconds" (small).
     """
-    from ..core.duplicates import copy_rows
-    from ..core.packing import LADDER, packing_ladder
-    from ..core.relocate import numba_threads
     from ..store import PointStore
 
     t0 = time.perf_counter()
     g = PointStore.open(task.store_path, "r+").group
     core = read_cell(g, cell_runs(g, task.cell))  # the store's points: finite float64 (checked at ingest)
     n = len(core)
-    r_max = float(task.params["r_max"])
-    if n and math.isfinite(r_max):
-        with numba_threads(_threads(task)):  # the task's share of the cores
-            sizes, distinct = packing_ladder(core, r_max)
-    else:
-        sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
-    band = np.flatnonzero(band_mask(core, {**dependents, task.cell: task.centers[task.cell]}, task.cell, dependents,
-                                    task.margin))
+    sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
+                                       task.margin, _threads(task))
     bands = [("simplify/band_xyz", task.region, core[band]),
              ("simplify/band_pos", task.region, band.astype(np.int64))] if len(band) else []
     write_slices(g, [*bands, ("simplify/band_count", task.cell, np.array([len(band)], dtype=np.int64)),
@@ -189,26 +179,16 @@ def apply_task(task: CellTask, count: int, colours: dict) -> dict[str, Any]:
     -------
     dict with "cell", "n", "kept", "seconds" (small).
     """
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-
     t0 = time.perf_counter()
-    r_max = float(task.params["r_max"])
     g, core, (halo, cells, pos) = _read(task)
     n = len(core)
-    keep = np.full(n, count >= n)
-    if 0 < count < n:
-        earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
-        fixed = np.isin(cells, earlier)
-        halo_keep = np.zeros(len(halo), dtype=bool)
-        if earlier:
-            halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
-        keep = eliminate_cell(core, int(count), r_max, halo=halo, decided=fixed, halo_keep=halo_keep,
-                              threads=_threads(task), cell_points=CELL_POINTS, staged=task.params.get("staged"))
-    if task.params.get("keep_duplicates") and n:  # every copy of a kept point too
-        from ..core.duplicates import first_copies
-
-        keep = keep[first_copies(core)]
+    earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
+    fixed = np.isin(cells, earlier)
+    halo_keep = np.zeros(len(halo), dtype=bool)
+    if earlier and 0 < count < n:
+        halo_keep[fixed] = _final_keep(g, task, cells, pos, earlier)[fixed]
+    keep = cell_keep(core, count, float(task.params["r_max"]), (halo, fixed, halo_keep), _threads(task),
+                     task.params.get("staged"), task.params.get("keep_duplicates"))
     g["simplify/keep_cells"][task.region : task.region + n] = keep
     g["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
@@ -243,27 +223,18 @@ def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target
     scored = np.asarray(store.group["simplify/scored"][:]).astype(bool)
     todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads, halo=False)
-    # the transpose of the halo lists: the cells that read each cell's band
-    owner = np.repeat(np.arange(part.n_cells), np.diff(part.halo_ptr))
-    order = np.lexsort((owner, part.halo_src))
-    ptr = np.r_[0, np.cumsum(np.bincount(part.halo_src, minlength=part.n_cells))]
-    readers = owner[order]
-    args = [(t, {int(i): part.centers[i] for i in readers[ptr[t.cell] : ptr[t.cell + 1]]}) for t in tasks]
+    deps = readers(part.halo_ptr, part.halo_src)  # the cells that read each cell's band
+    args = [(t, {int(i): part.centers[i] for i in deps[t.cell]}) for t in tasks]
     results = runner(share_task, args, "cells: share")
     share = np.asarray(store.group["simplify/share"][:])
-    distinct = share[:, 0].astype(np.int64)
-    expected = ladder_shares(share[:, 1:], int(target)) if math.isfinite(r_max) else distinct
-    q = kept_counts(expected, distinct, int(target))
-    params["staged"] = small_share(int(target), int(distinct.sum()))  # one decision for every cell of the run
-    todo = [j for j in range(part.n_cells) if not done[j]]
+    q, params["staged"] = cell_counts(share[:, 1:], share[:, 0].astype(np.int64), target, r_max)
     colours = cell_colours(part.halo_ptr, part.halo_src)
-    # colour by colour, largest first; a cell starts once the cells of lower colours in its halo are done (it
-    # reads their results), not once the whole lower colours are
-    ordered = [j for c in range(int(colours.max()) + 1 if len(colours) else 0)
-               for j in largest_first(part, [j for j in todo if colours[j] == c])]
+    # a cell starts once the cells of lower colours in its halo are done (it reads their results), not once the
+    # whole lower colours are
+    ordered = apply_order(colours, part.cell_counts, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(store, part, regions, ordered, params, runner.task_threads, halo=True)
     at = {t.cell: i for i, t in enumerate(tasks)}
     args = [(t, int(q[t.cell]), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
     after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
     runner(apply_task, args, "cells: apply", after=after)
-    return len(todo), int(done.sum()), int(sum(r["n"] for r in results)), None
+    return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), None

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..store.streaming import gathered
 
-__all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_halo"]
+__all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_halo", "band_halo"]
 
 
 def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
@@ -162,14 +162,21 @@ def read_band_halo(group, sources: dict[int, int], centers, cell: int, margin: f
     counts = [int(np.asarray(c)[0]) for c in gathered(cnt.getitem(slice(s, s + 1)) for s in srcs)]
     spans = [(s, int(sources[s]), int(sources[s]) + c) for s, c in zip(srcs, counts) if c > 0]
     got = gathered(arr.getitem(slice(a, b)) for _, a, b in spans for arr in (xyz, pos))
+    return band_halo(((src, np.asarray(z), np.asarray(p)) for (src, _, _), z, p in zip(spans, got[0::2], got[1::2])),
+                     centers, cell, margin)
+
+
+def band_halo(bands, centers, cell: int, margin: float):
+    """The halo of *cell* from its sources' bands: *bands* yields (source, points (b, 3), positions (b,)) in
+    increasing source; returns the points within *margin* (:func:`halo_mask`), their cells and positions,
+    as :func:`read_band_halo` (which reads the bands from a store)."""
     out, cells, where = [], [], []
-    for (src, a, b), z, p in zip(spans, got[0::2], got[1::2]):
-        z = np.asarray(z)
+    for src, z, p in bands:
         m = halo_mask(z, centers, cell, src, margin)
         if m.any():
             out.append(z[m])
             cells.append(np.full(int(m.sum()), src, dtype=np.int64))
-            where.append(np.asarray(p)[m].astype(np.int64))
+            where.append(p[m].astype(np.int64))
     if not out:
         return np.empty((0, 3)), np.empty(0, np.int64), np.empty(0, np.int64)
     return np.concatenate(out, axis=0), np.concatenate(cells), np.concatenate(where)

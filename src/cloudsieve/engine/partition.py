@@ -70,6 +70,7 @@ __all__ = [
     "fit_centers",
     "estimate_margin",
     "fit_sample",
+    "halo_lists",
     "build_partition",
     "reusable_partition",
 ]
@@ -253,6 +254,14 @@ def fit_sample(sample: np.ndarray, n: int, n_cells: int, seed: int, origin: np.n
         return centers.result(), (r_k, dim, margin), r_max
 
 
+def halo_lists(pairs: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
+    """The halo CSR (``halo_ptr`` (P + 1,), ``halo_src`` (h,), int64) of the (cell, source) *pairs* (h, 2),
+    rows sorted by (cell, source)."""
+    halo_ptr = np.zeros(n_cells + 1, dtype=np.int64)
+    np.cumsum(np.bincount(pairs[:, 0], minlength=n_cells), out=halo_ptr[1:])
+    return halo_ptr, pairs[:, 1].astype(np.int64)
+
+
 def build_partition(
     store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True,
     eliminate_target: int | None = None, sample: np.ndarray | None = None,
@@ -326,9 +335,7 @@ def build_partition(
     pair_lists = [r[0] for r in results]
     nnz = np.array([r[1] for r in results], dtype=np.int64)
     pairs = np.unique(np.concatenate(pair_lists, axis=0), axis=0) if pair_lists else np.empty((0, 2), np.int64)
-    halo_ptr = np.zeros(p + 1, dtype=np.int64)
-    np.cumsum(np.bincount(pairs[:, 0], minlength=p), out=halo_ptr[1:])
-    halo_src = pairs[:, 1].astype(np.int64)  # rows sorted by (i, j)
+    halo_ptr, halo_src = halo_lists(pairs, p)
     index_runs(store, nnz, p, chunk)
     store.create_array("partition/halo_ptr", data=halo_ptr, chunks=halo_ptr.shape)
     store.create_array("partition/halo_src", data=halo_src, chunks=(max(1, len(halo_src)),))

@@ -8,7 +8,7 @@ the same bytes (tests/test_engine_small.py):
    (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
    store decodes them; a PLY file as the ingest streams it (NaN or infinite
    coordinates refused, or dropped with ``drop_invalid``);
-2. the partition and the cells stage on arrays (:mod:`.small_cells`): r_max
+2. the partition and the cells stage on arrays (:mod:`.cell_scheme`): r_max
    from the partition's uniform sample, the cells and their halos, each
    cell's count and its elimination colour by colour
    (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`), every copy
@@ -169,7 +169,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer
-    from .small_cells import eliminate_cells, partition
+    from .cell_scheme import eliminate_cells, partition
 
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # into an empty numba cache: a second core compiles ahead

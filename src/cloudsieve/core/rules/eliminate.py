@@ -1,31 +1,35 @@
 """Rule eliminate (cloudsieve's; the default): weighted sample elimination to an exact count.
 
-Exactly ``target`` points kept (:func:`cloudsieve.core.eliminate.eliminate`;
-its entropy and geometric terms are off here, so labels and scores are not
-used). Exact copies go first (priority +inf) and never weigh; with
-``keep_duplicates`` every copy of a kept point stays. Out of core:
-:mod:`cloudsieve.engine.eliminate`. Its entry in the registry is
-:data:`cloudsieve.core.rules.RULES`.
+Exactly ``target`` points kept, as a run of the engine keeps them
+(:func:`cloudsieve.engine.cell_scheme.eliminate_points`: the partition into
+cells, each cell's elimination with its halo; labels and scores are not
+used). Exact copies go first and are kept only when the distinct points do
+not make the count; with ``keep_duplicates`` every copy of a kept point
+stays. Its entry in the registry is :data:`cloudsieve.core.rules.RULES`.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["prune"]
+__all__ = ["prune", "select"]
 
 
-def prune(rule, pts, lab, *, target, progress, threads, keep_duplicates, **_unused) -> np.ndarray:
-    """The keep mask (n,) bool of the elimination to *target* points (copies kept at most once)."""
+def select(pts, *, target, seed, cluster_size, k0, k_min, progress, keep_duplicates) -> np.ndarray:
+    """The keep mask (n,) bool of the engine's elimination of *pts* to *target* points with these options."""
+    from ...engine.cell_scheme import eliminate_points
     from ...progress import callback
-    from ..duplicates import copy_rows, first_rows
-    from ..eliminate import eliminate
 
-    n = len(pts)
-    keep = np.zeros(n, dtype=bool)
-    target = min(target, n - int(copy_rows(pts).sum()))  # copies kept at most once
-    keep[eliminate.unchecked(pts, count=target, threads=threads)] = True  # the options were validated by the caller
-    if keep_duplicates:  # every copy of a kept point (the first copy is the one the elimination may keep)
-        keep = keep[first_rows(pts)]
-    callback(progress)(n - int(keep.sum()))
+    keep = eliminate_points(pts, target, seed=seed, cluster_size=cluster_size, k0=k0, k_min=k_min,
+                            keep_duplicates=keep_duplicates)
+    callback(progress)(len(pts) - int(keep.sum()))
     return keep
+
+
+def prune(rule, pts, lab, *, target, k0, k_min, progress, keep_duplicates, **_unused) -> np.ndarray:
+    """:func:`select` with the default seed and cluster size (``simplify_points``')."""
+    from ...params import COMMANDS
+
+    spec = COMMANDS["simplify_points"]
+    return select(pts, target=target, seed=spec["seed"].default, cluster_size=spec["cluster_size"].default, k0=k0,
+                  k_min=k_min, progress=progress, keep_duplicates=keep_duplicates)
