@@ -14,7 +14,7 @@ from cloudsieve.engine.calls import forked, imap
 from cloudsieve.engine.runner import PeakMemory, Runner
 from cloudsieve.progress import stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
-from cloudsieve.warmup_targets import TARGETS, targets_of
+from cloudsieve.rule_table import TARGETS, targets_of
 
 
 @pytest.mark.parametrize("scheduler, workers", [("sync", None), ("threads", 2), ("processes", 2)])

@@ -1,10 +1,9 @@
 """The user options, as data: one :class:`Option` each (name, type, range, default, help) and
 :data:`COMMANDS`, the options of each command and API entry.
 
-A leaf: it imports the rule registry (:mod:`cloudsieve.core.rules`, which
-imports no numba or scipy), the formats table (:mod:`cloudsieve.formats`), the
-warm-up targets' names (:mod:`cloudsieve.warmup_targets`) and nothing else of
-cloudsieve. :mod:`cloudsieve.params` checks values against
+A leaf: it imports the rule table (:mod:`cloudsieve.rule_table`: the rules,
+the refinement methods, the warm-up targets' names) and the formats table
+(:mod:`cloudsieve.formats`), nothing else of cloudsieve. :mod:`cloudsieve.params` checks values against
 it; :mod:`cloudsieve.cli` builds its flags from it.
 """
 
@@ -13,10 +12,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from .core import rules
+from . import rule_table as rules
 from .formats import READABLE as _READABLE
 from .formats import WRITABLE as _WRITABLE
-from .warmup_targets import TARGETS as _WARM_TARGETS
 
 __all__ = [
     "Option",
@@ -35,11 +33,11 @@ INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER, JSON = (
     "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler", "json")
 
 #: the refinements into small clusters: fuzzy C-means, K-means (:mod:`cloudsieve.core.refine`)
-METHODS = ("fcm", "km")
+METHODS = rules.METHODS
 #: the methods :func:`cloudsieve.compare` runs: the entropy methods, then the baselines
 COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
-#: the targets of ``cloudsieve warmup`` (:mod:`cloudsieve.warmup_targets`)
-WARM_TARGETS = _WARM_TARGETS
+#: the targets of ``cloudsieve warmup`` (:data:`cloudsieve.rule_table.TARGETS`)
+WARM_TARGETS = rules.TARGETS
 #: dask's local schedulers ("synchronous" is dask's own name for "sync")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count (from the registry)

@@ -15,9 +15,9 @@ import logging
 
 import numpy as np
 
+from .. import rule_table as registry
 from .chunks import ClusterChunks
 from .kernels import lists as kl
-from . import rules as registry
 from .kernels import rounds as kr
 
 __all__ = ["round_selection"]
@@ -47,7 +47,7 @@ def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, co
         Neighbour lists, nearest first; entries outside [0, n) are none.
     n_alive : int
     rule : str
-        A rule of the registry that runs rounds (:data:`.rules.RULES`).
+        A rule of the registry that runs rounds (:data:`cloudsieve.rule_table.RULES`).
     threshold : float
     target : int or None
     coverage : float

@@ -21,7 +21,7 @@ from ..io import detect_format
 from ..progress import both, stage_bar
 from .. import staging
 from ..store import delete_store, export
-from ..warmup_targets import targets_of
+from ..rule_table import targets_of
 from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks

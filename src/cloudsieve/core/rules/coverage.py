@@ -21,7 +21,7 @@ __all__ = ["prune"]
 
 def prune(rule, pts, lab, **kw) -> np.ndarray:
     """The keep mask (n,) bool after the rounds with the coverage test."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
     from .iterative import rounds
 
     return on_distinct(rounds, rule.name, pts, lab, **kw)

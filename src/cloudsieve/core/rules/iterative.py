@@ -21,7 +21,7 @@ __all__ = ["prune"]
 
 def prune(rule, pts, lab, **kw) -> np.ndarray:
     """The keep mask (n,) bool after the rounds."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
 
     return on_distinct(rounds, rule.name, pts, lab, **kw)
 

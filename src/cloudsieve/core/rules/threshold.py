@@ -13,7 +13,7 @@ __all__ = ["prune"]
 
 def prune(rule, pts, lab, **kw) -> np.ndarray:
     """The keep mask (n,) bool: the distinct points whose score (dH, or m*dH) is > S."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
 
     return on_distinct(_select, rule.name, pts, lab, **kw)
 
