@@ -157,9 +157,9 @@ def test_help_describes_the_flag_not_the_default():
                                                     "Metro distances, compactness)")
     assert _help_of("evaluate", "--no-strict") == _help_of("evaluate", "--force") == (
         "compare clouds of different CRS or units, with a warning (default: refuse them)")
-    assert _help_of("ingest", "--overwrite") == "replace an existing point store STORE"
-    assert _help_of("export", "--overwrite") == "replace an existing destination file DST"
-    assert "work store" in _help_of("simplify", "--overwrite")
+    assert _help_of("ingest", "--overwrite") == _help_of("export", "--overwrite") == _help_of(
+        "simplify", "--overwrite") == ("replace what is at the destination (DST, or ingest's STORE); simplify also "
+                                       "discards a work store left by another source or other options")
 
 
 def test_simplify_help_opens_with_what_the_default_rule_does():

@@ -153,7 +153,8 @@ _OPTIONS = [
            "options of the object store's fsspec filesystem for every URL, as a JSON object, e.g. "
            "'{\"endpoint_url\": \"http://host:8333\", \"profile\": \"lidar\"}' (default: the store's own chain: "
            "AWS_* environment variables incl. AWS_ENDPOINT_URL, config files, instance roles)", metavar="JSON"),
-    Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
+    Option("overwrite", BOOL, False, "replace what is at the destination (DST, or ingest's STORE); simplify also "
+           "discards a work store left by another source or other options"),
     Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
     # -- evaluation
     Option("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
@@ -204,9 +205,6 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-#: ingest's and export's overwrite: they have no work store
-_OVERWRITE_STORE = Option("overwrite", BOOL, False, "replace an existing point store STORE")
-_OVERWRITE_FILE = Option("overwrite", BOOL, False, "replace an existing destination file DST")
 #: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
 _STRICT_COUNT = Option("strict", BOOL, False,
                        "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
@@ -261,9 +259,9 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",
         "storage_options", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", "storage_options",
-                       extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
+                       extra=(_INPUT_FORMAT,)),
     "export": _command("mask", "chunk_size", "overwrite", "tile_size", "storage_options",
-                       extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
+                       extra=(_OUTPUT_FORMAT,)),
     "info": _command("storage_options"),
     "pipeline": _command("scheduler", "workers", "storage_options"),  # a pipeline's top-level keys
     "warmup": _command("targets"),

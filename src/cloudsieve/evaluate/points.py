@@ -59,6 +59,7 @@ import numpy as np
 
 from ..engine.calls import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
+from ..params import check
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import Source, open_source
@@ -205,9 +206,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     n = src.count_points() if sampled or error_points or keep_sample else src.count
     fwd_idx = bwd_idx = None
     if sampled:
-        sample = int(sample)
-        if sample <= 0:
-            raise InvalidParameterError(f"sample must be a positive number of points, got {sample}")
+        sample = check("sample", sample)  # the option's one check (params)
         fwd_idx = sample_indices(n, sample, rng)
         bwd_idx = sample_indices(len(simplified), sample, rng)
         sampled = len(fwd_idx) < n or len(bwd_idx) < len(simplified)
