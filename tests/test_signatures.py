@@ -30,7 +30,6 @@ OVER = {
     "core/selection.py:round_selection": 13,
     "core/simplify.py:simplify_unchecked": 18,
     "engine/outofcore.py:run_store": 12,
-    "evaluate/evaluation.py:run_evaluation": 24,
     "evaluate/points.py:point_errors": 14,
     "evaluate/surface.py:surface_errors": 14,
     "store/copc.py:_subtree_task": 11,

@@ -51,7 +51,7 @@ from . import rule_table as rules
 from .errors import InvalidParameterError
 from .params_spec import *  # noqa: F401,F403 - the options, re-exported
 from .params_spec import (BOOL, CHOICE, CHOICES, COMMANDS, FLOAT, FORMAT, INT, JSON, LOCAL_SCHEDULERS, MEMORY_COMMANDS,
-                          OPTIONS, PATH, SIZE, TEXT, Option)
+                          OPTION_CLASSES, OPTIONS, PATH, SIZE, TEXT, Option)
 from .params_spec import __all__ as _spec_all
 from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
@@ -61,6 +61,7 @@ __all__ = [
     "Metavar",
     "check",
     "validate",
+    "options",
     "validate_params",
     "run_record",
 ]
@@ -310,6 +311,15 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
                          {name: OPTIONS[name].metavar for name in ("ratio", "count", "threshold")})
         _CROSS[command](out)
     return out
+
+
+def options(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> Any:
+    """:func:`validate`'s result as *command*'s frozen options object (:data:`OPTION_CLASSES`), to pass whole.
+
+    >>> options("evaluate", {"sample": 1000}).sample
+    1000
+    """
+    return OPTION_CLASSES[command](**validate(command, values, caller=caller))
 
 
 def validate_params(command: str) -> Callable[[Callable], Callable]:

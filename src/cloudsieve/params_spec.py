@@ -9,7 +9,7 @@ it; :mod:`cloudsieve.cli` builds its flags from it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
 from . import rule_table as rules
@@ -26,6 +26,7 @@ __all__ = [
     "TARGET_RULES",
     "WARM_TARGETS",
     "MEMORY_COMMANDS",
+    "OPTION_CLASSES",
     "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER", "JSON",
 ]
 
@@ -279,3 +280,18 @@ COMMANDS: dict[str, dict[str, Option]] = {
 MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine", "eliminate")
 
 
+def _options_class(command: str) -> type:
+    """The frozen options object of *command*: one field per option, in :data:`COMMANDS`' order, with its
+    default (``EvaluateOptions`` for ``evaluate``). Importable from here by name, so it pickles."""
+    name = "".join(word.title() for word in command.split("_")) + "Options"
+    cls = make_dataclass(name, [(n, Any, field(default=o.default)) for n, o in COMMANDS[command].items()],
+                         frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = f"The options of {command}, validated (:func:`cloudsieve.params.options`); frozen."
+    globals()[name] = cls
+    return cls
+
+
+#: command -> its frozen options class; an instance is built by :func:`cloudsieve.params.options`, once, at
+#: the entry, and passed whole
+OPTION_CLASSES: dict[str, type] = {command: _options_class(command) for command in COMMANDS}

@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,7 @@ from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
-from ..params import COMPARE_METHODS, validate
+from ..params import COMPARE_METHODS, OPTION_CLASSES, validate
 from ._source import load_points
 from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
@@ -270,6 +271,11 @@ def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = compare_runs(methods, rules)
+    # each method's evaluation: compare's options (validated at its entry), evaluate's defaults, a fixed number of
+    # tiles (no time budget), the kept points a subset of the source's
+    evaluation = OPTION_CLASSES["evaluate"](subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
+                                            seed=seed, metro_samples=metro_samples, psnr_peak=psnr_peak,
+                                            surface_budget=None)
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
     rows, reports, hists, points_h, kept = [], {}, {}, {}, {}
@@ -292,9 +298,7 @@ def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
             tick(1)
             continue
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
-        rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
-                             seed=seed, metro_samples=metro_samples, report_dir=sub, surface_cache=cache,
-                             psnr_peak=psnr_peak,
+        rep = run_evaluation(xyz, xyz[idx], replace(evaluation, report_dir=sub), surface_cache=cache,
                              names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time
