@@ -85,7 +85,7 @@ class Rule:
         What the engine runs per cell with a ratio or a count (without one,
         each cell runs the in-memory selection).
     module : str
-        The module of its in-memory selection (a function ``prune(rule, pts, lab, **kw)``),
+        The module of its in-memory selection (``prune(rule, pts, lab, options, *, target, ctx, progress)``),
         relative to :mod:`cloudsieve.core.rules`, loaded at the first call.
     summary : str
         One line for the help.

@@ -14,6 +14,7 @@ import numpy as np
 from . import rules
 from ._validation import check_context, check_labels, check_points
 from ..params import validate_params
+from ..params_spec import OPTION_CLASSES
 
 __all__ = ["simplify_points", "simplify_unchecked"]
 
@@ -108,7 +109,8 @@ def simplify_unchecked(pts, *, method, rule, threshold, target, cluster_size, se
         lab[order] = lab_c
     else:
         lab = labels
-    keep = rules.prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
-                                 k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
-                                 threads=threads, keep_duplicates=bool(keep_duplicates))
+    options = OPTION_CLASSES["prune"](rule=rule, threshold=threshold, score=score, k0=k0, k_min=k_min, dim=3,
+                                      coverage=coverage, max_rounds=None, threads=threads,
+                                      keep_duplicates=bool(keep_duplicates))
+    keep = rules.prune_unchecked(pts, lab, options, target=target, ctx=ctx, progress=progress)
     return np.flatnonzero(keep).astype(np.int64)

@@ -47,6 +47,7 @@ from .._validation import check_context, check_labels, check_points, ratio_count
 from ..entropy import score_points
 from ... import rule_table as registry
 from ...params import validate_params
+from ...params_spec import OPTION_CLASSES
 
 __all__ = ["prune", "unit_free_scores", "threshold_for_count", "check_rule_args", "prune_unchecked"]
 
@@ -121,10 +122,11 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
     pts = check_points(points)
     lab = check_labels(labels, len(pts))
     ctx = check_context(context, pts.shape[1])
-    return prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=check_rule_args(len(pts), ratio, count),
-                           score=score, k0=k0, k_min=k_min, dim=dim, ctx=ctx, coverage=coverage,
-                           max_rounds=max_rounds, progress=progress, threads=threads,
-                           keep_duplicates=bool(keep_duplicates))
+    options = OPTION_CLASSES["prune"](rule=rule, threshold=threshold, ratio=ratio, count=count, score=score, k0=k0,
+                                      k_min=k_min, dim=dim, coverage=coverage, max_rounds=max_rounds,
+                                      threads=threads, keep_duplicates=bool(keep_duplicates))
+    return prune_unchecked(pts, lab, options, target=check_rule_args(len(pts), ratio, count), ctx=ctx,
+                           progress=progress)
 
 
 def check_rule_args(n: int, ratio, count) -> int | None:
@@ -140,18 +142,17 @@ def check_rule_args(n: int, ratio, count) -> int | None:
     return None
 
 
-def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim, ctx, coverage, max_rounds,
-                    progress, threads, keep_duplicates=False) -> np.ndarray:
+def prune_unchecked(pts, lab, options, *, target, ctx=None, progress=None) -> np.ndarray:
     """:func:`prune` on validated input: the keep mask (n,) bool.
 
     ``pts`` (n, p) float64 and ``lab`` (n,) int64 as from
-    :func:`.._validation.check_points` / ``check_labels``, ``target`` from
-    :func:`check_rule_args`, ``ctx`` from ``check_context``; no checks, no
-    copy of the input. The rule's module (:attr:`cloudsieve.rule_table.Rule.module`, loaded by name) selects.
+    :func:`.._validation.check_points` / ``check_labels``, ``options`` the
+    frozen options of ``prune`` (:data:`cloudsieve.params_spec.OPTION_CLASSES`;
+    its ratio and count unread), ``target`` from :func:`check_rule_args`,
+    ``ctx`` from ``check_context``; no checks, no copy of the input. The rule's module (:attr:`cloudsieve.rule_table.Rule.module`, loaded by name) selects.
     """
     if len(pts) == 0:
         return np.ones(0, dtype=bool)
-    chosen = registry.get(rule)
-    return import_module(chosen.module, __package__).prune(
-        chosen, pts, lab, threshold=threshold, target=target, score=score, k0=k0, k_min=k_min, dim=dim, ctx=ctx,
-        coverage=coverage, max_rounds=max_rounds, progress=progress, threads=threads, keep_duplicates=keep_duplicates)
+    chosen = registry.get(options.rule)
+    return import_module(chosen.module, __package__).prune(chosen, pts, lab, options, target=target, ctx=ctx,
+                                                           progress=progress)

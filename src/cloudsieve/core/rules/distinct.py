@@ -20,13 +20,15 @@ __all__ = ["on_distinct", "ranked"]
 logger = logging.getLogger(__name__)
 
 
-def on_distinct(select, rule, pts, lab, *, threshold, target, score, k0, k_min, dim, ctx, coverage, max_rounds,
-                progress, threads, keep_duplicates) -> np.ndarray:
+def on_distinct(select, rule, pts, lab, options, *, target, ctx, progress) -> np.ndarray:
     """An entropy rule's keep mask (n,): ``select`` runs on the distinct points in canonical order.
+
+    ``options`` is the frozen options object of ``prune`` (:func:`.dispatch.prune_unchecked`).
 
     ``select(rule, P, L, threshold=, target=, score=, coverage=, max_rounds=, report=, kw=)`` returns
     the keep mask of the canonically ordered distinct points P (labels L in 0..c-1).
     """
+    keep_duplicates = options.keep_duplicates
     n = len(pts)
     order = canonical_order(pts)
     P = pts[order]
@@ -43,9 +45,9 @@ def on_distinct(select, rule, pts, lab, *, threshold, target, score, k0, k_min, 
     if n_copies and not keep_duplicates:
         report(n_copies)
     L = np.unique(L, return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
-    keep_c = select(rule, P, L, threshold=threshold, target=target, score=score, coverage=coverage,
-                    max_rounds=max_rounds, report=report, kw=dict(k0=k0, k_min=k_min, dim=dim, ctx=ctx,
-                                                                   threads=threads))
+    keep_c = select(rule, P, L, threshold=options.threshold, target=target, score=options.score,
+                    coverage=options.coverage, max_rounds=options.max_rounds, report=report,
+                    kw=dict(k0=options.k0, k_min=options.k_min, dim=options.dim, ctx=ctx, threads=options.threads))
     if n_copies:
         first = np.cumsum(~copy) - 1  # each row's distinct point
         keep_c = keep_c[first] if keep_duplicates else np.where(copy, False, keep_c[first])

@@ -15,7 +15,7 @@ import numpy as np
 __all__ = ["prune"]
 
 
-def prune(rule, pts, lab, *, target, progress, threads, keep_duplicates, **_unused) -> np.ndarray:
+def prune(rule, pts, lab, options, *, target, progress, **_unused) -> np.ndarray:
     """The keep mask (n,) bool of the elimination to *target* points (copies kept at most once)."""
     from ...progress import callback
     from ..duplicates import copy_rows, first_rows
@@ -24,8 +24,8 @@ def prune(rule, pts, lab, *, target, progress, threads, keep_duplicates, **_unus
     n = len(pts)
     keep = np.zeros(n, dtype=bool)
     target = min(target, n - int(copy_rows(pts).sum()))  # copies kept at most once
-    keep[eliminate.unchecked(pts, count=target, threads=threads)] = True  # the options were validated by the caller
-    if keep_duplicates:  # every copy of a kept point (the first copy is the one the elimination may keep)
+    keep[eliminate.unchecked(pts, count=target, threads=options.threads)] = True  # the options were validated by the caller
+    if options.keep_duplicates:  # every copy of a kept point (the first copy is the one the elimination may keep)
         keep = keep[first_rows(pts)]
     callback(progress)(n - int(keep.sum()))
     return keep
