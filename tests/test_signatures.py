@@ -30,7 +30,6 @@ OVER = {
     "engine/outofcore.py:run_store": 12,
     "evaluate/points.py:point_errors": 14,
     "evaluate/surface.py:surface_errors": 14,
-    "store/copc.py:_subtree_task": 11,
 }
 
 
