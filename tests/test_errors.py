@@ -22,7 +22,7 @@ from cloudsieve.errors import (
 )
 from cloudsieve.evaluate import evaluate
 from cloudsieve.evaluate.baselines import fps_subset, random_subset, run_method
-from cloudsieve.evaluate.points import point_errors
+from cloudsieve.evaluate.points import PointLevel, point_errors
 from cloudsieve.io import open_reader
 from cloudsieve.store import PointStore, export, ingest
 
@@ -110,7 +110,7 @@ def test_evaluation_errors():
     with raises(InvalidParameterError, ValueError, "simplified points must have shape (m, 3), got (5, 2)"):
         point_errors(pts, pts[:5, :2])
     with raises(InvalidParameterError, ValueError, "sample must be an integer >= 1, got 0"):
-        point_errors(pts, pts[:5], sample=0)
+        point_errors(pts, pts[:5], PointLevel(sample=0))
 
 
 def test_evaluate_signature_has_no_private_keywords():

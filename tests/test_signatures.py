@@ -26,8 +26,6 @@ LIMIT = 10
 OVER = {
     "core/elimination.py:run_elimination": 12,
     "core/simplify.py:simplify_unchecked": 18,
-    "evaluate/points.py:point_errors": 14,
-    "evaluate/surface.py:surface_errors": 14,
 }
 
 

@@ -63,9 +63,9 @@ from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
 from .mesh import load_mesh
 from .planes import field_figures
-from .points import point_errors
+from .points import PointLevel, point_errors
 from .report import write_report
-from .surface import surface_errors
+from .surface import TilePlan, surface_errors
 from .tiles import SAMPLE_SIZE
 
 logger = logging.getLogger(__name__)
@@ -295,11 +295,11 @@ def _evaluation(original, simplified, o, client, progress, bars, names, surface_
     ply_parts: list[tuple[np.ndarray, np.ndarray]] = []
     t = time.perf_counter()
     with stage_bar(bars, "point errors", src.count, "pt") as bar:
-        p = point_errors(src, simp, sample=o.sample, seed=o.seed, chunk_size=o.chunk_size, subset=o.subset,
-                         client=client, error_points=o.error_points if o.report_dir else 0,
-                         grid=las_grid(simp_header), on_error_points=lambda x, e: ply_parts.append((x, e)),
-                         progress=both(bar, progress), d2_sample=o.d2_sample,
-                         keep_sample=SAMPLE_SIZE if o.surface and o.surface_budget else 0)
+        level = PointLevel(sample=o.sample, seed=o.seed, chunk_size=o.chunk_size, subset=o.subset,
+                           error_points=o.error_points if o.report_dir else 0, d2_sample=o.d2_sample,
+                           keep_sample=SAMPLE_SIZE if o.surface and o.surface_budget else 0)
+        p = point_errors(src, simp, level, client=client, grid=las_grid(simp_header),
+                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress))
     uniform = p.pop("uniform_sample", None)
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p
@@ -312,10 +312,10 @@ def _evaluation(original, simplified, o, client, progress, bars, names, surface_
     if o.surface:
         t = time.perf_counter()
         with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
-            report["surface"] = surface_errors(src, simp, tiles=o.tiles, tile_points=o.tile_points, seed=o.seed,
-                                               diagonal=p["diagonal"], samples=o.metro_samples,
+            tiling = TilePlan(tiles=o.tiles, tile_points=o.tile_points, seed=o.seed, budget=o.surface_budget,
+                              full=o.surface_full)
+            report["surface"] = surface_errors(src, simp, tiling, diagonal=p["diagonal"], samples=o.metro_samples,
                                                cache=surface_cache, progress=bar, reference=reference,
-                                               budget=o.surface_budget, full=o.surface_full,
                                                sample=None if uniform is None else (uniform, p["original_count"]))
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
