@@ -211,7 +211,7 @@ def _run_pipeline(pipeline: Pipeline, *, client: Any, progress: Any, bars: Any) 
 
                 opts = {k: _fill(v, src) for k, v in pipeline.validated[i].items()}
                 opts["drop_invalid"] = drop_invalid
-                entry["report"] = run_compare(src, opts)
+                entry["report"] = run_compare(src, OPTION_CLASSES["compare"](**opts))
                 points = points or entry["report"]["points"]
         if progress is not None:
             progress(points)

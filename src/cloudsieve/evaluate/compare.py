@@ -36,7 +36,7 @@ from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
-from ..params import COMPARE_METHODS, OPTION_CLASSES, validate
+from ..params import COMPARE_METHODS, OPTION_CLASSES, options
 from ._source import load_points
 from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
@@ -227,7 +227,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
-    opts = validate("compare", {
+    opts = options("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid,
@@ -240,27 +240,27 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
 ENTROPY_OPTIONS = ("threshold", "cluster_size", "k0", "k_min", "keep_duplicates")
 
 
-def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
-    """:func:`compare` with options already validated (``opts``, from :func:`cloudsieve.params.validate` for
-    ``compare``: the command line, a pipeline stage); no option is checked again."""
-    with storage.using(opts.get("storage_options")):
-        report_dir = opts["report_dir"]
+def run_compare(source: Any, opts: Any, *, progress=None) -> dict:
+    """:func:`compare` with options already validated (``opts``, compare's frozen options object from
+    :func:`cloudsieve.params.options`: the command line, a pipeline stage); no option is checked again."""
+    with storage.using(opts.storage_options):
+        report_dir = opts.report_dir
         if report_dir is None or not storage.is_url(str(report_dir)):
             return _run_compare(source, opts, progress=progress)
         with staging.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
-            result = _run_compare(source, {**opts, "report_dir": folder}, progress=progress)
+            result = _run_compare(source, replace(opts, report_dir=folder), progress=progress)
         base = str(report_dir).rstrip("/")
         result["files"] = {k: v.replace(folder, base) for k, v in result.get("files", {}).items()}
         return result
 
 
-def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
-    (methods, rules, ratio, count, report_dir, surface, tiles, tile_points, seed, metro_samples, psnr_peak,
-     drop_invalid) = (opts[k] for k in ("methods", "rule", "ratio", "count", "report_dir", "surface", "tiles",
-                                        "tile_points", "seed", "metro_samples", "psnr_peak", "drop_invalid"))
+def _run_compare(source: Any, opts: Any, *, progress=None) -> dict:
+    methods, rules, ratio, count, report_dir = opts.methods, opts.rule, opts.ratio, opts.count, opts.report_dir
+    surface, tiles, tile_points, seed = opts.surface, opts.tiles, opts.tile_points, opts.seed
+    metro_samples, psnr_peak, drop_invalid = opts.metro_samples, opts.psnr_peak, opts.drop_invalid
     if report_dir is not None:
         check_folder(report_dir)
-    entropy_options = {k: opts[k] for k in ENTROPY_OPTIONS}
+    entropy_options = {k: getattr(opts, k) for k in ENTROPY_OPTIONS}
     xyz, _header, name = load_points(source, what="source cloud", drop_invalid=drop_invalid)
     n = len(xyz)
     if ratio is not None:
