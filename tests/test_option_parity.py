@@ -170,3 +170,32 @@ def test_each_option_name_is_defined_once():
         for name, option in spec.items():
             definitions.setdefault(name, set()).add(id(option))
     assert sorted(n for n, d in definitions.items() if len(d) > 1) == sorted(SEVERAL)
+
+
+def test_each_command_has_one_frozen_options_object_from_the_spec():
+    """params.options: the command's validated values (normalised), as a frozen object with one field per option
+    of params_spec, in its order; it pickles (a task may carry it)."""
+    import dataclasses
+    import pickle
+
+    from cloudsieve.params import OPTION_CLASSES, options
+
+    assert set(OPTION_CLASSES) == set(COMMANDS)
+    for command, cls in OPTION_CLASSES.items():
+        assert [f.name for f in dataclasses.fields(cls)] == list(COMMANDS[command])
+    o = options("evaluate", {"sample": 1e3, "report_dir": Path("r")})
+    assert type(o).__name__ == "EvaluateOptions" and (o.sample, o.report_dir, o.tiles) == (1000, "r", None)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        o.sample = 5
+    assert pickle.loads(pickle.dumps(o)) == o
+    with pytest.raises(InvalidParameterError) as exc:
+        options("compare", {"count": 0})
+    assert str(exc.value) == "count must be an integer >= 1, got 0"
+
+
+def test_the_tile_grid_refuses_no_tile_size_in_the_options_words():
+    from cloudsieve.store.tiles import check_grid
+
+    with pytest.raises(InvalidParameterError) as exc:
+        check_grid(np.zeros((2, 3)), None, "x")
+    assert str(exc.value) == "tile_size must be a finite number > 0, got None"
