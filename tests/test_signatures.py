@@ -25,7 +25,6 @@ LIMIT = 10
 #: functions outside the kernels and the public API that take more than LIMIT parameters, with their count
 OVER = {
     "core/elimination.py:run_elimination": 12,
-    "core/simplify.py:simplify_unchecked": 18,
 }
 
 
