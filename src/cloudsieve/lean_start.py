@@ -38,10 +38,9 @@ compilation still refreshes both contexts first
 (``numba.core.compiler.compile_extra``), so a kernel compiled later in the
 process, a cache miss included, sees every registry.
 
-On this project's test machine a 1,065-point file's run took 0.76-0.98 s
-against 1.0-1.4 s without the last four skips and the loads' change, and
-1.45-1.75 s without any (alternating; docs/benchmarks.md, "Imports the
-command skips" and "Cache loads without the compiler's registries").
+A warm small run is mostly the process's start, so these skips take nearly
+half off a 1,065-point file's run (docs/architecture.md, "Design
+reasons").
 Not for a process that is not the package's: user code in it may compile
 ``np.dot``, read COPC over HTTP or rely on numba's registries at run time.
 """
@@ -103,7 +102,7 @@ MODULES = {
 
 class _Loader:
     """A module's own loader, executing it with its :class:`Change` (the protocol of ``importlib.abc.Loader``,
-    whose own import pulls in ``importlib.resources``: 17 ms)."""
+    whose own import pulls in ``importlib.resources``, a cost of its own)."""
 
     def __init__(self, loader, change: Change):
         self._loader, self._change = loader, change

@@ -1,9 +1,9 @@
 """Helper processes die with the process that started them.
 
 A ``kill -9`` of a running ``cloudsieve simplify`` gives its children no chance
-to clean up: the fork server and the worker processes it forked used to stay
-alive (230-255 MB each), and the multiprocessing resource tracker with them
-(it exits when the last holder of its pipe does).
+to clean up: without this, the fork server and the worker processes it
+forked stay alive (a few hundred MB each), and the multiprocessing resource
+tracker with them (it exits when the last holder of its pipe does).
 
 On Linux a process can ask the kernel to send it a signal when its parent
 dies (``prctl(PR_SET_PDEATHSIG)``): the fork server asks for SIGKILL when the

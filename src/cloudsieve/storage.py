@@ -43,8 +43,8 @@ __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "
 logger = logging.getLogger(__name__)
 
 #: a remote file's read-ahead: one ranged request fetches at least this many bytes (a LAZ chunk of 50,000
-#: points is 0.3-1 MB); a task reads at most one block past its own chunks (2 M points in 2 tiles on S3:
-#: 1.03x the input's bytes read, the header and chunk table read with :data:`HEADER_BLOCK`; 1.29x with 1 MiB)
+#: points is 0.3-1 MB); a task reads at most one block past its own chunks, so a run reads about its input's
+#: bytes once (the header and chunk table read with :data:`HEADER_BLOCK`; a larger block reads more past them)
 READ_BLOCK = 256 * 2**10
 #: the read-ahead of an opening that reads a header alone (the LAS header and its VLRs, a few KiB)
 HEADER_BLOCK = 16 * 2**10

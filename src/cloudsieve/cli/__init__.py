@@ -130,8 +130,8 @@ def run() -> NoReturn:
       (:func:`cloudsieve.engine.memory.small_pages_from_here`), here and in
       every process it starts; ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default.
     - The objects of the imports (numpy, numba, scipy, zarr) are frozen
-      (``gc.freeze``): the collector no longer walks them (the collections of
-      a 10 M-point simplify took 0.12 s instead of 0.23-0.25 s).
+      (``gc.freeze``): the collector does not walk them, which halves the
+      time of a run's collections.
     - What no run uses is skipped (:mod:`cloudsieve.lean_start`): numba
       imports neither scipy nor yaml (without a ``.numba_config.yaml``
       here), its cache loads install none of the compiler's registries,
@@ -161,10 +161,9 @@ def _keep_freed_memory() -> None:
 
     By default a freed block of more than the mmap threshold goes back to the
     system, and the next one faults its pages in again, zeroed by the kernel
-    (7% of a 10 M-point simplify's CPU on this project's test machine). Set
-    so, the 10 M-point simplify faulted 179,000-206,000 pages instead of
-    228,000-276,000 (docs/benchmarks.md). Other C libraries have no
-    ``mallopt``: nothing is done.
+    (a few percent of a 10 M-point simplify's CPU). Set so, the run faults
+    about a fifth fewer pages. Other C libraries have no ``mallopt``: nothing
+    is done.
     """
     import ctypes
 
@@ -177,8 +176,8 @@ def _keep_freed_memory() -> None:
 
 
 def _exit(code: int) -> NoReturn:
-    """End the process as the interpreter's exit does, less the teardown of its modules (0.1-0.35 s of a
-    1 k-point run): CPython's own two steps first, threading's shutdown (the thread pools told to stop,
+    """End the process as the interpreter's exit does, less the teardown of its modules (a tenth or more of
+    a small run): CPython's own two steps first, threading's shutdown (the thread pools told to stop,
     then every non-daemon thread joined) and the exit handlers (logging's last flush, multiprocessing's
     children, temporary folders). Elsewhere than CPython, the interpreter's exit."""
     shutdown = getattr(threading, "_shutdown", None)

@@ -2,9 +2,9 @@
 :func:`cloudsieve.core.warmup.warm_report`).
 
 For a fresh install (setup.sh runs it), a container image or a cluster
-worker: afterwards a run loads its kernels from the cache in about a second
-instead of compiling them (the default rule's first run into an empty cache:
-8-10 s on 2 cores; every kernel: 28-45 s). The cache is numba's: ``__pycache__``
+worker: afterwards a run loads its kernels from the cache instead of
+compiling them, which makes a first run many times longer than the next
+(docs/benchmarks.md, "Start-up"). The cache is numba's: ``__pycache__``
 beside the kernels' modules, numba's user cache directory when that is
 read-only, or ``NUMBA_CACHE_DIR`` (one directory the workers of a cluster
 can share).

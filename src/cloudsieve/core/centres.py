@@ -26,7 +26,7 @@ __all__ = ["centre_tree", "cell_size", "ring_grid", "candidate_lists", "no_lists
 
 def centre_tree(C: np.ndarray) -> cKDTree:
     """The k-d tree over centres C (c, p): the reference of :func:`nearest_centres`."""
-    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+    from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
 
     return cKDTree(C, balanced_tree=False, compact_nodes=False)
 
@@ -80,7 +80,7 @@ def no_lists(p: int) -> tuple:
 
 _FINE = 4  # fine cells per grid cell along an axis, at most
 _MIN_POINTS_PER_LIST = 16  # fewer points per occupied fine cell: a coarser fine grid (16, 48: alike on surfaces;
-# 16 faster in volumes, measured)
+# 16 faster in volumes)
 
 
 def candidate_lists(X, rows, C, ring, k, chunks) -> tuple:

@@ -20,10 +20,9 @@ lighter, until the count is reached. Here the key of a point x is::
   (r_cov / e)^8; lam = 10. Plain WSE leaves holes (point max 1.35-1.86x the
   best of voxel/Poisson/farthest point on the shared scans); with f, 1.02-1.16x.
 
-The information terms (an entropy rank and a geometric importance
-multiplying the key) were measured and removed: they did not lower the
-errors (docs/benchmarks.md, "Quality: weighted sample elimination"); the
-compiled loop still takes their per-point factors, all 1.
+No information term (an entropy rank or a geometric importance multiplying
+the key): neither lowers the errors at equal count (docs/architecture.md,
+"Design reasons"); the compiled loop takes their per-point factors, all 1.
 
 r_max: :mod:`.radius` (from the area of the sampled surface and the count). The elimination loop
 on a grid, its constants and :func:`keep_lowest` are in :mod:`.elimination` (shared with
@@ -67,10 +66,9 @@ from .relocate import RELOCATE_STEPS, check_r_max, numba_threads, relocate, relo
 
 __all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate", "keep_lowest", "relocate"]
 
-#: eliminate() runs over cells of at most this many points above it (module .eliminate_cells). At 1 M points and
-#: 50% kept on 2 threads (load 0.5), the cells stage took 0.67 s with cells of 8,192 points, 0.70 s with 16,384,
-#: 0.79 s with 32,768, 0.83 s with 65,536 (one elimination: 2.2 s): smaller cells fit the caches, but the halos
-#: and calls grow
+#: eliminate() runs over cells of at most this many points above it (module .eliminate_cells): a third of the
+#: time of one elimination at 1 M points. Smaller cells fit the caches better, but the halos and calls grow;
+#: larger ones leave the caches
 CELL_POINTS = 16_384
 #: the smallest cell_points accepted (the option's, :mod:`cloudsieve.params_spec`): below it the halos outweigh the
 #: cells

@@ -80,7 +80,8 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     if k == 0:
         return keep
     # the k lowest are the minimum's when it occurs k times: an elimination's points left, all -1.0 without their
-    # keys (numpy's partition of that array, half its values equal, took 1.1 ms a 16,384-point cell)
+    # keys (numpy's partition of that array, half its values equal, is slow: it cost a cell's elimination more
+    # than this test)
     at_min = p == p.min()
     if np.count_nonzero(at_min) == k:
         return at_min

@@ -250,8 +250,8 @@ def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
     c = len(kc)
     lab = ginv[rows]
     X = with_cluster_coordinate(g[rows], lab)
-    # leaves of 32: measured ~8% faster queries than 16 (1 M points, k = 20)
-    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+    # leaves of 32: ~8% faster queries than 16 (1 M points, k = 20)
+    from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
 
     tree = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False)
     ec = np.clip(np.bincount(lab, minlength=c) - kc - 2, 0, extra) if extra else np.zeros(c, dtype=np.int64)
@@ -348,7 +348,7 @@ def knn_context(g, ginv, c, ctx, k0, k_min, threads):
     cand = np.flatnonzero(~dup & ok_cl[ginv])
     if len(cand) == 0:
         return [], dup
-    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+    from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
 
     tree = cKDTree(upool, balanced_tree=False, compact_nodes=False)
     kpt = kc[ginv[cand]]

@@ -7,8 +7,8 @@ the bounding box (CGAL's ``poisson_eliminate`` divides the box's *volume* by
 N). An isolated point (an outlier, a far return) is kept whatever r_max is and
 covers nobody else's area, so it counts as one kept point, not as its k-NN
 area over 2 sqrt(3) r_max^2 of them (:func:`elimination_radius`): a few far
-points no longer inflate r_max (append-bug.laz: one point in 100 is isolated
-and the plain sum gave r_max 13x too large).
+points do not inflate r_max (append-bug.laz: one point in 100 is isolated
+and the plain sum of areas makes r_max 13x too large).
 
 Both steps are sums over points, so a driver can run :func:`point_areas` per
 cell (with the halo as context) and solve :func:`elimination_radius` once on
@@ -101,8 +101,8 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     The k-NN of the distinct rows (:func:`_nearest`). Among the distinct rows: a row with c exact
     copies (itself included) has c - 1 others at distance 0, then each distinct
     row as often as it is copied. Searched row by row, a pile of c copies costs
-    c^2 distances (a sample of 300,000 points, 60,000 of them at one spot:
-    258 s, against 0.2 s for the distinct rows).
+    c^2 distances (60,000 copies at one spot: minutes), so the search runs on
+    the distinct rows.
     """
     first = first_rows(allp)
     lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
@@ -110,8 +110,8 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     mult = np.bincount(group, minlength=len(lead))
     if len(lead) == 1:  # one spot: every row has its k others (>= k + 1 rows) at distance 0
         return np.zeros(m)
-    asked = np.zeros(len(lead), dtype=bool)  # the distinct rows asked for, ascending (np.unique's answer: numpy
-    asked[group[:m]] = True  # 2.4's took 9 ms for 50,000 rows, a mask 0.1 ms)
+    asked = np.zeros(len(lead), dtype=bool)  # the distinct rows asked for, ascending (np.unique's answer; numpy
+    asked[group[:m]] = True  # 2.4's np.unique of integers is a hundred times slower than a mask)
     q = np.flatnonzero(asked)
     rows = take_rows(allp, lead)
     kk = min(k + 1, len(lead))  # self and k others (or all the distinct rows there are)
@@ -171,8 +171,8 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
     bit for bit (:func:`.kernels.area_knn.nearest_rows` sums them as cKDTree does), the rows among equal
     distances possibly others.
 
-    On :class:`.cellgrid.CellGrid` grids, not scipy's tree: ``scipy.spatial`` takes 0.25 s to import, a
-    quarter of the run of a 1,000-point file. The first grid's side (about 1.5 times the k-th distance on a
+    On :class:`.cellgrid.CellGrid` grids, not scipy's tree: importing ``scipy.spatial`` is a quarter of the
+    run of a 1,000-point file. The first grid's side (about 1.5 times the k-th distance on a
     uniform surface, :data:`OCCUPANCY`) makes most answers sure at once (the 27 cells around a point hold
     every point within a side of it); the others are asked again on coarser grids, those of crowded cells
     (:data:`CROWD`) first on grids 8 times finer.
@@ -182,7 +182,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
     span = float((hi - lo).max())  # > 0: two distinct rows at least
     side, finest = span * math.sqrt(kk / m), max(span * 2.0**-20, 1e-300)  # as CellGrid bounds its side
     for _ in range(OCCUPANCY_STEPS):  # about OCCUPANCY points a cell, as on a surface (the usual cloud)
-        codes = np.sort(_kg.cell_codes(rows, lo, side))  # the occupied cells: 2.4 ms for 50,000, np.unique 12
+        codes = np.sort(_kg.cell_codes(rows, lo, side))  # the occupied cells by a sort: np.unique is slower
         o = m / (np.count_nonzero(codes[1:] != codes[:-1]) + 1)
         if OCCUPANCY / 2 <= o <= 2 * OCCUPANCY:
             break

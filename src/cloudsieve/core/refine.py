@@ -42,7 +42,7 @@ METHODS = _METHODS  # the option's choices (:mod:`cloudsieve.params_spec`)
 # changed in an update, which it reaches after 7-11 updates (bun_zipper, a
 # 100 k-point surface). Point RMS after iterative to 50%, 20 updates vs this
 # stop: bun_zipper 0.3667% vs 0.3655%, maxplanck 0.4519% vs 0.4506%,
-# autzen_trim 0.1737% vs 0.1720%; refinement 0.52/0.38/1.65 s vs 0.26/0.24/0.92 s.
+# autzen_trim 0.1737% vs 0.1720%, in about half the refinement's time.
 # KMeans/FuzzyCMeans keep the paper's criteria as their own defaults.
 REFINE_LABEL_TOL = 0.01
 REFINE_KM_TOL = REFINE_LABEL_TOL

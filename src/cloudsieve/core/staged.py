@@ -59,8 +59,8 @@ __all__ = ["STAGED_BELOW", "LAST_STAGE", "small_share", "runs_staged", "stage_pl
 
 #: an elimination keeping fewer than 1 in this many of its distinct points (their number divided by it, rounded
 #: down) runs in stages; 1 in 20 and more, one elimination. At 5% kept one elimination (lists of about 72 entries a
-#: point, cells of 20,480 points) peaked at 1.4 times the memory of one at 50% (autzen_trim in memory, 293 against
-#: 211 MiB), at 3.2% at 2.0-2.2 times (cells of 32,000, 115 entries a point)
+#: point, cells of 20,480 points) peaks at 1.4 times the memory of one at 50% (autzen_trim in memory), at 3.2% at
+#: 2.0-2.2 times (cells of 32,000, 115 entries a point)
 STAGED_BELOW = 20
 #: the stages thin the points down to this many times the count, the last stage keeps 1 in this many of them
 LAST_STAGE = 16

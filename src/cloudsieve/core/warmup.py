@@ -2,12 +2,10 @@
 
 numba compiles a kernel at its first call, or loads it from its on-disk cache
 (``cache=True``: ``__pycache__`` beside the module, numba's user cache
-directory when that is read-only, or ``NUMBA_CACHE_DIR``). Measured on 2
-cores (``benchmarks/startup.py``, load 1.2-1.4): the kernels of the default
-command (targets ``common``, ``partition``, ``eliminate``) compiled in 19.7 s
-into an empty cache; the first ``cloudsieve simplify autzen_trim.laz --ratio
-0.5`` took 12.4 s without a warm-up (a second process compiles the end of it
-ahead, :data:`AHEAD`) and 3.1 s after one.
+directory when that is read-only, or ``NUMBA_CACHE_DIR``). Compiling takes
+far longer than loading: a first run into an empty cache takes many times
+as long as one after a warm-up (a second process compiles the end of it
+ahead, :data:`AHEAD`; docs/benchmarks.md, "Start-up").
 
 Each target calls the kernels of one part of the method on a tiny input, with
 the argument types of the real calls (so the same compiled versions):
@@ -135,10 +133,9 @@ def _elimination_tail() -> None:
     the real calls: the packing counts over the neighbour lists, the elimination's loop, the relocation
     (:mod:`.kernels.eliminate`) and the merge's scatter; not the grid and lists kernels that lead to them.
     A second process compiles these ahead (:data:`AHEAD`), the elimination's loop and the relocation first:
-    the run reaches the packing and ``nearest_kept`` (0.3-0.5 s each) before them and compiles them itself
-    if they are not ready, which leaves the second process the time to finish the loop (2.9 s and its
-    callees). A cold ``simplify autzen_trim.laz --ratio 0.5`` took 9.9-12.6 s in this order against
-    12.4-14.5 s with the packing first, 6 runs each alternating (load 1.4-2.2)."""
+    the run reaches the packing and ``nearest_kept`` before them and compiles them itself if they are not
+    ready, which leaves the second process the time to finish the loop, the longest compilation; with the
+    packing first, the run reaches the loop before it is ready and compiles it itself."""
     from .kernels import eliminate as ke
     from .kernels.grid import nearest_kept
     from .kernels.packing import packing_from_lists
@@ -217,9 +214,8 @@ def ahead_parts(targets: Iterable[str]) -> list[str]:
 
 #: ``cloudsieve warmup`` on two cores or more: the targets a second process compiles, the K-means and FCM
 #: refinements and the rounds. Each reaches the scores' kernels after its own, and the first process
-#: compiles ``scores`` first (:func:`split_targets`), so no kernel is compiled twice. Measured into an
-#: empty cache, alternating (load 1.0-1.5): 46.5 and 46.1 s for every target, against 68.1 and 79.2 s
-#: in one process.
+#: compiles ``scores`` first (:func:`split_targets`), so no kernel is compiled twice and every target
+#: compiles in about two thirds of one process's time.
 SECOND: tuple[str, ...] = ("km", "fcm", "rules")
 
 

@@ -13,9 +13,8 @@ grid's, the packing's, the k-d cut's, the neighbour lists'); reaching the
 others, it loads them from the cache (numba writes each file under a
 temporary name and renames it), or compiles one itself if the other process
 has not finished it. Either way the code is the same, so the results are
-too. Measured on 2 cores (autzen_trim.laz, ``--ratio 0.5``, alternating
-with the code before it, load 1.0-1.3): 13.3 and 14.2 s against 24.1 and
-21.3 s (docs/benchmarks.md).
+too. A cold run then uses both cores where numba alone compiles on one: it
+takes about three fifths as long.
 
 ``cloudsieve warmup`` uses the same process for whole targets
 (:func:`start_targets`, :data:`cloudsieve.core.warmup.SECOND`): it prints
@@ -39,7 +38,7 @@ __all__ = ["second_core", "start", "start_targets", "report_of", "finish"]
 logger = logging.getLogger(__name__)
 
 #: the second process's module: it imports the kernels and the warm-up alone, not the engine (whose
-#: zarr and dask imports took 0.7-1.0 s of its start)
+#: zarr and dask imports would delay its first compilation)
 COMPILER = "cloudsieve.core.warmup"
 
 

@@ -51,11 +51,10 @@ by cell:
    (:mod:`cloudsieve.core.staged`: a cell's lists and cells as at 50%
    kept).
    Above :data:`~cloudsieve.core.eliminate.CELL_POINTS` points the cell is
-   eliminated over k-d cells, as the in-memory rule is, its halo around them
-   (10 M points, 2 workers, side by side: cells stage 15.2-17.7 s against
-   20.8 s for one elimination per cell, whose arrays no longer fit the
-   caches; D1/D2 PSNR of the shared scans within 0.12 dB, point max up to
-   5% higher, docs/benchmarks.md).
+   eliminated over k-d cells, as the in-memory rule is, its halo around them:
+   one elimination over the whole cell waits on memory, its arrays beyond
+   the caches (the D1/D2 PSNR of the shared scans within 0.12 dB of it,
+   point max up to 5% higher; docs/architecture.md).
 
 A crash anywhere resumes from the markers: cells with a share are not read
 again, the counts are recomputed from the stored shares (the same), and

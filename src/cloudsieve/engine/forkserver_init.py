@@ -43,7 +43,7 @@ if _in_forkserver_main():
         logging.getLogger(__name__).debug("kernels of %s warmed up in %.2f s", _targets, warm_up(_targets))
     except Exception as exc:  # noqa: BLE001 - the workers then compile at their first call, and raise there
         logging.getLogger(__name__).warning("kernel warm-up failed in the fork server: %r", exc)
-    # the objects of the imports and the kernels, frozen before any fork: the workers' collections no longer
-    # walk them (8 cells' share and apply tasks in a process with the same imports: 0.061 -> 0.033 s of
-    # collections), and do not write to their pages (Python's advice for a parent that forks)
+    # the objects of the imports and the kernels, frozen before any fork: the workers' collections do not
+    # walk them (the collections of a worker's tasks take about half the time), and do not write to their
+    # pages (Python's advice for a parent that forks)
     gc.freeze()

@@ -3,23 +3,11 @@
 Up to :data:`IN_PROCESS_POINTS` points the run's tasks run one after the
 other in this process, on dask's synchronous scheduler (:class:`~.runner.Runner`
 "sync"), each cell's kernels on every core: starting the local process pool (a
-fork server that imports the engine and loads the kernels, then the workers:
-1.4-1.7 s) costs more than two workers gain. The tasks are the same and run in
-the same order, so the output is the same, byte for byte
-(tests/test_speed_start.py); its LAZ is decoded on every core. Measured on
-2 cores, ``cloudsieve simplify SRC DST --ratio 0.5 --scheduler S`` of
-make_scan LAZ files, S = processes and sync alternating, 2 runs each (load
-1.3-2.1):
-
-==========  ===================  =================  ======================
-points      process pool (s)     in process (s)     peak memory (MiB)
-==========  ===================  =================  ======================
-300,000     5.65-6.57            4.04-4.31          959-963 / 415-424
-500,000     5.77-6.30            4.75-4.90          1,033-1,039 / 446-450
-1,000,000   7.01-7.35            6.37-6.51          1,111-1,133 / 503-507
-1,500,000   9.53-9.57            8.15-9.61          1,217-1,220 / 499-501
-2,000,000   10.50-10.80          10.71-11.10        1,255-1,298 / 546-547
-==========  ===================  =================  ======================
+fork server that imports the engine and loads the kernels, then the workers)
+costs more than two workers gain up to about 1.5 M points, and the pool
+doubles the peak memory (docs/benchmarks.md, "Small inputs"). The tasks are
+the same and run in the same order, so the output is the same, byte for
+byte (tests/test_speed_start.py); its LAZ is decoded on every core.
 
 Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
 A LAS/LAZ/COPC or PLY input of the eliminate rule needs no work store either (:mod:`.small`).

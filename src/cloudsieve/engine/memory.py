@@ -56,10 +56,9 @@ def small_pages():
 
     On Linux numpy advises transparent huge pages (``madvise``) for such
     arrays, and the kernel zeroes a whole 2 MiB page at its first touch. On
-    this project's test machine (a 2-core VM) that took 1.5-3.3 s a GiB of
-    new arrays against 0.72-0.75 s on 4 KiB pages, and a 10 M-point
-    simplify in memory spent 10.4-10.8 s of system time against 2.3-2.8 s,
-    19.6 s instead of 23.7-24.0 s in all, the same bytes (docs/benchmarks.md).
+    a virtual machine that zeroing is slow: it is most of the system time of
+    a 10 M-point simplify in memory, which 4 KiB pages save, the same bytes
+    out (docs/architecture.md, "Design reasons").
     The switch is numpy's, for the whole process: it is restored on leaving.
     """
     if HUGEPAGE_ENV in os.environ:
@@ -86,7 +85,7 @@ def small_pages_from_here() -> None:
 def _proc_tree_rss() -> int | None:
     """:func:`process_tree_rss` from Linux's /proc (None elsewhere), as psutil reads it there (each process's
     parent from ``/proc/<pid>/stat``, its resident pages from ``/proc/<pid>/statm``). Read here because
-    psutil's import alone took 35-54 ms on this project's test machine, a twentieth of a 1,065-point run."""
+    psutil's import alone is a twentieth of a 1,065-point run."""
     try:
         names = os.listdir("/proc")
         page = os.sysconf("SC_PAGE_SIZE")

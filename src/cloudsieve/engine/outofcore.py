@@ -3,8 +3,8 @@
 :func:`run_store` runs the stages the module docstring of :mod:`.simplify`
 lists, through one :class:`~.runner.Runner`, on a run already checked
 (:func:`.checks.check_run`). A small input's run (:mod:`.small`) imports
-none of this: the store, zarr, dask and the stages' modules (0.1 s of a
-1,000-point file's run).
+none of this: the store, zarr, dask and the stages' modules, whose imports
+cost a small file's run more than its points.
 """
 
 from __future__ import annotations

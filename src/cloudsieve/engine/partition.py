@@ -98,7 +98,7 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
     if n_cells <= 1:
         centers = rel.mean(axis=0, keepdims=True) if len(rel) else np.zeros((1, 3))
     else:
-        from ..core import KMeans  # here: one cell needs no K-means (its modules: 0.02 s to import)
+        from ..core import KMeans  # here: one cell needs no K-means (nor its modules' import)
 
         km = KMeans(n_clusters=n_cells, seed=int(seed)).fit(rel)
         centers = np.asarray(km.cluster_centers_, dtype=np.float64)
@@ -130,7 +130,7 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
     rel = sample - sample.mean(axis=0)
     q = rel[perm[: min(s, 4000)]]
     sub = rel[perm[: s // 8]]
-    from scipy.spatial import cKDTree  # here: scipy.spatial takes ~0.5-1.4 s to import
+    from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
 
     r1 = float(np.median(cKDTree(rel).query(q, k=k + 1)[0][:, k]))
     r2 = float(np.median(cKDTree(sub).query(q, k=k + 1)[0][:, k]))
@@ -241,7 +241,7 @@ def fit_sample(sample: np.ndarray, n: int, n_cells: int, seed: int, origin: np.n
         centers = side.submit(fit_centers, sample, n_cells, seed, origin)
         if n_cells > 1:
             r_k, dim, margin = estimate_margin(sample - origin, n, k, seed)
-        else:  # no margin to estimate (and no scipy.spatial to import, 0.4-1.4 s)
+        else:  # no margin to estimate (and no scipy.spatial to import)
             r_k, dim, margin = 0.0, 3.0, 0.0
         r_max = None
         if eliminate_target is not None:

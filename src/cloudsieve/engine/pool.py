@@ -23,9 +23,8 @@ __all__ = ["local_pool", "worker_context", "preload", "start_forkserver", "WARM_
 WARM_UP_ENV = "CLOUDSIEVE_WARM_UP"
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived
-#: process; the heap's thresholds are fixed by bound_malloc). A replaced worker's first task costs
-#: about 0.1 s more (numba's cache, fresh pages): replaced every 8 tasks, the workers took 14.4-14.6 s for
-#: the 10 M run's cells stage, never replaced 12.9-13.3 s
+#: process; the heap's thresholds are fixed by bound_malloc). A replaced worker's first task costs more
+#: (numba's cache, fresh pages): replaced every 8 tasks, the workers' cells stage takes a tenth longer
 _TASKS_PER_CHILD = 64
 #: modules imported once by the fork server, so a replaced worker starts in milliseconds
 _PRELOAD = ["numpy", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.engine",
@@ -36,8 +35,8 @@ _PRELOAD = ["numpy", "zarr", "cloudsieve.store", "cloudsieve.core", "cloudsieve.
             # last: the fork server asks to die with the driver (see cloudsieve/lifeline.py) and warms up the kernels
             "cloudsieve.engine.forkserver_init"]
 #: what only the scoring path's tasks (the entropy rules, evaluate) import: scipy's k-d tree and the scoring
-#: kernels. A run of the default rule leaves them out: the fork server's imports took 0.54-0.60 s without them,
-#: 0.82-0.87 s with them, and the first tasks of a run wait for it
+#: kernels. A run of the default rule leaves them out: they are about a third of the fork server's imports,
+#: and the first tasks of a run wait for it
 _SCORING = ["scipy.spatial", "cloudsieve.core.kernels.knn", "cloudsieve.core.kernels.entropy"]
 
 
@@ -45,7 +44,7 @@ def worker_context():
     """The multiprocessing context of the local worker processes.
 
     dask's default is "spawn": every new process starts Python and imports
-    numpy, scipy, zarr and cloudsieve again (~1.3 s measured), and workers are
+    numpy, scipy, zarr and cloudsieve again (seconds, not milliseconds), and workers are
     replaced every ``_TASKS_PER_CHILD`` tasks. Where available (and unless
     dask's ``multiprocessing.context`` is configured) a "forkserver" that has
     imported them once forks the workers instead: a clean single-threaded
@@ -81,7 +80,7 @@ def start_forkserver(context, targets: Iterable[str]) -> None:
     *targets* once, before it forks a worker
     (:mod:`.forkserver_init`): the workers inherit them, and two workers
     never compile the same kernel side by side. It is one per process: a
-    fork server already running (an earlier run of this process) is kept,
+    fork server already running (started by a run before, in this process) is kept,
     and its workers load what else they need from the cache.
     """
     if context.get_start_method() != "forkserver":

@@ -51,9 +51,8 @@ class Runner:
     scheduler : str, optional
         None (the embedded default, :data:`DEFAULT_SCHEDULER`): dask's local
         "processes" scheduler with one process pool for the whole run
-        (measured on 2 cores, 2 M points, KM: cells stage 88 s with
-        processes, 128 s with threads: the in-memory method holds the GIL in
-        its Python parts); with *memory_limit* a
+        (faster than threads: the in-memory method holds the GIL in its
+        Python parts); with *memory_limit* a
         :class:`distributed.LocalCluster` of *workers* processes, each
         capped. "sync", "threads", "processes": dask's local schedulers.
         "tcp://host:port": an existing dask.distributed cluster whose workers
@@ -172,9 +171,8 @@ class Runner:
         """Start the local worker processes now, in a background thread (the local process pool only).
 
         The first task of a run otherwise waits for the fork server to start,
-        import its preload modules and load the kernels (about 1.5 s
-        measured); started while the driver ingests, that overlaps the
-        ingest. Returns at once; the tasks and their results are the same.
+        import its preload modules and load the kernels; started while the
+        driver ingests, that overlaps the ingest. Returns at once; the tasks and their results are the same.
         """
         pool = self._pool
         # spawned workers would be the thread's children, and die with it (PR_SET_PDEATHSIG)
@@ -320,8 +318,8 @@ class Runner:
                 if key in keys:
                     update(1)
 
-        # the scheduler as a function: named by a string, dask imports distributed (about 0.2 s) to look
-        # for a client first
+        # the scheduler as a function: named by a string, dask imports distributed (a cost of its own) to
+        # look for a client first
         from dask import local, multiprocessing, threaded
 
         get = {"sync": local.get_sync, "threads": threaded.get, "processes": multiprocessing.get}[self.local]

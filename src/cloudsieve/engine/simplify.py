@@ -103,7 +103,7 @@ def simplify(
     dst : str or path-like
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
-        Refinement into small clusters: K-means (the default: as good as FCM and 1.26x faster end to end) or fuzzy C-means.
+        Refinement into small clusters: K-means (the default: as good as FCM and faster end to end) or fuzzy C-means.
     rule : str, optional
         Pruning rule, a name of the registry (:data:`cloudsieve.core.rules.RULES`). ``eliminate``: weighted
         sample elimination (:mod:`cloudsieve.engine.eliminate`), exactly the
@@ -125,11 +125,11 @@ def simplify(
     cell_size : int
         Points per coarse cell, i.e. per task; bounds a task's memory. The
         in-memory method peaks at about 2 kB per point, and K-means cells
-        vary (largest 1.54x the mean on the 10 M benchmark scan). Measured on 2 cores, 2 workers, 10 M
-        points (benchmarks/engine.py), peak RSS of the process tree: the
-        default command at 200,000 (the default) 0.99-1.03 GB, and the
-        same at 50 M points; ``--rule iterative`` 1.40 GB at 200,000 and
-        1.13 GB at 100,000 (README, "Speed and memory: out of core").
+        vary (largest 1.54x the mean on the 10 M benchmark scan). The
+        process tree's peak follows the cell size, not the cloud's: the same
+        at 10 M and 50 M points; the round rules (``iterative``) peak higher
+        than ``eliminate``, and 100,000 lowers them (docs/benchmarks.md,
+        "Out of core on dask").
     scheduler : str, optional
         None (embedded default), "sync", "threads", "processes" or a
         "tcp://host:port" dask.distributed scheduler address.

@@ -179,7 +179,7 @@ def record_params(store, params: dict, overwrite: bool) -> None:
 
     A store holding another run's results is refused (or, with *overwrite*,
     its derived arrays deleted); a store with no run recorded gets its derived
-    arrays deleted. The summary of an earlier run is dropped.
+    arrays deleted. A summary stored by another run is dropped.
 
     Raises
     ------
@@ -221,9 +221,9 @@ def region_block(cell_size: int) -> int:
     """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 4, in [2^10, 2^16].
 
     A cell's region is padded to whole chunks (unwritten chunks take no
-    space) and each chunk is a file: with cell_size / 16 (4,096 for cells of
-    100,000 points) writing a cell's keep mask took 16 ms for 27 files, with
-    cell_size / 4 (16,384) 5 ms for 7 (measured, lz4 blosc on local disk).
+    space) and each chunk is a file: cell_size / 4 writes a cell's keep
+    mask in about 7 files, where cell_size / 16 writes 27, each a file's
+    cost.
     """
     return 1 << max(10, min(16, int(math.log2(max(1, cell_size // 4)))))
 

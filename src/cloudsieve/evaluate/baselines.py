@@ -18,8 +18,8 @@ deterministic.
   different samples from one call to the next, so it cannot be seeded.)
 - ``fps``: farthest point sampling (open3d ``farthest_point_down_sample``),
   exactly *count* points, mapped back to original indices by exact
-  coordinates; O(n x count), refused beyond ``FPS_MAX_WORK`` = 2e10
-  (about 20 s on one core; 110k -> 99k points is 1.1e10).
+  coordinates; O(n x count), refused beyond ``FPS_MAX_WORK`` = 2e10, which
+  bounds its time (autzen_trim's 110k -> 99k points is 1.1e10).
 - ``km`` / ``fcm``: entropy simplification (:func:`cloudsieve.core.simplify.simplify_points`,
   rule ``target`` with the count by default).
 

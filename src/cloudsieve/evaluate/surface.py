@@ -21,10 +21,9 @@ one chunk; every point with *full*), after one pass for a uniform sample;
 the simplified cloud is in memory.
 
 Cost: ball pivoting dominates (pymeshlab, one core per mesh; the original's
-and the simplified tile meshes are built at once in two forked children):
-measured about 5 s for 100k aerial points with radius r and 9 s more for
-the 2r pass (shared, loaded 2-core machine); Metro about 3-10 us per sample,
-slower where one mesh has holes (vcg's grid search widens up to MaxDist).
+and the simplified tile meshes are built at once in two forked children),
+its 2r pass about twice its r pass; Metro costs more per sample where one
+mesh has holes (vcg's grid search widens up to MaxDist).
 """
 
 from __future__ import annotations

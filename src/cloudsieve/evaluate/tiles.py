@@ -17,7 +17,7 @@ Three ways to choose them (:func:`.surface.surface_errors`):
 - **full** (:func:`partition_tiles`): every original point in one tile (the
   cells of k-means centres of a uniform sample, at most about M points
   each): the surface level of the whole cloud, in time proportional to its
-  size (about 1 s per 3,000 original points on one core).
+  size.
 
 Tiles are gathered in one streamed pass over the original
 (:func:`gather_tiles`, or :func:`partition_tiles`), after one pass for the
@@ -41,9 +41,9 @@ SAMPLE_SIZE = 200_000
 #: the smallest tile a budget makes (smaller tiles mesh too little surface to compare)
 MIN_TILE_POINTS = 10_000
 #: original points a second of the surface level (both tile meshes and both Metro directions, the two meshes
-#: in forked children at once), measured on 2 cores at a load of 2-3: 4,860 on the tiles of a 10 M-point
-#: make_scan cloud (docs/benchmarks.md), 5,500 on autzen_trim with --surface-full; a budget sizes its tiles at
-#: this rate, never by a clock, so the tiles and the figures are the same on any machine and under any load
+#: in forked children at once) on 2 cores, rounded down from the rates of make_scan and autzen_trim clouds
+#: (docs/benchmarks.md, "Evaluation"); a budget sizes its tiles at this rate, never by a clock, so the tiles
+#: and the figures are the same on any machine and under any load
 SURFACE_RATE = 4_000
 #: tiles a budget is sized for (at least): enough for a standard error over tiles
 BUDGET_TILES = 8

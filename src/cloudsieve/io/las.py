@@ -300,7 +300,7 @@ class LasWriter(Writer):
         self._writer.close()
         day_year = self._header_dict.get("creation_day_year")
         if self._header_dict.get("creation_date") is None and day_year:
-            # laspy writes today's date for an unset one: put the source's raw bytes back
+            # laspy writes the current date for an unset one: put the source's raw bytes back
             self.file.seek(90)
             self.file.write(int(day_year[0]).to_bytes(2, "little") + int(day_year[1]).to_bytes(2, "little"))
 

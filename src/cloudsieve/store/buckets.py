@@ -11,12 +11,11 @@ counts. The driver turns those into a run table: the points of key k are, in
 input order, its runs ``records[chunk, start:start + count]``. Nothing of size N
 passes through the driver or the scheduler; a map task holds two copies of
 one chunk. The attributes travel packed in one record per point: one zarr
-read per run instead of one per run and attribute (zarr costs about 1 ms a
-call: 2 M points in 68 tiles of 19 attributes spent 3.5 s of 7.3 in the
-tiles' reads, unpacked). The rows are not sharded: 1 M records of 55 bytes
-written in 0.37 s and read in 0.07 s, against 0.56 s and 0.26 s sharded
-(one shard per row), 2.6 ms against 18 ms for a run of 20 000 points; one
-file per 16384 points (6100 files for 10^8 points).
+read per run instead of one per run and attribute (each zarr call has an
+overhead of its own: unpacked, the tiles' reads are about half of a tile
+export). The rows are not sharded: sharded (one shard per row), records write
+1.5 times and read nearly 4 times slower, a run of them 7 times; one file per
+16384 points (6100 files for 10^8 points).
 
 Layout written into the store, under ``export/<name>/``::
 
@@ -241,7 +240,7 @@ def open_runs(store_path: str, name: str) -> tuple:
 
     from ..paths import zarr_store
 
-    # the array alone: opening the store (its attributes, the header) too costs about 5 ms a task
+    # the array alone: opening the store (its attributes, the header) too would cost every task its reads
     arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records", mode="r",
                           zarr_format=3)
     return arr, _record(arr)

@@ -112,7 +112,7 @@ def _chunk(records: np.ndarray, vlr) -> bytes:
     """The LAZ chunk of one node, its points in GPS time order (stable: ties keep the cell order).
 
     The order of acquisition, as the source's: chunks 18% smaller than in
-    cell order (1.19 MB -> 0.98 MB for autzen_trim, measured).
+    cell order on autzen_trim.
     """
     return compress(records.take(np.argsort(records["gps_time"], kind="stable")), vlr)
 
@@ -156,7 +156,7 @@ def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> di
     del xyz
     # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
     order = np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")
-    keys, records = keys[order], records.take(order)  # take: 2.4x faster than indexing on records
+    keys, records = keys[order], records.take(order)  # take: faster than indexing on records
     level = assign_levels(keys, base_depth=depth, leaf_points=build.leaf_points)
     order, depths, nkeys, counts = group_nodes(keys, level)
     del keys, level

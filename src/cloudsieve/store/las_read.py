@@ -70,7 +70,7 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
     ints = np.empty((0 if decode else total, 3), dtype=np.int32)
     coords = np.empty((total if decode else 0, 3), dtype=np.float64)
     # the attributes beside X, Y, Z on threads (both release the GIL), numba's first call while the LAZ decodes;
-    # not for a small input, whose run is mostly Python's (simple.las: 0.05 s slower on threads)
+    # not for a small input, whose run is mostly Python's (threads slow it down)
     threads = 2 if parallel and total >= THREADED_POINTS else 1
     if threads > 1:
         threading.Thread(target=first_call, daemon=True, name="cloudsieve-first-call").start()
@@ -105,7 +105,7 @@ def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarr
     from ..io.las_checks import QUIET_READS
 
     # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
-    # cores); the tasks of a run in this process decode on every core (1 M points: 0.25-0.28 s against 0.55-0.57 s)
+    # cores); the tasks of a run in this process decode on every core (about twice as fast as on one)
     backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
     # a URL is read by ranged requests: the header and the chunk table (small reads), then this piece's chunks
     fh = storage.open_input(path, storage.HEADER_BLOCK)

@@ -28,18 +28,14 @@ def bound_malloc(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) ->
 
     glibc's default mmap threshold rises with the largest buffer freed, after
     which chunk-sized buffers (megabytes) come from per-thread heaps that
-    fragment: peak RSS of an ingest grew from 290 MB at 5 M points to 460 MB
-    at 20 M before levelling off, and in the local workers (which free the
-    label tasks' 24 MB arrays) the 10 M benchmark's process tree reached
-    1.50 GB (1.30 GB with 32 MiB fixed, 1.05 GB with 16 MiB). Fixing the
-    mmap threshold leaves the trim threshold at 128 KiB: each of a worker's
-    tasks, and each chunk of the ingest and export, gave its buffers back to
-    the OS and the next one faulted them in again. 10 M benchmark run, with
-    the 128 KiB default (and 1 MiB in the driver until 2026-11-27): 1.8-2.1 M
-    page faults, 0.7 M of them in the driver's ingest and export, about 1.8
-    µs each; with a 256 MiB trim threshold in the workers 1.06 M, and with
-    the driver at 16 MiB / 256 MiB too, 0.73 M; peak RSS of the process tree
-    0.98-1.06 -> 1.15-1.20 GB, flat from 10 M to 50 M points. Process-wide,
+    fragment: an ingest's peak RSS grows with N before levelling off, and the
+    local workers (which free the label tasks' large arrays) grow the
+    process tree's by half. A fixed mmap threshold of 16 MiB keeps it flat.
+    With it, glibc's default trim threshold (128 KiB) gives each task's and
+    each chunk's buffers back to the OS, and the next one faults them in
+    again; a trim threshold of 256 MiB, in the workers and the driver, cuts
+    a run's page faults by more than half for a little more peak RSS, still
+    flat from 10 M to 50 M points. Process-wide,
     set once; each threshold is skipped when the user set its environment
     variable (MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_), and both when
     the C library is not glibc.
@@ -65,10 +61,9 @@ def gathered(calls) -> list:
     """The results of zarr's coroutines *calls* (``Array.async_array`` reads and writes), in order, run
     concurrently in one call of zarr's event loop.
 
-    One call each costs about 1 ms of zarr's overhead (a cell's ten runs, a
-    task's five small writes), and the codecs release the GIL: a store
-    chunk's arrays read together, export of 5 M of 10 M points 1.83-1.90 ->
-    1.54-1.75 s.
+    Each call of zarr's event loop has an overhead of its own, whatever its
+    size (a cell's ten runs, a task's five small writes), and the codecs
+    release the GIL: a store chunk's arrays read together decode at once.
     """
     import asyncio  # here, as zarr: a run without a store (engine.small) imports neither
 
@@ -152,7 +147,7 @@ def run_tasks(run, func, args: list, stage: str) -> list:
 
     In this process, one after the other, when *run* is None, or when there
     is a single task and no dask.distributed cluster: a local worker process
-    would only add its start-up (about 1.5 s) to that task.
+    would only add its start-up (the fork server's imports and kernels) to that task.
     """
     if _direct(run, len(args)):
         return [func(*a) for a in args]

@@ -1,10 +1,9 @@
 """The k nearest of a few sites (cell centres) for many points, compiled with numba.
 
 The partition's label pass asks, for every point of the cloud, its 2 nearest
-cell centres (its 6 nearest near a cell border). cKDTree answers that in
-0.21-0.27 s per million points for 50 centres, most of it per-query
-overhead; this kernel in 0.05 s (6 nearest: 0.34 against 0.10 s; one
-thread, a chunk of ``benchmarks/make_scan.py``): a k-d tree of the centres
+cell centres (its 6 nearest near a cell border). cKDTree's answer is
+mostly per-query overhead; this kernel takes a quarter to a third of its time:
+a k-d tree of the centres
 (:func:`.kdtree.build_tree`, leaves of at most ``LEAF``), walked depth first,
 nearer child first, pruned by the gap from the point to a node's box.
 

@@ -54,10 +54,8 @@ from .cover import add_gain, falloff, fbound, gain, resume_at, take_alt, unlink
 from .neighbours import list_nearest, term_weight
 
 # The helpers here, in .cover and .neighbours (list_nearest, term_weight) and .grid.nearest are plain calls, not
-# inline="always" (numba's IR inlining, re-typed at every call site): compiled into empty caches side by side
-# (ABBA, load 5.4-9.1), the elimination's kernels took 16.7 and 17.7 s against 43.7 and 21.4 s inlined, the
-# whole in-memory eliminate 69.4 and 44.4 s against 100.9 and 49.2 s; LLVM still inlines them. Same kept set
-# (autzen_trim, 50%), and 0.32-0.53 s against 0.29-0.65 s per run
+# inline="always" (numba's IR inlining, re-typed at every call site): inlined, the elimination's kernels take
+# up to twice as long to compile, for the same kept set and run time; LLVM still inlines them
 
 
 @njit(cache=True)
@@ -118,7 +116,7 @@ def _fall(y, rec, win, m, tie):
         _replay(win, (m + y) >> 1, y, rec, tie)
 
 
-# A plain function: its allocations in numpy (compiled, they cost the first start 0.9 s), the work in the kernel
+# A plain function: its allocations in numpy (compiled, they would lengthen the first start), the work in the kernel
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, keys_left=True):
     """Remove removable points, largest key first, until ``floor`` of the own ones remain.

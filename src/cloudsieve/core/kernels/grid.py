@@ -43,9 +43,8 @@ def _compact(v):
     return v
 
 
-# Not parallel=True (nor nearest_kept): measured on 2 cores (load ~7) on a 220,000-point cell, cell_codes took
-# 1.1-4.1 ms parallel against 1.7-1.9 ms in one thread, nearest_kept 83-104 ms against 46-47 ms, and their
-# compilation 0.3 s and 1.1 s more; a cell task runs on one core anyway, and a fork server that has run a
+# Not parallel=True (nor nearest_kept): on a cell, parallel is no faster than one thread and compiles slower;
+# a cell task runs on one core anyway, and a fork server that has run a
 # parallel kernel cannot fork (GNU OpenMP), so the default rule's kernels can be warmed up there
 @njit(cache=True, nogil=True)
 def cell_codes(P, lo, h):
@@ -65,8 +64,7 @@ def cell_codes(P, lo, h):
 def argsort_keys(key):
     """``np.argsort(key, kind="stable")`` of non-negative int64 keys: an LSD radix sort by bytes, over the
     bytes the largest key uses (a cell's codes and keys are small: 2-3 passes). Written here because numpy's
-    stable sort of int64 is a merge sort: 0.81 ms for the 16,359 codes of a 16,384-point cell, against
-    0.14 ms here, of a grid built in 2.4 ms."""
+    stable sort of int64 is a merge sort, about six times slower on a cell's codes."""
     n = len(key)
     top = np.int64(0)
     for i in range(n):
@@ -209,9 +207,8 @@ def cell_neighbours(ukeys):
     sorted), in (dx, dy, dz) order.
 
     A sweep in (x, y, z) order with a forward cursor per column
-    (:func:`_column_sweep`), not 27 hash-table lookups a cell: 19.3 -> 6.7 ms
-    for the 63,386 cells of a 138,000-point cell of the 10 M scan (the same
-    lists). numpy's stable sort: the keys come in Z order, partly sorted.
+    (:func:`_column_sweep`), not 27 hash-table lookups a cell: a third of
+    their time, the same lists. numpy's stable sort: the keys come in Z order, partly sorted.
     """
     xyz, key = _lex_keys(ukeys)
     L = argsort_keys(_sweep_keys(xyz, key) if len(ukeys) else key)

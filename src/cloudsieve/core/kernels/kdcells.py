@@ -1,9 +1,8 @@
 """Compiled kernels of the in-memory cells of ``eliminate`` (numba; private, inputs assumed valid).
 
 numpy takes a fancy-indexed copy of the rows, a partition and two boolean
-masks per cut: the cut of 1 M points into 64 cells took 0.13 s in numpy
-(0.11 s with the rows gathered and split here and numpy's partition); one
-histogram pass finds the median's bin instead (0.083 s, 2 threads). The
+masks per cut; one histogram pass finds the median's bin instead, and the
+rows are split here (together a third faster than numpy's). The
 cut moves the points with their rows (:func:`median_cut`), so the cells'
 points come out in cell order, each cell's a contiguous block.
 """
@@ -60,10 +59,9 @@ def median_cut(Q, idx, axis, lo, hi, vals, tmp, tmpq, counts):
     v is the exact (m // 2)-th smallest value, as a partition of all of them gives it, found in three
     passes instead: a histogram of the values over ``len(counts)`` bins of [lo, hi] (the bin of a value
     never decreases with it), the values of the bin holding that rank, a partition of those few (numpy's:
-    with numba's ``np.partition`` and array slicing the cut took 10.5 s to compile into an empty cache,
-    plain loops 0.9 s). The points move with their rows, so that every pass reads them in order: read
-    through ``idx`` from the input's order, a cut of 1 M points into 64 cells took 0.080-0.100 s on one
-    thread, against 0.051-0.059 s in order.
+    numba's ``np.partition`` and array slicing take ten times as long to compile as plain loops). The points
+    move with their rows, so that every pass reads them in order: read through ``idx`` from the input's
+    order, a cut takes half as long again.
     ``vals`` is scratch of at least len(idx) (rows)."""
     few, below = _median_bin(Q, axis, lo, hi, vals, counts)
     v = float(np.partition(few, len(idx) // 2 - below)[len(idx) // 2 - below])

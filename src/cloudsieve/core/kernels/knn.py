@@ -45,8 +45,8 @@ __all__ = ["knn_unchecked", "knn_scored", "take_neighbours"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
 # more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
-# k + TRIM. Measured on 1 M points in clusters of ~400, k = 21, one thread: leaves of 16 to 48,
-# bounds from 1 to 2.5 k, trims above k + 2 to k + 100 are all within 10% of each other.
+# k + TRIM. On clusters of ~400 points, leaves of 16 to 48, bounds from 1 to 2.5 k and trims above k + 2 to
+# k + 100 are all within 10% of each other: the values are not critical.
 LEAF_MIN = 16
 LEAF_EXTRA = 0
 BOUND_NODE = 2

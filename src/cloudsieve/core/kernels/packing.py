@@ -4,13 +4,10 @@ Two walks of the same neighbours, sharing the distance test and the join:
 over the grid (:func:`packing_counts`: the engine's share task, which builds
 no neighbour lists) and over the lists (:func:`packing_from_lists`: the
 in-memory cells, which build them anyway). Building lists only to pack a
-200,000-point cell took 0.111 s against 0.091 s for the grid walk at 50%
-kept, 0.262 s against 0.117 s at 10% (the same sizes; one thread). The two
-loops over a neighbour stay written out: folding them into one helper (a
-function returning ``blocked``, inlined or not) made the grid walk of a
-200,000-point cell 0.097-0.128 s instead of 0.077-0.078 s at 50% kept and
-0.22-0.27 s instead of 0.104-0.106 s at 10% (one thread, load 0.9), the same
-sizes.
+cell is slower than the grid walk, twice as slow at 10% kept. The two loops
+over a neighbour stay written out: folded into one helper (a function
+returning ``blocked``, inlined or not), the grid walk is a third slower at
+50% kept and twice as slow at 10%.
 
 Grid arguments as in :mod:`.grid`.
 """

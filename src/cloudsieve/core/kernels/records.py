@@ -2,11 +2,10 @@
 
 Written here because numpy reads a field of a structured array (a record's
 stride apart) through its generic strided loop, one element at a time:
-X, Y, Z of 10 M records copied into an (n, 3) int64 array, re-quantised,
-cast to int32 and decoded to float64 took 1.8 s on one core (0.76 s of
-it the copy), against 0.06-0.08 s for one pass over the record bytes here
-(docs/benchmarks.md). laspy keeps the records as bytes; no library reads
-three fields of them into one array.
+X, Y, Z copied into an (n, 3) int64 array, re-quantised, cast to int32
+and decoded to float64 take twenty times or more as long as one pass over the
+record bytes here. laspy keeps the records as bytes; no library reads three
+fields of them into one array.
 
 :func:`las_xyz` takes a range of rows, so the caller may run disjoint ranges
 on threads (``nogil``); the result does not depend on the ranges.
@@ -49,7 +48,7 @@ def las_xyz(rec, offs, mult, add, scale, offset, ints, coords, s, e, lo, hi):
 
 def first_call() -> None:
     """:func:`las_xyz` on no rows, with the argument types of the real calls: numba's first call in a
-    process (0.3 s: its registries) or the warm-up's compile."""
+    process (its registries: made while lazrs decodes) or the warm-up's compile."""
     i64 = np.zeros(3, dtype=np.int64)
     las_xyz(np.zeros((0, 16), dtype=np.uint8), i64, i64, i64, np.zeros(3), np.zeros(3),
             np.zeros((0, 3), dtype=np.int32), np.zeros((0, 3)), 0, 0, i64.copy(), i64.copy())

@@ -50,10 +50,10 @@ GROUP_ROWS = 1_000_000
 def group_rows(labels, n_labels: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """``np.argsort(labels, kind="stable")`` of labels in [0, n_labels), and each label's bounds (n_labels + 1,)
     in it, by counting: each of *threads* ranges of rows counts its labels, then places its rows after
-    the lower ranges' rows of the same label (the same array on any thread count). numpy's stable sort of
-    10 M 16-bit labels took 0.11-0.38 s on one core."""
+    the lower ranges' rows of the same label (the same array on any thread count): a fraction of the time
+    of numpy's stable sort of 16-bit labels, on one core."""
     n = len(labels)
-    if n_labels == 1:  # one cell (every small input): the rows as they are, no kernel to load (7 ms a kernel)
+    if n_labels == 1:  # one cell (every small input): the rows as they are, no kernel to load
         return np.arange(n, dtype=np.int64), np.array([0, n], dtype=np.int64)
     parts = max(1, min(int(threads), n // GROUP_ROWS + 1))
     cuts = np.linspace(0, n, parts + 1).astype(np.int64)
