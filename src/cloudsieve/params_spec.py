@@ -9,6 +9,7 @@ it; :mod:`cloudsieve.cli` builds its flags from it.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
@@ -282,8 +283,9 @@ MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine", "eliminate")
 
 def _options_class(command: str) -> type:
     """The frozen options object of *command*: one field per option, in :data:`COMMANDS`' order, with its
-    default (``EvaluateOptions`` for ``evaluate``). Importable from here by name, so it pickles."""
-    name = "".join(word.title() for word in command.split("_")) + "Options"
+    default (``EvaluateOptions`` for ``evaluate``). Made at its first use (a dataclass costs milliseconds
+    to build, and a start-up reads this module), then kept; importable from here by name, so it pickles."""
+    name = _CLASS_NAMES[command]
     cls = make_dataclass(name, [(n, Any, field(default=o.default)) for n, o in COMMANDS[command].items()],
                          frozen=True)
     cls.__module__ = __name__
@@ -292,6 +294,29 @@ def _options_class(command: str) -> type:
     return cls
 
 
+class _OptionClasses(Mapping):
+    """command -> its frozen options class, each made at its first use."""
+
+    def __getitem__(self, command: str) -> type:
+        name = _CLASS_NAMES[command]
+        return globals().get(name) or _options_class(command)
+
+    def __iter__(self):
+        return iter(COMMANDS)
+
+    def __len__(self) -> int:
+        return len(COMMANDS)
+
+
+_CLASS_NAMES = {command: "".join(word.title() for word in command.split("_")) + "Options" for command in COMMANDS}
 #: command -> its frozen options class; an instance is built by :func:`cloudsieve.params.options`, once, at
 #: the entry, and passed whole
-OPTION_CLASSES: dict[str, type] = {command: _options_class(command) for command in COMMANDS}
+OPTION_CLASSES: Mapping[str, type] = _OptionClasses()
+
+
+def __getattr__(name: str) -> type:
+    """A command's options class by its name (``EvaluateOptions``), made at its first use (unpickling asks)."""
+    for command, class_name in _CLASS_NAMES.items():
+        if class_name == name:
+            return OPTION_CLASSES[command]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
