@@ -188,6 +188,10 @@ def test_each_command_has_one_frozen_options_object_from_the_spec():
     with pytest.raises(dataclasses.FrozenInstanceError):
         o.sample = 5
     assert pickle.loads(pickle.dumps(o)) == o
+    probe = "import pickle, sys; print(pickle.loads(sys.stdin.buffer.read()).sample)"  # a process without the class
+    env = {**os.environ, "PYTHONPATH": SRC_DIR + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    assert subprocess.run([sys.executable, "-c", probe], input=pickle.dumps(o), capture_output=True, check=True,
+                          env=env).stdout == b"1000\n"
     with pytest.raises(InvalidParameterError) as exc:
         options("compare", {"count": 0})
     assert str(exc.value) == "count must be an integer >= 1, got 0"
