@@ -50,6 +50,7 @@ from cloudsieve.core.eliminate import eliminate
 from cloudsieve.evaluate.evaluation import run_evaluation
 from cloudsieve.evaluate.baselines import fps_subset, poisson_subset, voxel_subset
 from cloudsieve.io import read_cloud
+from cloudsieve.params_spec import OPTION_CLASSES
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
 SCANS = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.laz", "append-bug.laz",
@@ -58,7 +59,8 @@ BASELINES = {"voxel": voxel_subset, "poisson": poisson_subset, "fps": fps_subset
 
 
 def figures(P: np.ndarray, idx: np.ndarray, cache: dict, surface: bool = True) -> dict:
-    rep = run_evaluation(P, P[idx], subset=True, surface=surface, surface_cache=cache)
+    options = OPTION_CLASSES["evaluate"](subset=True, surface=surface, tiles=4, surface_budget=None)  # 4 tiles, no budget
+    rep = run_evaluation(P, P[idx], options, surface_cache=cache)
     out = {"count": int(len(idx)), "rms": rep["point"]["forward"]["rms_pct"],
            "max": rep["point"]["forward"]["max_pct"]}
     if surface:

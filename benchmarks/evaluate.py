@@ -90,8 +90,8 @@ def main(argv: list[str] | None = None) -> int:
 
         return end_to_end(int(args.end_to_end), Path(args.workdir))
 
-    from cloudsieve.evaluate.points import point_errors
-    from cloudsieve.evaluate.surface import surface_errors
+    from cloudsieve.evaluate.points import PointLevel, point_errors
+    from cloudsieve.evaluate.surface import TilePlan, surface_errors
 
     rng = np.random.default_rng(args.seed + 1)
     if args.original:
@@ -122,15 +122,16 @@ def main(argv: list[str] | None = None) -> int:
     row("point level, exact (both directions)", f"{n:,} / {m:,}", t, n / t,
         f"mean {r['forward']['mean']:.4g}, RMS {r['forward']['rms']:.4g}, max {r['forward']['max']:.4g}")
     exact = r
-    t, r = _time(lambda: point_errors(original, simplified, sample=args.sample, seed=args.seed))
+    t, r = _time(lambda: point_errors(original, simplified, PointLevel(sample=args.sample, seed=args.seed)))
     ci = r["forward"]["ci"]["mean"]
     inside = ci[0] <= exact["forward"]["mean"] <= ci[1]
     row(f"point level, sampled ({args.sample:,} per direction)", f"{n:,} / {m:,}", t, n / t,
         f"mean {r['forward']['mean']:.4g} CI [{ci[0]:.4g}, {ci[1]:.4g}] "
         f"({'contains' if inside else 'MISSES'} the exact mean)")
     if not args.no_surface:
-        t, s = _time(lambda: surface_errors(original, simplified, tiles=args.tiles, tile_points=args.tile_points,
-                                            seed=args.seed, diagonal=exact["diagonal"]))
+        t, s = _time(lambda: surface_errors(original, simplified, TilePlan(tiles=args.tiles,
+                                                                           tile_points=args.tile_points, seed=args.seed),
+                                            diagonal=exact["diagonal"]))
         pts = sum(x["points_original"] for x in s["tiles"])
         row(f"surface level, {len(s['tiles'])} tiles of <= {args.tile_points:,} points",
             f"{pts:,} / {sum(x['points_simplified'] for x in s['tiles']):,}", t, pts / t,

@@ -19,7 +19,9 @@ import sys
 
 import pytest
 
+from cloudsieve import params
 from cloudsieve.cli import build_parser, main
+from cloudsieve.cli._common import option_values
 from conftest import ROOT, shared_file
 
 PARSER = build_parser()
@@ -85,8 +87,27 @@ def test_every_option_of_a_readme_command_exists(line):
 
 
 @pytest.mark.parametrize("line", README_BLOCKS)
-def test_every_command_of_a_readme_code_block_parses(line):
-    PARSER.parse_args(shlex.split(line))  # SystemExit on an unknown option or a bad value
+def test_every_command_of_a_readme_code_block_is_accepted(line):
+    """Each parses (SystemExit on an unknown option or a bad value) into its subcommand, each flag's value where
+    the command reads it, and its options pass the checks its API runs first (params.validate)."""
+    words = shlex.split(line)
+    args = PARSER.parse_args(words)
+    command = COMMANDS[words[0]]
+    assert args.func.__module__ == f"cloudsieve.cli.{words[0]}"
+    for i, word in enumerate(words):
+        flag, _, inline = word.partition("=")
+        action = command._option_string_actions.get(flag)
+        if action is None:
+            continue
+        if action.nargs == 0:  # store_true / store_false
+            assert getattr(args, action.dest) is action.const, flag
+        else:
+            text = inline or words[i + 1]
+            value = action.type(text) if action.type else text
+            got = getattr(args, action.dest)
+            assert value in got if isinstance(action, argparse._AppendAction) else got == value, flag
+    if words[0] in params.COMMANDS:
+        params.validate(words[0], option_values(args, words[0]))
 
 
 @pytest.mark.parametrize("command", ["simplify", "ingest", "export", "evaluate", "compare", "run", "demo"])
@@ -136,9 +157,9 @@ def test_help_describes_the_flag_not_the_default():
                                                     "Metro distances, compactness)")
     assert _help_of("evaluate", "--no-strict") == _help_of("evaluate", "--force") == (
         "compare clouds of different CRS or units, with a warning (default: refuse them)")
-    assert _help_of("ingest", "--overwrite") == "replace an existing point store STORE"
-    assert _help_of("export", "--overwrite") == "replace an existing destination file DST"
-    assert "work store" in _help_of("simplify", "--overwrite")
+    assert _help_of("ingest", "--overwrite") == _help_of("export", "--overwrite") == _help_of(
+        "simplify", "--overwrite") == ("replace what is at the destination (DST, or ingest's STORE); simplify also "
+                                       "discards a work store left by another source or other options")
 
 
 def test_simplify_help_opens_with_what_the_default_rule_does():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib
+import logging
 import os
 
 import numpy as np
@@ -12,9 +13,10 @@ from cloudsieve.core.rules import DEFAULT_RULE, THRESHOLD_RULE
 from cloudsieve.engine import pool as pool_module
 from cloudsieve.engine.calls import forked, imap
 from cloudsieve.engine.runner import PeakMemory, Runner
+from cloudsieve import progress
 from cloudsieve.progress import stage_bar
 from cloudsieve.errors import CloudsieveError, InvalidParameterError
-from cloudsieve.warmup_targets import TARGETS, targets_of
+from cloudsieve.rule_table import TARGETS, targets_of
 
 
 @pytest.mark.parametrize("scheduler, workers", [("sync", None), ("threads", 2), ("processes", 2)])
@@ -106,9 +108,19 @@ def test_imap_in_process_streams_in_order_with_shared_arguments():
     assert list(imap(divmod, [((9,), {}), ((8,), {})], shared=(4,))) == [(2, 1), (2, 0)]
 
 
-def test_stage_bar_without_bars_is_a_no_op():
-    with stage_bar(None, "ingest", None, "pt") as update:
-        update(5)
+def test_stage_bar_counts_into_the_bars_and_without_bars_does_nothing(caplog, capfd):
+    """With the CLI's bars (stderr not a terminal here: one log line when the stage ends) the updates are
+    counted; without bars the update takes a count and nothing is shown or logged."""
+    with caplog.at_level(logging.INFO, logger="cloudsieve.progress"):
+        with stage_bar(progress.bar, "cells", 3, "task") as update:
+            update(2)
+            update(1)
+        assert [r.getMessage().split(" in ")[0] for r in caplog.records] == ["cells: 3 tasks"]
+        caplog.clear()
+        with stage_bar(None, "ingest", None, "pt") as update:
+            assert update(5) is None
+        assert caplog.records == []
+    assert capfd.readouterr() == ("", "")
 
 
 def test_peak_memory_samples_this_process():

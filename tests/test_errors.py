@@ -22,7 +22,7 @@ from cloudsieve.errors import (
 )
 from cloudsieve.evaluate import evaluate
 from cloudsieve.evaluate.baselines import fps_subset, random_subset, run_method
-from cloudsieve.evaluate.points import point_errors
+from cloudsieve.evaluate.points import PointLevel, point_errors
 from cloudsieve.io import open_reader
 from cloudsieve.store import PointStore, export, ingest
 
@@ -100,16 +100,17 @@ def test_evaluation_errors():
     pts = np.random.default_rng(0).normal(size=(200, 3))
     with raises(InvalidParameterError, ValueError, "points must have shape (n, 3), got (200, 2)"):
         random_subset(pts[:, :2], 10)
-    with raises(InvalidParameterError, ValueError, "count must be in [1, 200] (the number of points), got 0"):
+    with raises(InvalidParameterError, ValueError, "count must be an integer >= 1, got 0"):
         random_subset(pts, 0)
+    assert (random_subset(pts, 500) == np.arange(200)).all()  # a count above the cloud's size keeps them all
     with raises(InvalidParameterError, ValueError, "unknown method 'grid'; choose among km, fcm, random"):
         run_method("grid", pts, 10)
     with raises(InvalidParameterError, ValueError, "fps: 200 points x 100 kept = 2e+04 > 1e+04"):
         fps_subset(pts, 100, max_work=1e4)
     with raises(InvalidParameterError, ValueError, "simplified points must have shape (m, 3), got (5, 2)"):
         point_errors(pts, pts[:5, :2])
-    with raises(InvalidParameterError, ValueError, "sample must be a positive number of points, got 0"):
-        point_errors(pts, pts[:5], sample=0)
+    with raises(InvalidParameterError, ValueError, "sample must be an integer >= 1, got 0"):
+        point_errors(pts, pts[:5], PointLevel(sample=0))
 
 
 def test_evaluate_signature_has_no_private_keywords():

@@ -165,7 +165,7 @@ def test_compare_gives_each_method_its_own_surface_figures(crop, tile_points):
     """Each row's surface figures are those of that method's points alone, not the first method's."""
     from cloudsieve.evaluate import compare
     from cloudsieve.evaluate.baselines import run_method
-    from cloudsieve.evaluate.surface import surface_errors
+    from cloudsieve.evaluate.surface import TilePlan, surface_errors
 
     methods = ("random", "voxel", "fps")
     res = compare(crop, methods=methods, ratio=0.5, tile_points=tile_points, seed=0)
@@ -174,7 +174,7 @@ def test_compare_gives_each_method_its_own_surface_figures(crop, tile_points):
     assert len({tuple(rows[m][k] for k in keys) for m in methods}) == len(methods)
     for m in methods:
         idx = run_method(m, crop, res["count"], seed=0)
-        alone = surface_errors(crop, crop[idx], tiles=4, tile_points=tile_points, seed=0)
+        alone = surface_errors(crop, crop[idx], TilePlan(tiles=4, tile_points=tile_points, seed=0))
         assert len(alone["tiles"]) == (1 if tile_points > len(crop) else 2)
         assert [rows[m][k] for k in keys] == [alone["mean_pct"], alone["max_pct"], alone["rms_pct"],
                                               alone["compact_share"], alone["faces"],

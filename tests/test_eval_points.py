@@ -8,7 +8,7 @@ from numpy.testing import assert_allclose
 from scipy.spatial.distance import cdist
 
 from cloudsieve.errors import EmptyInputError, NotASubsetError
-from cloudsieve.evaluate.points import point_errors
+from cloudsieve.evaluate.points import PointLevel, point_errors
 from cloudsieve.engine.runner import NO_HTTP_PORT
 
 
@@ -50,7 +50,7 @@ def test_random_sets_equal_brute_force(seed):
     a = rng.normal(size=(1500, 3)) * [3, 1, 0.2]
     b = np.concatenate([a[rng.choice(1500, 300, replace=False)], rng.normal(size=(40, 3))])
     f, bk = _brute(a, b)
-    r = point_errors(a, b, chunk_size=256)
+    r = point_errors(a, b, PointLevel(chunk_size=256))
     diag = np.linalg.norm(a.max(0) - a.min(0))
     _check_against(r, f, bk, diag)
     assert r["not_in_original"] == 40
@@ -60,8 +60,8 @@ def test_streamed_equals_in_memory():
     rng = np.random.default_rng(5)
     a = rng.random((20_000, 3))
     b = np.concatenate([a[::3], rng.random((100, 3))])
-    one = point_errors(a, b, chunk_size=len(a))
-    many = point_errors(a, b, chunk_size=997)
+    one = point_errors(a, b, PointLevel(chunk_size=len(a)))
+    many = point_errors(a, b, PointLevel(chunk_size=997))
     for name in ("forward", "backward"):
         for key in ("count", "max", "zeros"):
             assert one[name][key] == many[name][key]
@@ -78,7 +78,7 @@ def test_sampled_mean_within_interval_of_exact_1M():
     a = np.c_[u, 0.05 * np.sin(8 * u[:, 0]) + 0.001 * rng.random(n)]
     b = a[np.sort(rng.choice(n, n // 2, replace=False))]
     exact = point_errors(a, b)
-    sampled = point_errors(a, b, sample=20_000, seed=3)
+    sampled = point_errors(a, b, PointLevel(sample=20_000, seed=3))
     assert sampled["mode"] == "sampled"
     assert sampled["forward"]["count"] == 20_000
     lo, hi = sampled["forward"]["ci"]["mean"]
@@ -96,8 +96,8 @@ def test_sampled_is_seeded():
     rng = np.random.default_rng(8)
     a = rng.random((5000, 3))
     b = a[::4] + 1e-3
-    r1 = point_errors(a, b, sample=500, seed=11)
-    r2 = point_errors(a, b, sample=500, seed=11, chunk_size=333)
+    r1 = point_errors(a, b, PointLevel(sample=500, seed=11))
+    r2 = point_errors(a, b, PointLevel(sample=500, seed=11, chunk_size=333))
     assert r1["forward"]["max"] == r2["forward"]["max"]
     assert_allclose(r1["forward"]["mean"], r2["forward"]["mean"], rtol=1e-12)
     assert_allclose(r1["backward"]["mean"], r2["backward"]["mean"], rtol=1e-12)
@@ -108,7 +108,7 @@ def test_error_points_match_forward_distances():
     a = rng.random((4000, 3))
     b = a[::5]
     got = []
-    point_errors(a, b, chunk_size=700, error_points=1000, on_error_points=lambda x, e: got.append((x, e)))
+    point_errors(a, b, PointLevel(chunk_size=700, error_points=1000), on_error_points=lambda x, e: got.append((x, e)))
     xyz = np.concatenate([x for x, _ in got])
     err = np.concatenate([e for _, e in got])
     assert len(xyz) == 1000
@@ -127,8 +127,8 @@ def test_not_a_subset_when_claimed():
     b = a[::10].copy()
     b[3] += 0.01
     with pytest.raises(NotASubsetError, match=r"1 of 100 simplified points are not points of the original"):
-        point_errors(a, b, subset=True)
-    assert point_errors(a, a[::10], subset=True)["subset"] is True
+        point_errors(a, b, PointLevel(subset=True))
+    assert point_errors(a, a[::10], PointLevel(subset=True))["subset"] is True
 
 
 def test_dask_localcluster_equals_local():
@@ -136,11 +136,11 @@ def test_dask_localcluster_equals_local():
     rng = np.random.default_rng(12)
     a = rng.random((30_000, 3))
     b = np.concatenate([a[::2], rng.random((50, 3))])
-    local = point_errors(a, b, chunk_size=4000)
+    local = point_errors(a, b, PointLevel(chunk_size=4000))
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, \
             distributed.Client(cluster) as client:
-        remote = point_errors(a, b, chunk_size=4000, client=client)
+        remote = point_errors(a, b, PointLevel(chunk_size=4000), client=client)
     for name in ("forward", "backward"):
         assert remote[name]["count"] == local[name]["count"]
         assert remote[name]["max"] == local[name]["max"]
@@ -161,7 +161,7 @@ def test_store_and_file_sources_equal_array(tmp_path):
     store = ingest(src, tmp_path / "s.zarr", chunk_size=30_000)
     ref = point_errors(xyz, b)
     for original in (src, str(tmp_path / "s.zarr"), store):
-        r = point_errors(original, b, chunk_size=30_000)
+        r = point_errors(original, b, PointLevel(chunk_size=30_000))
         assert r["original_count"] == len(xyz) == 110_000
         assert r["forward"]["max"] == ref["forward"]["max"]
         assert_allclose(r["forward"]["mean"], ref["forward"]["mean"], rtol=1e-12)
@@ -174,7 +174,7 @@ def test_distance_bound_keeps_results_exact():
     a = rng.random((12_000, 3))
     a[-50:] += 5.0  # far outliers in the last chunk: beyond any learnt bound
     b = a[: len(a) - 50 : 3]
-    r = point_errors(a, b, chunk_size=4000)
+    r = point_errors(a, b, PointLevel(chunk_size=4000))
     f = cKDTree_query(b, a)
     assert r["forward"]["max"] == pytest.approx(f.max(), rel=1e-12)
     assert_allclose(r["forward"]["mean"], f.mean(), rtol=1e-12)

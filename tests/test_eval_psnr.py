@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 from cloudsieve import evaluate
 from cloudsieve.errors import InvalidParameterError
 from cloudsieve.evaluate.planes import K_NORMALS, pca_normals, psnr
-from cloudsieve.evaluate.points import point_errors
+from cloudsieve.evaluate.points import PointLevel, point_errors
 
 
 def _normals_oracle(a: np.ndarray, k: int) -> np.ndarray:
@@ -80,7 +80,7 @@ def test_d1_does_not_depend_on_chunks_and_d2_stays_close():
     a = _surface(6000, 4)
     b = a[::5] + np.random.default_rng(0).normal(scale=0.002, size=(1200, 3))
     one = point_errors(a, b)
-    many = point_errors(a, b, chunk_size=1500)
+    many = point_errors(a, b, PointLevel(chunk_size=1500))
     for d in ("forward", "backward"):
         assert_allclose(many[d]["mse"], one[d]["mse"], rtol=1e-12)
         assert_allclose(many[d]["d2_mse"], one[d]["d2_mse"], rtol=0.05)  # chunk-edge neighbourhoods only
@@ -173,8 +173,8 @@ def test_d2_on_a_sample_states_it_and_its_standard_error():
     rng = np.random.default_rng(4)
     keep = a[rng.choice(len(a), 6000, replace=False)]
     moved = np.concatenate([keep, keep[:2000] + rng.normal(scale=0.005, size=(2000, 3))])
-    exact = point_errors(a, moved, d2_sample=None)
-    part = point_errors(a, moved, d2_sample=5000)
+    exact = point_errors(a, moved, PointLevel(d2_sample=None))
+    part = point_errors(a, moved, PointLevel(d2_sample=5000))
     assert "d2_sample" not in exact["forward"]
     for name in ("forward", "backward"):
         f = part[name]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from cloudsieve.evaluate.surface import choose_tiles, surface_errors
+from cloudsieve.evaluate.surface import TilePlan, choose_tiles, surface_errors
 from cloudsieve.evaluate.tiles import SURFACE_RATE
 
 
@@ -17,7 +17,7 @@ def _surface(n, seed=0):
 
 def test_surface_whole_cloud_when_small():
     a = _surface(4000, seed=2)
-    r = surface_errors(a, a[::2], tiles=4, tile_points=10_000)
+    r = surface_errors(a, a[::2], TilePlan(tiles=4, tile_points=10_000))
     assert len(r["tiles"]) == 1 and r["tiles"][0]["whole_cloud"]
     assert r["tiles"][0]["points_original"] == 4000
     assert r["vertices"] == 2000 and r["faces"] > 1000
@@ -27,7 +27,7 @@ def test_surface_whole_cloud_when_small():
     diag = np.linalg.norm(a.max(0) - a.min(0))
     assert r["forward"]["mean_pct"] == pytest.approx(100 * r["forward"]["mean"] / diag)
     # identical clouds: Metro distances ~ 0
-    same = surface_errors(a, a, tiles=1, tile_points=10_000)
+    same = surface_errors(a, a, TilePlan(tiles=1, tile_points=10_000))
     assert same["max"] < 1e-9
 
 
@@ -46,8 +46,8 @@ def test_border_edges_count_the_holes():
         per_edge = Counter(tuple(sorted(e)) for t in f.tolist() for e in ((t[0], t[1]), (t[1], t[2]), (t[2], t[0])))
         oracle = sorted(e for e, c in per_edge.items() if c == 1)
         assert border_edges(f).tolist() == [list(e) for e in oracle]
-    r = surface_errors(a, a[::2], tiles=1, tile_points=10_000)
-    h = surface_errors(holed, holed[::2], tiles=1, tile_points=10_000)
+    r = surface_errors(a, a[::2], TilePlan(tiles=1, tile_points=10_000))
+    h = surface_errors(holed, holed[::2], TilePlan(tiles=1, tile_points=10_000))
     rim = 2 * np.pi * 0.15 * 64  # the hole's rim, in grid steps (measured: 37 more border edges, 20 at half)
     assert h["original"]["border_edges"] - r["original"]["border_edges"] >= rim / 4
     assert h["simplified"]["border_edges"] - r["simplified"]["border_edges"] >= rim / 8
@@ -61,7 +61,7 @@ def test_tiles_are_bounded_and_spread():
     assert len(tiles) == 4
     c = np.array([t["centre"] for t in tiles])
     assert np.min([np.linalg.norm(c[i] - c[j]) for i in range(4) for j in range(i)]) > 0.2
-    r = surface_errors(a, a[::3], tiles=4, tile_points=3000, seed=0)
+    r = surface_errors(a, a[::3], TilePlan(tiles=4, tile_points=3000, seed=0))
     assert len(r["tiles"]) == 4
     for t in r["tiles"]:
         assert 1000 <= t["points_original"] <= 3000
@@ -74,7 +74,7 @@ def test_tiles_are_bounded_and_spread():
 
 def test_surface_budget_samples_random_tiles_and_gives_their_spread():
     a = _surface(60_000, seed=5)
-    r = surface_errors(a, a[::2], tile_points=8000, budget=40.0, seed=1)
+    r = surface_errors(a, a[::2], TilePlan(tile_points=8000, budget=40.0, seed=1))
     smp = r["sampling"]
     assert smp["mode"] == "budget" and smp["budget"] == 40.0 and smp["population"] == 60_000
     # sized by the measured rate, never by a clock: T = 4 tiles of rate * budget / T points, capped by M
@@ -92,7 +92,7 @@ def test_surface_budget_samples_random_tiles_and_gives_their_spread():
 
     assert "budget" in sampling_line(r) and "not timed" in sampling_line(r)
     # the same tiles and figures again: nothing depends on how long a tile took
-    again = surface_errors(a, a[::2], tile_points=8000, budget=40.0, seed=1)
+    again = surface_errors(a, a[::2], TilePlan(tile_points=8000, budget=40.0, seed=1))
     strip = lambda t: {k: v for k, v in t.items() if k != "seconds"}  # noqa: E731
     assert [strip(t) for t in again["tiles"]] == [strip(t) for t in r["tiles"]]
 
@@ -100,7 +100,7 @@ def test_surface_budget_samples_random_tiles_and_gives_their_spread():
 def test_surface_full_puts_every_point_in_one_tile():
     a = _surface(9000, seed=6)
     b = a[::3]
-    r = surface_errors(a, b, tile_points=4000, full=True, seed=0)
+    r = surface_errors(a, b, TilePlan(tile_points=4000, full=True, seed=0))
     assert r["sampling"]["mode"] == "full" and len(r["tiles"]) == 3
     assert sum(t["points_original"] for t in r["tiles"]) == len(a)
     assert sum(t["points_simplified"] for t in r["tiles"]) == len(b)

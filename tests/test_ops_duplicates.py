@@ -19,7 +19,7 @@ import pytest
 from cloudsieve.cli import main
 from cloudsieve.core import exact_copies, first_copies, prune, simplify_points
 from cloudsieve.errors import NotASubsetError
-from cloudsieve.evaluate.points import point_errors
+from cloudsieve.evaluate.points import PointLevel, point_errors
 from cloudsieve.io import read_cloud
 from conftest import shared_file
 from test_ops_inputs import run_command
@@ -192,11 +192,11 @@ def test_subset_check_counts_multiplicities():
     orig = rng.random((500, 3))
     twice = np.concatenate([orig, orig[:3]])  # points 0, 1, 2 twice
     simp = np.concatenate([orig[:100], orig[:2]])  # points 0 and 1 twice
-    report = point_errors(twice, simp, subset=True)
+    report = point_errors(twice, simp, PointLevel(subset=True))
     assert report["subset"] and report["not_in_original"] == 0
     with pytest.raises(NotASubsetError, match=r"^2 of 102 simplified points are not points of the original .*"
                        r"held 2 times, the original holds it 1 time\), but a subset was claimed$"):
-        point_errors(orig, simp, subset=True)
+        point_errors(orig, simp, PointLevel(subset=True))
     assert point_errors(orig, simp)["not_in_original"] == 2
 
 

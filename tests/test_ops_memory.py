@@ -61,9 +61,25 @@ def test_the_cli_on_a_scheduler_address_reports_the_workers(cluster, tmp_path, c
     assert 0 < record["peak_memory"] <= lifetime_peaks(client)
 
 
+def _high_water(pid: int) -> int:
+    """A process's own lifetime peak of resident memory (VmHWM, bytes; 0 when it is gone)."""
+    try:
+        with open(f"/proc/{pid}/status") as f:
+            return next(int(line.split()[1]) * 1024 for line in f if line.startswith("VmHWM:"))
+    except FileNotFoundError:
+        return 0
+
+
 def test_a_local_run_reports_this_process_and_its_children(tmp_path):
+    """The peak holds this process's resident memory (at least 90% of it before the run: in bytes, not kB) and
+    no more than the lifetime peaks of this process and its children (the cluster's workers among them)."""
+    import psutil
+
+    before = psutil.Process().memory_info().rss
     s = simplify(shared_file("simple.las"), tmp_path / "o.las", rule="iterative", scheduler="sync")
-    assert s.peak_memory_of == LOCAL_SCOPE and s.peak_memory > 0
+    tree = [psutil.Process(), *psutil.Process().children(recursive=True)]
+    assert s.peak_memory_of == LOCAL_SCOPE
+    assert 0.9 * before <= s.peak_memory <= sum(_high_water(p.pid) for p in tree)
 
 
 def test_sampling_the_workers_stops_before_their_client_closes(cluster):

@@ -145,12 +145,8 @@ def test_reader_writer_without_filter_converts(tmp_path):
 def test_compare_validates_its_options_once_on_the_command_line_and_in_a_pipeline(tmp_path, monkeypatch, capsys):
     """The CLI validates to size its bar and a pipeline when it is loaded; both then run run_compare, which
     checks no option again."""
-    import importlib
-
     import cloudsieve.params as params
     import cloudsieve.pipeline_load as loader
-
-    api = importlib.import_module("cloudsieve.evaluate.compare")  # the package's name compare is the function
 
     calls = []
     real = params.validate
@@ -159,7 +155,7 @@ def test_compare_validates_its_options_once_on_the_command_line_and_in_a_pipelin
         calls.append(command)
         return real(command, values, **kw)
 
-    for module in (params, api, loader):
+    for module in (params, loader):  # params.options validates through params.validate
         monkeypatch.setattr(module, "validate", counting)
     src = str(shared_file("maxplanck.ply"))
     assert main(["compare", src, "--methods", "random", "--ratio", "0.2", "--no-surface", "--no-progress"]) == 0

@@ -23,7 +23,7 @@ from cloudsieve.cli import main
 from cloudsieve.core.kernels.compile_log import CompileLog
 from cloudsieve.core.warmup import split_targets, warm_up
 from cloudsieve.engine import ahead
-from cloudsieve.warmup_targets import TARGETS, targets_of
+from cloudsieve.rule_table import TARGETS, targets_of
 from cloudsieve.engine.inprocess import IN_PROCESS_POINTS, local_scheduler, source_points
 
 from conftest import shared_file
@@ -135,7 +135,7 @@ def test_the_default_rule_compiles_each_kernel_once_and_no_k_nn(tmp_path):
         "import sys\n"
         "from numba.core.registry import CPUDispatcher\n"
         "from cloudsieve.core.warmup import warm_up\n"
-        "from cloudsieve.warmup_targets import targets_of\n"
+        "from cloudsieve.rule_table import targets_of\n"
         "def kernels():\n"
         "    return [(n, k, f) for n, mod in list(sys.modules.items()) if n.startswith('cloudsieve')\n"
         "            for k, f in vars(mod).items() if isinstance(f, CPUDispatcher) and f.__module__ == n]\n"
@@ -293,7 +293,7 @@ def test_the_fork_server_skips_the_unused_imports_for_its_workers():
     code = (
         "from cloudsieve.core.rules import DEFAULT_RULE\n"
         "from cloudsieve.engine.pool import local_pool, start_forkserver, worker_context\n"
-        "from cloudsieve.warmup_targets import targets_of\n"
+        "from cloudsieve.rule_table import targets_of\n"
         "ctx = worker_context()\n"
         "start_forkserver(ctx, targets_of(DEFAULT_RULE))\n"
         "with local_pool(1, ctx) as pool:\n"

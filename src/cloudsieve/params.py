@@ -20,7 +20,7 @@ is created:
 So all of them accept and refuse the same values with the same message
 (``ratio must be a number in (0, 1], got 0.0``); the command line writes the
 option as its flag (``--ratio must be ...``). A leaf: it imports
-:mod:`cloudsieve.params_spec`, :mod:`cloudsieve.rule_default`,
+:mod:`cloudsieve.params_spec`, :mod:`cloudsieve.rule_table`,
 :mod:`cloudsieve.address` and :mod:`cloudsieve.errors` only.
 
 A count larger than the cloud is not an error (the cloud's size is not known
@@ -47,13 +47,13 @@ from typing import Any
 import numpy as np
 
 from .address import host_port
-from .core import rules
+from . import rule_table as rules
 from .errors import InvalidParameterError
 from .params_spec import *  # noqa: F401,F403 - the options, re-exported
 from .params_spec import (BOOL, CHOICE, CHOICES, COMMANDS, FLOAT, FORMAT, INT, JSON, LOCAL_SCHEDULERS, MEMORY_COMMANDS,
-                          OPTIONS, PATH, SIZE, TEXT, Option)
+                          OPTION_CLASSES, OPTIONS, PATH, SIZE, TEXT, Option)
 from .params_spec import __all__ as _spec_all
-from .rule_default import DEFAULT_RULE, Metavar, resolve_rule
+from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
 __all__ = [
     *_spec_all,
@@ -61,6 +61,7 @@ __all__ = [
     "Metavar",
     "check",
     "validate",
+    "options",
     "validate_params",
     "run_record",
 ]
@@ -268,7 +269,7 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     with a threshold beside a ratio/count); a threshold not given becomes
     :data:`rules.PAPER_THRESHOLD`. The result holds the resolved values, so
     validating it again gives it back. Whether a rule needs, takes or refuses
-    a ratio/count is the registry's (:data:`cloudsieve.core.rules.RULES`).
+    a ratio/count is the rule table's (:data:`cloudsieve.rule_table.RULES`).
 
     Parameters
     ----------
@@ -310,6 +311,15 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
                          {name: OPTIONS[name].metavar for name in ("ratio", "count", "threshold")})
         _CROSS[command](out)
     return out
+
+
+def options(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> Any:
+    """:func:`validate`'s result as *command*'s frozen options object (:data:`OPTION_CLASSES`), to pass whole.
+
+    >>> options("evaluate", {"sample": 1000}).sample
+    1000
+    """
+    return OPTION_CLASSES[command](**validate(command, values, caller=caller))
 
 
 def validate_params(command: str) -> Callable[[Callable], Callable]:

@@ -1,22 +1,21 @@
 """The user options, as data: one :class:`Option` each (name, type, range, default, help) and
 :data:`COMMANDS`, the options of each command and API entry.
 
-A leaf: it imports the rule registry (:mod:`cloudsieve.core.rules`, which
-imports no numba or scipy), the formats table (:mod:`cloudsieve.formats`), the
-warm-up targets' names (:mod:`cloudsieve.warmup_targets`) and nothing else of
-cloudsieve. :mod:`cloudsieve.params` checks values against
+A leaf: it imports the rule table (:mod:`cloudsieve.rule_table`: the rules,
+the refinement methods, the warm-up targets' names) and the formats table
+(:mod:`cloudsieve.formats`), nothing else of cloudsieve. :mod:`cloudsieve.params` checks values against
 it; :mod:`cloudsieve.cli` builds its flags from it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field, make_dataclass
 from typing import Any
 
-from .core import rules
+from . import rule_table as rules
 from .formats import READABLE as _READABLE
 from .formats import WRITABLE as _WRITABLE
-from .warmup_targets import TARGETS as _WARM_TARGETS
 
 __all__ = [
     "Option",
@@ -28,6 +27,7 @@ __all__ = [
     "TARGET_RULES",
     "WARM_TARGETS",
     "MEMORY_COMMANDS",
+    "OPTION_CLASSES",
     "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER", "JSON",
 ]
 
@@ -35,11 +35,11 @@ INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER, JSON = (
     "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler", "json")
 
 #: the refinements into small clusters: fuzzy C-means, K-means (:mod:`cloudsieve.core.refine`)
-METHODS = ("fcm", "km")
+METHODS = rules.METHODS
 #: the methods :func:`cloudsieve.compare` runs: the entropy methods, then the baselines
 COMPARE_METHODS = ("km", "fcm", "random", "voxel", "poisson", "fps")
-#: the targets of ``cloudsieve warmup`` (:mod:`cloudsieve.warmup_targets`)
-WARM_TARGETS = _WARM_TARGETS
+#: the targets of ``cloudsieve warmup`` (:data:`cloudsieve.rule_table.TARGETS`)
+WARM_TARGETS = rules.TARGETS
 #: dask's local schedulers ("synchronous" is dask's own name for "sync")
 LOCAL_SCHEDULERS = ("sync", "synchronous", "threads", "processes")
 #: the rules that need a ratio or a count (from the registry)
@@ -155,7 +155,8 @@ _OPTIONS = [
            "options of the object store's fsspec filesystem for every URL, as a JSON object, e.g. "
            "'{\"endpoint_url\": \"http://host:8333\", \"profile\": \"lidar\"}' (default: the store's own chain: "
            "AWS_* environment variables incl. AWS_ENDPOINT_URL, config files, instance roles)", metavar="JSON"),
-    Option("overwrite", BOOL, False, "replace the destination (and discard an incompatible work store)"),
+    Option("overwrite", BOOL, False, "replace what is at the destination (DST, or ingest's STORE); simplify also "
+           "discards a work store left by another source or other options"),
     Option("chunk_size", INT, 1_000_000, "points per chunk read or written", low=1, metavar="POINTS"),
     # -- evaluation
     Option("sample", INT, None, "evaluate a uniform sample of N points per direction (95% confidence intervals)",
@@ -206,9 +207,6 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-#: ingest's and export's overwrite: they have no work store
-_OVERWRITE_STORE = Option("overwrite", BOOL, False, "replace an existing point store STORE")
-_OVERWRITE_FILE = Option("overwrite", BOOL, False, "replace an existing destination file DST")
 #: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
 _STRICT_COUNT = Option("strict", BOOL, False,
                        "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
@@ -263,9 +261,9 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "surface", "seed", "metro_samples", "psnr_peak", "k0", "k_min", "drop_invalid", "keep_duplicates",
         "storage_options", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", "storage_options",
-                       extra=(_INPUT_FORMAT, _OVERWRITE_STORE)),
+                       extra=(_INPUT_FORMAT,)),
     "export": _command("mask", "chunk_size", "overwrite", "tile_size", "storage_options",
-                       extra=(_OUTPUT_FORMAT, _OVERWRITE_FILE)),
+                       extra=(_OUTPUT_FORMAT,)),
     "info": _command("storage_options"),
     "pipeline": _command("scheduler", "workers", "storage_options"),  # a pipeline's top-level keys
     "warmup": _command("targets"),
@@ -283,3 +281,42 @@ COMMANDS: dict[str, dict[str, Option]] = {
 MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine", "eliminate")
 
 
+def _options_class(command: str) -> type:
+    """The frozen options object of *command*: one field per option, in :data:`COMMANDS`' order, with its
+    default (``EvaluateOptions`` for ``evaluate``). Made at its first use (a dataclass costs milliseconds
+    to build, and a start-up reads this module), then kept; importable from here by name, so it pickles."""
+    name = _CLASS_NAMES[command]
+    cls = make_dataclass(name, [(n, Any, field(default=o.default)) for n, o in COMMANDS[command].items()],
+                         frozen=True)
+    cls.__module__ = __name__
+    cls.__doc__ = f"The options of {command}, validated (:func:`cloudsieve.params.options`); frozen."
+    globals()[name] = cls
+    return cls
+
+
+class _OptionClasses(Mapping):
+    """command -> its frozen options class, each made at its first use."""
+
+    def __getitem__(self, command: str) -> type:
+        name = _CLASS_NAMES[command]
+        return globals().get(name) or _options_class(command)
+
+    def __iter__(self):
+        return iter(COMMANDS)
+
+    def __len__(self) -> int:
+        return len(COMMANDS)
+
+
+_CLASS_NAMES = {command: "".join(word.title() for word in command.split("_")) + "Options" for command in COMMANDS}
+#: command -> its frozen options class; an instance is built by :func:`cloudsieve.params.options`, once, at
+#: the entry, and passed whole
+OPTION_CLASSES: Mapping[str, type] = _OptionClasses()
+
+
+def __getattr__(name: str) -> type:
+    """A command's options class by its name (``EvaluateOptions``), made at its first use (unpickling asks)."""
+    for command, class_name in _CLASS_NAMES.items():
+        if class_name == name:
+            return OPTION_CLASSES[command]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

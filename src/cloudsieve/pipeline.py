@@ -71,6 +71,7 @@ from typing import Any
 
 from . import storage
 from .errors import CloudsieveError, PipelineError, UnknownFormatError
+from .params_spec import OPTION_CLASSES
 from .pipeline_load import READERS, WRITERS, Pipeline, load_pipeline, stage_options
 
 __all__ = ["Pipeline", "load_pipeline", "check_inputs", "run_pipeline", "stage_options"]
@@ -204,13 +205,13 @@ def _run_pipeline(pipeline: Pipeline, *, client: Any, progress: Any, bars: Any) 
                 opts["drop_invalid"] = drop_invalid
                 if opts["report_dir"] is not None:
                     check_folder(opts["report_dir"])
-                entry["report"] = run_evaluation(src, entry["output"], bars=bars, **opts)
+                entry["report"] = run_evaluation(src, entry["output"], OPTION_CLASSES["evaluate"](**opts), bars=bars)
             elif stage["type"] == "compare":  # on the options validated at load, as evaluate
                 from .evaluate.compare import run_compare
 
                 opts = {k: _fill(v, src) for k, v in pipeline.validated[i].items()}
                 opts["drop_invalid"] = drop_invalid
-                entry["report"] = run_compare(src, opts)
+                entry["report"] = run_compare(src, OPTION_CLASSES["compare"](**opts))
                 points = points or entry["report"]["points"]
         if progress is not None:
             progress(points)

@@ -17,7 +17,7 @@ from typing import Any
 
 from .errors import InvalidParameterError, PipelineError
 from .params import COMMANDS, check, validate
-from .rule_default import Metavar
+from .rule_table import Metavar
 
 __all__ = ["Pipeline", "load_pipeline", "stage_options", "READERS", "WRITERS", "STAGE_COMMANDS", "PATH_OPTIONS"]
 

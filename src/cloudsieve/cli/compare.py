@@ -36,8 +36,8 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate.compare import compare_runs, run_compare
 
     # validated once, here: the rule resolved sizes the bar, and the API's run takes the options as they are
-    opts = params.validate("compare", option_values(args, "compare"), caller="cloudsieve compare")
-    runs = len(compare_runs(opts["methods"], opts["rule"]))
+    opts = params.options("compare", option_values(args, "compare"), caller="cloudsieve compare")
+    runs = len(compare_runs(opts.methods, opts.rule))
     with progress.bar("methods", runs, unit="method", enabled=not args.no_progress) as tick:
         result = run_compare(args.src, opts, progress=tick)
     print(result["markdown"])

@@ -42,7 +42,7 @@ def stage_wording(pipeline):
     def wording(name, value):
         import json
 
-        from ..rule_default import Metavar
+        from ..rule_table import Metavar
         from ..pipeline import stage_options
 
         if isinstance(value, Metavar):  # a value left to the user: the key alone

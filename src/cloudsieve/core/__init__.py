@@ -10,8 +10,8 @@ One module per stage, found by its name:
 - :mod:`.kernels`: the compiled (numba) kernels the stages call;
 - :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
 - :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
-- :mod:`.rules`: the rule registry (:data:`.rules.RULES`, one module per rule) and
-  :func:`prune`; the rounds of iterative and coverage in :mod:`.rounds` (one round's
+- :mod:`.rules`: one module per rule (their table, :data:`.rules.RULES`, is
+  :mod:`cloudsieve.rule_table`) and :func:`prune`; the rounds of iterative and coverage in :mod:`.rounds` (one round's
   choice in :mod:`.selection`, the rounds without context in :mod:`.incremental`,
   their threads in :mod:`.chunks`);
 - :mod:`.kernels`: the compiled (numba) loops (:mod:`.kernels.rounds`,
@@ -20,13 +20,13 @@ One module per stage, found by its name:
 
 Public functions validate their input once (options: :mod:`cloudsieve.params`; arrays:
 :mod:`._validation`) and run kernels that assume valid input. Each name is imported at its first
-use, so the rule registry imports without numba or scipy.
+use, so importing a module of the package loads no numba or scipy it does not need.
 """
 
 from importlib import import_module
 
-#: where each public name lives; imported at its first use (PEP 562), so that the rule registry
-#: (:mod:`.rules`, read by :mod:`cloudsieve.params`) imports without numba or scipy
+#: where each public name lives; imported at its first use (PEP 562), so that a module of the package
+#: (:mod:`.rules` among them) imports without numba or scipy
 _LAZY = {
     "neighbour_count": "._validation", "exact_copies": ".duplicates", "first_copies": ".duplicates",
     "Scores": ".entropy", "entropy_scores": ".entropy", "score_points": ".entropy", "FuzzyCMeans": ".fcm",

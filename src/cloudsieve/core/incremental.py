@@ -23,7 +23,7 @@ from .kernels import lists as kl
 from .kernels import rescore as ks
 from .kernels import rounds as kr
 from .knn import group, knn_query, mark_duplicates, scorable_rows
-from .selection import round_selection
+from .selection import RoundTest, round_selection
 
 __all__ = ["rounds_incremental", "SPARE"]
 
@@ -170,10 +170,11 @@ class _Local:
         self.rescore(np.ones(c, dtype=bool), use_unit)
         n_alive = n
         rnd = 0
+        test = RoundTest(rule, threshold, target, coverage)
         while max_rounds is None or rnd < max_rounds:
             # ties: canonical index (the input order, not the grouped one)
-            sel = round_selection(self.g, alive, self.val, self.order, self.nbx, n_alive, rule, threshold, target,
-                                   coverage, self.kk, self.r1, self.chunks)
+            sel = round_selection(self.g, alive, self.val, self.order, self.nbx, n_alive, test, self.kk, self.r1,
+                                  self.chunks)
             if len(sel) == 0:
                 break
             touched = np.zeros(c, dtype=bool)

@@ -24,6 +24,7 @@ import numpy as np
 
 from ..chunk import take_rows, xyz_bounds
 from ..errors import InvalidParameterError
+from ..params import check
 from .cellgrid import CellGrid, check_points
 from .duplicates import first_rows
 from .kernels import area_knn as _ka
@@ -256,14 +257,13 @@ def elimination_radius(areas, count: int, *, weight=1.0) -> float:
     a = np.asarray(areas, dtype=np.float64).ravel()
     if a.size and (np.isnan(a).any() or a.min() < 0):
         raise InvalidParameterError("areas must be numbers >= 0")
-    if int(count) != count or count < 1:
-        raise InvalidParameterError(f"count must be an integer >= 1, got {count!r}")
+    count = check("count", count)  # the option's one check (params)
     w = np.broadcast_to(np.asarray(weight, dtype=np.float64), a.shape) if np.ndim(weight) else \
         np.full(a.shape, float(weight))
     if w.shape != a.shape or not (np.isfinite(w).all() and (w > 0).all()):
         raise InvalidParameterError(f"weight must be positive numbers, one or one per area ({a.size}), "
                                     f"got shape {np.shape(weight)}")
-    return radius_of(a, int(count), w)
+    return radius_of(a, count, w)
 
 
 def radius_of(a: np.ndarray, count: int, weight) -> float:

@@ -26,7 +26,7 @@ from .entropy import score_unchecked
 from .incremental import rounds_incremental
 from .kernels import lists as kl
 from .kernels import rounds as kr
-from .selection import round_selection
+from .selection import RoundTest, round_selection
 
 __all__ = ["prune_in_rounds"]
 
@@ -92,8 +92,9 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
 
     rescore(np.arange(n))
     rnd = 0
+    test = RoundTest(rule, threshold, target, coverage)
     while max_rounds is None or rnd < max_rounds:
-        sel = round_selection(P, alive, val, np.arange(n), nb, n_alive, rule, threshold, target, coverage)
+        sel = round_selection(P, alive, val, np.arange(n), nb, n_alive, test)
         if len(sel) == 0:
             break
         alive[sel] = False

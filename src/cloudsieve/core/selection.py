@@ -12,21 +12,34 @@ The kernels are in :mod:`.kernels.rounds`.
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
+from .. import rule_table as registry
 from .chunks import ClusterChunks
 from .kernels import lists as kl
-from . import rules as registry
 from .kernels import rounds as kr
 
-__all__ = ["round_selection"]
+__all__ = ["RoundTest", "round_selection"]
 
 logger = logging.getLogger(__name__)
 
 
-def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, coverage, kk=None,
-                     r1=None, chunked: ClusterChunks | None = None) -> np.ndarray:
+@dataclass(frozen=True)
+class RoundTest:
+    """What a round of ``iterative``/``coverage`` tests: the *rule* (a name of the registry that runs rounds,
+    :data:`cloudsieve.rule_table.RULES`), the *threshold* S, the kept count *target* (None: the threshold
+    decides) and the *coverage* factor."""
+
+    rule: str
+    threshold: float
+    target: int | None
+    coverage: float
+
+
+def round_selection(P, alive, val, tie, nb, n_alive, test: RoundTest, kk=None, r1=None,
+                    chunked: ClusterChunks | None = None) -> np.ndarray:
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
     Candidates are the alive points with val <= threshold (with a target: any
@@ -46,11 +59,7 @@ def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, co
     nb : ndarray of shape (n, K), int32 or int64
         Neighbour lists, nearest first; entries outside [0, n) are none.
     n_alive : int
-    rule : str
-        A rule of the registry that runs rounds (:data:`.rules.RULES`).
-    threshold : float
-    target : int or None
-    coverage : float
+    test : RoundTest
     kk : ndarray of shape (n,), int64, optional
         Row i holds kk[i] neighbours (default: K).
     r1 : ndarray of shape (n,), float64, optional
@@ -64,6 +73,7 @@ def round_selection(P, alive, val, tie, nb, n_alive, rule, threshold, target, co
     ndarray of shape (m,), int64
         The rows dropped (empty: the rounds stop).
     """
+    rule, threshold, target, coverage = test.rule, test.threshold, test.target, test.coverage
     if target is not None and n_alive <= target:
         return np.zeros(0, dtype=np.int64)
     n = len(P)

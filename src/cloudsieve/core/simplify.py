@@ -14,6 +14,7 @@ import numpy as np
 from . import rules
 from ._validation import check_context, check_labels, check_points
 from ..params import validate_params
+from ..params_spec import OPTION_CLASSES
 
 __all__ = ["simplify_points", "simplify_unchecked"]
 
@@ -83,42 +84,46 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
     n, p = pts.shape
     lab = None if labels is None else check_labels(labels, n)
     ctx = check_context(context, p)
-    return simplify_unchecked(pts, method=method, rule=rule, threshold=threshold,
-                              target=rules.check_rule_args(n, ratio, count), cluster_size=cluster_size, seed=seed,
-                              k0=k0, k_min=k_min, ctx=ctx, labels=lab, score=score, n_nearest=n_nearest, init=init,
-                              coverage=coverage, progress=progress, threads=threads,
-                              keep_duplicates=bool(keep_duplicates))
+    options = OPTION_CLASSES["simplify_points"](
+        method=method, rule=rule, threshold=threshold, ratio=ratio, count=count, cluster_size=cluster_size, seed=seed,
+        k0=k0, k_min=k_min, keep_duplicates=bool(keep_duplicates), score=score, n_nearest=n_nearest,
+        coverage=coverage, threads=threads)
+    return simplify_unchecked(pts, options, target=rules.check_rule_args(n, ratio, count), ctx=ctx, labels=lab,
+                              init=init, progress=progress)
 
 
-def simplify_unchecked(pts, *, method, rule, threshold, target, cluster_size, seed, k0, k_min, ctx, labels, score,
-                       n_nearest=8, init="k-means++", coverage=1.0, progress=None, threads=None,
-                       keep_duplicates=False) -> np.ndarray:
+def simplify_unchecked(pts, options, *, target, ctx=None, labels=None, init="k-means++", progress=None) -> np.ndarray:
     """:func:`simplify_points` on validated input (the engine's cells call it): kept indices, ascending.
 
     ``pts`` (n, 3) float64 and ``labels`` (n,) int64 or None as from :mod:`._validation`;
+    ``options`` the frozen options object of ``simplify_points``
+    (:data:`cloudsieve.params_spec.OPTION_CLASSES`; its ratio and count unread);
     ``target`` the kept count (None: the threshold decides); no checks.
     """
     from .knn import canonical_order
     from .refine import make_estimator, refine_unchecked
 
+    o = options
+    method, rule, cluster_size, seed, k_min, threads = o.method, o.rule, o.cluster_size, o.seed, o.k_min, o.threads
     n = len(pts)
     if rules.get(rule).engine == rules.ELIMINATION and n:  # the engine's cells, with this seed and cluster size
         from .rules.eliminate import select
 
-        keep = select(pts, target=target, seed=seed, cluster_size=cluster_size, k0=k0, k_min=k_min, progress=progress,
-                      keep_duplicates=bool(keep_duplicates))
+        keep = select(pts, target=target, seed=seed, cluster_size=cluster_size, k0=o.k0, k_min=k_min, progress=progress,
+                      keep_duplicates=bool(o.keep_duplicates))
         return np.flatnonzero(keep).astype(np.int64)
     if not rules.get(rule).clusters:  # e.g. weighted sample elimination: no clusters needed
         lab = np.zeros(n, dtype=np.int64)
     elif labels is None:
-        est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest, init=init)
+        est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=o.n_nearest, init=init)
         order = canonical_order(pts)
         lab_c = refine_unchecked(pts[order], est, threads)
         lab = np.empty(n, dtype=np.int64)
         lab[order] = lab_c
     else:
         lab = labels
-    keep = rules.prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=target, score=score, k0=k0,
-                                 k_min=k_min, dim=3, ctx=ctx, coverage=coverage, max_rounds=None, progress=progress,
-                                 threads=threads, keep_duplicates=bool(keep_duplicates))
+    pruning = OPTION_CLASSES["prune"](rule=rule, threshold=o.threshold, score=o.score, k0=o.k0, k_min=k_min, dim=3,
+                                      coverage=o.coverage, max_rounds=None, threads=threads,
+                                      keep_duplicates=bool(o.keep_duplicates))
+    keep = rules.prune_unchecked(pts, lab, pruning, target=target, ctx=ctx, progress=progress)
     return np.flatnonzero(keep).astype(np.int64)

@@ -18,7 +18,7 @@ the argument types of the real calls (so the same compiled versions):
 - ``km``, ``fcm``: the refinement into small clusters;
 - ``rules``: the rounds of the iterative, target and coverage rules.
 
-:mod:`cloudsieve.warmup_targets` names the targets and those of each rule's
+:mod:`cloudsieve.rule_table` names the targets and those of each rule's
 cell tasks (a leaf: the options read it): the local fork server
 (:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers it
 forks inherit the code and never compile it again; ``cloudsieve warmup``
@@ -35,7 +35,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from . import rules
-from ..warmup_targets import TARGETS
+from ..rule_table import TARGETS
 
 __all__ = ["warm_up", "warm_report", "split_targets", "SECOND", "AHEAD", "ahead_parts", "warm_ahead"]
 
@@ -170,7 +170,7 @@ def _rules() -> None:
             simplify_points(_points(), rule=rule.name, ratio=0.5, cluster_size=100)
 
 
-#: the function of each warm-up target (:data:`cloudsieve.warmup_targets.TARGETS`, in that order)
+#: the function of each warm-up target (:data:`cloudsieve.rule_table.TARGETS`, in that order)
 _RUN: dict[str, Callable[[], None]] = {
     "common": _common,
     "partition": _partition,
@@ -180,7 +180,7 @@ _RUN: dict[str, Callable[[], None]] = {
     "fcm": _method("fcm"),
     "rules": _rules,
 }
-assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.warmup_targets has its function here"
+assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.rule_table.TARGETS has its function here"
 
 #: the part of a target a second process can compile while this one compiles the rest (the kernels the
 #: part's function calls, from inputs of their real argument types; the target loads them from the
@@ -255,7 +255,7 @@ def warm_ahead(targets: Iterable[str]) -> None:
 
 def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
             report: Callable[[str, float], None] | None = None) -> float:
-    """Call the kernels of each of *targets* (names of :data:`cloudsieve.warmup_targets.TARGETS`) once on a tiny input.
+    """Call the kernels of each of *targets* (names of :data:`cloudsieve.rule_table.TARGETS`) once on a tiny input.
 
     Parameters
     ----------

@@ -188,13 +188,15 @@ def _simplify(core, params: dict, cell: int, *, threshold, target, labels, conte
     """The in-memory method on one cell (:func:`cloudsieve.core.simplify.simplify_unchecked`: the run's
     options were validated once, by :func:`cloudsieve.engine.simplify`): the kept indices."""
     from ..core.simplify import simplify_unchecked
+    from ..params_spec import OPTION_CLASSES
 
     ctx = None if context is None else np.ascontiguousarray(context, dtype=np.float64).reshape(-1, 3)
-    return simplify_unchecked(
-        np.ascontiguousarray(core, dtype=np.float64), method=params["method"], rule=params["rule"],
-        threshold=threshold, target=target, cluster_size=params["cluster_size"],
-        seed=cell_seed(params["seed"], cell), k0=params["k0"], k_min=params["k_min"], ctx=ctx, labels=labels,
-        score="delta_h", threads=_threads(params), keep_duplicates=_keep_duplicates(params))
+    options = OPTION_CLASSES["simplify_points"](
+        method=params["method"], rule=params["rule"], threshold=threshold, cluster_size=params["cluster_size"],
+        seed=cell_seed(params["seed"], cell), k0=params["k0"], k_min=params["k_min"], score="delta_h",
+        threads=_threads(params), keep_duplicates=_keep_duplicates(params))
+    return simplify_unchecked(np.ascontiguousarray(core, dtype=np.float64), options, target=target, ctx=ctx,
+                              labels=labels)
 
 
 def _mark_done(g, name: str, cell: int) -> None:

@@ -20,7 +20,7 @@ import os
 import sys
 
 from ..core.warmup import warm_up
-from ..warmup_targets import TARGETS
+from ..rule_table import TARGETS
 from ..lifeline import die_with_parent
 from ..lean_start import skip_unused_imports
 from .pool import WARM_UP_ENV

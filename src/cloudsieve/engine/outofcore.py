@@ -12,6 +12,8 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
 
 from ..core._validation import ratio_count
 from ..core.rules import ELIMINATION
@@ -21,7 +23,7 @@ from ..io import detect_format
 from ..progress import both, stage_bar
 from .. import staging
 from ..store import delete_store, export
-from ..warmup_targets import targets_of
+from ..rule_table import targets_of
 from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks
@@ -36,12 +38,24 @@ __all__ = ["run_store"]
 logger = logging.getLogger("cloudsieve.engine.simplify")  # the run's messages, under the name users filter on
 
 
-def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, summary: Summary, *,
-              account: Callable[[Summary], None], progress: Callable[[int], None], bars=None, notify=None,
-              client=None, finished: Callable[[Summary], Summary]) -> Summary:
+@dataclass(frozen=True)
+class RunHooks:
+    """How a run reports: *account* is called once the kept count is known, before DST is written; *progress*
+    with the points done; *finished* with the summary before it is recorded in the store; *bars* and *notify*
+    as :func:`cloudsieve.engine.simplify` takes them."""
+
+    account: Callable[[Summary], None]
+    progress: Callable[[int], None]
+    finished: Callable[[Summary], Summary]
+    bars: Any = None
+    notify: Callable[[str], None] | None = None
+
+
+def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, summary: Summary, hooks: RunHooks, *,
+              client=None) -> Summary:
     """The run through the work store of *checked*: ingest (unless the store holds it), partition, cells, merge,
-    export; *account* is called once the kept count is known, before DST is written, and *finished* with the
-    summary before it is recorded in the store. Returns *summary*."""
+    export, reported through *hooks*. Returns *summary*."""
+    account, progress, bars, notify, finished = hooks.account, hooks.progress, hooks.bars, hooks.notify, hooks.finished
     (rule, ratio, count, cluster_size, cell_size, workers, memory_limit, seed, overwrite, format, chunk_size,
      context, k0, k_min, drop_invalid, tile_size) = (
         opts[name] for name in ("rule", "ratio", "count", "cluster_size", "cell_size", "workers", "memory_limit",

@@ -19,7 +19,7 @@ from ..lifeline import die_with_parent
 __all__ = ["local_pool", "worker_context", "preload", "start_forkserver", "WARM_UP_ENV"]
 
 #: the environment variable naming the warm-up targets the fork server compiles, comma-separated
-#: (:data:`cloudsieve.warmup_targets.TARGETS`; set only while :func:`start_forkserver` starts it)
+#: (:data:`cloudsieve.rule_table.TARGETS`; set only while :func:`start_forkserver` starts it)
 WARM_UP_ENV = "CLOUDSIEVE_WARM_UP"
 
 #: tasks a local worker process runs before it is replaced (a bound on any slow growth of a long-lived

@@ -67,7 +67,7 @@ class Runner:
         ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
     warm : tuple of str
         The warm-up targets of the run's tasks
-        (:func:`cloudsieve.warmup_targets.targets_of`): the local
+        (:func:`cloudsieve.rule_table.targets_of`): the local
         process pool's fork server compiles them before it forks a worker.
     """
 

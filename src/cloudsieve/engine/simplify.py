@@ -276,10 +276,11 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
         run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars,
                   points=checked.points)
         return _finished(summary, t_start, cpu0)
-    from .outofcore import run_store  # the work store, dask and the stages: imported only by a run that needs them
+    from .outofcore import RunHooks, run_store  # the work store, dask and the stages: only for a run that needs them
 
-    return run_store(checked, src, dst, opts, params, summary, account=account, progress=update, bars=bars,
-                     notify=notify, client=client, finished=lambda s: _finished(s, t_start, cpu0))
+    hooks = RunHooks(account=account, progress=update, finished=lambda s: _finished(s, t_start, cpu0), bars=bars,
+                     notify=notify)
+    return run_store(checked, src, dst, opts, params, summary, hooks, client=client)
 
 
 def _finished(summary: Summary, t_start: float, cpu0: float) -> Summary:

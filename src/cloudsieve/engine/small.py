@@ -40,7 +40,7 @@ from collections.abc import Callable
 import numpy as np
 
 from . import ahead
-from ..warmup_targets import targets_of
+from ..rule_table import targets_of
 from ..progress import stage_bar
 from .memory import PeakMemory, small_pages
 from .summary import Summary

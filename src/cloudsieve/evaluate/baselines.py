@@ -38,6 +38,7 @@ from scipy.spatial import cKDTree
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
 from ..errors import CloudsieveError, InvalidParameterError
+from ..params import check
 
 logger = logging.getLogger(__name__)
 
@@ -51,10 +52,7 @@ def _check(points: np.ndarray, count: int) -> tuple[np.ndarray, int]:
     points = np.ascontiguousarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise InvalidParameterError(f"points must have shape (n, 3), got {points.shape}")
-    count = int(count)
-    if not 1 <= count <= len(points):
-        raise InvalidParameterError(f"count must be in [1, {len(points)}] (the number of points), got {count}")
-    return points, count
+    return points, min(check("count", count), len(points))  # above the cloud's size: all of them, as everywhere
 
 
 def random_subset(points: np.ndarray, count: int, *, seed: int = 0) -> np.ndarray:

@@ -24,6 +24,7 @@ from __future__ import annotations
 import logging
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,7 @@ from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
-from ..params import COMPARE_METHODS, validate
+from ..params import COMPARE_METHODS, OPTION_CLASSES, options
 from ._source import load_points
 from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
@@ -226,7 +227,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
         full evaluation report of each method) and ``markdown``.
     """
-    opts = validate("compare", {
+    opts = options("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
         "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid,
@@ -239,27 +240,27 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
 ENTROPY_OPTIONS = ("threshold", "cluster_size", "k0", "k_min", "keep_duplicates")
 
 
-def run_compare(source: Any, opts: dict, *, progress=None) -> dict:
-    """:func:`compare` with options already validated (``opts``, from :func:`cloudsieve.params.validate` for
-    ``compare``: the command line, a pipeline stage); no option is checked again."""
-    with storage.using(opts.get("storage_options")):
-        report_dir = opts["report_dir"]
+def run_compare(source: Any, opts: Any, *, progress=None) -> dict:
+    """:func:`compare` with options already validated (``opts``, compare's frozen options object from
+    :func:`cloudsieve.params.options`: the command line, a pipeline stage); no option is checked again."""
+    with storage.using(opts.storage_options):
+        report_dir = opts.report_dir
         if report_dir is None or not storage.is_url(str(report_dir)):
             return _run_compare(source, opts, progress=progress)
         with staging.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
-            result = _run_compare(source, {**opts, "report_dir": folder}, progress=progress)
+            result = _run_compare(source, replace(opts, report_dir=folder), progress=progress)
         base = str(report_dir).rstrip("/")
         result["files"] = {k: v.replace(folder, base) for k, v in result.get("files", {}).items()}
         return result
 
 
-def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
-    (methods, rules, ratio, count, report_dir, surface, tiles, tile_points, seed, metro_samples, psnr_peak,
-     drop_invalid) = (opts[k] for k in ("methods", "rule", "ratio", "count", "report_dir", "surface", "tiles",
-                                        "tile_points", "seed", "metro_samples", "psnr_peak", "drop_invalid"))
+def _run_compare(source: Any, opts: Any, *, progress=None) -> dict:
+    methods, rules, ratio, count, report_dir = opts.methods, opts.rule, opts.ratio, opts.count, opts.report_dir
+    surface, tiles, tile_points, seed = opts.surface, opts.tiles, opts.tile_points, opts.seed
+    metro_samples, psnr_peak, drop_invalid = opts.metro_samples, opts.psnr_peak, opts.drop_invalid
     if report_dir is not None:
         check_folder(report_dir)
-    entropy_options = {k: opts[k] for k in ENTROPY_OPTIONS}
+    entropy_options = {k: getattr(opts, k) for k in ENTROPY_OPTIONS}
     xyz, _header, name = load_points(source, what="source cloud", drop_invalid=drop_invalid)
     n = len(xyz)
     if ratio is not None:
@@ -270,6 +271,11 @@ def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = compare_runs(methods, rules)
+    # each method's evaluation: compare's options (validated at its entry), evaluate's defaults, a fixed number of
+    # tiles (no time budget), the kept points a subset of the source's
+    evaluation = OPTION_CLASSES["evaluate"](subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
+                                            seed=seed, metro_samples=metro_samples, psnr_peak=psnr_peak,
+                                            surface_budget=None)
     tick = progress or (lambda k: None)
     out_dir = Path(report_dir) if report_dir is not None else None
     rows, reports, hists, points_h, kept = [], {}, {}, {}, {}
@@ -292,9 +298,7 @@ def _run_compare(source: Any, opts: dict, *, progress=None) -> dict:
             tick(1)
             continue
         sub = None if out_dir is None else out_dir / label.replace(" (", "-").rstrip(")")
-        rep = run_evaluation(xyz, xyz[idx], subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
-                             seed=seed, metro_samples=metro_samples, report_dir=sub, surface_cache=cache,
-                             psnr_peak=psnr_peak,
+        rep = run_evaluation(xyz, xyz[idx], replace(evaluation, report_dir=sub), surface_cache=cache,
                              names=(str(name), f"{label} ({len(idx):,} kept)"))
         rep["method"] = {"name": m, "seconds": seconds, "rule": r}
         if sub is not None:  # rewrite with the method's name and time

@@ -57,15 +57,15 @@ import numpy as np
 from .. import staging, storage
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
-from ..params import validate
+from ..params import options
 from ..progress import both, stage_bar
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
 from .mesh import load_mesh
 from .planes import field_figures
-from .points import point_errors
+from .points import PointLevel, point_errors
 from .report import write_report
-from .surface import surface_errors
+from .surface import TilePlan, surface_errors
 from .tiles import SAMPLE_SIZE
 
 logger = logging.getLogger(__name__)
@@ -226,21 +226,21 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     InvalidPointsError
         A file has NaN or infinite coordinates and *drop_invalid* is False.
     """
-    opts = validate("evaluate", {
+    o = options("evaluate", {
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
         "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
         "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
         "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_full": surface_full,
         "surface_budget": surface_budget, "d2_sample": d2_sample, "storage_options": storage_options,
     })
-    if report_dir is not None:
-        check_folder(report_dir)
-    return run_evaluation(original, simplified, sample=sample, surface=surface, tiles=tiles, tile_points=tile_points,
-                          seed=seed, subset=subset, strict=strict, report_dir=report_dir, error_points=error_points,
-                          chunk_size=chunk_size, metro_samples=metro_samples, client=client, progress=progress,
-                          drop_invalid=drop_invalid, bars=bars, psnr_peak=psnr_peak, reference_mesh=reference_mesh,
-                          surface_budget=surface_budget, surface_full=surface_full, d2_sample=d2_sample,
-                          storage_options=opts["storage_options"])
+    if o.report_dir is not None:
+        check_folder(o.report_dir)
+    return run_evaluation(original, simplified, o, client=client, progress=progress, bars=bars)
+
+
+#: the options a report records under "parameters", in its order
+PARAMETERS = ("sample", "surface", "tiles", "tile_points", "seed", "subset", "chunk_size", "metro_samples", "psnr_peak",
+              "reference_mesh", "surface_budget", "surface_full", "d2_sample")
 
 
 def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
@@ -251,19 +251,16 @@ def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
     return np.asarray(header["scales"], dtype=np.float64), np.asarray(header["offsets"], dtype=np.float64)
 
 
-@storage.takes_options
-def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None, surface: bool = True, tiles: int = 4,
-                   tile_points: int = 200_000, seed: int = 0, subset: bool = False, strict: bool = True,
-                   report_dir: str | None = None, error_points: int = 2_000_000,
-                   chunk_size: int = DEFAULT_CHUNK_SIZE, metro_samples: int | None = None, client: Any = None,
-                   progress=None, names: tuple[str, str] | None = None, surface_cache: dict | None = None,
-                   drop_invalid: bool = False, bars=None, psnr_peak: float | None = None,
-                   reference_mesh: str | None = None, surface_budget: float | None = None,
-                   surface_full: bool = False, d2_sample: int | None = 1_000_000) -> dict:
-    """:func:`evaluate` with two more options, for :func:`~cloudsieve.evaluate.compare`; options and result as there.
+def run_evaluation(original: Any, simplified: Any, options: Any, *, client: Any = None, progress=None, bars=None,
+                   names: tuple[str, str] | None = None, surface_cache: dict | None = None) -> dict:
+    """:func:`evaluate` on validated options, the frozen object of ``evaluate``
+    (:func:`cloudsieve.params.options`); the other arguments and the result as there.
 
     Parameters
     ----------
+    options : cloudsieve.params_spec.EvaluateOptions
+        Every option of ``evaluate``, validated; compare's evaluations set
+        ``surface_budget`` None (a fixed number of tiles, no budget).
     names : (str, str), optional
         Names of the original and simplified clouds in the report (default:
         their file names, or ``"<array>"``); compare names arrays after the
@@ -272,15 +269,18 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         Meshes of the original's tiles, filled by the first call and reused
         by the next ones on the same original (compare evaluates several
         simplified clouds of one original).
-    storage_options : dict, optional
-        The fsspec filesystem's options for URLs (:mod:`cloudsieve.storage`).
     """
+    with storage.using(options.storage_options):
+        return _evaluation(original, simplified, options, client, progress, bars, names, surface_cache)
+
+
+def _evaluation(original, simplified, o, client, progress, bars, names, surface_cache) -> dict:
     t0 = time.perf_counter()
-    src = open_source(original, chunk_size=chunk_size, drop_invalid=drop_invalid)
-    simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=drop_invalid)
-    reference = load_mesh(reference_mesh) if reference_mesh is not None and surface else None
+    src = open_source(original, chunk_size=o.chunk_size, drop_invalid=o.drop_invalid)
+    simp, simp_header, simp_name = load_points(simplified, what="simplified cloud", drop_invalid=o.drop_invalid)
+    reference = load_mesh(o.reference_mesh) if o.reference_mesh is not None and o.surface else None
     warn = check_compatible(src.header, simp_header, src.known_bounds(), simp,
-                            names=(str(src.name), str(simp_name)), strict=strict)
+                            names=(str(src.name), str(simp_name)), strict=o.strict)
     if names is not None:
         src.name, simp_name = names
     report: dict[str, Any] = {
@@ -288,45 +288,44 @@ def run_evaluation(original: Any, simplified: Any, *, sample: int | None = None,
         "original": {"name": str(src.name), "count": src.count, "format": src.format,
                      "crs": (src.header or {}).get("crs")},
         "simplified": {"name": str(simp_name), "count": int(len(simp)), "crs": (simp_header or {}).get("crs")},
-        "parameters": {"sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-                       "subset": subset, "chunk_size": chunk_size, "metro_samples": metro_samples,
-                       "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_budget": surface_budget,
-                       "surface_full": surface_full, "d2_sample": d2_sample},
+        "parameters": {k: getattr(o, k) for k in PARAMETERS},
         "warnings": list(warn),
         "timing": {},
     }
     ply_parts: list[tuple[np.ndarray, np.ndarray]] = []
     t = time.perf_counter()
     with stage_bar(bars, "point errors", src.count, "pt") as bar:
-        p = point_errors(src, simp, sample=sample, seed=seed, chunk_size=chunk_size, subset=subset, client=client,
-                         error_points=error_points if report_dir else 0, grid=las_grid(simp_header),
-                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress),
-                         d2_sample=d2_sample, keep_sample=SAMPLE_SIZE if surface and surface_budget else 0)
-    sample = p.pop("uniform_sample", None)
+        level = PointLevel(sample=o.sample, seed=o.seed, chunk_size=o.chunk_size, subset=o.subset,
+                           error_points=o.error_points if o.report_dir else 0, d2_sample=o.d2_sample,
+                           keep_sample=SAMPLE_SIZE if o.surface and o.surface_budget else 0)
+        p = point_errors(src, simp, level, client=client, grid=las_grid(simp_header),
+                         on_error_points=lambda x, e: ply_parts.append((x, e)), progress=both(bar, progress))
+    uniform = p.pop("uniform_sample", None)
     report["timing"]["point"] = time.perf_counter() - t
     report["point"] = p
     report["diagonal"] = p["diagonal"]
     report["original"]["count"] = p["original_count"]
     report["psnr"], report["chamfer"] = field_figures(p["forward"], p["backward"], diagonal=p["diagonal"],
-                                                      peak=psnr_peak, normals=p["normals"], k=p["k_normals"])
-    if p["subset"] is False and not subset:
+                                                      peak=o.psnr_peak, normals=p["normals"], k=p["k_normals"])
+    if p["subset"] is False and not o.subset:
         logger.info("%d simplified points are not original points", p["not_in_original"])
-    if surface:
+    if o.surface:
         t = time.perf_counter()
         with stage_bar(bars, "surface", None, "tile") as bar:  # tens of seconds a tile: elapsed time shown
-            report["surface"] = surface_errors(src, simp, tiles=tiles, tile_points=tile_points, seed=seed,
-                                               diagonal=p["diagonal"], samples=metro_samples,
+            tiling = TilePlan(tiles=o.tiles, tile_points=o.tile_points, seed=o.seed, budget=o.surface_budget,
+                              full=o.surface_full)
+            report["surface"] = surface_errors(src, simp, tiling, diagonal=p["diagonal"], samples=o.metro_samples,
                                                cache=surface_cache, progress=bar, reference=reference,
-                                               budget=surface_budget, full=surface_full,
-                                               sample=None if sample is None else (sample, p["original_count"]))
+                                               sample=None if uniform is None else (uniform, p["original_count"]))
         report["timing"]["surface"] = time.perf_counter() - t
     report["timing"]["total"] = time.perf_counter() - t0
-    if report_dir is not None:
+    if o.report_dir is not None:
         pts = None
         if ply_parts:
             pts = (np.concatenate([a for a, _ in ply_parts]), np.concatenate([e for _, e in ply_parts]))
-        with staging.staged_folder(str(report_dir)) as folder:  # a URL: written here, then uploaded
+        with staging.staged_folder(str(o.report_dir)) as folder:  # a URL: written here, then uploaded
             write_report(report, folder, error_points=pts, kept=simp)
-        if storage.is_url(str(report_dir)):
-            report["files"] = {k: v.replace(folder, str(report_dir).rstrip("/")) for k, v in report["files"].items()}
+        if storage.is_url(str(o.report_dir)):
+            report["files"] = {k: v.replace(folder, str(o.report_dir).rstrip("/"))
+                               for k, v in report["files"].items()}
     return report

@@ -53,12 +53,14 @@ The source is still read once in full (decoding is cheap next to the queries).
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from ..engine.calls import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
+from ..params import check
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import Source, open_source
@@ -77,7 +79,7 @@ from .tiles import sample_indices
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["point_errors"]
+__all__ = ["PointLevel", "point_errors"]
 
 
 def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray | None:
@@ -128,11 +130,22 @@ def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
     return q, held, orig
 
 
-def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = None, seed: int = 0,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE, subset: bool = False, client: Any = None,
-                 error_points: int = 0, on_error_points=None, progress=None,
-                 grid: tuple[np.ndarray, np.ndarray] | None = None, d2_k: int | None = K_NORMALS,
-                 d2_sample: int | None = D2_SAMPLE, keep_sample: int = 0) -> dict:
+@dataclass(frozen=True)
+class PointLevel:
+    """What the point level measures (:func:`point_errors`); every field as there."""
+
+    sample: int | None = None
+    seed: int = 0
+    chunk_size: int = DEFAULT_CHUNK_SIZE
+    subset: bool = False
+    error_points: int = 0
+    d2_k: int | None = K_NORMALS
+    d2_sample: int | None = D2_SAMPLE
+    keep_sample: int = 0
+
+
+def point_errors(original: Any, simplified: np.ndarray, level: PointLevel = PointLevel(), *, client: Any = None,
+                 on_error_points=None, progress=None, grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Point-level errors of *simplified* against *original*, both directions.
 
     Parameters
@@ -141,6 +154,8 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         Streamed chunk by chunk (never loaded whole).
     simplified : ndarray of shape (m, 3), float64
         In memory.
+    level : PointLevel
+        The fields ``sample`` to ``keep_sample`` below (default: every point, exactly).
     sample : int, optional
         Evaluate a uniform seeded sample of this many original points (and as
         many simplified points backward) with 95% confidence intervals.
@@ -193,7 +208,9 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
         are not), ``histogram`` (``forward``/``backward`` counts over the fixed
         log bins, ``zeros``, ``log10_edges`` range).
     """
-    src: Source = open_source(original, chunk_size=chunk_size)
+    sample, seed, subset, error_points = level.sample, level.seed, level.subset, level.error_points
+    d2_k, d2_sample, keep_sample = level.d2_k, level.d2_sample, level.keep_sample
+    src: Source = open_source(original, chunk_size=level.chunk_size)
     simplified = np.ascontiguousarray(simplified, dtype=np.float64)
     if simplified.ndim != 2 or simplified.shape[1] != 3:
         raise InvalidParameterError(f"simplified points must have shape (m, 3), got {simplified.shape}")
@@ -205,9 +222,7 @@ def point_errors(original: Any, simplified: np.ndarray, *, sample: int | None = 
     n = src.count_points() if sampled or error_points or keep_sample else src.count
     fwd_idx = bwd_idx = None
     if sampled:
-        sample = int(sample)
-        if sample <= 0:
-            raise InvalidParameterError(f"sample must be a positive number of points, got {sample}")
+        sample = check("sample", sample)  # the option's one check (params)
         fwd_idx = sample_indices(n, sample, rng)
         bwd_idx = sample_indices(len(simplified), sample, rng)
         sampled = len(fwd_idx) < n or len(bwd_idx) < len(simplified)

@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -44,7 +45,7 @@ from .mesh import COMPACT_THRESHOLD, ball_pivoting, border_edges, compactness, c
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["choose_tiles", "surface_errors"]
+__all__ = ["TilePlan", "choose_tiles", "surface_errors"]
 
 
 def _mesh_figures(mesh: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, dict]:
@@ -192,11 +193,21 @@ def _simplified_tiles(simplified: np.ndarray, chosen: list[dict], centres: np.nd
     return out
 
 
-def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None = 4, tile_points: int = 200_000,
-                   seed: int = 0, diagonal: float | None = None, samples: int | None = None,
-                   max_samples: int = 500_000, progress=None, cache: dict | None = None,
-                   reference: tuple[np.ndarray, np.ndarray] | None = None, budget: float | None = None,
-                   full: bool = False, sample: tuple[np.ndarray, int] | None = None) -> dict:
+@dataclass(frozen=True)
+class TilePlan:
+    """How :func:`surface_errors` chooses the original's tiles; every field as there."""
+
+    tiles: int | None = 4
+    tile_points: int = 200_000
+    seed: int = 0
+    budget: float | None = None
+    full: bool = False
+
+
+def surface_errors(original: Any, simplified: np.ndarray, tiling: TilePlan = TilePlan(), *,
+                   diagonal: float | None = None, samples: int | None = None, max_samples: int = 500_000,
+                   progress=None, cache: dict | None = None, reference: tuple[np.ndarray, np.ndarray] | None = None,
+                   sample: tuple[np.ndarray, int] | None = None) -> dict:
     """The paper's surface-level figures on tiles of the cloud.
 
     Parameters
@@ -205,6 +216,9 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         Streamed (tiles gathered in one pass).
     simplified : ndarray of shape (m, 3)
         In memory.
+    tiling : TilePlan
+        The fields ``tiles``, ``budget``, ``full``, ``tile_points`` and ``seed`` below (default: 4 tiles of
+        200,000 points, seed 0).
     tiles : int or None
         Number of tiles T (fewer when the cloud has fewer than T*M points;
         None: 4); with *budget*, T tiles sized to fit it (fewer if they do
@@ -274,7 +288,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
     # the original's tiles depend on the original alone: compare plans them once for every method
     plan = cache.get("original_tiles") if cache is not None else None
     if plan is None:
-        plan = _plan(src, tiles, tile_points, seed, budget, full, sample)
+        plan = _plan(src, tiling.tiles, tiling.tile_points, tiling.seed, tiling.budget, tiling.full, sample)
         if cache is not None:
             cache["original_tiles"] = plan
     chosen, origs, sampling, centres = plan
@@ -306,7 +320,7 @@ def surface_errors(original: Any, simplified: np.ndarray, *, tiles: int | None =
         sampling["points_share"] = float(sum(used)) / sampling["population"]
     if sampling["mode"] in ("budget", "fixed") and len(recs) > 1:
         sampling["spread"] = spread(recs, diagonal)
-    out: dict[str, Any] = {"tiles": recs, "tile_points": int(sampling.get("tile_points", tile_points)),
+    out: dict[str, Any] = {"tiles": recs, "tile_points": int(sampling.get("tile_points", tiling.tile_points)),
                            "diagonal": diagonal, "sampling": sampling,
                            "ball_pivoting": "pymeshlab, radii r and 2r, r = median mean 6-NN distance",
                            "compact_threshold": COMPACT_THRESHOLD}

@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import logging
 import uuid
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
@@ -116,8 +117,23 @@ def _chunk(records: np.ndarray, vlr) -> bytes:
     return compress(records.take(np.argsort(records["gps_time"], kind="stable")), vlr)
 
 
-def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, origin: np.ndarray, size: float,
-                  leaf_points: int, header: dict, mapping: list, scratch: str, index: int) -> dict:
+@dataclass(frozen=True)
+class _Build:
+    """What every subtree task of one COPC export shares: the store's bucketed points (*store_path*, the
+    buckets' array *name*), the octree's cube (*origin*, *size*), *leaf_points*, the output's *header* and
+    record *mapping*, and the *scratch* folder."""
+
+    store_path: str
+    name: str
+    origin: np.ndarray
+    size: float
+    leaf_points: int
+    header: dict
+    mapping: list
+    scratch: str
+
+
+def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> dict:
     """Build the subtree of one node at *depth* (its buckets' *runs*): its chunks and its ancestors' records.
 
     Writes ``scratch/nodes-<index>.bin`` (one LAZ chunk per node of the
@@ -125,22 +141,23 @@ def _subtree_task(store_path: str, name: str, runs: np.ndarray, depth: int, orig
     points, shallowest ancestor first) through :func:`.copc_scratch.scratch_output`;
     returns their tables and the statistics of every point.
     """
-    hdr, _ = header_from_dict(header)
+    scratch, mapping = build.scratch, build.mapping
+    hdr, _ = header_from_dict(build.header)
     xyz_parts, record_parts = [], []
     # block by block: packed records (36 bytes a point in format 7) and coordinates only
-    for part in iter_runs(store_path, name, runs, _READ_BLOCK):
+    for part in iter_runs(build.store_path, build.name, runs, _READ_BLOCK):
         xyz_parts.append(part["xyz"])
         record_parts.append(point_records(part, hdr, mapping))
         del part
     xyz, records = np.concatenate(xyz_parts), np.concatenate(record_parts)
     del xyz_parts, record_parts
     stats = record_stats(records, hdr.point_format)
-    keys = point_keys(xyz, origin, size)
+    keys = point_keys(xyz, build.origin, build.size)
     del xyz
     # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
     order = np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")
     keys, records = keys[order], records.take(order)  # take: faster than indexing on records
-    level = assign_levels(keys, base_depth=depth, leaf_points=leaf_points)
+    level = assign_levels(keys, base_depth=depth, leaf_points=build.leaf_points)
     order, depths, nkeys, counts = group_nodes(keys, level)
     del keys, level
     records = records.take(order)
@@ -314,8 +331,9 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
         if biggest > task_points:
             logger.warning("%s: a node at depth %d holds %d points, more than task_points=%d: its task holds them "
                            "all (about 165 bytes a point)", dst, depth, biggest, task_points)
-        args = [(store.path, name, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, origin,
-                 size, leaf_points, header, mapping, scratch, i) for i, (d, _, s, e) in enumerate(plan)]
+        build = _Build(store.path, name, origin, size, leaf_points, header, mapping, scratch)
+        args = [(build, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, i)
+                for i, (d, _, s, e) in enumerate(plan)]
         results = run(_subtree_task, args, "export: copc subtrees")
         for r in results:
             update(r["stats"]["count"])

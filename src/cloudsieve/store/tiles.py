@@ -31,7 +31,7 @@ from .. import progress as _progress
 from .. import storage
 from ..errors import (DestinationNotWritableError, InvalidParameterError, SameSourceDestinationError,
                       UnknownFormatError)
-from ..params import check, named
+from ..params import OPTIONS, check, named
 from .buckets import bucket, iter_runs, open_runs
 from ..paths import holds, local_path
 from .pointstore import PointStore
@@ -134,7 +134,8 @@ def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
     """
     size = check("tile_size", tile_size)  # the option's one check (params); the grid's own bound below
     if size is None:  # an optional option elsewhere; required here
-        raise named(InvalidParameterError("tile_size must be a finite number > 0, got None"), "tile_size")
+        raise named(InvalidParameterError(f"tile_size must be {OPTIONS['tile_size'].describe()}, got None"),
+                    "tile_size")
     reach = float(np.abs(np.asarray(bounds, dtype=np.float64)[:, :2]).max())
     if np.isfinite(reach) and not reach / size < 2.0**31 - 1:
         raise named(InvalidParameterError(

@@ -19,9 +19,9 @@ import numpy as np
 __all__ = ["prune"]
 
 
-def prune(rule, pts, lab, **kw) -> np.ndarray:
+def prune(rule, pts, lab, options, **kw) -> np.ndarray:
     """The keep mask (n,) bool after the rounds with the coverage test."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
     from .iterative import rounds
 
-    return on_distinct(rounds, rule.name, pts, lab, **kw)
+    return on_distinct(rounds, rule.name, pts, lab, options, **kw)

@@ -18,8 +18,9 @@ threshold_for_count(scores, n_drop)
 check_rule_args, prune_unchecked
     The kept count a ratio/count asks for, and :func:`prune` on validated
     input (for :func:`~cloudsieve.core.simplify.simplify_points`).
-on_distinct
-    What every entropy rule shares: canonical order, exact duplicates, labels 0..c-1.
+
+What every entropy rule shares (canonical order, exact duplicates, labels
+0..c-1) is :func:`.distinct.on_distinct`.
 
 The rules themselves (one module each) are described in :mod:`cloudsieve.core.rules`
 and in their modules; the rounds of the rules that take them are in :mod:`..rounds`.
@@ -37,22 +38,18 @@ not depend on units either (all scores are unit-free).
 
 from __future__ import annotations
 
-import logging
 import math
+from importlib import import_module
 
 import numpy as np
 
-from .. import rules as registry
 from .._validation import check_context, check_labels, check_points, ratio_count
-from ..duplicates import sorted_copies
 from ..entropy import score_points
-from ..knn import canonical_order
+from ... import rule_table as registry
 from ...params import validate_params
-from ...progress import callback
+from ...params_spec import OPTION_CLASSES
 
-__all__ = ["prune", "unit_free_scores", "threshold_for_count", "check_rule_args", "prune_unchecked", "on_distinct"]
-
-logger = logging.getLogger(__name__)
+__all__ = ["prune", "unit_free_scores", "threshold_for_count", "check_rule_args", "prune_unchecked"]
 
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
@@ -125,10 +122,11 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
     pts = check_points(points)
     lab = check_labels(labels, len(pts))
     ctx = check_context(context, pts.shape[1])
-    return prune_unchecked(pts, lab, rule=rule, threshold=threshold, target=check_rule_args(len(pts), ratio, count),
-                           score=score, k0=k0, k_min=k_min, dim=dim, ctx=ctx, coverage=coverage,
-                           max_rounds=max_rounds, progress=progress, threads=threads,
-                           keep_duplicates=bool(keep_duplicates))
+    options = OPTION_CLASSES["prune"](rule=rule, threshold=threshold, ratio=ratio, count=count, score=score, k0=k0,
+                                      k_min=k_min, dim=dim, coverage=coverage, max_rounds=max_rounds,
+                                      threads=threads, keep_duplicates=bool(keep_duplicates))
+    return prune_unchecked(pts, lab, options, target=check_rule_args(len(pts), ratio, count), ctx=ctx,
+                           progress=progress)
 
 
 def check_rule_args(n: int, ratio, count) -> int | None:
@@ -144,59 +142,17 @@ def check_rule_args(n: int, ratio, count) -> int | None:
     return None
 
 
-def prune_unchecked(pts, lab, *, rule, threshold, target, score, k0, k_min, dim, ctx, coverage, max_rounds,
-                    progress, threads, keep_duplicates=False) -> np.ndarray:
+def prune_unchecked(pts, lab, options, *, target, ctx=None, progress=None) -> np.ndarray:
     """:func:`prune` on validated input: the keep mask (n,) bool.
 
     ``pts`` (n, p) float64 and ``lab`` (n,) int64 as from
-    :func:`.._validation.check_points` / ``check_labels``, ``target`` from
-    :func:`check_rule_args`, ``ctx`` from ``check_context``; no checks, no
-    copy of the input. The rule's module selects (:meth:`~cloudsieve.core.rules.Rule.prune`).
+    :func:`.._validation.check_points` / ``check_labels``, ``options`` the
+    frozen options of ``prune`` (:data:`cloudsieve.params_spec.OPTION_CLASSES`;
+    its ratio and count unread), ``target`` from :func:`check_rule_args`,
+    ``ctx`` from ``check_context``; no checks, no copy of the input. The rule's module (:attr:`cloudsieve.rule_table.Rule.module`, loaded by name) selects.
     """
     if len(pts) == 0:
         return np.ones(0, dtype=bool)
-    return registry.get(rule).prune(pts, lab, threshold=threshold, target=target, score=score, k0=k0, k_min=k_min,
-                                    dim=dim, ctx=ctx, coverage=coverage, max_rounds=max_rounds, progress=progress,
-                                    threads=threads, keep_duplicates=keep_duplicates)
-
-
-def on_distinct(select, rule, pts, lab, *, threshold, target, score, k0, k_min, dim, ctx, coverage, max_rounds,
-                progress, threads, keep_duplicates) -> np.ndarray:
-    """An entropy rule's keep mask (n,): ``select`` runs on the distinct points in canonical order.
-
-    ``select(rule, P, L, threshold=, target=, score=, coverage=, max_rounds=, report=, kw=)`` returns
-    the keep mask of the canonically ordered distinct points P (labels L in 0..c-1).
-    """
-    n = len(pts)
-    order = canonical_order(pts)
-    P = pts[order]
-    L = lab[order]
-    copy = sorted_copies(P)
-    n_copies = int(copy.sum())
-    if n_copies:  # the rule sees each point once; target counts distinct points
-        logger.info("%d exact duplicate points %s", n_copies,
-                    "kept with their first copy" if keep_duplicates else "removed")
-        P, L = P[~copy], L[~copy]
-        if target is not None:
-            target = min(target, len(P))
-    report = callback(progress)
-    if n_copies and not keep_duplicates:
-        report(n_copies)
-    L = np.unique(L, return_inverse=True)[1].reshape(-1).astype(np.int64)  # 0..c-1
-    keep_c = select(rule, P, L, threshold=threshold, target=target, score=score, coverage=coverage,
-                    max_rounds=max_rounds, report=report, kw=dict(k0=k0, k_min=k_min, dim=dim, ctx=ctx,
-                                                                   threads=threads))
-    if n_copies:
-        first = np.cumsum(~copy) - 1  # each row's distinct point
-        keep_c = keep_c[first] if keep_duplicates else np.where(copy, False, keep_c[first])
-    out = np.empty(n, dtype=bool)
-    out[order] = keep_c
-    return out
-
-
-def ranked(values: np.ndarray, idx: np.ndarray) -> np.ndarray:
-    """idx of the finite values, lowest value first (ties: lower idx first)."""
-    fin = np.isfinite(values)
-    idx = idx[fin]
-    o = np.lexsort((idx, values[fin]))
-    return idx[o]
+    chosen = registry.get(options.rule)
+    return import_module(chosen.module, __package__).prune(chosen, pts, lab, options, target=target, ctx=ctx,
+                                                           progress=progress)

@@ -26,10 +26,10 @@ def select(pts, *, target, seed, cluster_size, k0, k_min, progress, keep_duplica
     return keep
 
 
-def prune(rule, pts, lab, *, target, k0, k_min, progress, keep_duplicates, **_unused) -> np.ndarray:
-    """:func:`select` with the default seed and cluster size (``simplify_points``')."""
+def prune(rule, pts, lab, options, *, target, progress, **_unused) -> np.ndarray:
+    """:func:`select` with the default seed and cluster size (``simplify_points``'), *options* prune's."""
     from ...params import COMMANDS
 
     spec = COMMANDS["simplify_points"]
-    return select(pts, target=target, seed=spec["seed"].default, cluster_size=spec["cluster_size"].default, k0=k0,
-                  k_min=k_min, progress=progress, keep_duplicates=keep_duplicates)
+    return select(pts, target=target, seed=spec["seed"].default, cluster_size=spec["cluster_size"].default,
+                  k0=options.k0, k_min=options.k_min, progress=progress, keep_duplicates=options.keep_duplicates)

@@ -19,11 +19,11 @@ import numpy as np
 __all__ = ["prune"]
 
 
-def prune(rule, pts, lab, **kw) -> np.ndarray:
+def prune(rule, pts, lab, options, **kw) -> np.ndarray:
     """The keep mask (n,) bool after the rounds."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
 
-    return on_distinct(rounds, rule.name, pts, lab, **kw)
+    return on_distinct(rounds, rule.name, pts, lab, options, **kw)
 
 
 def rounds(rule, P, L, *, threshold, target, score, coverage, max_rounds, report, kw) -> np.ndarray:

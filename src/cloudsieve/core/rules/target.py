@@ -17,16 +17,16 @@ __all__ = ["prune"]
 logger = logging.getLogger(__name__)
 
 
-def prune(rule, pts, lab, **kw) -> np.ndarray:
+def prune(rule, pts, lab, options, **kw) -> np.ndarray:
     """The keep mask (n,) bool: all but the n - target distinct points of lowest m*dH."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
 
-    return on_distinct(_select, rule.name, pts, lab, **kw)
+    return on_distinct(_select, rule.name, pts, lab, options, **kw)
 
 
 def _select(rule, P, L, *, threshold, target, score, coverage, max_rounds, report, kw) -> np.ndarray:
     from ..entropy import score_unchecked
-    from .dispatch import ranked
+    from .distinct import ranked
 
     n = len(P)
     s = score_unchecked(P, L, **kw)

@@ -11,11 +11,11 @@ import numpy as np
 __all__ = ["prune"]
 
 
-def prune(rule, pts, lab, **kw) -> np.ndarray:
+def prune(rule, pts, lab, options, **kw) -> np.ndarray:
     """The keep mask (n,) bool: the distinct points whose score (dH, or m*dH) is > S."""
-    from .dispatch import on_distinct
+    from .distinct import on_distinct
 
-    return on_distinct(_select, rule.name, pts, lab, **kw)
+    return on_distinct(_select, rule.name, pts, lab, options, **kw)
 
 
 def _select(rule, P, L, *, threshold, target, score, coverage, max_rounds, report, kw) -> np.ndarray:
