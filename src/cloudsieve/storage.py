@@ -1,7 +1,8 @@
 """Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
 reading, ``memory://``), with a run's storage options.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage_errors`).
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage_errors` and
+:mod:`cloudsieve.storage_retries`).
 Every module that opens, lists or removes a cloud, a list, a VPC or a store goes through it, so a URL
 works wherever a path does:
 :func:`open_input` reads by ranged requests (a LAZ file's chunk table, then only its chunks: never
@@ -33,7 +34,7 @@ import re
 from collections.abc import Callable, Iterator
 from urllib.parse import unquote, urlparse
 
-from . import storage_errors
+from . import storage_errors, storage_retries
 from .errors import InvalidParameterError
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
@@ -136,6 +137,7 @@ def fs_options(path: str) -> dict:
 
 
 def _options_for(proto: str) -> dict:
+    storage_retries.watch(proto)  # a remote filesystem: the run touches a URL; S3's retries are counted
     options = dict(_OPTIONS)
     # other processes (the workers) write the objects this one lists: no listing is cached
     options.setdefault("use_listings_cache", False)
