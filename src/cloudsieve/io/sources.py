@@ -28,7 +28,7 @@ from __future__ import annotations
 import os
 
 from .. import storage
-from ..errors import EmptyInputError, InputIsDirectoryError, InputNotFoundError
+from ..errors import EmptyInputError, InputFormatError, InputIsDirectoryError, InputNotFoundError
 
 __all__ = ["expand_sources", "is_many", "LIST_EXTENSIONS", "TILE_EXTENSIONS"]
 
@@ -85,7 +85,11 @@ def _absolute(path: str) -> str:
 def _read_list(src: str) -> list[str]:
     out = []
     with storage.open_input(src) as fh:
-        text = fh.read().decode("utf-8")
+        data = fh.read()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputFormatError(f"{src}: not a list of files (not UTF-8 text)") from None
     for number, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -114,7 +118,7 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
     InputNotFoundError
         A listed file does not exist.
     InputFormatError
-        A VPC that is not a STAC ItemCollection.
+        A VPC that is not a STAC ItemCollection, a list that is not UTF-8 text.
     """
     src = os.fspath(src)
     if _is_glob(src):
