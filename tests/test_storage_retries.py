@@ -87,3 +87,18 @@ def test_the_server_stopped_longer_than_the_read_timeout_is_retried_counted_and_
     assert run.returncode == 0, err
     assert json.loads(out)["storage"]["retries"] >= 1
     assert _remote_sha(s3, f"{bucket}/o.laz") == _remote_sha(s3, f"{bucket}/whole.laz")
+
+
+def test_the_retry_settings_stay_as_set_and_a_url_s_filesystem_is_made_once(bucket, s3):
+    """botocore rewrites the "retries" it is given ({"max_attempts": n} becomes {"total_max_attempts": n + 1}):
+    each filesystem gets its own copy, so the next one is made with the same settings, and is the same
+    (cached) filesystem, not a second client (about 0.1 s of CPU in every process)."""
+    from cloudsieve import storage
+
+    with storage.using(s3.storage_options()):
+        first, path = storage.filesystem(f"{bucket}/a")
+        assert not first.exists(path)  # a request: the client is made
+        again, _ = storage.filesystem(f"{bucket}/b")
+        assert again is first
+        assert storage.fs_options(bucket)["config_kwargs"] == {
+            "connect_timeout": 10, "read_timeout": 60, "retries": {"total_max_attempts": 4, "mode": "standard"}}

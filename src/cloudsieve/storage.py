@@ -26,6 +26,7 @@ Example
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 import logging
 import os
@@ -56,9 +57,10 @@ WRITE_BLOCK = 16 * 2**20
 
 _OPTIONS: dict = {}
 #: the options an S3 filesystem gets unless the run's own say otherwise: a bounded connect time and retries
-#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried
+#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried, 4 attempts
+#: in all; copied for each filesystem (botocore rewrites its "retries" in place)
 _S3_DEFAULTS = {"config_kwargs": {"connect_timeout": 10, "read_timeout": 60,
-                                  "retries": {"max_attempts": 4, "mode": "standard"}}}
+                                  "retries": {"total_max_attempts": 4, "mode": "standard"}}}
 
 
 def is_url(path: str | os.PathLike) -> bool:
@@ -142,7 +144,8 @@ def _options_for(proto: str) -> dict:
     # other processes (the workers) write the objects this one lists: no listing is cached
     options.setdefault("use_listings_cache", False)
     if proto in ("s3", "s3a"):
-        config = {**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})}
+        # fresh copies: a dict botocore rewrote would name another filesystem (a second S3 client, ~0.1 s CPU)
+        config = copy.deepcopy({**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})})
         options["config_kwargs"] = config
     return options
 

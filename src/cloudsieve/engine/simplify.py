@@ -39,6 +39,7 @@ from collections.abc import Callable
 from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
+from ..io.sources import remembered
 from ..params import run_record, validate
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
@@ -242,7 +243,8 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
-    with storage.using(opts.get("storage_options")):  # every URL of the run, here and in its tasks
+    # every URL of the run, here and in its tasks; SRC listed once
+    with storage.using(opts.get("storage_options")), remembered():
         return _run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify,
                              t_start=t_start)
 
