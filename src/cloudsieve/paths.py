@@ -95,7 +95,12 @@ def zarr_store(path: str, read_only: bool):
     # some object stores (SeaweedFS) list a deleted group's prefix for a while: zarr finds no node there and
     # warns; the store holds no such node, which is all the caller asked
     warnings.filterwarnings("ignore", message=r"Object at .* is not recognized as a component of a Zarr hierarchy")
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=storage.fs_options(path))
+    options = storage.fs_options(path)
+    if storage.protocol(path) in ("s3", "s3a"):
+        # s3fs reads a whole object (every chunk, every zarr.json) with a HEAD first (its size, to split a large
+        # one into ranged reads), and a LIST when it is missing: with 1, one GET
+        options["max_concurrency"] = 1
+    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=options)
 
 
 def path_exists(path: str) -> bool:
