@@ -91,6 +91,19 @@ def test_a_copc_source_is_never_its_destination(layout, monkeypatch, overwrite):
     assert _tree(layout) == before
 
 
+@pytest.mark.parametrize("overwrite", [False, True], ids=["no-overwrite", "overwrite"])
+@pytest.mark.parametrize("listing", ["in/list.lst", "in/index.vpc"])
+def test_a_list_or_a_vpc_is_an_input_too(layout, monkeypatch, listing, overwrite):
+    monkeypatch.chdir(layout)
+    before = _tree(layout)
+    for options, named in (({"format": "laz"}, listing), ({"store": listing}, f"{layout}/{listing}")):
+        with pytest.raises(SameSourceDestinationError) as exc:
+            cloudsieve.simplify(listing, listing if "format" in options else "o.laz", ratio=0.5,
+                                overwrite=overwrite, **options)
+        assert str(exc.value) == f"{named} is the source: cloudsieve never overwrites its input"
+    assert _tree(layout) == before
+
+
 def test_the_messages_name_the_input(layout, monkeypatch):
     monkeypatch.chdir(layout)
     with pytest.raises(SameSourceDestinationError) as exc:

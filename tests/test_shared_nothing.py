@@ -92,7 +92,8 @@ def test_a_shared_nothing_cluster_gives_the_local_bytes(cluster, bucket, s3, tmp
         monkeypatch.delenv(k)
     opts = s3.storage_options()
     run = {"ratio": 0.5, "chunk_size": 20_000, "scheduler": cluster, "storage_options": opts}
-    cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/one.laz", **run)
+    summary = cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/one.laz", **run)
+    assert summary.storage == {"retries": 0}  # the workers' counts asked for, none on a healthy server
     cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/tl", tile_size=300.0, **run)
     cloudsieve.simplify(f"{bucket}/in/a.laz", f"{bucket}/out/o.copc.laz", **run)
     fs.invalidate_cache()

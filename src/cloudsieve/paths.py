@@ -8,6 +8,7 @@ is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store`
 from __future__ import annotations
 
 import os
+import posixpath
 from typing import TYPE_CHECKING
 
 from . import storage
@@ -22,45 +23,62 @@ if TYPE_CHECKING:
     import zarr
 
 
+#: protocols fsspec gives the same filesystem under two names
+_ALIASES = {"s3a": "s3", "gcs": "gs", "abfs": "az"}
+
+
+def _canonical(url: str) -> str:
+    """*url* as URLs are compared: the protocol's one name, the path normalised (``b//in/./a.laz`` is
+    ``b/in/a.laz``, no trailing "/"): SeaweedFS reads ``in//a.laz`` as ``in/a.laz``; "." and ".." go the same
+    way, on the safe side (a store that keeps them in a key is refused a name it would not confuse)."""
+    proto, _, rest = url.partition("://")
+    proto = proto.lower()
+    return f"{_ALIASES.get(proto, proto)}://{posixpath.normpath(rest) if rest else ''}"
+
+
 def same_path(a: str | os.PathLike, b: str | os.PathLike) -> bool:
-    """True when *a* and *b* name the same file or folder (symlinks resolved; URLs compared as text)."""
+    """True when *a* and *b* name the same file or folder (symlinks resolved; URLs compared by
+    :func:`_canonical` form)."""
     a, b = os.fspath(a), os.fspath(b)
     la, lb = local_path(a), local_path(b)
     if la is None or lb is None:
-        return a.rstrip("/") == b.rstrip("/")
+        return la is None and lb is None and _canonical(a) == _canonical(b)
     return os.path.realpath(la) == os.path.realpath(lb)
 
 
 def holds(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
-    """True when *path* is *folder* or lies inside it (symlinks resolved; URLs compared as text), so that
-    replacing or deleting *folder* would remove *path*."""
+    """True when *path* is *folder* or lies inside it (symlinks resolved; URLs compared by :func:`_canonical`
+    form), so that replacing or deleting *folder* would remove *path*."""
     folder, path = os.fspath(folder), os.fspath(path)
     lf, lp = local_path(folder), local_path(path)
     if lf is None or lp is None:
         if (lf is None) != (lp is None):
             return False
-        f, p = folder.rstrip("/"), path.rstrip("/")
-        return p == f or p.startswith(f + "/")
+        f, p = _canonical(folder), _canonical(path)
+        return p == f or p.startswith(f.rstrip("/") + "/")
     f, p = os.path.realpath(lf), os.path.realpath(lp)
     return os.path.commonpath([f, p]) == f
 
 
 def store_foreign(path: str | os.PathLike) -> str | None:
-    """None when the local folder *path* is empty or a cloudsieve point store (complete or not: a zarr
-    group whose attributes hold "cloudsieve"), else what it holds instead, for a message; read from its
-    ``zarr.json`` alone (no zarr import)."""
+    """None when the local folder (or URL prefix) *path* is empty or absent, or a cloudsieve point store
+    (complete or not: a zarr group whose attributes hold "cloudsieve"), else what it holds instead, for a
+    message; read from its ``zarr.json`` alone (no zarr import)."""
     import json
 
     path = os.fspath(path)
-    names = sorted(os.listdir(path))
+    if storage.is_url(path):
+        names = storage.listdir(path, files_only=False) if storage.isdir(path) else []
+    else:
+        names = sorted(os.listdir(path))
     if not names:
         return None
     try:
-        with open(os.path.join(path, "zarr.json"), encoding="utf-8") as fh:
+        with storage.open_input(storage.join(path, "zarr.json"), storage.HEADER_BLOCK) as fh:
             attrs = json.load(fh).get("attributes", {})
         if isinstance(attrs, dict) and STORE_ATTR in attrs:
             return None
-    except (OSError, ValueError, AttributeError):
+    except (CloudsieveError, OSError, ValueError, AttributeError):
         pass
     return f"{len(names)} entr{'y' if len(names) == 1 else 'ies'} ({names[0]}{', ...' if len(names) > 1 else ''}) and no cloudsieve point store"
 
@@ -77,7 +95,12 @@ def zarr_store(path: str, read_only: bool):
     # some object stores (SeaweedFS) list a deleted group's prefix for a while: zarr finds no node there and
     # warns; the store holds no such node, which is all the caller asked
     warnings.filterwarnings("ignore", message=r"Object at .* is not recognized as a component of a Zarr hierarchy")
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=storage.fs_options(path))
+    options = storage.fs_options(path)
+    if storage.protocol(path) in ("s3", "s3a"):
+        # s3fs reads a whole object (every chunk, every zarr.json) with a HEAD first (its size, to split a large
+        # one into ranged reads), and a LIST when it is missing: with 1, one GET
+        options["max_concurrency"] = 1
+    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=options)
 
 
 def path_exists(path: str) -> bool:

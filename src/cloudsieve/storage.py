@@ -1,7 +1,8 @@
 """Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
 reading, ``memory://``), with a run's storage options.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage_errors`).
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage_errors` and
+:mod:`cloudsieve.storage_retries`).
 Every module that opens, lists or removes a cloud, a list, a VPC or a store goes through it, so a URL
 works wherever a path does:
 :func:`open_input` reads by ranged requests (a LAZ file's chunk table, then only its chunks: never
@@ -25,6 +26,7 @@ Example
 from __future__ import annotations
 
 import contextlib
+import copy
 import functools
 import logging
 import os
@@ -33,7 +35,7 @@ import re
 from collections.abc import Callable, Iterator
 from urllib.parse import unquote, urlparse
 
-from . import storage_errors
+from . import storage_errors, storage_retries
 from .errors import InvalidParameterError
 
 __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
@@ -55,9 +57,10 @@ WRITE_BLOCK = 16 * 2**20
 
 _OPTIONS: dict = {}
 #: the options an S3 filesystem gets unless the run's own say otherwise: a bounded connect time and retries
-#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried
+#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried, 4 attempts
+#: in all; copied for each filesystem (botocore rewrites its "retries" in place)
 _S3_DEFAULTS = {"config_kwargs": {"connect_timeout": 10, "read_timeout": 60,
-                                  "retries": {"max_attempts": 4, "mode": "standard"}}}
+                                  "retries": {"total_max_attempts": 4, "mode": "standard"}}}
 
 
 def is_url(path: str | os.PathLike) -> bool:
@@ -136,11 +139,13 @@ def fs_options(path: str) -> dict:
 
 
 def _options_for(proto: str) -> dict:
+    storage_retries.watch(proto)  # a remote filesystem: the run touches a URL; S3's retries are counted
     options = dict(_OPTIONS)
     # other processes (the workers) write the objects this one lists: no listing is cached
     options.setdefault("use_listings_cache", False)
     if proto in ("s3", "s3a"):
-        config = {**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})}
+        # fresh copies: a dict botocore rewrote would name another filesystem (a second S3 client, ~0.1 s CPU)
+        config = copy.deepcopy({**_S3_DEFAULTS["config_kwargs"], **options.get("config_kwargs", {})})
         options["config_kwargs"] = config
     return options
 

@@ -23,6 +23,9 @@ from .small import fits_in_memory
 
 __all__ = ["RunChecks", "check_run"]
 
+#: a SRC file that names others (io/sources.py: a list, a VPC)
+_LISTINGS = (".lst", ".txt", ".vpc")
+
 
 @dataclass
 class RunChecks:
@@ -55,8 +58,11 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         dst = dst.rstrip("/") or dst
     dst_local = local_path(dst)
     sources = expand_sources(src)
+    # a list or a VPC is an input too: never overwritten, never in a folder replaced
+    inputs = sources + ([src] if src.lower().endswith(_LISTINGS) and not any(same_path(s, src) for s in sources)
+                        else [])
     # first: overwriting would not help, so it is not suggested
-    _refuse_inputs_inside(dst, sources, "destination")
+    _refuse_inputs_inside(dst, inputs, "destination")
     src_is_store = is_store(src)
     if src_is_store and holds(src, dst):
         raise SameSourceDestinationError(
@@ -72,7 +78,7 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
 
         if opts["format"] is not None and opts["format"].lower().lstrip(".") != "laz":
             raise UnknownFormatError(f"{dst}: tiles are written as LAZ, not {opts['format']}")
-        check_tile_destination(dst, overwrite, sources)
+        check_tile_destination(dst, overwrite, inputs)
         bounds = _header_bounds(src, sources)
         if bounds is not None:
             check_grid(bounds, opts["tile_size"], src)
@@ -82,7 +88,7 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         scheduler = scheduler_for(points)  # small: in process
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
     if not src_is_store:
-        _check_work_store(store_path, dst if tiles else None, sources)
+        _check_work_store(store_path, dst if tiles else None, inputs)
     # a work store of another source or other options is refused before any scheduler is contacted
     st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite,
                                   resume=opts["resume"])
@@ -115,16 +121,15 @@ def _check_work_store(store_path: str, tile_folder: str | None, sources: list[st
         raise InvalidParameterError(f"work store {store_path} lies in the tile folder {tile_folder}, "
                                     "which is replaced when the tiles are written: choose a store outside it")
     local = local_path(store_path)
-    if local is None:
-        return
-    if os.path.isdir(local):
-        found = store_foreign(local)
-        if found is not None:
-            raise DestinationExistsError(f"work store {store_path} holds {found}: cloudsieve replaces only "
-                                         "its own point stores (choose another store)")
-    elif os.path.lexists(local):
+    if local is None and storage.isfile(store_path) or local is not None and os.path.lexists(local) and not \
+            os.path.isdir(local):
         raise DestinationExistsError(f"work store {store_path} is a file: cloudsieve never replaces a file "
                                      "with a point store (choose another store)")
+    # a URL: a prefix holding objects (absent: nothing found)
+    found = store_foreign(local or store_path) if local is None or os.path.isdir(local) else None
+    if found is not None:
+        raise DestinationExistsError(f"work store {store_path} holds {found}: cloudsieve replaces only "
+                                     "its own point stores (choose another store)")
 
 
 def _header_bounds(src: str, sources: list[str]) -> np.ndarray | None:

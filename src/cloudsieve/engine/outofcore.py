@@ -150,7 +150,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
             summary.seconds["export"] = time.perf_counter() - t0
-            summary.cpu_seconds["workers"] = runner.worker_cpu()
+            summary.cpu_seconds["workers"], retries = runner.worker_counts()
+            summary.storage = {"retries": retries}  # the driver's own are added when the run is finished
         except TargetNotMetError:
             if default_store:  # the run is complete and would end the same: nothing is left behind
                 delete_store(store_path)

@@ -20,7 +20,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from .. import storage
+from .. import storage, storage_retries
 from ..errors import InvalidParameterError
 from ..progress import stage_bar
 from . import ahead
@@ -82,8 +82,9 @@ class Runner:
         self._pool = None  # the local process pool ("processes")
         self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
         self.task_cpu = 0.0  # CPU seconds of the local worker processes' tasks (the "processes" pool)
-        self._cpu_start: dict | None = None  # each dask.distributed worker's CPU time when the run began
-        self._cpu_closed: float | None = None  # :meth:`worker_cpu` when this runner closed its client
+        self.task_retries = 0  # the object store's retries in those tasks (:mod:`cloudsieve.storage_retries`)
+        self._cpu_start: dict | None = None  # each dask.distributed worker's (CPU time, retries) when the run began
+        self._cpu_closed: tuple[float, int] | None = None  # (:meth:`worker_counts`) at close
         self._ahead = None  # a process compiling kernels ahead into an empty numba cache (:mod:`.ahead`)
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
@@ -203,12 +204,19 @@ class Runner:
         "threads" schedulers run the tasks in this process: their CPU is
         this process's own.
         """
+        return self.worker_counts()[0]
+
+    def worker_counts(self) -> tuple[float, int]:
+        """``(worker_cpu(), the object store's retries in the worker processes during this run so far)``, the
+        retries counted as the CPU is (0 when the tasks run in this process: its own count has them)."""
         if self._cpu_closed is not None:
             return self._cpu_closed
         if self.client is not None and self._cpu_start is not None:
             now = _workers_cpu(self.client)
-            return float(sum(max(0.0, v - self._cpu_start.get(w, 0.0)) for w, v in now.items()))
-        return float(self.task_cpu)
+            start = self._cpu_start
+            return (float(sum(max(0.0, v[0] - start.get(w, (0.0, 0))[0]) for w, v in now.items())),
+                    int(sum(max(0, v[1] - start.get(w, (0.0, 0))[1]) for w, v in now.items())))
+        return float(self.task_cpu), int(self.task_retries)
 
     def close(self) -> None:
         """Shut down the process pool and the client/cluster this runner started (again: nothing)."""
@@ -221,7 +229,7 @@ class Runner:
             self._pool.shutdown(wait=True)
             self._pool = None
         if self._own_client and self.client is not None:
-            self._cpu_closed = self.worker_cpu()  # a closed client asks its workers nothing
+            self._cpu_closed = self.worker_counts()  # a closed client asks its workers nothing
             self.client.close()
             self._own_client = False
         if self._cluster is not None:
@@ -302,7 +310,7 @@ class Runner:
         tasks: list = []
         name = func.__name__
         timed = self._pool is not None
-        if timed:  # each task's CPU, measured in its worker process
+        if timed:  # each task's CPU and retries, measured in its worker process
             func = functools.partial(_timed, func)
         for i, a in enumerate(args):
             key = f"cloudsieve-{name}-{token}-{last - i:09d}"
@@ -332,26 +340,29 @@ class Runner:
         with _Count():
             results = list(dask.compute(*tasks, **kwargs))
         if timed:
-            self.task_cpu += sum(cpu for _, cpu in results)
-            results = [r for r, _ in results]
+            self.task_cpu += sum(cpu for _, cpu, _ in results)
+            self.task_retries += sum(retries for _, _, retries in results)
+            results = [r for r, _, _ in results]
         return results
 
 
 def _timed(func: Callable, *args):
-    """``(func(*args), CPU seconds of this process while it ran)``: a task in a worker process of its own."""
-    t0 = time.process_time()
+    """``(func(*args), CPU seconds of this process while it ran, the object store's retries meanwhile)``: a
+    task in a worker process of its own."""
+    t0, r0 = time.process_time(), storage_retries.counts()[1]
     result = func(*args)
-    return result, time.process_time() - t0
+    return result, time.process_time() - t0, storage_retries.counts()[1] - r0
 
 
-def _process_cpu() -> float:
-    return time.process_time()
+def _process_counts() -> tuple[float, int]:
+    return time.process_time(), storage_retries.counts()[1]
 
 
 def _workers_cpu(client) -> dict:
-    """Each dask.distributed worker's process CPU time (seconds), by worker address."""
+    """Each dask.distributed worker's process CPU time (seconds) and the object store's retries in it, by
+    worker address."""
     try:
-        return {w: float(v) for w, v in client.run(_process_cpu).items()}
+        return {w: (float(v[0]), int(v[1])) for w, v in client.run(_process_counts).items()}
     except Exception:  # pragma: no cover - a cluster that refuses client.run
         return {}
 

@@ -39,10 +39,11 @@ from collections.abc import Callable
 from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
+from ..io.sources import remembered
 from ..params import run_record, validate
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
-from .. import storage
+from .. import storage, storage_retries
 from .checks import check_run
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
@@ -242,7 +243,8 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
     for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
-    with storage.using(opts.get("storage_options")):  # every URL of the run, here and in its tasks
+    # every URL of the run, here and in its tasks; SRC listed once
+    with storage.using(opts.get("storage_options")), remembered():
         return _run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify,
                              t_start=t_start)
 
@@ -255,7 +257,7 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
         dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
     rule = opts["rule"]  # resolved: None -> eliminate (a ratio or count) or threshold (a threshold alone)
-    update, cpu0 = callback(progress), time.process_time()
+    update, cpu0 = callback(progress), (time.process_time(), storage_retries.counts())
     summary = Summary(source=src, destination=dst, duplicates_kept=keep_duplicates)
     checked = check_run(src, dst, opts, params, client=client)
 
@@ -283,10 +285,15 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
     return run_store(checked, src, dst, opts, params, summary, hooks, client=client)
 
 
-def _finished(summary: Summary, t_start: float, cpu0: float) -> Summary:
-    """*summary* with the run's total time and this process's CPU, logged."""
+def _finished(summary: Summary, t_start: float, cpu0: tuple) -> Summary:
+    """*summary* with the run's total time, this process's CPU and (a run that touched a URL) the object store's
+    retries in this process added to the workers', logged. *cpu0*: ``(CPU time, storage_retries.counts())`` when
+    the run began."""
     summary.seconds["total"] = time.perf_counter() - t_start
-    summary.cpu_seconds["driver"] = time.process_time() - cpu0
+    summary.cpu_seconds["driver"] = time.process_time() - cpu0[0]
+    (uses0, retries0), (uses, retries) = cpu0[1], storage_retries.counts()
+    workers = (summary.storage or {}).get("retries", 0)
+    summary.storage = {"retries": workers + retries - retries0} if uses > uses0 else None
     logger.info("simplify %s -> %s: %d of %d points kept", summary.source, summary.destination, summary.kept,
                 summary.points_in)
     return summary

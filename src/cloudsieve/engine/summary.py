@@ -80,6 +80,12 @@ class Summary:
     peak_memory_of : str
         What *peak_memory* covers: ``"this process and its children"`` or
         ``"N dask workers (sum of their resident memory)"``.
+    storage : dict or None
+        ``{"retries": n}`` for a run that reads or writes a URL: the
+        requests to the object store sent again after a timeout, throttling
+        or a 5xx answer (S3: botocore's attempts after the first), in the
+        driver and the worker processes (:mod:`cloudsieve.storage_retries`);
+        None (and absent from :meth:`to_dict`) for a run on local paths.
     scheduler : str
     source, destination : str
     store : str
@@ -99,13 +105,17 @@ class Summary:
     cpu_seconds: dict[str, float] = field(default_factory=lambda: {"driver": 0.0, "workers": 0.0})
     peak_memory: int = 0
     peak_memory_of: str = "this process and its children"
+    storage: dict[str, int] | None = None
     scheduler: str = ""
     source: str = ""
     destination: str = ""
     store: str = ""
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        record = asdict(self)
+        if record["storage"] is None:
+            del record["storage"]
+        return record
 
     def __str__(self) -> str:
         s = self
@@ -126,5 +136,8 @@ class Summary:
         lines.append(f"cpu           {cpu['driver'] + cpu['workers']:>13.2f}s  (driver {cpu['driver']:.2f}s, "
                      f"workers {cpu['workers']:.2f}s)")
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
+        if s.storage is not None:
+            lines.append(f"storage       {s.storage['retries']:>14,}  retries (requests sent again after a timeout, "
+                         f"throttling or a 5xx)")
         lines.append(f"scheduler     {s.scheduler}")
         return "\n".join(lines)

@@ -25,12 +25,16 @@ which fixes the result for a seed.
 
 from __future__ import annotations
 
+import contextlib
 import os
+from collections.abc import Iterator
 
 from .. import storage
-from ..errors import EmptyInputError, InputIsDirectoryError, InputNotFoundError
+from ..errors import EmptyInputError, InputFormatError, InputIsDirectoryError, InputNotFoundError
 
-__all__ = ["expand_sources", "is_many", "LIST_EXTENSIONS", "TILE_EXTENSIONS"]
+__all__ = ["expand_sources", "remembered", "is_many", "LIST_EXTENSIONS", "TILE_EXTENSIONS"]
+
+_remembered: dict[str, list[str]] | None = None  # SRC -> its files, inside :func:`remembered`
 
 #: extensions of the files a directory source contributes
 TILE_EXTENSIONS = (".las", ".laz")
@@ -85,7 +89,11 @@ def _absolute(path: str) -> str:
 def _read_list(src: str) -> list[str]:
     out = []
     with storage.open_input(src) as fh:
-        text = fh.read().decode("utf-8")
+        data = fh.read()
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError:
+        raise InputFormatError(f"{src}: not a list of files (not UTF-8 text)") from None
     for number, line in enumerate(text.splitlines(), 1):
         line = line.strip()
         if not line or line.startswith("#"):
@@ -114,9 +122,30 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
     InputNotFoundError
         A listed file does not exist.
     InputFormatError
-        A VPC that is not a STAC ItemCollection.
+        A VPC that is not a STAC ItemCollection, a list that is not UTF-8 text.
     """
     src = os.fspath(src)
+    if _remembered is not None:
+        if src not in _remembered:
+            _remembered[src] = _expand(src)
+        return list(_remembered[src])
+    return _expand(src)
+
+
+@contextlib.contextmanager
+def remembered() -> Iterator[None]:
+    """Within the block, each SRC is expanded once: a run reads its input's listing in its checks, its
+    identity and its ingest (a prefix on S3: five requests each time), and the input does not change under it."""
+    global _remembered
+    saved = _remembered
+    _remembered = {} if saved is None else saved
+    try:
+        yield
+    finally:
+        _remembered = saved
+
+
+def _expand(src: str) -> list[str]:
     if _is_glob(src):
         files = storage.glob(src)
         what = f"{src}: the pattern matches no file"

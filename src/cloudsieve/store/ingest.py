@@ -200,7 +200,9 @@ def ingest(
         if local is not None:
             check_destination(local, overwrite, folder=True, foreign=store_foreign)
             target = make_temp_path(local, directory=True)
-        else:
+        else:  # an object, or a prefix of other objects, is never replaced (PointStore.create refuses the rest)
+            if overwrite:
+                check_destination(store, overwrite, folder=True, foreign=store_foreign)
             target = store
         try:
             # a local target is the fresh temporary folder; a remote one is refused if it exists unless overwrite

@@ -109,7 +109,9 @@ def ingest_las(
     if local is not None:
         check_destination(local, overwrite, folder=True, foreign=store_foreign)
         target = make_temp_path(local, directory=True)
-    else:
+    else:  # an object, or a prefix of other objects, is never replaced (PointStore.create refuses the rest)
+        if overwrite:
+            check_destination(store, overwrite, folder=True, foreign=store_foreign)
         target = store
     encoding = {"scale": plan.scale.tolist(), "offset": plan.offset.tolist()}
     try:
