@@ -77,7 +77,12 @@ def zarr_store(path: str, read_only: bool):
     # some object stores (SeaweedFS) list a deleted group's prefix for a while: zarr finds no node there and
     # warns; the store holds no such node, which is all the caller asked
     warnings.filterwarnings("ignore", message=r"Object at .* is not recognized as a component of a Zarr hierarchy")
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=storage.fs_options(path))
+    options = storage.fs_options(path)
+    if storage.protocol(path) in ("s3", "s3a"):
+        # zarr reads whole objects: one GET each, not s3fs's HEAD for the size first (and a LIST after a
+        # missing key's HEAD), which its default of concurrent ranged GETs for large objects costs
+        options.setdefault("max_concurrency", 1)
+    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=options)
 
 
 def path_exists(path: str) -> bool:
