@@ -77,7 +77,7 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PARTITION_ATTR = "cloudsieve_partition"
-PARTITION_VERSION = 2  # 2: sparse run tables (chunk_runs/cell_runs); 1 had a dense counts table
+PARTITION_VERSION = 3  # 3: partition/xyz holds the LAS integers of such a store; 2 float64; 1 a dense counts table
 #: halo margin, in k-NN radii of the full-density cloud
 HALO_RADII = 3.0
 #: halo margin of the eliminate rule, in elimination radii r_max (its reach is 2 r_max)
@@ -315,7 +315,8 @@ def build_partition(
     store.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), fill_value=-1)
     r_len, inner = row_layout(chunk)
     store.create_array(
-        "partition/xyz", shape=(n_chunks, r_len, 3), dtype="float64", chunks=(1, inner, 3), shards=(1, r_len, 3)
+        "partition/xyz", shape=(n_chunks, r_len, 3), dtype="float64" if store.xyz_scale is None else "int32",
+        chunks=(1, inner, 3), shards=(1, r_len, 3)
     )
     # scratch: row c holds chunk c's nonzero runs; only the zarr chunks a task
     # writes are stored (about nnz entries), the logical shape is never filled

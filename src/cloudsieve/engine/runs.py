@@ -28,9 +28,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..paths import STORE_ATTR
+from ..store.las_read import decode_xyz
 from ..store.streaming import gathered
 
-__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "write_slices"]
+__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "decode_rows", "write_slices"]
 
 #: zarr chunk of the run tables (runs)
 _RUN_CHUNK = 65536
@@ -171,7 +173,16 @@ def read_runs(group, runs: np.ndarray) -> np.ndarray:
     parts = gathered(arr.getitem((int(r[0]), slice(int(r[1]), int(r[2])))) for r in runs if r[2] > r[1])
     if not parts:
         return np.empty((0, 3))
-    return np.concatenate([np.asarray(p) for p in parts], axis=0)
+    return decode_rows(group, np.concatenate([np.asarray(p) for p in parts], axis=0))
+
+
+def decode_rows(group, raw: np.ndarray) -> np.ndarray:
+    """Coordinates (n, 3) float64 of ``partition/xyz`` rows *raw*: a store of LAS integers keeps them there
+    too (12 bytes a point before compression, not 24), decoded as the store decodes its ``xyz``."""
+    if raw.dtype == np.float64:
+        return raw
+    enc = group.attrs[STORE_ATTR]["xyz_encoding"]
+    return decode_xyz(raw, np.asarray(enc["scale"], dtype=np.float64), np.asarray(enc["offset"], dtype=np.float64))
 
 
 def read_cell(group, runs: np.ndarray) -> np.ndarray:
