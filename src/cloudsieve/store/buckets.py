@@ -193,8 +193,9 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     store.delete_array(prefix)
     record = _record_dtype(store)
     b = record.itemsize
-    arr = store.create_array(f"{prefix}/records", shape=(len(starts), chunk, b), dtype="uint8",
-                             chunks=(1, min(INNER_CHUNK, chunk), b))
+    inner = min(INNER_CHUNK, chunk)  # a row is one object (a shard; one PUT by its task), read by runs
+    arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
+                             chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b))
     arr.attrs.update({"fields": _fields(record)})
     args = [(store.path, name, c, s, min(s + chunk, n), keys, mask) for c, s in enumerate(starts)]
     try:
