@@ -59,6 +59,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..errors import ArrayNotFoundError, InvalidParameterError
+from .codecs import record_compressors
 from .pointstore import PointStore
 from .streaming import gathered
 
@@ -195,7 +196,8 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     b = record.itemsize
     inner = min(INNER_CHUNK, chunk)  # a row is one object (a shard; one PUT by its task), read by runs
     arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
-                             chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b))
+                             chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b),
+                             codecs=record_compressors(b))
     arr.attrs.update({"fields": _fields(record)})
     args = [(store.path, name, c, s, min(s + chunk, n), keys, mask) for c, s in enumerate(starts)]
     try:
