@@ -59,6 +59,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..errors import ArrayNotFoundError, InvalidParameterError
+from .. import handles
 from .codecs import record_compressors
 from .pointstore import PointStore
 from .streaming import gathered
@@ -244,10 +245,13 @@ def open_runs(store_path: str, name: str) -> tuple:
 
     from ..paths import zarr_store
 
-    # the array alone: opening the store (its attributes, the header) too costs about 5 ms a task
-    arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records", mode="r",
-                          zarr_format=3)
-    return arr, _record(arr)
+    def make() -> tuple:
+        # the array alone: opening the store (its attributes, the header) too costs about 5 ms a task
+        arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records",
+                              mode="r", zarr_format=3)
+        return arr, _record(arr)
+
+    return handles.once((str(store_path), "records", name), make)  # once per stage in a task's process
 
 
 def read_runs(store_path: str, name: str, runs: np.ndarray, scratch: tuple | None = None) -> dict[str, np.ndarray]:

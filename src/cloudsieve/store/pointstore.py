@@ -44,18 +44,12 @@ from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .las_read import decode_xyz
 from ..paths import STORE_ATTR, delete_store, holds, is_store, path_exists, same_path, store_group, zarr_store
+from .. import handles
 from .codecs import compressors, filters
 from .streaming import gathered
 
-__all__ = [
-    "PointStore",
-    "STORE_ATTR",
-    "STORE_VERSION",
-    "is_store",
-    "delete_store",
-    "compressors",
-    "source_and_destination",
-]
+__all__ = ["PointStore", "STORE_ATTR", "STORE_VERSION", "is_store", "delete_store", "compressors",
+           "source_and_destination"]
 
 logger = logging.getLogger(__name__)
 
@@ -162,7 +156,7 @@ class PointStore:
         path = os.fspath(path)
         if mode not in ("r", "r+", "a"):
             raise InvalidParameterError(f"mode must be 'r', 'r+' or 'a', got {mode!r}")
-        group, meta = store_group(path, mode)
+        group, meta = handles.open_group(path, mode, store_group)  # once per stage in a task's process
         return cls(group, path, mode, meta=meta)
 
     @classmethod
@@ -317,6 +311,7 @@ class PointStore:
         return self._writable
 
     def _refresh(self) -> None:  # keep the read handle in sync: store.read(name) sees arrays created or deleted
+        handles.forget()
         if self.mode == "r":
             self.group = zarr.open_group(zarr_store(self.path, read_only=True), mode="r", zarr_format=3,
                                          use_consolidated=False)
