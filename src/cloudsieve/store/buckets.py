@@ -59,6 +59,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..errors import ArrayNotFoundError, InvalidParameterError
+from ..paths import local_path
 from .. import handles
 from .codecs import record_compressors
 from .pointstore import PointStore
@@ -68,8 +69,10 @@ __all__ = ["bucket", "Buckets", "bucket_chunk", "open_runs", "read_runs", "iter_
 
 logger = logging.getLogger(__name__)
 
-#: zarr chunk of the scratch rows, in points: the unit a run's read decodes
+#: zarr chunk of the scratch rows, in points: the unit a run's read decodes (REMOTE_INNER_CHUNK in a store on
+#: object storage, where each is a request)
 INNER_CHUNK = 16384
+REMOTE_INNER_CHUNK = 65536
 _EMPTY = np.empty((0,), dtype=np.int64)
 
 
@@ -195,7 +198,7 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     store.delete_array(prefix)
     record = _record_dtype(store)
     b = record.itemsize
-    inner = min(INNER_CHUNK, chunk)  # a row is one object (a shard; one PUT by its task), read by runs
+    inner = min(INNER_CHUNK if local_path(store.path) else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
     arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
                              chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b),
                              codecs=record_compressors(b))
