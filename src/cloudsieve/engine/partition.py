@@ -20,7 +20,8 @@ Layout written into the store (all under ``partition/``)::
                                          (stable), R = chunk size rounded up to the
                                          inner chunk; sharded, one shard per row,
                                          so a slice reads only the inner chunks it
-                                         touches
+                                         touches; int32, the LAS integers, in a store
+                                         that keeps them (decoded as its xyz)
     chunk_ptr, chunk_runs, cell_ptr,     the run tables and points per cell
     cell_runs, cell_count                (see :mod:`cloudsieve.engine.runs`)
     halo_ptr, halo_src                   CSR: for cell i, the cells that may hold
