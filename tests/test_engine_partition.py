@@ -284,7 +284,7 @@ def test_an_older_partition_layout_is_refused_with_a_clear_message(built):
     meta = dict(st.attrs[P.PARTITION_ATTR])
     meta["version"] = 1
     st.group.attrs.update({P.PARTITION_ATTR: meta})
-    with pytest.raises(P.PartitionLayoutError, match="layout version 1, this cloudsieve reads version 2: partition it again"):
+    with pytest.raises(P.PartitionLayoutError, match="layout version 1, this cloudsieve reads version 3: partition it again"):
         P.Partition.load(PointStore.open(str(st.path), "r"))
 
 

@@ -1,6 +1,7 @@
 """Where clouds and stores live: local paths and fsspec URLs (``file:///...`` is the local path it names).
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage`): :mod:`cloudsieve.io` and
+A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage` and
+:mod:`cloudsieve.handles`): :mod:`cloudsieve.io` and
 :mod:`cloudsieve.store` both use it. :func:`store_group` is the one test of whether a point store
 is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store` accept).
 """
@@ -11,7 +12,7 @@ import os
 import posixpath
 from typing import TYPE_CHECKING
 
-from . import storage
+from . import handles, storage
 from .errors import CloudsieveError, StoreNotFoundError
 from .storage import local as local_path
 
@@ -97,10 +98,12 @@ def zarr_store(path: str, read_only: bool):
     warnings.filterwarnings("ignore", message=r"Object at .* is not recognized as a component of a Zarr hierarchy")
     options = storage.fs_options(path)
     if storage.protocol(path) in ("s3", "s3a"):
-        # s3fs reads a whole object (every chunk, every zarr.json) with a HEAD first (its size, to split a large
-        # one into ranged reads), and a LIST when it is missing: with 1, one GET
-        options["max_concurrency"] = 1
-    return zarr.storage.FsspecStore.from_url(path, read_only=read_only, storage_options=options)
+        # zarr reads whole objects: one GET each, not s3fs's HEAD for the size first (and a LIST after a
+        # missing key's HEAD), which its default of concurrent ranged GETs for large objects costs
+        options.setdefault("max_concurrency", 1)
+    # in a stage's task: a store that reads each shard's index once (handles.py)
+    return handles.remote_store(lambda: zarr.storage.FsspecStore.from_url(path, read_only=read_only,
+                                                                          storage_options=options))
 
 
 def path_exists(path: str) -> bool:

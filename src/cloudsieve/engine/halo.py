@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..store.streaming import gathered
+from .runs import decode_rows
 
 __all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_halo", "band_halo"]
 
@@ -86,14 +87,14 @@ def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell
     cells, positions : ndarray of shape (h,), int64
         Only with *return_index*.
     """
-    arr = group["partition/xyz"]
+    arr = group["partition/xyz"].async_array
     out, cells, pos = [], [], []
     for src in sorted(part_runs):
-        for run in part_runs[src]:
-            c, a, b = (int(v) for v in run[:3])
-            if b <= a:
-                continue
-            z = np.asarray(arr[c, a:b])
+        runs = [run for run in part_runs[src] if int(run[2]) > int(run[1])]
+        # one source's runs read concurrently (one source's points in memory at a time)
+        got = gathered(arr.getitem((int(run[0]), slice(int(run[1]), int(run[2])))) for run in runs)
+        for run, raw in zip(runs, got):
+            z = decode_rows(group, np.asarray(raw))
             m = halo_mask(z, centers, cell, src, margin)
             if m.any():
                 out.append(z[m])

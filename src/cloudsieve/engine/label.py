@@ -145,7 +145,8 @@ def label_chunk(
     st = PointStore.open(store_path, "r+")
     g = st.group
     centers = np.asarray(g["partition/centers"][:])
-    xyz = st.read("xyz", start, stop)
+    raw = np.asarray(st.array("xyz")[start:stop])  # the stored rows: LAS integers, kept so in partition/xyz
+    xyz = st.decode_xyz(raw)
     n = len(xyz)
     labels, pairs = label_points(centers, xyz, margin, halo)
     order, bounds = group_rows(labels, len(centers))  # the chunk's points cell by cell, each cell's in input order
@@ -153,7 +154,7 @@ def label_chunk(
     cells = np.flatnonzero(sizes)
     counts = sizes[cells]
     g["partition/cell"][start:stop] = labels.astype(np.int32)
-    g["partition/xyz"][chunk, :n] = take_rows(xyz, order)
+    g["partition/xyz"][chunk, :n] = take_rows(raw if st.xyz_scale is not None else xyz, order)
     if len(cells):
         g["partition/label_runs"][chunk, : len(cells)] = np.stack([cells, counts], axis=1).astype(np.int64)
     return pairs, int(len(cells))

@@ -20,6 +20,7 @@ from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
 from ..io import detect_format
+from ..paths import local_path
 from ..progress import both, stage_bar
 from .. import staging
 from ..store import delete_store, export
@@ -112,9 +113,9 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            block = workstore.region_block(cell_size)
+            block = workstore.region_block(cell_size, remote=local_path(st.path) is None)  # larger on S3
             regions, total = workstore.regions(part.cell_counts, block)
-            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions)
+            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions, workstore.region_block(cell_size))
             if target is None:
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
                 progress(points)

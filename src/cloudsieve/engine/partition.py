@@ -20,7 +20,8 @@ Layout written into the store (all under ``partition/``)::
                                          (stable), R = chunk size rounded up to the
                                          inner chunk; sharded, one shard per row,
                                          so a slice reads only the inner chunks it
-                                         touches
+                                         touches; int32, the LAS integers, in a store
+                                         that keeps them (decoded as its xyz)
     chunk_ptr, chunk_runs, cell_ptr,     the run tables and points per cell
     cell_runs, cell_count                (see :mod:`cloudsieve.engine.runs`)
     halo_ptr, halo_src                   CSR: for cell i, the cells that may hold
@@ -55,6 +56,7 @@ import numpy as np
 
 from ..core import neighbour_count
 from ..errors import PartitionLayoutError
+from ..paths import local_path
 from .label import label_chunk
 from .runs import cell_runs, chunk_runs, index_runs
 from .sample import IngestSample, n_cells_for, plan_sample, sample_chunk, sample_size  # noqa: F401 - re-exported
@@ -78,13 +80,15 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PARTITION_ATTR = "cloudsieve_partition"
-PARTITION_VERSION = 2  # 2: sparse run tables (chunk_runs/cell_runs); 1 had a dense counts table
+PARTITION_VERSION = 3  # 3: partition/xyz holds the LAS integers of such a store; 2 float64; 1 a dense counts table
 #: halo margin, in k-NN radii of the full-density cloud
 HALO_RADII = 3.0
 #: halo margin of the eliminate rule, in elimination radii r_max (its reach is 2 r_max)
 ELIMINATE_RADII = 2.2
-#: inner chunk of the sharded ``partition/xyz`` rows (points)
+#: inner chunk of the sharded ``partition/xyz`` rows (points): each is read whole, by one request in a
+#: store on object storage (REMOTE_INNER_CHUNK there: a request costs what about 3 MB of bytes does)
 INNER_CHUNK = 16384
+REMOTE_INNER_CHUNK = 65536
 
 
 def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray) -> np.ndarray:
@@ -226,9 +230,9 @@ class Partition:
         )
 
 
-def row_layout(chunk_size: int) -> tuple[int, int]:
-    """(R, inner): a ``partition/xyz`` row holds R >= chunk_size points in inner chunks."""
-    inner = min(INNER_CHUNK, chunk_size)
+def row_layout(chunk_size: int, remote: bool = False) -> tuple[int, int]:
+    """(R, inner): a ``partition/xyz`` row holds R >= chunk_size points in inner chunks (larger when *remote*)."""
+    inner = min(REMOTE_INNER_CHUNK if remote else INNER_CHUNK, chunk_size)
     return -(-chunk_size // inner) * inner, inner
 
 
@@ -322,9 +326,10 @@ def build_partition(
         store.delete_array(f"partition/{name}")
     store.create_array("partition/centers", data=centers, chunks=centers.shape)
     store.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), fill_value=-1)
-    r_len, inner = row_layout(chunk)
+    r_len, inner = row_layout(chunk, local_path(path) is None)
     store.create_array(
-        "partition/xyz", shape=(n_chunks, r_len, 3), dtype="float64", chunks=(1, inner, 3), shards=(1, r_len, 3)
+        "partition/xyz", shape=(n_chunks, r_len, 3), dtype="float64" if store.xyz_scale is None else "int32",
+        chunks=(1, inner, 3), shards=(1, r_len, 3)
     )
     # scratch: row c holds chunk c's nonzero runs; only the zarr chunks a task
     # writes are stored (about nnz entries), the logical shape is never filled

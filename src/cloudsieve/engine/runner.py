@@ -23,6 +23,7 @@ from typing import Any
 from .. import storage, storage_retries
 from ..errors import InvalidParameterError
 from ..progress import stage_bar
+from .. import handles
 from . import ahead
 from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
 from .pause import pause_at, pausing_task
@@ -272,6 +273,7 @@ class Runner:
     def _run(self, func, args, deps, stage, update) -> list:
         pause_at(f"driver:{stage}")  # a test's stop (engine/pause.py); nothing unless the environment asks
         func = storage.bound(pausing_task(func, stage))  # the run's storage options, in whichever process
+        func = handles.per_stage(func)  # a store's group and arrays opened once per stage in a worker process
         if self.client is not None:
             return self._distributed(func, args, deps, stage, update)
         return self._local(func, args, deps, update)

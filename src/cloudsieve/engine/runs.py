@@ -28,12 +28,17 @@ from __future__ import annotations
 
 import numpy as np
 
+from .. import handles
+from ..paths import STORE_ATTR
+from ..store.las_read import decode_xyz
 from ..store.streaming import gathered
 
-__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "write_slices"]
+__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "decode_rows", "write_slices"]
 
 #: zarr chunk of the run tables (runs)
 _RUN_CHUNK = 65536
+#: runs of a table read whole once per stage in a task's process (24 MiB)
+_TABLE_KEPT = 1 << 20
 #: runs held in memory while the run tables are built
 _RUN_FLUSH = 1 << 21
 
@@ -143,8 +148,9 @@ def cell_runs(group, cell: int) -> np.ndarray:
     position of the run's first point among the cell's points (the runs are
     in increasing chunk, i.e. input, order).
     """
-    a, b = (int(v) for v in group["partition/cell_ptr"][cell : cell + 2])
-    r = np.asarray(group["partition/cell_runs"][a:b]) if b > a else np.empty((0, 3), np.int64)
+    ptr, rows = _table(group, "cell")
+    a, b = (int(v) for v in ptr[cell : cell + 2])
+    r = np.asarray(rows[a:b]) if b > a else np.empty((0, 3), np.int64)
     first = np.cumsum(r[:, 2]) - r[:, 2]
     return np.stack([r[:, 0], r[:, 1], r[:, 1] + r[:, 2], first], axis=1).astype(np.int64)
 
@@ -154,10 +160,21 @@ def chunk_runs(group, chunk: int) -> np.ndarray:
 
     ``first`` is the position of the run's first point among its cell's points.
     """
-    a, b = (int(v) for v in group["partition/chunk_ptr"][chunk : chunk + 2])
+    ptr, rows = _table(group, "chunk")
+    a, b = (int(v) for v in ptr[chunk : chunk + 2])
     if b <= a:
         return np.empty((0, 3), np.int64)
-    return np.asarray(group["partition/chunk_runs"][a:b]).astype(np.int64)
+    return np.asarray(rows[a:b]).astype(np.int64)
+
+
+def _table(group, by: str) -> tuple:
+    """``partition/{by}_ptr`` and ``partition/{by}_runs``: the zarr arrays, or in a stage's task, when the table
+    is small (about n_chunks + P runs, at most 2^20), both read whole once for the stage's later tasks in
+    this process (:func:`cloudsieve.handles.once`: two requests a process, not two a task)."""
+    ptr, rows = group[f"partition/{by}_ptr"], group[f"partition/{by}_runs"]
+    if not handles.in_stage() or rows.shape[0] > _TABLE_KEPT:
+        return ptr, rows
+    return handles.once((str(group.store_path), f"{by}_runs"), lambda: (np.asarray(ptr[:]), np.asarray(rows[:])))
 
 
 def read_runs(group, runs: np.ndarray) -> np.ndarray:
@@ -171,7 +188,16 @@ def read_runs(group, runs: np.ndarray) -> np.ndarray:
     parts = gathered(arr.getitem((int(r[0]), slice(int(r[1]), int(r[2])))) for r in runs if r[2] > r[1])
     if not parts:
         return np.empty((0, 3))
-    return np.concatenate([np.asarray(p) for p in parts], axis=0)
+    return decode_rows(group, np.concatenate([np.asarray(p) for p in parts], axis=0))
+
+
+def decode_rows(group, raw: np.ndarray) -> np.ndarray:
+    """Coordinates (n, 3) float64 of ``partition/xyz`` rows *raw*: a store of LAS integers keeps them there
+    too (12 bytes a point before compression, not 24), decoded as the store decodes its ``xyz``."""
+    if raw.dtype == np.float64:
+        return raw
+    enc = group.attrs[STORE_ATTR]["xyz_encoding"]
+    return decode_xyz(raw, np.asarray(enc["scale"], dtype=np.float64), np.asarray(enc["offset"], dtype=np.float64))
 
 
 def read_cell(group, runs: np.ndarray) -> np.ndarray:

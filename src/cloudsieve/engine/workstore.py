@@ -217,14 +217,18 @@ def clear_derived(store) -> None:
     store.delete_array("simplify")
 
 
-def region_block(cell_size: int) -> int:
+def region_block(cell_size: int, remote: bool = False) -> int:
     """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 4, in [2^10, 2^16].
 
     A cell's region is padded to whole chunks (unwritten chunks take no
     space) and each chunk is a file: cell_size / 4 writes a cell's keep
     mask in about 7 files, where cell_size / 16 writes 27, each a file's
-    cost.
+    cost. A store on object storage (*remote*), where each object is a
+    request: a power of two at least cell_size, in [2^10, 2^20] (most
+    regions one object).
     """
+    if remote:
+        return 1 << max(10, min(20, math.ceil(math.log2(max(1, cell_size)))))
     return 1 << max(10, min(16, int(math.log2(max(1, cell_size // 4)))))
 
 
@@ -245,8 +249,10 @@ def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
     return starts, max(total, block)
 
 
-def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray) -> None:
-    """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (a resumed run)."""
+def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray, band_block: int = 0) -> None:
+    """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (a resumed run); the
+    bands in chunks of *band_block* (a divisor of *block*; default *block*: a band is a region's start)."""
+    band_block = band_block or block
     g = store.group
     # the same layout: length, chunk and regions (a store of a version with another chunk starts again)
     same = ("simplify/keep_cells" in g and "simplify/regions" in g and g["simplify/keep_cells"].shape == (total,)
@@ -262,7 +268,7 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         if "simplify/band_count" not in g:  # a store of a version before the bands: its cells start again
-            _band_arrays(store, n_cells, total, block)
+            _band_arrays(store, n_cells, total, band_block)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
@@ -275,7 +281,7 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     store.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0)
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     _share_array(store, n_cells)
-    _band_arrays(store, n_cells, total, block)
+    _band_arrays(store, n_cells, total, band_block)
     # exact duplicate points of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
     # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)

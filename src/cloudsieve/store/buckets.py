@@ -58,6 +58,9 @@ from collections.abc import Callable, Iterator
 import numpy as np
 
 from ..errors import ArrayNotFoundError, InvalidParameterError
+from ..paths import local_path
+from .. import handles
+from .codecs import record_compressors
 from .pointstore import PointStore
 from .streaming import gathered
 
@@ -65,8 +68,10 @@ __all__ = ["bucket", "Buckets", "bucket_chunk", "open_runs", "read_runs", "iter_
 
 logger = logging.getLogger(__name__)
 
-#: zarr chunk of the scratch rows, in points: the unit a run's read decodes
+#: zarr chunk of the scratch rows, in points: the unit a run's read decodes (REMOTE_INNER_CHUNK in a store on
+#: object storage, where each is a request)
 INNER_CHUNK = 16384
+REMOTE_INNER_CHUNK = 65536
 _EMPTY = np.empty((0,), dtype=np.int64)
 
 
@@ -192,8 +197,10 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     store.delete_array(prefix)
     record = _record_dtype(store)
     b = record.itemsize
-    arr = store.create_array(f"{prefix}/records", shape=(len(starts), chunk, b), dtype="uint8",
-                             chunks=(1, min(INNER_CHUNK, chunk), b))
+    inner = min(INNER_CHUNK if local_path(store.path) else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
+    arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
+                             chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b),
+                             codecs=record_compressors(b))
     arr.attrs.update({"fields": _fields(record)})
     args = [(store.path, name, c, s, min(s + chunk, n), keys, mask) for c, s in enumerate(starts)]
     try:
@@ -240,10 +247,13 @@ def open_runs(store_path: str, name: str) -> tuple:
 
     from ..paths import zarr_store
 
-    # the array alone: opening the store (its attributes, the header) too would cost every task its reads
-    arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records", mode="r",
-                          zarr_format=3)
-    return arr, _record(arr)
+    def make() -> tuple:
+        # the array alone: opening the store (its attributes, the header) too costs every task its reads
+        arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records",
+                              mode="r", zarr_format=3)
+        return arr, _record(arr)
+
+    return handles.once((str(store_path), "records", name), make)  # once per stage in a task's process
 
 
 def read_runs(store_path: str, name: str, runs: np.ndarray, scratch: tuple | None = None) -> dict[str, np.ndarray]:

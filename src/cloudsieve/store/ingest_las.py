@@ -22,6 +22,7 @@ import numpy as np
 
 from ..errors import CorruptInputError
 from .las_plan import LasPlan, plan_las
+from .. import handles
 from .las_read import read_pieces
 from ..paths import local_path, store_foreign
 from .pointstore import PointStore
@@ -42,7 +43,7 @@ def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tup
         ``"mins"``, ``"maxs"``: the stored integers' per-axis extremes (lists of 3 ints).
     """
     bound_malloc()
-    group = _open_group(store_path)
+    group = handles.open_group(store_path, "ingest", lambda p, _: (_open_group(p), {}))[0]  # once per stage
     names = [n for n in group.array_keys() if n != "xyz"]
     xyz, block, lo, hi = read_pieces(pieces, names, parallel)
     block = {"xyz": xyz, **block}

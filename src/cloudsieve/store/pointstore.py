@@ -44,18 +44,12 @@ from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from .las_read import decode_xyz
 from ..paths import STORE_ATTR, delete_store, holds, is_store, path_exists, same_path, store_group, zarr_store
+from .. import handles
 from .codecs import compressors, filters
 from .streaming import gathered
 
-__all__ = [
-    "PointStore",
-    "STORE_ATTR",
-    "STORE_VERSION",
-    "is_store",
-    "delete_store",
-    "compressors",
-    "source_and_destination",
-]
+__all__ = ["PointStore", "STORE_ATTR", "STORE_VERSION", "is_store", "delete_store", "compressors",
+           "source_and_destination"]
 
 logger = logging.getLogger(__name__)
 
@@ -162,7 +156,7 @@ class PointStore:
         path = os.fspath(path)
         if mode not in ("r", "r+", "a"):
             raise InvalidParameterError(f"mode must be 'r', 'r+' or 'a', got {mode!r}")
-        group, meta = store_group(path, mode)
+        group, meta = handles.open_group(path, mode, store_group)  # once per stage in a task's process
         return cls(group, path, mode, meta=meta)
 
     @classmethod
@@ -316,8 +310,8 @@ class PointStore:
                                              use_consolidated=False)
         return self._writable
 
-    def _refresh(self) -> None:
-        """Keep the read handle in sync, so that ``store.read(name)`` sees arrays created or deleted."""
+    def _refresh(self) -> None:  # keep the read handle in sync: store.read(name) sees arrays created or deleted
+        handles.forget()
         if self.mode == "r":
             self.group = zarr.open_group(zarr_store(self.path, read_only=True), mode="r", zarr_format=3,
                                          use_consolidated=False)
@@ -339,14 +333,15 @@ class PointStore:
         shards: Sequence[int] | None = None,
         fill_value: Any = 0,
         overwrite: bool = False,
+        codecs: tuple | None = None,
     ) -> zarr.Array:
         """Create a derived array *name* ("stage/name"), compressed like the input arrays.
 
         Give *shape* and *dtype*, or *data* (initial content). *chunks*
         defaults to the store's chunk size along the first axis; *shards*
-        (zarr shard shape) stores several chunks per object. Input arrays are
-        never rewritten: an input dimension as *name* raises
-        :class:`InvalidParameterError`, as does a missing shape or dtype.
+        (zarr shard shape) stores several chunks per object; *codecs* replaces the work arrays'
+        compressors (:func:`.codecs.compressors`). Input arrays are never rewritten: an input
+        dimension as *name* raises :class:`InvalidParameterError`, as does a missing shape or dtype.
         """
         self._check_derived(name)
         if data is not None:
@@ -361,7 +356,8 @@ class PointStore:
         if shards is not None:
             options["shards"] = tuple(shards)
         arr = self._writable_group().create_array(
-            name, chunks=tuple(chunks), fill_value=fill_value, compressors=compressors(), overwrite=overwrite, **options
+            name, chunks=tuple(chunks), fill_value=fill_value, compressors=codecs or compressors(), overwrite=overwrite,
+            **options
         )
         self._refresh()
         return arr
@@ -374,10 +370,9 @@ class PointStore:
         Parameters are those of :meth:`create_array`; a mismatching array is replaced.
         """
         shape = tuple(int(s) for s in shape)
-        if name in self.group:
-            node = self.group[name]
-            if isinstance(node, zarr.Array) and node.shape == shape and np.dtype(node.dtype) == np.dtype(dtype):
-                return node
+        node = self.group.get(name)
+        if isinstance(node, zarr.Array) and node.shape == shape and np.dtype(node.dtype) == np.dtype(dtype):
+            return node
         return self.create_array(name, shape=shape, dtype=dtype, chunks=chunks, fill_value=fill_value, overwrite=True)
 
     def delete_array(self, name: str) -> bool:
