@@ -5,7 +5,7 @@ the out-of-core run's steps on the same arrays, in this process, and writes
 the same bytes (tests/test_engine_small.py):
 
 1. the records, read as an ingest task reads them
-   (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
+   (:func:`cloudsieve.io.las_records.read_pieces`), x, y, z decoded as the
    store decodes them; a PLY file as the ingest streams it (NaN or infinite
    coordinates refused, or dropped with ``drop_invalid``);
 2. the partition and the cells stage on arrays (:mod:`.cell_scheme`): r_max
@@ -84,7 +84,7 @@ def _read(sources: list[str], opts: dict) -> tuple:
     if not is_las_source(sources):
         return _read_streamed(sources[0], opts)
     from ..store.las_plan import plan_las
-    from ..store.las_read import read_pieces
+    from ..io.las_records import read_pieces
 
     plan = plan_las(list(sources))
     (_, _, pieces), = plan.tasks(plan.total)  # every record in one task

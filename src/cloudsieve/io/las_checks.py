@@ -4,6 +4,7 @@
   file (laspy trusts them, and a flipped byte made it allocate gigabytes);
 - :func:`decodable_points`: where the points of a truncated LAZ file stop
   decoding, for a message that names the point;
+- :func:`decode_error`: the error of a failed decode, naming that point;
 - :data:`QUIET_READS`: laspy's reader log is silenced while cloudsieve
   reads, which raises the error itself.
 
@@ -23,7 +24,7 @@ import laspy
 from .. import storage
 from ..errors import CorruptInputError
 
-__all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points"]
+__all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points", "decode_error"]
 
 
 class QuietReads(logging.Filter):
@@ -205,3 +206,20 @@ def check_layout(path: str) -> None:
                 raise CorruptInputError(f"{path}: the header lists {n_evlrs} extended VLRs but only {i} fit in the "
                                         f"file (truncated or corrupt)")
             pos += 60 + length
+
+
+def decode_error(path: str, count: int, compressed: bool, done: int, last: int, exc: Exception) -> CorruptInputError:
+    """The error for points *done* to *last* of *path* failing to decode: it names the first point that fails.
+
+    For LAZ with fixed-size chunks the point is exact (see
+    :func:`decodable_points`); otherwise the message gives the points read.
+    """
+    decodable = decodable_points(path) if compressed else None
+    if decodable is not None and decodable >= count:
+        return CorruptInputError(
+            f"{path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
+    if decodable is not None and decodable >= done:
+        decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
+        return CorruptInputError(f"{path}: cannot decode point {decodable} of {count} ({decoded}{exc}); truncated or "
+                                 f"corrupt")
+    return CorruptInputError(f"{path}: cannot decode points {done} to {last} of {count} ({exc}); truncated or corrupt")

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import CorruptInputError
 from .las_plan import LasPlan, plan_las
-from .las_read import read_pieces
+from ..io.las_records import read_pieces
 from ..paths import local_path, store_foreign
 from .pointstore import PointStore
 from .streaming import bound_malloc, gathered, in_process, run_tasks
