@@ -19,8 +19,6 @@ import logging
 import os
 import threading
 
-import laspy
-
 from .. import storage
 from ..errors import CorruptInputError
 
@@ -125,15 +123,15 @@ def decodable_points(path: str) -> int | None:
     try:
         import lazrs
 
-        with laspy.open(path) as f:
-            h = f.header
-            vlr = next(v for v in h.vlrs if v.user_id == "laszip encoded")
+        from .las_layout import laszip_vlr, read_header
+
+        h = read_header(path)
+        laz = laszip_vlr(h)
         with open(path, "rb") as fh:
             fh.seek(h.offset_to_point_data)
             table = int.from_bytes(fh.read(8), "little", signed=True)
         if table <= os.path.getsize(path) - 8:  # the chunk table is in the file: not truncated
             return None
-        laz = lazrs.LazVlr(vlr.record_data)
         if laz.uses_variable_size_chunks():
             return None
         step, psize, count = int(laz.chunk_size()), h.point_format.size, int(h.point_count)
@@ -144,7 +142,7 @@ def decodable_points(path: str) -> int | None:
     def decoded(limit: int, one_by_one_after: int | None) -> int:
         with _ChunkTableView(path, h.offset_to_point_data) as view:
             view.seek(h.offset_to_point_data)
-            decoder = lazrs.LasZipDecompressor(view, vlr.record_data)
+            decoder = lazrs.LasZipDecompressor(view, laz.record_data())
             done = 0
             while done < limit:
                 k = 1 if one_by_one_after is not None and done >= one_by_one_after else min(step, limit - done)

@@ -158,8 +158,10 @@ def _seek(reader, first: int) -> None:
     chunk's start only); variable-size chunks (COPC) by decoding and dropping the points before, in blocks."""
     if not first:
         return
-    vlr = next((v for v in reader.header.vlrs if type(v).__name__ == "LasZipVlr"), None)
-    if vlr is None or int.from_bytes(bytes(vlr.record_data)[12:16], "little") != 0xFFFFFFFF:
+    from .las_layout import laszip_vlr
+
+    vlr = laszip_vlr(reader.header)
+    if vlr is None or not vlr.uses_variable_size_chunks():
         reader.seek(first)
         return
     left = first
