@@ -62,7 +62,7 @@ def record_arrays(points, names: list[str]) -> dict[str, np.ndarray]:
 
 def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
                 decode: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray]:
-    """The records of *pieces* (:meth:`cloudsieve.store.las_plan.LasPlan.tasks`: ``(path, first, n, factors)``), in order.
+    """The records of *pieces* (:meth:`.las_plan.LasPlan.tasks`: ``(path, first, n, factors)``), in order.
 
     Parameters
     ----------
