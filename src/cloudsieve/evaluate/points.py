@@ -59,6 +59,7 @@ import numpy as np
 
 from ..engine.calls import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
+from ..io.las_records import decode_xyz
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import Source, open_source
@@ -95,7 +96,7 @@ def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.
     if grid is None:
         return xyz
     scales, offsets = grid
-    return np.round((xyz - offsets) / scales) * scales + offsets
+    return decode_xyz(np.round((xyz - offsets) / scales), scales, offsets)
 
 
 def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
