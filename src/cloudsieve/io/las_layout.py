@@ -34,8 +34,7 @@ def laszip_vlr(header):
 
 
 def chunk_table(fh, start: int, vlr) -> list[tuple[int, int]]:
-    """The chunk table of the LAZ file open as *fh*, whose points start at byte *start*: (points, bytes) per
-    chunk; *fh* is left at the first chunk."""
+    """The chunk table of the LAZ file *fh* whose points start at byte *start*: (points, bytes) per chunk."""
     import lazrs
 
     fh.seek(start)

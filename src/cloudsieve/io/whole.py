@@ -33,11 +33,21 @@ def read_whole(sources: list[str], chunk_size: int, drop_invalid: bool) -> tuple
     ------
     EmptyInputError, InvalidPointsError, CorruptInputError, MismatchedInputsError
     """
+    from ..chunk import xyz_bounds
+    from ..errors import EmptyInputError
+    from . import concatenated, open_reader
     from .las_plan import is_las_source, plan_las
     from .las_records import decode_xyz, read_pieces
+    from .valid import ValidPoints
 
     if not is_las_source(sources):
-        return _read_streamed(sources[0], chunk_size, drop_invalid)
+        with open_reader(sources[0], chunk_size=chunk_size) as reader:
+            valid = ValidPoints(sources[0], drop_invalid)
+            parts = [dict(chunk.arrays) for chunk in valid.chunks(reader.chunks())]
+            if valid.read == 0:
+                raise EmptyInputError(f"{sources[0]} holds no points")
+            xyz, attrs = concatenated(parts, reader.dtypes)
+            return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
     plan = plan_las(list(sources))
     (_, _, pieces), = plan.tasks(plan.total)  # every record in one task
     names = [n for n in plan.dtypes if n != "xyz"]
@@ -46,19 +56,3 @@ def read_whole(sources: list[str], chunk_size: int, drop_invalid: bool) -> tuple
     header = dict(plan.header)
     header["mins"], header["maxs"] = bounds[0].tolist(), bounds[1].tolist()
     return xyz, attrs, plan.dtypes, header, bounds, plan.format
-
-
-def _read_streamed(src: str, chunk_size: int, drop_invalid: bool) -> tuple:
-    """:func:`read_whole` of one file of another format than LAS, streamed chunk by chunk."""
-    from ..chunk import xyz_bounds
-    from ..errors import EmptyInputError
-    from . import concatenated, open_reader
-    from .valid import ValidPoints
-
-    with open_reader(src, chunk_size=chunk_size) as reader:
-        valid = ValidPoints(src, drop_invalid)
-        parts = [dict(chunk.arrays) for chunk in valid.chunks(reader.chunks())]
-        if valid.read == 0:
-            raise EmptyInputError(f"{src} holds no points")
-        xyz, attrs = concatenated(parts, reader.dtypes)
-        return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
