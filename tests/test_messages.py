@@ -78,7 +78,7 @@ def test_geotiff_keys_without_an_epsg_code_are_named_by_their_citation(tmp_path)
     from conftest import shared_file
 
     from cloudsieve.errors import MismatchedInputsError
-    from cloudsieve.store.las_plan import plan_las
+    from cloudsieve.io.las_plan import plan_las
 
     las = laspy.read(shared_file("autzen_trim.las"))
     las.header.vlrs = [v for v in las.header.vlrs if v.record_id != 2112]  # the WKT (and liblas's copy) dropped
@@ -100,7 +100,7 @@ def test_the_finest_scale_is_credited_to_the_file_that_has_it(tmp_path):
     from conftest import shared_file
 
     from cloudsieve.errors import MismatchedInputsError
-    from cloudsieve.store.las_plan import plan_las
+    from cloudsieve.io.las_plan import plan_las
 
     src = shared_file("simple.las")
     las = laspy.read(src)

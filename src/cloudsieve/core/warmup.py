@@ -60,7 +60,7 @@ def _common() -> None:
 
     P = _points(24)
     first_equal((P + 0.0).view(np.uint64))  # exact copies (every rule's cells)
-    first_call()  # a LAS/LAZ input's X, Y, Z (store/las_read.py)
+    first_call()  # a LAS/LAZ input's X, Y, Z (io/las_records.py)
     _merge_scatter()
 
 

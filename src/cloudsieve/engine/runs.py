@@ -30,7 +30,7 @@ import numpy as np
 
 from .. import handles
 from ..paths import STORE_ATTR
-from ..store.las_read import decode_xyz
+from ..io.las_records import decode_xyz
 from ..store.streaming import gathered
 
 __all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "decode_rows", "write_slices"]

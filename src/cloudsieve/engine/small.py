@@ -4,9 +4,9 @@ A LAS/LAZ/COPC or PLY cloud of at most :data:`IN_MEMORY_POINTS` points runs
 the out-of-core run's steps on the same arrays, in this process, and writes
 the same bytes (tests/test_engine_small.py):
 
-1. the records, read as an ingest task reads them
-   (:func:`cloudsieve.store.las_read.read_pieces`), x, y, z decoded as the
-   store decodes them; a PLY file as the ingest streams it (NaN or infinite
+1. the cloud read whole by :func:`cloudsieve.io.whole.read_whole`: the
+   records as an ingest task reads them, x, y, z decoded as the store
+   decodes them; a PLY file as the ingest streams it (NaN or infinite
    coordinates refused, or dropped with ``drop_invalid``);
 2. the partition and the cells stage on arrays (:mod:`.cell_scheme`): r_max
    from the partition's uniform sample, the cells and their halos, each
@@ -68,49 +68,13 @@ def fits_in_memory(sources: list[str], dst: str, opts: dict, points: int | None)
     client, workers or memory limit (checked by :func:`cloudsieve.engine.checks.check_run`)."""
     from ..core.rules import ELIMINATION, get
     from ..io import detect_format
-    from ..store.las_plan import is_las_source
+    from ..io.las_plan import is_las_source
 
     return (points is not None and 0 < points <= IN_MEMORY_POINTS
             and get(opts["rule"]).engine == ELIMINATION
             and opts["store"] is None and not opts["resume"] and opts["tile_size"] is None
             and (is_las_source(sources) or (len(sources) == 1 and detect_format(sources[0]) == "ply"))
             and detect_format(dst, opts["format"]) in _WRITTEN)
-
-
-def _read(sources: list[str], opts: dict) -> tuple:
-    """The cloud as its ingest stores it: (x y z float64, attributes, dtypes, header, bounds, source format)."""
-    from ..store.las_plan import is_las_source
-
-    if not is_las_source(sources):
-        return _read_streamed(sources[0], opts)
-    from ..store.las_plan import plan_las
-    from ..store.las_read import read_pieces
-
-    plan = plan_las(list(sources))
-    (_, _, pieces), = plan.tasks(plan.total)  # every record in one task
-    names = [n for n in plan.dtypes if n != "xyz"]
-    xyz, attrs, lo, hi = read_pieces(pieces, names, parallel=True, decode=(plan.scale, plan.offset))
-    lo, hi = lo * plan.scale + plan.offset, hi * plan.scale + plan.offset
-    header = dict(plan.header)
-    header["mins"], header["maxs"] = lo.tolist(), hi.tolist()
-    return xyz, attrs, plan.dtypes, header, np.array([lo, hi], dtype=np.float64), plan.format
-
-
-def _read_streamed(src: str, opts: dict) -> tuple:
-    """:func:`_read` of a PLY file, as :func:`cloudsieve.store.ingest` streams it: NaN or infinite
-    coordinates refused, or dropped with ``drop_invalid``."""
-    from ..chunk import xyz_bounds
-    from ..errors import EmptyInputError
-    from ..io import concatenated, open_reader
-    from ..io.valid import ValidPoints
-
-    with open_reader(src, chunk_size=opts["chunk_size"]) as reader:
-        valid = ValidPoints(src, opts["drop_invalid"])
-        parts = [dict(chunk.arrays) for chunk in valid.chunks(reader.chunks())]
-        if valid.read == 0:
-            raise EmptyInputError(f"{src} holds no points")
-        xyz, attrs = concatenated(parts, reader.dtypes)
-        return xyz, attrs, reader.dtypes, reader.header, np.array(xyz_bounds(xyz), dtype=np.float64), reader.format
 
 
 def import_beside(points: int | None, cell_size: int) -> threading.Thread | None:
@@ -169,6 +133,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer
+    from ..io.whole import read_whole
     from .cell_scheme import eliminate_cells, partition
 
     summary.scheduler = SCHEDULER
@@ -177,7 +142,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     try:
         with PeakMemory() as peak, small_pages():
             t0 = time.perf_counter()
-            xyz, attrs, dtypes, header, bounds, source_format = _read(sources, opts)
+            xyz, attrs, dtypes, header, bounds, source_format = read_whole(sources, opts["chunk_size"],
+                                                                           opts["drop_invalid"])
             header = json.loads(json.dumps(header))  # as the store keeps it: JSON (lists, not tuples)
             n = summary.points_in = len(xyz)
             progress(n)

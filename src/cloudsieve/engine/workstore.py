@@ -158,7 +158,7 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
     from ..store import PointStore, ingest
 
     from ..io.sources import expand_sources
-    from ..store.las_plan import is_las_source
+    from ..io.las_plan import is_las_source
     from ..progress import both, stage_bar
 
     identity = source_identity(src)

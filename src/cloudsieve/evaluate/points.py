@@ -60,6 +60,7 @@ import numpy as np
 
 from ..engine.calls import imap
 from ..errors import EmptyInputError, InvalidParameterError, NotASubsetError
+from ..io.las_records import decode_xyz
 from ..params import check
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
@@ -97,7 +98,7 @@ def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.
     if grid is None:
         return xyz
     scales, offsets = grid
-    return np.round((xyz - offsets) / scales) * scales + offsets
+    return decode_xyz(np.round((xyz - offsets) / scales), scales, offsets)
 
 
 def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,

@@ -20,17 +20,17 @@ from typing import Any
 
 import laspy
 import numpy as np
-from laspy.point.dims import ScaledArrayView
 from laspy.vlrs.vlrlist import VLRList
 
 from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
-from .las_checks import QUIET_READS, check_layout, decodable_points
+from .las_checks import QUIET_READS, check_layout, decode_error
 from .las_header import build_header, clip_to_dimension, header_from_dict, header_to_dict, vlr_from_dict
+from .las_records import decode_xyz, raw_values, record_arrays
 
-__all__ = ["LasReader", "LasWriter", "record_arrays", "laz_backend", "decode_error"]
+__all__ = ["LasReader", "LasWriter", "laz_backend"]
 
 _XYZ = ("X", "Y", "Z")
 
@@ -41,49 +41,13 @@ def laz_backend():
 
 
 # --------------------------------------------------------------------- reader
-def _raw(values: Any) -> np.ndarray:
-    """Raw numpy values of a laspy dimension view (sub-field or scaled)."""
-    if isinstance(values, ScaledArrayView):
-        values = values.array
-    return np.ascontiguousarray(np.asarray(values))
-
-
-def record_arrays(points: laspy.PackedPointRecord, names: list[str]) -> dict[str, np.ndarray]:
-    """The attributes *names* of a laspy point record, each as its raw values (bit fields unpacked)."""
-    array = points.array
-    out = {}
-    for name in names:
-        if name in array.dtype.names:
-            out[name] = np.ascontiguousarray(array[name])
-        else:
-            out[name] = _raw(points[name])
-    return out
-
-
-def decode_error(path: str, count: int, compressed: bool, done: int, last: int, exc: Exception) -> CorruptInputError:
-    """The error for points *done* to *last* of *path* failing to decode: it names the first point that fails.
-
-    For LAZ with fixed-size chunks the point is exact (see
-    :func:`.las_checks.decodable_points`); otherwise the message gives the points read.
-    """
-    decodable = decodable_points(path) if compressed else None
-    if decodable is not None and decodable >= count:
-        return CorruptInputError(
-            f"{path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
-    if decodable is not None and decodable >= done:
-        decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
-        return CorruptInputError(f"{path}: cannot decode point {decodable} of {count} ({decoded}{exc}); truncated or "
-                                 f"corrupt")
-    return CorruptInputError(f"{path}: cannot decode points {done} to {last} of {count} ({exc}); truncated or corrupt")
-
-
 def _las_dtypes(header: laspy.LasHeader) -> dict:
     rec = laspy.ScaleAwarePointRecord.zeros(1, header=header)
     dtypes: dict[str, tuple[np.dtype, tuple]] = {"xyz": (np.dtype(np.float64), (3,))}
     for name in header.point_format.dimension_names:
         if name in _XYZ:
             continue
-        v = _raw(rec[name])
+        v = raw_values(rec[name])
         dtypes[name] = (v.dtype, tuple(v.shape[1:]))
     return dtypes
 
@@ -164,11 +128,7 @@ class LasReader(Reader):
             n = len(points)
             if n == 0:
                 break
-            array = points.array
-            xyz = np.empty((n, 3), dtype=np.float64)
-            for i, dim in enumerate(_XYZ):
-                np.multiply(array[dim], self._scales[i], out=xyz[:, i])
-                xyz[:, i] += self._offsets[i]
+            xyz = decode_xyz([points.array[dim] for dim in _XYZ], self._scales, self._offsets)
             chunk = {"xyz": xyz, **record_arrays(points, self._names)}
             done += n
             yield chunk

@@ -4,6 +4,7 @@
   file (laspy trusts them, and a flipped byte made it allocate gigabytes);
 - :func:`decodable_points`: where the points of a truncated LAZ file stop
   decoding, for a message that names the point;
+- :func:`decode_error`: the error of a failed decode, naming that point;
 - :data:`QUIET_READS`: laspy's reader log is silenced while cloudsieve
   reads, which raises the error itself.
 
@@ -18,12 +19,10 @@ import logging
 import os
 import threading
 
-import laspy
-
 from .. import storage
 from ..errors import CorruptInputError
 
-__all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points"]
+__all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points", "decode_error"]
 
 
 class QuietReads(logging.Filter):
@@ -124,15 +123,15 @@ def decodable_points(path: str) -> int | None:
     try:
         import lazrs
 
-        with laspy.open(path) as f:
-            h = f.header
-            vlr = next(v for v in h.vlrs if v.user_id == "laszip encoded")
+        from .las_layout import laszip_vlr, read_header
+
+        h = read_header(path)
+        laz = laszip_vlr(h)
         with open(path, "rb") as fh:
             fh.seek(h.offset_to_point_data)
             table = int.from_bytes(fh.read(8), "little", signed=True)
         if table <= os.path.getsize(path) - 8:  # the chunk table is in the file: not truncated
             return None
-        laz = lazrs.LazVlr(vlr.record_data)
         if laz.uses_variable_size_chunks():
             return None
         step, psize, count = int(laz.chunk_size()), h.point_format.size, int(h.point_count)
@@ -143,7 +142,7 @@ def decodable_points(path: str) -> int | None:
     def decoded(limit: int, one_by_one_after: int | None) -> int:
         with _ChunkTableView(path, h.offset_to_point_data) as view:
             view.seek(h.offset_to_point_data)
-            decoder = lazrs.LasZipDecompressor(view, vlr.record_data)
+            decoder = lazrs.LasZipDecompressor(view, laz.record_data())
             done = 0
             while done < limit:
                 k = 1 if one_by_one_after is not None and done >= one_by_one_after else min(step, limit - done)
@@ -205,3 +204,20 @@ def check_layout(path: str) -> None:
                 raise CorruptInputError(f"{path}: the header lists {n_evlrs} extended VLRs but only {i} fit in the "
                                         f"file (truncated or corrupt)")
             pos += 60 + length
+
+
+def decode_error(path: str, count: int, compressed: bool, done: int, last: int, exc: Exception) -> CorruptInputError:
+    """The error for points *done* to *last* of *path* failing to decode: it names the first point that fails.
+
+    For LAZ with fixed-size chunks the point is exact (see
+    :func:`decodable_points`); otherwise the message gives the points read.
+    """
+    decodable = decodable_points(path) if compressed else None
+    if decodable is not None and decodable >= count:
+        return CorruptInputError(
+            f"{path}: every point decodes but the LAZ chunk table cannot be read ({exc}); truncated or corrupt")
+    if decodable is not None and decodable >= done:
+        decoded = f"points 0 to {decodable - 1} decode; " if decodable else ""
+        return CorruptInputError(f"{path}: cannot decode point {decodable} of {count} ({decoded}{exc}); truncated or "
+                                 f"corrupt")
+    return CorruptInputError(f"{path}: cannot decode points {done} to {last} of {count} ({exc}); truncated or corrupt")

@@ -45,12 +45,10 @@ def geotiff_wkt(path: str) -> tuple[str | None, int | None]:
     when the file has no GeoTIFF keys, when they name no CRS by code
     (user-defined parameters), or when pyproj does not know a code.
     """
-    import laspy
+    from .las_layout import read_header
 
-    from .. import storage
-
-    with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
-        vlrs = list(reader.header.vlrs) + list(reader.header.evlrs or [])
+    header = read_header(path)
+    vlrs = list(header.vlrs) + list(header.evlrs or [])
     directory = next((v for v in vlrs if type(v).__name__ == "GeoKeyDirectoryVlr"), None)
     if directory is None:
         return None, None

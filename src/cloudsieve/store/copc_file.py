@@ -41,6 +41,7 @@ from laspy.vlrs.vlrlist import VLRList
 from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 from ..io.las_header import COPC_USER_ID, LASZIP_USER_ID, build_header, clip_to_dimension, header_from_dict
+from ..io.las_records import decode_xyz
 from .copc_hierarchy import ENTRY_DTYPE, ROOT_PAGE_NODES, hierarchy_pages
 
 __all__ = ["copc_header", "point_records", "compress", "record_stats", "merge_stats", "write_copc", "laz_vlr",
@@ -320,8 +321,7 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
     hdr.number_of_points_by_return = np.asarray(stats["by_return"], dtype=np.int64)
     scales, offsets = np.asarray(hdr.scales), np.asarray(hdr.offsets)
     if stats["count"]:
-        hdr.mins = np.asarray(stats["mins"], dtype=np.float64) * scales + offsets
-        hdr.maxs = np.asarray(stats["maxs"], dtype=np.float64) * scales + offsets
+        hdr.mins, hdr.maxs = decode_xyz(np.array([stats["mins"], stats["maxs"]], dtype=np.float64), scales, offsets)
     else:
         hdr.mins = hdr.maxs = np.zeros(3)
     hdr.number_of_evlrs = 1 + len(evlrs)

@@ -197,21 +197,12 @@ def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, par
 
 
 # ------------------------------------------------------------------ splice
-def _header(path: str):
-    import laspy
-
-    with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
-        return reader.header
-
-
 def _layout(parts: list[str], compressed: bool) -> tuple[list, int, list[int], object]:
     """The parts' headers, where their points start, their counts, and the LASzip VLR (None uncompressed)."""
-    import lazrs
+    from ..io.las_layout import laszip_vlr, read_header
 
-    headers = [_header(p) for p in parts]
-    lazvlr = None
-    if compressed:
-        lazvlr = lazrs.LazVlr([v for v in headers[0].vlrs if type(v).__name__ == "LasZipVlr"][0].record_data)
+    headers = [read_header(p) for p in parts]
+    lazvlr = laszip_vlr(headers[0]) if compressed else None
     return headers, headers[0].offset_to_point_data, [int(h.point_count) for h in headers], lazvlr
 
 
@@ -219,6 +210,8 @@ def splice(parts: list[str], dst: str, *, compressed: bool) -> None:
     """Concatenate the LAS/LAZ files *parts* (same header and VLRs, every LAZ part but the last a whole
     number of chunks) into *dst*: one header, the points in order, one chunk table, the first part's EVLRs."""
     import lazrs
+
+    from ..io.las_layout import chunk_table
 
     headers, start, counts, lazvlr = _layout(parts, compressed)
     h0 = headers[0]
@@ -231,8 +224,7 @@ def splice(parts: list[str], dst: str, *, compressed: bool) -> None:
         for path, h, cnt in zip(parts, headers, counts):
             with open(path, "rb") as src:
                 if compressed:
-                    src.seek(start)
-                    own = lazrs.read_chunk_table(src, lazvlr)  # leaves src at the first chunk
+                    own = chunk_table(src, start, lazvlr)
                     nchunks = -(-cnt // LAZ_CHUNK)
                     own = own[:nchunks]
                     size = sum(s for _, s in own)
@@ -310,14 +302,15 @@ def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
 
     import lazrs
 
+    from ..io.las_layout import chunk_table
+
     headers, start, counts, lazvlr = _layout(parts, compressed)
     h0 = headers[0]
     spans, table = [], []
     for path, h, cnt in zip(parts, headers, counts):
         if compressed:
             with storage.open_input(path, storage.HEADER_BLOCK) as src:
-                src.seek(start)
-                own = lazrs.read_chunk_table(src, lazvlr)[:-(-cnt // LAZ_CHUNK)]
+                own = chunk_table(src, start, lazvlr)[:-(-cnt // LAZ_CHUNK)]
             table.extend(own)
             spans.append((start + 8, sum(s for _, s in own)))
         else:

@@ -179,7 +179,7 @@ def ingest(
     bound_malloc()
     update = _progress.callback(progress)
     from ..io.sources import expand_sources
-    from .las_plan import is_las_source
+    from ..io.las_plan import is_las_source
 
     sources = expand_sources(src)
     for path in sources:

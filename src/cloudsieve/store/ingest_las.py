@@ -1,6 +1,6 @@
 """LAS/LAZ/COPC files -> point store, as tasks: :func:`ingest_las`.
 
-The driver reads headers only (:func:`.las_plan.plan_las`) and creates the
+The driver reads headers only (:func:`cloudsieve.io.las_plan.plan_las`) and creates the
 store's arrays; each task (:func:`ingest_task`) reads the records of one
 range of store chunks from the files that hold them (entering a LAZ file
 through its chunk table, so a large file is read by many tasks), and writes
@@ -21,9 +21,9 @@ import os
 import numpy as np
 
 from ..errors import CorruptInputError
-from .las_plan import LasPlan, plan_las
 from .. import handles
-from .las_read import read_pieces
+from ..io.las_plan import LasPlan, plan_las
+from ..io.las_records import decode_xyz, read_pieces
 from ..paths import local_path, store_foreign
 from .pointstore import PointStore
 from .streaming import bound_malloc, gathered, in_process, run_tasks
@@ -88,7 +88,7 @@ def ingest_las(
     overwrite : bool
         Replace an existing store.
     plan : LasPlan, optional
-        The plan when the caller already made it (:func:`.las_plan.plan_las`).
+        The plan when the caller already made it (:func:`cloudsieve.io.las_plan.plan_las`).
 
     Returns
     -------
@@ -122,8 +122,8 @@ def ingest_las(
         parallel = in_process(run, len(tasks))
         args = [(target, lo, hi, pieces, parallel) for lo, hi, pieces in tasks]
         results = run_tasks(run, ingest_task, args, "ingest: read")
-        lo = np.min([r["mins"] for r in results], axis=0) * plan.scale + plan.offset
-        hi = np.max([r["maxs"] for r in results], axis=0) * plan.scale + plan.offset
+        lo, hi = decode_xyz(np.array([np.min([r["mins"] for r in results], axis=0),
+                                      np.max([r["maxs"] for r in results], axis=0)]), plan.scale, plan.offset)
         header = dict(plan.header)
         header["mins"], header["maxs"] = lo.tolist(), hi.tolist()
         meta = {

@@ -42,7 +42,7 @@ from ..errors import (
 )
 from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
-from .las_read import decode_xyz
+from ..io.las_records import decode_xyz
 from ..paths import STORE_ATTR, delete_store, holds, is_store, path_exists, same_path, store_group, zarr_store
 from .. import handles
 from .codecs import compressors, filters

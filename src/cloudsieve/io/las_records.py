@@ -1,8 +1,12 @@
-"""The records of LAS/LAZ/COPC files, piece by piece: what an ingest task reads (:func:`read_pieces`).
+"""The records of LAS/LAZ/COPC files, piece by piece (:func:`read_pieces`), the LAS coordinates'
+decoding, ``X * scale + offset`` (:func:`decode_xyz`), and a record's attributes as their raw values
+(:func:`record_arrays`).
 
-A leaf of the store (no zarr): the ingest's tasks (:mod:`.ingest_las`) write what it returns into the
-store, and a small input's in-memory run (:mod:`cloudsieve.engine.small`) keeps it in memory, so both
-hold the same integers and attributes.
+Every reader of LAS integers decodes with :func:`decode_xyz`: the chunked reader
+(:class:`.las.LasReader`), the point store's int32 "xyz" and the header bounds of an ingest.
+:func:`read_pieces` is what an ingest task reads (:mod:`cloudsieve.store.ingest_las` writes it into
+the store) and what a small input's in-memory run (:mod:`cloudsieve.engine.small`) keeps in memory,
+so both hold the same integers and attributes. No zarr.
 """
 
 from __future__ import annotations
@@ -15,19 +19,44 @@ import numpy as np
 from .. import storage
 from ..errors import CorruptInputError, InputFormatError
 
-__all__ = ["read_pieces", "decode_xyz"]
+__all__ = ["read_pieces", "decode_xyz", "record_arrays", "raw_values"]
 
 _INT32 = (-(2**31), 2**31 - 1)
 #: a read of at least this many points on every core (``parallel``) runs the attributes on threads
 THREADED_POINTS = 1_000_000
 
 
-def decode_xyz(raw: np.ndarray, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """Coordinates (n, 3) float64 of the LAS integers *raw* (n, 3): ``X * scale + offset``."""
-    out = np.empty(raw.shape, dtype=np.float64)
+def decode_xyz(raw, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
+    """Coordinates (n, 3) float64 of the LAS integers *raw*: ``X * scale + offset``.
+
+    *raw* is an (n, 3) array or the three columns X, Y, Z (a record's fields, not copied together).
+    """
+    cols = [raw[:, i] for i in range(3)] if isinstance(raw, np.ndarray) else list(raw)
+    out = np.empty((len(cols[0]), 3), dtype=np.float64)
     for i in range(3):  # per column: a 1-D multiply-add, no (n, 3) temporaries
-        np.multiply(raw[:, i], scale[i], out=out[:, i])
+        np.multiply(cols[i], scale[i], out=out[:, i])
         out[:, i] += offset[i]
+    return out
+
+
+def raw_values(values) -> np.ndarray:
+    """Raw numpy values of a laspy dimension view (sub-field or scaled)."""
+    from laspy.point.dims import ScaledArrayView
+
+    if isinstance(values, ScaledArrayView):
+        values = values.array
+    return np.ascontiguousarray(np.asarray(values))
+
+
+def record_arrays(points, names: list[str]) -> dict[str, np.ndarray]:
+    """The attributes *names* of a laspy point record, each as its raw values (bit fields unpacked)."""
+    array = points.array
+    out = {}
+    for name in names:
+        if name in array.dtype.names:
+            out[name] = np.ascontiguousarray(array[name])
+        else:
+            out[name] = raw_values(points[name])
     return out
 
 
@@ -60,7 +89,6 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
     """
     from ..core.kernels.records import first_call, las_xyz
     from ..core.kernels.threads import Chunks
-    from ..io.las import record_arrays
 
     total = sum(int(n) for _, _, n, _ in pieces)
     if decode is None:
@@ -101,8 +129,7 @@ def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarr
     offsets (3,) of X, Y, Z in a record, and laspy's record (LAZ decoded on every core when *parallel*)."""
     import laspy
 
-    from ..io.las import decode_error
-    from ..io.las_checks import QUIET_READS
+    from .las_checks import QUIET_READS, decode_error
 
     # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
     # cores); the tasks of a run in this process decode on every core (about twice as fast as on one)
@@ -131,8 +158,10 @@ def _seek(reader, first: int) -> None:
     chunk's start only); variable-size chunks (COPC) by decoding and dropping the points before, in blocks."""
     if not first:
         return
-    vlr = next((v for v in reader.header.vlrs if type(v).__name__ == "LasZipVlr"), None)
-    if vlr is None or int.from_bytes(bytes(vlr.record_data)[12:16], "little") != 0xFFFFFFFF:
+    from .las_layout import laszip_vlr
+
+    vlr = laszip_vlr(reader.header)
+    if vlr is None or not vlr.uses_variable_size_chunks():
         reader.seek(first)
         return
     left = first

@@ -1,4 +1,4 @@
-"""The LAS records' coordinates (store/las_read.py, core/kernels/records.py) against laspy and numpy.
+"""The LAS records' coordinates (io/las_records.py, core/kernels/records.py) against laspy and numpy.
 
 The compiled pass over the record bytes is checked against the obvious numpy
 code it replaced (fields copied, re-quantised in int64, cast, decoded), bit
@@ -16,8 +16,8 @@ from conftest import LAS_FILES, shared_file
 
 from cloudsieve.core.kernels.records import las_xyz
 from cloudsieve.errors import InputFormatError
-from cloudsieve.store import las_read
-from cloudsieve.store.las_read import decode_xyz, read_pieces
+from cloudsieve.io import las_records
+from cloudsieve.io.las_records import decode_xyz, read_pieces
 
 # a record with X, Y, Z not at the start, and a size no multiple of 4
 _RECORD = np.dtype([("a", "u1"), ("X", "<i4"), ("Y", "<i4"), ("Z", "<i4"), ("b", "<u2"), ("c", "u1")])
@@ -86,7 +86,7 @@ def test_read_pieces_gives_laspys_records(name, monkeypatch):
     for x in names:
         assert np.asarray(attrs[x]).tolist() == np.asarray(las[x]).tolist()
     scale, offset = np.asarray(las.header.scales), np.asarray(las.header.offsets)
-    monkeypatch.setattr(las_read, "THREADED_POINTS", 1)  # the attributes on threads beside X, Y, Z
+    monkeypatch.setattr(las_records, "THREADED_POINTS", 1)  # the attributes on threads beside X, Y, Z
     coords, attrs2, lo2, hi2 = read_pieces(pieces, names, parallel=True, decode=(scale, offset))
     assert coords.view(np.uint64).tolist() == decode_xyz(ints, scale, offset).view(np.uint64).tolist()
     assert lo2.tolist() == lo.tolist() and hi2.tolist() == hi.tolist()
@@ -96,7 +96,7 @@ def test_read_pieces_gives_laspys_records(name, monkeypatch):
 @pytest.mark.parametrize("threaded", [False, True])
 def test_integers_beyond_int32_after_re_quantising_name_the_file_and_points(threaded, monkeypatch):
     if threaded:
-        monkeypatch.setattr(las_read, "THREADED_POINTS", 1)
+        monkeypatch.setattr(las_records, "THREADED_POINTS", 1)
     path = shared_file("simple.las")
     n = laspy.read(path).header.point_count
     pieces = [(path, 0, 10, ((1, 1, 1), (0, 0, 0))), (path, 10, n - 10, ((1, 2**20, 1), (0, 0, 0)))]

@@ -1,9 +1,11 @@
-"""The ingest's plan for LAS/LAZ/COPC sources: headers only, read by the driver.
+"""The read plan of LAS/LAZ/COPC sources: headers only, read by the driver.
 
 One or many files (:func:`cloudsieve.io.sources.expand_sources`) are one
 cloud. The driver reads their headers (never a point), checks that they
-agree, fixes the store's integer encoding and cuts the rows into tasks
-(:mod:`.ingest_las` runs them). The rules, exact and documented:
+agree, fixes the cloud's integer encoding and cuts the rows into pieces
+(:func:`.las_records.read_pieces` reads them: the ingest's tasks,
+:mod:`cloudsieve.store.ingest_las`, and a cloud read whole, :mod:`.whole`).
+The rules, exact and documented:
 
 - **Point format and attributes** must be the same in every file (same LAS
   point format, same extra-bytes dimensions), else
@@ -43,7 +45,7 @@ _DROPPED = ("laszip encoded", "copc")
 
 def is_las_source(paths: list[str]) -> bool:
     """True when every file of *paths* is LAS, LAZ or COPC (by extension)."""
-    from ..io import detect_format
+    from . import detect_format
 
     return all(detect_format(p) in LAS_FORMATS for p in paths)
 
@@ -180,7 +182,7 @@ def plan_las(paths: list[str]) -> LasPlan:
     CorruptInputError, InputNotFoundError, ...
         A file that is not a readable LAS file (as :func:`cloudsieve.io.open_reader`).
     """
-    from ..io import open_reader
+    from . import open_reader
 
     headers, counts, dtypes, fmt = [], [], None, None
     for path in paths:

@@ -1,0 +1,41 @@
+"""Where a LAS/LAZ/COPC file keeps its parts, read without decoding a point.
+
+- :func:`read_header`: the laspy header of a file or URL (a ranged read of its start);
+- :func:`laszip_vlr`: the LASzip VLR of a LAZ header (lazrs' view: chunk size, variable or fixed);
+- :func:`chunk_table`: a LAZ file's chunk table, (points, bytes) per chunk.
+
+Used by the readers (:mod:`.las_records`, :mod:`.las_checks`, :mod:`.vpc_crs`) and by the LAS export's
+splice (:mod:`cloudsieve.store.export_las`), which copies compressed chunks without decoding them.
+"""
+
+from __future__ import annotations
+
+from .. import storage
+
+__all__ = ["read_header", "laszip_vlr", "chunk_table"]
+
+
+def read_header(path: str):
+    """The ``laspy.LasHeader`` of the LAS/LAZ/COPC file *path* (a path or a URL), its EVLRs included."""
+    import laspy
+
+    with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
+        return reader.header
+
+
+def laszip_vlr(header):
+    """The ``lazrs.LazVlr`` of the LASzip VLR of *header*, or None (the points are not compressed)."""
+    vlr = next((v for v in header.vlrs if type(v).__name__ == "LasZipVlr"), None)
+    if vlr is None:
+        return None
+    import lazrs
+
+    return lazrs.LazVlr(vlr.record_data)
+
+
+def chunk_table(fh, start: int, vlr) -> list[tuple[int, int]]:
+    """The chunk table of the LAZ file *fh* whose points start at byte *start*: (points, bytes) per chunk."""
+    import lazrs
+
+    fh.seek(start)
+    return lazrs.read_chunk_table(fh, vlr)
