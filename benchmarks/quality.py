@@ -5,14 +5,19 @@ or   ``.venv/bin/python benchmarks/quality.py --psnr [--ratios 0.5,0.2,0.1] [FIL
 
 ``--psnr``: MPEG pc_error's D1 and D2 PSNR, forward (A = original -> B =
 simplified: how well the kept points represent the original,
-:mod:`cloudsieve.evaluate.planes`), of ``eliminate`` and of the voxel,
-Poisson-disk and farthest-point baselines at the same count, on each scan
-and kept share: one ``cloudsieve compare SRC --ratio R --methods
+:mod:`cloudsieve.evaluate.planes`), and the one-sided point RMS and max
+(original -> kept, % of the bounding-box diagonal; the max is the gap bound:
+no original point is farther from the kept set) of ``eliminate`` and of the
+voxel, Poisson-disk and farthest-point baselines at the same count, on each
+scan and kept share: one ``cloudsieve compare SRC --ratio R --methods
 km,voxel,poisson,fps --no-surface`` each (its table has the same figures,
-one row per method), gathered into one table (dB, peak = the original's
-bounding-box diagonal; D2 on normals by PCA of 12 neighbours, every point
-of these scans). Default scans: every real scan of ../shared/data of at
-least 10,000 points.
+one row per method), gathered into one table, one row per method (dB, peak
+= the original's bounding-box diagonal; D2 on normals by PCA of 12
+neighbours, every point of these scans). ``eliminate``'s row also gives its
+ratios to the best baseline of its scan and share, each figure's best on
+its own: point max x (least max), RMS x (least RMS), D1 - best (dB, most
+D1). Default scans: every real scan of ../shared/data of at least 10,000
+points.
 
 For each real scan (default: bun_zipper.ply, maxplanck.ply, autzen_trim.laz in
 ../shared/data), keep ``ratio`` of the points with:
@@ -132,37 +137,46 @@ PSNR_FILES = ["bun_zipper.ply", "maxplanck.ply", "autzen_trim.laz", "Megaplot.la
 PSNR_METHODS = ("eliminate", "voxel", "poisson", "fps")
 
 
+def best_baseline(rows: dict) -> dict:
+    """The best of the baselines' figures in *rows* (method -> compare row): least point max, least RMS, most D1."""
+    base = [r for m, r in rows.items() if m != "eliminate" and "error" not in r]
+    if not base:
+        return {}
+    return {"point_max_pct": min(r["point_max_pct"] for r in base),
+            "point_rms_pct": min(r["point_rms_pct"] for r in base),
+            "d1_psnr": max(r["d1_psnr"] for r in base)}
+
+
 def psnr_table(files, ratios) -> str:
-    """One row per scan and kept share: forward D1 / D2 PSNR (dB) of each method, and eliminate's margin."""
+    """One row per scan, kept share and method: forward D1 / D2 PSNR, point RMS and max, eliminate's ratios."""
     import os
 
     from cloudsieve.evaluate import compare
 
-    head = " | ".join(f"{m} D1 / D2" for m in PSNR_METHODS)
-    rows = [f"| scan | points | kept | {head} | eliminate - best baseline, D1 / D2 | load average |",
-            "|---|---:|---:|" + "---:|" * len(PSNR_METHODS) + "---:|---|"]
+    rows = ["| scan | points | kept | method | kept points | D1 PSNR | D2 PSNR | point RMS % | point max % | "
+            "max x best | RMS x best | D1 - best (dB) | load average |",
+            "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for name in files:
         path = Path(name) if Path(name).is_file() else DATA / name
         for ratio in ratios:
             res = compare(str(path), methods=("km", "voxel", "poisson", "fps"), ratio=ratio, surface=False)
             by = {r["method"]: r for r in res["rows"]}
-            cells, best = [], {"d1_psnr": -np.inf, "d2_psnr": -np.inf}
+            best = best_baseline(by)
+            la = "/".join(f"{v:.1f}" for v in os.getloadavg())
             for m in PSNR_METHODS:
                 r = by.get(m)
+                head = f"| {path.name} | {res['points']:,} | {100 * ratio:.0f}% ({res['count']:,}) | {m} |"
                 if r is None or "error" in r:
-                    cells.append("-")
+                    rows.append(head + f" - | {r['error'] if r else 'not run'} | | | | | | | {la} |")
                     continue
-                cells.append(f"{r['d1_psnr']:.2f} / {r['d2_psnr']:.2f}")
-                if m != "eliminate":
-                    for k in best:
-                        best[k] = max(best[k], r[k])
-            e = by.get("eliminate", {})
-            gap = (f"{e['d1_psnr'] - best['d1_psnr']:+.2f} / {e['d2_psnr'] - best['d2_psnr']:+.2f}"
-                   if "d1_psnr" in e and np.isfinite(best["d1_psnr"]) else "-")
-            la = "/".join(f"{v:.1f}" for v in os.getloadavg())
-            rows.append(f"| {path.name} | {res['points']:,} | {100 * ratio:.0f}% ({res['count']:,}) | "
-                        + " | ".join(cells) + f" | {gap} | {la} |")
-            print(rows[-1], file=sys.stderr, flush=True)
+                vs = " | | |"
+                if m == "eliminate" and best:
+                    vs = (f" {r['point_max_pct'] / best['point_max_pct']:.3f} |"
+                          f" {r['point_rms_pct'] / best['point_rms_pct']:.3f} |"
+                          f" {r['d1_psnr'] - best['d1_psnr']:+.2f} |")
+                rows.append(head + f" {r['kept']:,} | {r['d1_psnr']:.2f} | {r['d2_psnr']:.2f} | "
+                            f"{r['point_rms_pct']:.4f} | {r['point_max_pct']:.3f} |" + vs + f" {la} |")
+            print("\n".join(rows[-len(PSNR_METHODS):]), file=sys.stderr, flush=True)
     return "\n".join(rows)
 
 
@@ -176,7 +190,8 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     if a.psnr:
         ratios = [float(v) for v in a.ratios.split(",")]
-        print("## Forward D1 / D2 PSNR (dB, original -> simplified) at equal count\n")
+        print("## Forward D1 / D2 PSNR (dB), point RMS and max (% of the diagonal), original -> simplified, "
+              "at equal count\n")
         print(psnr_table(a.files or PSNR_FILES, ratios))
         return 0
     print(f"## Point-level error at {a.ratio:.0%} kept ({a.method.upper()} clusters of ~400 points)\n")
