@@ -191,6 +191,11 @@ class Runner:
             with contextlib.suppress(RuntimeError):  # the pool was shut down first (a run that failed early)
                 for _ in range(n):
                     pool.submit(os.getpid)
+                # CPython's executor starts a worker only when none is idle: one whose task ended before the
+                # next submit took that one too, so the rest are started here (its own method, 3.9 and later)
+                with pool._shutdown_lock:
+                    while not pool._shutdown_thread and len(pool._processes) < n:
+                        pool._spawn_process()
 
         self._prestart = threading.Thread(target=start, name="cloudsieve-prestart", daemon=True)
         self._prestart.start()
