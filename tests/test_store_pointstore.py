@@ -156,3 +156,14 @@ def test_export_selects_chunk_by_chunk_and_stops_its_reader_on_error(tmp_path):
         export(store, tmp_path / "bad.laz", mask="simplify/keep", chunk_size=100)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["k.laz", "s.zarr"]
     assert not [t for t in threading.enumerate() if t.name == "cloudsieve-reader"]
+
+
+def test_a_store_left_before_its_first_array_is_cloudsieve_s_not_foreign(tmp_path):
+    """A crash between the group and its arrays leaves a store a rerun may replace: marked incomplete from the
+    start (paths.store_foreign: None), and still no store to open."""
+    from cloudsieve.paths import store_foreign
+
+    path = tmp_path / "s.zarr"
+    PointStore.create(path, dtypes={"xyz": (np.dtype("f8"), (3,))})
+    assert store_foreign(path) is None
+    assert not is_store(path)

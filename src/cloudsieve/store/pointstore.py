@@ -185,6 +185,8 @@ class PointStore:
         if not overwrite and path_exists(path):
             raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
+        # marked as a store (incomplete) before any array: a crash in between leaves cloudsieve's, not foreign, content
+        group.attrs.update({STORE_ATTR: {"complete": False}})
         for name, (dtype, shape) in dtypes.items():
             if name == "xyz" and xyz_encoding is not None:
                 dtype = np.int32
