@@ -110,7 +110,7 @@ def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> t
         from .label import label_points
 
         labels, pairs = label_points(centers, xyz, margin, threads=os.cpu_count() or 1)
-    order, bounds = group_rows(labels, p, os.cpu_count() or 1)  # numpy's stable sort of the labels: one core
+    order, bounds = group_rows(labels, p, os.cpu_count() or 1)  # on the cores (numpy's stable sort: one)
     return Partition(centers, np.diff(bounds), *halo_lists(pairs, p), margin, 0, 0, 0, r_max), order
 
 

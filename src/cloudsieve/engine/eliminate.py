@@ -5,9 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cell_scheme import run_cells
-
-__all__ = ["StoreCells", "run_eliminate"]
+__all__ = ["StoreCells"]
 
 
 class StoreCells:
@@ -64,25 +62,3 @@ class StoreCells:
         self.group["simplify/keep_cells"][task.region : task.region + len(keep)] = keep
         self.group["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
 
-
-def run_eliminate(store, part, regions: np.ndarray, params: dict, runner, target: int) -> tuple[int, int, int, None]:
-    """The cells stage of the eliminate rule on the work *store* (:func:`~.cell_scheme.run_cells`, resumable).
-
-    Parameters
-    ----------
-    store : PointStore
-    part : Partition
-        Built for this target (``part.r_max`` set).
-    regions : ndarray of shape (P,), int64
-    params : dict
-        The run's recorded parameters.
-    runner : Runner
-    target : int
-        Points kept in all.
-
-    Returns
-    -------
-    (computed, reused, points, None) : cells applied now, cells found done, points whose share was
-        computed now, and no threshold (the rule has none)
-    """
-    return (*run_cells(StoreCells(store.path), part, regions, params, runner, target)[:3], None)
