@@ -93,8 +93,7 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
     n = len(points)
     # the rows and their points, moved cut after cut between two pairs of buffers: a cut reads a node's range
     # of one pair and writes its halves into the other, a cell's range is copied back into the first pair once
-    # at the end (1 M points into 64 cells on 2 threads: 0.055-0.058 s fastest of 20, against 0.065-0.072 s
-    # with a copy back after every cut)
+    # at the end (a copy back after every cut would move every point once more a level)
     idx = (np.arange(n, dtype=np.int64), np.empty(n, dtype=np.int64))
     ordered = (np.array(points, dtype=np.float64, order="C"), np.empty((n, 3)))
     vals = np.empty(n)
@@ -317,7 +316,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     n = len(pts)
     opts, okind = (np.zeros((0, 3)), np.zeros(0, dtype=np.uint8)) if outer is None else outer
     # the work runs on the points in cell order (Q: each cell's a block, positions instead of rows): read through
-    # the rows, the input's order (a random one at 1 M points), the bands took 0.04-0.06 s, in order 0.003 s
+    # the rows, in the input's order (random for a large cloud), every read of the bands would miss the caches
     idx, starts, boxes, Q = cells
     ncell = len(starts) - 1
     size = np.diff(starts)

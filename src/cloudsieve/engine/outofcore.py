@@ -28,7 +28,8 @@ from ..rule_table import targets_of
 from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks
-from .eliminate import run_eliminate
+from .cell_scheme import run_cells
+from .eliminate import StoreCells
 from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner
 from .sample import IngestSample
@@ -120,7 +121,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
                 progress(points)
             elif elim is not None:
-                computed, reused, points, summary.threshold = run_eliminate(st, part, regions, params, runner, target)
+                computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, params, runner, target)
                 progress(points)
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)

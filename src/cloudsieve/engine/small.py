@@ -18,13 +18,10 @@ the same bytes (tests/test_engine_small.py):
    bounds, store chunk by store chunk (atomic: a temporary name, renamed
    when complete).
 
-A store costs a small run more than its points do: 217 synchronous calls of
-zarr's event loop for 110,000 points, dask's local scheduler, and importing
-both (0.6-0.9 s). Measured (docs/benchmarks.md, alternating, load 1.4-1.8):
-``cloudsieve simplify autzen_trim.laz --ratio 0.5`` warm in 1.70-1.99 s here
-against 2.89-3.09 s through the store, simple.las 1.44-1.56 s against
-2.46-2.64 s. Nothing is left to resume: a crash leaves no partial output,
-and a rerun starts again (a second or two).
+A store costs a small run more than its points do: hundreds of synchronous
+calls of zarr's event loop, dask's local scheduler, and importing both
+(docs/benchmarks.md). Nothing is left to resume: a crash leaves no partial
+output, and a rerun starts again.
 """
 
 from __future__ import annotations
@@ -53,11 +50,10 @@ logger = logging.getLogger(__name__)
 SCHEDULER = "in memory"
 #: the output formats a small run writes (COPC and tiles are built from a store)
 _WRITTEN = ("las", "laz", "ply", "xyz")
-#: at most this many input points run in memory. Measured (docs/benchmarks.md, benchmarks/small.py, make_scan
-#: LAZ, ``--ratio 0.5``, 2 cores): in memory 8.2 s and 720 MiB at 5 M points, 13.3-14.9 s and 1,060 MiB at 10 M,
-#: against 10.7-11.6 s / 1,377 MiB and 17.0-17.7 s / 1,300 MiB for the local process pool. Faster at every size
-#: and, up to 10 M points, in less memory than the pool: the whole cloud is held (about 0.1 GB a million points
-#: above the kernels' 0.3 GB), where the out-of-core run holds cells only, so the limit is one of memory
+#: at most this many input points run in memory (docs/benchmarks.md, benchmarks/small.py): faster than the local
+#: process pool at every size and, up to 10 M points, in less memory: the whole cloud is held (about 0.1 GB a
+#: million points above the kernels' 0.3 GB), where the out-of-core run holds cells only, so the limit is one of
+#: memory
 IN_MEMORY_POINTS = 10_000_000
 
 
@@ -82,13 +78,9 @@ def import_beside(points: int | None, cell_size: int) -> threading.Thread | None
     an input of *points* (from its headers) in more than one cell of *cell_size* points. Returns the thread
     (join it before the run returns), or None.
 
-    The partition's margin and its K-means centres query scipy's cKDTree; importing ``scipy.spatial`` there
-    took 0.5-0.6 s, during which the partition waited. A PLY's read leaves the second core idle and laspy's
-    LAZ decode lets the import go on beside it. Measured at 10 M points on 2 cores, alternating with the
-    import left to the partition (load 1.0-1.9, the same bytes): the partition took 1.06-1.53 s (median
-    1.44) against 1.41-2.17 s (1.80) on a PLY in six pairs, 1.15-1.21 s against 1.16-1.37 s on a LAZ in
-    four, the read no slower; the whole runs' differences were within the machine's swings (docs/
-    benchmarks.md). A one-cell run never imports scipy."""
+    The partition's margin and its K-means centres query scipy's cKDTree, and would wait for its import; a
+    PLY's read leaves the second core idle and laspy's LAZ decode lets the import go on beside it (docs/
+    benchmarks.md; the same bytes). A one-cell run never imports scipy."""
     from .sample import n_cells_for
 
     if points is None or n_cells_for(points, cell_size) <= 1 or "scipy.spatial" in sys.modules:
@@ -152,20 +144,20 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
-            cells = partition(xyz, bounds[0], opts, target)
-            summary.cells = summary.cells_computed = cells.n_cells
-            logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, cells.n_cells, target,
-                        cells.r_max)
+            part, order = partition(xyz, bounds[0], opts, target)
+            summary.cells = summary.cells_computed = part.n_cells
+            logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, part.n_cells, target,
+                        part.r_max)
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            keep, distinct = eliminate_cells(xyz, cells, target, opts["keep_duplicates"])
+            keep, distinct = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"])
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())
             summary.removed = n - summary.kept
             progress(n)
             summary.seconds["cells"] = time.perf_counter() - t0
-            summary.seconds["merge"] = 0.0  # the keep mask is in input order already
+            summary.seconds["merge"] = 0.0  # in the cells stage: eliminate_cells puts the mask in input order
             account(summary)
 
             t0 = time.perf_counter()
