@@ -1,32 +1,24 @@
-"""The method in memory, on numpy arrays: no dask, no zarr.
+"""The method in memory, on numpy arrays (no dask, no zarr); one module per stage.
 
-One module per stage, found by its name:
-
-- :mod:`._validation`: the input checks and the one k formula (:func:`neighbour_count`);
-- :mod:`.knn`: point orders, grouping by cluster, the k nearest inside clusters;
-- :mod:`.duplicates`: exact copies (:func:`exact_copies`), the one policy of every rule;
-- :mod:`.cluster` (the shared base and seeding), :mod:`.kmeans` (:class:`KMeans`),
-  :mod:`.fcm` (:class:`FuzzyCMeans`), :mod:`.centres` (their nearest-centre queries and threads);
-- :mod:`.kernels`: the compiled (numba) kernels the stages call;
-- :mod:`.refine`: :func:`refine_labels`, KM or FCM into small clusters;
+- :mod:`._validation`: input checks and the k formula (:func:`neighbour_count`);
+- :mod:`.knn`: point orders, grouping by cluster, k nearest inside clusters;
+- :mod:`.duplicates`: exact copies (:func:`exact_copies`);
+- :mod:`.cluster`, :mod:`.kmeans` (:class:`KMeans`), :mod:`.fcm` (:class:`FuzzyCMeans`),
+  :mod:`.centres`: clustering and nearest-centre queries;
+- :mod:`.refine`: :func:`refine_labels`;
 - :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
-- :mod:`.rules`: one module per rule (their table, :data:`.rules.RULES`, is
-  :mod:`cloudsieve.rule_table`) and :func:`prune`; the rounds of iterative and coverage in :mod:`.rounds` (one round's
-  choice in :mod:`.selection`, the rounds without context in :mod:`.incremental`,
-  their threads in :mod:`.chunks`);
-- :mod:`.kernels`: the compiled (numba) loops (:mod:`.kernels.rounds`,
-  :mod:`.kernels.lists`, :mod:`.kernels.rescore` for the rounds);
-- :mod:`.simplify`: :func:`simplify_points`, all of it.
+- :mod:`.rules`: one module per rule and :func:`prune` (table: :mod:`cloudsieve.rule_table`);
+  rounds in :mod:`.rounds`, :mod:`.selection`, :mod:`.incremental`, :mod:`.chunks`;
+- :mod:`.kernels`: the compiled (numba) kernels;
+- :mod:`.simplify`: :func:`simplify_points`.
 
-Public functions validate their input once (options: :mod:`cloudsieve.params`; arrays:
-:mod:`._validation`) and run kernels that assume valid input. Each name is imported at its first
-use, so importing a module of the package loads no numba or scipy it does not need.
+Public functions validate input once and call kernels that assume it valid.
+Names are imported at first use, so no module loads numba or scipy it does not need.
 """
 
 from importlib import import_module
 
-#: where each public name lives; imported at its first use (PEP 562), so that a module of the package
-#: (:mod:`.rules` among them) imports without numba or scipy
+# #: where each public name lives; imported at first use (PEP 562)
 _LAZY = {
     "neighbour_count": "._validation", "exact_copies": ".duplicates", "first_copies": ".duplicates",
     "Scores": ".entropy", "entropy_scores": ".entropy", "score_points": ".entropy", "FuzzyCMeans": ".fcm",

@@ -1,9 +1,7 @@
-"""The input checks of the in-memory method, and the one k formula.
+"""Input checks of the in-memory method, and the k formula.
 
-Every public function of :mod:`cloudsieve.core` validates its arrays here once
-(shapes, dtypes, finite coordinates, labels; its options through
-:mod:`cloudsieve.params`) and hands the validated arrays to kernels that
-assume valid input. Messages carry the values.
+Public functions of :mod:`cloudsieve.core` validate arrays here once (options:
+:mod:`cloudsieve.params`); kernels assume valid input.
 """
 
 from __future__ import annotations
@@ -22,20 +20,9 @@ __all__ = [
 
 
 def neighbour_count(m, k0: float = 1.0, k_min: int = 4):
-    """k = max(k_min, floor(k0 * sqrt(m) + 1/2)) for a cluster of m points (array-friendly).
+    """k = max(k_min, floor(k0 * sqrt(m) + 1/2)) for clusters of m points (array-friendly).
 
-    The one k formula of cloudsieve (rounding halves up).
-
-    Parameters
-    ----------
-    m : int or array_like of int
-        Points of the cluster(s).
-    k0 : float
-    k_min : int
-
-    Returns
-    -------
-    ndarray of int64, of the shape of ``m``
+    Returns an int64 ndarray of the shape of ``m``.
     """
     m = np.asarray(m)
     k = np.floor(k0 * np.sqrt(m) + 0.5).astype(np.int64)
@@ -43,11 +30,7 @@ def neighbour_count(m, k0: float = 1.0, k_min: int = 4):
 
 
 def ratio_count(ratio: float, n: int) -> int:
-    """The points a kept share *ratio* of *n* points asks for: round(ratio * n), at least 1 when ratio > 0.
-
-    The one rounding of a ratio, in memory and out of core. A positive ratio
-    of a non-empty cloud keeps at least one point (half of 1 point is 1, not
-    an empty cloud).
+    """Points kept by share *ratio* of *n*: round(ratio * n), at least 1 when ratio > 0.
 
     >>> ratio_count(0.5, 5000), ratio_count(0.5, 1), ratio_count(0.0, 10)
     (2500, 1, 0)
@@ -57,25 +40,16 @@ def ratio_count(ratio: float, n: int) -> int:
 
 
 def check_points(points, name: str = "points") -> np.ndarray:
-    """Validated coordinates: ndarray of shape (n, p), float64, C-contiguous, finite.
+    """Validated coordinates: shape (n, p), float64, C-contiguous, finite.
 
-    Parameters
-    ----------
-    points : array_like of shape (n, p), real
-    name : str
-        Used in the messages.
-
-    Returns
-    -------
-    ndarray of shape (n, p), float64
-        ``points`` itself when already float64 and C-contiguous, else a copy.
+    ``points`` itself when already so, else a copy; ``name`` is used in messages.
 
     Raises
     ------
     InvalidParameterError
         Wrong shape or dtype.
     InvalidPointsError
-        A NaN or infinite coordinate (the count and the first row are named).
+        A NaN or infinite coordinate.
     """
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] < 1:

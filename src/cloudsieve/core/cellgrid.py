@@ -1,11 +1,8 @@
-"""The uniform grid the ``eliminate`` rule searches, and its input checks.
+"""The uniform grid the ``eliminate`` rule searches.
 
-:class:`CellGrid` puts points in the canonical internal order of the compiled
-kernels (:mod:`.kernels.grid`): by grid cell along a Z-order curve (nearby
-cells nearby in memory), inside a cell by coordinates, exact copies by their
-position. The order depends on the coordinates only, not on the input order,
-so sums over neighbours come out bit for bit the same for any permutation of
-the points.
+:class:`CellGrid` orders points by cell along a Z-order curve, inside a cell by
+coordinates, copies by position: the order depends on coordinates only, so
+neighbour sums are bit-identical for any permutation of the input.
 """
 
 from __future__ import annotations
@@ -23,10 +20,7 @@ _RUN = 64  # longest run of one cell sorted by insertion; longer (piles of copie
 
 
 def check_points(points, name: str = "points") -> np.ndarray:
-    """Contiguous float64 array of shape (n, 3), or InvalidParameterError/InvalidPointsError.
-
-    The core's point check (:func:`._validation.check_points`) plus the 3 columns the grid needs.
-    """
+    """Contiguous float64 (n, 3) array: :func:`._validation.check_points` plus 3 columns."""
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InvalidParameterError(f"{name} must have shape (n, 3), got shape {pts.shape}")
@@ -44,21 +38,19 @@ class CellGrid:
 
     Attributes
     ----------
-    order : ndarray of shape (n,), int64
+    order : ndarray (n,), int64
         Row i of the internal order is ``points[order[i]]``.
-    P : ndarray of shape (n, 3)
+    P : ndarray (n, 3)
         The points in internal order.
     cell, cstart, nstart, ncells : ndarray of int64
-        Cell of each row, first row of each cell, and the CSR list of the
-        occupied cells among the 27 around each cell.
-    copy : ndarray of shape (n,), bool
-        Rows equal to the previous row (exact copies; the first of each group is not a copy).
-    lead : ndarray of shape (n,), int64
-        The first row of each row's group of exact copies (the row itself when it is no copy).
+        Cell of each row, first row of each cell, CSR of occupied cells among the 27 around each.
+    copy : ndarray (n,), bool
+        Row equals the previous row.
+    lead : ndarray (n,), int64
+        First row of each row's group of exact copies.
     h : float
-        The cell side used.
-    lo : ndarray of shape (3,)
-        The grid's corner: the points' minimum.
+    lo : ndarray (3,)
+        The points' minimum.
     """
 
     def __init__(self, points: np.ndarray, h: float):
@@ -85,12 +77,9 @@ class CellGrid:
         self.copy, self.lead = _kg.copy_runs(self.P, cell)
 
     def nearest_kept(self, kept: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """:func:`.kernels.grid.nearest_kept` of ascending ``rows``, searched once per group of exact copies.
+        """:func:`.kernels.grid.nearest_kept` of ascending ``rows``, once per group of copies.
 
-        The rows of a group have the same coordinates and so the same answer
-        (the search excludes no row); searched row by row, a pile of m copies
-        in one grid cell costs m^2 distances (autzen_trim holds piles of
-        thousands). kept (n,) uint8.
+        Copies share the answer; row by row, a pile of m copies would cost m^2 distances.
         """
         lead = self.lead[rows]
         first = np.ones(len(lead), dtype=bool)  # lead is non-decreasing along ascending rows

@@ -1,13 +1,8 @@
-"""The k nearest centres of points, for K-means and fuzzy C-means (DESIGN.md stage 3), and their threads.
+"""The k nearest centres of points, for K-means and fuzzy C-means (DESIGN.md stage 3).
 
-:func:`nearest_centres` answers what ``centre_tree(C).query(X, k)`` (scipy's
-``cKDTree``) answers, the same arrays bit for bit, with the compiled grid
-search of :mod:`.kernels.centres`: rings of cells for a few points, per-cell
-candidate lists for many. Rows whose k distances include two equal ones
-(where the order among equals is the tree's own) are asked of the tree.
-
-The kernels run over ranges of points on threads by
-:class:`.kernels.threads.Chunks`.
+:func:`nearest_centres` returns what scipy's ``cKDTree.query`` does, via the
+compiled grid search of :mod:`.kernels.centres`; rows with tied k-th distances go
+to the tree. Threads: :class:`.kernels.threads.Chunks`.
 """
 
 from __future__ import annotations
@@ -32,10 +27,7 @@ def centre_tree(C: np.ndarray) -> cKDTree:
 
 
 def cell_size(C: np.ndarray, k: int) -> float:
-    """The grid side for queries of k centres among C (c, p): the median
-    distance from a centre to its k-th nearest other centre (a sample of 512
-    centres), so that the k nearest are mostly within the 27 cells around a
-    point. Only the speed depends on it."""
+    """Grid side for k-centre queries: median distance to the k-th nearest other centre (512 sampled)."""
     c = len(C)
     S = C[:: max(1, c // 512)]
     d = centre_tree(C).query(S, k=min(k + 1, c))[0]
@@ -51,9 +43,7 @@ _MAX_CELLS_PER_CENTRE = 8
 
 
 def ring_grid(C: np.ndarray, h: float) -> tuple:
-    """The grid over centres C (c, p) of side about h (larger when the centres'
-    extent would need more than ``_MAX_CELLS_PER_CENTRE * c`` cells): the ``ring``
-    tuple of :mod:`.kernels.centres`."""
+    """The ``ring`` tuple of :mod:`.kernels.centres`: a grid over C of side about h (coarser if too many cells)."""
     c, p = C.shape
     q = min(p, 3)
     lo = np.zeros(3)
@@ -84,12 +74,10 @@ _MIN_POINTS_PER_LIST = 16  # fewer points per occupied fine cell: a coarser fine
 
 
 def candidate_lists(X, rows, C, ring, k, chunks) -> tuple:
-    """The candidate lists of the fine cells holding the points X[rows], for
-    queries of k centres among C: the ``lists`` tuple of :mod:`.kernels.centres`.
+    """The ``lists`` tuple of :mod:`.kernels.centres`: candidate lists of the fine cells holding X[rows].
 
-    The fine side is h / M with M = ``_FINE``, halved while the points per
-    occupied fine cell are fewer than ``_MIN_POINTS_PER_LIST`` (a list costs
-    about as much as a few dozen queries). Only the speed depends on M.
+    Fine side h / ``_FINE``, halved while occupied fine cells hold fewer than
+    ``_MIN_POINTS_PER_LIST`` points. Only speed depends on it.
     """
     lo, h, dims = ring[3], ring[4], ring[5]
     m = len(rows)
@@ -119,22 +107,21 @@ _LIST_MIN_ROWS_PER_CENTRE = 16  # fewer query points than this per centre: rings
 
 
 def nearest_centres(X, C, k, chunks, h, rows=None):
-    """The k nearest centres of X[rows] (all rows when None): (distances, indices),
-    each of shape (m, k), ascending; the same arrays as
-    ``centre_tree(C).query(X[rows], k=k)``, except the index in the last
-    column where its distance equals that of a centre not returned (either
-    is a k-th nearest; K-means and FCM use only that column's distance).
+    """The k nearest centres of X[rows] (all when None): (distances, indices), each (m, k), ascending.
+
+    Equal to ``centre_tree(C).query(X[rows], k)``, except the last column's index on
+    a tie with a centre not returned (K-means and FCM use only its distance).
 
     Parameters
     ----------
-    X : ndarray of shape (n, p), float64
-    C : ndarray of shape (c, p), float64
+    X : ndarray (n, p), float64
+    C : ndarray (c, p), float64
     k : int
         1 <= k <= c.
     chunks : .kernels.threads.Chunks
     h : float
-        The grid side (:func:`cell_size`); only the speed depends on it.
-    rows : ndarray of shape (m,), int64, optional
+        Grid side (:func:`cell_size`); only speed depends on it.
+    rows : ndarray (m,), int64, optional
     """
     if rows is None:
         rows = np.arange(len(X), dtype=np.int64)

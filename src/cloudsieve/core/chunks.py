@@ -1,9 +1,7 @@
 """Ranges of clusters for the threads of the rounds' kernels (DESIGN.md stage 5).
 
-The points are grouped by cluster (cluster j: rows starts[j] to starts[j + 1])
-and no kernel crosses a cluster, so disjoint ranges of clusters run on
-threads (the kernels release the GIL) and a cluster's result never depends on
-the ranges: no result depends on the thread count.
+No kernel crosses a cluster, so disjoint ranges run on threads and no result
+depends on the thread count.
 """
 
 from __future__ import annotations
@@ -20,11 +18,10 @@ class ClusterChunks:
 
     Parameters
     ----------
-    starts : ndarray of shape (c + 1,), int64
+    starts : ndarray (c + 1,), int64
         Cluster j is rows starts[j] to starts[j + 1].
     threads : int
     pool : ThreadPoolExecutor or None
-        The threads (None: run in the calling thread).
 
     Attributes
     ----------

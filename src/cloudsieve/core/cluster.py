@@ -1,35 +1,20 @@
-"""Centroid clustering into many small clusters (DESIGN.md stage 3): the shared base and the seeding.
+"""Centroid clustering into many small clusters (DESIGN.md stage 3): shared base and seeding.
 
 :class:`CentroidClustering` is the base of :class:`~.kmeans.KMeans` and
-:class:`~.fcm.FuzzyCMeans` (like scikit-learn's ``_BaseKMeans``): parameters
-in ``__init__``, work in ``fit``, fitted state with a trailing underscore, one
-``seed``, and a :class:`~cloudsieve.errors.ConvergenceWarning` when
-``max_iter`` runs out.
+:class:`~.fcm.FuzzyCMeans`, scikit-learn style (fitted state with trailing
+underscore; :class:`~cloudsieve.errors.ConvergenceWarning` when ``max_iter`` runs out).
 
-Cost per iteration is O(n log c), not O(n c): nearest centres come from a
-uniform grid over the centres (:func:`.centres.nearest_centres`, compiled,
-the same answer as scipy's ``cKDTree``), and K-means skips the points whose
-assignment provably cannot change (Hamerly's bounds, with the lower bound decaying by the largest move
-among each centre's K nearest centres rather than among all; see
-:func:`.kmeans.lloyd`). Fuzzy C-means keeps each point's memberships for its
-``n_nearest`` nearest centres only (all others are zero); with ``n_nearest >=
-n_clusters`` this is exactly the textbook (dense) FCM.
+An iteration costs O(n log c): nearest centres come from a grid
+(:func:`.centres.nearest_centres`) and K-means skips points by Hamerly's bounds
+(:func:`.kmeans.lloyd`). FCM keeps memberships for ``n_nearest`` centres only
+(textbook FCM when ``n_nearest >= n_clusters``).
 
-Determinism: the points are put in a canonical order (lexicographic by
-coordinates) before any seeded step, so results do not depend on the input
-order; the only randomness is ``np.random.default_rng(seed)``.
+Points are put in lexicographic order before any seeded step, so results do not
+depend on input order; the only randomness is ``np.random.default_rng(seed)``.
 
-``init="k-means++"`` (default) seeds with k-means++ (D^2 sampling) on a uniform
-subsample of ``max(1000, 4 * n_clusters)`` points (all points when fewer),
-which keeps the seeding O(c^2) instead of O(n c) (FCM then runs 5 Lloyd
-iterations before its own); ``init="kd-split"`` takes the means of a balanced
-k-d split of a subsample (near-equal compact parts); ``init="random"``
-reproduces the paper: K-means starts from ``n_clusters`` distinct random
-points of X, FCM from random memberships (dense, computed in blocks: O(n c)
-once). An array of shape (n_clusters, p) gives the initial centres.
-
-K-means takes ``tol`` (default 0, the paper's "no point changed cluster"):
-stop when at most ``tol * n`` points changed cluster in an iteration.
+``init``: "k-means++" (default; on a subsample of ``max(1000, 4 * n_clusters)``
+points), "kd-split" (means of a balanced k-d split), "random" (the paper's), or an
+array (n_clusters, p).
 """
 
 from __future__ import annotations
@@ -63,13 +48,10 @@ _PP_BLOCK = 64  # k-means++: points per block of the running D^2 sums
 def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
     """k-means++ seeding (one trial per centre) on a uniform subsample of X.
 
-    Exact D^2 sampling, written by hand (scikit-learn's is O(s c) per run and
-    would add a dependency): the sample is sorted on its first coordinate, so a
-    new centre x0 can only lower D^2 of the points within sqrt(max D^2) of x0
-    along that axis, a window found by binary search; sums and maxima of D^2
-    are kept per block of _PP_BLOCK points, so a draw costs O(s / B + B) and an
-    update O(window + s / B) instead of O(s). The steps are compiled
-    (:func:`.kernels.cluster.kmeanspp_steps`), with the same draws and sums."""
+    Exact D^2 sampling over a sample sorted on its first coordinate, with D^2 sums
+    kept per block of _PP_BLOCK points, so a draw costs O(s / B + B); compiled in
+    :func:`.kernels.cluster.kmeanspp_steps`.
+    """
     S = _sample(X, min(len(X), max(1000, 4 * c)), rng)
     S = S[np.argsort(S[:, 0], kind="stable")]
     s, p = S.shape
@@ -95,14 +77,11 @@ def _kmeanspp(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
-    """Centres of a balanced k-d split of a uniform subsample of X.
+    """Centres of a balanced k-d split of a uniform subsample of X (32 points per cluster, >= 10,000).
 
-    The sample (32 points per cluster, at least 10,000) is cut recursively
-    across its widest coordinate into two parts holding k1 = k // 2 and
-    k - k1 clusters' shares of the points, until each part holds one
-    cluster's; the centres are the parts' means. Near-equal, compact parts:
-    Lloyd's iterations start close to a balanced partition. All parts of a
-    level are cut at once: one stable sort of the sample by (part, coordinate)."""
+    Each part is cut across its widest coordinate in proportion to its clusters;
+    the centres are the parts' means.
+    """
     S = _sample(X, max(10_000, 32 * c), rng)
     s, p = S.shape
     perm = np.arange(s)
@@ -120,7 +99,6 @@ def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
         split = k > 1
         k1 = k // 2
         cut = np.clip(np.round(size * k1 / np.maximum(k, 1)).astype(np.int64), 1, np.maximum(size - 1, 1))
-        # children in order: (start, cut, k1), (start + cut, size - cut, k - k1); unsplit parts kept
         n_new = len(k) + int(split.sum())
         ns, nz, nk = np.empty(n_new, np.int64), np.empty(n_new, np.int64), np.empty(n_new, np.int64)
         pos = np.arange(len(k)) + np.cumsum(split) - split
@@ -134,8 +112,7 @@ def _kd_split(X: np.ndarray, c: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def _rows(a, order, threads, kernel):
-    """A new array: the rows of ``a`` (n, ...) taken in ``order`` (``kcl.take_rows``:
-    ``a[order]``) or put back from it (``kcl.put_rows``: ``out[order] = a``), on threads."""
+    """New array: rows of ``a`` taken in ``order`` (``kcl.take_rows``) or put back (``kcl.put_rows``), on threads."""
     out = np.empty_like(a)
     src, dst = a.reshape(len(a), -1), out.reshape(len(a), -1)
     with Chunks(threads) as chunks:
@@ -147,15 +124,9 @@ INITS = ("k-means++", "random", "kd-split")
 
 
 def initial_centres(Xs, c, init, rng):
-    """Centres to start from, ndarray of shape (c, p) (init "random" is handled by each estimator).
+    """Initial centres (c, p) from the canonically ordered points Xs (init "random": each estimator).
 
-    Parameters
-    ----------
-    Xs : ndarray of shape (n, p), float64
-        The points in canonical order.
-    c : int
-    init : {"k-means++", "kd-split"} or array_like of shape (c, p)
-    rng : numpy.random.Generator
+    ``init``: "k-means++", "kd-split" or an array_like of shape (c, p).
     """
     if isinstance(init, str) and init == "k-means++":
         return _kmeanspp(Xs, c, rng)
@@ -166,11 +137,6 @@ def initial_centres(Xs, c, init, rng):
 
 class CentroidClustering:
     """The shared base of :class:`~.kmeans.KMeans` and :class:`~.fcm.FuzzyCMeans`.
-
-    Holds the common parameters, validates them against the input
-    (:meth:`check_params`), puts the points in canonical order, seeds, runs
-    the subclass's iterations (``_iterate``), warns when they ran out, and
-    maps the fitted per-point state back to the input order.
 
     Parameters
     ----------
@@ -190,18 +156,13 @@ class CentroidClustering:
         self.tol = tol
 
     def fit(self, points, threads: int | None = None):
-        """Cluster ``points`` (array_like of shape (n, p)); returns self.
-
-        ``threads``: threads of the compiled passes over the points (None: all cores); the result
-        does not depend on it.
-        """
+        """Cluster ``points`` (n, p); returns self. ``threads`` (None: all cores) does not change the result."""
         X = check_points(points)
         self.check_params(*X.shape)
         return self._fit(X, threads)
 
     def fit_unchecked(self, X: np.ndarray, threads: int | None = None):
-        """:meth:`fit` on validated input: ``X`` from :func:`._validation.check_points` and
-        :meth:`check_params` passed for its shape (no checks, no copy); returns self."""
+        """:meth:`fit` on validated input (:func:`._validation.check_points`, :meth:`check_params`); returns self."""
         return self._fit(X, threads)
 
     def fit_predict(self, points, threads: int | None = None) -> np.ndarray:
@@ -209,8 +170,7 @@ class CentroidClustering:
         return self.fit(points, threads).labels_
 
     def check_params(self, n: int, p: int) -> None:
-        """Raise :class:`~cloudsieve.errors.InvalidParameterError` unless the
-        parameters fit an input of n points in p dimensions."""
+        """Raise :class:`~cloudsieve.errors.InvalidParameterError` unless the parameters fit n points in p dims."""
         n_clusters, max_iter, init = self.n_clusters, self.max_iter, self.init
         if int(n_clusters) != n_clusters or n_clusters < 1:
             raise InvalidParameterError(f"n_clusters must be an integer >= 1, got {n_clusters!r}")

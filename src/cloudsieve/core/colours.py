@@ -1,15 +1,8 @@
 """Colours of the cells: no two cells that share a halo get the same colour.
 
-Pass 2 of the ``eliminate`` rule (:mod:`cloudsieve.engine.cell_scheme`, and
-over k-d cells :mod:`.eliminate_cells`) runs colour by colour
-(:func:`apply_order`): a cell reads the final keep masks of its neighbours of
-lower colours, so the cells of one colour must not read each other
-(they run in parallel). Two cells are neighbours when either lists the other
-among its halo sources (the partition's ``halo_ptr``/``halo_src`` CSR, made
-symmetric). The colouring is greedy, cells by decreasing degree then by id,
-each given the lowest colour none of its coloured neighbours has: a pure
-function of the partition, so a resumed run finds the same colours without
-recording them. K-means cells in 3-D typically need 4-7 colours.
+Pass 2 of ``eliminate`` (:mod:`cloudsieve.engine.cell_scheme`, :mod:`.eliminate_cells`)
+runs colour by colour, so cells of one colour run in parallel. The greedy colouring
+is a pure function of the partition, so a resumed run needs no record of it.
 """
 
 from __future__ import annotations
@@ -24,16 +17,10 @@ __all__ = ["halo_graph", "cell_colours", "apply_order", "readers"]
 def halo_graph(halo_ptr, halo_src) -> tuple[np.ndarray, np.ndarray]:
     """The symmetric neighbour lists of the halo CSR, without self loops.
 
-    Parameters
-    ----------
-    halo_ptr : array_like of shape (P + 1,), int
-    halo_src : array_like of shape (h,), int
-        Cells that may hold halo points of cell i: ``halo_src[halo_ptr[i]:halo_ptr[i + 1]]``.
-
     Returns
     -------
-    ptr : ndarray of shape (P + 1,), int64
-    nbr : ndarray of shape (e,), int64
+    ptr : ndarray (P + 1,), int64
+    nbr : ndarray (e,), int64
         Neighbours of cell i, increasing: ``nbr[ptr[i]:ptr[i + 1]]``.
     """
     ptr = np.asarray(halo_ptr, dtype=np.int64)
@@ -53,18 +40,8 @@ def halo_graph(halo_ptr, halo_src) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cell_colours(halo_ptr, halo_src) -> np.ndarray:
-    """Greedy colouring of the cells' halo graph (:func:`halo_graph`).
+    """Greedy colouring of :func:`halo_graph`: by decreasing degree, then id; lowest free colour.
 
-    Cells by decreasing degree, ties by id; each gets the lowest colour that
-    none of its already coloured neighbours has.
-
-    Returns
-    -------
-    ndarray of shape (P,), int64
-        Colour of each cell, 0, 1, ...; neighbours never share one.
-
-    Examples
-    --------
     >>> cell_colours([0, 1, 3, 4], [1, 0, 2, 1]).tolist()  # a path 0 - 1 - 2
     [1, 0, 1]
     """
@@ -81,8 +58,7 @@ def cell_colours(halo_ptr, halo_src) -> np.ndarray:
 
 
 def apply_order(colours: np.ndarray, counts, cells) -> list[int]:
-    """*cells* colour by colour (:func:`cell_colours`), each colour's largest first (*counts*: the cells'
-    points), ties by id: the order the elimination takes them."""
+    """*cells* colour by colour, each colour's largest (*counts*) first, ties by id."""
     return sorted((int(j) for j in cells), key=lambda j: (int(colours[j]), -int(counts[j]), j))
 
 
