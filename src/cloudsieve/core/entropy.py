@@ -1,60 +1,30 @@
 """Exact leave-one-out entropy scores of points in their clusters (DESIGN.md stage 4).
 
-For a cluster R of m distinct points, with k = max(k_min, floor(k0*sqrt(m) + 1/2))
-fixed for R:
+For a cluster R of m distinct points, k = max(k_min, floor(k0*sqrt(m) + 1/2)):
 
-- r_k(x) is the distance from x to its k-th nearest *other* point (the k-th
-  smallest value of the multiset of distances, so ties need no rule);
-- w(x) = r_k(x)^-d, p(x) = w(x) / W with W = sum_R w (the k-NN density
-  k / (m C_d r_k^d) normalised over R: constants and units cancel);
-- H(R) = -sum_R p log p = log W - A / W with A = sum_R w log w;
-- the score of y is dH(y) = |H(R) - H(R minus y)|, k unchanged.
+- r_k(x): distance from x to its k-th nearest *other* point;
+- w(x) = r_k(x)^-d, p(x) = w(x) / W, W = sum_R w (constants and units cancel);
+- H(R) = -sum_R p log p = log W - A / W, A = sum_R w log w;
+- score dH(y) = |H(R) - H(R minus y)|, k unchanged.
 
-Removing y deletes y's own term and, for every x whose k nearest include y
-(d(x, y) <= r_k(x)), replaces r_k(x) by r_(k+1)(x). With ties this is still
-exact: if r_(k+1)(x) = r_k(x) the replacement changes nothing, and if
-r_(k+1)(x) > r_k(x) the points at distance <= r_k(x) are exactly the k
-nearest the k-d tree returns, whatever order it gives tied points. So one
-query of k+1 neighbours per point gives every H(R minus y) in O(m k), computed
-without cancellation as::
+Removing y replaces r_k(x) by r_(k+1)(x) for every x with d(x, y) <= r_k(x);
+exact with ties too. One (k+1)-NN query per point gives every H(R minus y) in
+O(m k), without cancellation, as::
 
     H(R - y) - H(R) = log1p(dW / W) - dG / (W + dW)
 
 with dW, dG the changes of W and of G = sum w (log w - A/W).
 
-Duplicates: exact duplicate points of one cluster have r = 0 and no density.
-Only the first of each group (lowest index) is scored; the others get the
-score 0.0 (a copy of a point that stays is redundant, so every rule drops it)
-and are counted in :attr:`Scores.n_duplicates` and logged.
+Exact duplicates in a cluster: only the first is scored, the others get 0.0
+(:attr:`Scores.n_duplicates`). A cluster of fewer than k + 2 distinct points
+gets +inf (always kept).
 
-Small clusters: a cluster of fewer than k + 2 distinct points (k_min + 2 at
-the default k0) cannot lose a point and keep k neighbours per point; its
-points get +inf (always kept).
+``context=`` (extra points, e.g. a cell's halo): r_k(x) is measured among the
+points and the context; H is summed over R only. An empty context means
+neighbours from every cluster of ``points``, not R alone.
 
-Context: with ``context=`` (extra points, e.g. a cell's halo, or the whole
-cloud around the clusters), r_k(x) is measured among all the points and the
-context instead of R alone; H is still summed over R only, and removing y only
-changes the terms of R. Context points that coincide with a point are ignored.
-An empty context (shape (0, p)) thus means: neighbours from every cluster of
-``points``, not from R alone (measured better at equal count in
-benchmarks/quality.py).
-
-Speed: without context, the k nearest come from the compiled kernel of
-:mod:`.kernels.knn` (a small k-d tree per cluster, the clusters shared among
-``threads`` threads; the distances of a k-d tree, bit for bit), with the
-points of each cluster in Z-order; the W/A terms and the reverse-neighbour
-sums from :mod:`.kernels.entropy` (the same values, bit for bit, as the
-numpy code they replace). With a context, the neighbours come from scipy's
-cKDTree over the points and the context.
-
-(:mod:`.knn` and :mod:`.scored_knn` hold the k-NN queries.)
-
-Public names: :func:`entropy_scores` (dH per point), :func:`score_points`
-(a :class:`Scores` record with dH, the unit-free score m*dH used to pick one
-threshold across cells, k, m, the duplicates and the k-NN graph); for the other
-core modules, on validated input: :func:`score_unchecked` (the kernel behind
-:func:`score_points`) and :func:`entropy_change` (dH from the W/A terms of
-:func:`.kernels.entropy.entropy_weights`).
+Neighbours: :mod:`.kernels.knn` without context, scipy's cKDTree with it;
+W/A terms and reverse-neighbour sums: :mod:`.kernels.entropy`.
 """
 
 from __future__ import annotations
@@ -82,28 +52,21 @@ class Scores:
 
     Attributes
     ----------
-    delta_h : ndarray of shape (n,), float64
-        dH(y) = |H(R) - H(R minus y)|; +inf in clusters too small to score,
-        0.0 for the duplicates.
-    unit_free : ndarray of shape (n,), float64
-        m * dH, m the number of distinct points of the cluster: comparable
-        across clusters of different sizes (dH scales as 1/m), so one global
-        threshold can be chosen across cells.
-    cluster_size : ndarray of shape (n,), int64
-        m of the point's cluster (distinct points).
-    k : ndarray of shape (n,), int64
-        k used for the point's cluster.
-    duplicate : ndarray of shape (n,), bool
-        True for an exact copy of a lower-index point of the same cluster.
-    gain : ndarray of shape (n,), float64
-        The signed change H(R minus y) - H(R) (dH is its absolute value):
-        > 0 when removing y makes the density of R more uniform. +inf in
-        small clusters, 0.0 for duplicates.
-    neighbours : ndarray of shape (n, K), int64
-        The k-NN graph: row i holds the k nearest of point i (input indices,
-        points only, never context), nearest first, padded with -1; rows of
-        duplicates and of points in small clusters are all -1. Built on
-        first access (the threshold and target rules never need it).
+    delta_h : ndarray (n,), float64
+        dH(y); +inf in clusters too small to score, 0.0 for duplicates.
+    unit_free : ndarray (n,), float64
+        m * dH (m: distinct points of the cluster): comparable across cluster sizes.
+    cluster_size : ndarray (n,), int64
+        m of the point's cluster.
+    k : ndarray (n,), int64
+        k of the point's cluster.
+    duplicate : ndarray (n,), bool
+        Exact copy of a lower-index point of the same cluster.
+    gain : ndarray (n,), float64
+        Signed H(R minus y) - H(R); +inf in small clusters, 0.0 for duplicates.
+    neighbours : ndarray (n, K), int64
+        k-NN graph, input indices, nearest first, padded with -1 (rows of duplicates
+        and small clusters all -1); built on first access.
     indptr, indices : ndarray of int64
         The same graph in CSR form (computed on access).
     """
@@ -149,17 +112,16 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
     Parameters
     ----------
     points : array_like of shape (n, p), float
-        Coordinates (p = 3 for a cloud; any p works, ``dim`` is the exponent).
     labels : array_like of shape (n,), int, optional
-        Cluster of each point (any integers); None: one cluster.
+        Cluster of each point; None: one cluster.
     k0, k_min : float, int
         k = max(k_min, floor(k0*sqrt(m) + 1/2)) per cluster of m points.
     dim : float
-        The exponent d of the density r_k^-d (3 for a cloud in space).
+        Exponent d of the density r_k^-d.
     context : array_like of shape (q, p), optional
         Extra density neighbours, never scored.
     threads : int, optional
-        Threads for the k-d tree queries (default: all cores).
+        Default: all cores.
 
     Returns
     -------
@@ -172,22 +134,7 @@ def score_points(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: f
 
 
 def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
-    """:func:`score_points` on validated input (no checks, no copy of the points).
-
-    Parameters
-    ----------
-    pts : ndarray of shape (n, p), float64, finite
-    lab : ndarray of shape (n,), int64
-    k0, k_min, dim : float, int, float
-        Valid (the options of :func:`score_points`, checked by :mod:`cloudsieve.params`).
-    ctx : ndarray of shape (q, p), float64, finite, or None
-    threads : int or None
-        None: all cores.
-
-    Returns
-    -------
-    Scores
-    """
+    """:func:`score_points` on validated input (no checks, no copy); ``threads`` None: all cores."""
     n = len(pts)
     threads = int(threads or os.cpu_count() or 1)
     if n == 0:
@@ -209,8 +156,7 @@ def score_unchecked(pts, lab, k0, k_min, dim, ctx, threads) -> Scores:
         else:
             groups, dup = knn_context(g, ginv, c, ctx, k0, k_min, threads)
         del g
-        # groups: (k, scored positions in g (M,), r_k (M,), r_(k+1) (M,), the k+1 nearest (M, k+1)
-        # as positions in g, n for a context point); one k per cluster
+        # groups: (k, scored positions in g, r_k, r_(k+1), the k+1 nearest as positions in g (n: context))
         kcl = np.zeros(c, dtype=np.int64)
         scored = np.zeros(n, dtype=bool)
         for grp in groups:
@@ -242,32 +188,12 @@ def entropy_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim:
                    context=None) -> np.ndarray:
     """dH(y) = |H(R) - H(R minus y)| for every point y, R its cluster.
 
-    Parameters
-    ----------
-    points : array_like of shape (n, p), float
-        Coordinates, finite (p = 3 for a cloud).
-    labels : array_like of shape (n,), int, optional
-        Cluster of each point; None: all points form one cluster.
-    k0, k_min : float, int
-        k = max(k_min, floor(k0*sqrt(m) + 1/2)) for a cluster of m distinct points.
-    dim : float
-        Exponent d of the k-NN density r_k^-d (3 in space).
-    context : array_like of shape (q, p), optional
-        Extra points used only as density neighbours (a cell's halo, the
-        cloud around the clusters); None: each cluster alone (the paper).
+    Parameters as :func:`score_points`; ``context`` None: each cluster alone (the paper).
+    Returns float64 (n,): +inf in clusters of fewer than k + 2 distinct points, 0.0
+    for duplicates after the first.
 
-    Returns
-    -------
-    ndarray of shape (n,), float64
-        The scores, exact (O(m k) per cluster). +inf for the points of clusters
-        with fewer than k + 2 distinct points; 0.0 for exact duplicates after
-        the first copy (counted and logged; see :func:`score_points`).
-
-    Examples
-    --------
     >>> import numpy as np
-    >>> pts = np.random.default_rng(0).random((50, 3))
-    >>> s = entropy_scores(pts)
+    >>> s = entropy_scores(np.random.default_rng(0).random((50, 3)))
     >>> s.shape, bool((s >= 0).all())
     ((50,), True)
     """

@@ -1,18 +1,10 @@
 """The elimination radius r_max of the ``eliminate`` rule, from the area around each point.
 
-Yuksel 2015: N disks of radius r_max packed hexagonally cover an area
-A = 2 sqrt(3) N r_max^2. The cloud is a 2-D manifold in 3-D, so A is the area
-of the sampled surface, estimated from the points (:func:`point_areas`), not
-the bounding box (CGAL's ``poisson_eliminate`` divides the box's *volume* by
-N). An isolated point (an outlier, a far return) is kept whatever r_max is and
-covers nobody else's area, so it counts as one kept point, not as its k-NN
-area over 2 sqrt(3) r_max^2 of them (:func:`elimination_radius`): a few far
-points do not inflate r_max (append-bug.laz: one point in 100 is isolated
-and the plain sum of areas makes r_max 13x too large).
-
-Both steps are sums over points, so a driver can run :func:`point_areas` per
-cell (with the halo as context) and solve :func:`elimination_radius` once on
-the areas of all cells for the one global r_max.
+Yuksel 2015: N disks of radius r_max packed hexagonally cover A = 2 sqrt(3) N r_max^2,
+with A the sampled surface's area (:func:`point_areas`), not the bounding box.
+An isolated point counts as one kept point (:func:`elimination_radius`), so a few
+far points do not inflate r_max. Both steps are sums over points: a driver can
+compute areas per cell and solve for one global r_max.
 """
 
 from __future__ import annotations
@@ -39,19 +31,16 @@ HEX = 2.0 * math.sqrt(3.0)  # area of the hexagon around a disk of radius 1 in a
 
 def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAMPLE,
                 seed: int = 0) -> tuple[np.ndarray, float]:
-    """Area around each point of the sampled surface: pi r_k^2 / k.
+    """Area around each point of the sampled surface: pi r_k^2 / k (r_k: k-th nearest other point).
 
-    r_k is the distance to the k-th nearest other point; pi r_k^2 / k is an
-    unbiased estimate of the area per point of a uniform random sample of a
-    plane. Above ``sample`` points (with the context), the areas are those of
-    a seeded uniform sample of that many points, neighbours among the sample
-    only (then scaled by the sampling rate).
+    Above ``sample`` points (with context), areas come from a seeded uniform sample,
+    scaled by the sampling rate.
 
     Parameters
     ----------
     points : array_like of shape (n, 3), float
     context : array_like of shape (q, 3), optional
-        Neighbours whose areas are not returned (a cell's halo: no border effect).
+        Neighbours whose areas are not returned (a cell's halo).
     k : int
     sample : int
         At least k + 1.
@@ -59,11 +48,10 @@ def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAM
 
     Returns
     -------
-    areas : ndarray of shape (m,), float64
-        Areas of the m sampled points (all n without sampling); inf when
-        fewer than k + 1 points in all.
+    areas : ndarray (m,), float64
+        Areas of the m sampled points; inf when fewer than k + 1 points in all.
     weight : float
-        Points each area stands for (n / m), as :func:`elimination_radius` takes it.
+        Points each area stands for (n / m).
     """
     pts = check_points(points)
     ctx = np.zeros((0, 3)) if context is None else check_points(context, "context")
@@ -98,11 +86,8 @@ def areas_of(pts: np.ndarray, ctx: np.ndarray, k: int, sample: int, seed: int):
 def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
     """Distance from each of the first m rows of allp (>= k + 1 rows) to its k-th nearest other row.
 
-    The k-NN of the distinct rows (:func:`_nearest`). Among the distinct rows: a row with c exact
-    copies (itself included) has c - 1 others at distance 0, then each distinct
-    row as often as it is copied. Searched row by row, a pile of c copies costs
-    c^2 distances (60,000 copies at one spot: minutes), so the search runs on
-    the distinct rows.
+    Searched on the distinct rows (a pile of c copies would cost c^2 distances),
+    counting each row's copies.
     """
     first = first_rows(allp)
     lead = np.flatnonzero(first == np.arange(len(allp)))  # the distinct rows, in order (all: mult 1)
@@ -123,27 +108,10 @@ def _kth_other(allp: np.ndarray, m: int, k: int) -> np.ndarray:
 
 
 def global_radius(sample: np.ndarray, n: int, target: int) -> float:
-    """The one r_max of a cloud of *n* points keeping *target*, from a uniform sample of it.
+    """The one r_max of a cloud of *n* points keeping *target*, from a uniform sample (S, 3) of it.
 
-    :func:`point_areas` on the sample (S points) are
-    areas at the sample's density: scaled by S / n to the cloud's, each
-    standing for n / S of its points, they give
-    :func:`elimination_radius`. With the whole cloud
-    as the sample (S = n <= 50,000) this is the r_max of
-    :func:`cloudsieve.core.eliminate.eliminate`.
-
-    Parameters
-    ----------
-    sample : ndarray of shape (S, 3), float64
-    n : int
-        Points in the cloud.
-    target : int
-        Points kept.
-
-    Returns
-    -------
-    float
-        r_max; inf when every point is kept (or nothing is: *target* 0).
+    Sample areas scaled by S / n, each standing for n / S points, go to
+    :func:`elimination_radius`. Returns inf when every point is kept (or *target* is 0).
     """
     s = len(sample)
     if target <= 0 or s == 0:
@@ -152,30 +120,23 @@ def global_radius(sample: np.ndarray, n: int, target: int) -> float:
     return float(elimination_radius(areas * (s / n), int(target), weight=weight * n / s))
 
 
-#: points a grid cell holds on average at the first grid's side (about 1.5 times the 8th distance on a surface
-#: or in a volume), reached in at most OCCUPANCY_STEPS guesses
+#: mean points per cell at the first grid's side, reached in at most OCCUPANCY_STEPS guesses
 OCCUPANCY = 6.0
 OCCUPANCY_STEPS = 6
 #: at most this many points left unsure are searched against every row (a few far points: no grid to build)
 FEW = 64
-#: a point with more than this many points times k in the 27 cells around it is searched on a grid 8 times
-#: finer (a dense spot: its candidates would cost a square of its size)
+#: more than this many points times k in the 27 cells around: search a grid 8 times finer
 CROWD = 64
-#: the grid's reach as a fraction of its cell side: a k-th distance below it is sure (the cells' floors
-#: are computed with rounding errors of about 1e-9 cell)
+#: the grid's reach as a fraction of its side: a k-th distance below it is sure
 REACH = 1.0 - 1e-6
 
 
 def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.ndarray]:
-    """What ``cKDTree(rows).query(rows[q], k=kk)`` returns for distinct *rows* (at least 2): the distances
-    bit for bit (:func:`.kernels.area_knn.nearest_rows` sums them as cKDTree does), the rows among equal
-    distances possibly others.
+    """``cKDTree(rows).query(rows[q], k=kk)`` for distinct *rows* (>= 2): same distances, ties in any order.
 
-    On :class:`.cellgrid.CellGrid` grids, not scipy's tree: importing ``scipy.spatial`` is a quarter of the
-    run of a 1,000-point file. The first grid's side (about 1.5 times the k-th distance on a
-    uniform surface, :data:`OCCUPANCY`) makes most answers sure at once (the 27 cells around a point hold
-    every point within a side of it); the others are asked again on coarser grids, those of crowded cells
-    (:data:`CROWD`) first on grids 8 times finer.
+    On :class:`.cellgrid.CellGrid` grids (importing ``scipy.spatial`` costs more than
+    small runs); unsure answers go to coarser grids, crowded cells (:data:`CROWD`)
+    to finer ones first.
     """
     m = len(rows)
     lo, hi = xyz_bounds(rows)
@@ -191,8 +152,7 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
     coarser: dict[int, list] = {}
 
     def ask(at: np.ndarray, level: int, crowd: int) -> tuple[np.ndarray, np.ndarray]:
-        """Search the positions *at* of q on the grid of side ``side * 2**level``; store the sure ones,
-        return the positions in the order searched and their statuses."""
+        """Search positions *at* of q on the grid of side ``side * 2**level``; store sure answers, return (searched, statuses)."""
         grid = CellGrid(rows, side * 2.0**level)
         inv = np.empty(m, dtype=np.int64)
         inv[grid.order] = np.arange(m)
@@ -230,29 +190,23 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
 
 
 def elimination_radius(areas, count: int, *, weight=1.0) -> float:
-    """r_max for ``count`` kept points: the r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
+    """r_max for ``count`` kept points: r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
 
-    On a uniformly sampled surface of area A this is Yuksel's
-    r_max = sqrt(A / (2 sqrt(3) N)); a point whose own area exceeds
-    2 sqrt(3) r^2 counts as one kept point (module docstring). Solved
-    exactly over the sorted areas.
+    On a uniform surface of area A, Yuksel's sqrt(A / (2 sqrt(3) N)). Solved exactly
+    over the sorted areas.
 
     Parameters
     ----------
     areas : array_like of shape (m,), float >= 0 (inf allowed)
-        Area per point (:func:`point_areas`), of all points or of uniform
-        samples of them.
     count : int
         Kept points, >= 1.
     weight : float or array_like of shape (m,), float > 0
-        Points each area stands for (the ``weight`` of :func:`point_areas`;
-        per area when the areas of several cells are put together).
+        Points each area stands for.
 
     Returns
     -------
     float
-        r_max; inf when every point is kept (count >= sum of the weights) or
-        every point is isolated.
+        r_max; inf when every point is kept or every point is isolated.
     """
     a = np.asarray(areas, dtype=np.float64).ravel()
     if a.size and (np.isnan(a).any() or a.min() < 0):
