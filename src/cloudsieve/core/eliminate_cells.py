@@ -1,43 +1,21 @@
 """One cell of the ``eliminate`` rule: its elimination with its halo, over k-d cells on threads.
 
-:func:`eliminate_cell` is the kernel of a cell of every run of the rule
-(:mod:`cloudsieve.engine.cell_scheme`: the store's tasks, a small input in
-memory, ``simplify_points``), and :func:`cloudsieve.core.eliminate.eliminate`
-is :func:`eliminate_cell` of the whole cloud without a halo. One elimination
-over many points is sequential (the heaviest point anywhere goes next) and,
-at 1 M points, spends most of its time waiting on memory: its arrays no
-longer fit the caches. Above ``cell_points`` points the cell is eliminated
+:func:`eliminate_cell` is the per-cell kernel of every run of the rule
+(:mod:`cloudsieve.engine.cell_scheme`); :func:`cloudsieve.core.eliminate.eliminate`
+is it on the whole cloud without a halo. One elimination is sequential and, at
+1 M points, memory-bound, so above ``cell_points`` points a cell is eliminated
 over k-d cells on threads (:func:`eliminate_cells`):
 
-1. **cells**: a k-d split (:func:`split_cells`): the longest side of a
-   cell's box is cut at the median value of its points' coordinate, until
-   every cell holds at most ``cell_points`` points. Cuts are by value, so the
-   cells do not depend on the input order nor on the unit, and exact copies
-   share a cell.
-2. **counts**, first, on all cells at once: each cell's grid and neighbour
-   lists (with every halo point, step 3's) and the sizes of greedy packings
-   of its points at radii about r_max (:mod:`.packing`, over the lists);
-   each cell's size at the radius where they total the target, made exact
-   integers by :func:`kept_counts`.
-3. **elimination**, colour by colour (:func:`.colours.cell_colours`: cells
-   whose halos meet never share a colour, so the cells of one colour run at
-   once): each cell runs the elimination of :func:`eliminate_cell` on its
-   prepared grid and lists, its halo the points of other cells within
-   2.2 r_max of its box: the lower colours' final decisions fixed (kept) or
-   gone (removed), the higher colours' points eliminated along. A cell starts
-   once the lower-colour cells of its halo are done.
+1. **cells**: :func:`split_cells` cuts the longest side at the median, by value
+   (independent of input order and unit; copies share a cell);
+2. **counts**: each cell's size from greedy packings at radii about r_max
+   (:mod:`.packing`), made exact integers by :func:`kept_counts`;
+3. **elimination**, colour by colour (:func:`.colours.cell_colours`), each cell with
+   its halo (points within 2.2 r_max of its box): lower colours' decisions fixed or
+   gone, higher colours' points eliminated along.
 
-The result is a function of the points, the count and ``cell_points``: not
-of the thread count (cells of one colour read nothing of each other, each
-elimination runs on one thread) nor of the input order (up to 50,000
-points: above, r_max is solved on a seeded sample of rows). On the shared
-scans the kept sets had the point RMS of one elimination over the whole
-cloud within 1% (README).
-
-:func:`eliminate_cell` builds a cell's lists without the halo points its
-lower colours removed: the same priorities but for ties. Above
-``cell_points`` it runs :func:`eliminate_cells` on the cell, the halo's
-points with their decisions around the k-d cells.
+The result depends on the points, the count and ``cell_points``, not on the
+thread count nor (up to 50,000 points) the input order.
 """
 
 from __future__ import annotations
@@ -66,34 +44,28 @@ __all__ = ["HALO_RADII", "cell_cap", "split_cells", "eliminate_cell", "eliminate
 MIN_KEPT = 1_024
 #: halo margin in r_max: the elimination and the relocation reach 2 r_max (as the engine's)
 HALO_RADII = 2.2
-#: at least this share of the points kept, every cell's neighbour lists are built ahead, with the packings (about
-#: 7 entries a point at 50% kept); below it, each cell's lists are built when the cell runs, its packings walk the
-#: grid (3.6 / share entries a point: at 5% kept, autzen_trim in memory peaked at 449 MiB with its 8 cells' lists
-#: built ahead, at 310 MiB with each built when its cell runs)
+#: at least this share kept: every cell's lists are built ahead, with the packings; below it each
+#: cell's lists are built when it runs and its packings walk the grid (less memory)
 LISTS_AHEAD = 0.2
 
 
 def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray,
                                                                               np.ndarray, np.ndarray]:
-    """Split *points* (n, 3) into k-d cells of at most *cell_points* points (the halves of a level on
-    *threads* threads: the result does not depend on them).
+    """Split *points* (n, 3) into k-d cells of at most *cell_points* points (independent of *threads*).
 
     Returns
     -------
-    idx : ndarray of shape (n,), int64
+    idx : ndarray (n,), int64
         The points cell by cell, ascending inside each cell.
-    starts : ndarray of shape (C + 1,), int64
+    starts : ndarray (C + 1,), int64
         Cell c holds ``idx[starts[c]:starts[c + 1]]``.
-    boxes : ndarray of shape (C, 2, 3), float64
-        Lower and upper corner of each cell's region (+-inf on the cloud's outer sides); the regions tile
-        space, touching on the cuts.
-    ordered : ndarray of shape (n, 3), float64
-        ``points[idx]``: each cell's points a contiguous block.
+    boxes : ndarray (C, 2, 3), float64
+        Lower and upper corner of each cell's region (+-inf outside); the regions tile space.
+    ordered : ndarray (n, 3), float64
+        ``points[idx]``.
     """
     n = len(points)
-    # the rows and their points, moved cut after cut between two pairs of buffers: a cut reads a node's range
-    # of one pair and writes its halves into the other, a cell's range is copied back into the first pair once
-    # at the end (a copy back after every cut would move every point once more a level)
+    # rows and points move between two pairs of buffers, cut after cut; a cell's range is copied back once
     idx = (np.arange(n, dtype=np.int64), np.empty(n, dtype=np.int64))
     ordered = (np.array(points, dtype=np.float64, order="C"), np.empty((n, 3)))
     vals = np.empty(n)
@@ -152,35 +124,22 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
                    cell_points: int | None = None, staged: bool | None = None) -> np.ndarray:
     """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
 
-    The halo points already ``decided`` (a neighbouring cell's final
-    result) weigh as fixed points when kept (``halo_keep``) and as gone
-    points when removed; the others are eliminated along (not counted).
-    Then ``steps`` steps of :func:`relocate` with every kept halo point
-    pulling on the regions, on the same grid (one grid for both: the same
-    points).
-
-    Above ``cell_points`` points (None: never; :func:`cell_cap`) the cell
-    is cut into k-d cells eliminated as :func:`eliminate_cells` does, the
-    halo's points with their decisions around them: the engine's cells run
-    at the in-memory kernel's speed (one elimination of 200,000 points
-    waits on memory, cells of 16,384 fit the caches). In stages of about
-    half when ``staged`` (:mod:`.staged`: memory and time as at 50% kept);
-    None: when the count is below 1 in :data:`.staged.STAGED_BELOW` of the
-    cell's distinct points (the engine decides for all cells of a run at once,
-    from the run's count and distinct points).
+    ``decided`` halo points weigh as fixed when kept (``halo_keep``) and as gone when
+    removed; the others are eliminated along. Then ``steps`` steps of :func:`relocate`
+    on the same grid. Above ``cell_points`` points (None: never; :func:`cell_cap`) as
+    :func:`eliminate_cells`. In stages (:mod:`.staged`) when ``staged``; None: when the
+    count is below 1 in :data:`.staged.STAGED_BELOW` of the distinct points.
 
     Parameters
     ----------
     points : array_like of shape (n, 3), float
     count : int
-        Points of ``points`` kept, in [0, n].
+        Points kept, in [0, n].
     r_max : float
         The cloud's elimination radius.
     halo : array_like of shape (h, 3), optional
     decided, halo_keep : array_like of shape (h,), bool, optional
-        Which halo points are decided, and which of those are kept.
-    threads : int, optional
-    cell_points : int, optional
+    threads, cell_points : int, optional
     staged : bool, optional
 
     Returns
@@ -212,8 +171,7 @@ def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_k
 
 def eliminate_direct(pts: np.ndarray, count: int, r_max: float, hal: np.ndarray, kind: np.ndarray, steps: int,
                      threads, cell_points) -> np.ndarray:
-    """:func:`eliminate_cell` as one elimination (no stages) on valid input: *count* in [0, n], r_max finite,
-    the halo *hal* (h, 3) and its kinds *kind* (h,) uint8 (1 free, 2 fixed, 0 gone)."""
+    """:func:`eliminate_cell` as one elimination on valid input; *kind* (h,) uint8: 1 free, 2 fixed, 0 gone."""
     n = len(pts)
     if count == n or count == 0:
         return np.full(n, count == n)
@@ -234,9 +192,7 @@ def _one_thread(fn, *args):
 
 
 def _grid_state(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
-    """The grid of [own, halo] (cells of 2 r_max) and the state its lists are built on: every point alive
-    but exact copies and the halo points ``absent`` (the ones a lower colour removed, when known: an absent
-    point's terms would only make the elimination's first bounds larger)."""
+    """The grid of [own, halo] (cells of 2 r_max) and its state: all alive but copies and halo points ``absent``."""
     grid = CellGrid(np.concatenate([own, halo]), 2.0 * r_max)
     state = np.ones(len(grid.order), dtype=np.uint8)
     if absent is not None:
@@ -252,17 +208,15 @@ def _lists(grid, state: np.ndarray, r_max: float) -> tuple:
 
 
 def _grid_lists(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None) -> tuple:
-    """The grid of [own, halo] and its neighbour lists within 2 r_max, without the halo points ``absent``
-    (:func:`_grid_state`)."""
+    """The grid of [own, halo] and its neighbour lists within 2 r_max, without the halo points ``absent``."""
     grid, state = _grid_state(own, halo, r_max, absent)
     return grid, _lists(grid, state, r_max)
 
 
 def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None, ahead: bool = True) -> tuple:
-    """What the elimination of a cell needs before its halo's decisions are known: the grid of [own, halo]
-    and its lists' state (:func:`_grid_state`), the neighbour lists when ``ahead`` (else None: built when
-    the cell runs), the cell's packing sizes along ``LADDER`` (module .packing; over the lists when built,
-    else over the grid: the same sizes) and its distinct points."""
+    """A cell's preparation before its halo is decided: grid and state (:func:`_grid_state`),
+    lists when ``ahead`` (else None), packing sizes along ``LADDER`` (:mod:`.packing`), distinct points.
+    """
     grid, state = _grid_state(own, halo, r_max, absent)
     join = ((grid.order < len(own)) & ~grid.copy).astype(np.uint8)
     rad = np.array(LADDER) * r_max
@@ -277,10 +231,11 @@ def _prepare(own: np.ndarray, halo: np.ndarray, r_max: float, absent=None, ahead
 
 
 def _finish(n: int, grid, lists, kind: np.ndarray, r_max: float, count: int, steps: int) -> np.ndarray:
-    """Keep mask of a cell of *n* points on its grid and lists (:func:`_grid_lists`; the grid holds the points):
-    the elimination to *count* of its points with its halo points free (``kind`` (h,) 1: eliminated along),
-    fixed (2: kept by a lower colour) or gone (0: removed by one), then *steps* relocation steps on the same
-    grid."""
+    """Keep mask of a cell of *n* points on its grid and lists (:func:`_grid_lists`).
+
+    Eliminates to *count* with halo points free (``kind`` 1), fixed (2) or gone (0),
+    then *steps* relocation steps.
+    """
     if count == n or count == 0:
         return np.full(n, count == n)
     src = grid.order
@@ -309,14 +264,14 @@ def cell_cap(n: int, target: int, cell_points: int) -> int:
 
 def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, steps: int,
                     threads: int, outer: tuple | None = None) -> np.ndarray:
-    """Keep mask (n,) of exactly *target* points of *pts* (valid; r_max finite, 0 < target < n) split into
-    *cells* (:func:`split_cells` of :func:`cell_cap` points), with *steps* relocation steps per cell,
-    *threads* cells at once. *outer*: points (h, 3) around *pts* and their kinds (h,) uint8 (1 eliminated
-    along, 2 fixed, 0 gone: :func:`eliminate_cell`), in the halo of every cell they come near."""
+    """Keep mask (n,) of exactly *target* points of valid *pts* (0 < target < n), over *cells* (:func:`split_cells`).
+
+    *steps* relocation steps per cell, *threads* cells at once; *outer*: points (h, 3)
+    around *pts* and their kinds (h,) uint8, in the halo of the cells they come near.
+    """
     n = len(pts)
     opts, okind = (np.zeros((0, 3)), np.zeros(0, dtype=np.uint8)) if outer is None else outer
-    # the work runs on the points in cell order (Q: each cell's a block, positions instead of rows): read through
-    # the rows, in the input's order (random for a large cloud), every read of the bands would miss the caches
+    # work on positions in cell order (Q): rows in input order would miss the caches
     idx, starts, boxes, Q = cells
     ncell = len(starts) - 1
     size = np.diff(starts)
@@ -329,8 +284,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
     halos = [(np.zeros(0, dtype=np.int64),) * 2] * ncell
 
     def halo(j: int) -> tuple[np.ndarray, np.ndarray]:
-        """The cell's halo: positions in the other cells' bands (set below, before any prepare), and rows of
-        *outer*, within the margin."""
+        """The cell's halo: positions in other cells' bands, and rows of *outer*, within the margin."""
         lo, hi = boxes[j, 0] - margin, boxes[j, 1] + margin
         inner = _kk.halo_rows(Q, *bands, near[j], lo, hi)
         return inner, np.flatnonzero(np.all((opts >= lo) & (opts <= hi), axis=1))
@@ -366,9 +320,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             keep[own[j]] = _one_thread(_finish, int(size[j]), grid, lists, kind, r_max, int(q[j]), steps)
             prepared[j] = None  # its grid and lists: no longer needed
 
-        # colour by colour, largest first; a cell starts once the lower-colour cells of its halo are done (not
-        # the whole lower colours). The pool takes the cells in this order, so a cell waits only for cells
-        # started before it
+        # colour by colour, largest first; a cell waits only for the lower-colour cells of its halo
         for j in apply_order(colour, size, range(ncell)):
             done[j] = pool.submit(one, j)
         for f in done.values():

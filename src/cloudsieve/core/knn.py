@@ -1,20 +1,9 @@
-"""Point orders and the k nearest neighbours inside clusters (DESIGN.md stage 4's k-NN).
+"""Point orders and the k nearest neighbours inside clusters (DESIGN.md stage 4).
 
-- :func:`canonical_order`: the lexicographic order of the points, so that no
-  result depends on the input order;
-- :func:`group`: the points grouped by cluster, each cluster in Z-order
-  (Morton codes), for memory locality of the queries;
-- :func:`mark_duplicates`: exact copies inside a cluster (only the first is
-  scored);
-- :func:`knn_clusters` / :func:`knn_query`: the k nearest *other* points of
-  each point inside its own cluster, from the compiled kernel
-  :func:`.kernels.knn.knn_unchecked` (points of more than 3 coordinates: one
-  k-d tree over all the clusters, :func:`with_cluster_coordinate`);
-- :func:`knn_context`: the same among all the points and extra context
-  points (a cell's halo), from scipy's cKDTree (the neighbours are not
-  confined to a cluster, so the kernel does not apply).
-
-All functions here assume valid input (see :mod:`._validation`).
+:func:`canonical_order` (lexicographic), :func:`group` (by cluster, Z-order inside),
+:func:`mark_duplicates`, :func:`knn_clusters` / :func:`knn_query` (k nearest *other*
+points inside the own cluster, :mod:`.kernels.knn`), :func:`knn_context` (among all
+points and a context, scipy's cKDTree). Input is assumed valid (:mod:`._validation`).
 """
 
 from __future__ import annotations
@@ -38,20 +27,10 @@ __all__ = [
 
 
 def canonical_order(X: np.ndarray) -> np.ndarray:
-    """Lexicographic order of the rows (first column first): input order never matters.
+    """Lexicographic order of the rows of X (n, p), ties in input order; int64 (n,).
 
-    Same result as ``np.lexsort(X.T[::-1])`` (ties kept in input order), but a
-    stable sort on the first column (:func:`.kernels.order.stable_argsort`
-    for float64) and a lexsort of the rows tied there only (lexsort's three
-    passes over every row cost ~5x more on 1 M points).
-
-    Parameters
-    ----------
-    X : ndarray of shape (n, p)
-
-    Returns
-    -------
-    ndarray of shape (n,), int64
+    ``np.lexsort(X.T[::-1])``, computed as a stable sort on the first column
+    (:func:`.kernels.order.stable_argsort`) and a lexsort of its ties only.
     """
     X = np.asarray(X)
     if X.ndim != 2 or len(X) < 2 or X.shape[1] < 2:
@@ -87,11 +66,7 @@ def _unique_first(q: np.ndarray) -> np.ndarray:
 
 
 def _dense_labels(lab: np.ndarray):
-    """Cluster ids 0..c-1 in the order of the label values, and c.
-
-    Small non-negative labels (the usual case) are renumbered with a bincount
-    in O(n); others with np.unique (a sort).
-    """
+    """Cluster ids 0..c-1 in the order of the label values, and c (bincount when labels are small, else np.unique)."""
     n = len(lab)
     if n == 0:
         return lab.astype(np.int64), 0
@@ -105,27 +80,16 @@ def _dense_labels(lab: np.ndarray):
 def group(pts: np.ndarray, labels: np.ndarray):
     """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
 
-    Inside a cluster the rows follow a Z-order curve (exact copies keep their
-    input order), so that consecutive k-d tree queries touch the same memory:
-    the queries of 1 M points are ~1.5-2x faster than in input order. The
-    order is ``np.argsort(code | id << 3 * bits, kind="stable")``, code the
-    Morton code of the first three coordinates quantised to ``bits`` bits
-    each over the bounding box, computed by
-    :func:`.kernels.order.grouped_order` (a counting sort by cluster and
-    small sorts per cluster).
-
-    Parameters
-    ----------
-    pts : ndarray of shape (n, p), float64
-    labels : ndarray of shape (n,), int64
+    Inside a cluster rows follow a Z-order curve (copies in input order) for memory
+    locality of the queries (:func:`.kernels.order.grouped_order`).
 
     Returns
     -------
-    inv : ndarray of shape (n,), int64
+    inv : ndarray (n,), int64
         Cluster id of each point (input order).
-    order : ndarray of shape (n,), int64
+    order : ndarray (n,), int64
         Input indices in grouped order.
-    sizes : ndarray of shape (c,), int64
+    sizes : ndarray (c,), int64
     """
     inv, c = _dense_labels(labels)
     bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
@@ -134,19 +98,9 @@ def group(pts: np.ndarray, labels: np.ndarray):
 
 
 def mark_duplicates(g, ginv, rows, dup):
-    """Among g[rows] (grouped by cluster), mark in ``dup`` every exact copy of an
-    earlier row of the same cluster; return the other rows, ascending.
+    """Mark in ``dup`` (n,) every copy of an earlier row of the same cluster among g[rows]; return the other rows.
 
-    Parameters
-    ----------
-    g : ndarray of shape (n, p), float64
-        Points grouped by cluster.
-    ginv : ndarray of shape (n,), int64
-        Their cluster ids.
-    rows : ndarray of shape (r,), int64
-        Positions in g, ascending.
-    dup : ndarray of shape (n,), bool
-        Written in place at ``rows``.
+    ``g`` (n, p) grouped by cluster with ids ``ginv``; ``rows`` ascending positions in g.
     """
     first = _unique_first(np.column_stack([ginv[rows].astype(np.float64), g[rows]]))
     dup[rows] = True
@@ -156,8 +110,7 @@ def mark_duplicates(g, ginv, rows, dup):
 
 
 def with_cluster_coordinate(pts: np.ndarray, lab: np.ndarray) -> np.ndarray:
-    """(n, p + 1): the points and, as the last coordinate, their cluster id times a
-    gap larger than twice the bounding-box diagonal (see :func:`knn_query`)."""
+    """(n, p + 1): the points plus their cluster id times a gap > twice the bounding-box diagonal."""
     p = pts.shape[1]
     X = np.empty((len(pts), p + 1))
     X[:, :p] = pts
@@ -169,39 +122,32 @@ def with_cluster_coordinate(pts: np.ndarray, lab: np.ndarray) -> np.ndarray:
 
 
 def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
-    """k-NN (k = kc of the cluster) of the points g[rows] inside their own cluster
-    (among g[rows]); only of the points rows[query] when ``query`` (positions in rows,
-    ascending or not) is given. With ``extra`` > 0, up to ``extra`` more nearest are
-    returned (as many as the cluster has).
+    """k-NN (k = kc of the cluster) of g[rows] among g[rows] of their own cluster.
 
-    Points of up to 3 coordinates go to the compiled kernel
-    (:func:`.kernels.knn.knn_unchecked`: the distances of a k-d tree of the
-    cluster alone, bit for bit; among equal distances the lower row first);
-    more coordinates to one k-d tree over all the clusters
-    (:func:`_knn_query_tree`). The kernel runs on ``threads`` threads.
+    Only rows[query] when ``query`` is given; up to ``extra`` more nearest when the
+    cluster has them. Up to 3 coordinates: :func:`.kernels.knn.knn_unchecked` (a
+    k-d tree's distances, ties lower row first); more: :func:`_knn_query_tree`.
 
     Parameters
     ----------
-    g : ndarray of shape (n, p), float64
+    g : ndarray (n, p), float64
         Points grouped by cluster (ascending ids ``ginv``).
-    ginv : ndarray of shape (n,), int64
-    rows : ndarray of shape (r,), int64
+    ginv : ndarray (n,), int64
+    rows : ndarray (r,), int64
         Positions in g, ascending; each cluster among them has >= k + 2 points.
-    kc : ndarray of shape (c,), int64
+    kc : ndarray (c,), int64
         k of each cluster.
     threads : int
-    query : ndarray of shape (q,), int64, optional
-        Positions in rows of the points to answer (default: all).
+    query : ndarray (q,), int64, optional
+        Positions in rows to answer (default: all).
     extra : int
 
     Returns
     -------
     groups : list of (k, r (M,), r_k (M,), r_(k+1) (M,), nbx (M, k + 1 + e))
-        One per distinct (k, e), e <= ``extra``: the points rows[...] answered
-        (in the order of ``query``), their k-th and (k+1)-th nearest distances
-        and their k + 1 + e nearest as positions in g; only the clusters
-        without exact duplicates.
-    flagged : ndarray of shape (c,), bool
+        One per distinct (k, e): answered rows, their k-th and (k+1)-th distances,
+        their nearest as positions in g; clusters without exact duplicates only.
+    flagged : ndarray (c,), bool
         Clusters with exact duplicates among the answered points.
     """
     if g.shape[1] > 3:
@@ -238,19 +184,15 @@ def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
 
 
 def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
-    """:func:`knn_query` with one k-d tree over all the clusters, for points of any dimension.
+    """:func:`knn_query` with one k-d tree over all clusters (any dimension).
 
-    Each point gets its cluster id times a gap as an extra coordinate, the
-    gap larger than twice the bounding-box diagonal, so a point of another
-    cluster is always farther than every point of the own cluster (a cluster
-    here has >= k + 2 points), and inside a cluster the extra term is exactly
-    0.0: the distances are bit for bit those of a tree of the cluster alone.
-    One query per distinct k, on ``threads`` threads.
+    The cluster coordinate (:func:`with_cluster_coordinate`) puts other clusters
+    farther than any own point and adds exactly 0.0 inside one, so distances equal a
+    per-cluster tree's.
     """
     c = len(kc)
     lab = ginv[rows]
     X = with_cluster_coordinate(g[rows], lab)
-    # leaves of 32: ~8% faster queries than 16 (1 M points, k = 20)
     from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
 
     tree = cKDTree(X, leafsize=32, balanced_tree=False, compact_nodes=False)
@@ -267,8 +209,7 @@ def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
         sel = None if len(ks) == 1 else np.flatnonzero(kr == kv)
         if query is not None:
             sel = query if sel is None else query[sel]
-        # the 2nd to (k+e+2)-th nearest: the nearest is the point itself (the only one at distance 0
-        # without copies); k + e + 1 contiguous columns
+        # the 2nd to (k+e+2)-th nearest: the nearest is the point itself
         d, i = tree.query(X if sel is None else X[sel], k=list(range(2, k + e + 3)), workers=threads)
         r = rows if sel is None else rows[sel]
         z = d[:, 0] == 0
@@ -284,14 +225,9 @@ def _knn_query_tree(g, ginv, rows, kc, threads, query=None, extra=0):
 
 
 def scorable_rows(g, ginv, sizes, k0, k_min, dup):
-    """k per cluster and the rows that get scores: those of clusters of at least k + 2 points.
+    """k per cluster and the rows that get scores (clusters of >= k + 2 points); copies in smaller ones marked in *dup*.
 
-    The copies in the smaller clusters (never scored, but their copies still
-    score 0) are marked in *dup* (n,) bool, in place.
-
-    Returns
-    -------
-    kc (c,), ok (c,) bool, okr (n,) bool, rows (M,) int
+    Returns kc (c,), ok (c,) bool, okr (n,) bool, rows (M,) int.
     """
     kc = neighbour_count(sizes, k0, k_min)
     ok = sizes >= kc + 2
@@ -305,10 +241,7 @@ def scorable_rows(g, ginv, sizes, k0, k_min, dup):
 def knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=0):
     """k-NN of every point inside its own cluster (points g grouped by cluster, ids ginv).
 
-    Returns (groups, dup): groups is a list of (k, scored positions in g (M,),
-    r_k (M,), r_(k+1) (M,), the k + 1 nearest (M, k + 1 + e) as positions in
-    g, e <= ``extra`` more nearest when the cluster has them); dup (n,) bool
-    marks the exact copies (only the first of each is scored).
+    Returns (groups, dup): groups as :func:`knn_query`; dup (n,) bool marks exact copies.
     """
     n = len(g)
     dup = np.zeros(n, dtype=bool)
@@ -327,11 +260,7 @@ def knn_clusters(g, ginv, sizes, k0, k_min, threads, extra=0):
 
 
 def knn_context(g, ginv, c, ctx, k0, k_min, threads):
-    """k-NN of every point among all the points and the context, grouped by k.
-
-    Returns (groups, dup) as :func:`knn_clusters`; a neighbour that is a
-    context point is given as position n (one past the points).
-    """
+    """k-NN of every point among all points and the context, as :func:`knn_clusters`; a context neighbour is position n."""
     n = len(g)
     pool = np.concatenate([g, ctx]) if len(ctx) else g
     first = _unique_first(pool)  # points come first, so a point wins over a context copy
