@@ -1,9 +1,4 @@
-"""K-means into many small clusters: Lloyd's iterations with grid assignment and Hamerly's bounds.
-
-See :mod:`.cluster` for the conventions shared with fuzzy C-means (seeding,
-canonical order, the convergence warning); :func:`lloyd` is also FCM's warm
-start.
-"""
+"""K-means into many small clusters: Lloyd's iterations with grid assignment and Hamerly's bounds (conventions: :mod:`.cluster`)."""
 
 from __future__ import annotations
 
@@ -21,22 +16,18 @@ __all__ = ["KMeans", "lloyd"]
 class KMeans(CentroidClustering):
     """Lloyd's K-means with grid assignment and Hamerly's bounds.
 
-    Stops when no point changes cluster (the paper) or after ``max_iter``
-    iterations (then a :class:`~cloudsieve.errors.ConvergenceWarning`). An
-    empty cluster keeps its previous centre.
+    Stops when no point changes cluster (the paper) or after ``max_iter`` iterations
+    (then a :class:`~cloudsieve.errors.ConvergenceWarning`). An empty cluster keeps its centre.
 
     Parameters
     ----------
     n_clusters : int
     init : {"k-means++", "random", "kd-split"} or ndarray of shape (n_clusters, p)
-        "kd-split": means of a balanced k-d split of a subsample (see
-        :mod:`.cluster`); fewer iterations than k-means++ on surfaces.
+        See :mod:`.cluster`; "kd-split" needs fewer iterations on surfaces.
     max_iter : int
     seed : int
     tol : float, default 0.0
-        Stop when at most ``tol * n`` points changed cluster in the last
-        iteration; 0 is the paper's test (no point changed). With tol > 0 the
-        labels are the last assignment and the centres their means.
+        Stop when at most ``tol * n`` points changed cluster; 0 is the paper's test.
 
     Attributes
     ----------
@@ -78,9 +69,7 @@ _NEIGH = 8  # other centres each centre keeps as neighbours (bounds and cheap re
 
 
 def _neighbour_lists(C, K):
-    """The K nearest other centres of each centre ((c, K) indices, self
-    excluded) and the distance T (c,) such that every other centre is at
-    distance >= T (the farthest of the K + 1 returned by the tree)."""
+    """The K nearest other centres of each centre ((c, K), self excluded) and T (c,): every other centre is >= T away."""
     cd, ci = centre_tree(C).query(C, k=K + 1)
     own = np.arange(len(C))[:, None]
     self_at = ci == own
@@ -94,13 +83,10 @@ def _neighbour_lists(C, K):
 
 
 class _Neighbours:
-    """Neighbour lists of the centres, re-queried only when the centres moved
-    enough since the last query to weaken T much.
+    """Neighbour lists of the centres, re-queried only when the centres moved enough to weaken T much.
 
-    Between queries a list stays valid with T_a lowered by the move of a plus
-    the largest move of any centre since the query (every non-listed centre j
-    had |c_a - c_j| >= T_a then). Distances to the listed neighbours are
-    computed exactly every iteration (c K of them)."""
+    Between queries T_a is lowered by a's move plus the largest move of any centre.
+    """
 
     def __init__(self, C, K):
         self.K = K
@@ -126,52 +112,31 @@ class _Neighbours:
 def lloyd(Xs, C, max_iter, threads, tol=0.0):
     """Lloyd's iterations from centres C; exactly the plain algorithm's labels.
 
-    Work per iteration is O(c K) for the centres, O(n) for one gather and
-    compare, and O(active) for the points whose nearest centre may have
-    changed. Per point x (label a) we keep an upper bound u(x) on the distance
-    to its centre and a lower bound l(x) on the distance to every other
-    centre (Hamerly); x keeps its label while u < l. Each centre keeps a list
-    of its K nearest other centres; every centre j outside the list is at
-    distance >= T_a from centre a, so >= T_a - u(x) from x. Hence, as long
-    as 2 u(x) <= T_a, only listed centres can come closer than u(x), and l may
-    decay by the largest move M_a over the list instead of over all centres
-    (Hamerly's choice, far looser for many small clusters). Bounds are kept
-    lazily: with D_a, M_a cumulated since the list was made,
-    u(x) = U(x) + D_a and l(x) = L(x) - M_a, so the test is
-    R(x) = L(x) - U(x) > D_a + M_a: one gather of a per-centre array, which
-    is made +inf for the centres where 2 (max U + D_a) > T_a (then all their
-    points are checked). When the lists are re-made, l is first brought to a
-    bound over all centres: min(l - M_a, T_a - u). Points failing the test
-    get their exact u and l = max(min(L - M_a, T_a - u), h_a - u) (h_a the
-    distance from a to its nearest other centre); those still failing are
-    reassigned among their centre's list (exact when the best found is closer
-    than T_a - u) or, failing that, by a query over all centres
-    (:func:`.centres.nearest_centres`).
+    Hamerly's bounds per point x of label a: upper u(x) to its centre, lower l(x) to
+    every other; x keeps its label while u < l. Each centre lists its K nearest
+    other centres, all others at >= T_a; while 2 u(x) <= T_a only listed centres can
+    come closer, so l decays by the largest move over the list, not over all
+    centres. Bounds are kept lazily (u = U + D_a, l = L - M_a, test
+    L - U > D_a + M_a). Failing points are reassigned among the list, else by
+    :func:`.centres.nearest_centres`. Passes are compiled (:mod:`.kernels.kmeans`),
+    in a fixed floating-point order: results do not depend on ``threads``.
 
-    The passes over the points are compiled (:mod:`.kernels.kmeans`) and run
-    in chunks of points on ``threads`` threads; every floating-point operation
-    is the one of the numpy code they replaced, in the same order, so labels,
-    centres and iteration counts do not depend on the thread count.
-
-    Stops when at most tol * n points changed cluster (tol = 0: none, the
-    paper's test) or at max_iter.
+    Stops when at most tol * n points changed cluster, or at max_iter.
 
     Parameters
     ----------
-    Xs : ndarray of shape (n, p), float64
-        Valid points (canonically ordered by the estimators).
-    C : ndarray of shape (c, p), float64
+    Xs : ndarray (n, p), float64
+        Valid points (canonically ordered).
+    C : ndarray (c, p), float64
         Initial centres.
-    max_iter : int
-    threads : int
-        Threads of the passes over the points.
+    max_iter, threads : int
     tol : float
 
     Returns
     -------
-    labels : ndarray of shape (n,), int64
-    centres : ndarray of shape (c, p), float64
-        The means of the final clusters (an empty cluster keeps its centre).
+    labels : ndarray (n,), int64
+    centres : ndarray (c, p), float64
+        Means of the final clusters (an empty cluster keeps its centre).
     n_iter : int
     converged : bool
     """

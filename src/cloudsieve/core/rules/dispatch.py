@@ -1,39 +1,15 @@
-"""The rules' entry points on numpy arrays: :func:`prune` and the scores it ranks (DESIGN.md stage 5).
+"""The rules' entry points on numpy arrays: :func:`prune` and its scores (DESIGN.md stage 5).
 
-Public functions
-----------------
-prune(points, labels, *, rule, threshold, ratio, count, score, ...)
-    Stages 4-5 for given labels: a keep mask (n,) bool; the rule comes from
-    the registry (:func:`cloudsieve.core.rules.get`), its selection from its
-    module.
-unit_free_scores(points, labels, ...)
-    The unit-free score m*dH of every point (m its cluster's size). dH of a
-    cluster of m points scales as 1/m, so m*dH is comparable across clusters
-    and cells: the engine computes it per cell, picks one global threshold t
-    (a quantile of all the scores for --ratio/--count), then keeps the points
-    above t in each cell.
-threshold_for_count(scores, n_drop)
-    The threshold t on given scores such that dropping scores <= t removes
-    n_drop points (ties counted), for one cell or a merged sample.
-check_rule_args, prune_unchecked
-    The kept count a ratio/count asks for, and :func:`prune` on validated
-    input (for :func:`~cloudsieve.core.simplify.simplify_points`).
+- :func:`prune`: stages 4-5 for given labels, a keep mask; the rule comes from
+  :func:`cloudsieve.core.rules.get`.
+- :func:`unit_free_scores`: m*dH per point, comparable across clusters and cells
+  (dH scales as 1/m), so the engine picks one global threshold.
+- :func:`threshold_for_count`: the threshold that drops n_drop points.
+- :func:`check_rule_args`, :func:`prune_unchecked`: for :func:`~cloudsieve.core.simplify.simplify_points`.
 
-What every entropy rule shares (canonical order, exact duplicates, labels
-0..c-1) is :func:`.distinct.on_distinct`.
-
-The rules themselves (one module each) are described in :mod:`cloudsieve.core.rules`
-and in their modules; the rounds of the rules that take them are in :mod:`..rounds`.
-
-Scores: ``score="delta_h"`` (dH, the paper's S = 0.001) or ``"unit_free"``
-(m*dH). Exact duplicates (:mod:`..duplicates`): every rule runs on the
-distinct points (the first copy of each, scored once); the other copies go,
-or, with ``keep_duplicates``, stay exactly when their first copy stays.
-Clusters smaller than k + 2 points score +inf (always kept).
-
-Determinism: inputs are put in a canonical order (lexicographic by
-coordinates) first, so the kept set does not depend on input order; it does
-not depend on units either (all scores are unit-free).
+Shared by every entropy rule (canonical order, duplicates, labels 0..c-1):
+:func:`.distinct.on_distinct`; rounds: :mod:`..rounds`. The kept set depends on
+neither input order nor units.
 """
 
 from __future__ import annotations
@@ -54,10 +30,7 @@ __all__ = ["prune", "unit_free_scores", "threshold_for_count", "check_rule_args"
 
 def unit_free_scores(points, labels=None, *, k0: float = 1.0, k_min: int = 4, dim: float = 3,
                      context=None, threads: int | None = None) -> np.ndarray:
-    """m * dH per point (ndarray (n,), float64); +inf in small clusters, 0 for duplicates.
-
-    ``threads``: threads for the k-d tree queries (None: all cores); the scores do not depend on it.
-    """
+    """m * dH per point (ndarray (n,), float64); +inf in small clusters, 0 for duplicates. ``threads`` None: all cores."""
     return score_points(points, labels, k0=k0, k_min=k_min, dim=dim, context=context, threads=threads).unit_free
 
 
@@ -77,7 +50,7 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
           threads: int | None = None, keep_duplicates: bool = False) -> np.ndarray:
     """Apply a pruning rule to clustered points: the keep mask.
 
-    The options are validated once (:func:`cloudsieve.params.validate`, command ``prune``).
+    Options are validated once (:func:`cloudsieve.params.validate`, command ``prune``).
 
     Parameters
     ----------
@@ -85,39 +58,29 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
     labels : array_like of shape (n,), int, optional
         Clusters (None: one cluster).
     rule : str
-        A rule of the registry (:data:`cloudsieve.core.rules.RULES`).
+        A rule of :data:`cloudsieve.core.rules.RULES`.
     threshold : float
-        S, compared with ``score`` (the rules that take a threshold, without a target).
+        S, compared with ``score`` (rules that take a threshold, without a target).
     ratio, count : float, int, optional
-        Kept fraction or kept count (the rules that need or take a target); a
-        count above the points keeps them all. The coverage rule may stop short
-        of a target when no remaining candidate passes its test (logged).
+        Kept fraction or count; a count above n keeps all. The coverage rule may stop
+        short of a target when no candidate passes its test (logged).
     score : {"delta_h", "unit_free"}
-        Which score S is compared with: dH (the paper) or m*dH.
+        dH (the paper) or m*dH.
     coverage : float
-        Rule coverage: y may go only if its nearest remaining point is within
-        ``coverage`` x (the largest nearest-neighbour spacing among y's k
-        nearest), i.e. no gap wider than the local spacing opens.
+        y may go only if its nearest remaining point is within ``coverage`` x the
+        largest nearest-neighbour spacing among y's k nearest.
     progress : callable, optional
-        Called with the number of points dropped in each round.
+        Called with the points dropped in each round.
     threads : int, optional
-        Threads for the k-d tree queries and the kernels of the rounds (None: all
-        cores); the mask does not depend on it.
+        None: all cores; the mask does not depend on it.
     keep_duplicates : bool
-        False (default): an exact copy of an earlier point (same coordinates,
-        lower index) is never kept; a target then counts distinct points and
-        may not be met when it exceeds them. True: every copy of a kept point
-        is kept too (the rule still sees each point once).
+        False: exact copies of an earlier point are never kept (a target counts
+        distinct points). True: every copy of a kept point is kept.
 
     Returns
     -------
     ndarray of shape (n,), bool
-        True for the points kept, in the order of ``points``.
-
-    Notes
-    -----
-    The points are canonically ordered (lexicographic by coordinates) inside,
-    so the mask is the same for any input order.
+        True for the points kept, in the order of ``points``; independent of input order.
     """
     pts = check_points(points)
     lab = check_labels(labels, len(pts))
@@ -130,11 +93,7 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
 
 
 def check_rule_args(n: int, ratio, count) -> int | None:
-    """The kept count of validated *ratio* / *count* for n points (None: no target).
-
-    A ratio keeps :func:`~.._validation.ratio_count` points; a count above n
-    keeps the n points (the run reports the count it kept).
-    """
+    """The kept count of validated *ratio* / *count* for n points (None: no target; ratio via :func:`~.._validation.ratio_count`)."""
     if ratio is not None:
         return ratio_count(ratio, n)
     if count is not None:
@@ -143,13 +102,11 @@ def check_rule_args(n: int, ratio, count) -> int | None:
 
 
 def prune_unchecked(pts, lab, options, *, target, ctx=None, progress=None) -> np.ndarray:
-    """:func:`prune` on validated input: the keep mask (n,) bool.
+    """:func:`prune` on validated input (no checks, no copy): the keep mask (n,) bool.
 
-    ``pts`` (n, p) float64 and ``lab`` (n,) int64 as from
-    :func:`.._validation.check_points` / ``check_labels``, ``options`` the
-    frozen options of ``prune`` (:data:`cloudsieve.params_spec.OPTION_CLASSES`;
-    its ratio and count unread), ``target`` from :func:`check_rule_args`,
-    ``ctx`` from ``check_context``; no checks, no copy of the input. The rule's module (:attr:`cloudsieve.rule_table.Rule.module`, loaded by name) selects.
+    ``options``: frozen options of ``prune`` (:data:`cloudsieve.params_spec.OPTION_CLASSES`),
+    ``target`` from :func:`check_rule_args`; the rule's module
+    (:attr:`cloudsieve.rule_table.Rule.module`) selects.
     """
     if len(pts) == 0:
         return np.ones(0, dtype=bool)
