@@ -1,53 +1,29 @@
 """The ``eliminate`` rule: weighted sample elimination, coverage first, information second.
 
-Yuksel 2015 ("Sample Elimination for Generating Poisson Disk Sample Sets";
-CGAL's ``poisson_eliminate``): every point gets a crowding weight from its
-neighbours closer than 2 r_max, the heaviest point goes, its neighbours get
-lighter, until the count is reached. Here the key of a point x is::
+Yuksel 2015 (CGAL's ``poisson_eliminate``): the heaviest point goes, its
+neighbours get lighter, until the count is reached. The key of x::
 
     key(x) = w(x) * f(x)
     w(x)   = sum over remaining y with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
     f(x)   = g(e(x)) / (1 + lam * c(x) / r_max^2)
 
-- w is Yuksel's crowding weight, with alpha = 1 (``ALPHA``; Yuksel and CGAL
-  use 8; on the shared scans alpha = 1 gave lower point RMS and max errors at
-  every ratio, e.g. bun_zipper at 20%: RMS 0.975x / max 1.04x the best
-  baseline against 0.999x / 1.13x with alpha = 8);
-- f is the coverage term: x represents itself and every removed point whose
-  nearest remaining point it is; e(x) is the largest distance one of them
-  would have to its nearest remaining point if x went, c(x) the sum of the
-  squared distances they would gain; g(e) = 1 up to r_cov = 0.8 r_max, then
-  (r_cov / e)^8; lam = 10. Plain WSE leaves holes (point max 1.35-1.86x the
-  best of voxel/Poisson/farthest point on the shared scans); with f, 1.02-1.16x.
+- w: Yuksel's crowding weight with alpha = 1 (``ALPHA``; lower errors than 8 on the shared scans);
+- f: coverage: e(x) is the largest distance a point x represents would have to
+  its nearest remaining point if x went, c(x) the sum of squared distances they
+  would gain; g(e) = 1 up to r_cov = 0.8 r_max, then (r_cov / e)^8; lam = 10.
+  Without f, WSE leaves holes.
 
-No information term (an entropy rank or a geometric importance multiplying
-the key): neither lowers the errors at equal count (docs/architecture.md,
-"Design reasons"); the compiled loop takes their per-point factors, all 1.
+No information term (docs/architecture.md, "Design reasons"). r_max: :mod:`.radius`;
+the loop, constants and :func:`keep_lowest`: :mod:`.elimination`.
 
-r_max: :mod:`.radius` (from the area of the sampled surface and the count). The elimination loop
-on a grid, its constants and :func:`keep_lowest` are in :mod:`.elimination` (shared with
-:mod:`.eliminate_cells`).
+Keys only decrease and the largest goes next, so the removal order is "priority
+descending, ties lower index first": keeping the N lowest priorities is the
+elimination stopped at N (reference: tests/eliminate_oracle.py). Then
+:func:`.relocate.relocate` moves each kept point toward its Voronoi region's centroid;
+:func:`.eliminate_cells.eliminate_cell` does both per cell, :func:`eliminate` on a whole cloud.
 
-Priorities: each point gets its key when it was removed. Keys only decrease
-as points go and the largest is always next, so priorities are
-non-increasing along the removals, and the removal order is exactly
-"priority descending, ties lower index first": keeping the N points of
-lowest priority (:func:`keep_lowest`) is the elimination stopped at N.
-The full order, with the kernels' other options (a halo, fixed and gone
-points, a floor, any alpha, no coverage term), is the tests' reference
-(tests/eliminate_oracle.py), which checks this elimination and the cells'.
-
-After the count is reached, :func:`.relocate.relocate` moves each kept
-point to the point of its Voronoi region nearest the region's centroid (one
-restricted Lloyd step; lower squared error, coverage kept):
-:func:`.eliminate_cells.eliminate_cell` does both for one cell of a cloud
-with its halo (over k-d cells on threads above ``cell_points`` points), and
-:func:`eliminate` is that function on a whole cloud without a halo.
-
-Exact duplicates (every copy of a lower-index point) get priority +inf: they
-go first and never weigh on the others. The result does not depend on the
-input order (sums run in the canonical order of :class:`.cellgrid.CellGrid`;
-only exact copies are told apart, by index) nor on the thread count.
+Exact duplicates get priority +inf (go first). The result depends on neither
+input order (:class:`.cellgrid.CellGrid`) nor thread count.
 """
 
 from __future__ import annotations
@@ -65,12 +41,9 @@ from .relocate import RELOCATE_STEPS, check_r_max, relocate
 
 __all__ = ["CELL_POINTS", "MIN_CELL_POINTS", "eliminate", "keep_lowest", "relocate"]
 
-#: eliminate() runs over cells of at most this many points above it (module .eliminate_cells): a third of the
-#: time of one elimination at 1 M points. Smaller cells fit the caches better, but the halos and calls grow;
-#: larger ones leave the caches
+#: eliminate() runs over cells of at most this many points above it (module .eliminate_cells)
 CELL_POINTS = 16_384
-#: the smallest cell_points accepted (the option's, :mod:`cloudsieve.params_spec`): below it the halos outweigh the
-#: cells
+#: the smallest cell_points accepted (:mod:`cloudsieve.params_spec`): below it halos outweigh cells
 MIN_CELL_POINTS = int(COMMANDS["eliminate"]["cell_points"].low)
 
 
@@ -79,27 +52,15 @@ def eliminate(points, count=None, *, ratio=None, r_max=None, relocate_steps: int
               threads: int | None = None, cell_points: int | None = CELL_POINTS) -> np.ndarray:
     """Sorted int64 indices of exactly ``count`` (or round(ratio * n), at least 1) points of a whole cloud.
 
-    The options are validated once (:func:`cloudsieve.params.validate`, command ``eliminate``): one of
-    ``ratio`` in (0, 1] and ``count`` >= 1 (a count above the points keeps them all), ``relocate_steps`` >= 0,
-    ``threads`` >= 1, ``cell_points`` None or >= ``MIN_CELL_POINTS``; ``r_max`` (a radius: inf keeps all) is
-    checked here. ``eliminate.unchecked`` takes validated options and also a count of 0 (nothing kept).
+    Options are validated once (:func:`cloudsieve.params.validate`, command ``eliminate``);
+    ``r_max`` (inf keeps all) is checked here. ``eliminate.unchecked`` takes validated
+    options and also a count of 0.
 
-    The elimination (module docstring, alpha = 1 with the coverage term)
-    stops at the count, then ``relocate_steps`` restricted Lloyd steps
-    (:func:`relocate`) lower the squared error.
-
-    Above ``cell_points`` points (None: never), the cloud is split into
-    cells of at most that many points, eliminated colour by colour on
-    ``threads`` threads with their halos, as each cell of the out-of-core
-    run is (:func:`.eliminate_cells.eliminate_cell`, which this function
-    runs on the whole cloud); the kept set then differs from one
-    elimination's, by as little as the engine's does. Below 1 in
-    :data:`.staged.STAGED_BELOW` of the distinct points kept, the
-    elimination runs in stages of about half (:mod:`.staged`), each over
-    cells as above. The result does not
-    depend on ``threads``, nor on the input order up to
-    ``.radius.AREA_SAMPLE`` points (above, r_max is solved on a seeded sample
-    of rows).
+    The elimination stops at the count, then ``relocate_steps`` steps of
+    :func:`relocate`. Above ``cell_points`` points (None: never) it runs over cells
+    as :func:`.eliminate_cells.eliminate_cell`; below 1 in :data:`.staged.STAGED_BELOW`
+    of the distinct points kept, in stages (:mod:`.staged`). Independent of
+    ``threads``, and of input order up to ``.radius.AREA_SAMPLE`` points.
 
     Examples
     --------

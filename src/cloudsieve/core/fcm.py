@@ -1,8 +1,4 @@
-"""Fuzzy C-means into many small clusters, with memberships over the nearest centres only.
-
-See :mod:`.cluster` for the conventions shared with K-means (seeding,
-canonical order, the convergence warning).
-"""
+"""Fuzzy C-means into many small clusters, memberships over the nearest centres only (conventions: :mod:`.cluster`)."""
 
 from __future__ import annotations
 
@@ -21,14 +17,12 @@ __all__ = ["FuzzyCMeans"]
 class FuzzyCMeans(CentroidClustering):
     """Fuzzy C-means with memberships over the ``n_nearest`` nearest centres.
 
-    u_ij = 1 / sum_l (d_ij / d_il)^(2/(m-1)) over the point's L = min(n_nearest,
-    n_clusters) nearest centres (0 for the others), centres the u^m-weighted
-    means; stops when the largest change of a membership between two
-    iterations is below ``tol`` (compared as full n x c matrices), when
-    ``label_tol`` is given and at most ``label_tol * n`` hard labels changed
-    since the previous update, or after ``max_iter`` membership updates (then
-    a :class:`~cloudsieve.errors.ConvergenceWarning`).
-    Hard label: the centre of largest membership (the nearest for a tie).
+    u_ij = 1 / sum_l (d_ij / d_il)^(2/(m-1)) over the L = min(n_nearest, n_clusters)
+    nearest centres (0 for the others); centres are the u^m-weighted means. Stops
+    when the largest membership change is below ``tol``, when at most
+    ``label_tol * n`` hard labels changed, or after ``max_iter`` updates (then a
+    :class:`~cloudsieve.errors.ConvergenceWarning`). Hard label: largest membership
+    (nearest on a tie).
 
     Parameters
     ----------
@@ -38,14 +32,11 @@ class FuzzyCMeans(CentroidClustering):
     tol : float
     n_nearest : int
     init : {"k-means++", "random", "kd-split"} or ndarray of shape (n_clusters, p)
-        "k-means++": k-means++ seeding then 5 Lloyd iterations (fewer FCM
-        iterations to ``tol``); "random": the paper's random memberships.
+        "k-means++" adds 5 Lloyd iterations; "random": the paper's random memberships.
     max_iter : int
     seed : int
     label_tol : float, optional
-        Also stop when at most ``label_tol * n`` points changed hard label in
-        the last update (the test :class:`~.kmeans.KMeans` applies with its ``tol``).
-        None (the default) keeps the paper's membership test alone.
+        None (default): the paper's membership test alone.
 
     Attributes
     ----------
@@ -55,11 +46,10 @@ class FuzzyCMeans(CentroidClustering):
     memberships_ : ndarray of shape (n, L), float64
         Memberships to the L nearest centres, nearest first.
     membership_indices_ : ndarray of shape (n, L), int64
-        The centres those memberships refer to.
     n_iter_ : int
         Membership updates done.
     converged_ : bool
-        True when ``tol`` or ``label_tol`` stopped it (not ``max_iter``).
+        True when ``tol`` or ``label_tol`` stopped it.
     """
 
     def __init__(self, n_clusters: int, *, m: float = 2.0, tol: float = 1e-5, n_nearest: int = 8,
@@ -85,8 +75,7 @@ class FuzzyCMeans(CentroidClustering):
     def _start(self, Xs, c, rng, threads):
         C = super()._start(Xs, c, rng, threads)
         if isinstance(self.init, str) and self.init == "k-means++" and c > 1:
-            # a few Lloyd iterations first: FCM's slow start (centres far from
-            # a balanced partition) is cheaper to cover with K-means
+            # a few Lloyd iterations first: cheaper than FCM's slow start
             C = lloyd(Xs, C, _FCM_KM_ITERS, threads)[1]
         return C
 
@@ -120,11 +109,7 @@ def _random_membership_centres(Xs, c, m, rng, block=None):
 
 
 def _max_change(idx0, U0, idx1, U1, c=None):
-    """max |U1 - U0| over the full n x c matrices, from their kept entries.
-
-    Rows hold the memberships to centres idx (n, L), in any order; an entry
-    absent from one side is 0 there.
-    """
+    """max |U1 - U0| over the full n x c matrices, from their kept entries (rows in any order, absent entries 0)."""
     if len(idx0) == 0:
         return 0.0
     return float(kf.max_change(np.ascontiguousarray(idx0, dtype=np.int64), np.ascontiguousarray(U0, dtype=np.float64),
@@ -137,31 +122,15 @@ _FCM_RING = 8  # centres beyond the L nearest whose distances FCM keeps exact (s
 
 
 def _fcm(Xs, C, L, m, tol, max_iter, threads, label_tol=None):
-    """FCM iterations (memory O(n (L + E)) for the memberships and the rings).
-    Stops when the membership change is below ``tol`` or, with ``label_tol``,
-    when at most ``label_tol * n`` hard labels changed (the hard label in a
-    row sorted by index: the first largest membership, which is the nearest
-    centre, lowest index on a tie, as in :meth:`FuzzyCMeans.fit`).
+    """FCM iterations (memory O(n (L + E))); stops on ``tol`` or ``label_tol`` as :class:`FuzzyCMeans`.
 
-    A query of a point returns its L nearest centres (the set S) and the E =
-    min(_FCM_RING, c - L) next ones (the ring Q), whose exact distances are
-    computed again at every update (cheaper than a query): a ring centre
-    that came closer than a member of S swaps in, so S stays the L nearest
-    of S and Q. With R the (L+E+1)-th nearest distance at the last query and
-    D the sum, over the updates since, of the largest move of any centre,
-    every centre outside S and Q is still >= R - D away; the point is
-    queried again only when its L-th nearest distance reaches R - D (with
-    the ring, R is far beyond the L-th nearest, so this is rare; without it,
-    R was the (L+1)-th and 43% of the points were queried again at every
-    update, measured at 1 M points into 2,500 clusters). Each row of S is
-    kept sorted by index, so an unchanged set is an equal row and the
-    membership change is a plain difference.
-
-    The per-point work is compiled (:mod:`.kernels.fcm`; queries on the grid
-    of :mod:`.centres`) and runs in chunks of points on
-    ``threads`` threads; the centre sums are made per block of ``_BLOCK``
-    points (each block's sums from zero, in index order, blocks added in
-    order), so nothing depends on the thread count.
+    A query returns a point's L nearest centres S and the E = min(_FCM_RING, c - L)
+    next (the ring Q), whose distances are recomputed every update so ring centres
+    can swap in. With R the (L+E+1)-th distance at the last query and D the summed
+    largest centre moves since, all other centres are >= R - D away; the point is
+    queried again only when its L-th distance reaches R - D. Rows of S stay sorted by
+    index. Compiled in :mod:`.kernels.fcm`; centre sums per block of ``_BLOCK``
+    points in fixed order, so nothing depends on ``threads``.
     """
     with Chunks(threads) as chunks:
         return _fcm_run(Xs, C, L, m, tol, max_iter, chunks, label_tol)
