@@ -1,23 +1,16 @@
 """The entropy terms of the exact leave-one-out scores, from the k-NN distances.
 
-For the scored points x of clusters 0..c-1 (see :mod:`..entropy` for the
-definitions), given r_k(x) and r_(k+1)(x):
+For the scored points x of clusters 0..c-1 (definitions: :mod:`..entropy`):
 
-- w = r_k^-d, computed as exp(lw) with lw = -d (log r_k - min_R log r_k), so
-  the largest weight of a cluster is 1 (no overflow; units cancel);
-- W = sum_R w and A = sum_R w lw per cluster, G-terms g = w (lw - A/W);
+- w = r_k^-d as exp(lw), lw = -d (log r_k - min_R log r_k): a cluster's largest weight is 1;
+- W = sum_R w, A = sum_R w lw per cluster; g = w (lw - A/W);
 - dw, dg: the changes of w and g when r_k(x) becomes r_(k+1)(x);
-- acc_w(y), acc_g(y): the sums of dw, dg over the x that have y among their k
-  nearest (y's reverse neighbours), and the gain
-  H(R - y) - H(R) = log1p(dW / W) - dG / (W + dW), dW = acc_w(y) - w(y),
-  dG = acc_g(y) - g(y).
+- acc_w(y), acc_g(y): sums of dw, dg over y's reverse neighbours; the gain is
+  log1p(dW / W) - dG / (W + dW), dW = acc_w(y) - w(y), dG = acc_g(y) - g(y).
 
-Bit for bit equal to the numpy code of :mod:`..entropy` (``_weights``,
-the bincounts, ``_change``): the logarithms and exponentials are numpy's
-(its SIMD log/exp differ from libm's, so numba's, in the last bit for some
-inputs); the loops, the per-cluster minimum and the sums are numba's, in the
-same order: ``np.bincount`` adds its weights one by one in index order, and so
-do these loops (no ``fastmath``: nothing is reordered or fused).
+Bit for bit equal to the numpy formulation: logs and exps are numpy's (its SIMD
+differs from libm in the last bit), sums run in index order as ``np.bincount``'s,
+no ``fastmath``.
 """
 
 from __future__ import annotations
@@ -55,8 +48,7 @@ def _log_weights(lr, lr1, cl, shift, dim):
 
 @njit(cache=True, nogil=True)
 def _terms(w, w1, lw, lw1, cl, c):
-    """W, A per cluster (summed in index order, as np.bincount does), then per
-    point g, W of its cluster, dw = w1 - w and dg = g1 - g."""
+    """W, A per cluster (index order), then per point g, W of its cluster, dw = w1 - w and dg = g1 - g."""
     n = len(w)
     W = np.zeros(c)
     A = np.zeros(c)
@@ -119,9 +111,7 @@ def _grouped_log_weights(lr, lr1, indptr, kcl, scored, dim, lw, lw1):
 
 @njit(cache=True, nogil=True)
 def _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc):
-    """Per cluster: W, A, the terms of :func:`_terms` and the reverse sums of
-    :func:`_reverse_sums` (neighbours outside the cluster skipped), all in the
-    same order; then dW = acc_w - w, dG = acc_g - g and W per scored point."""
+    """Per cluster: W, A, the terms of :func:`_terms` and the in-cluster reverse sums; then dW, dG and W per scored point."""
     mmax = 1
     for c in range(len(kcl)):
         mmax = max(mmax, indptr[c + 1] - indptr[c])
@@ -164,29 +154,26 @@ def _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc):
 
 
 def grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, dim):
-    """H(R - y) - H(R) of every scored point, its cluster's points grouped (see
-    :func:`cloudsieve.core.scored_knn.knn_scored_clusters` for the layout).
+    """H(R - y) - H(R) of every scored point, grouped as :func:`cloudsieve.core.scored_knn.knn_scored_clusters`.
 
     Parameters
     ----------
-    rk, rk1 : ndarray of shape (n,), float64
+    rk, rk1 : ndarray (n,), float64
         r_k and r_(k+1) per grouped position (> 0 where scored).
-    indptr : ndarray of shape (c + 1,), int64
-    kcl : ndarray of shape (c,), int64
-        k of each cluster, 0 for a cluster not scored.
-    koff : ndarray of shape (c + 1,), int64
-    scored : ndarray of shape (n,), bool
-    nb : ndarray of shape (koff[-1],), int64
-        The k nearest of each scored point (grouped positions, or others,
-        e.g. n for a context point, which are skipped), from koff[j] + (p - indptr[j]) * k.
+    indptr : ndarray (c + 1,), int64
+    kcl : ndarray (c,), int64
+        k of each cluster, 0 when not scored.
+    koff : ndarray (c + 1,), int64
+    scored : ndarray (n,), bool
+    nb : ndarray (koff[-1],), int64
+        k nearest of each scored point from koff[j] + (p - indptr[j]) * k; other values
+        (e.g. n for context) are skipped.
     dim : float
 
     Returns
     -------
-    ndarray of shape (n,), float64
-        The gain at the scored positions (0.0 elsewhere), bit for bit the
-        value of :func:`entropy_gain`: the same operations, with numpy's log,
-        exp and log1p.
+    ndarray (n,), float64
+        The gain at scored positions (0.0 elsewhere), bit for bit :func:`entropy_gain`'s.
     """
     n = len(rk)
     lr = np.log(rk)  # numpy's log and exp (see the module docstring)
@@ -240,8 +227,7 @@ def _to_input(order, indptr, kcl, scored, dup, msize, gain, dh, sg, unit, m_in, 
 def scores_to_input(order, indptr, kcl, scored, dup, msize, gain):
     """The fields of a Scores record in input order, from the grouped values.
 
-    Returns dh, unit (m dH, 0 for copies), sg (the gain; +inf unscored, 0 for
-    copies), m, k (0 unscored) and dup, each of shape (n,).
+    Returns dh, unit (m dH), sg (gain; +inf unscored), m, k (0 unscored) and dup, each (n,); copies get 0.
     """
     n = len(order)
     dh = np.empty(n)
@@ -270,30 +256,17 @@ def _graph(order, indptr, kcl, koff, scored, nb, out):
 
 
 def graph_to_input(order, indptr, kcl, koff, scored, nb, width):
-    """The k-NN graph in input order: (n, width) int64, row i the k nearest of
-    point i (input indices, nearest first), -1 after them and for the rows not scored."""
+    """The k-NN graph in input order: (n, width) int64, nearest first, -1 padded and for unscored rows."""
     out = np.full((len(order), int(width)), -1, dtype=np.int64)
     _graph(order, indptr, kcl, koff, scored, nb, out)
     return out
 
 
 def entropy_weights(cl, c, rk, rk1, dim):
-    """w, g, W of the cluster, dw and dg for every scored point (``entropy._weights``).
+    """w, g, W of the cluster, dw and dg for every scored point (M,).
 
-    Parameters
-    ----------
-    cl : ndarray of shape (M,), int64
-        Cluster of each scored point, in 0..c-1.
-    c : int
-        Number of clusters.
-    rk, rk1 : ndarray of shape (M,), float64
-        r_k and r_(k+1) of each point, > 0.
-    dim : float
-        The exponent d.
-
-    Returns
-    -------
-    w, gw, Wc, dw, dg : ndarray of shape (M,), float64
+    ``cl`` (M,) cluster in 0..c-1; ``rk``, ``rk1`` (M,) > 0; ``dim`` the exponent d.
+    Returns w, gw, Wc, dw, dg, each float64 (M,).
     """
     cl = np.ascontiguousarray(cl, dtype=np.int64)
     lr = np.log(rk)  # numpy's log and exp, as the numpy code (not numba's libm)
@@ -311,21 +284,19 @@ def reverse_sums(nbr, kr, dw, dg, n, target_cluster=None, cl=None):
 
     Parameters
     ----------
-    nbr : ndarray of shape (M, K), int64
-        Row x: the neighbours of scored point x, nearest first (positions in
-        0..n-1; others, e.g. -1 or n for padding or context, are skipped).
-    kr : ndarray of shape (M,), int64
+    nbr : ndarray (M, K), int64
+        Neighbours of scored point x, nearest first (positions in 0..n-1; others skipped).
+    kr : ndarray (M,), int64
         The first kr[x] <= K columns of row x are its k nearest.
-    dw, dg : ndarray of shape (M,), float64
+    dw, dg : ndarray (M,), float64
     n : int
-        Number of positions.
-    target_cluster, cl : ndarray of shape (n,) and (M,), int64, optional
+    target_cluster, cl : ndarray (n,) and (M,), int64, optional
         When given, x counts for y only if target_cluster[y] == cl[x].
 
     Returns
     -------
-    acc_w, acc_g : ndarray of shape (n,), float64
-        Added in row order, as ``np.bincount`` over the rows' neighbours adds them.
+    acc_w, acc_g : ndarray (n,), float64
+        Added in row order, as ``np.bincount``.
     """
     if target_cluster is None:
         tcl = np.zeros(0, dtype=np.int64)
@@ -341,23 +312,11 @@ def reverse_sums(nbr, kr, dw, dg, n, target_cluster=None, cl=None):
 
 
 def entropy_gain(rows, cl, c, rk, rk1, nbr, kr, dim, n, target_cluster=None):
-    """H(R - y) - H(R) for every scored point y (the signed gain; dH is its absolute value).
+    """Signed gain H(R - y) - H(R) for every scored point y (M,), float64.
 
-    Parameters
-    ----------
-    rows : ndarray of shape (M,), int64
-        Position (in 0..n-1) of each scored point, the targets of ``nbr``.
-    cl, c, rk, rk1, dim
-        As in :func:`entropy_weights`.
-    nbr, kr, n, target_cluster
-        As in :func:`reverse_sums` (``target_cluster``: the cluster of every
-        position, for neighbours that may lie in other clusters, e.g. with a
-        context).
-
-    Returns
-    -------
-    ndarray of shape (M,), float64
-        The same values, bit for bit, as ``entropy.score_points`` computes.
+    ``rows``: position of each scored point in 0..n-1; ``cl, c, rk, rk1, dim`` as
+    :func:`entropy_weights`; ``nbr, kr, n, target_cluster`` as :func:`reverse_sums`.
+    Bit for bit what ``entropy.score_points`` computes.
     """
     w, gw, Wc, dw, dg = entropy_weights(cl, c, rk, rk1, dim)
     acc_w, acc_g = reverse_sums(nbr, kr, dw, dg, n, target_cluster, cl if target_cluster is not None else None)

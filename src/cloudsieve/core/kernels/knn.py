@@ -1,36 +1,16 @@
 """Exact k nearest neighbours inside clusters, compiled with numba.
 
-:func:`knn_unchecked` answers the query scoring needs (:func:`knn_scored` in
-the scores' layout): for every point, its k nearest *other* points of its own
-cluster, the points grouped by cluster (cluster j is
-``points[indptr[j]:indptr[j + 1]]``). It returns what
-``cKDTree(cluster).query(cluster, k + 1)`` minus the first column returns
-for each cluster, with the same distance values bit for bit:
+:func:`knn_unchecked`: for every point, its k nearest *other* points of its own
+cluster (cluster j is ``points[indptr[j]:indptr[j + 1]]``), the distances bit for
+bit those of ``cKDTree(cluster).query(cluster, k + 1)`` minus the first column:
+squared distances are summed as cKDTree does, ``(dx*dx + dy*dy) + dz*dz``, without
+FMA; zero padding adds exactly 0.0. Ties: the k smallest (squared distance, row)
+pairs, so rows may differ from cKDTree's only among equal distances.
 
-- a squared distance is summed as cKDTree sums it, ``(dx*dx + dy*dy) + dz*dz``
-  with dx the difference of the coordinates, and the distance is its
-  (correctly rounded) square root; numba does not contract to FMA nor
-  reorder sums without ``fastmath``, and a zero 4th coordinate (the cluster
-  id of :mod:`..entropy`'s one tree) or zero padding of 1- and 2-D points adds
-  exactly 0.0;
-- ties: the neighbours are the k smallest pairs (squared distance, row), so
-  among equal distances the lower row comes first, and a tie at the k-th
-  distance keeps the lower rows. cKDTree keeps, of points tied at the k-th
-  distance, the first its traversal meets (its test is a strict ``<``), and
-  orders equal distances as its heap pops them: the distances agree, the rows
-  only among equal distances.
-
-How: a cluster gets a k-d tree (splits at the median of its widest side,
-leaves of at most ``leaf`` points, a bounding box per node). For the points of
-one leaf L: a first bound T0 per point is its k-th smallest squared distance
-within the smallest node around L holding more than k points; every point
-within T0 lies in a leaf whose box gap to L's box is <= T0 (rounding is
-monotone, so a computed gap never exceeds a computed distance), so the
-candidates of L are the leaves within max T0 of it. Then per point: all the
-candidate distances in one vectorised loop, those <= T0 kept (branch-free),
-trimmed by a quickselect when many, and put in order by their ranks. No
-allocation per query; clusters are shared among threads (the kernels release
-the GIL), and a cluster of any size costs O(m log m) plus its candidates.
+Per cluster a k-d tree (median splits, boxes per node); per leaf, a bound T0 from
+the smallest node with more than k points picks the candidate leaves; candidates
+within T0 are kept branch-free, trimmed by quickselect, ordered by rank. Clusters
+run on threads (nogil).
 """
 
 from __future__ import annotations
@@ -44,9 +24,7 @@ from .threads import run_chunks
 __all__ = ["knn_unchecked", "knn_scored", "take_neighbours"]
 
 # leaves hold at most max(LEAF_MIN, k + LEAF_EXTRA) points; the first bound comes from a node of
-# more than BOUND_NODE * k points; candidates are trimmed to the k nearest when more than
-# k + TRIM. On clusters of ~400 points, leaves of 16 to 48, bounds from 1 to 2.5 k and trims above k + 2 to
-# k + 100 are all within 10% of each other: the values are not critical.
+# more than BOUND_NODE * k points; candidates are trimmed to the k nearest above k + TRIM (values not critical)
 LEAF_MIN = 16
 LEAF_EXTRA = 0
 BOUND_NODE = 2
@@ -225,18 +203,12 @@ def _score_chunk(pts, order, indptr, c0, c1, kcl, koff, leaf_min, leaf_extra, bo
 def knn_unchecked(P, indptr, kc, query, threads=None):
     """The kc[j] nearest other points of every point of cluster j, inside its cluster (checked input).
 
-    P (n, 3) float64 C-contiguous, grouped by cluster (cluster j is
-    ``P[indptr[j]:indptr[j + 1]]``; 1- and 2-D points padded with zero
-    columns, which add exactly 0.0 to every squared distance); indptr
-    (c + 1,) int64; kc (c,) int64 >= 0; query (n,) bool: only these rows are
-    answered (the others come back padded), their neighbours still taken from
-    the whole cluster; ``threads`` share the clusters (default: all cores),
-    the result does not depend on it.
+    P (n, 3) float64 C-contiguous, grouped by cluster (1- and 2-D points zero-padded);
+    indptr (c + 1,) int64; kc (c,) int64 >= 0; query (n,) bool: rows answered (others
+    padded). The result does not depend on ``threads`` (default: all cores).
 
-    Returns distances (n, K) float64, K = max(kc): row i the distances from
-    point i to its nearest, ascending, bit for bit those of cKDTree, +inf after
-    the cluster's k (or m - 1) columns; indices (n, K) int64, the rows of those
-    points (ties: lower row first), -1 where the distance is +inf.
+    Returns distances (n, K) float64, K = max(kc), ascending, +inf after the cluster's
+    k (or m - 1) columns; indices (n, K) int64 (ties: lower row first), -1 at +inf.
 
     >>> import numpy as np
     >>> pts = np.array([[0, 0, 0], [1, 0, 0], [3, 0, 0], [10, 0, 0], [12, 0, 0.]])
@@ -254,33 +226,29 @@ def knn_unchecked(P, indptr, kc, query, threads=None):
 
 
 def knn_scored(pts, order, indptr, kcl, koff, threads=None):
-    """The k + 1 nearest inside each cluster of grouped points, for the scores (on checked input).
+    """The k + 1 nearest inside each cluster of grouped points, for the scores (checked input).
 
     Parameters
     ----------
-    pts : ndarray of shape (n, p), float64, 1 <= p <= 3
-        The points in input order.
-    order : ndarray of shape (n,), int64
+    pts : ndarray (n, p), float64, 1 <= p <= 3
+        Points in input order.
+    order : ndarray (n,), int64
         Input indices in grouped order (cluster j: ``order[indptr[j]:indptr[j + 1]]``).
-    indptr : ndarray of shape (c + 1,), int64
-    kcl : ndarray of shape (c,), int64
-        k of each cluster, 0 to skip it; a cluster with k > 0 has >= k + 2 points.
-    koff : ndarray of shape (c + 1,), int64
-        Start of each cluster's lists in ``nb``: the lists of cluster j,
-        k = kcl[j] entries per point, from koff[j].
+    indptr : ndarray (c + 1,), int64
+    kcl : ndarray (c,), int64
+        k of each cluster, 0 to skip; a cluster with k > 0 has >= k + 2 points.
+    koff : ndarray (c + 1,), int64
+        Start of cluster j's lists in ``nb`` (kcl[j] entries per point).
     threads : int, optional
 
     Returns
     -------
-    rk, rk1 : ndarray of shape (n,), float64
-        r_k and r_(k+1) of each grouped position (1.0 where not computed).
-    nb : ndarray of shape (koff[-1],), int64
-        The k nearest of each point of the clusters computed, nearest first
-        (grouped positions; ties: the lower position first), the same as
-        :func:`knn_unchecked` gives.
-    flag : ndarray of shape (c,), bool
-        Clusters left out because a point has an exact copy (their rk, rk1,
-        nb are not written).
+    rk, rk1 : ndarray (n,), float64
+        r_k and r_(k+1) per grouped position (1.0 where not computed).
+    nb : ndarray (koff[-1],), int64
+        The k nearest, grouped positions, as :func:`knn_unchecked` orders them.
+    flag : ndarray (c,), bool
+        Clusters left out because a point has an exact copy.
     """
     n = len(order)
     rk = np.ones(n)
@@ -303,21 +271,10 @@ def _take(idx, sel, width, rows, out):
 
 
 def take_neighbours(idx, sel, width, rows=None):
-    """``rows[idx[sel, :width]]`` (``idx[sel, :width]`` when rows is None) in one pass.
+    """``rows[idx[sel, :width]]`` (``idx[sel, :width]`` when rows is None) in one pass; (M, width) int64.
 
-    Parameters
-    ----------
-    idx : ndarray of shape (n, K), int64
-        Neighbour rows from :func:`knn_unchecked`, >= 0 in the first ``width`` columns of ``sel``.
-    sel : ndarray of shape (M,), int64
-        Rows of idx to take, in 0..n-1.
-    width : int, <= K
-    rows : ndarray of shape (r,), int64, optional
-        Maps a row of idx's points to another position (e.g. in a larger array).
-
-    Returns
-    -------
-    ndarray of shape (M, width), int64, C-contiguous
+    ``idx`` (n, K) from :func:`knn_unchecked`; ``sel`` (M,) rows of idx; ``rows`` maps
+    idx's rows to other positions.
     """
     out = np.empty((len(sel), int(width)), dtype=np.int64)
     r = np.zeros(0, dtype=np.int64) if rows is None else np.ascontiguousarray(rows, dtype=np.int64)
