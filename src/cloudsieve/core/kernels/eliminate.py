@@ -1,17 +1,11 @@
 """Compiled kernels of weighted sample elimination (numba; private, inputs assumed valid).
 
-The caller (:mod:`cloudsieve.core.eliminate`) puts the points in a canonical
-internal order (by grid cell along a Z-order curve, then by coordinates) and
-passes, in that order:
+In the canonical internal order of :class:`cloudsieve.core.cellgrid.CellGrid`, the caller passes
+grid arguments as in :mod:`.grid` and:
 
-- ``P`` (n, 3) float64, ``cell`` (n,) int64 the cell of each point, ``cstart``
-  (C + 1,) the first point of each cell, ``nstart``/``ncells`` the CSR list of
-  the occupied cells among the 27 around each cell (cells are at least as
-  wide as every search radius);
-- ``state`` (n,) uint8: 0 absent (removed, or an exact copy), 1 alive and
-  removable, 2 alive and fixed (weighs on the others, never removed);
-- ``scale`` (n,) float64 > 0: the information multiplier of each weight;
-- ``imp2`` (n,) float64 > 0: the squared importance m^2 of each point;
+- ``state`` (n,) uint8: 0 absent (removed or a copy), 1 removable, 2 fixed (weighs, never removed);
+- ``scale`` (n,) float64 > 0: information multiplier of each weight;
+- ``imp2`` (n,) float64 > 0: squared importance m^2;
 - ``tie`` (n,) int64 distinct ids: equal keys go lower id first.
 
 Key of an alive point x (larger goes first)::
@@ -20,29 +14,14 @@ Key of an alive point x (larger goes first)::
     w(x) = sum over alive y != x with d(x, y) < 2 r_max of (1 - d(x, y) / (2 r_max)) ** alpha
     f(x) = g(max(1, m) e(x)) / (1 + lam m^2 c(x) / r_max^2)     (1 without the coverage terms)
 
-where x represents itself and every removed point whose nearest remaining
-point it is, e(x) is the largest distance from one of them to its nearest
-other remaining point, c(x) the sum of the squared distances they would gain
-if x went, g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
+with e, c as in :mod:`cloudsieve.core.eliminate`, g(e) = 1 for e <= r_cov, else (r_cov / e) ** gamma.
 
-Every factor only decreases as points go (fewer neighbours; represented sets
-grow; nearest other points only get farther; each is computed from scratch
-in a fixed summation order, so this holds in floating point too), so the
-removal order "largest key first, ties lower id first" can be found with
-upper bounds: a winner tree over the points holds a bound of each key; the
-top's exact key is recomputed and compared with the next largest bound (the
-best of the matches the top won): ahead of it -> it is the heaviest point;
-else its exact key is stored and the tree replayed (a stale pop). On a
-removal the bounds of the points concerned fall at once: the neighbours'
-(a running crowding sum by subtraction plus a margin larger than the
-rounding of both sums) and those whose coverage factor changed (per-point
-sums kept current by :mod:`.cover`, lowered below their rounding), so stale
-pops come only from ties and from the margins. The priorities are the exact
-keys at removal, the ones an eager heap recomputing every key after each
-removal would give. Neighbour lists (:mod:`.neighbours`) replace the grid
-walks; the grid is walked only for a nearest point beyond 2 r_max.
-
-Grid arguments as in :mod:`.grid`.
+Every factor only decreases as points go (also in floating point: each is
+computed from scratch in fixed order), so a winner tree over upper bounds of
+the keys finds the order: the top's exact key is recomputed; if it still beats
+the next bound it goes, else it is stored and the tree replayed (a stale pop).
+The priorities equal an eager heap's. Neighbour lists (:mod:`.neighbours`)
+replace grid walks except for a nearest point beyond 2 r_max.
 """
 
 from __future__ import annotations
@@ -53,16 +32,14 @@ from numba import njit
 from .cover import add_gain, falloff, fbound, gain, resume_at, take_alt, unlink
 from .neighbours import list_nearest, term_weight
 
-# The helpers here, in .cover and .neighbours (list_nearest, term_weight) and .grid.nearest are plain calls, not
-# inline="always" (numba's IR inlining, re-typed at every call site): inlined, the elimination's kernels take
-# up to twice as long to compile, for the same kept set and run time; LLVM still inlines them
+# Helpers here, in .cover, .neighbours and .grid.nearest are plain calls, not inline="always": inlined,
+# the kernels compile up to twice as long for the same run time
 
 
 @njit(cache=True)
 def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, nxt, alt, altd2, rc2, gamma,
               lam, inv_r2, imp2, stats):
-    """f(x) of the module docstring from scratch, in the order of x's list of represented points (their
-    alts are current: the search only finds again that there is none)."""
+    """f(x) from scratch, in the order of x's list of represented points."""
     e2 = 0.0
     c2 = 0.0
     p = np.int64(head[x])
@@ -91,9 +68,7 @@ def _coverage(x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, head, n
 
 @njit(cache=True)
 def _better(a, b, rec, tie):
-    """The entry that goes first of points a and b (n: none, its key -inf and tie the largest): larger stored
-    key rec[., 3], then lower tie. Without branches (a select): which one wins is a coin toss for the
-    processor, a mispredicted branch each match."""
+    """Which of points a and b goes first (n: none): larger stored key rec[., 3], then lower tie; branch-free."""
     ka = rec[a, 3]
     kb = rec[b, 3]
     return a if (ka > kb) | ((ka == kb) & (tie[a] < tie[b])) else b
@@ -119,29 +94,16 @@ def _fall(y, rec, win, m, tie):
 # A plain function: its allocations in numpy (compiled, they would lengthen the first start), the work in the kernel
 def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
               ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, keys_left=True):
-    """Remove removable points, largest key first, until ``floor`` of the own ones remain.
+    """Remove removable points, largest key first, until ``floor`` of the own ones (``tie`` < ``nown``) remain.
 
-    Own points are those with ``tie`` < ``nown`` (the caller's points; the
-    halo's are removed along but do not count).
+    ``nptr``/``nbr``/``low``/``soff`` and ``w`` (n,): neighbour lists and crowding sums of
+    :mod:`.neighbours`; ``imp2`` (n,): squared importance. ``gone_rep`` (n,): the alive point
+    representing each point gone from the start (-1: none). ``state`` and ``ci`` (n, 8)
+    (all -1; int32 when the lists hold fewer than 2^31 entries) are consumed.
 
-    ``nptr``/``nbr``/``low``/``soff`` are the neighbour lists and ``w``
-    (n,) the crowding sums of :mod:`.neighbours` (before the scale);
-    ``imp2`` (n,) the squared importance of each point: its coverage and
-    squared-error terms are measured in distances times its importance. Returns priority (n,): the key of each point when it was
-    removed (non-increasing along the removals), for the own points left their
-    keys at the stop (<= every removed key; -1.0, below every key, without
-    ``keys_left``: the points left are the same, their keys cost a coverage
-    evaluation each, about a tenth of the loop), NaN for points that were not
-    removable; ``gone_rep`` (n,) the alive point representing each point
-    already gone from the start (-1: none); ``state`` and ``ci`` (n, 8), all -1, int32 when the lists
-    hold fewer than 2^31 entries (the links of the coverage data) are
-    consumed. Also returns counts (4,): pops, stale pops, coverage
-    evaluations, nearest searches.
-
-    On a removal, the points it represented move to their alt, the points
-    whose alt it was get the next one (:mod:`.cover`), and the bounds of the
-    points concerned (the neighbours, the new reps, the reps of the points
-    whose alt changed) fall at once.
+    Returns priority (n,): each point's key at removal (non-increasing), for own points
+    left their keys at the stop (-1.0 without ``keys_left``), NaN for points not
+    removable; and counts (4,): pops, stale pops, coverage evaluations, nearest searches.
     """
     n = len(P)
     cf = np.zeros((n, 8))
@@ -159,8 +121,7 @@ def eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state
     return prio, stats
 
 
-# Without the runtime's reference counts (it allocates nothing): with them, every array a helper touches
-# was counted in and out with atomic operations on each removal, about a fifth of the time
+# No runtime reference counts: they cost atomic operations on each removal
 @njit(cache=True, nogil=True, _nrt=False)
 def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, state, scale, imp2, w, tie, two_r, alpha,
                ialpha, r_cov, gamma, lam, floor, nown, ci, gone_rep, cf, rec, stats, win, m, prio, tk, keys_left):
@@ -294,12 +255,11 @@ def _eliminate(P, cell, cstart, nstart, ncells, nptr, nbr, low, term, soff, stat
 
 
 def relocate(P, near, kept, movable, tie, rcon2):
-    """One restricted Lloyd step: each movable kept point k moves to the movable point of its Voronoi
-    region (the points whose ``near`` is k) nearest the region's centroid, unless that would take some
-    point of the region farther than max(the region's current farthest, sqrt(rcon2)). Near-ties
-    (relative 1e-9) keep k, then the lower ``tie``, so rounding never decides. Returns the new flags.
+    """One restricted Lloyd step: each movable kept point moves to its Voronoi region's movable point nearest the centroid.
 
-    A plain function, as :func:`eliminate`: its allocations in numpy, the work in :func:`_relocate`."""
+    Not when that takes a point of the region farther than max(current farthest,
+    sqrt(rcon2)). Near-ties (relative 1e-9) keep k, then the lower ``tie``. Returns the new flags.
+    """
     n = len(P)
     out = kept.copy()
     _relocate(P, near, movable, tie, rcon2, np.zeros(n), np.zeros((n, 3)), np.zeros(n), np.full(n, -1, dtype=np.int64),

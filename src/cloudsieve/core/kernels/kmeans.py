@@ -1,25 +1,16 @@
 """Compiled kernels of K-means (numba; private: inputs are assumed valid).
 
-- :func:`pairwise_sum`: numpy's summation of a row;
-- :func:`cluster_sums`: per-cluster coordinate sums and counts;
-- :func:`stale_bounds`, :func:`assign_pass`, :func:`apply_moves`: one Lloyd
-  iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`;
+:func:`pairwise_sum` (numpy's row summation), :func:`cluster_sums`, and one Lloyd
+iteration with the bounds of :func:`cloudsieve.core.kmeans.lloyd`
+(:func:`stale_bounds`, :func:`assign_pass`, :func:`apply_moves`); seeding: :mod:`.cluster`.
 
-The seeding's kernels and the canonical order's rows are in :mod:`.cluster`.
+Floating-point operations follow numpy's order, so results are bit for bit the
+same: squared distances summed over coordinates from 0, row sums pairwise,
+per-cluster sums in index order (as ``np.bincount``). Per-point kernels take a
+row range for threads (``nogil``); the result does not depend on the ranges.
 
-Every kernel does its floating-point operations in the order of the numpy
-code it replaced, so its results are the same bit for bit: a squared
-distance is summed over the coordinates in order from 0 (as
-``np.add`` column by column, and as scipy's ``cKDTree``); a sum over a
-row of a 2-D array (``a.sum(axis=1)``) follows numpy's pairwise summation
-(:func:`pairwise_sum`); per-cluster sums add the points in index order (as
-``np.bincount`` with weights). The per-point kernels take a range of rows
-so that callers can run disjoint ranges on threads (``nogil``); the result
-does not depend on the ranges.
-
-These kernels compile in :func:`.centres.sqdist`; numba's on-disk cache
-(``cache=True``) checks only a function's own file, so after editing
-:mod:`.centres` delete this package's ``__pycache__``.
+These kernels compile in :func:`.centres.sqdist`; numba's cache checks only a
+function's own file, so after editing :mod:`.centres` delete this package's ``__pycache__``.
 """
 
 from __future__ import annotations
@@ -68,10 +59,8 @@ def _pairwise_block(a, lo, n):
 def pairwise_sum(a, lo, n):
     """numpy's pairwise sum of a[lo:lo + n] (1-D float64), bit for bit.
 
-    ``x.sum(axis=1)`` on a C-contiguous 2-D float64 array is ``0.0 +`` this
-    over each row. Above 128 terms numpy recurses on halves (cut at a
-    multiple of 8) and adds the two sums; done here with an explicit stack
-    (numba's cache does not keep recursive functions reliably).
+    ``x.sum(axis=1)`` on a C-contiguous float64 array is ``0.0 +`` this per row.
+    An explicit stack replaces numpy's recursion (numba's cache keeps recursive functions unreliably).
     """
     if n <= _PW_BLOCK:
         return _pairwise_block(a, lo, n)
@@ -118,11 +107,7 @@ def _rowsum_sqdist(X, i, C, t, buf):
 
 @njit(cache=True, nogil=True)
 def cluster_sums(X, a, c):
-    """Per-cluster sums S (c, p) and counts (c,) float64 of the rows of X by label a.
-
-    Each sum adds the points in index order from 0.0, as
-    ``np.bincount(a, weights=X[:, j], minlength=c)``.
-    """
+    """Per-cluster sums S (c, p) and counts (c,) float64 of X by label a, in index order (as ``np.bincount``)."""
     n, p = X.shape
     S = np.zeros((c, p))
     cnt = np.zeros(c)
@@ -144,12 +129,10 @@ def cluster_max(a, v, out):
 
 @njit(cache=True, nogil=True)
 def stale_bounds(a, L, R, cumD, cumM, T, near, s, e, umax):
-    """Rows s..e-1: the bounds of every point brought to bounds over all centres
-    before the neighbour lists are re-made (see ``lloyd``).
+    """Rows s..e-1: bounds brought to bounds over all centres before the lists are re-made (``lloyd``).
 
-    With U = L - R, ub = U + cumD[a] and lb = max(min(L - cumM[a], T[a] - ub),
-    near[a] - ub): L = lb, R = lb - ub, and umax[g] (zeros on entry) the
-    largest ub of cluster g among these rows.
+    With ub = L - R + cumD[a], lb = max(min(L - cumM[a], T[a] - ub), near[a] - ub):
+    L = lb, R = lb - ub; umax[g] (zeros on entry) the largest ub of cluster g.
     """
     for i in range(s, e):
         g = a[i]
@@ -166,18 +149,11 @@ def stale_bounds(a, L, R, cumD, cumM, T, near, s, e, umax):
 def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, na, umax, rows):
     """Rows s..e-1 of one Lloyd iteration with bounds (see ``lloyd``).
 
-    A point with R > Q[a] keeps its label untouched. Otherwise its distance u
-    to its centre and the bound low = max(min(L - cumM[a], T[a] - u), near[a]
-    - u) are computed; if u < low it keeps its label with L = low + cumM[a],
-    R = low - u + cumD[a] + cumM[a]. Otherwise its nearest among its centre
-    and the centre's neighbours nb[a] (the first on a tie) is found, with d1
-    its distance and low = min(second distance, T[a] - u), which is exact when
-    d1 < T[a] - u: then L = low + cumM[na], R = low - d1 + cumD[na] + cumM[na]
-    and umax[na] = max(umax[na], d1 - cumD[na]) (umax: this range's own
-    array, zeros on entry); a point whose label changes is listed with na
-    (its label stays for :func:`apply_moves`, which also updates the sums in
-    index order). A point whose nearest may be outside the list is listed
-    with na = -1 (a query over all centres, then :func:`apply_moves`).
+    A point with R > Q[a] keeps its label. Else with u its exact distance and
+    low = max(min(L - cumM[a], T[a] - u), near[a] - u), it keeps its label if u < low.
+    Else its nearest among its centre and nb[a] is found, exact when d1 < T[a] - u;
+    a changed label is listed with na, an unsure one with na = -1 (a query over all
+    centres); :func:`apply_moves` applies them. umax: this range's own array.
 
     Parameters
     ----------
@@ -240,22 +216,9 @@ def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, na, umax, rows)
 def apply_moves(X, rows, a, na, d1o, lowo, L, R, cumD, cumM, umax, out, inn, cnt_out, cnt_in):
     """The listed rows (ascending) of :func:`assign_pass` take their labels, in order.
 
-    A row queried over all centres (na set from the query, its distance d1o
-    and second distance lowo) first gets L = low + cumM[na], R = low - d1 +
-    cumD[na] + cumM[na] and umax[na] = max(umax[na], d1 - cumD[na]). The
-    points that change cluster are added to out / cnt_out of their old
-    cluster and inn / cnt_in of the new one, in index order from zero (as
-    ``np.bincount`` over the moved points).
-
-    Parameters
-    ----------
-    d1o, lowo : ndarray of shape (len(rows),)
-        For the queried rows, at their position in ``rows``.
-
-    Returns
-    -------
-    int
-        Points that changed cluster.
+    Queried rows (d1o, lowo (len(rows),) at their position in ``rows``) get their
+    bounds first; moved points are added to out / cnt_out and inn / cnt_in in
+    index order (as ``np.bincount``). Returns the points that changed cluster.
     """
     p = X.shape[1]
     moved = 0
