@@ -1,10 +1,7 @@
 """The method in memory, end to end (DESIGN.md stages 3-5): refine, score, prune.
 
-:func:`simplify_points` validates its options once (:func:`cloudsieve.params.validate_params`,
-command ``simplify_points``) and its arrays (:mod:`._validation`), then runs the stages'
-kernels on the validated arrays: :func:`.refine.refine_unchecked` (KM or FCM
-labels, unless ``labels`` are given) and :func:`.rules.prune_unchecked`
-(scores and the rule).
+Options are validated once (:func:`cloudsieve.params.validate_params`), arrays by
+:mod:`._validation`; then :func:`.refine.refine_unchecked` and :func:`.rules.prune_unchecked`.
 """
 
 from __future__ import annotations
@@ -32,25 +29,17 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
     ----------
     points : array_like of shape (n, 3), float
     method : {"km", "fcm"}
-        Refinement into c = ceil(n / cluster_size) clusters (ignored when
-        ``labels`` is given).
+        Refinement into c = ceil(n / cluster_size) clusters (ignored with ``labels``).
     rule : str
-        A rule of the registry (:data:`.rules.RULES`; default ``iterative``).
-        ``eliminate`` needs no clusters: ``method``,
-        ``labels`` and the entropy options are then unused (no KM/FCM runs);
-        it keeps what :func:`cloudsieve.simplify` keeps with the same
-        ``seed``, ``cluster_size``, ``k0`` and ``k_min`` (the engine's cells:
-        :mod:`cloudsieve.engine.cell_scheme`).
-        The default stays ``iterative`` here (the paper's in-memory method,
-        which needs no ratio or count), while :func:`cloudsieve.simplify`,
-        :func:`cloudsieve.compare`, the CLI and the pipelines default to
-        ``eliminate`` (it needs ``ratio`` or ``count``; see
-        :mod:`cloudsieve.params`).
+        A rule of :data:`.rules.RULES`; default ``iterative`` (the paper's, no target
+        needed), while :func:`cloudsieve.simplify`, :func:`cloudsieve.compare` and the
+        CLI default to ``eliminate`` (:mod:`cloudsieve.params`). ``eliminate`` needs no
+        clusters and keeps what :func:`cloudsieve.simplify` keeps with the same
+        ``seed``, ``cluster_size``, ``k0`` and ``k_min``.
     threshold : float
-        S on dH (0.001, the paper: :data:`.rules.PAPER_THRESHOLD`).
+        S on dH (:data:`.rules.PAPER_THRESHOLD`).
     ratio, count : optional
-        Kept fraction in (0, 1] / kept count >= 1 (the rules that need or take a target);
-        a count above the points keeps them all (the returned indices say how many).
+        Kept fraction in (0, 1] / kept count >= 1; a count above n keeps all.
     cluster_size : int
         >= k_min + 2.
     seed : int
@@ -60,12 +49,9 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
     labels : array_like of shape (n,), int, optional
         Use these clusters instead of refining.
     threads : int, optional
-        Threads for the k-d tree queries of clustering and scoring and for the
-        kernels of the rounds (None: all cores); the result does not depend on it.
+        None: all cores; the result does not depend on it.
     keep_duplicates : bool
-        Keep every exact copy of a kept point (default: an exact duplicate
-        of an earlier point is never kept, with ``eliminate`` unless the
-        distinct points do not make the count; see :mod:`.duplicates`).
+        Keep every exact copy of a kept point (:mod:`.duplicates`).
 
     Returns
     -------
@@ -95,9 +81,7 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
 def simplify_unchecked(pts, options, *, target, ctx=None, labels=None, init="k-means++", progress=None) -> np.ndarray:
     """:func:`simplify_points` on validated input (the engine's cells call it): kept indices, ascending.
 
-    ``pts`` (n, 3) float64 and ``labels`` (n,) int64 or None as from :mod:`._validation`;
-    ``options`` the frozen options object of ``simplify_points``
-    (:data:`cloudsieve.params_spec.OPTION_CLASSES`; its ratio and count unread);
+    ``options``: frozen options of ``simplify_points`` (:data:`cloudsieve.params_spec.OPTION_CLASSES`);
     ``target`` the kept count (None: the threshold decides); no checks.
     """
     from .knn import canonical_order

@@ -1,30 +1,19 @@
 """Compile the kernels a run needs once, before it needs them: the warm-up targets.
 
-numba compiles a kernel at its first call, or loads it from its on-disk cache
-(``cache=True``: ``__pycache__`` beside the module, numba's user cache
-directory when that is read-only, or ``NUMBA_CACHE_DIR``). Compiling takes
-far longer than loading: a first run into an empty cache takes many times
-as long as one after a warm-up (a second process compiles the end of it
-ahead, :data:`AHEAD`; docs/benchmarks.md, "Start-up").
+numba compiles a kernel at its first call or loads it from its on-disk cache;
+compiling takes far longer (docs/benchmarks.md, "Start-up"). Each target calls
+one part's kernels on a tiny input with the real argument types:
 
-Each target calls the kernels of one part of the method on a tiny input, with
-the argument types of the real calls (so the same compiled versions):
-
-- ``common``: a LAS/LAZ input's coordinates, exact copies and the merge (every rule);
-- ``partition``: the labels and halo bands of the partition's tasks;
-- ``eliminate``: the default rule in memory (grid, neighbour lists,
-  elimination, relocation, packing counts, the radius's k-NN);
-- ``scores``: the k-NN and entropy kernels of the scoring path;
-- ``km``, ``fcm``: the refinement into small clusters;
+- ``common``: LAS/LAZ coordinates, exact copies, the merge (every rule);
+- ``partition``: labels and halo bands of the partition's tasks;
+- ``eliminate``: the default rule in memory;
+- ``scores``: the k-NN and entropy kernels;
+- ``km``, ``fcm``: the refinement;
 - ``rules``: the rounds of the iterative, target and coverage rules.
 
-:mod:`cloudsieve.rule_table` names the targets and those of each rule's
-cell tasks (a leaf: the options read it): the local fork server
-(:mod:`cloudsieve.engine.forkserver_init`) warms those, so the workers it
-forks inherit the code and never compile it again; ``cloudsieve warmup``
-(:mod:`cloudsieve.cli.warmup`) warms every target into the cache (setup.sh
-runs it). The warm-up drives the in-memory method, so it lives here, not in
-:mod:`.kernels`.
+:mod:`cloudsieve.rule_table` names the targets of each rule; the fork server
+(:mod:`cloudsieve.engine.forkserver_init`) warms them so forked workers inherit the
+code; ``cloudsieve warmup`` (:mod:`cloudsieve.cli.warmup`) fills the cache.
 """
 
 from __future__ import annotations
@@ -129,13 +118,12 @@ def _scores() -> None:
 
 
 def _elimination_tail() -> None:
-    """The kernels a run of the default rule calls last, alone, on two points with the argument types of
-    the real calls: the packing counts over the neighbour lists, the elimination's loop, the relocation
-    (:mod:`.kernels.eliminate`) and the merge's scatter; not the grid and lists kernels that lead to them.
-    A second process compiles these ahead (:data:`AHEAD`), the elimination's loop and the relocation first:
-    the run reaches the packing and ``nearest_kept`` before them and compiles them itself if they are not
-    ready, which leaves the second process the time to finish the loop, the longest compilation; with the
-    packing first, the run reaches the loop before it is ready and compiles it itself."""
+    """The kernels a default-rule run calls last (packing counts, elimination loop, relocation, merge scatter) on two points.
+
+    A second process compiles these ahead (:data:`AHEAD`), the loop and relocation
+    first: the run compiles packing and ``nearest_kept`` itself meanwhile, leaving
+    time for the loop, the longest compilation.
+    """
     from .kernels import eliminate as ke
     from .kernels.grid import nearest_kept
     from .kernels.packing import packing_from_lists
@@ -182,18 +170,13 @@ _RUN: dict[str, Callable[[], None]] = {
 }
 assert tuple(_RUN) == TARGETS, "every target named in cloudsieve.rule_table.TARGETS has its function here"
 
-#: the part of a target a second process can compile while this one compiles the rest (the kernels the
-#: part's function calls, from inputs of their real argument types; the target loads them from the
-#: cache when it reaches them), and the kernel whose cache file tells whether it is compiled
+#: the part of a target a second process can compile meanwhile, and the kernel whose cache file
+#: tells whether it is compiled
 AHEAD: dict[str, tuple[Callable[[], None], str]] = {"eliminate": (_elimination_tail, "eliminate._eliminate")}
 
 
 def ahead_parts(targets: Iterable[str]) -> list[str]:
-    """The targets of *targets* with a part in :data:`AHEAD` whose kernel numba's cache does not hold.
-
-    Read from the cache's index file of the kernel (numba's ``FunctionCache``); when that cannot be read
-    (another numba, caching off), none: the run then compiles as usual.
-    """
+    """The targets with a part in :data:`AHEAD` whose kernel numba's cache lacks (none when the cache index is unreadable)."""
     import importlib
     import os
 
@@ -212,16 +195,13 @@ def ahead_parts(targets: Iterable[str]) -> list[str]:
     return out
 
 
-#: ``cloudsieve warmup`` on two cores or more: the targets a second process compiles, the K-means and FCM
-#: refinements and the rounds. Each reaches the scores' kernels after its own, and the first process
-#: compiles ``scores`` first (:func:`split_targets`), so no kernel is compiled twice and every target
-#: compiles in about two thirds of one process's time.
+#: ``cloudsieve warmup`` on two cores or more: the targets a second process compiles; the first
+#: compiles ``scores`` first (:func:`split_targets`), so no kernel compiles twice
 SECOND: tuple[str, ...] = ("km", "fcm", "rules")
 
 
 def split_targets(targets: Iterable[str]) -> tuple[list[str], list[str]]:
-    """*targets* as (this process's, a second process's): the second's are those of :data:`SECOND`, and
-    this process's start with ``scores``; when either is empty, all in this process in the order given."""
+    """*targets* as (this process's, the second's): the second gets :data:`SECOND`, this one starts with ``scores``."""
     targets = list(targets)
     second = [t for t in targets if t in SECOND]
     first = [t for t in targets if t not in SECOND]
@@ -231,8 +211,9 @@ def split_targets(targets: Iterable[str]) -> tuple[list[str], list[str]]:
 
 
 def warm_report(targets: Iterable[str], on_target: Callable[[str, dict], None] | None = None) -> dict:
-    """:func:`warm_up` of each target in turn, with what numba compiled: ``{target: {"seconds",
-    "compile_seconds", "compiled": {kernel: seconds}}}``; ``on_target(target, its entry)`` after each."""
+    """:func:`warm_up` of each target, with what numba compiled:
+    ``{target: {"seconds", "compile_seconds", "compiled": {kernel: seconds}}}``; ``on_target`` after each.
+    """
     from .kernels.compile_log import CompileLog
 
     out = {}
@@ -257,17 +238,7 @@ def warm_up(targets: Iterable[str] = ("common", "partition", "scores"), *,
             report: Callable[[str, float], None] | None = None) -> float:
     """Call the kernels of each of *targets* (names of :data:`cloudsieve.rule_table.TARGETS`) once on a tiny input.
 
-    Parameters
-    ----------
-    targets : iterable of str
-        Warm-up targets, run in the order given.
-    report : callable, optional
-        ``report(target, seconds)`` after each target.
-
-    Returns
-    -------
-    float
-        The seconds spent, all targets.
+    ``report(target, seconds)`` is called after each. Returns the seconds spent.
 
     Raises
     ------

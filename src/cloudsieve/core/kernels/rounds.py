@@ -1,22 +1,15 @@
 """Compiled kernels of one round of the ``iterative`` and ``coverage`` rules (numba; private, inputs assumed valid).
 
-The caller (:mod:`cloudsieve.core.rounds`) keeps the state of the rounds in
-flat arrays over the n points (its own order, "rows"):
+State of the rounds (:mod:`cloudsieve.core.rounds`), flat over n rows:
 
-- ``nb`` (n, W) int32 or int64: the neighbour list of each row, nearest
-  first; an entry outside [0, n) (-1 or n) is no neighbour, and only the
-  first ``kk[row]`` columns count (``kk`` (n,) int64; 0: the row has no list);
-- ``val`` (n,) float64 the scores, ``alive`` (n,) bool, ``ginv`` (n,) int64
-  the cluster of each row (0..c-1), ``dup`` (n,) bool the exact copies;
-- without context, rows grouped by cluster (cluster j: rows starts[j] to
-  starts[j + 1]) and every list inside its cluster, so the kernels taking a
-  cluster range (c0, c1) can run on disjoint ranges in threads (they release
-  the GIL); a cluster's result never depends on the ranges.
+- ``nb`` (n, W) int32 or int64: neighbour lists, nearest first; entries outside
+  [0, n) are none; only the first ``kk[row]`` columns count (0: no list);
+- ``val`` (n,) float64 scores, ``alive`` (n,) bool, ``ginv`` (n,) int64 cluster,
+  ``dup`` (n,) bool exact copies;
+- without context, rows grouped by cluster and lists inside their cluster, so
+  kernels over a cluster range (c0, c1) run on threads.
 
-Here: the order of the candidates (val, then a unique ``tie`` id), the
-coverage test, the greedy independent set of a round, and the removal of the
-rows it takes. The lists kept between rounds are in :mod:`.lists`, the
-rescoring in :mod:`.rescore`.
+Lists between rounds: :mod:`.lists`; rescoring: :mod:`.rescore`.
 """
 
 from __future__ import annotations
@@ -27,13 +20,7 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def candidates(alive, val, threshold, any_finite):
-    """The alive rows with val <= threshold (``any_finite``: with a finite val), ascending, and their val.
-
-    Returns
-    -------
-    pool : ndarray of shape (m,), int64
-    keys : ndarray of shape (m,), float64
-    """
+    """The alive rows with val <= threshold (``any_finite``: with a finite val), ascending: pool (m,) int64, keys (m,) float64."""
     n = len(val)
     pool = np.empty(n, dtype=np.int64)
     m = 0
@@ -52,11 +39,7 @@ def candidates(alive, val, threshold, any_finite):
 
 @njit(cache=True, nogil=True)
 def break_ties(cand, keys, tie):
-    """Sort, in place, each run of equal ``keys`` of ``cand`` (sorted by ``keys``, aligned with it) by ``tie``.
-
-    With unique ``tie`` ids the result is the lexicographic order (val, tie),
-    whatever order the sort left the equal values in.
-    """
+    """Sort each run of equal ``keys`` of ``cand`` by ``tie``, in place: the order (val, tie)."""
     m = len(cand)
     i = 0
     while i < m:
@@ -87,9 +70,10 @@ def _sort_key(b):
 
 @njit(cache=True, nogil=True)
 def _radix_order(keys, m, kb, kb2, ib, ib2, count):
-    """The stable order of keys[:m] (float64, no NaN): a byte-wise radix sort skipping the bytes
-    all keys share (few in one cluster). ``kb``, ``kb2`` (uint64), ``ib``, ``ib2`` (int64) of
-    length >= m and ``count`` (256,) int64 are scratch; returns a view of ``ib`` or ``ib2``."""
+    """Stable order of keys[:m] (float64, no NaN): a byte-wise radix sort skipping the bytes all keys share.
+
+    ``kb``, ``kb2``, ``ib``, ``ib2`` (length >= m) and ``count`` (256,) are scratch; returns a view of ``ib`` or ``ib2``.
+    """
     same_or = np.uint64(0)
     same_and = ~np.uint64(0)
     bits = keys.view(np.uint64)  # the keys' bits, without an array per key
@@ -128,12 +112,9 @@ def _radix_order(keys, m, kb, kb2, ib, ib2, count):
 def select_round(cand, nb, kk, ok, limit):
     """One round's greedy independent set of ``cand`` (priority order): the rows taken, in that order.
 
-    A candidate is taken unless a row taken before is in its list or has it
-    in its own list; when ``ok`` (n,) bool is not empty, it must also have
-    ok[row] (the coverage test, on the lists as they are at the start of the
-    round, so filtering the candidates first gives the same set). Stops
-    after ``limit`` rows (limit < 0: no limit): the first ``limit`` of the
-    whole set, since the pass is sequential.
+    A candidate is taken unless a taken row is in its list or lists it; with ``ok``
+    (n,) not empty, it must also have ok[row] (the coverage test at round start).
+    Stops after ``limit`` rows (< 0: no limit).
     """
     n = len(kk)
     K = nb.shape[1]
@@ -173,14 +154,10 @@ _HALF_MAX = np.finfo(np.float64).max / 2
 def _is_covered(nb, kk, r1, y, coverage, vals):
     """r_1(y) <= coverage * (median of r_1 over y's listed neighbours); False without neighbours.
 
-    ``r1`` (n,) holds r_1 of every row, +inf for a row without a list (kk <= 0),
-    as :func:`.lists.spacings` gives it. The median of an even count is the mean of
-    the two middle values, as ``np.nanmedian``. With 0 < coverage < inf, c v
-    is monotone in v, so the values v with r_1(y) <= c v are the upper part of
-    the sorted values: counting them decides, except when the median is the
-    mean of the largest value below and the smallest above (both known from
-    the same pass), or when a sum could overflow; then (and for other
-    coverages) the values are sorted. ``vals`` is scratch space of length >= K.
+    ``r1`` (n,) as :func:`.lists.spacings` gives it (+inf without a list); an even
+    count's median is the mean of the middle two (``np.nanmedian``). Counting decides
+    for 0 < coverage < inf except near the median or on overflow, where the values are
+    sorted. ``vals``: scratch of length >= K.
     """
     n = len(kk)
     if kk[y] <= 0 or nb.shape[1] == 0 or nb[y, 0] < 0 or nb[y, 0] >= n:
@@ -231,8 +208,7 @@ def _is_covered(nb, kk, r1, y, coverage, vals):
 
 @njit(cache=True, nogil=True)
 def covered_rows(nb, kk, r1, coverage, a, b, ok):
-    """ok[y] = the coverage test of row y, for the rows a to b - 1 (in row order: a cluster's rows
-    are close in memory). ``r1`` (n,): the rows' r_1, +inf where kk <= 0 (:func:`.lists.spacings`)."""
+    """ok[y] = the coverage test of rows a to b - 1; ``r1`` (n,) as :func:`.lists.spacings`."""
     vals = np.empty(max(nb.shape[1], 1))
     for y in range(a, b):
         ok[y] = kk[y] > 0 and _is_covered(nb, kk, r1, y, coverage, vals)
@@ -250,18 +226,12 @@ def covered_mask(nb, kk, r1, cand, coverage):
 
 @njit(cache=True, nogil=True)
 def select_clusters(starts, c0, c1, alive, val, threshold, any_finite, tie, nb, kk, r1, coverage):
-    """The greedy independent sets of one round when every list stays inside its cluster.
+    """The greedy independent sets of one round for clusters c0 to c1 - 1, lists inside their cluster.
 
-    Rows are grouped by cluster (cluster j: rows starts[j] to starts[j + 1]);
-    here the clusters c0 to c1 - 1. The candidates (alive, val <= threshold, or finite val with
-    ``any_finite``) are taken in the order (val, tie) as in
-    :func:`select_round`; since no list leaves its cluster, a row's fate
-    depends only on the candidates of its cluster before it, so each cluster
-    is ordered and run on its own (small sorts, memory at hand). With ``r1``
-    not empty, a candidate must also pass the coverage test (:func:`_is_covered`,
-    on the lists as they are at the start of the round), tested only when it
-    could be taken. Returns the rows taken (int64, cluster by cluster): the
-    whole set of :func:`select_round` without limit, in another order.
+    Candidates (alive, val <= threshold, or finite val with ``any_finite``) in order
+    (val, tie) as :func:`select_round`, each cluster on its own; with ``r1`` not empty
+    also the coverage test (:func:`_is_covered`) where a candidate could be taken.
+    Returns the rows taken, cluster by cluster: :func:`select_round`'s set without limit.
     """
     n = len(kk)
     K = nb.shape[1]
