@@ -1,28 +1,15 @@
 """How many points each cell keeps: the sizes of greedy packings, a cheap rehearsal of the elimination.
 
-The ``eliminate`` rule runs cell by cell (out of core, and in memory above
-``cell_points``), each cell to its own count q_j, so the counts must say
-where the elimination over the whole cloud would keep its points. The k-NN
-area model (:mod:`.radius`) misplaces them: on the shared scans, cells of
-16,384 points got counts 11-41% off the whole cloud's elimination on
-average (pumpAVisualReferenceImage.e57 at 50%, append-bug at 10%), because
-its areas ignore how the points are arranged (scan lines, strips, piles),
-and the cells' kept sets had 2-83% more point RMS than one elimination and
-opened holes (point max up to 11x).
+The ``eliminate`` rule runs cell by cell, each to its own count, so counts must
+say where one elimination over the whole cloud would keep its points. The k-NN
+area model (:mod:`.radius`) ignores how points are arranged (scan lines, strips,
+piles). A greedy packing at radius rho (each point joins unless one already in is
+closer than rho) is a Poisson-disk subset too, so its size follows the
+arrangement as the elimination's does (README, "eliminate in cells").
 
-A greedy packing at radius rho (points in a fixed order; each joins unless
-a point already in is closer than rho) is also a Poisson-disk subset, so
-its size follows the arrangement as the elimination's does: with rho solved
-so that the cloud's packings total the target, the cells' packing sizes
-were within 1-5% of the elimination's kept points per cell, and the
-cells' kept sets had the point RMS of one elimination over the whole cloud
-to 1% (README, "eliminate in cells").
-
-:func:`packing_ladder` measures one cell's packings at radii ``LADDER`` x
-r_max in one pass; :func:`ladder_shares` finds, for all cells together, the
-radius at which the packings total the target (linear between two rungs)
-and returns each cell's packing size there: the expected kept points that
-:func:`kept_counts` turns into exact integer counts.
+:func:`packing_ladder` measures a cell's packings at radii ``LADDER`` x r_max;
+:func:`ladder_shares` finds the radius where all cells' packings total the target;
+:func:`kept_counts` makes exact integer counts.
 """
 
 from __future__ import annotations
@@ -35,15 +22,15 @@ from .kernels import packing as _kp
 
 __all__ = ["LADDER", "packing_ladder", "ladder_shares", "kept_counts"]
 
-#: packing radii in r_max: the radius at which the packings total the target was 1.06-1.46 r_max on the shared
-#: scans at 50%, 20% and 10% kept
+#: packing radii in r_max, around where the packings total the target
 LADDER = (0.84, 1.0, 1.19, 1.41, 1.68, 2.0)
 
 
 def packing_ladder(points: np.ndarray, r_max: float) -> tuple[np.ndarray, int]:
-    """Greedy packing sizes of *points* (valid (n, 3)) at radii ``LADDER`` x *r_max* (finite), and the
-    number of distinct points. Exact copies join no packing; the visiting order is the grid's canonical
-    one (by cell, then coordinates), so neither the input order nor the thread count matters."""
+    """Greedy packing sizes of valid *points* (n, 3) at radii ``LADDER`` x finite *r_max*, and the distinct count.
+
+    Copies join no packing; the grid's canonical order makes it independent of input order and threads.
+    """
     n = len(points)
     if n == 0:
         return np.zeros(len(LADDER), dtype=np.int64), 0
@@ -54,9 +41,7 @@ def packing_ladder(points: np.ndarray, r_max: float) -> tuple[np.ndarray, int]:
 
 
 def ladder_shares(counts, target: int) -> np.ndarray:
-    """Expected kept points (P,) of cells with packing sizes *counts* (P, L) along ``LADDER``: each cell's
-    size at the radius where the sizes total *target* (linear between the two rungs around it; the end
-    rung's sizes beyond the ladder)."""
+    """Expected kept points (P,) of cells with packing sizes *counts* (P, L): sizes where they total *target* (linear between rungs)."""
     c = np.asarray(counts, dtype=np.float64).reshape(-1, len(LADDER))
     total = c.sum(axis=0)  # non-increasing along the ladder
     if not len(c) or target >= total[0]:
@@ -71,26 +56,10 @@ def ladder_shares(counts, target: int) -> np.ndarray:
 def kept_counts(expected, distinct, target: int) -> np.ndarray:
     """Integer kept counts of the cells summing exactly to *target* (all distinct points when fewer).
 
-    The shares *expected* scaled to the target, each clipped to its cell's
-    *distinct* points (the excess spread over the others, again in
-    proportion), then rounded by largest remainder (ties by cell id). Exact
-    copies never count: a target above the distinct points is not met (the
-    run says so). Deterministic.
+    *expected* (P,) scaled to the target, clipped to each cell's *distinct* points (the
+    excess spread proportionally), rounded by largest remainder (ties by cell id).
+    Copies never count. Returns q_j in [0, distinct_j], int64 (P,).
 
-    Parameters
-    ----------
-    expected : array_like of shape (P,), float >= 0
-    distinct : array_like of shape (P,), int
-        Distinct points of each cell.
-    target : int
-
-    Returns
-    -------
-    ndarray of shape (P,), int64
-        q_j in [0, distinct_j]; sum min(target, sum distinct).
-
-    Examples
-    --------
     >>> kept_counts([1.0, 1.0, 2.0], [5, 5, 5], 5).tolist()
     [1, 1, 3]
     """

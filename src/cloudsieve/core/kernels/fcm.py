@@ -1,23 +1,13 @@
 """Compiled kernels of fuzzy C-means over the nearest centres (numba; private: inputs are assumed valid).
 
-- :func:`update_rows`: one membership update of a range of points: the
-  distances to their L centres and ring, the swaps, the test for a new
-  query, the query (:func:`.centres.knn_row`), the memberships, their
-  change and the hard labels;
-- :func:`finish_rows`: the same after a query made outside (scipy's tree);
-- :func:`block_sums`: the u^m-weighted sums of one block of points;
-- :func:`nearest_first`: each row's centres ordered by distance;
-- :func:`max_change`: the largest membership change of rows whose centres changed.
+:func:`update_rows` (one membership update of a row range, with queries via
+:func:`.centres.knn_row`), :func:`finish_rows` (after an outside query),
+:func:`block_sums`, :func:`nearest_first`, :func:`max_change`.
 
-As in :mod:`.kmeans`, every floating-point operation is the one of the numpy
-code these replaced (:mod:`cloudsieve.core.fcm` before the kernels), in the
-same order, so memberships, centres and labels are the same bit for bit.
-(For m != 2, the powers are libm's ``pow``; numpy's own may differ in the
-last bit on some CPUs, so memberships and centres may differ there.)
-
-These kernels compile in functions of :mod:`.centres` and :mod:`.kmeans`;
-numba's on-disk cache (``cache=True``) checks only a function's own file, so
-after editing those files delete this package's ``__pycache__``.
+As in :mod:`.kmeans`, floating-point operations follow numpy's order, bit for bit
+(for m != 2 the powers are libm's ``pow``, which may differ from numpy's in the last bit).
+These kernels compile in functions of :mod:`.centres` and :mod:`.kmeans`; after
+editing those, delete this package's ``__pycache__`` (numba's cache checks one file).
 """
 
 from __future__ import annotations
@@ -35,10 +25,10 @@ __all__ = ["memberships", "update_rows", "finish_rows", "block_sums", "nearest_f
 
 @njit(cache=True, nogil=True)
 def memberships(d2, e, u, r):
-    """u_l = 1 / sum_q (d2_l / d2_q)^e over one row of squared distances d2 (L,),
-    written to u (L,); r (L,) is scratch. As numpy computed it for the row of a
-    block: r = (min d2 / d2)^e, u = r / (0.0 + pairwise sum of r); a zero
-    distance gives 1 / (number of zeros) to each zero and 0 to the others."""
+    """u_l = 1 / sum_q (d2_l / d2_q)^e over squared distances d2 (L,), into u (L,); r (L,) scratch.
+
+    Computed as r = (min d2 / d2)^e, u = r / (0.0 + pairwise sum of r); zero distances share 1 equally.
+    """
     L = len(d2)
     dmin = d2[0]
     for q in range(1, L):
@@ -89,8 +79,7 @@ def _row_change(old_i, old_u, new_i, new_u):
 
 @njit(cache=True, nogil=True)
 def max_change(idx0, U0, idx1, U1):
-    """max |U1 - U0| over the full n x c matrices, from their kept entries (n, L0) and
-    (n, L1) (rows in any order of centres; an entry absent from one side is 0 there)."""
+    """max |U1 - U0| over the full n x c matrices from kept entries (n, L0), (n, L1); absent entries are 0."""
     best = 0.0
     for i in range(len(idx0)):
         v = _row_change(idx0[i], U0[i], idx1[i], U1[i])
@@ -101,9 +90,7 @@ def max_change(idx0, U0, idx1, U1):
 
 @njit(cache=True, nogil=True, inline="always")
 def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
-    """The end of row i's update, its new centres Ib (sorted) and squared
-    distances D2 known: memberships, their change (returned), the hard label
-    (hard[i] updated; the change of label added to the count returned)."""
+    """End of row i's update with new sorted centres Ib and D2: memberships, their change (returned), hard label."""
     L = len(Ib)
     memberships(D2, e, ub, r)
     ch = 0.0
@@ -172,16 +159,11 @@ def _sort_by_index(Ib, D2, L):
 def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lists, flag):
     """One membership update of rows s..e_row-1 (see ``cloudsieve.core.fcm._fcm``).
 
-    Without ``have`` (the first update) every row is queried. Otherwise a row's
-    squared distances D2 to its L centres idx[i] and D2q to its ring
-    ring[i] are computed; when a ring centre is closer than the farthest of
-    the L, the L nearest of both (stable order by distance, then the L by
-    index) become idx[i] and the others the ring; the row is queried again
-    unless that farthest distance is below reach[i]^2. A query returns the K
-    nearest centres: the first L by index, the next E the ring, the (L+E+1)-th
-    distance the new reach (when K > L + E). A query whose distances tie
-    (flag[i] = 1) is left to the caller (:func:`finish_rows`); the row is not
-    touched.
+    Without ``have`` (first update) every row is queried. Otherwise distances to the
+    L centres and the ring are recomputed, closer ring centres swap in, and the row is
+    queried again unless its farthest distance is below reach[i]^2. A query's K nearest
+    give the L (by index), the ring, and the new reach; tied queries (flag[i] = 1) are
+    left to :func:`finish_rows`.
 
     Parameters
     ----------
@@ -193,8 +175,7 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
     Returns
     -------
     (float, int)
-        The largest membership change of the rows done, and how many of
-        their hard labels changed.
+        Largest membership change of the rows, and how many hard labels changed.
     """
     L = idx.shape[1]
     E = ring.shape[1]
@@ -263,8 +244,7 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
 
 @njit(cache=True, nogil=True)
 def finish_rows(X, C, rows, qd, qi, idx, ring, U, reach, hard, have, e):
-    """The rows ``rows`` after their query (qd, qi) of shape (m, K) made outside:
-    as the end of :func:`update_rows`. Returns (largest change, labels changed)."""
+    """Rows ``rows`` after their outside query (qd, qi) (m, K), as the end of :func:`update_rows`. Returns (change, labels changed)."""
     L = idx.shape[1]
     E = ring.shape[1]
     K = qd.shape[1]
@@ -294,9 +274,7 @@ def finish_rows(X, C, rows, qd, qi, idx, ring, U, reach, hard, have, e):
 
 @njit(cache=True, nogil=True)
 def block_sums(X, idx, U, m, s, e, c):
-    """The sums of rows s..e-1 (one block): den (c,) of W = U^m and num (c, p) of
-    W x, each adding the entries in row-major order from 0.0 (``np.bincount``
-    over the block's flattened (rows, L) arrays); W = U * U when m = 2."""
+    """Sums of rows s..e-1: den (c,) of W = U^m and num (c, p) of W x, in row-major order from 0.0 (``np.bincount``)."""
     p = X.shape[1]
     L = idx.shape[1]
     num = np.zeros((c, p))
@@ -314,8 +292,7 @@ def block_sums(X, idx, U, m, s, e, c):
 
 @njit(cache=True, nogil=True)
 def nearest_first(X, C, idx, U, s, e):
-    """Rows s..e-1: idx[i] and U[i] in the order of the distances to C[idx[i]]
-    (stable: equal distances keep their order)."""
+    """Rows s..e-1: idx[i] and U[i] ordered by distance to C[idx[i]] (stable)."""
     L = idx.shape[1]
     d = np.empty(L)
     o = np.empty(L, dtype=np.int64)
