@@ -1,10 +1,7 @@
 """Refinement into small clusters (DESIGN.md stage 3): K-means or fuzzy C-means labels.
 
-:func:`refine_labels` clusters n points into c = ceil(n / cluster_size)
-clusters with :class:`~.kmeans.KMeans` or :class:`~.fcm.FuzzyCMeans` (the
-engine calls it per cell; it checks its arguments); :func:`make_estimator` builds the estimator and
-:func:`refine_unchecked` runs it on validated points (for
-:func:`~.simplify.simplify_points`).
+:func:`refine_labels` (checked; the engine calls it per cell), :func:`make_estimator`,
+and :func:`refine_unchecked` on validated points (for :func:`~.simplify.simplify_points`).
 """
 
 from __future__ import annotations
@@ -30,20 +27,9 @@ logger = logging.getLogger(__name__)
 
 METHODS = _METHODS  # the option's choices (:mod:`cloudsieve.params_spec`)
 
-# The refinement's stopping rule. The paper runs KM until no point changes
-# cluster and FCM until memberships move less than 1e-5. Measured (1 M points
-# into 2,500 clusters): KM needs 225 iterations to "no change" but
-# 16 to "at most 1% changed", at the same mean squared error within 2.3%; and
-# simplify_points(rule=iterative, ratio=0.5) then gives the same point RMS
-# (bun_zipper 0.3668% vs 0.3656% of the diagonal, maxplanck 0.4528% vs
-# 0.4504%). FCM never reaches 1e-5 in 300 iterations on the real scans, and 20
-# iterations give the same RMS as 300 on bun_zipper (0.3667% vs 0.3687%).
-# FCM also stops at the KM test, at most 1% of the hard labels
-# changed in an update, which it reaches after 7-11 updates (bun_zipper, a
-# 100 k-point surface). Point RMS after iterative to 50%, 20 updates vs this
-# stop: bun_zipper 0.3667% vs 0.3655%, maxplanck 0.4519% vs 0.4506%,
-# autzen_trim 0.1737% vs 0.1720%, in about half the refinement's time.
-# KMeans/FuzzyCMeans keep the paper's criteria as their own defaults.
+# The refinement's stopping rule: earlier than the paper's (KM: no point changes; FCM:
+# memberships move < 1e-5), same point RMS in far fewer iterations (docs/architecture.md,
+# "The refinement stops early by default"). KMeans and FuzzyCMeans keep the paper's criteria.
 REFINE_LABEL_TOL = 0.01
 REFINE_KM_TOL = REFINE_LABEL_TOL
 REFINE_FCM_MAX_ITER = 20
@@ -64,32 +50,26 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
         Mean points per cluster, >= k_min + 2.
     seed : int
     max_iter : int, optional
-        Default: 300 for KM, ``REFINE_FCM_MAX_ITER`` (20) for FCM.
+        Default: 300 for KM, ``REFINE_FCM_MAX_ITER`` for FCM.
     tol : float, optional
-        KM: stop when at most ``tol * n`` points changed cluster (default
-        ``REFINE_KM_TOL`` = 0.01; 0 is the paper's "no point changes").
-        FCM: the largest membership change (default 1e-5, the paper's).
+        KM: stop when at most ``tol * n`` points changed cluster (default ``REFINE_KM_TOL``;
+        0: the paper's). FCM: largest membership change (default 1e-5, the paper's).
     label_tol : float or None
         FCM only: also stop when at most ``label_tol * n`` hard labels changed
-        in an update (default ``REFINE_LABEL_TOL`` = 0.01, KM's default test);
-        None for the paper's membership test alone.
+        (default ``REFINE_LABEL_TOL``); None: the paper's test alone.
     threads : int, optional
-        Threads of the refinement's compiled passes (None: all cores). The labels do not
-        depend on it.
+        None: all cores; the labels do not depend on it.
 
     Returns
     -------
     ndarray of shape (n,), int64
-        Labels in 0..c-1 (some may be unused when a cluster empties).
+        Labels in 0..c-1 (some may be unused).
 
     Notes
     -----
-    The defaults stop earlier than the paper (see ``REFINE_LABEL_TOL`` for the
-    measurements); ``tol=0, max_iter=300`` gives the paper's KM and
-    ``max_iter=300, label_tol=None`` the paper's FCM. Hitting
-    ``max_iter`` (usual for FCM at tol=1e-5 on large uniform surfaces) is logged at INFO level instead of raising a
-    :class:`~cloudsieve.errors.ConvergenceWarning`: the labels still form a
-    valid partition into small clusters.
+    ``tol=0, max_iter=300`` gives the paper's KM, ``max_iter=300, label_tol=None`` its
+    FCM. Hitting ``max_iter`` is logged at INFO level instead of a
+    :class:`~cloudsieve.errors.ConvergenceWarning`: the labels are still a valid partition.
     """
     pts = check_points(points)
     est = make_estimator(pts.shape, method, cluster_size, seed, k_min=k_min, n_nearest=n_nearest,
@@ -100,15 +80,9 @@ def refine_labels(points, method: str = "km", cluster_size: int = 400, seed: int
 def make_estimator(shape, method: str, cluster_size: int, seed: int, *, k_min: int = 4, n_nearest: int = 8,
                    max_iter: int | None = None, init="k-means++", tol: float | None = None,
                    label_tol: float | None = REFINE_LABEL_TOL) -> CentroidClustering | None:
-    """The refinement's estimator for points of shape (n, p) (method and cluster_size already valid).
+    """The refinement's estimator of c = ceil(n / cluster_size) clusters for ``shape`` (n, p); None when n = 0.
 
-    Parameters are those of :func:`refine_labels`; ``shape`` is (n, p).
-
-    Returns
-    -------
-    KMeans, FuzzyCMeans or None
-        The estimator of c = ceil(n / cluster_size) clusters, its parameters
-        checked against the shape; None when n = 0 (nothing to cluster).
+    Parameters as :func:`refine_labels` (method and cluster_size already valid).
 
     Raises
     ------
@@ -131,11 +105,7 @@ def make_estimator(shape, method: str, cluster_size: int, seed: int, *, k_min: i
 
 
 def refine_unchecked(pts: np.ndarray, est: CentroidClustering | None, threads: int | None) -> np.ndarray:
-    """Labels (n,) int64 of ``est`` (from :func:`make_estimator` for this shape) fitted to validated ``pts``.
-
-    A :class:`~cloudsieve.errors.ConvergenceWarning` is logged at INFO level
-    instead (see :func:`refine_labels`); other warnings pass through.
-    """
+    """Labels (n,) int64 of ``est`` fitted to validated ``pts``; a ConvergenceWarning is logged at INFO instead."""
     if est is None:
         return np.zeros(0, dtype=np.int64)
     with warnings.catch_warnings(record=True) as caught:
