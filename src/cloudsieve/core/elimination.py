@@ -1,11 +1,8 @@
 """The weighted sample elimination on a grid, shared by the whole-cloud and the cell eliminations.
 
-:func:`run_elimination` runs the compiled loop (:mod:`.kernels.eliminate`) on a
-:class:`.cellgrid.CellGrid` and its neighbour lists (:mod:`.kernels.neighbours`);
-:func:`keep_lowest` keeps the points removed last; :func:`area_radius` is r_max
-from the areas around the points (:mod:`.radius`). The key and its constants
-are described in :mod:`.eliminate`; :mod:`.eliminate` (one elimination) and
-:mod:`.eliminate_cells` (over cells) both import this module, not each other.
+:func:`run_elimination` runs :mod:`.kernels.eliminate` on a :class:`.cellgrid.CellGrid`
+and its lists; :func:`keep_lowest` keeps the points removed last; :func:`area_radius`
+is r_max (:mod:`.radius`). Key and constants: :mod:`.eliminate`.
 """
 
 from __future__ import annotations
@@ -46,12 +43,13 @@ def alpha_int(alpha: float) -> int:
 
 def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor,
                     keys_left: bool = True) -> tuple:
-    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows; the lists may hold
-    points absent from the start: their terms only make the first bounds larger). Returns the priority of
-    every position of the grid's points (NaN: not removed nor own and left; the own points left: their
-    keys at the stop, or -1.0 without ``keys_left``, the same points kept by :func:`keep_lowest`), and each
-    grid row's rep at the stop: the nearest point left (module .kernels.cover), -1 for exact copies and
-    points none was within reach of (None without the coverage term)."""
+    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows).
+
+    Returns the priority of every grid position (NaN: not removed nor own; own points
+    left: their keys at the stop, or -1.0 without ``keys_left``), and each row's rep at
+    the stop (:mod:`.kernels.cover`; -1 for copies and unreached points; None without
+    the coverage term).
+    """
     two_r = 2.0 * r_max
     nptr, nbr, low, soff, w, term = lists
     src = grid.order
@@ -66,11 +64,7 @@ def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, sca
 
 
 def keep_lowest(priority, count: int) -> np.ndarray:
-    """Keep mask (n,) bool of the ``count`` points removed last: lowest priority, ties higher index.
-
-    Over the priorities of many cells in point-index order, the same call is
-    the one global threshold.
-    """
+    """Keep mask (n,) bool of the ``count`` points removed last: lowest priority, ties higher index."""
     p = np.asarray(priority, dtype=np.float64)
     if p.ndim != 1 or np.isnan(p).any():
         raise InvalidParameterError(f"priority must have shape (n,) without NaN, got shape {p.shape}")
@@ -79,9 +73,7 @@ def keep_lowest(priority, count: int) -> np.ndarray:
     k = int(count)
     if k == 0:
         return keep
-    # the k lowest are the minimum's when it occurs k times: an elimination's points left, all -1.0 without their
-    # keys (numpy's partition of that array, half its values equal, is slow: it cost a cell's elimination more
-    # than this test)
+    # the k lowest are the minimum's when it occurs k times (np.partition is slow on such arrays)
     at_min = p == p.min()
     if np.count_nonzero(at_min) == k:
         return at_min

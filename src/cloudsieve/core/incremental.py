@@ -1,11 +1,8 @@
 """The ``iterative`` and ``coverage`` rounds without context: incremental rescoring (DESIGN.md stage 5).
 
-Without context a cluster's scores depend on its own points only, so after a
-round only the clusters that lost a point change; every point keeps its k-NN
-list between rounds (:mod:`.kernels.lists`) and the touched clusters are
-rescored from them (:mod:`.kernels.rescore`). Public:
-:func:`rounds_incremental`, on validated input (called by
-:func:`.rounds.prune_in_rounds`).
+Without context a cluster's scores depend on its own points only, so after a round
+only touched clusters are rescored (:mod:`.kernels.rescore`) from k-NN lists kept
+between rounds (:mod:`.kernels.lists`). Called by :func:`.rounds.prune_in_rounds`.
 """
 
 from __future__ import annotations
@@ -29,36 +26,20 @@ __all__ = ["rounds_incremental", "SPARE"]
 
 logger = logging.getLogger(__name__)
 
-# Spare neighbours kept per point by the rounds: a point needs a new k-NN query only
-# after losing more than this many of its k + 1 + SPARE nearest (or k + 1 - k' when k falls).
+# Spare neighbours per point: a new k-NN query only after losing more than this many of the k + 1 + SPARE
 SPARE = 4
 
 
 def rounds_incremental(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
     """The iterative/coverage rules without context: incremental rescoring.
 
-    Without context a cluster's scores depend on its own points only, so after
-    a round only the clusters that lost a point change. Every point keeps its
-    k + 1 + e nearest (e <= SPARE spares), nearest first; a dropped point
-    leaves the lists, and as long as a list keeps k' + 1 points (k' the
-    cluster's new k) they are still the k' + 1 nearest among the remaining
-    points (removing points brings none closer): r_k' and r_(k'+1) are then
-    the distances to its k'-th and (k'+1)-th entries, computed as the k-d
-    tree does. Only shorter lists are made again. The lists (the first ones
-    too) come from :func:`.kernels.lists.refresh_lists`, the brute force inside
-    the cluster, which returns the k-d tree's list whenever it is unique; a
-    row whose nearest distances tie is asked of the k-d tree of
-    :func:`.knn.knn_query` (built on the same points as before, so it
-    answers with the same order of tied points). Then W, A and every score of
-    a touched cluster are recomputed in O(m k). A cluster with exact copies is
-    scored again whole. The scores are those of a full rescoring (the same
-    formulas on the same distances; sums may differ in the last bit from
-    :func:`.entropy.score_points`, which orders the points of a cluster
-    differently).
-
-    All the state is kept in the grouped order of :func:`.knn.group` (ties
-    between candidates are still broken by canonical index); the kernels run
-    on ranges of clusters, on ``threads`` threads (:class:`.chunks.ClusterChunks`).
+    Each point keeps its k + 1 + e nearest (e <= SPARE). Removing points brings none
+    closer, so while a list keeps k' + 1 entries (k' the cluster's new k) they give
+    r_k' and r_(k'+1); only shorter lists are remade by
+    :func:`.kernels.lists.refresh_lists`, rows with tied distances by the k-d tree of
+    :func:`.knn.knn_query` (same tie order). Touched clusters are rescored in O(m k);
+    clusters with copies whole. Scores equal a full rescoring's up to the last bit.
+    State is in :func:`.knn.group` order; kernels run on :class:`.chunks.ClusterChunks`.
     """
     threads = int(kw["threads"] or os.cpu_count() or 1)
     if threads <= 1:
@@ -98,11 +79,10 @@ class _Local:
         self.acc_g = np.zeros(n)
 
     def first_lists(self, sizes):
-        """The lists of every point, as :func:`.knn.knn_clusters` (``extra=SPARE``) gives them:
-        the same copies marked in ``dup`` (clusters with a zero distance are done again on
-        their distinct points), the lists by :meth:`lists`, and knn_clusters' k-d tree queries
-        asked only for the rows with tied distances (for all the distinct points of those
-        clusters if one of them still has a zero distance)."""
+        """The lists of every point as :func:`.knn.knn_clusters` (``extra=SPARE``) gives them.
+
+        Same copies in ``dup``; lists by :meth:`lists`; k-d tree queries only for rows with tied distances.
+        """
         g, ginv, dup, c = self.g, self.ginv, self.dup, self.c
         kc, ok, okr, rows = scorable_rows(g, ginv, sizes, self.k0, self.k_min, dup)
         if len(rows) == 0:
@@ -141,9 +121,10 @@ class _Local:
                      int(has.sum()), n_tree, int(flagged.sum()))
 
     def lists(self, q, member, dup, kcl):
-        """The lists of the rows q (ascending) among the ``member`` rows of their cluster that are not
-        ``dup``, k = kcl of the cluster (:func:`.kernels.lists.refresh_lists`, on the threads):
-        (the results of each range, with the range's q), status (len(q),) int8."""
+        """Lists of the rows q (ascending) among the ``member``, non-``dup`` rows of their cluster, k = kcl.
+
+        By :func:`.kernels.lists.refresh_lists` on the threads; returns (each range's results with its q), status (len(q),) int8.
+        """
         cut = np.searchsorted(q, [r[3] for r in self.chunks.ranges] + [self.n])  # q of each range
         res = self.chunks.map(lambda i, c0, c1, a, b: (q[cut[i] : cut[i + 1]],) + kl.refresh_lists(
             self.g, self.ginv, self.chunks.starts, member, dup, q[cut[i] : cut[i + 1]], kcl, SPARE,
@@ -222,9 +203,7 @@ class _Local:
         return distinct[ok[ginv[distinct]]]
 
     def refresh(self, q):
-        """New k-NN lists for the rows q (ascending) among the remaining points: by :meth:`lists`,
-        by the k-d tree for rows whose list has tied distances (the tree of a query of all of q,
-        so their tie order is the tree's)."""
+        """New k-NN lists for rows q (ascending): by :meth:`lists`, tied rows by the k-d tree of a query of all q."""
         if len(q) == 0:
             return
         ginv = self.ginv

@@ -1,11 +1,7 @@
 """Relocation of a kept set: restricted Lloyd steps after the elimination (:mod:`.eliminate`).
 
-Each kept point moves to the point of its Voronoi region (the points
-nearest to it) nearest the region's centroid, unless that would leave some
-point of the region farther than both its current farthest and r_max: lower
-squared error, the same count, no new gap. One step
-(``RELOCATE_STEPS``) is the default of :func:`cloudsieve.core.eliminate.eliminate`
-and of the engine's cells; more changed nothing measurable.
+One step (``RELOCATE_STEPS``) is the default of :func:`cloudsieve.core.eliminate.eliminate`
+and of the engine's cells.
 """
 
 from __future__ import annotations
@@ -37,8 +33,8 @@ class numba_threads:
         self.threads = threads
 
     def __enter__(self):
-        # None touches nothing: asking numba for its thread count starts its threading layer, and a
-        # process that has started GNU OpenMP's cannot fork (the fork server's warm-up)
+        # None touches nothing: querying numba's thread count starts its threading layer, and after
+        # GNU OpenMP's a process cannot fork
         if self.threads is not None:
             import numba
 
@@ -56,11 +52,9 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
              threads: int | None = None) -> np.ndarray:
     """Restricted Lloyd steps on a kept set: lower squared error, same count.
 
-    Each kept point moves to the point of its Voronoi region (the points
-    nearest to it, itself included) nearest the region's centroid, unless a
-    point of the region would end farther from it than both the region's
-    current farthest and r_max. Kept halo points pull on the regions but do
-    not move; only points (not halo) are chosen.
+    Each kept point moves to the point of its Voronoi region nearest the region's
+    centroid, unless a point of the region would end farther than both the region's
+    current farthest and r_max. Kept halo points pull but do not move.
 
     Parameters
     ----------
@@ -70,7 +64,7 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
         The elimination radius; the search reaches 2 r_max.
     halo : array_like of shape (h, 3), optional
     halo_keep : array_like of shape (h,), bool, optional
-        Which halo points are kept (default none).
+        Kept halo points (default none).
     iterations : int
         Steps (stops early when nothing moves).
     threads : int, optional
@@ -99,19 +93,19 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
 
 
 def relocate_points(pts, kp, hal, hk, r_max, iterations, grid=None, near=None) -> np.ndarray:
-    """:func:`relocate` on valid arrays (no checks): pts (n, 3), kp (n,) bool, hal (h, 3), hk (h,) bool,
-    r_max > 0 finite; ``grid``: a :class:`.cellgrid.CellGrid` of ``[pts, hal]`` with cell side 2 r_max
-    (the elimination's), or None to build one; ``near`` (with ``grid``): per grid row, its nearest kept
-    point as the elimination stopped with these kept points found it (:func:`.kernels.grid.nearest_kept`'s
-    answer), -1 where unknown (searched here)."""
+    """:func:`relocate` on valid arrays (no checks).
+
+    ``grid``: a :class:`.cellgrid.CellGrid` of ``[pts, hal]`` with side 2 r_max, or None
+    to build one; ``near``: per grid row its nearest kept point
+    (:func:`.kernels.grid.nearest_kept`), -1 where unknown.
+    """
     if grid is None:  # else the grid the elimination built on the same points and cell side
         grid = CellGrid(np.concatenate([pts, hal]) if len(hal) else pts, 2.0 * r_max)
     return relocate_on_grid(len(pts), kp, hk, r_max, iterations, grid, near)
 
 
 def relocate_on_grid(n, kp, hk, r_max, iterations, grid, near=None) -> np.ndarray:
-    """:func:`relocate_points` on the grid of the n points and the halo's (the points themselves not needed:
-    the grid holds them)."""
+    """:func:`relocate_points` on the grid of the n points and the halo (which holds the points)."""
     src = grid.order
     kept = np.concatenate([kp, hk])[src].astype(np.uint8)
     movable = (src < n).astype(np.uint8)

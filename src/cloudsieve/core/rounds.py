@@ -1,18 +1,9 @@
 """The rounds of the ``iterative`` and ``coverage`` rules (DESIGN.md stage 5).
 
-In each round the candidates (score <= S, or every finite score with a
-target) are taken lowest score first, in a greedy independent set of the
-k-NN graph (no two points dropped in one round are k-NN neighbours, either
-way); ``coverage`` first keeps only the candidates whose nearest-neighbour
-distance is at most the median of their neighbours' (:func:`_covered`). The
-remaining points are rescored between rounds: incrementally without context
-(only the clusters that lost a point, from the kept k-NN lists:
-:mod:`.incremental`), by a full rescoring with context (here). One round's
-choice is :func:`.selection.round_selection`. See :mod:`.rules.iterative`
-and :mod:`.rules.coverage` for the rules' contracts.
-
-Public: :func:`prune_in_rounds`, on validated input (called by
-:func:`.rules.iterative.rounds`).
+One round's choice: :func:`.selection.round_selection`. Between rounds points are
+rescored: without context incrementally (:mod:`.incremental`), with context in
+full (here). Contracts: :mod:`.rules.iterative`, :mod:`.rules.coverage`.
+Public: :func:`prune_in_rounds` (validated input).
 """
 
 from __future__ import annotations
@@ -46,14 +37,10 @@ def _padded(indptr: np.ndarray, indices: np.ndarray, width: int | None = None) -
 
 
 def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray | None = None) -> np.ndarray:
-    """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph.
+    """Greedy independent set of ``cand`` (priority order) in the symmetric k-NN graph, in that order.
 
-    ``nb`` (n, K) holds each point's neighbours, padded with -1 (or n). Returns
-    the selected candidates in priority order (with ``kk``, row i holds k =
-    kk[i] neighbours, the columns after them are ignored): exactly what a
-    sequential pass keeps (take a candidate unless one of its neighbours, or a
-    point having it as a neighbour, was taken before), computed by that pass
-    (:func:`.kernels.rounds.select_round`).
+    ``nb`` (n, K) padded with -1 (or n); with ``kk`` row i holds kk[i] neighbours.
+    Computed by :func:`.kernels.rounds.select_round`.
     """
     cand = np.asarray(cand, dtype=np.int64)
     nb = np.asarray(nb, dtype=np.int64)
@@ -66,11 +53,9 @@ def _first_independent(cand: np.ndarray, nb: np.ndarray, n: int, kk: np.ndarray 
 def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw):
     """The iterative/coverage rules: the keep mask (n,) bool of the canonically ordered points P.
 
-    ``L`` (n,) int64 labels 0..c-1; ``target`` a kept count or None; ``report``
-    called with the count dropped in each round; ``kw`` the scoring arguments
-    of :func:`.entropy.score_unchecked` (k0, k_min, dim, ctx, threads). With
-    context every remaining point is rescored between rounds; without, only
-    the touched clusters (:func:`.incremental.rounds_incremental`).
+    ``L`` (n,) int64 labels 0..c-1; ``target`` a kept count or None; ``report`` gets
+    the count dropped each round; ``kw``: arguments of :func:`.entropy.score_unchecked`.
+    Without context only touched clusters are rescored (:func:`.incremental.rounds_incremental`).
     """
     if kw["ctx"] is None:
         return rounds_incremental(P, L, rule, threshold, target, score, coverage, max_rounds, report, kw)
@@ -113,13 +98,9 @@ def prune_in_rounds(P, L, rule, threshold, target, score, coverage, max_rounds, 
 def _covered(P, nb, cand, coverage, kk=None):
     """Which candidates may go without opening a gap wider than the local spacing.
 
-    r_1(y) is y's nearest-neighbour distance. A candidate y qualifies when
-    r_1(y) <= coverage * median of r_1 over y's k nearest: y sits where points
-    are at least as dense as around it. An isolated point (outlier, edge of a
-    thin part), whose nearest neighbour is far compared with its neighbours'
-    spacing, stays, whatever its entropy score. ``nb`` (n, K) padded with -1
-    (or n); with ``kk`` (n,), row i holds kk[i] neighbours. Returns a bool
-    mask (len(cand),) (:func:`.kernels.rounds.covered_mask`).
+    y qualifies when r_1(y) <= coverage * median of r_1 over its k nearest, so
+    isolated points stay whatever their score. ``nb``, ``kk`` as
+    :func:`_first_independent`. Returns bool (len(cand),) (:func:`.kernels.rounds.covered_mask`).
     """
     nb = np.asarray(nb, dtype=np.int64)
     kk = np.full(len(P), nb.shape[1], dtype=np.int64) if kk is None else np.asarray(kk, dtype=np.int64)

@@ -1,12 +1,8 @@
-"""The k nearest inside clusters as the scores without context need them (DESIGN.md stage 4's k-NN).
+"""The k nearest inside clusters as the scores without context need them (DESIGN.md stage 4).
 
-:func:`knn_scored_clusters` gives the lists and distances of
-:func:`.knn.knn_clusters` in one array laid out per cluster (not grouped by
-k), straight from the points in input order and their grouped order (no
-grouped copy of the points), from the compiled kernel
-:func:`.kernels.knn.knn_scored`; :func:`groups_to_lists` writes
-knn_clusters' groups into that layout (the paths with a context or more than
-3 coordinates). On valid input (see :mod:`._validation`).
+:func:`knn_scored_clusters`: :func:`.knn.knn_clusters`' lists laid out per cluster,
+from points in input order (:func:`.kernels.knn.knn_scored`); :func:`groups_to_lists`
+writes knn_clusters' groups into that layout. Valid input assumed.
 """
 
 from __future__ import annotations
@@ -30,8 +26,7 @@ _LARGE = 2048  # points of a cluster above which its exact copies are looked for
 
 
 def _copies(pts, order, indptr, rows, dup):
-    """:func:`.knn.mark_duplicates` of the grouped positions ``rows`` (ascending), the
-    points taken from pts through order (no grouped copy of all the points)."""
+    """:func:`.knn.mark_duplicates` of ascending grouped positions ``rows``, points read through order."""
     sub = np.ascontiguousarray(pts[order[rows]])
     local = np.zeros(len(rows), dtype=bool)
     first = mark_duplicates(sub, _cluster_of(indptr, rows), np.arange(len(rows)), local)
@@ -40,18 +35,14 @@ def _copies(pts, order, indptr, rows, dup):
 
 
 def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
-    """k-NN of every point inside its own cluster as scoring needs it, the points
-    given in input order with their grouped order (points of 1 to 3 coordinates).
+    """k-NN of every point inside its own cluster as scoring needs it (1 to 3 coordinates).
 
-    The same lists and distances as :func:`.knn.knn_clusters`, in one layout per
-    cluster instead of groups by k: from the compiled kernel
-    :func:`.kernels.knn.knn_scored` (no grouped copy of the points); the
-    clusters with exact copies again through :func:`.knn.knn_query` on their
-    distinct points, as knn_clusters does.
+    As :func:`.knn.knn_clusters`, one layout per cluster; clusters with exact copies
+    again via :func:`.knn.knn_query` on their distinct points.
 
     Parameters
     ----------
-    pts : ndarray of shape (n, p), float64, 1 <= p <= 3
+    pts : ndarray (n, p), float64, 1 <= p <= 3
     order, indptr : ndarray of int64
         From :func:`.knn.group`: input indices in grouped order, cluster starts (c + 1,).
     k0, k_min, threads
@@ -59,18 +50,16 @@ def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
 
     Returns
     -------
-    rk, rk1 : ndarray of shape (n,), float64
+    rk, rk1 : ndarray (n,), float64
         r_k and r_(k+1) per grouped position (1.0 where not scored).
-    kcl : ndarray of shape (c,), int64
-        k of each cluster, 0 for the clusters not scored.
-    koff : ndarray of shape (c + 1,), int64
-    scored : ndarray of shape (n,), bool
-        The grouped positions scored (kcl of their cluster > 0, not a copy).
+    kcl : ndarray (c,), int64
+        k of each cluster, 0 when not scored.
+    koff : ndarray (c + 1,), int64
+    scored : ndarray (n,), bool
     nb : ndarray of int64
-        The k nearest of the scored position p of cluster j (grouped
-        positions, nearest first) at ``nb[koff[j] + (p - indptr[j]) * k]``, k entries.
-    dup : ndarray of shape (n,), bool
-        The exact copies (grouped positions).
+        k nearest of scored position p of cluster j at ``nb[koff[j] + (p - indptr[j]) * k]``.
+    dup : ndarray (n,), bool
+        The exact copies.
     """
     n = len(order)
     sizes = np.diff(indptr)
@@ -83,9 +72,8 @@ def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
     kcl = np.where(ok, kc, 0).astype(np.int64)
     koff = np.zeros(len(sizes) + 1, dtype=np.int64)
     np.cumsum(sizes * kcl, out=koff[1:])
-    # a cluster holding exact copies is flagged by the kernel after its k-NN search, in which a pile of m
-    # copies costs m^2 distances (60,000 points at one spot: minutes); the large clusters (any big pile is
-    # in one) are checked first, by hashing
+    # the kernel flags copies only after its k-NN search, where a pile of m copies costs m^2:
+    # large clusters are checked first, by hashing
     big = np.flatnonzero((kcl > 0) & (sizes > _LARGE))
     pre = np.zeros(len(sizes), dtype=bool)
     if len(big):
@@ -113,9 +101,7 @@ def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
 
 
 def groups_to_lists(groups, indptr, kcl, koff, rk, rk1, nb):
-    """Write groups as :func:`.knn.knn_clusters` gives them (positions as grouped
-    positions) into the layout of :func:`knn_scored_clusters`, in place; kcl
-    gets each group's k for its clusters."""
+    """Write :func:`.knn.knn_clusters` groups into the layout of :func:`knn_scored_clusters`, in place; kcl gets each group's k."""
     for k, r, a, b, nbx in groups:
         cl = _cluster_of(indptr, r)
         kcl[cl] = k

@@ -1,12 +1,9 @@
 """One round of the ``iterative`` and ``coverage`` rules: which points it drops (DESIGN.md stage 5).
 
-The candidates (score <= S, or every finite score with a target) are taken
-lowest score first (ties: a unique id, the canonical index), in a greedy
-independent set of the k-NN graph (no two points dropped in one round are
-k-NN neighbours, either way); ``coverage`` first keeps only the candidates
-whose nearest-neighbour distance is at most the median of their neighbours'
-(:func:`.kernels.rounds.covered_rows`). With a target the round stops at it.
-The kernels are in :mod:`.kernels.rounds`.
+Candidates (score <= S, or any finite score with a target) go lowest score first
+(ties: canonical index) in a greedy independent set of the k-NN graph; ``coverage``
+first keeps those passing :func:`.kernels.rounds.covered_rows`. With a target the
+round stops at it.
 """
 
 from __future__ import annotations
@@ -28,9 +25,7 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class RoundTest:
-    """What a round of ``iterative``/``coverage`` tests: the *rule* (a name of the registry that runs rounds,
-    :data:`cloudsieve.rule_table.RULES`), the *threshold* S, the kept count *target* (None: the threshold
-    decides) and the *coverage* factor."""
+    """What a round tests: *rule* (of :data:`cloudsieve.rule_table.RULES`), *threshold* S, kept count *target* (None: threshold), *coverage*."""
 
     rule: str
     threshold: float
@@ -42,36 +37,29 @@ def round_selection(P, alive, val, tie, nb, n_alive, test: RoundTest, kk=None, r
                     chunked: ClusterChunks | None = None) -> np.ndarray:
     """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
 
-    Candidates are the alive points with val <= threshold (with a target: any
-    finite val), lowest val first, ties by ``tie``; ``coverage`` keeps those
-    that pass the coverage test (on ``r1``, computed when not given); then a
-    greedy independent set in the k-NN graph ``nb``, cut at the target (then
-    in priority order, otherwise in any order).
-
     Parameters
     ----------
-    P : ndarray of shape (n, p), float64
-    alive : ndarray of shape (n,), bool
-    val : ndarray of shape (n,), float64
+    P : ndarray (n, p), float64
+    alive : ndarray (n,), bool
+    val : ndarray (n,), float64
         Scores (+inf: never a candidate).
-    tie : ndarray of shape (n,), int64
+    tie : ndarray (n,), int64
         Unique ids breaking ties of val.
-    nb : ndarray of shape (n, K), int32 or int64
+    nb : ndarray (n, K), int32 or int64
         Neighbour lists, nearest first; entries outside [0, n) are none.
     n_alive : int
     test : RoundTest
-    kk : ndarray of shape (n,), int64, optional
+    kk : ndarray (n,), int64, optional
         Row i holds kk[i] neighbours (default: K).
-    r1 : ndarray of shape (n,), float64, optional
-        Distance of each row to its first neighbour, +inf where kk = 0.
+    r1 : ndarray (n,), float64, optional
+        Distance to the first neighbour, +inf where kk = 0 (computed when not given).
     chunked : ClusterChunks, optional
-        The points are grouped by cluster and every list stays inside its
-        cluster: each cluster is run on its own, on the chunks' threads.
+        Lists stay inside clusters: each cluster runs on its own, on the chunks' threads.
 
     Returns
     -------
-    ndarray of shape (m,), int64
-        The rows dropped (empty: the rounds stop).
+    ndarray (m,), int64
+        The rows dropped (in priority order when cut at the target).
     """
     rule, threshold, target, coverage = test.rule, test.threshold, test.target, test.coverage
     if target is not None and n_alive <= target:
