@@ -1,26 +1,19 @@
 """Compiled kernels of the k nearest centres of points (numba; private: inputs are assumed valid).
 
-The centres are filed in a uniform grid (side h, :func:`grid_cells`). A query
-either searches rings of cells around the point (:func:`ring_search`), or,
-for many points, reads the candidate list of its cell in a finer grid (side
-s = h / m, same origin): :func:`cell_candidates` lists, for a cell B, every
-centre whose distance to B is at most D_k, the k-th smallest distance from
-a centre to B's farthest corner; any point of B has k centres within D_k,
-so its k nearest are in the list. Both are exact: the squared distances are
-those of scipy's ``cKDTree`` (summed over the coordinates in order from 0),
-and the bounds carry a slack for rounding (``margin``, absolute, and a
-relative 1e-9), so a centre left out is farther than the k-th found. Only
-which of several centres at one equal distance comes first may differ from
-another exact method: :func:`nearest_centres` reports those rows (``tie``).
+Centres are filed in a uniform grid (side h, :func:`grid_cells`). A query searches
+rings of cells (:func:`ring_search`) or, for many points, reads its cell's list in
+a finer grid (:func:`cell_candidates`: every centre within D_k of the cell, D_k the
+k-th smallest distance from a centre to the cell's farthest corner). Both are
+exact: squared distances are cKDTree's and bounds carry a rounding slack
+(``margin``, and relative 1e-9); only the order among equal distances may differ,
+reported per row (``tie``).
 
-Grid tuples, as made by :mod:`cloudsieve.core.centres`:
-``ring = (Cg, gid, start, lo, h, dims, margin)``: the centres in cell order
-(c, p), their indices (c,), the CSR offsets of the cells (n_cells + 1,), the
-origin (3,), the side, the cells per axis (3,) and the slack;
-``lists = (flo, s, fdims, cellpos, lstart, lids, C)``: the fine grid's
-origin, side and cells per axis, the position of each fine cell's list
-(-1: none; length 0: no lists at all), the CSR offsets of the lists, the
-listed centres' indices (int32: lists that fit in cache) and the centres.
+Grid tuples (made by :mod:`cloudsieve.core.centres`):
+``ring = (Cg, gid, start, lo, h, dims, margin)``: centres in cell order (c, p),
+their indices, cell CSR offsets, origin (3,), side, cells per axis (3,), slack;
+``lists = (flo, s, fdims, cellpos, lstart, lids, C)``: fine grid origin, side, cells
+per axis, each fine cell's list position (-1: none; length 0: no lists), list CSR
+offsets, listed centre indices (int32) and the centres.
 """
 
 from __future__ import annotations
@@ -60,14 +53,10 @@ def _coord(X, i, j):
 
 @njit(cache=True, nogil=True)
 def grid_cells(P, lo, h, dims):
-    """Cell of each row of P (n, p) in the grid of origin lo (3,), side h and dims (3,)
-    cells along the first three coordinates (fewer coordinates: one cell along the
-    missing axes); rows outside the grid go to the nearest border cell.
+    """Cell (n,) int64 of each row of P (n, p): (ix * dims[1] + iy) * dims[2] + iz.
 
-    Returns
-    -------
-    ndarray of shape (n,), int64
-        (ix * dims[1] + iy) * dims[2] + iz.
+    Grid of origin lo (3,), side h, dims (3,) cells on the first three coordinates
+    (fewer: one cell on missing axes); outside rows go to the nearest border cell.
     """
     out = np.empty(P.shape[0], dtype=np.int64)
     for i in range(P.shape[0]):
@@ -80,8 +69,7 @@ def grid_cells(P, lo, h, dims):
 
 @njit(cache=True, nogil=True, inline="always")
 def _insert(bd, bi, cnt, k, d2, t):
-    """Insert (d2, t) into the ascending list bd/bi of cnt <= k entries (after equal
-    distances); returns the new count."""
+    """Insert (d2, t) into the ascending bd/bi of cnt <= k entries (after equal distances); returns the new count."""
     if cnt < k:
         q = cnt
         cnt += 1
@@ -100,8 +88,7 @@ def _insert(bd, bi, cnt, k, d2, t):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def ring_search(X, i, ring, k, bd, bi):
-    """The k nearest centres of X[i] by rings of cells: bd (k,) their squared
-    distances ascending, bi (k,) their indices."""
+    """The k nearest centres of X[i] by rings of cells: squared distances bd (k,) ascending, indices bi (k,)."""
     Cg, gid, start, lo, h, dims, margin = ring
     gx, gy, gz = dims[0], dims[1], dims[2]
     x0, x1, x2 = _coord(X, i, 0), _coord(X, i, 1), _coord(X, i, 2)
@@ -167,13 +154,10 @@ def fine_cells(X, rows, r0, r1, flo, s, fdims, occupied):
 
 @njit(cache=True, nogil=True)
 def cell_candidates(cells, a, b, ring, flo, s, fdims, k):
-    """The candidate lists of the fine cells cells[a:b] (see the module's notes).
+    """The candidate lists of the fine cells cells[a:b] (see the module docstring).
 
-    Returns
-    -------
-    counts : ndarray of shape (b - a,), int64
-    ids : ndarray of shape (counts.sum(),), int64
-        The lists one after the other, each by increasing distance to its cell.
+    Returns counts (b - a,) int64 and ids (counts.sum(),) int64: the lists in turn,
+    each by increasing distance to its cell.
     """
     Cg, gid, start, lo, h, dims, margin = ring
     nc = Cg.shape[0]
@@ -270,9 +254,7 @@ def cell_candidates(cells, a, b, ring, flo, s, fdims, k):
 
 @njit(cache=True, nogil=True, inline="always")
 def knn_row(X, i, ring, lists, k, bd, bi):
-    """The k nearest centres of X[i] into bd (squared distances, ascending) and
-    bi (indices): from its fine cell's list when there is one, else by rings.
-    Returns 1 when two of the k distances are equal, else 0."""
+    """The k nearest centres of X[i] into bd, bi (fine cell's list, else rings); returns 1 when two distances tie."""
     flo, s, fdims, cellpos, lstart, lids, lC = lists  # lC: the centres (c, p)
     pos = -1
     if len(cellpos):
@@ -295,11 +277,9 @@ def knn_row(X, i, ring, lists, k, bd, bi):
 
 @njit(cache=True, nogil=True)
 def nearest_centres(X, rows, r0, r1, ring, lists, k, out_d, out_i, tie):
-    """The k nearest centres of the points X[rows[r0:r1]] (:func:`knn_row`).
+    """The k nearest centres of X[rows[r0:r1]] (:func:`knn_row`) at positions r0..r1-1.
 
-    Writes, at positions r0..r1-1 of out_d, out_i (m, k) and tie (m,): the
-    distances ascending (the square root of the squared distance), the
-    centre indices, and 1 where two of the k distances are equal.
+    Writes out_d (distances ascending), out_i (indices), both (m, k), and tie (m,) (1: two distances equal).
     """
     bd = np.empty(k)
     bi = np.empty(k, dtype=np.int64)

@@ -1,18 +1,10 @@
 """Compiled kernels of the k-NN lists kept between rounds (numba; private, inputs assumed valid).
 
-Every row keeps its k + 1 + e nearest (e <= a few spares) in ``nb`` (n, W),
-nearest first, padded with n, with ``kk`` its k, ``rk``, ``rk1`` its r_k and
-r_(k+1), ``r1`` its r_1 (+inf without a list); see :mod:`.rounds` for the
-other arrays. A removed row leaves the lists (:func:`repack_lists`); a list
-left too short is made again among the cluster's remaining rows
-(:func:`refresh_lists`). The kernels taking a cluster or row range can run on
-disjoint ranges in threads (they release the GIL).
-
-Exactness: a distance is ``sqrt(((d0 * d0) + d1 * d1) + d2 * d2)``, summed
-as cKDTree sums its squared distances, so r_k is the value a k-d tree query
-returns, bit for bit; a new list is the one the k-d tree would return
-whenever that one is unique (no tied distances), else the caller asks the
-tree.
+Each row keeps its k + 1 + e nearest in ``nb`` (n, W), nearest first, padded with
+n; ``kk`` its k, ``rk``, ``rk1``, ``r1`` its r_k, r_(k+1), r_1 (+inf without a list);
+other arrays as :mod:`.rounds`. Removed rows leave the lists (:func:`repack_lists`);
+short lists are remade (:func:`refresh_lists`). Distances are summed as cKDTree's,
+bit for bit; a new list is the tree's whenever that is unique, else the caller asks the tree.
 """
 
 from __future__ import annotations
@@ -74,16 +66,11 @@ def store_lists(rows, k, rk_rows, rk1_rows, lists, P, kk, rk, rk1, r1, nb):
 
 @njit(cache=True, nogil=True)
 def repack_lists(P, ginv, kk, rk, rk1, r1, nb, part, k_new, removed, a, b):
-    """Drop the ``removed`` rows ((n + 1,) bool, slot n False) from the lists of the rows a to b - 1
-    of the ``part`` clusters.
+    """Drop ``removed`` rows ((n + 1,) bool) from the lists of rows a to b - 1 of the ``part`` clusters.
 
-    A list (nearest first, padded with n) that lost an entry, or whose
-    cluster's k changed to k' = ``k_new``, is packed; if it still holds
-    k' + 1 rows, they are the k' + 1 nearest of the remaining ones (removing
-    rows brings none closer), so kk = k', r_k and r_(k+1) are the distances
-    to its k'-th and (k'+1)-th entries (and r1 to its first, when that
-    changed). The other rows (their list is packed, kk unchanged) are
-    returned, ascending: they need a new k-NN query.
+    A list that lost entries or whose cluster's k became k' = ``k_new`` is packed; if it
+    keeps k' + 1 rows they are still the nearest, giving kk, r_k, r_(k+1), r1. Returns
+    the other rows, ascending: they need a new query.
     """
     n = len(kk)
     W = nb.shape[1]
@@ -125,26 +112,20 @@ def repack_lists(P, ginv, kk, rk, rk1, r1, nb, part, k_new, removed, a, b):
 
 @njit(cache=True, nogil=True)
 def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
-    """New lists for the rows ``q`` (ascending) among the alive distinct rows of their cluster, by brute force.
+    """New lists for rows ``q`` (ascending) among the alive distinct rows of their cluster, by brute force.
 
-    Row y of cluster j gets k = kcl[j] and its L = k + 1 + e nearest, e =
-    min(extra, m - k - 2) (m: the cluster's alive distinct rows), nearest
-    first, as the k-d tree query of :func:`cloudsieve.core.knn.knn_query`
-    would return them: squared distances summed as the tree does, so the
-    same values. The tree's list is the sorted one whenever the squared
-    distances to the L + 1 nearest are all different (ties aside, no two
-    exact k-NN lists differ); otherwise the row is flagged for the tree.
+    Row y of cluster j gets k = kcl[j] and L = k + 1 + min(extra, m - k - 2) nearest,
+    as :func:`cloudsieve.core.knn.knn_query`'s tree would (same sums); flagged when
+    the L + 1 smallest squared distances are not all different.
 
     Returns
     -------
-    lists : ndarray of shape (len(q), width), int64
-        The lists, padded with n.
-    kq : ndarray of shape (len(q),), int64
-    rk, rk1, r1 : ndarrays of shape (len(q),), float64
-        r_k, r_(k+1) and r_1 of each row.
-    status : ndarray of shape (len(q),), int8
-        0 done, 1 a tie (ask the tree), 2 a zero distance to another row
-        (the tree would flag the cluster as holding copies).
+    lists : ndarray (len(q), width), int64
+        Padded with n.
+    kq : ndarray (len(q),), int64
+    rk, rk1, r1 : ndarrays (len(q),), float64
+    status : ndarray (len(q),), int8
+        0 done, 1 a tie (ask the tree), 2 a zero distance (the cluster holds copies).
     """
     n = len(ginv)
     p = P.shape[1]
@@ -194,8 +175,7 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
                 for a in range(m):
                     dd = cd - cols[d, a]
                     sq[a] += dd * dd
-            # the L + 1 smallest (itself excluded): a threshold t with L + 1 to L + 5 values <= t
-            # (counted without branches; t from the previous row's), those values ranked
+            # the L + 1 smallest (itself excluded): a threshold t with L + 1 to L + 5 values <= t, then ranked
             sp = ipos[y - starts[j]]
             sq[sp] = np.inf
             need = min(L + 1, m - 1)
