@@ -1,10 +1,9 @@
 """Compiled kernels of the uniform grid the elimination searches (numba; private, inputs assumed valid).
 
-Points are sorted by cell code (a Z-order code of the integer cell
-coordinates, < 2^21 per axis) and, inside a cell, by coordinates; ``cell``
-(n,) is the cell of each sorted point, ``cstart`` (C + 1,) the first point of
-each cell, ``nstart``/``ncells`` the CSR list of the occupied cells among the
-27 around each cell, in a fixed order. ``state`` (n,) uint8: 0 absent.
+Points sorted by Z-order cell code (< 2^21 cells per axis), inside a cell by
+coordinates; ``cell`` (n,) each point's cell, ``cstart`` (C + 1,) each cell's first
+point, ``nstart``/``ncells`` the CSR of occupied cells among the 27 around each.
+``state`` (n,) uint8: 0 absent.
 """
 
 from __future__ import annotations
@@ -43,9 +42,8 @@ def _compact(v):
     return v
 
 
-# Not parallel=True (nor nearest_kept): on a cell, parallel is no faster than one thread and compiles slower;
-# a cell task runs on one core anyway, and a fork server that has run a
-# parallel kernel cannot fork (GNU OpenMP), so the default rule's kernels can be warmed up there
+# Not parallel=True: no faster on a cell, slower to compile, and a fork server that ran a parallel
+# kernel cannot fork (GNU OpenMP)
 @njit(cache=True, nogil=True)
 def cell_codes(P, lo, h):
     """Z-order code (n,) int64 of each point's grid cell (cells of size h from lo, < 2^21 per axis)."""
@@ -62,9 +60,7 @@ def cell_codes(P, lo, h):
 
 @njit(cache=True, nogil=True)
 def argsort_keys(key):
-    """``np.argsort(key, kind="stable")`` of non-negative int64 keys: an LSD radix sort by bytes, over the
-    bytes the largest key uses (a cell's codes and keys are small: 2-3 passes). Written here because numpy's
-    stable sort of int64 is a merge sort, about six times slower on a cell's codes."""
+    """``np.argsort(key, kind="stable")`` of non-negative int64 keys by an LSD byte radix sort (numpy's is a slower merge sort)."""
     n = len(key)
     top = np.int64(0)
     for i in range(n):
@@ -83,9 +79,7 @@ def argsort_keys(key):
 
 @njit(cache=True, nogil=True)
 def _sweep_keys(xyz, key):
-    """Keys (C,) in the lexicographic order of the integer coordinates ``xyz`` (C >= 1, 3) for the sweep's
-    sort: numbered in the cells' box (smaller than ``_lex_keys``' ``key``: fewer radix passes, the same
-    order), or ``key`` itself when the box holds 2^62 cells or more."""
+    """Keys (C,) in lexicographic order of integer coordinates ``xyz`` (C, 3), numbered in the cells' box (or ``key`` if too large)."""
     C = len(xyz)
     lo = xyz[0].copy()
     hi = xyz[0].copy()
@@ -105,8 +99,7 @@ def _sweep_keys(xyz, key):
 
 @njit(cache=True, _nrt=False)
 def _less(Q, order, i, v, q0, q1, q2):
-    """Whether the row (q0, q1, q2) of index v sorts before row i of Q (index order[i]): by coordinates,
-    then index."""
+    """Whether row (q0, q1, q2) of index v sorts before row i of Q (index order[i]): coordinates, then index."""
     if q0 != Q[i, 0]:
         return q0 < Q[i, 0]
     if q1 != Q[i, 1]:
@@ -118,10 +111,10 @@ def _less(Q, order, i, v, q0, q1, q2):
 
 @njit(cache=True, nogil=True)
 def sort_cells(Q, cstart, order, longest):
-    """Inside each run ``cstart[c]:cstart[c + 1]`` of at most ``longest`` rows, sort the rows of *Q* (n, 3)
-    and their indices ``order`` by coordinates then index (insertion sort, both in place); longer runs are
-    left as they are. On the rows already gathered in run order: comparing through ``order`` (the points
-    in input order, a random read each) took about twice as long."""
+    """Insertion-sort *Q* (n, 3) rows and ``order`` in place by coordinates then index, within runs of <= ``longest`` rows.
+
+    Longer runs are left as they are.
+    """
     for c in range(len(cstart) - 1):
         s, e = cstart[c], cstart[c + 1]
         if e - s > longest:
@@ -140,8 +133,7 @@ def sort_cells(Q, cstart, order, longest):
 
 @njit(cache=True, nogil=True)
 def _lex_keys(ukeys):
-    """Integer coordinates (C, 3) of the cells of Z-order codes ``ukeys`` and their (x, y, z) keys (C,):
-    x << 42 | y << 21 | z, in the lexicographic order of the coordinates."""
+    """Integer coordinates (C, 3) of Z-order codes ``ukeys`` and keys (C,) x << 42 | y << 21 | z."""
     C = len(ukeys)
     xyz = np.empty((C, 3), dtype=np.int64)
     key = np.empty(C, dtype=np.int64)
@@ -158,12 +150,11 @@ def _lex_keys(ukeys):
 
 @njit(cache=True, nogil=True)
 def _column_sweep(L, K):
-    """CSR of the occupied cells among the 27 around each cell, in (dx, dy, dz) order: one sweep of the
-    cells in (x, y, z) order (``L``, keys ``K`` sorted: each cell's x, y, z read from its key); the 3 cells
-    dz = -1, 0, 1 of each of the 9 columns (dx, dy) around a cell are consecutive keys, found by a cursor
-    per column that only moves forward (a column's keys rise with the cells'). Collected in sweep order,
-    then copied to each cell's place in sweep order too: the reads in order, the writes scattered (with
-    the reads scattered, the sweep of a 10 M scan's cell took up to 1.4 times as long)."""
+    """CSR of occupied cells among the 27 around each, in (dx, dy, dz) order, by one sweep in (x, y, z) order.
+
+    Each of the 9 columns around a cell is three consecutive keys, found by a forward
+    cursor per column; results are written scattered, reads stay in order.
+    """
     C = len(K)
     cur = np.zeros(9, dtype=np.int64)
     tmp = np.empty(27 * C, dtype=np.int64)
@@ -203,13 +194,7 @@ def _column_sweep(L, K):
 
 
 def cell_neighbours(ukeys):
-    """CSR (nstart (C + 1,), ncells) of the occupied cells among the 27 around each cell (codes ``ukeys``,
-    sorted), in (dx, dy, dz) order.
-
-    A sweep in (x, y, z) order with a forward cursor per column
-    (:func:`_column_sweep`), not 27 hash-table lookups a cell: a third of
-    their time, the same lists. numpy's stable sort: the keys come in Z order, partly sorted.
-    """
+    """CSR (nstart (C + 1,), ncells) of occupied cells among the 27 around each (codes ``ukeys`` sorted), by :func:`_column_sweep`."""
     xyz, key = _lex_keys(ukeys)
     L = argsort_keys(_sweep_keys(xyz, key) if len(ukeys) else key)
     return _column_sweep(L, key[L])
@@ -217,9 +202,7 @@ def cell_neighbours(ukeys):
 
 @njit(cache=True, nogil=True)
 def code_runs(codes, order):
-    """The runs of equal codes along ``codes[order]`` (sorted): the run of each row (n,), the first row of
-    each run and n (C + 1,), and each run's code (C,). One pass, where numpy's mask, flatnonzero, cumsum and
-    masked copy took four, with their temporaries."""
+    """Runs of equal ``codes[order]``: run of each row (n,), first row of each run plus n (C + 1,), run codes (C,)."""
     n = len(order)
     cell = np.empty(n, dtype=np.int64)
     runs = 0
@@ -239,8 +222,7 @@ def code_runs(codes, order):
 
 @njit(cache=True, nogil=True)
 def copy_runs(P, cell):
-    """Rows of *P* (n, 3) equal to the row before in the same cell (exact copies; the first of a group is
-    none), and the first row of each row's group (n,)."""
+    """Rows of *P* (n, 3) equal to the row before in the same cell, and the first row of each row's group (n,)."""
     n = len(P)
     copy = np.zeros(n, dtype=np.bool_)
     lead = np.empty(n, dtype=np.int64)
@@ -256,8 +238,7 @@ def copy_runs(P, cell):
 
 @njit(cache=True)
 def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
-    """Nearest alive point to p other than x (equal distances: lower ``tie``), squared distance; (-1, inf)
-    if none in the 27 cells around p."""
+    """Nearest alive point to p other than x (ties: lower ``tie``) and its squared distance; (-1, inf) if none in the 27 cells."""
     c = cell[p]
     best = -1
     bd = np.inf
@@ -278,8 +259,7 @@ def nearest(p, x, P, cell, cstart, nstart, ncells, state, tie):
 
 @njit(cache=True, nogil=True)
 def nearest_kept(P, cell, cstart, nstart, ncells, kept, tie, rows):
-    """Nearest kept point (kept != 0) of each point of ``rows`` (equal distances: lower ``tie``), -1 when
-    none is in its 27 cells."""
+    """Nearest kept point of each of ``rows`` (ties: lower ``tie``), -1 when none in its 27 cells."""
     out = np.empty(len(rows), dtype=np.int64)
     none = np.int64(-1)  # not the literal -1: the elimination's signature of nearest, compiled once
     for u in range(len(rows)):
