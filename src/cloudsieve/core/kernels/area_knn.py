@@ -1,9 +1,8 @@
 """Compiled kernels of the radius's k-NN on the elimination's grids (numba; private, inputs assumed valid).
 
-:func:`nearest_rows` searches the 27 cells around each row of a
-:class:`~cloudsieve.core.cellgrid.CellGrid` (grid arguments as in
-:mod:`.grid`); :func:`store_sure` and :func:`kth_others` turn its answers
-into the distances :mod:`cloudsieve.core.radius` needs.
+:func:`nearest_rows` searches the 27 cells around rows of a
+:class:`~cloudsieve.core.cellgrid.CellGrid` (grid arguments: :mod:`.grid`);
+:func:`store_sure` and :func:`kth_others` give :mod:`cloudsieve.core.radius` its distances.
 """
 
 from __future__ import annotations
@@ -14,17 +13,16 @@ from numba import njit
 from .threads import Chunks
 
 
-# A plain function, as .eliminate.eliminate: its allocations in numpy (compiled, they triple the compile time),
-# the work in _nearest_rows, on ranges of rows on threads
+# A plain function, as .eliminate.eliminate: allocations in numpy, the work in _nearest_rows on threads
 def nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, complete, threads=1, lo=None, h=np.inf):
-    """The k nearest points (itself included) of each of ``rows`` in the 27 cells around it: squared distances
-    (len(rows), k) ascending (equal ones: lower row first; +inf after the points there are), their rows (-1
-    there), and each one's status: 0 sure (its k-th squared distance is below ``reach2``, which the 27 cells
-    surely cover, or they hold every point: ``complete``), 1 not sure (points farther out may be nearer), 2 not
-    searched: more than ``crowd`` points in its 27 cells (crowd < 0: never). A squared distance is summed as
-    scipy's cKDTree sums it, ``(dx*dx + dy*dy) + dz*dz``. Each row's answer is its own: the same on any number
-    of ``threads``. With the grid's corner ``lo`` and side ``h`` (:class:`~cloudsieve.core.cellgrid.CellGrid`),
-    the cells farther from a row than its k-th distance so far are skipped (the same answers)."""
+    """The k nearest points (itself included) of each of ``rows`` in the 27 cells around it.
+
+    Returns squared distances (len(rows), k) ascending (ties: lower row; +inf past the
+    points), their rows (-1 there), and a status: 0 sure (k-th below ``reach2`` or
+    ``complete``), 1 not sure, 2 not searched (more than ``crowd`` points; crowd < 0:
+    never). Sums as cKDTree's; independent of ``threads``. With ``lo`` and ``h``, cells
+    beyond the k-th distance so far are skipped.
+    """
     d = np.full((len(rows), k), np.inf)
     idx = np.full((len(rows), k), -1, dtype=np.int64)
     status = np.zeros(len(rows), dtype=np.uint8)
@@ -37,9 +35,7 @@ def nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, comple
 
 @njit(cache=True, nogil=True)
 def store_sure(d, i, at, dd, ii, status, order):
-    """The answers of :func:`nearest_rows` that are sure (``status`` 0) into rows ``at`` of the distances ``d``
-    (square roots of ``dd``) and rows ``i`` (``order`` of theirs; -1 stays -1). numpy's masked copies and
-    scatters of these (50,000, 9) arrays are slow, and they are in the serial start of an elimination."""
+    """Sure answers (``status`` 0) of :func:`nearest_rows` into rows ``at`` of ``d`` (sqrt of ``dd``) and ``i`` (through ``order``)."""
     k = dd.shape[1]
     for u in range(len(at)):
         if status[u] != 0:
@@ -53,12 +49,10 @@ def store_sure(d, i, at, dd, ii, status, order):
 
 @njit(cache=True, nogil=True)
 def kth_others(d, i, q, mult, k):
-    """The distance from each distinct row q[u] to its k-th nearest other row, from its k-NN (itself included)
-    among the distinct rows (``d``, ``i`` of shape (len(q), kk), nearest first) and each distinct row's copies
-    ``mult``: 0 when its own copies make k others, else the distance at which the others' copies, counted
-    nearest first without itself (its first column in ``i``, else the last), reach the others still needed
-    (none reach them: the nearest other's). One pass instead of numpy's masks, cumulative sums and argmaxes
-    over the (50,000, 9) arrays."""
+    """Distance from each distinct row q[u] to its k-th nearest other row, from its k-NN among distinct rows and copies ``mult``.
+
+    0 when its own copies make k others; else where the others' copies, nearest first, reach the count.
+    """
     kk = d.shape[1]
     out = np.empty(len(q))
     for u in range(len(q)):
@@ -87,8 +81,7 @@ def kth_others(d, i, q, mult, k):
     return out
 
 
-#: the gap from a row to a neighbouring cell is lowered by this many cell sides: (x - lo) - q h is computed
-#: within about 3 * 2^-52 * 2^21 = 1.4e-9 sides (at most 2^21 cells an axis) and a cell's floor within 5e-10
+#: the gap from a row to a neighbouring cell is lowered by this many cell sides (rounding of (x - lo) - q h)
 SLACK = 1e-8
 
 
@@ -127,10 +120,7 @@ def _scan(P, a, b, x, y, z, d, idx, u, last, worst, wrow):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def _nearest_rows(P, cell, cstart, nstart, ncells, rows, k, reach2, crowd, complete, d, idx, status, lo, h):
-    """The search of :func:`nearest_rows`: a row's own cell first (its k-th distance falls soonest), then each
-    other cell unless a lower bound of its distance (its gap on each axis, lowered by ``SLACK`` sides) is
-    beyond the k-th distance so far: the k nearest by (distance, row) do not depend on the order the
-    candidates come in: a quarter faster than searching every cell."""
+    """The search of :func:`nearest_rows`: own cell first, then each cell whose lower-bound gap (less ``SLACK`` sides) is within the k-th distance so far."""
     nq = len(rows)
     last = k - 1
     prune = h < np.inf  # else one cell holds every row

@@ -1,11 +1,7 @@
-"""Compiled kernels of the estimator base :mod:`cloudsieve.core.cluster` (numba; private: inputs are assumed valid).
+"""Compiled kernels of :mod:`cloudsieve.core.cluster` (numba; private: inputs are assumed valid).
 
-- :func:`kmeanspp_steps`: the k-means++ seeding's draws and updates (K-means
-  and FCM seed alike);
-- :func:`take_rows`, :func:`put_rows`: rows into and out of the canonical order.
-
-As in :mod:`.kmeans`, the floating-point operations follow the numpy code
-they replaced, bit for bit (block sums by :func:`.kmeans.pairwise_sum`).
+:func:`kmeanspp_steps` (k-means++ draws and updates), :func:`take_rows` and
+:func:`put_rows`. Floating point as in :mod:`.kmeans`, bit for bit.
 """
 
 from __future__ import annotations
@@ -50,22 +46,17 @@ def _search_left(a, n, v):
 def kmeanspp_steps(S, d2, bsum, bmax, chosen, k, u, forced, B):
     """Steps k, k+1, ... of the k-means++ seeding of ``cluster._kmeanspp``.
 
-    S (s, p) is the sample sorted on its first coordinate; d2 (nb * B,) the
-    squared distance of each sample point to its nearest chosen centre (zero
-    padded), bsum / bmax (nb,) its sums (numpy's pairwise sum of each block)
-    and maxima per block of B; chosen (c,) the picks. A step draws a point
-    with probability d2 / sum(d2) with the next uniform of u (the sum of all
-    blocks by a cumulative sum, then within the block), or takes ``forced``
-    (>= 0) at step k, then lowers d2 in the window of points that can be
-    nearer to the new centre than their max(d2) (found by binary search on
-    the first coordinate) and updates the window's blocks.
+    S (s, p): the sample sorted on its first coordinate; d2 (nb * B,): squared
+    distance to the nearest chosen centre (zero padded); bsum / bmax (nb,): its
+    per-block sums and maxima; chosen (c,): the picks. A step draws with probability
+    d2 / sum(d2) from u (or takes ``forced`` >= 0 at step k), then lowers d2 in the
+    window found by binary search on the first coordinate.
 
     Returns
     -------
     (int, int)
-        The step reached (len(chosen) when done, or a step whose d2 is all
-        zero: the caller draws that pick with ``rng.integers``) and the
-        uniforms used.
+        The step reached (len(chosen), or a step whose d2 is all zero: the caller
+        draws with ``rng.integers``) and the uniforms used.
     """
     s, p = S.shape
     nb = len(bsum)

@@ -1,18 +1,12 @@
 """Compiled helpers of the elimination's coverage term, kept current on every removal (numba; private).
 
-For every point p still represented by a remaining point (its "rep": itself
-while it remains, else the remaining point nearest to it), ``alt[p]`` is the
-nearest remaining point other than the rep and ``altd2[p]`` the squared
-distance to it (-1 / inf: none within the grid's reach). They are found by
-resuming a scan of p's neighbour list sorted by (distance, tie)
-(``soff`` of :mod:`.neighbours`) at ``sp[p]``, where the last one was found:
-points only go, so the scan only moves forward; past the list (nothing left
-within 2 r_max), the grid walk of :func:`.grid.nearest`. The points whose alt
-is a are a doubly linked list (``ahead``/``anext``/``aprev``), so a removal
-finds the ones it concerns. Per rep x, ``c2b``/``cerr`` (sum of the squared
-distances its points would gain, and a bound of its rounding error),
-``e2b`` (the largest of their alt distances, exact), ``nmem`` and ``nmiss``
-(points without alt) give an upper bound of the coverage factor (:func:`fbound`).
+Each point p has a "rep" (itself while it remains, else its nearest remaining
+point); ``alt[p]``/``altd2[p]`` is the nearest remaining point other than the rep
+(-1 / inf: none). Found by resuming a scan of p's sorted list (``soff`` of
+:mod:`.neighbours`) at ``sp[p]`` (points only go, so the scan only moves forward),
+past it by :func:`.grid.nearest`. Points with alt a form a doubly linked list
+(``ahead``/``anext``/``aprev``). Per rep, ``c2b``/``cerr``, ``e2b``, ``nmem``,
+``nmiss`` give an upper bound of the coverage factor (:func:`fbound`).
 """
 
 from __future__ import annotations
@@ -24,8 +18,7 @@ from .grid import nearest
 
 @njit(cache=True)
 def next_alt(p, x, start, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr, soff):
-    """Nearest remaining point to p other than x from position ``start`` of p's list in nearest-first
-    order, its squared distance and position (the list's end when found by the grid walk, or none)."""
+    """Nearest remaining point to p other than x from position ``start`` of p's sorted list: (point, squared distance, position)."""
     end = nptr[p + 1]
     s = nptr[p]
     for t in range(start, end):
@@ -92,8 +85,7 @@ def fbound(x, e2b, c2b, cerr, nmem, nmiss, imp2, rc2, gamma, lam, inv_r2):
 
 @njit(cache=True, inline="always")
 def falloff(t, gamma):
-    """t ** (gamma / 2) (t = (r_cov / e)^2 < 1): two squarings for gamma = 8 (pow: 2% of an elimination's
-    time), else pow. Both are monotone in t, so a bound of t bounds it."""
+    """t ** (gamma / 2) for t < 1: two squarings for gamma = 8, else pow; monotone either way."""
     if gamma == 8.0:
         t *= t
         return t * t

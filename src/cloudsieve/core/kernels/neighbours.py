@@ -1,19 +1,12 @@
 """Compiled kernels of the elimination's neighbour lists (numba; private, inputs assumed valid).
 
-The neighbours of a point within 2 r_max are listed once (one pass over
-each range of rows, the ranges on threads: :func:`build_lists`) as a CSR
-(``nptr`` (n + 1,), ``nbr`` the neighbour rows) in the order of the grid
-walk of :mod:`.grid` (cells in ``ncells`` order, rows ascending inside a
-cell), with ``low`` (float32) a lower bound of each one's crowding term
-(1 - d / (2 r_max)) ** alpha (enough for the upper bounds of the keys the
-elimination keeps) and ``soff`` each list's positions sorted nearest first
-(by squared distance, then tie; uint8/uint16 when the lists are short), and
-``term`` each one's exact crowding term (float64). A point's list holds
-every other alive point (``state`` != 0) at squared distance < (2 r_max)^2,
-so the exact crowding sum over the list in list order
-(:func:`term_weight`: the stored terms, no square roots, no neighbour
-coordinates read) is the one over the grid walk, bit for bit.
-Grid arguments as in :mod:`.grid"""
+:func:`build_lists` lists each point's alive neighbours within 2 r_max once, as a
+CSR (``nptr`` (n + 1,), ``nbr``) in the grid walk's order (:mod:`.grid`), with
+``low`` (float32) a lower bound of each crowding term, ``term`` the exact term
+(float64), and ``soff`` each list's positions nearest first (by squared distance,
+then tie). The crowding sum over a list in list order (:func:`term_weight`) equals
+the grid walk's, bit for bit.
+"""
 
 from __future__ import annotations
 
@@ -48,8 +41,7 @@ def ipow(u, alpha, ialpha):
 
 @njit(cache=True)
 def term_weight(i, nptr, nbr, state, term):
-    """Crowding sum of point i over its alive neighbours from the stored terms (the grid walk's sum, bit
-    for bit: the same terms in the same order)."""
+    """Crowding sum of point i over its alive neighbours from the stored terms (the grid walk's sum, bit for bit)."""
     w = 0.0
     for t in range(nptr[i], nptr[i + 1]):
         if state[nbr[t]] != 0:
@@ -59,8 +51,7 @@ def term_weight(i, nptr, nbr, state, term):
 
 @njit(cache=True, _nrt=False)
 def _ties_by_tie(soff, b, k, dd, nbr, tie):
-    """In the positions soff[b:k] sorted by distance (``dd`` of the entries b.. at 0.., unsorted), order
-    each run of equal distances by tie (insertion sort; runs are short)."""
+    """Order each run of equal distances in soff[b:k] (sorted by distance ``dd``) by tie (insertion sort)."""
     a = b
     while a < k:
         e = a + 1
@@ -78,9 +69,7 @@ def _ties_by_tie(soff, b, k, dd, nbr, tie):
 
 @njit(cache=True)
 def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
-    """:func:`.grid.nearest` (the nearest alive point to p other than x, equal distances lower ``tie``;
-    squared distance) from p's list; the grid walk only when no alive point of it is within 2 r_max.
-    p's list must be the one of its initial state (p alive then)."""
+    """:func:`.grid.nearest` from p's list (p's initial list); the grid walk only when no alive point of it is within 2 r_max."""
     best = -1
     bd = np.inf
     for t in range(nptr[p], nptr[p + 1]):
@@ -102,13 +91,12 @@ def list_nearest(p, x, P, cell, cstart, nstart, ncells, state, tie, nptr, nbr):
 @njit(cache=True, nogil=True)
 def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha, tie, nearest_first, lo, start, stop,
                    k, nptr, nbr, low, term, soff, dd, w):
-    """The lists of rows [start, stop) in one pass: each distance computed once, each list sorted while its
-    entries are at hand (insertion sort by (squared distance, tie): the lists are short, 6 entries on
-    average at 50% kept; longer than 32: a merge sort, then ties by tie). Row r's list starts at entry
-    ``nptr[r - lo]`` of the buffers from entry ``k`` (``dd`` scratch: the squared distances of one
-    row's candidates, as many as the 27 cells around a cell hold at most), ``w[r]`` its crowding sum.
-    Stops at the first row that does not fit in the buffers: returns (that row, its first entry); the
-    caller grows them and goes on (growing them here made every store slower)."""
+    """The lists of rows [start, stop) in one pass, each sorted by (squared distance, tie) while at hand.
+
+    Row r's list starts at ``nptr[r - lo]`` of the buffers from entry ``k`` (``dd``:
+    scratch for one row's candidates); ``w[r]`` its crowding sum. Returns (row, entry)
+    of the first row that does not fit; the caller grows the buffers and goes on.
+    """
     cap = len(nbr)
     r2 = two_r * two_r
     inv2r = 1.0 / two_r
@@ -131,8 +119,7 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
                 dy = P[j, 1] - y0
                 dz = P[j, 2] - z0
                 d2 = dx * dx + dy * dy + dz * dz
-                # every candidate written, the entry kept by moving on (a quarter of the candidates are
-                # within 2 r_max: a branch on it was mispredicted often)
+                # every candidate written, kept by moving on (branch-free)
                 nbr[k] = j
                 dd[k - b] = d2
                 k += (d2 < r2) & (j != i) & (state[j] != 0)
@@ -186,17 +173,17 @@ def lists_one_pass(P, cell, cstart, nstart, ncells, state, two_r, alpha, ialpha,
 
 
 def _grown(a: np.ndarray, cap: int, k: int) -> np.ndarray:
-    """A buffer of *cap* entries holding the first *k* of *a* (the rest unset): one new array, the entries
-    copied once."""
+    """A buffer of *cap* entries holding the first *k* of *a*."""
     out = np.empty(cap, dtype=a.dtype)
     out[:k] = a[:k]
     return out
 
 
 def _rows_lists(args, w, lo, hi, kind, nearest_first, reach):
-    """The lists of rows [lo, hi) (:func:`lists_one_pass`, buffers grown until they fit; *reach*: the
-    candidates of a row in each cell, the points of the 27 cells around it): local nptr (hi - lo + 1,), nbr,
-    low, term, soff (int32), the longest list."""
+    """The lists of rows [lo, hi) by :func:`lists_one_pass`, buffers grown until they fit.
+
+    *reach*: each cell's candidates. Returns local nptr (hi - lo + 1,), nbr, low, term, soff (int32), the longest list.
+    """
     cap = 8 * (hi - lo) + 64  # 6 entries a point at 50% kept; more at lower ratios: grown below
     nptr = np.zeros(hi - lo + 1, dtype=np.int64)
     nbr = np.empty(cap, dtype=kind)
@@ -213,9 +200,7 @@ def _rows_lists(args, w, lo, hi, kind, nearest_first, reach):
         if cand is None:  # the candidates of the rows so far, cumulated (alive rows only: the others list none)
             cell, state = args[1], args[5]
             cand = np.cumsum(reach[cell[lo:hi]] * (state[lo:hi] != 0))
-        # grown to the share of the candidates listed so far, over the candidates of every row, a tenth to spare
-        # (the rate of the rows done alone, at 5% kept: 1.1 to 1.9 times the entries; at 10% kept, lists of ~45
-        # entries: doubling from 8 copied the buffers three times)
+        # grown to the share of candidates listed so far over all rows' candidates, a tenth to spare
         done = int(cand[row - lo - 1]) if row > lo else 0
         need = int(1.1 * k / max(done, 1) * int(cand[-1])) + 64
         cap = max(need, k + int(reach.max(initial=0)) + 64)
@@ -234,11 +219,11 @@ def index_type(*sizes) -> type:
 
 
 def build_lists(P, cell, cstart, nstart, ncells, order, state, two_r, alpha, ialpha, nearest_first, rows=16384):
-    """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff (positions
-    nearest first, if ``nearest_first``: the coverage term's searches need them; else one 0) and the
-    exact crowding sums w (n,) and terms (nptr[-1],). ``order``: the grid's rows' ids (the tie of equal
-    distances). Ranges of at least ``rows`` rows run on numba's thread count (:class:`.threads.Chunks`;
-    each row's list depends on nothing else: the same arrays on any thread count)."""
+    """Neighbour lists within ``two_r`` of every alive row: nptr (n + 1,), nbr, low, soff, sums w (n,), terms (nptr[-1],).
+
+    ``soff`` only with ``nearest_first`` (else one 0); ``order``: row ids (ties).
+    Ranges of >= ``rows`` rows run on threads (:class:`.threads.Chunks`); the result does not depend on them.
+    """
     n = len(P)
     kind = index_type(n)
     w = np.zeros(n)

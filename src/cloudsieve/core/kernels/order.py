@@ -1,13 +1,9 @@
 """The grouped order of the points, compiled with numba (see :func:`cloudsieve.core.knn.group`).
 
-The points grouped by cluster (clusters in id order), each cluster in
-Z-order (Morton codes of the first three coordinates), exact copies and equal
-codes in input order: the order ``np.argsort(code | id << 3 bits, kind="stable")``
-gives, computed as a counting sort by cluster and a stable sort of each
-cluster's codes (small sorts instead of one sort of n 64-bit keys; the same
-order, element for element). The codes are those of the numpy code they
-replace, bit for bit: ``uint64((x - lo) * scale)`` per coordinate, its bits
-spread three apart.
+Clusters in id order, each in Z-order of its first three coordinates, ties in
+input order: ``np.argsort(code | id << 3 bits, kind="stable")`` computed as a
+counting sort by cluster and a stable sort per cluster. Codes are
+``uint64((x - lo) * scale)`` per coordinate, bits spread three apart.
 """
 
 from __future__ import annotations
@@ -30,8 +26,7 @@ def _spread(x):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def stable_sort(key, idx, m, k2, i2):
-    """Sort idx[:m] by key[:m] (keys moved along), equal keys keeping their order:
-    insertion sort of runs of 16, then bottom-up merges (k2, i2: scratch of >= m)."""
+    """Stable sort of idx[:m] by key[:m] (keys moved along): runs of 16 by insertion, then merges (k2, i2 scratch)."""
     for a in range(0, m, 16):
         b = min(a + 16, m)
         for u in range(a + 1, b):
@@ -130,18 +125,17 @@ def grouped_order(pts, inv, c, bits):
 
     Parameters
     ----------
-    pts : ndarray of shape (n, p), float64, finite
-    inv : ndarray of shape (n,), int64
-        Cluster id of each point, in 0..c-1.
+    pts : ndarray (n, p), float64, finite
+    inv : ndarray (n,), int64
+        Cluster id in 0..c-1.
     c : int
     bits : int
-        Bits per coordinate of the Z-order codes (3 * bits + the bits of
-        c - 1 <= 63).
+        Bits per coordinate of the codes (3 * bits + bits of c - 1 <= 63).
 
     Returns
     -------
-    order : ndarray of shape (n,), int64
-    indptr : ndarray of shape (c + 1,), int64
+    order : ndarray (n,), int64
+    indptr : ndarray (c + 1,), int64
         Cluster j is ``order[indptr[j]:indptr[j + 1]]``.
     """
     q = min(pts.shape[1], 3) if len(pts) else 0
@@ -168,9 +162,7 @@ def _radix_argsort(x):
 
 @njit(cache=True, nogil=True)
 def radix_passes(key, hist, passes):
-    """The stable order (n,) int64 of the uint64 ``key`` (n,) by its ``passes`` lowest bytes, ``hist``
-    (>= passes, 256) the counts of each byte's values: one LSD pass a byte, least significant first, a byte
-    all keys share skipped. ``key`` is consumed."""
+    """Stable order (n,) int64 of uint64 ``key`` by its ``passes`` lowest bytes (LSD, shared bytes skipped); ``key`` is consumed."""
     n = len(key)
     idx = np.arange(n)
     k2 = np.empty(n, np.uint64)
@@ -198,15 +190,5 @@ def radix_passes(key, hist, passes):
 
 
 def stable_argsort(x):
-    """``np.argsort(x, kind="stable")`` of finite float64 values (an LSD radix sort:
-    equal values, -0.0 and 0.0 included, keep their order).
-
-    Parameters
-    ----------
-    x : ndarray of shape (n,), float64, no NaN
-
-    Returns
-    -------
-    ndarray of shape (n,), int64
-    """
+    """``np.argsort(x, kind="stable")`` of float64 x (n,) without NaN, by an LSD radix sort (-0.0 equals 0.0); int64 (n,)."""
     return _radix_argsort(np.ascontiguousarray(x, dtype=np.float64))
