@@ -1,10 +1,7 @@
 """Compiled kernel of the eliminate rule's bands: distances to bisector planes (numba; private).
 
-Written here because numpy computes one plane at a time with two (n, 3)
-temporaries each; one pass over the points does all planes, an order of
-magnitude faster. The arithmetic
-is :func:`cloudsieve.engine.halo.halo_distance`'s, in its order, so the
-masks are the same point for point.
+One pass over the points for all planes; the arithmetic is
+:func:`cloudsieve.engine.halo.halo_distance`'s, in its order, so masks match point for point.
 """
 
 from __future__ import annotations

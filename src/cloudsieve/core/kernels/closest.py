@@ -1,21 +1,11 @@
 """The k nearest of a few sites (cell centres) for many points, compiled with numba.
 
-The partition's label pass asks, for every point of the cloud, its 2 nearest
-cell centres (its 6 nearest near a cell border). cKDTree's answer is
-mostly per-query overhead; this kernel takes a quarter to a third of its time:
-a k-d tree of the centres
-(:func:`.kdtree.build_tree`, leaves of at most ``LEAF``), walked depth first,
-nearer child first, pruned by the gap from the point to a node's box.
-
-Exact, with the distances of cKDTree bit for bit: a squared distance is summed
-``(dx*dx + dy*dy) + dz*dz`` and the distance is its square root; a box gap is
-summed in the same order from per-axis gaps that never exceed the point's
-differences to a site inside the box (rounding is monotone), and a node is
-skipped only when its gap is strictly above the k-th best, so ties are seen.
-Rows are ordered by (squared distance, site index): among equal squared
-distances the lower index comes first (cKDTree orders them as its traversal
-meets them). Two squared distances may round to one distance: such a tie of
-distances keeps the order of the squared ones.
+For the partition's label pass (2 nearest centres per point, 6 near a border),
+where cKDTree's answer is mostly per-query overhead: a k-d tree of the sites
+(:func:`.kdtree.build_tree`, leaves of at most ``LEAF``), walked nearer child
+first, pruned by box gaps. Exact, cKDTree's distances bit for bit (same summation,
+monotone gaps, pruning only on a strictly larger gap); rows ordered by (squared
+distance, site index).
 """
 
 from __future__ import annotations
@@ -104,8 +94,7 @@ def site_tree(sites: np.ndarray) -> tuple:
 def nearest_sites(tree: tuple, points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     """Distances (n, k) float64 and indices (n, k) int64 of the k nearest sites of each point.
 
-    *tree* from :func:`site_tree`; 1 <= k <= the number of sites; *points*
-    (n, 3) float64, finite. Rows ordered by (squared distance, index).
+    *tree* from :func:`site_tree`; 1 <= k <= sites; *points* (n, 3) float64, finite.
     """
     S, perm, node, box = tree
     P = np.ascontiguousarray(points, dtype=np.float64)

@@ -1,9 +1,7 @@
 """What numba compiles, kernel by kernel: :class:`CompileLog`.
 
-numba broadcasts a ``"numba:compile"`` event around every real compilation
-(not around a load from its on-disk cache). A kernel that calls another
-compiles the callee inside its own event: :class:`CompileLog` keeps the time
-of each kernel *without* its callees, so the rows add up to the whole.
+Built on numba's ``"numba:compile"`` events (not cache loads); a kernel's time
+excludes its callees', so rows add up to the whole.
 """
 
 from __future__ import annotations
@@ -20,9 +18,9 @@ class CompileLog:
     Attributes
     ----------
     seconds : dict of str to float
-        Compile seconds of each kernel (``module.function``), its callees excluded.
+        Compile seconds per kernel (``module.function``), callees excluded.
     signatures : dict of str to int
-        Signatures compiled for each kernel.
+        Signatures compiled per kernel.
 
     Examples
     --------

@@ -1,10 +1,7 @@
 """Compiled kernel of exact copies: the first row equal to each row, by hashing (numba; private).
 
-Written here because the sort-based grouping (a lexicographic order of the
-rows, then neighbours compared) costs a sort of every row, and on LAS data
-quantised to 1 cm most rows tie on x, so the sort of the ties is most of
-it (numpy has no hash grouping of rows). One pass over an open-addressing
-table of twice the rows: ~10x less.
+One pass over an open-addressing table, where sorting rows costs a sort of the
+many ties of quantised LAS data.
 """
 
 from __future__ import annotations
@@ -15,8 +12,7 @@ from numba import njit
 
 @njit(cache=True)
 def first_equal(B):
-    """Index of the first (lowest index) row equal to each row of ``B`` (n, p) uint64: the bits of
-    float64 rows with -0.0 made +0.0 (so bit equality is ``==`` on finite numbers)."""
+    """Index of the first row equal to each row of ``B`` (n, p) uint64: float64 bits with -0.0 made +0.0."""
     n, p = B.shape
     size = 1
     while size < 2 * n:

@@ -1,10 +1,6 @@
 """Compiled kernels of the in-memory cells of ``eliminate`` (numba; private, inputs assumed valid).
 
-numpy takes a fancy-indexed copy of the rows, a partition and two boolean
-masks per cut; one histogram pass finds the median's bin instead, and the
-rows are split here (together a third faster than numpy's). The
-cut moves the points with their rows (:func:`median_cut`), so the cells'
-points come out in cell order, each cell's a contiguous block.
+:func:`median_cut` moves points with their rows, so cells come out as contiguous blocks.
 """
 
 from __future__ import annotations
@@ -15,8 +11,7 @@ from numba import njit
 
 @njit(cache=True, nogil=True)
 def band_rows(Q, box, margin):
-    """The positions of the points ``Q`` of one cell (box ``box`` (2, 3)) within ``margin`` of a face of its
-    box, in their order: the points a neighbour's halo may hold."""
+    """Positions of the points ``Q`` of one cell within ``margin`` of a face of its box (2, 3), in order."""
     out = np.empty(len(Q), dtype=np.int64)
     k = 0
     for t in range(len(Q)):
@@ -30,9 +25,7 @@ def band_rows(Q, box, margin):
 
 @njit(cache=True, nogil=True)
 def halo_rows(P, band, bstart, cells, lo, hi):
-    """The rows of the bands of ``cells`` (cell c's: ``band[bstart[c]:bstart[c + 1]]``) inside the box [lo,
-    hi] (closed), cell after cell, each band in its order. numpy took a gathered copy and three boolean
-    arrays a neighbour: 2.8% of a 1 M-point elimination's time."""
+    """Rows of the bands of ``cells`` (cell c's: ``band[bstart[c]:bstart[c + 1]]``) inside the closed box [lo, hi], in order."""
     m = 0
     for c in cells:
         m += bstart[c + 1] - bstart[c]
@@ -50,19 +43,14 @@ def halo_rows(P, band, bstart, cells, lo, hi):
 
 
 def median_cut(Q, idx, axis, lo, hi, vals, tmp, tmpq, counts):
-    """Cut rows ``idx`` with their points ``Q`` (``Q[t]`` the point of ``idx[t]``) at the median value v of
-    coordinate ``axis`` (in [lo, hi]): the rows below v first, then the others, each in their order (when none
-    is below v, those at v first), written into ``tmp`` (the rows) and ``tmpq`` (their points); ``idx`` and
-    ``Q`` are left as they are (the caller's next cut reads the halves where they were written). Returns (v,
-    position of the first row of the second part: 0 or len(idx) when no cut exists).
+    """Cut rows ``idx`` with their points ``Q`` at the median v of coordinate ``axis`` (values in [lo, hi]).
 
-    v is the exact (m // 2)-th smallest value, as a partition of all of them gives it, found in three
-    passes instead: a histogram of the values over ``len(counts)`` bins of [lo, hi] (the bin of a value
-    never decreases with it), the values of the bin holding that rank, a partition of those few (numpy's:
-    numba's ``np.partition`` and array slicing take ten times as long to compile as plain loops). The points
-    move with their rows, so that every pass reads them in order: read through ``idx`` from the input's
-    order, a cut takes half as long again.
-    ``vals`` is scratch of at least len(idx) (rows)."""
+    Rows below v first (none below: those at v first), each part in order, written to
+    ``tmp`` and ``tmpq``; ``idx`` and ``Q`` are unchanged. v is the exact (m // 2)-th
+    smallest value, found by a histogram over ``len(counts)`` bins, then a partition of
+    the median's bin. ``vals``: scratch of >= len(idx). Returns (v, start of the second
+    part: 0 or len(idx) when no cut exists).
+    """
     few, below = _median_bin(Q, axis, lo, hi, vals, counts)
     v = float(np.partition(few, len(idx) // 2 - below)[len(idx) // 2 - below])
     return v, _cut_at(idx, Q, vals, few, below, v, tmp, tmpq)
@@ -70,8 +58,7 @@ def median_cut(Q, idx, axis, lo, hi, vals, tmp, tmpq, counts):
 
 @njit(cache=True, nogil=True)
 def _median_bin(Q, axis, lo, hi, vals, counts):
-    """The values of coordinate ``axis`` of points ``Q`` into ``vals``; those of the histogram bin holding
-    rank len(Q) // 2, and the number of values in the bins below it."""
+    """Values of coordinate ``axis`` into ``vals``; those of the bin holding rank len(Q) // 2, and the count below it."""
     m = len(Q)
     nb = len(counts)
     for b in range(nb):
@@ -98,9 +85,7 @@ def _median_bin(Q, axis, lo, hi, vals, counts):
 
 @njit(cache=True, nogil=True)
 def _cut_at(idx, Q, vals, few, below, v, tmp, tmpq):
-    """``idx`` and its points ``Q`` (values ``vals``) reordered into ``tmp`` and ``tmpq`` at v, the median, in
-    the bin of values ``few`` above ``below`` values: the rows below v first (or, when none is, those at v);
-    returns the size of the first part."""
+    """Reorder ``idx``, ``Q`` into ``tmp``, ``tmpq`` at the median v (in bin values ``few``, above ``below`` values); returns the first part's size."""
     m = len(idx)
     n_left = below
     at = 0

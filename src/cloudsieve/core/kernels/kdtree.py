@@ -1,12 +1,8 @@
-"""A small k-d tree inside one cluster, for the compiled neighbour queries.
+"""A small k-d tree inside one cluster, for the compiled neighbour queries (checked input, see :mod:`.knn`).
 
-Kernels on checked input (see :mod:`.knn`): the tree of the points
-``P[s:s+m]`` split at medians of the widest side down to leaves of at most
-``leaf`` points, each node with its bounding box; a quickselect; the squared
-distances summed as scipy's cKDTree sums them. Box gaps and distances are
-computed with the same roundings, and rounding is monotone, so a computed gap
-never exceeds a computed distance of a point inside the box: pruning by gap
-is exact.
+Median splits of the widest side, leaves of at most ``leaf`` points, a box per node,
+a quickselect, squared distances summed as cKDTree's. Gaps and distances round
+alike, so pruning by gap is exact.
 """
 
 from __future__ import annotations
@@ -61,8 +57,7 @@ def kth_smallest(a, n, k, s0, s1):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def nth_element(perm, P, s, dim, a, b, kth):
-    """Reorder perm[a:b] (rows s + perm) so that position kth holds its sorted
-    element along ``dim``, smaller or equal before, greater or equal after."""
+    """Reorder perm[a:b] (rows s + perm) so position kth holds its sorted element along ``dim`` (nth_element)."""
     lo = a
     hi = b - 1
     while lo < hi:
@@ -93,11 +88,11 @@ def nth_element(perm, P, s, dim, a, b, kth):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def build_tree(P, s, m, leaf, perm, X, node, box, stack):
-    """A k-d tree of the cluster P[s:s+m]: split at the median of the widest
-    side down to leaves of <= leaf points. X (3, m): the coordinates in leaf
-    order, perm: the cluster position of each; per node: node[i] = (start,
-    end, left child or -1 for a leaf, parent), box[i] = (x0, x1, y0, y1, z0,
-    z1). Returns the node count (node 0 is the root)."""
+    """A k-d tree of the cluster P[s:s+m] (median splits, leaves <= leaf points); returns the node count.
+
+    X (3, m): coordinates in leaf order; perm: cluster positions; node[i] = (start,
+    end, left child or -1, parent); box[i] = (x0, x1, y0, y1, z0, z1). Node 0 is the root.
+    """
     for t in range(m):
         perm[t] = t
     node[0, 0] = 0

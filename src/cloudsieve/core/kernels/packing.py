@@ -1,15 +1,9 @@
 """Compiled kernels of the packing counts (numba; private, inputs assumed valid).
 
-Two walks of the same neighbours, sharing the distance test and the join:
-over the grid (:func:`packing_counts`: the engine's share task, which builds
-no neighbour lists) and over the lists (:func:`packing_from_lists`: the
-in-memory cells, which build them anyway). Building lists only to pack a
-cell is slower than the grid walk, twice as slow at 10% kept. The two loops
-over a neighbour stay written out: folded into one helper (a function
-returning ``blocked``, inlined or not), the grid walk is a third slower at
-50% kept and twice as slow at 10%.
-
-Grid arguments as in :mod:`.grid`.
+Two walks of the same neighbours: over the grid (:func:`packing_counts`, the
+engine's share task, no lists) and over the lists (:func:`packing_from_lists`, the
+in-memory cells). The loops stay written out: a shared helper makes the grid walk
+markedly slower. Grid arguments as in :mod:`.grid`.
 """
 
 from __future__ import annotations
@@ -20,8 +14,7 @@ from numba import njit
 
 @njit(cache=True, nogil=True, inline="always")
 def _blocked(P, i, j, m, r2, full):
-    """The packings among ``m`` (a bit each) that point j, a member of them, closes to point i: those whose
-    radius sqrt(r2[k]) (increasing) is beyond their distance."""
+    """Packings among ``m`` (a bit each) that member j closes to point i: those whose radius sqrt(r2[k]) exceeds their distance."""
     dx = P[j, 0] - P[i, 0]
     dy = P[j, 1] - P[i, 1]
     dz = P[j, 2] - P[i, 2]
@@ -43,17 +36,11 @@ def _join(i, blocked, full, mask, counts):
 
 @njit(cache=True, nogil=True)
 def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
-    """Sizes of greedy packings at the radii sqrt(r2) (increasing, at most 8), in one pass.
+    """Sizes (L,) of greedy packings at radii sqrt(r2) (increasing, at most 8), in one pass in grid order.
 
-    Points are visited in grid order; a point joins packing k when no point
-    already in it is closer than sqrt(r2[k]). Rows with ``skip`` join none.
-    Each distance is computed once for every radius. Returns counts (L,).
-
-    Only the rows that joined a packing are compared: each cell's are listed
-    in ``joined[cstart[c]:cstart[c] + cnt[c]]`` (ascending, as the walk of the
-    cell's rows met them), so a cell holding many points and few members
-    (radii much larger than the spacing: a small kept count) costs its
-    members, not its points.
+    A point joins packing k when no member is closer than sqrt(r2[k]); ``skip`` rows
+    join none. Only members are compared (listed per cell in ``joined``), so a dense
+    cell with few members costs its members.
     """
     full = (1 << len(r2)) - 1
     mask = np.zeros(len(P), dtype=np.uint8)
@@ -84,9 +71,7 @@ def packing_counts(P, cell, cstart, nstart, ncells, skip, r2):
 
 @njit(cache=True, nogil=True)
 def packing_from_lists(P, nptr, nbr, join, r2):
-    """:func:`packing_counts` of the rows with ``join`` != 0 over the neighbour lists of :mod:`.neighbours`
-    (every pair closer than the largest radius listed): the same packings in the grid's order, without a
-    walk of the grid."""
+    """:func:`packing_counts` of rows with ``join`` != 0 over the lists of :mod:`.neighbours` (same packings, no grid walk)."""
     full = (1 << len(r2)) - 1
     mask = np.zeros(len(P), dtype=np.uint8)
     counts = np.zeros(len(r2), dtype=np.int64)

@@ -1,15 +1,9 @@
 """Compiled kernels of the incremental rescoring between rounds (numba; private, inputs assumed valid).
 
-The scores of the rows of the clusters that lost a row, from the kept lists
-(:mod:`.lists`): w = r_k^-d, W = sum w, A = sum w log w per cluster, and the
-change of W and of G = sum w (log w - A/W) when a row leaves (its own term
-and its reverse neighbours', whose r_k becomes r_(k+1)); ``H(R - y) - H(R)``
-follows from them (:func:`cloudsieve.core.entropy.entropy_change`). The
-terms and sums are those of :func:`.entropy.entropy_weights`,
-operation for operation (cluster sums in ascending row order, as
-``np.bincount``); the caller takes ``log`` and ``exp`` from numpy (numba's
-differ from numpy's SIMD ones in the last bit). The kernels take a cluster
-range (c0, c1) and can run on disjoint ranges in threads.
+Scores of the clusters that lost a row, from the kept lists (:mod:`.lists`), with
+the terms of :func:`.entropy.entropy_weights` operation for operation (gain:
+:func:`cloudsieve.core.entropy.entropy_change`); the caller takes ``log`` and
+``exp`` from numpy. Kernels take a cluster range (c0, c1) for threads.
 """
 
 from __future__ import annotations
@@ -32,11 +26,9 @@ def scored_rows(touched, ginv, kk, a, b):
 
 @njit(cache=True, nogil=True)
 def log_weights(rows, ginv, c0, c1, lr, lr1, neg_dim):
-    """log w and log w' (r_k replaced by r_(k+1)) of the rows, shifted per cluster so the largest w is 1.
+    """lw, lw1 (M,): -d (log r - min over the cluster of log r_k) for r_k and r_(k+1), clusters c0 to c1 - 1.
 
-    ``lr``, ``lr1`` (M,) are log r_k and log r_(k+1); ``neg_dim`` = -d.
-    Returns lw, lw1 (M,) float64: -d (log r - min over the cluster of log r_k). The rows are
-    those of the clusters c0 to c1 - 1.
+    ``lr``, ``lr1``: log r_k, log r_(k+1); ``neg_dim`` = -d.
     """
     M = len(rows)
     shift = np.full(c1 - c0, np.inf)
@@ -55,18 +47,10 @@ def log_weights(rows, ginv, c0, c1, lr, lr1, neg_dim):
 
 @njit(cache=True, nogil=True)
 def entropy_deltas(rows, ginv, c0, c1, kk, nb, w, w1, lw, lw1, acc_w, acc_g):
-    """The changes of W and G when each row leaves its cluster, and its cluster's W.
+    """dW, dG, W (M,) float64: changes of W and G when each row leaves its cluster, and the cluster's W.
 
-    With w = r_k^-d (``w``, ``lw`` = log w), w' the weight with r_(k+1)
-    (``w1``, ``lw1``), W = sum w and A = sum w log w per cluster (ascending
-    rows), g = w (log w - A/W): a row x's change (w' - w, g' - g) goes to the
-    rows of its list's first kk[x] entries; the change of removing y is then
-    (sum of what y received - w(y), the same for g). ``acc_w``/``acc_g`` (n,)
-    are scratch (overwritten at ``rows``). The rows are those of the clusters c0 to c1 - 1.
-
-    Returns
-    -------
-    dW, dG, W : three ndarrays of shape (M,), float64
+    Each row x passes (w' - w, g' - g) to its first kk[x] list entries; removing y
+    changes W by what y received minus w(y) (same for g). ``acc_w``/``acc_g`` (n,): scratch.
     """
     M = len(rows)
     Wc = np.zeros(c1 - c0)

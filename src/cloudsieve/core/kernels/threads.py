@@ -1,8 +1,6 @@
 """Threads for the compiled kernels (they release the GIL): a leaf of plain Python.
 
-:class:`Chunks` runs a kernel over ranges of rows, :func:`run_chunks` over
-ranges of clusters of about equal point counts. Every kernel writes only its
-own rows or clusters, so results do not depend on the thread count.
+Kernels write only their own rows or clusters, so results do not depend on the thread count.
 """
 
 from __future__ import annotations
@@ -16,11 +14,7 @@ __all__ = ["Chunks", "run_chunks"]
 
 
 class Chunks:
-    """Runs a function of a row range over [0, n) in chunks on ``threads`` threads.
-
-    Use as a context manager (the pool is closed on exit); with one thread
-    the chunks run in the caller's thread.
-    """
+    """Runs a function of a row range over [0, n) in chunks on ``threads`` threads (a context manager)."""
 
     def __init__(self, threads: int):
         self.threads = max(1, int(threads))
@@ -48,8 +42,7 @@ class Chunks:
 
 
 def run_chunks(fn, indptr, threads, *args):
-    """fn(*args[:3], c0, c1, *args[3:]) over chunks of clusters of about equal point counts,
-    on ``threads`` threads (the kernels release the GIL)."""
+    """fn(*args[:3], c0, c1, *args[3:]) over chunks of clusters of about equal point counts, on threads."""
     n = int(indptr[-1])
     c = len(indptr) - 1
     threads = max(1, int(threads or os.cpu_count() or 1))
