@@ -12,12 +12,7 @@ __all__ = ["from_groups", "group_rows"]
 
 @njit(cache=True)
 def from_groups(labels, offset, src):
-    """``out[i] = src[offset[labels[i]] + r]``, r the number of earlier rows with the label of row i.
-
-    ``src`` holds the rows grouped by label, each group in input order,
-    group ``c`` from ``offset[c]``: the inverse of a stable sort by label,
-    in one pass (no sort).
-    """
+    """``out[i] = src[offset[labels[i]] + r]``, r the earlier rows with row i's label: inverse of a stable sort by label."""
     pos = offset.copy()
     out = np.empty(len(labels), dtype=src.dtype)
     for i in range(len(labels)):
@@ -48,10 +43,10 @@ GROUP_ROWS = 1_000_000
 
 
 def group_rows(labels, n_labels: int, threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """``np.argsort(labels, kind="stable")`` of labels in [0, n_labels), and each label's bounds (n_labels + 1,)
-    in it, by counting: each of *threads* ranges of rows counts its labels, then places its rows after
-    the lower ranges' rows of the same label (the same array on any thread count): a fraction of the time
-    of numpy's stable sort of 16-bit labels, on one core."""
+    """``np.argsort(labels, kind="stable")`` of labels in [0, n_labels), and each label's bounds (n_labels + 1,).
+
+    By counting, over *threads* row ranges; the same array on any thread count.
+    """
     n = len(labels)
     if n_labels == 1:  # one cell (every small input): the rows as they are, no kernel to load
         return np.arange(n, dtype=np.int64), np.array([0, n], dtype=np.int64)
