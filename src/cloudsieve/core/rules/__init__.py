@@ -1,16 +1,11 @@
 """The pruning rules (DESIGN.md, "Rules as a registry"): one module per rule.
 
 Each rule module (:mod:`.threshold`, :mod:`.iterative`, :mod:`.target`,
-:mod:`.coverage`, :mod:`.eliminate`) holds one rule's in-memory selection,
-``prune(rule, pts, lab, **kw)`` on validated input. Their metadata (name,
-target, clusters, options, engine work, warm-up targets, module) is the rule
-table, :mod:`cloudsieve.rule_table`, a leaf re-exported here; callers ask it
-(:data:`RULES`, :func:`get`, :func:`names`), never compare rule names.
-
-The rules' entry points on arrays (:func:`prune`, :func:`unit_free_scores`,
-:func:`threshold_for_count`, :func:`check_rule_args`, :func:`prune_unchecked`)
-are in :mod:`.dispatch`, imported from here at their first use, which loads
-each rule's module by the name the table gives.
+:mod:`.coverage`, :mod:`.eliminate`) holds its selection,
+``prune(rule, pts, lab, **kw)`` on validated input. Their metadata is the rule
+table, :mod:`cloudsieve.rule_table`, re-exported here; callers ask it
+(:data:`RULES`, :func:`get`, :func:`names`), never compare rule names. Entry points
+on arrays are in :mod:`.dispatch`, imported at first use.
 
 >>> from cloudsieve.core import rules
 >>> rules.get("eliminate").clusters, rules.get("threshold").target

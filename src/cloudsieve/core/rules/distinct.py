@@ -1,8 +1,6 @@
-"""What every entropy rule's selection shares: canonical order, exact duplicates, labels 0..c-1, and ranking.
+"""What every entropy rule's selection shares: canonical order, exact duplicates, labels 0..c-1, ranking.
 
-The rule modules (:mod:`.threshold`, :mod:`.iterative`, :mod:`.target`,
-:mod:`.coverage`) import it; it imports none of them, nor
-:mod:`.dispatch`, which loads them.
+Imports no rule module nor :mod:`.dispatch`.
 """
 
 from __future__ import annotations
@@ -23,10 +21,8 @@ logger = logging.getLogger(__name__)
 def on_distinct(select, rule, pts, lab, options, *, target, ctx, progress) -> np.ndarray:
     """An entropy rule's keep mask (n,): ``select`` runs on the distinct points in canonical order.
 
-    ``options`` is the frozen options object of ``prune`` (:func:`.dispatch.prune_unchecked`).
-
-    ``select(rule, P, L, threshold=, target=, score=, coverage=, max_rounds=, report=, kw=)`` returns
-    the keep mask of the canonically ordered distinct points P (labels L in 0..c-1).
+    ``options``: the frozen options of ``prune``. ``select(rule, P, L, threshold=, target=,
+    score=, coverage=, max_rounds=, report=, kw=)`` returns the keep mask of P (labels 0..c-1).
     """
     keep_duplicates = options.keep_duplicates
     n = len(pts)

@@ -1,11 +1,8 @@
 """Rule eliminate (cloudsieve's; the default): weighted sample elimination to an exact count.
 
-Exactly ``target`` points kept, as a run of the engine keeps them
-(:func:`cloudsieve.engine.cell_scheme.eliminate_points`: the partition into
-cells, each cell's elimination with its halo; labels and scores are not
-used). Exact copies go first and are kept only when the distinct points do
-not make the count; with ``keep_duplicates`` every copy of a kept point
-stays. Its entry in the registry is :data:`cloudsieve.core.rules.RULES`.
+Keeps exactly ``target`` points as the engine does
+(:func:`cloudsieve.engine.cell_scheme.eliminate_points`; no labels or scores).
+Copies go first; ``keep_duplicates`` keeps every copy of a kept point.
 """
 
 from __future__ import annotations

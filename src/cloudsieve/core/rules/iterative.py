@@ -1,15 +1,9 @@
 """Rule iterative: the paper's test in rounds (:mod:`cloudsieve.core.rounds`).
 
-In each round, the points with score <= S are candidates, lowest score first
-(ties: canonical order); a candidate is dropped only if no point already
-dropped in this round is one of its k nearest neighbours or has it among its
-own k nearest (so no two points dropped in one round are k-NN neighbours,
-either way). Remaining points are rescored between rounds (clusters keep
-their labels; m and k follow the shrinking cluster); stop when no point
-qualifies. With a ratio or a count, every finite score is a candidate, on
-the unit-free score m*dH, and rounds stop when the target is met (the last
-round takes only the lowest candidates it needs). Its entry in the registry
-is :data:`cloudsieve.core.rules.RULES`.
+Each round drops candidates (score <= S, lowest first) no two of which are k-NN
+neighbours; the rest are rescored (labels kept, m and k follow). Stops when none
+qualifies. With a ratio or count, every finite m*dH is a candidate and the rounds
+stop at the target.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """Rule target: a ratio or a count instead of S; one pass on the unit-free score.
 
-Drops the n - target points of lowest m*dH (ties: canonical order), so the
-count is exact (out of core: one global threshold on m*dH across all cells,
-:mod:`cloudsieve.engine.threshold`). Its entry in the registry is
-:data:`cloudsieve.core.rules.RULES`.
+Drops the n - target points of lowest m*dH (ties: canonical order); out of core,
+one global threshold (:mod:`cloudsieve.engine.threshold`).
 """
 
 from __future__ import annotations

@@ -1,8 +1,4 @@
-"""Rule threshold (the paper's): one pass, drop every point whose score is <= S.
-
-Its entry in the registry is :data:`cloudsieve.core.rules.RULES`; :func:`prune`
-is its in-memory selection, on validated input.
-"""
+"""Rule threshold (the paper's): one pass, drop every point whose score is <= S."""
 
 from __future__ import annotations
 
