@@ -80,16 +80,9 @@ def _dense_labels(lab: np.ndarray):
 def group(pts: np.ndarray, labels: np.ndarray):
     """Cluster ids 0..c-1, the order grouping the clusters, and the cluster sizes.
 
-    Inside a cluster rows follow a Z-order curve (copies in input order) for memory
-    locality of the queries (:func:`.kernels.order.grouped_order`).
-
-    Returns
-    -------
-    inv : ndarray (n,), int64
-        Cluster id of each point (input order).
-    order : ndarray (n,), int64
-        Input indices in grouped order.
-    sizes : ndarray (c,), int64
+    Returns inv (n,) int64 (cluster of each input point), order (n,) int64 (input
+    indices grouped) and sizes (c,) int64. Inside a cluster rows follow a Z-order curve
+    for memory locality (:func:`.kernels.order.grouped_order`).
     """
     inv, c = _dense_labels(labels)
     bits = min(21, (63 - max(1, (c - 1).bit_length())) // 3)
@@ -122,33 +115,17 @@ def with_cluster_coordinate(pts: np.ndarray, lab: np.ndarray) -> np.ndarray:
 
 
 def knn_query(g, ginv, rows, kc, threads, query=None, extra=0):
-    """k-NN (k = kc of the cluster) of g[rows] among g[rows] of their own cluster.
+    """k-NN (k = kc[cluster]) of g[rows] among g[rows] of their own cluster.
 
-    Only rows[query] when ``query`` is given; up to ``extra`` more nearest when the
-    cluster has them. Up to 3 coordinates: :func:`.kernels.knn.knn_unchecked` (a
-    k-d tree's distances, ties lower row first); more: :func:`_knn_query_tree`.
+    ``g`` (n, p) grouped by ascending cluster ids ``ginv``; ``rows`` ascending positions
+    in g, each cluster among them with >= k + 2 points; only rows[query] when ``query``
+    is given; up to ``extra`` more nearest when the cluster has them. Up to 3
+    coordinates: :func:`.kernels.knn.knn_unchecked` (ties lower row first); more:
+    :func:`_knn_query_tree`.
 
-    Parameters
-    ----------
-    g : ndarray (n, p), float64
-        Points grouped by cluster (ascending ids ``ginv``).
-    ginv : ndarray (n,), int64
-    rows : ndarray (r,), int64
-        Positions in g, ascending; each cluster among them has >= k + 2 points.
-    kc : ndarray (c,), int64
-        k of each cluster.
-    threads : int
-    query : ndarray (q,), int64, optional
-        Positions in rows to answer (default: all).
-    extra : int
-
-    Returns
-    -------
-    groups : list of (k, r (M,), r_k (M,), r_(k+1) (M,), nbx (M, k + 1 + e))
-        One per distinct (k, e): answered rows, their k-th and (k+1)-th distances,
-        their nearest as positions in g; clusters without exact duplicates only.
-    flagged : ndarray (c,), bool
-        Clusters with exact duplicates among the answered points.
+    Returns (groups, flagged): one group (k, r (M,), r_k (M,), r_(k+1) (M,), nbx (M,
+    k + 1 + e)) per distinct (k, e), the neighbours as positions in g, clusters without
+    exact duplicates only; flagged (c,) bool marks clusters with duplicates among the answered.
     """
     if g.shape[1] > 3:
         return _knn_query_tree(g, ginv, rows, kc, threads, query, extra)

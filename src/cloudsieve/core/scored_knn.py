@@ -1,8 +1,14 @@
 """The k nearest inside clusters as the scores without context need them (DESIGN.md stage 4).
 
-:func:`knn_scored_clusters`: :func:`.knn.knn_clusters`' lists laid out per cluster,
-from points in input order (:func:`.kernels.knn.knn_scored`); :func:`groups_to_lists`
-writes knn_clusters' groups into that layout. Valid input assumed.
+The scored layout, shared by :mod:`.kernels.knn` and :mod:`.kernels.entropy`: points
+in input order with ``order`` (input indices grouped by cluster) and ``indptr``
+(c + 1,) cluster starts; per grouped position ``rk``, ``rk1`` (r_k, r_(k+1)) and
+``scored``; per cluster k ``kcl`` (0: not scored) and ``koff`` (c + 1,); the k nearest
+of scored position p of cluster j (grouped positions, nearest first) at
+``nb[koff[j] + (p - indptr[j]) * k]``, k entries.
+
+:func:`knn_scored_clusters` fills it (:func:`.kernels.knn.knn_scored`);
+:func:`groups_to_lists` writes :func:`.knn.knn_clusters`' groups into it.
 """
 
 from __future__ import annotations
@@ -35,31 +41,12 @@ def _copies(pts, order, indptr, rows, dup):
 
 
 def knn_scored_clusters(pts, order, indptr, k0, k_min, threads):
-    """k-NN of every point inside its own cluster as scoring needs it (1 to 3 coordinates).
+    """k-NN of every point inside its own cluster in the scored layout (module docstring; 1 to 3 coordinates).
 
-    As :func:`.knn.knn_clusters`, one layout per cluster; clusters with exact copies
-    again via :func:`.knn.knn_query` on their distinct points.
-
-    Parameters
-    ----------
-    pts : ndarray (n, p), float64, 1 <= p <= 3
-    order, indptr : ndarray of int64
-        From :func:`.knn.group`: input indices in grouped order, cluster starts (c + 1,).
-    k0, k_min, threads
-        As in :func:`.knn.knn_clusters`.
-
-    Returns
-    -------
-    rk, rk1 : ndarray (n,), float64
-        r_k and r_(k+1) per grouped position (1.0 where not scored).
-    kcl : ndarray (c,), int64
-        k of each cluster, 0 when not scored.
-    koff : ndarray (c + 1,), int64
-    scored : ndarray (n,), bool
-    nb : ndarray of int64
-        k nearest of scored position p of cluster j at ``nb[koff[j] + (p - indptr[j]) * k]``.
-    dup : ndarray (n,), bool
-        The exact copies.
+    ``order``, ``indptr`` from :func:`.knn.group`; ``k0, k_min, threads`` as
+    :func:`.knn.knn_clusters`. Clusters with copies are redone by :func:`.knn.knn_query`
+    on their distinct points. Returns rk, rk1 (1.0 where not scored), kcl, koff,
+    scored, nb, and dup (n,) bool, the exact copies.
     """
     n = len(order)
     sizes = np.diff(indptr)

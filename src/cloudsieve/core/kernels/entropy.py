@@ -154,26 +154,11 @@ def _grouped_terms(w, w1, lw, lw1, indptr, kcl, koff, scored, nb, dW, dG, Wc):
 
 
 def grouped_gain(rk, rk1, indptr, kcl, koff, scored, nb, dim):
-    """H(R - y) - H(R) of every scored point, grouped as :func:`cloudsieve.core.scored_knn.knn_scored_clusters`.
+    """H(R - y) - H(R) of every scored point, in the layout of :mod:`cloudsieve.core.scored_knn`.
 
-    Parameters
-    ----------
-    rk, rk1 : ndarray (n,), float64
-        r_k and r_(k+1) per grouped position (> 0 where scored).
-    indptr : ndarray (c + 1,), int64
-    kcl : ndarray (c,), int64
-        k of each cluster, 0 when not scored.
-    koff : ndarray (c + 1,), int64
-    scored : ndarray (n,), bool
-    nb : ndarray (koff[-1],), int64
-        k nearest of each scored point from koff[j] + (p - indptr[j]) * k; other values
-        (e.g. n for context) are skipped.
-    dim : float
-
-    Returns
-    -------
-    ndarray (n,), float64
-        The gain at scored positions (0.0 elsewhere), bit for bit :func:`entropy_gain`'s.
+    ``rk``, ``rk1`` > 0 where scored; ``nb`` entries outside the cluster (e.g. n for
+    context) are skipped. Returns float64 (n,): the gain at scored positions (0.0
+    elsewhere), bit for bit :func:`entropy_gain`'s.
     """
     n = len(rk)
     lr = np.log(rk)  # numpy's log and exp (see the module docstring)
@@ -280,23 +265,12 @@ def entropy_weights(cl, c, rk, rk1, dim):
 
 
 def reverse_sums(nbr, kr, dw, dg, n, target_cluster=None, cl=None):
-    """Sums of dw and dg over each point's reverse neighbours.
+    """Sums acc_w, acc_g (n,) float64 of dw and dg (M,) over each point's reverse neighbours.
 
-    Parameters
-    ----------
-    nbr : ndarray (M, K), int64
-        Neighbours of scored point x, nearest first (positions in 0..n-1; others skipped).
-    kr : ndarray (M,), int64
-        The first kr[x] <= K columns of row x are its k nearest.
-    dw, dg : ndarray (M,), float64
-    n : int
-    target_cluster, cl : ndarray (n,) and (M,), int64, optional
-        When given, x counts for y only if target_cluster[y] == cl[x].
-
-    Returns
-    -------
-    acc_w, acc_g : ndarray (n,), float64
-        Added in row order, as ``np.bincount``.
+    ``nbr`` (M, K): neighbours of scored point x, nearest first (positions in 0..n-1;
+    others skipped), of which the first kr[x] count. With ``target_cluster`` (n,) and
+    ``cl`` (M,), x counts for y only if target_cluster[y] == cl[x]. Added in row order,
+    as ``np.bincount``.
     """
     if target_cluster is None:
         tcl = np.zeros(0, dtype=np.int64)

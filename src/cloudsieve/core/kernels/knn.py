@@ -226,29 +226,12 @@ def knn_unchecked(P, indptr, kc, query, threads=None):
 
 
 def knn_scored(pts, order, indptr, kcl, koff, threads=None):
-    """The k + 1 nearest inside each cluster of grouped points, for the scores (checked input).
+    """The k + 1 nearest inside each cluster, in the layout of :mod:`cloudsieve.core.scored_knn` (checked input).
 
-    Parameters
-    ----------
-    pts : ndarray (n, p), float64, 1 <= p <= 3
-        Points in input order.
-    order : ndarray (n,), int64
-        Input indices in grouped order (cluster j: ``order[indptr[j]:indptr[j + 1]]``).
-    indptr : ndarray (c + 1,), int64
-    kcl : ndarray (c,), int64
-        k of each cluster, 0 to skip; a cluster with k > 0 has >= k + 2 points.
-    koff : ndarray (c + 1,), int64
-        Start of cluster j's lists in ``nb`` (kcl[j] entries per point).
-    threads : int, optional
-
-    Returns
-    -------
-    rk, rk1 : ndarray (n,), float64
-        r_k and r_(k+1) per grouped position (1.0 where not computed).
-    nb : ndarray (koff[-1],), int64
-        The k nearest, grouped positions, as :func:`knn_unchecked` orders them.
-    flag : ndarray (c,), bool
-        Clusters left out because a point has an exact copy.
+    ``pts`` (n, p), 1 <= p <= 3, in input order; clusters with kcl 0 are skipped, others
+    hold >= k + 2 points. Returns rk, rk1 (n,) (1.0 where not computed), nb (koff[-1],)
+    as :func:`knn_unchecked` orders them, and flag (c,) bool: clusters left out because
+    a point has an exact copy.
     """
     n = len(order)
     rk = np.ones(n)
