@@ -110,7 +110,7 @@ class _Neighbours:
 
 
 def lloyd(Xs, C, max_iter, threads, tol=0.0):
-    """Lloyd's iterations from centres C; exactly the plain algorithm's labels.
+    """Lloyd's iterations from centres C (c, p) on valid, canonically ordered Xs (n, p); exactly the plain algorithm's labels.
 
     Hamerly's bounds per point x of label a: upper u(x) to its centre, lower l(x) to
     every other; x keeps its label while u < l. Each centre lists its K nearest
@@ -120,25 +120,10 @@ def lloyd(Xs, C, max_iter, threads, tol=0.0):
     L - U > D_a + M_a). Failing points are reassigned among the list, else by
     :func:`.centres.nearest_centres`. Passes are compiled (:mod:`.kernels.kmeans`),
     in a fixed floating-point order: results do not depend on ``threads``.
-
     Stops when at most tol * n points changed cluster, or at max_iter.
 
-    Parameters
-    ----------
-    Xs : ndarray (n, p), float64
-        Valid points (canonically ordered).
-    C : ndarray (c, p), float64
-        Initial centres.
-    max_iter, threads : int
-    tol : float
-
-    Returns
-    -------
-    labels : ndarray (n,), int64
-    centres : ndarray (c, p), float64
-        Means of the final clusters (an empty cluster keeps its centre).
-    n_iter : int
-    converged : bool
+    Returns labels (n,) int64, centres (c, p) (means of the final clusters; an empty
+    cluster keeps its centre), n_iter, converged.
     """
     n, p = Xs.shape
     c = len(C)

@@ -35,31 +35,13 @@ class RoundTest:
 
 def round_selection(P, alive, val, tie, nb, n_alive, test: RoundTest, kk=None, r1=None,
                     chunked: ClusterChunks | None = None) -> np.ndarray:
-    """The points one round of ``iterative``/``coverage`` drops (empty: the rounds stop).
+    """The rows one round of ``iterative``/``coverage`` drops, int64 (empty: the rounds stop).
 
-    Parameters
-    ----------
-    P : ndarray (n, p), float64
-    alive : ndarray (n,), bool
-    val : ndarray (n,), float64
-        Scores (+inf: never a candidate).
-    tie : ndarray (n,), int64
-        Unique ids breaking ties of val.
-    nb : ndarray (n, K), int32 or int64
-        Neighbour lists, nearest first; entries outside [0, n) are none.
-    n_alive : int
-    test : RoundTest
-    kk : ndarray (n,), int64, optional
-        Row i holds kk[i] neighbours (default: K).
-    r1 : ndarray (n,), float64, optional
-        Distance to the first neighbour, +inf where kk = 0 (computed when not given).
-    chunked : ClusterChunks, optional
-        Lists stay inside clusters: each cluster runs on its own, on the chunks' threads.
-
-    Returns
-    -------
-    ndarray (m,), int64
-        The rows dropped (in priority order when cut at the target).
+    ``val`` (n,) scores (+inf: never a candidate), ``tie`` (n,) unique ids breaking its
+    ties, ``nb`` (n, K) lists nearest first (entries outside [0, n) are none), row i
+    holding ``kk[i]`` (default K); ``r1`` (n,) distance to the first neighbour (+inf
+    where kk = 0; computed when not given). With ``chunked`` (lists inside clusters),
+    each cluster runs on its own on the chunks' threads. Cut at the target in priority order.
     """
     rule, threshold, target, coverage = test.rule, test.threshold, test.target, test.coverage
     if target is not None and n_alive <= target:
