@@ -107,21 +107,12 @@ _LIST_MIN_ROWS_PER_CENTRE = 16  # fewer query points than this per centre: rings
 
 
 def nearest_centres(X, C, k, chunks, h, rows=None):
-    """The k nearest centres of X[rows] (all when None): (distances, indices), each (m, k), ascending.
+    """The k nearest centres (1 <= k <= c) of X[rows] (all when None): (distances, indices), each (m, k), ascending.
 
     Equal to ``centre_tree(C).query(X[rows], k)``, except the last column's index on
     a tie with a centre not returned (K-means and FCM use only its distance).
-
-    Parameters
-    ----------
-    X : ndarray (n, p), float64
-    C : ndarray (c, p), float64
-    k : int
-        1 <= k <= c.
-    chunks : .kernels.threads.Chunks
-    h : float
-        Grid side (:func:`cell_size`); only speed depends on it.
-    rows : ndarray (m,), int64, optional
+    ``chunks``: :class:`.kernels.threads.Chunks`; ``h``: grid side (:func:`cell_size`),
+    only speed depends on it.
     """
     if rows is None:
         rows = np.arange(len(X), dtype=np.int64)

@@ -16,17 +16,8 @@ __all__ = ["ClusterChunks"]
 class ClusterChunks:
     """Ranges of clusters of about equal point counts: one without a pool, else four per thread.
 
-    Parameters
-    ----------
-    starts : ndarray (c + 1,), int64
-        Cluster j is rows starts[j] to starts[j + 1].
-    threads : int
-    pool : ThreadPoolExecutor or None
-
-    Attributes
-    ----------
-    ranges : list of (i, c0, c1, a, b)
-        Range number, clusters c0 to c1 - 1, rows a to b - 1.
+    ``starts`` (c + 1,): cluster j is rows starts[j] to starts[j + 1]. ``ranges``: list
+    of (i, c0, c1, a, b), range i holding clusters c0 to c1 - 1, rows a to b - 1.
     """
 
     def __init__(self, starts: np.ndarray, threads: int, pool: ThreadPoolExecutor | None):

@@ -53,16 +53,10 @@ def split_cells(points: np.ndarray, cell_points: int, threads: int = 1) -> tuple
                                                                               np.ndarray, np.ndarray]:
     """Split *points* (n, 3) into k-d cells of at most *cell_points* points (independent of *threads*).
 
-    Returns
-    -------
-    idx : ndarray (n,), int64
-        The points cell by cell, ascending inside each cell.
-    starts : ndarray (C + 1,), int64
-        Cell c holds ``idx[starts[c]:starts[c + 1]]``.
-    boxes : ndarray (C, 2, 3), float64
-        Lower and upper corner of each cell's region (+-inf outside); the regions tile space.
-    ordered : ndarray (n, 3), float64
-        ``points[idx]``.
+    Returns idx (n,) int64 (points cell by cell, ascending inside each), starts (C + 1,)
+    (cell c holds ``idx[starts[c]:starts[c + 1]]``), boxes (C, 2, 3) (lower and upper
+    corner of each cell's region, +-inf outside; the regions tile space), and ordered
+    ``points[idx]``.
     """
     n = len(points)
     # rows and points move between two pairs of buffers, cut after cut; a cell's range is copied back once

@@ -50,13 +50,8 @@ def kmeanspp_steps(S, d2, bsum, bmax, chosen, k, u, forced, B):
     distance to the nearest chosen centre (zero padded); bsum / bmax (nb,): its
     per-block sums and maxima; chosen (c,): the picks. A step draws with probability
     d2 / sum(d2) from u (or takes ``forced`` >= 0 at step k), then lowers d2 in the
-    window found by binary search on the first coordinate.
-
-    Returns
-    -------
-    (int, int)
-        The step reached (len(chosen), or a step whose d2 is all zero: the caller
-        draws with ``rng.integers``) and the uniforms used.
+    window found by binary search on the first coordinate. Returns (step reached,
+    uniforms used); a step short of len(chosen) has d2 all zero (the caller draws with ``rng.integers``).
     """
     s, p = S.shape
     nb = len(bsum)

@@ -161,21 +161,10 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
 
     Without ``have`` (first update) every row is queried. Otherwise distances to the
     L centres and the ring are recomputed, closer ring centres swap in, and the row is
-    queried again unless its farthest distance is below reach[i]^2. A query's K nearest
-    give the L (by index), the ring, and the new reach; tied queries (flag[i] = 1) are
-    left to :func:`finish_rows`.
-
-    Parameters
-    ----------
-    grid, lists : tuple
-        The ``ring`` and ``lists`` tuples of :mod:`.centres` over C.
-    hard : ndarray of shape (n,) or (0,), int64
-        Hard labels to update (length 0: not tracked).
-
-    Returns
-    -------
-    (float, int)
-        Largest membership change of the rows, and how many hard labels changed.
+    queried again unless its farthest distance is below reach[i]^2; tied queries
+    (flag[i] = 1) are left to :func:`finish_rows`. ``grid``, ``lists``: the tuples of
+    :mod:`.centres`; ``hard`` (n,) or (0,): hard labels (length 0: not tracked).
+    Returns (largest membership change, hard labels changed).
     """
     L = idx.shape[1]
     E = ring.shape[1]

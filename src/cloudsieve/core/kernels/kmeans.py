@@ -153,17 +153,8 @@ def assign_pass(X, a, L, R, Q, C, cumD, cumM, T, near, nb, s, e, na, umax, rows)
     low = max(min(L - cumM[a], T[a] - u), near[a] - u), it keeps its label if u < low.
     Else its nearest among its centre and nb[a] is found, exact when d1 < T[a] - u;
     a changed label is listed with na, an unsure one with na = -1 (a query over all
-    centres); :func:`apply_moves` applies them. umax: this range's own array.
-
-    Parameters
-    ----------
-    rows : ndarray of shape (n,), int64
-        The listed rows are written, ascending, at rows[s:s + count].
-
-    Returns
-    -------
-    (int, int)
-        count, and the number of points reassigned among the lists.
+    centres); :func:`apply_moves` applies them. umax: this range's own array. Listed
+    rows go, ascending, to rows[s:s + count]; returns (count, points reassigned among the lists).
     """
     K = nb.shape[1]
     buf = np.empty(X.shape[1])

@@ -115,17 +115,9 @@ def refresh_lists(P, ginv, starts, alive, dup, q, kcl, extra, width):
     """New lists for rows ``q`` (ascending) among the alive distinct rows of their cluster, by brute force.
 
     Row y of cluster j gets k = kcl[j] and L = k + 1 + min(extra, m - k - 2) nearest,
-    as :func:`cloudsieve.core.knn.knn_query`'s tree would (same sums); flagged when
-    the L + 1 smallest squared distances are not all different.
-
-    Returns
-    -------
-    lists : ndarray (len(q), width), int64
-        Padded with n.
-    kq : ndarray (len(q),), int64
-    rk, rk1, r1 : ndarrays (len(q),), float64
-    status : ndarray (len(q),), int8
-        0 done, 1 a tie (ask the tree), 2 a zero distance (the cluster holds copies).
+    as :func:`cloudsieve.core.knn.knn_query`'s tree would (same sums). Returns lists
+    (len(q), width) padded with n, kq, rk, rk1, r1 and status (int8): 0 done, 1 a tie
+    (ask the tree), 2 a zero distance (the cluster holds copies).
     """
     n = len(ginv)
     p = P.shape[1]

@@ -121,22 +121,10 @@ def _grouped_order(pts, inv, c, bits, q):
 
 
 def grouped_order(pts, inv, c, bits):
-    """Input indices in grouped order, and the cluster starts.
+    """Input indices in grouped order (n,) and cluster starts ``indptr`` (c + 1,), both int64.
 
-    Parameters
-    ----------
-    pts : ndarray (n, p), float64, finite
-    inv : ndarray (n,), int64
-        Cluster id in 0..c-1.
-    c : int
-    bits : int
-        Bits per coordinate of the codes (3 * bits + bits of c - 1 <= 63).
-
-    Returns
-    -------
-    order : ndarray (n,), int64
-    indptr : ndarray (c + 1,), int64
-        Cluster j is ``order[indptr[j]:indptr[j + 1]]``.
+    ``inv`` (n,): cluster ids in 0..c-1; ``bits`` per coordinate of the codes, with
+    3 * bits + bits of c - 1 <= 63.
     """
     q = min(pts.shape[1], 3) if len(pts) else 0
     return _grouped_order(pts, np.ascontiguousarray(inv, dtype=np.int64), int(c), int(bits), q)
