@@ -18,7 +18,7 @@ Names are imported at first use, so no module loads numba or scipy it does not n
 
 from importlib import import_module
 
-# #: where each public name lives; imported at first use (PEP 562)
+#: where each public name lives; imported at first use (PEP 562)
 _LAZY = {
     "neighbour_count": "._validation", "exact_copies": ".duplicates", "first_copies": ".duplicates",
     "Scores": ".entropy", "entropy_scores": ".entropy", "score_points": ".entropy", "FuzzyCMeans": ".fcm",
