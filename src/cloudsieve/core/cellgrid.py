@@ -28,29 +28,20 @@ def check_points(points, name: str = "points") -> np.ndarray:
 
 
 class CellGrid:
-    """Points sorted into cubic cells of side >= ``h`` (the widest search radius).
+    """Points (n, 3) float64, finite (not checked), sorted into cubic cells of side >= ``h`` (the widest search radius).
 
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3), float64, finite (not checked)
-    h : float > 0
-        Cell side; raised so that no axis has 2^21 cells or more.
+    The side is raised so that no axis has 2^21 cells or more.
 
     Attributes
     ----------
     order : ndarray (n,), int64
-        Row i of the internal order is ``points[order[i]]``.
-    P : ndarray (n, 3)
-        The points in internal order.
+        Row i of the internal order is ``points[order[i]]``; ``P`` holds the points in that order.
     cell, cstart, nstart, ncells : ndarray of int64
         Cell of each row, first row of each cell, CSR of occupied cells among the 27 around each.
-    copy : ndarray (n,), bool
-        Row equals the previous row.
-    lead : ndarray (n,), int64
-        First row of each row's group of exact copies.
-    h : float
-    lo : ndarray (3,)
-        The points' minimum.
+    copy, lead : ndarray (n,)
+        Row equals the previous row (bool); first row of its group of copies (int64).
+    h, lo : float, ndarray (3,)
+        The cell side used and the points' minimum.
     """
 
     def __init__(self, points: np.ndarray, h: float):

@@ -116,30 +116,14 @@ def _neighbours(boxes: np.ndarray, margin: float) -> list[np.ndarray]:
 def eliminate_cell(points, count: int, r_max, *, halo=None, decided=None, halo_keep=None,
                    steps: int = RELOCATE_STEPS, threads: int | None = None,
                    cell_points: int | None = None, staged: bool | None = None) -> np.ndarray:
-    """Keep mask of one cell of a cloud: the elimination to ``count`` with its halo, then relocation.
+    """Keep mask (n,) bool of one cell: exactly ``count`` (in [0, n]) of ``points`` (n, 3), by elimination with its halo, then relocation.
 
-    ``decided`` halo points weigh as fixed when kept (``halo_keep``) and as gone when
-    removed; the others are eliminated along. Then ``steps`` steps of :func:`relocate`
-    on the same grid. Above ``cell_points`` points (None: never; :func:`cell_cap`) as
-    :func:`eliminate_cells`. In stages (:mod:`.staged`) when ``staged``; None: when the
-    count is below 1 in :data:`.staged.STAGED_BELOW` of the distinct points.
-
-    Parameters
-    ----------
-    points : array_like of shape (n, 3), float
-    count : int
-        Points kept, in [0, n].
-    r_max : float
-        The cloud's elimination radius.
-    halo : array_like of shape (h, 3), optional
-    decided, halo_keep : array_like of shape (h,), bool, optional
-    threads, cell_points : int, optional
-    staged : bool, optional
-
-    Returns
-    -------
-    ndarray of shape (n,), bool
-        Exactly ``count`` True.
+    ``r_max``: the cloud's radius. ``decided`` halo points (h,) weigh as fixed when kept
+    (``halo_keep``) and as gone when removed; the others are eliminated along. Then
+    ``steps`` steps of :func:`relocate` on the same grid. Above ``cell_points`` points
+    (None: never; :func:`cell_cap`) as :func:`eliminate_cells`. In stages
+    (:mod:`.staged`) when ``staged``; None: when the count is below 1 in
+    :data:`.staged.STAGED_BELOW` of the distinct points.
     """
     pts = check_points(points)
     n = len(pts)

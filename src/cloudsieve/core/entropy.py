@@ -48,26 +48,24 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class Scores:
-    """Scores of every point, in the input order.
+    """Scores of every point, in the input order; arrays of shape (n,) unless noted.
 
     Attributes
     ----------
-    delta_h : ndarray (n,), float64
+    delta_h : float64
         dH(y); +inf in clusters too small to score, 0.0 for duplicates.
-    unit_free : ndarray (n,), float64
+    unit_free : float64
         m * dH (m: distinct points of the cluster): comparable across cluster sizes.
-    cluster_size : ndarray (n,), int64
-        m of the point's cluster.
-    k : ndarray (n,), int64
-        k of the point's cluster.
-    duplicate : ndarray (n,), bool
+    cluster_size, k : int64
+        m and k of the point's cluster.
+    duplicate : bool
         Exact copy of a lower-index point of the same cluster.
-    gain : ndarray (n,), float64
+    gain : float64
         Signed H(R minus y) - H(R); +inf in small clusters, 0.0 for duplicates.
     neighbours : ndarray (n, K), int64
         k-NN graph, input indices, nearest first, padded with -1 (rows of duplicates
         and small clusters all -1); built on first access.
-    indptr, indices : ndarray of int64
+    indptr, indices : int64
         The same graph in CSR form (computed on access).
     """
 

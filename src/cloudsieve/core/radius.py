@@ -33,18 +33,9 @@ def point_areas(points, *, context=None, k: int = AREA_K, sample: int = AREA_SAM
                 seed: int = 0) -> tuple[np.ndarray, float]:
     """Area around each point of the sampled surface: pi r_k^2 / k (r_k: k-th nearest other point).
 
-    Above ``sample`` points (with context), areas come from a seeded uniform sample,
-    scaled by the sampling rate.
-
-    Parameters
-    ----------
-    points : array_like of shape (n, 3), float
-    context : array_like of shape (q, 3), optional
-        Neighbours whose areas are not returned (a cell's halo).
-    k : int
-    sample : int
-        At least k + 1.
-    seed : int
+    Above ``sample`` points (>= k + 1, with context), areas come from a seeded uniform
+    sample, scaled by the sampling rate. ``context`` (q, 3): neighbours whose areas are
+    not returned (a cell's halo).
 
     Returns
     -------
@@ -190,23 +181,12 @@ def _nearest(rows: np.ndarray, q: np.ndarray, kk: int) -> tuple[np.ndarray, np.n
 
 
 def elimination_radius(areas, count: int, *, weight=1.0) -> float:
-    """r_max for ``count`` kept points: r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
+    """r_max for ``count`` (>= 1) kept points: r solving N = sum_i weight_i * min(1, a_i / (2 sqrt(3) r^2)).
 
-    On a uniform surface of area A, Yuksel's sqrt(A / (2 sqrt(3) N)). Solved exactly
-    over the sorted areas.
-
-    Parameters
-    ----------
-    areas : array_like of shape (m,), float >= 0 (inf allowed)
-    count : int
-        Kept points, >= 1.
-    weight : float or array_like of shape (m,), float > 0
-        Points each area stands for.
-
-    Returns
-    -------
-    float
-        r_max; inf when every point is kept or every point is isolated.
+    On a uniform surface of area A, Yuksel's sqrt(A / (2 sqrt(3) N)); solved exactly
+    over the sorted areas. ``areas`` (m,) >= 0 (inf allowed); ``weight``: points each
+    area stands for (a float or one per area). Returns inf when every point is kept or
+    every point is isolated.
     """
     a = np.asarray(areas, dtype=np.float64).ravel()
     if a.size and (np.isnan(a).any() or a.min() < 0):

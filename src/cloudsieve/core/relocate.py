@@ -54,25 +54,23 @@ def relocate(points, keep, r_max, *, halo=None, halo_keep=None, iterations: int 
 
     Each kept point moves to the point of its Voronoi region nearest the region's
     centroid, unless a point of the region would end farther than both the region's
-    current farthest and r_max. Kept halo points pull but do not move.
+    current farthest and r_max (the search reaches 2 r_max). Kept halo points
+    (``halo_keep``, default none) pull but do not move. Stops after ``iterations``
+    steps or when nothing moves.
 
     Parameters
     ----------
     points : array_like of shape (n, 3), float
     keep : array_like of shape (n,), bool
     r_max : float
-        The elimination radius; the search reaches 2 r_max.
     halo : array_like of shape (h, 3), optional
     halo_keep : array_like of shape (h,), bool, optional
-        Kept halo points (default none).
     iterations : int
-        Steps (stops early when nothing moves).
     threads : int, optional
 
     Returns
     -------
     ndarray of shape (n,), bool
-        The new keep mask, as many points.
     """
     pts = check_points(points)
     n = len(pts)
