@@ -13,17 +13,11 @@ neighbours get lighter, until the count is reached. The key of x::
   would gain; g(e) = 1 up to r_cov = 0.8 r_max, then (r_cov / e)^8; lam = 10.
   Without f, WSE leaves holes.
 
-No information term (docs/architecture.md, "Design reasons"). r_max: :mod:`.radius`;
-the loop, constants and :func:`keep_lowest`: :mod:`.elimination`.
-
-Keys only decrease and the largest goes next, so the removal order is "priority
-descending, ties lower index first": keeping the N lowest priorities is the
-elimination stopped at N (reference: tests/eliminate_oracle.py). Then
-:func:`.relocate.relocate` moves each kept point toward its Voronoi region's centroid;
-:func:`.eliminate_cells.eliminate_cell` does both per cell, :func:`eliminate` on a whole cloud.
-
-Exact duplicates get priority +inf (go first). The result depends on neither
-input order (:class:`.cellgrid.CellGrid`) nor thread count.
+No information term (docs/architecture.md). r_max: :mod:`.radius`; the loop,
+constants and :func:`keep_lowest`: :mod:`.elimination`. Keys only decrease, so
+keeping the N lowest priorities is the elimination stopped at N (reference:
+tests/eliminate_oracle.py); :func:`.relocate.relocate` follows. Exact duplicates
+get priority +inf. The result depends on neither input order nor thread count.
 """
 
 from __future__ import annotations

@@ -31,19 +31,17 @@ def simplify_points(points, *, method: str = "km", rule: str = rules.MEMORY_RULE
     method : {"km", "fcm"}
         Refinement into c = ceil(n / cluster_size) clusters (ignored with ``labels``).
     rule : str
-        A rule of :data:`.rules.RULES`; default ``iterative`` (the paper's, no target
-        needed), while :func:`cloudsieve.simplify`, :func:`cloudsieve.compare` and the
-        CLI default to ``eliminate`` (:mod:`cloudsieve.params`). ``eliminate`` needs no
-        clusters and keeps what :func:`cloudsieve.simplify` keeps with the same
-        ``seed``, ``cluster_size``, ``k0`` and ``k_min``.
+        A rule of :data:`.rules.RULES`; default ``iterative`` (the paper's), while
+        :func:`cloudsieve.simplify`, :func:`cloudsieve.compare` and the CLI default to
+        ``eliminate``, which needs no clusters and keeps what :func:`cloudsieve.simplify`
+        keeps with the same ``seed``, ``cluster_size``, ``k0`` and ``k_min``.
     threshold : float
         S on dH (:data:`.rules.PAPER_THRESHOLD`).
     ratio, count : optional
         Kept fraction in (0, 1] / kept count >= 1; a count above n keeps all.
     cluster_size : int
         >= k_min + 2.
-    seed : int
-    k0, k_min : float, int
+    seed, k0, k_min : int, float, int
     context : array_like of shape (q, 3), optional
         Extra density neighbours, never removed.
     labels : array_like of shape (n,), int, optional

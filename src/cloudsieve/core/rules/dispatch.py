@@ -67,8 +67,8 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
     score : {"delta_h", "unit_free"}
         dH (the paper) or m*dH.
     coverage : float
-        y may go only if its nearest remaining point is within ``coverage`` x the
-        largest nearest-neighbour spacing among y's k nearest.
+        Rule coverage: y may go only if r_1(y) <= ``coverage`` x the median r_1 of its
+        k nearest (:mod:`.coverage`).
     progress : callable, optional
         Called with the points dropped in each round.
     threads : int, optional
