@@ -91,7 +91,7 @@ def group(pts: np.ndarray, labels: np.ndarray):
 
 
 def mark_duplicates(g, ginv, rows, dup):
-    """Mark in ``dup`` (n,) every copy of an earlier row of the same cluster among g[rows]; return the other rows.
+    """Mark in ``dup`` (n,) every copy of a preceding row of the same cluster among g[rows]; return the other rows.
 
     ``g`` (n, p) grouped by cluster with ids ``ginv``; ``rows`` ascending positions in g.
     """

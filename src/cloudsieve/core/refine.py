@@ -27,7 +27,7 @@ logger = logging.getLogger(__name__)
 
 METHODS = _METHODS  # the option's choices (:mod:`cloudsieve.params_spec`)
 
-# The refinement's stopping rule: earlier than the paper's (KM: no point changes; FCM:
+# The refinement's stopping rule: sooner than the paper's (KM: no point changes; FCM:
 # memberships move < 1e-5), same point RMS in far fewer iterations (docs/architecture.md,
 # "The refinement stops early by default"). KMeans and FuzzyCMeans keep the paper's criteria.
 REFINE_LABEL_TOL = 0.01

@@ -12,7 +12,7 @@ __all__ = ["from_groups", "group_rows"]
 
 @njit(cache=True)
 def from_groups(labels, offset, src):
-    """``out[i] = src[offset[labels[i]] + r]``, r the earlier rows with row i's label: inverse of a stable sort by label."""
+    """``out[i] = src[offset[labels[i]] + r]``, r the preceding rows with row i's label: inverse of a stable sort by label."""
     pos = offset.copy()
     out = np.empty(len(labels), dtype=src.dtype)
     for i in range(len(labels)):

@@ -74,7 +74,7 @@ def prune(points, labels=None, *, rule: str = registry.MEMORY_RULE, threshold: f
     threads : int, optional
         None: all cores; the mask does not depend on it.
     keep_duplicates : bool
-        False: exact copies of an earlier point are never kept (a target counts
+        False: exact copies of a lower-index point are never kept (a target counts
         distinct points). True: every copy of a kept point is kept.
 
     Returns
