@@ -296,7 +296,7 @@ def eliminate_cells(pts: np.ndarray, target: int, r_max: float, cells: tuple, st
             if lists is None:
                 lists = _one_thread(_lists, grid, state, r_max)
             keep[own[j]] = _one_thread(_finish, int(size[j]), grid, lists, kind, r_max, int(q[j]), steps)
-            prepared[j] = None  # its grid and lists: no longer needed
+            prepared[j] = None
 
         # colour by colour, largest first; a cell waits only for the lower-colour cells of its halo
         for j in apply_order(colour, size, range(ncell)):
