@@ -13,16 +13,11 @@ __all__ = ["Summary", "missed_target"]
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
                   keep_duplicates: bool = False, exact: bool = False) -> str | None:
-    """What to say when a ratio or count was asked and the kept count differs.
+    """What to say when a ratio or count was asked and the kept count differs, else None.
 
-    Returns
-    -------
-    str or None
-        ``"SRC: asked to keep A points, kept K: why"`` (logged as a warning,
-        or raised with ``strict``), None when the request was met or there
-        was none. With *exact* (a rule that keeps exactly the count asked,
-        ``eliminate``: no thresholds, no clusters) only the input's size and
-        its exact duplicates can explain a miss.
+    ``"SRC: asked to keep A points, kept K: why"``, logged as a warning or
+    raised with ``strict``. With *exact* (a rule keeping exactly the count,
+    ``eliminate``) only the input's size and its duplicates explain a miss.
     """
     if ratio is None and count is None:
         return None
@@ -57,35 +52,26 @@ class Summary:
     cells_computed, cells_reused : int
         Cells computed in this run, and cells found done in the store (resume).
     duplicates : int
-        Exact duplicate points (copies of an earlier point with the same x, y,
-        z): removed, or kept with their first copy when ``keep_duplicates``.
+        Exact duplicate points (same x, y, z as an earlier point): removed, or
+        kept with their first copy when ``keep_duplicates``.
     duplicates_kept : bool
-        Whether they were kept (``keep_duplicates``).
+        Whether they were kept.
     threshold : float or None
-        The global threshold on the unit-free score chosen for a ratio/count
-        with the target, iterative or coverage rule; None otherwise (the
-        eliminate rule gives its cells exact counts instead).
+        The global threshold on the unit-free score of a ratio/count with the
+        target, iterative or coverage rule; None otherwise.
     seconds : dict str -> float
-        Wall time per stage ("ingest", "partition", "cells", "merge",
-        "export") and "total".
+        Wall time per stage ("ingest", "partition", "cells", "merge", "export") and "total".
     cpu_seconds : dict str -> float
-        ``{"driver": d, "workers": w}``: this process's own CPU time during
-        the run, and the sum over the worker processes (see
-        :meth:`cloudsieve.engine.runner.Runner.worker_cpu`; 0 with the "sync"
-        and "threads" schedulers, whose tasks run in this process).
+        ``{"driver": d, "workers": w}``: this process's CPU time and the
+        worker processes' sum (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
     peak_memory : int
-        Peak resident memory (bytes), sampled: of this process and its
-        children, or, on a dask.distributed cluster, the peak of the sum over
-        its workers (each asked for its own; see :mod:`.memory`).
+        Peak resident memory (bytes), sampled (:mod:`.memory`).
     peak_memory_of : str
-        What *peak_memory* covers: ``"this process and its children"`` or
-        ``"N dask workers (sum of their resident memory)"``.
+        What *peak_memory* covers (:attr:`PeakMemory.scope`).
     storage : dict or None
-        ``{"retries": n}`` for a run that reads or writes a URL: the
-        requests to the object store sent again after a timeout, throttling
-        or a 5xx answer (S3: botocore's attempts after the first), in the
-        driver and the worker processes (:mod:`cloudsieve.storage_retries`);
-        None (and absent from :meth:`to_dict`) for a run on local paths.
+        ``{"retries": n}`` for a run touching a URL: object-store requests sent
+        again (:mod:`cloudsieve.storage_retries`); None, and absent from
+        :meth:`to_dict`, on local paths.
     scheduler : str
     source, destination : str
     store : str
