@@ -1,5 +1,4 @@
-"""The argument of a cell task (:class:`CellTask`), the tasks of a list of cells and their order: every rule's
-cells stage builds its tasks here (:mod:`.cells`, :mod:`.cell_scheme`)."""
+"""The argument of a cell task (:class:`CellTask`) and the tasks of a list of cells, for every rule's cells stage."""
 
 from __future__ import annotations
 
@@ -17,21 +16,17 @@ class CellTask:
     Attributes
     ----------
     store_path : str
-        The store, opened by the task (local path or fsspec URL).
+        The store, opened by the task.
     cell : int
-        The cell's id.
     halo : dict int -> int
-        Each halo source cell -> the start of its region (empty without a
-        density context).
+        Each halo source cell -> its region's start (empty without a density context).
     centers : dict int -> ndarray of shape (3,)
-        Centres of the cell and of its halo sources.
+        Centres of the cell and its halo sources.
     margin : float
-        Halo margin.
     region : int
         Start of the cell's region in the cell-ordered ``simplify/*`` arrays.
     params : dict
-        The run's parameters (as recorded in the store) and the task's k-d
-        tree thread count under ``"threads"``.
+        The run's recorded parameters, plus the k-d tree thread count under ``"threads"``.
     """
 
     store_path: str
@@ -45,12 +40,9 @@ class CellTask:
 
 def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: int = 1,
                halo: bool | None = None) -> list[CellTask]:
-    """The tasks of *cells*, in the order given.
+    """The tasks of *cells*, in the order given; with halo sources when *halo* (None: ``params["context"]``).
 
-    *params* gets the tasks' k-d tree thread count under "threads" (not part
-    of the parameters recorded for resume: the results do not depend on it).
-    The tasks list their halo sources when *halo* is True (None: with a
-    density context, ``params["context"]``).
+    "threads" is not part of the parameters recorded for resume: results do not depend on it.
     """
     c = part.centers
     params = {**params, "threads": int(threads)}
@@ -65,7 +57,6 @@ def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: i
 
 
 def largest_first(part, cells) -> list[int]:
-    """*cells* by decreasing point count (ties by id): the longest tasks start first, so the
-    stage does not end with one worker busy on a large cell while the others wait."""
+    """*cells* by decreasing point count (ties by id): the longest tasks start first."""
     cells = np.asarray(cells, dtype=np.int64)
     return [int(j) for j in cells[np.lexsort((cells, -part.cell_counts[cells]))]] if len(cells) else []
