@@ -279,7 +279,7 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
         hdr.write_to(out)
         data = bytearray(out.getvalue())
         day_year = header.get("creation_day_year")
-        if header.get("creation_date") is None:  # laspy would write today's date: the source's bytes
+        if header.get("creation_date") is None:  # laspy would write the current date: keep the source's bytes
             day, year = day_year if day_year else (0, 0)
             data[90:94] = int(day).to_bytes(2, "little") + int(year).to_bytes(2, "little")
         return bytes(data)
