@@ -41,28 +41,13 @@ def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin
 
 def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float,
               return_index: bool = False):
-    """Halo of *cell*: points of its halo source cells within *margin* of its region.
+    """Halo of *cell*: points (h, 3) float64 of its source cells within *margin* of its region.
 
-    Parameters
-    ----------
-    group : zarr.Group
-        The store's group (reads ``partition/xyz``).
-    part_runs : dict int -> ndarray of shape (r, 3) or (r, 4)
-        Runs ``(chunk, start, stop[, first])`` of each source cell
-        (:func:`cloudsieve.engine.runs.cell_runs`); ``first``, the run's
-        position in its cell, is needed for *return_index*.
-    centers : ndarray of shape (P, 3) or dict int -> ndarray of shape (3,)
-    cell : int
-    margin : float
-    return_index : bool
-        Also return each halo point's cell and position in that cell.
-
-    Returns
-    -------
-    points : ndarray of shape (h, 3), float64
-        Source cells in increasing id, each in input order.
-    cells, positions : ndarray of shape (h,), int64
-        Only with *return_index*.
+    *part_runs*: each source cell's runs ``(chunk, start, stop[, first])``
+    (:func:`cloudsieve.engine.runs.cell_runs`; ``first`` needed for
+    *return_index*); *centers*: (P, 3) or int -> (3,). Points come by source
+    cell, increasing, each in input order. *return_index* also returns each
+    point's cell and position in that cell, (h,) int64 each.
     """
     arr = group["partition/xyz"].async_array
     out, cells, pos = [], [], []

@@ -82,21 +82,9 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
               progress: Callable[[int], None], bars=None, points: int | None = None) -> Summary:
     """Simplify the small cloud *sources* into *dst* in this process (:func:`fits_in_memory` said so).
 
-    Parameters
-    ----------
-    opts : dict
-        The validated options of :func:`cloudsieve.engine.simplify`.
-    summary : Summary
-        Filled in: counts, seconds, memory, scheduler (:data:`SCHEDULER`).
-    account : callable
-        ``account(summary)`` before DST is written: logs, or raises
-        :class:`~cloudsieve.errors.TargetNotMetError` (strict).
-    progress : callable
-        ``progress(n)`` after each stage.
-    bars : callable, optional
-        As for :func:`cloudsieve.engine.simplify`.
-    points : int, optional
-        The input's points from its headers.
+    *opts*: the validated options; *summary* is filled in; *account*,
+    *progress*, *bars* as in :class:`.outofcore.RunHooks`
+    hooks; *points*: the input's points from its headers.
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer

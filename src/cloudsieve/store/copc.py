@@ -246,27 +246,16 @@ def _ancestors(results: list[dict], task_points: int) -> tuple[np.ndarray, np.nd
 def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, run=None, overwrite: bool = False,
                 progress=None, task_points: int = DEFAULT_TASK_POINTS,
                 leaf_points: int = DEFAULT_LEAF_POINTS) -> dict:
-    """Write the points of *store* (all, or those of *mask*) to the COPC file *dst*, out of core.
+    """Write the points of *store* (all, or those of the bool store array *mask*) to the COPC file *dst*.
 
     Every point is an exact copy of its input record (formats 6/7/8; see
     :mod:`.copc_file` for 0-5), every attribute, extra bytes, VLR and EVLR
-    kept; the same bytes with any runner and worker count.
+    kept; the same bytes with any runner and worker count. *dst* is a local
+    path or a URL (module docstring); *run* as :func:`.buckets.bucket`'s;
+    *progress* is called with the points placed after the subtree tasks.
 
     Parameters
     ----------
-    store : PointStore or str
-        The store or its path (a URL the workers can reach).
-    dst : str
-        Destination file (``.copc.laz``): a local path or a URL (see the module's notes).
-    mask : str, optional
-        A boolean array of the store, one entry per point (e.g. "simplify/keep").
-    run : callable, optional
-        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
-        None runs the tasks here, one after the other.
-    overwrite : bool
-        Replace an existing *dst*.
-    progress : callable, optional
-        Called with the number of points placed after the subtree tasks.
     task_points : int
         Points per subtree task (bounds a task's memory).
     leaf_points : int

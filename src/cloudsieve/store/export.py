@@ -73,29 +73,25 @@ def export(
     Parameters
     ----------
     store : PointStore or str
-        The store or its path/URL.
     dst : str or path-like
-        Destination file (.las, .laz, .copc.laz, .ply, .xyz/.txt/.csv/.pts);
-        COPC is built as tasks (:func:`.copc.export_copc`).
+        Destination file (.las, .laz, .copc.laz, .ply, .xyz/.txt/.csv/.pts).
     format : str, optional
         Overrides the format found from *dst*'s extension.
     mask : None, str, or 1-D bool array-like of length N
         None keeps every point; a str names a bool array of the store (e.g.
         "simplify/keep"); numpy and zarr arrays are read chunk by chunk.
     chunk_size : int
-        Points per chunk.
     overwrite : bool
-        Replace an existing *dst*.
     progress : callable, optional
         Called with the points written after each chunk (as tasks: once).
     run : Runner, optional
-        Runs a LAS/LAZ export as tasks (:func:`.export_las.export_las`);
-        None runs the same parts here. Other formats stream from this process.
+        Runs a LAS/LAZ (:func:`.export_las.export_las`), COPC
+        (:func:`.copc.export_copc`) or tiled export as tasks; None runs them
+        here. Other formats stream from this process.
     counts : list of int, optional
         Points *mask* keeps in each store chunk, when known (saves a pass).
     tile_size : float, optional
-        Write *dst* as a folder of square LAZ tiles (:func:`.tiles.export_tiles`;
-        *mask* a store array name or None).
+        Write *dst* as a folder of square LAZ tiles (:func:`.tiles.export_tiles`).
     storage_options : dict, optional
         fsspec options of a URL *store* or *dst* (:mod:`cloudsieve.storage`).
 

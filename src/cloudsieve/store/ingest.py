@@ -107,7 +107,7 @@ def ingest(
     storage_options: dict | None = None,
     **reader_options: Any,
 ) -> PointStore:
-    """Stream the point cloud file *src* into a new point store *store*.
+    """Stream the point cloud file *src* into a new point store *store* (a folder or fsspec URL).
 
     Parameters
     ----------
@@ -116,8 +116,6 @@ def ingest(
         (:func:`cloudsieve.io.sources.expand_sources`). LAS sources are
         ingested as tasks (:func:`.ingest_las.ingest_las`, "xyz" as LAS
         integers); other formats stream through this process.
-    store : str or path-like
-        Store folder or fsspec URL.
     format : str, optional
         Overrides the format found from *src*'s extension.
     chunk_size : int
@@ -126,7 +124,6 @@ def ingest(
         Drop points with NaN or infinite coordinates (counted in the store
         attribute "dropped_invalid") instead of refusing the input.
     overwrite : bool
-        Replace an existing store.
     progress : callable, optional
         Called with the number of points read after each chunk.
     on_chunk : callable, optional
@@ -134,8 +131,7 @@ def ingest(
         points as stored (*count*: the reader's announced total, or None), e.g.
         :class:`cloudsieve.engine.sample.IngestSample`. Streamed formats only.
     run : Runner, optional
-        Runs a LAS source's ingest tasks (:class:`cloudsieve.engine.runner.Runner`);
-        None: in turn in this process.
+        Runs a LAS source's tasks (:class:`cloudsieve.engine.runner.Runner`); None: here.
     storage_options : dict, optional
         fsspec options of a URL *src* or *store* (:mod:`cloudsieve.storage`).
     **reader_options

@@ -59,27 +59,12 @@ def ingest_las(
     overwrite: bool = False,
     plan: LasPlan | None = None,
 ) -> PointStore:
-    """Ingest the LAS/LAZ/COPC files *sources*, one cloud, into a new store at *store*, as tasks.
+    """Ingest the LAS/LAZ/COPC files *sources* (in order, one cloud) into a new store at *store*, as tasks.
 
-    Parameters
-    ----------
-    sources : list of str
-        The files, in order (:func:`cloudsieve.io.sources.expand_sources`).
-    store : str or path-like
-        A local folder (written under a temporary name and renamed) or an fsspec URL.
-    run : Runner, optional
-        Runs the tasks (:class:`cloudsieve.engine.runner.Runner`); None: in turn here.
-    chunk_size : int
-        Points per store chunk (and per task).
-    overwrite : bool
-        Replace an existing store.
-    plan : LasPlan, optional
-        The caller's :func:`cloudsieve.io.las_plan.plan_las`.
-
-    Returns
-    -------
-    PointStore
-        Opened read-only.
+    *store*: a local folder (written under a temporary name and renamed) or
+    an fsspec URL; *run* runs the tasks (None: here); *chunk_size*: points per
+    store chunk and per task; *plan*: the caller's
+    :func:`cloudsieve.io.las_plan.plan_las`. Returns the store, read-only.
 
     Raises
     ------

@@ -183,23 +183,9 @@ def export_tiles(
 
     One file per non-empty tile, ``{stem}_{ix}_{iy}.laz`` (*stem*: *dst_dir*'s
     name), listed in (ix, iy) order in ``index.vpc`` (:mod:`cloudsieve.io.vpc`).
-
-    Parameters
-    ----------
-    store : PointStore or str
-    dst_dir : str or path-like
-        The folder to write (it must not exist, unless *overwrite*).
-    tile_size : float
-        Edge S of the tiles, in the CRS's units.
-    mask : str, optional
-        A boolean store array (e.g. "simplify/keep"): only its True points are written.
-    run : callable, optional
-        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
-        None runs the tasks here in turn.
-    overwrite : bool
-        Replace an existing *dst_dir*, once the new tiles are complete.
-    progress : callable, optional
-        Called with the points of each tile written.
+    *tile_size*: edge S in the CRS's units; *mask*: a bool store array name;
+    *run* as :func:`.buckets.bucket`'s; *overwrite* replaces *dst_dir* once
+    the new tiles are complete; *progress* gets each tile's points.
 
     Returns
     -------
