@@ -51,14 +51,8 @@ class Runner:
         :class:`distributed.LocalCluster` of capped workers. "sync",
         "threads", "processes": dask's local schedulers. "tcp://host:port": an
         existing dask.distributed cluster whose workers reach the store.
-    workers : int, optional
-        Local worker count (threads/processes/LocalCluster).
-    memory_limit : str or int, optional
-        Per-worker memory cap: runs a LocalCluster of *workers* processes.
-    client : distributed.Client, optional
-        Run on this cluster.
-    bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
+    workers, memory_limit, client, bars
+        As :func:`cloudsieve.engine.simplify` takes them.
     warm : tuple of str
         Warm-up targets (:func:`cloudsieve.rule_table.targets_of`) the pool's
         fork server compiles before it forks a worker.

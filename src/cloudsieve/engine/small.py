@@ -83,8 +83,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     """Simplify the small cloud *sources* into *dst* in this process (:func:`fits_in_memory` said so).
 
     *opts*: the validated options; *summary* is filled in; *account*,
-    *progress*, *bars* as in :class:`.outofcore.RunHooks`
-    hooks; *points*: the input's points from its headers.
+    *progress*, *bars* as in :class:`.outofcore.RunHooks`;
+    *points*: the input's points from its headers.
     """
     from ..core._validation import ratio_count
     from ..io import detect_format, open_writer

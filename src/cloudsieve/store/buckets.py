@@ -89,12 +89,9 @@ def _check_mask(store: PointStore, mask: str) -> None:
 
 def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, keys: Callable,
                  mask: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """Map task of :func:`bucket`: key, sort (stable) and write the selected points of chunk *chunk*.
+    """Map task of :func:`bucket`: key, sort (stable) and write chunk *chunk*'s selected points.
 
-    Returns
-    -------
-    keys, counts : ndarray of shape (r,), int64
-        The chunk's distinct keys, increasing, and the points of each.
+    Returns the chunk's distinct keys, increasing, and their counts: (r,) int64 each.
     """
     store = PointStore.open(store_path, "r+")
     out = store.group[f"{_prefix(name)}/records"]
@@ -255,18 +252,11 @@ def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
 class Buckets:
     """The driver's index of a store's points grouped by key (made by :func:`bucket`).
 
-    Holds arrays of size K and the run table, nothing of size N. Hand tasks
-    ``(store_path, name, buckets.runs(key))`` rather than this object, so
-    each does not load the whole index. Pickles; :meth:`open` reopens it.
-
-    Attributes
-    ----------
-    store_path, name : str
-        The store's path or URL; the scratch's name (``export/<name>/``).
-    keys, counts : ndarray of shape (K,), int64
-        The distinct keys, increasing; the points of each.
-    ptr : ndarray of shape (K + 1,), int64
-        The runs of ``keys[i]`` are rows ``ptr[i]:ptr[i + 1]`` of the run table.
+    Holds *keys* and *counts* (K,) int64, *ptr* (K + 1,) (the runs of
+    ``keys[i]`` are rows ``ptr[i]:ptr[i + 1]`` of the run table) and the run
+    table, nothing of size N. Hand tasks ``(store_path, name, buckets.runs(key))``
+    rather than this object, so each does not load the whole index. Pickles;
+    :meth:`open` reopens it.
     """
 
     def __init__(self, store_path: str, name: str, keys: np.ndarray, counts: np.ndarray, ptr: np.ndarray) -> None:

@@ -50,28 +50,15 @@ def _output_format(point_format: int) -> int:
 
 def copc_header(header: dict, dtypes: dict, source_format: str | None, bounds: np.ndarray | None = None,
                 path: str = "") -> tuple[dict, list[tuple[str, str, str]]]:
-    """The COPC header of a store's cloud, and how each attribute goes into the records.
+    """The COPC header (dict) of a store's cloud, and how each attribute goes into the records.
 
-    Parameters
-    ----------
-    header : dict
-        The store's header (:func:`cloudsieve.io.las_header.header_to_dict`; any dict for non-LAS sources).
-    dtypes : dict
-        The store's attribute name -> (dtype, per-point shape).
-    source_format : str or None
-        "las", "laz", "copc", or another format (a fresh header from
-        :func:`cloudsieve.io.las_header.build_header`, using *bounds*).
-    bounds : ndarray of shape (2, 3), optional
-    path : str
-        The destination, for messages.
-
-    Returns
-    -------
-    header : dict
-        LAS 1.4, point format 6/7/8 with the source's extra bytes, WKT bit
-        set, the source's VLRs and EVLRs but the LASzip and COPC ones.
-    mapping : list of (str, str, str)
-        (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" | "int" | "angle").
+    *header*, *dtypes*, *source_format*: the store's (a fresh header from
+    :func:`cloudsieve.io.las_header.build_header` and *bounds* for a non-LAS
+    source); *path*: the destination, for messages. The header is LAS 1.4,
+    format 6/7/8 with the source's extra bytes, the WKT bit set, and the
+    source's VLRs and EVLRs but the LASzip and COPC ones. The mapping lists
+    (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" |
+    "int" | "angle").
     """
     if source_format in ("las", "laz", "copc") or (source_format is None and "point_format" in header):
         d = dict(header)
@@ -241,10 +228,10 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
                sources: list[str], stats: dict, root_nodes: int = ROOT_PAGE_NODES) -> int:
     """Write the COPC file *path* from node chunks already compressed into *sources*; returns bytes written.
 
-    The bytes go out front to back (every header field and the chunk table
-    computed first), so a URL is one upload (:func:`cloudsieve.storage.open_output`):
-    it appears complete or not at all (a failure aborts it). Consecutive
-    chunks of one source are copied as one run.
+    The bytes go out front to back (header fields and chunk table computed
+    first), so a URL is one upload (:func:`cloudsieve.storage.open_output`)
+    that appears complete or not at all. Consecutive chunks of one source
+    are copied as one run.
 
     Parameters
     ----------
@@ -254,8 +241,7 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
         The root cube (:func:`cloudsieve.store.octree.root_cube`).
     nodes : dict of str to ndarray
         One entry per node, in file order: "depth", "x", "y", "z" (its key),
-        "count", "nbytes" (its LAZ chunk), "source" (index into *sources*)
-        and "offset" (the chunk's place there).
+        "count", "nbytes", "source" (index into *sources*) and "offset".
     sources : list of str
         Scratch files holding the chunks (local paths or URLs).
     stats : dict
