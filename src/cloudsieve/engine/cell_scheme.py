@@ -1,38 +1,27 @@
 """The eliminate rule's cells stage (:func:`run_cells`): weighted sample elimination across cells, exact count.
 
-One driver for every run: the store's (:class:`~.eliminate.StoreCells`,
-resumable), a small input's (:mod:`.small`) and the in-memory API's
-(:func:`eliminate_points`) run the same functions on the same cells
-(:func:`partition` in memory matches :func:`~.partition.build_partition`;
-:class:`ArrayCells` and :class:`ThreadMap` stand in for the store and the
-runner), so the kept set does not depend on where it runs. Steps:
+The store's run (:class:`~.eliminate.StoreCells`, resumable), a small input
+(:mod:`.small`) and the in-memory API (:func:`eliminate_points`) run the same
+functions on the same cells (:class:`ArrayCells` and :class:`ThreadMap`
+stand in for the store and the runner), so the kept set does not depend on
+where it runs. With r_max, the global elimination radius solved on the
+partition's sample (:func:`cloudsieve.core.radius.global_radius`):
 
-1. **r_max**: one global elimination radius, solved on the partition's
-   sample (:func:`cloudsieve.core.radius.global_radius`) and recorded there.
-2. **shares** (:func:`share_task`, a task per cell): greedy packing sizes at
-   radii :data:`~cloudsieve.core.packing.LADDER` x r_max
-   (:mod:`cloudsieve.core.packing`) and the cell's distinct points into
-   ``simplify/share``, its band (:func:`~cloudsieve.engine.halo.band_mask`)
-   into ``simplify/band_*``, then ``simplify/scored[cell]``. The driver
-   turns them into integer counts q_j summing exactly to the target
-   (:func:`cell_counts`).
-3. **elimination** (:func:`apply_task`), colour by colour
-   (:func:`~cloudsieve.core.colours.cell_colours`; a cell waits only for
-   the lower-colour cells of its halo): the halo comes from the sources'
-   bands (:func:`~cloudsieve.engine.halo.read_band_halo`), and
-   :func:`~cloudsieve.core.eliminate_cells.eliminate_cell` keeps q_j points,
-   with the lower colours' final decisions fixed (without them both sides
-   of a border remove their border points: holes) and the higher colours'
-   points as halo; then one relocation step
-   (:func:`~cloudsieve.core.relocate.relocate`). Writes
-   ``simplify/keep_cells``, then ``simplify/done[cell]``. Small shares run
-   in stages (:mod:`cloudsieve.core.staged`); cells above
-   :data:`~cloudsieve.core.eliminate.CELL_POINTS` points are eliminated over
-   k-d cells.
+1. **shares** (:func:`share_task`, a task per cell): packing sizes at radii
+   :data:`~cloudsieve.core.packing.LADDER` x r_max and distinct points into
+   ``simplify/share``, the band into ``simplify/band_*``, then
+   ``simplify/scored[cell]``; the driver turns them into counts q_j summing
+   exactly to the target (:func:`cell_counts`).
+2. **elimination** (:func:`apply_task`), colour by colour
+   (:func:`~cloudsieve.core.colours.cell_colours`, a cell waiting only for
+   the lower-colour cells of its halo): :func:`~cloudsieve.core.eliminate_cells.eliminate_cell`
+   keeps q_j points with the lower colours' final decisions fixed (else
+   both sides of a border remove their border points: holes) and the higher
+   colours' points as halo, then one relocation step. Writes
+   ``simplify/keep_cells``, then ``simplify/done[cell]``.
 
-A crash resumes from the markers: scored cells are not read again, the
-counts are recomputed from the stored shares, and only cells not done are
-applied. The rule uses no clusters: ``method``, ``cluster_size`` and
+A crash resumes from the markers: scored cells are not read again and only
+cells not done are applied. ``method``, ``cluster_size`` and
 ``halo_context`` are unused.
 """
 
@@ -205,27 +194,15 @@ def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
 
 
 def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: int) -> tuple[int, int, int, int]:
-    """The eliminate rule's cells stage on *where*; only cells not marked (resume).
+    """The eliminate rule's cells stage on *where*, only for cells not marked (resume).
 
-    Parameters
-    ----------
-    where
-        The work store or :class:`ArrayCells`: ``markers`` (done, scored:
-        (P,) bool), ``shares()``, and ``open()`` for a task's reads and writes.
-    part : Partition
-        Built for this target (``part.r_max`` set).
-    regions : ndarray of shape (P,), int64
-    params : dict
-    runner
-        ``runner(func, args, stage, after=None)``, results in order;
-        ``after[i]``: the calls call i waits for. ``runner.task_threads``.
-    target : int
-        Points kept in all.
-
-    Returns
-    -------
-    (computed, reused, points, distinct)
-        Cells applied, cells found done, points scored, distinct points.
+    *where*: the work store or :class:`ArrayCells` (``markers`` (done,
+    scored), ``shares()``, and ``open()`` for a task's I/O); *part*: built
+    for this target (``part.r_max`` set); *regions*: (P,) int64; *runner*:
+    ``runner(func, args, stage, after=None)``, results in order, ``after[i]``
+    the calls call i waits for, and ``runner.task_threads``; *target*: points
+    kept in all. Returns (cells applied, cells found done, points scored,
+    distinct points).
     """
     from ..core.colours import apply_order, cell_colours, readers
     from .celltasks import cell_tasks, largest_first

@@ -13,20 +13,10 @@ __all__ = ["CellTask", "cell_tasks", "largest_first"]
 class CellTask:
     """The argument of one cell task: small, independent of the number of cells.
 
-    Attributes
-    ----------
-    store_path : str
-        The store, opened by the task.
-    cell : int
-    halo : dict int -> int
-        Each halo source cell -> its region's start (empty without a density context).
-    centers : dict int -> ndarray of shape (3,)
-        Centres of the cell and its halo sources.
-    margin : float
-    region : int
-        Start of the cell's region in the cell-ordered ``simplify/*`` arrays.
-    params : dict
-        The run's recorded parameters, plus the k-d tree thread count under ``"threads"``.
+    *halo*: each halo source cell -> its region's start (empty without a
+    density context); *centers*: the cell's and its sources' centres;
+    *region*: the cell's start in the cell-ordered ``simplify/*`` arrays;
+    *params*: the run's recorded parameters plus ``"threads"``.
     """
 
     store_path: str

@@ -122,19 +122,10 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
 class Partition:
     """The partition of a store, read back from ``partition/`` (arrays of size P only).
 
-    Attributes
-    ----------
-    centers : ndarray of shape (P, 3)
-    cell_counts : ndarray of shape (P,), int64
-    halo_ptr, halo_src : ndarray, int64
-        Cells that may hold halo points of cell i: ``halo_src[halo_ptr[i]:halo_ptr[i+1]]``.
-    margin : float
-    chunk_size, n_chunks, n_runs : int
-        Points per input chunk; input chunks; nonzero (chunk, cell) runs.
-    r_max : float or None
-        The eliminate rule's global radius (inf: every point kept); None for other rules.
-    group : zarr.Group
-        The store's group, the run tables read from it on demand.
+    *halo_src[halo_ptr[i]:halo_ptr[i+1]]* are the cells that may hold halo
+    points of cell i; *r_max* is the eliminate rule's global radius (inf:
+    every point kept; None for other rules); *group* is the store's group,
+    from which the run tables are read on demand.
     """
 
     centers: np.ndarray
@@ -233,24 +224,13 @@ def build_partition(
     store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True,
     eliminate_target: int | None = None, sample: np.ndarray | None = None,
 ) -> Partition:
-    """Partition *store* (opened "r+") into cells and record it in the store.
+    """Partition *store* (opened "r+") into P = ceil(N / cell_size) cells and record it in the store.
 
-    Parameters
-    ----------
-    cell_size : int
-        Target points per cell; P = ceil(N / cell_size).
-    cluster_size : int
-        Points per small cluster (sets the halo's k).
-    run : callable
-        ``run(func, argument_tuples, stage) -> results in order`` (the engine's runner).
-    halo : bool
-        List every cell's halo sources (for a density context); False labels
-        faster. Recorded as ``"halo"``.
-    eliminate_target : int, optional
-        The kept count of an ``eliminate`` run: r_max is solved and recorded.
-    sample : ndarray of shape (S, 3), optional
-        The sample already taken by the ingest (:meth:`IngestSample.sample`);
-        else read from the store.
+    *cluster_size* sets the halo's k; *run* is the engine's runner; *halo*
+    lists every cell's halo sources (for a density context; False labels
+    faster); *eliminate_target*, the kept count of an ``eliminate`` run, has
+    r_max solved and recorded; *sample*: the ingest's
+    (:meth:`IngestSample.sample`), else read from the store.
     """
     n = store.count
     chunk = store.chunk_size

@@ -43,19 +43,9 @@ def _chunks_1d(n: int) -> int:
 def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int | None = None) -> None:
     """Build both run tables and ``cell_count`` from the label pass's ``partition/label_runs``, then delete it.
 
-    Streams the scratch chunk by chunk. Memory: arrays of size P and
-    n_chunks plus a buffer of *flush* runs (the by-cell view is written in
-    blocks of cells of about *flush* runs, one pass over the by-chunk view each).
-
-    Parameters
-    ----------
-    store : PointStore
-        Opened writable.
-    nnz : ndarray of shape (n_chunks,)
-        Runs of each chunk (from :func:`cloudsieve.engine.label.label_chunk`).
-    n_cells : int
-    chunk_size : int
-        Points per input chunk.
+    Streams the scratch; memory: arrays of size P and n_chunks plus *flush*
+    runs (the by-cell view is written in blocks of cells of about *flush*
+    runs). *nnz*: runs per chunk (:func:`cloudsieve.engine.label.label_chunk`).
     """
     flush = int(flush or _RUN_FLUSH)
     nnz = np.asarray(nnz, dtype=np.int64)
