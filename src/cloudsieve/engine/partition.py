@@ -122,7 +122,7 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
 class Partition:
     """The partition of a store, read back from ``partition/`` (arrays of size P only).
 
-    *halo_src[halo_ptr[i]:halo_ptr[i+1]]* are the cells that may hold halo
+    ``halo_src[halo_ptr[i]:halo_ptr[i+1]]`` are the cells that may hold halo
     points of cell i; *r_max* is the eliminate rule's global radius (inf:
     every point kept; None for other rules); *group* is the store's group,
     from which the run tables are read on demand.

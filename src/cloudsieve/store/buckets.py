@@ -1,23 +1,18 @@
 """Grouping a store's points by an integer key, out of core: :func:`bucket` and :class:`Buckets`.
 
-Used by the tiled export (:mod:`.tiles`, a key per tile) and the COPC writer
-(a key per octree node). As the partition does with cells, one map task per
-store chunk sorts the chunk's (kept) points by key (stable) into the chunk's
-row of scratch arrays and returns only its distinct keys and counts; the
-driver builds a run table from them. Nothing of size N passes through the
-driver. Each point travels as one packed record, so a run is one zarr read.
+For the tiled export (a key per tile) and the COPC writer (a key per octree
+node). One map task per store chunk sorts the chunk's points by key
+(stable) into its row of scratch arrays, each point one packed record, and
+returns only its distinct keys and counts; nothing of size N passes
+through the driver. Layout under ``export/<name>/``::
 
-Layout under ``export/<name>/``::
-
-    records  uint8 (n_chunks, C, B)  row c: chunk c's points sorted by key, one packed
-                                     record of B bytes each ("xyz" float64 (3,) first;
-                                     fields in the attribute "fields"); zarr chunks of
-                                     INNER_CHUNK points
+    records  uint8 (n_chunks, C, B)  row c: chunk c's points sorted by key, records of B
+                                     bytes ("xyz" float64 (3,) first; attribute "fields")
     runs     int64 (nnz, 3)          rows (chunk, start, count), by key, chunks increasing
     ptr      int64 (K + 1,)          the runs of key i: runs[ptr[i]:ptr[i + 1]]
     counts   int64 (K,)              points per key
-    keys     int64 (K,)              the distinct keys, increasing; written last, so its
-                                     presence marks complete buckets
+    keys     int64 (K,)              the distinct keys, increasing; written last: the
+                                     mark of complete buckets
 
 Example
 -------
@@ -25,7 +20,6 @@ Example
 >>> from cloudsieve.store.tiles import tile_keys
 >>> b = bucket(store, partial(tile_keys, tile_size=100.0), "tiles")  # doctest: +SKIP
 >>> points = b.read(b.keys[0])  # {"xyz": (n, 3) float64, ...}  # doctest: +SKIP
->>> run(read_runs, [(store.path, "tiles", b.runs(k)) for k in b.keys], "read")  # doctest: +SKIP
 >>> b.delete()  # doctest: +SKIP
 """
 

@@ -1,32 +1,21 @@
 """Point store -> COPC file, out of core: :func:`export_copc`.
 
-Batches of tasks, no point passing through the driver:
-
-1. **Bucket** the points by their octree node at depth H
-   (:func:`cloudsieve.store.buckets.bucket`, keys :func:`.octree.node_keys`):
-   the smallest depth <= :data:`.octree.GRID_BITS` at which a surface of the
-   cloud's size puts about a quarter of *task_points* in a node.
+1. **Bucket** the points by octree node at depth H (:func:`cloudsieve.store.buckets.bucket`,
+   :func:`.octree.node_keys`), H the smallest depth <= :data:`.octree.GRID_BITS`
+   at which a surface of the cloud's size puts about *task_points* / 4 in a node.
 2. **Plan** (driver): a task per top-most node holding <= *task_points* points.
-3. **Subtrees**: a task per such node T orders its points by cell at depth 7
-   (Morton, input order within a cell), assigns levels
-   (:func:`.octree.assign_levels`), writes one LAZ chunk per node of T's
-   subtree to a scratch file and the records T gives to its ancestors to a
-   second one; it returns sizes and counts only.
+3. **Subtrees**: a task per such node T assigns levels (:func:`.octree.assign_levels`,
+   points by cell at depth 7, input order within), writes a LAZ chunk per
+   node of T's subtree and T's ancestors' records to scratch files, and
+   returns sizes and counts only.
 4. **Ancestors**: tasks gather and compress each ancestor's records.
-5. **File**: one task writes header, chunks in (depth, Morton key) order,
-   chunk table and EVLRs (:func:`.copc_file.write_copc`).
+5. **File**: one task writes it (:func:`.copc_file.write_copc`).
 
 Every voxel of a node at depth <= 7 lies inside one node at depth 7, so the
-tasks find the levels a single whole-cloud build would: the file depends on
-the cloud and *leaf_points* only, never on the runner, worker count,
-*task_points* or H. A task holds about 165 bytes per point.
-
-A local *dst* is written under a temporary name and renamed; scratch files
-go in a temporary folder beside it (workers must reach it). A URL *dst*
-keeps its scratch under ``.<name>.scratch-<id>/`` beside it
-(:mod:`.copc_scratch`) and is written as one upload, so the object appears
-whole or not at all; the bytes equal a local *dst*'s. Scratch and buckets
-are removed at the end, also on failure.
+file depends on the cloud and *leaf_points* only, never on the runner,
+worker count, *task_points* or H. A local *dst* is written under a
+temporary name and renamed; a URL *dst* is one upload, with the same bytes.
+Scratch (:mod:`.copc_scratch`) and buckets are removed at the end, also on failure.
 """
 
 from __future__ import annotations

@@ -6,14 +6,11 @@ Layout::
       zarr.json       attribute "cloudsieve": {"version": 1, "count", "bounds", "format",
                       "header", "dimensions", "chunk_size", "complete": true}
       xyz             float64 (N, 3); LAS sources: int32 LAS integers with "xyz_encoding"
-                      {"scale": [3], "offset": [3]}
       intensity, ...  one array per attribute (laspy names), (N,) or (N, k)
       partition/..., simplify/...   derived arrays of later stages
 
-Arrays are chunked by chunk_size points and compressed (:func:`.codecs.compressors`).
 A store path is a local path or an fsspec URL. Only this module creates and
-deletes store arrays (whole stores: :func:`.paths.delete_store`);
-:func:`is_store` is the one test of whether a path holds a store.
+deletes store arrays; :func:`is_store` is the one test of whether a path holds a store.
 """
 
 from __future__ import annotations
@@ -69,26 +66,11 @@ class PointStore:
     """A cloud of N points in a zarr group, read and extended chunk by chunk.
 
     Open with :meth:`PointStore.open`; create with :func:`cloudsieve.store.ingest`.
-
-    Attributes
-    ----------
-    path : str
-        Local path or fsspec URL of the store, as given.
-    group : zarr.Group
-    complete : bool
-        False only from :meth:`create` until :meth:`finish`.
-    count : int
-        Number of points N.
-    bounds : ndarray of shape (2, 3), float64
-        ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
-    header : dict
-        The source header (JSON-serialisable, as ``Reader.header``).
-    source_format : str
-        Format of the source ("las", "laz", "copc", "ply", "e57", "xyz").
-    dimensions : list of str
-        Input attribute names, ``"xyz"`` first.
-    chunk_size : int
-        Points per chunk of the input arrays.
+    Its attributes mirror the "cloudsieve" group attribute: *path* (as
+    given), *group*, *complete* (False from :meth:`create` until
+    :meth:`finish`), *count*, *bounds* (2, 3) float64 ``[[xmin, ymin, zmin],
+    [xmax, ymax, zmax]]``, *header* (JSON-serialisable, as ``Reader.header``),
+    *source_format*, *dimensions* ("xyz" first) and *chunk_size*.
     """
 
     def __init__(self, group: zarr.Group, path: str, mode: str = "r", *, meta: dict | None = None) -> None:
