@@ -1,20 +1,14 @@
 """Stage 3, cells: one dask task per cell runs the in-memory method on the cell's points.
 
-A task (its small :class:`CellTask` argument does not grow with P) reads its
-core points, and its halo with a density context, calls the core with the
-seed ``SeedSequence([seed, cell])``, writes its keep mask into its own region
-of ``simplify/keep_cells`` and marks ``simplify/done[cell]`` (one zarr chunk
-per cell: concurrent writers never share a chunk).
-
-Targets (``ratio=`` / ``count=``) take two passes around the global threshold
-T (:mod:`cloudsieve.engine.threshold`): :func:`score_task` stores labels and
-unit-free scores m*dH; :func:`apply_task` keeps score > T (a
-``global_threshold`` rule), or for a ``cell_count`` rule keeps the same
-number, n_j - #{score <= T}, chosen by the core's rule on the stored clusters.
-
-By default each small cluster is scored alone (the paper); with
-``params["context"]`` the cell's halo is every cluster's density context,
-in pass 2 thinned by the neighbours' pass-1 decisions (:func:`thinned_halo`).
+A task (its :class:`CellTask` argument does not grow with P) reads its core
+points, and its halo with a density context, calls the core with the seed
+``SeedSequence([seed, cell])``, writes its own region of
+``simplify/keep_cells`` and marks ``simplify/done[cell]``. Targets
+(``ratio=`` / ``count=``) take two passes around the global threshold T
+(:mod:`.threshold`): :func:`score_task` stores labels and unit-free scores;
+:func:`apply_task` keeps score > T, or for a ``cell_count`` rule the same
+number chosen by the core's rule. With ``params["context"]`` the cell's
+halo is every cluster's density context (the paper: each cluster alone).
 """
 
 from __future__ import annotations

@@ -1,28 +1,21 @@
-"""Stage 2, partition: coarse spatial K-means cells, bucketed out of core, with halos.
+"""Stage 2, partition: P = ceil(N / cell_size) coarse K-means cells, bucketed out of core, with halos.
 
-N points are cut into P = ceil(N / cell_size) cells: a seeded uniform sample
-(:mod:`.sample`), P centres by :class:`~cloudsieve.core.KMeans` on it, one
-label-and-bucket task per input chunk (:mod:`.label`), and the run index
-(:mod:`.runs`).
-
-Layout under ``partition/``::
+A seeded uniform sample (:mod:`.sample`), P centres by
+:class:`~cloudsieve.core.KMeans` on it, one label-and-bucket task per input
+chunk (:mod:`.label`), and the run tables (:mod:`.runs`). Layout under ``partition/``::
 
     centers     float64 (P, 3)           cell centres (absolute coordinates)
     cell        int32   (N,)             cell of every point, input order
-    xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell (stable);
-                                         one shard per row; int32 LAS integers in a
-                                         store that keeps them
+    xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell (stable),
+                                         one shard per row (int32 for LAS integers)
     chunk_ptr, chunk_runs, cell_ptr,     the run tables and points per cell (:mod:`.runs`)
     cell_runs, cell_count
     halo_ptr, halo_src                   CSR: for cell i, the cells that may hold its halo
 
-The points of cell j are its runs ``xyz[c, start:start + count]``, in input
-order; tasks never share a zarr chunk when writing. The halo
-(:mod:`cloudsieve.engine.halo`) is the points of other cells within
-``margin`` (``HALO_RADII`` k-NN radii, estimated on the sample), density
-context only. For the eliminate rule the global radius r_max is solved on the
-sample (:func:`cloudsieve.core.radius.global_radius`) and the margin is at
-least ``ELIMINATE_RADII`` r_max.
+The halo (:mod:`cloudsieve.engine.halo`) is the points of other cells within
+``margin``: ``HALO_RADII`` k-NN radii estimated on the sample, and for the
+eliminate rule at least ``ELIMINATE_RADII`` r_max
+(:func:`cloudsieve.core.radius.global_radius`).
 """
 
 from __future__ import annotations

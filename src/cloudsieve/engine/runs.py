@@ -1,20 +1,14 @@
 """The partition's run tables: two CSR views of the (chunk, cell) runs, and reading points by runs.
 
 A *run* is the points of one cell in one input chunk, contiguous in that
-chunk's row of ``partition/xyz`` (:mod:`.label`). Only the nonzero runs are
-stored (about n_chunks + P for a spatially coherent input)::
+chunk's row of ``partition/xyz``; only nonzero runs are stored::
 
-    chunk_ptr   int64 (n_chunks + 1,)  CSR by chunk: chunk c's runs are
-    chunk_runs  int64 (nnz, 3)           chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]], rows
-                                         (cell, count, first), cells increasing; first =
-                                         points of that cell in chunks < c
-    cell_ptr    int64 (P + 1,)         CSR by cell: cell j's runs are
-    cell_runs   int64 (nnz, 3)           cell_runs[cell_ptr[j]:cell_ptr[j + 1]], rows
-                                         (chunk, start, count), chunks increasing
+    chunk_ptr   int64 (n_chunks + 1,)  by chunk: chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]]
+    chunk_runs  int64 (nnz, 3)           rows (cell, count, first), cells increasing;
+                                         first = points of that cell in chunks < c
+    cell_ptr    int64 (P + 1,)         by cell: cell_runs[cell_ptr[j]:cell_ptr[j + 1]]
+    cell_runs   int64 (nnz, 3)           rows (chunk, start, count), chunks increasing
     cell_count  int64 (P,)             points per cell
-
-A cell task reads its runs (:func:`cell_runs`), a merge task its chunk's
-(:func:`chunk_runs`); the driver holds arrays of size P or n_chunks only.
 """
 
 from __future__ import annotations

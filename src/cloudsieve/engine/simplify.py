@@ -1,17 +1,11 @@
-"""Out-of-core, distributed simplification: the whole pipeline as dask tasks.
+"""Out-of-core, distributed simplification: :func:`simplify`, the whole pipeline as dask tasks.
 
-:func:`simplify` wires the stages, each in its own module and each reading
-and writing the point store: ingest into a work store (:mod:`.workstore`);
-partition into P = ceil(N / cell_size) coarse cells with halos
-(:mod:`.partition`, :mod:`.label`, :mod:`.runs`, :mod:`.halo`); one task per
-cell runs the in-memory method (:mod:`.cells`, :mod:`.threshold`,
-:mod:`.eliminate`); merge of the keep masks into ``simplify/keep``
-(:mod:`.merge`); atomic export (:func:`cloudsieve.store.export`). A small
-input runs the same steps in memory (:mod:`.small`). Tasks go through one
-:class:`~.runner.Runner` and exchange only a few numbers, never an array of
-size P or N. Results do not depend on the scheduler, worker count or
-completion order: cells keep input order, seeds are ``SeedSequence([seed,
-cell])``, reductions are over integers or in a fixed order.
+The stages (ingest, partition, cells, merge, export) are in their own
+modules (docs/architecture.md); a small input runs them in memory
+(:mod:`.small`). Tasks exchange only a few numbers, never an array of size
+P or N. Results do not depend on the scheduler, worker count or completion
+order: cells keep input order, seeds are ``SeedSequence([seed, cell])``,
+reductions are over integers or in a fixed order.
 """
 
 from __future__ import annotations

@@ -1,13 +1,9 @@
 """The work store of a run: where it is, what it was made from, what a rerun may reuse.
 
 A file SRC is ingested into a work store (default ``DST + ".cloudsieve.zarr"``,
-deleted after success). A rerun reuses the ingest, partition and completed
-cells once the source's identity and the parameters match
-(:class:`~cloudsieve.errors.ResumeMismatchError` otherwise). A store SRC gets
-the derived arrays itself. Both records and the summary live in the
-attribute ``"cloudsieve_simplify"``.
-
-Derived arrays of the cells stage (``simplify/``)::
+deleted after success); a rerun reuses its ingest, partition and done cells
+when the source and parameters match, both recorded in the attribute
+``"cloudsieve_simplify"``. Derived arrays (``simplify/``)::
 
     keep_cells   bool    (T,)  keep mask, cell-ordered: cell j at regions[j]:regions[j] + n_j
     score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
@@ -15,10 +11,8 @@ Derived arrays of the cells stage (``simplify/``)::
     done, scored uint8   (P,)  one zarr chunk per cell
     duplicates   int64   (P,)  exact duplicates of each cell
     share        float64 (P, 1 + L) eliminate: distinct points, packing sizes
-    regions      int64   (P,)  start of each cell's region
+    regions      int64   (P,)  start of each cell's region, on a zarr-chunk boundary
     keep         bool    (N,)  keep mask in input order (merge)
-
-Regions start on zarr-chunk boundaries (:func:`regions`): cells never write the same chunk.
 """
 
 from __future__ import annotations
