@@ -110,46 +110,39 @@ def simplify(
         One seed for everything; the output is the same bit for bit on any
         scheduler and worker count.
     resume : bool
-        Continue the run recorded in the work store (its ingest, partition and
-        done cells). A rerun with the same store does so anyway.
+        Continue the run recorded in the work store (a rerun with the same store does so anyway).
     client : distributed.Client, optional
         Run on this cluster (workers must reach the store path).
     overwrite : bool
         Overwrite DST, and discard a work store left by another run.
-    progress : callable, optional
-        ``progress(n)`` after n points of a stage are processed.
-    bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
-        (e.g. :func:`cloudsieve.progress.bar`).
-    notify : callable, optional
-        ``notify(message)`` for what a user should see at once (the dashboard link).
+    progress, bars, notify : callable, optional
+        ``progress(n)`` after n points of a stage; ``bars(stage, total,
+        unit)`` -> context manager yielding ``update(n)``
+        (:func:`cloudsieve.progress.bar`); ``notify(message)`` for what a
+        user should see at once (the dashboard link).
     format : str, optional
         Output format (default: by DST's extension).
     chunk_size : int
         Points per chunk of the ingested store.
     halo_context : bool
-        False (default): density neighbours come from each small cluster
-        alone (the paper). True: the cell and its halo (thinned, see
-        :func:`cloudsieve.engine.cells.thinned_halo`) are every cluster's context.
+        True: the cell and its halo (:func:`cloudsieve.engine.cells.thinned_halo`)
+        are every cluster's density context; False (default): each small
+        cluster alone (the paper).
     k0, k_min : float, int
         The k-NN rule k = max(k_min, round(k0 * sqrt(m))).
     drop_invalid : bool
-        Drop (and log) points of a file SRC with NaN or infinite coordinates
-        instead of raising :class:`~cloudsieve.errors.InvalidPointsError`.
+        Drop (and log) points of a file SRC with NaN or infinite coordinates.
     keep_duplicates : bool
-        Keep every exact copy (same x, y, z) of a kept point. Default: exact
-        duplicates are scored and kept once; counted in :attr:`Summary.duplicates`.
+        Keep every exact copy (same x, y, z) of a kept point; by default
+        duplicates are scored and kept once (:attr:`Summary.duplicates`).
     strict : bool
-        A ratio or count not met exactly raises
-        :class:`~cloudsieve.errors.TargetNotMetError` before DST is written,
-        instead of a logged warning.
+        Raise instead of logging when a ratio or count is not met exactly.
     tile_size : float, optional
-        Write DST as a folder of square LAZ tiles of this edge plus
-        ``DST/index.vpc`` (:func:`cloudsieve.store.tiles.export_tiles`).
+        Write DST as a folder of square LAZ tiles plus ``DST/index.vpc``
+        (:func:`cloudsieve.store.tiles.export_tiles`).
     storage_options : dict, optional
         fsspec options for every URL of the run (e.g. s3fs's ``key``,
-        ``secret``, ``endpoint_url``). Default: the object store's own
-        credential chain. Never logged, recorded or printed.
+        ``secret``, ``endpoint_url``); never logged, recorded or printed.
 
     Returns
     -------
@@ -173,7 +166,8 @@ def simplify(
     InvalidPointsError
         SRC has NaN or infinite coordinates and *drop_invalid* is False.
     TargetNotMetError
-        *strict* and the kept count differs from the ratio or count asked.
+        *strict* and the kept count differs from the ratio or count asked
+        (before DST is written).
     """
     t_start = time.perf_counter()
     opts = validate("simplify", {

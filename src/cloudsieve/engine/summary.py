@@ -46,34 +46,25 @@ class Summary:
 
     Attributes
     ----------
-    points_in, kept, removed : int
-    cells : int
-        Number of cells P.
+    points_in, kept, removed, cells : int
     cells_computed, cells_reused : int
         Cells computed in this run, and cells found done in the store (resume).
-    duplicates : int
-        Exact duplicate points (same x, y, z as an earlier point): removed, or
-        kept with their first copy when ``keep_duplicates``.
-    duplicates_kept : bool
-        Whether they were kept.
+    duplicates, duplicates_kept : int, bool
+        Exact duplicate points (same x, y, z as an earlier point), and whether
+        they were kept with their first copy (``keep_duplicates``).
     threshold : float or None
         The global threshold on the unit-free score of a ratio/count with the
         target, iterative or coverage rule; None otherwise.
     seconds : dict str -> float
         Wall time per stage ("ingest", "partition", "cells", "merge", "export") and "total".
     cpu_seconds : dict str -> float
-        ``{"driver": d, "workers": w}``: this process's CPU time and the
-        worker processes' sum (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
-    peak_memory : int
-        Peak resident memory (bytes), sampled (:mod:`.memory`).
-    peak_memory_of : str
-        What *peak_memory* covers (:attr:`PeakMemory.scope`).
+        ``{"driver": d, "workers": w}`` (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
+    peak_memory, peak_memory_of : int, str
+        Peak resident memory (bytes), sampled, and what it covers (:mod:`.memory`).
     storage : dict or None
-        ``{"retries": n}`` for a run touching a URL: object-store requests sent
-        again (:mod:`cloudsieve.storage_retries`); None, and absent from
-        :meth:`to_dict`, on local paths.
-    scheduler : str
-    source, destination : str
+        ``{"retries": n}``, object-store requests sent again
+        (:mod:`cloudsieve.storage_retries`); None, absent from :meth:`to_dict`, on local paths.
+    scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
     """
