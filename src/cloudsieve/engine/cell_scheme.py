@@ -144,9 +144,6 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
-# ---------------------------------------------------------------- the stage
-
-
 def _threads(task) -> int:
     return int(task.params.get("threads") or 1)
 
@@ -227,9 +224,6 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
     runner(apply_task, args, "cells: apply", after=after)
     return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), int(distinct.sum())
-
-
-# ---------------------------------------------------------------- a cell's work (the store's tasks call them too)
 
 
 def cell_share(core: np.ndarray, r_max: float, centers, cell: int, dependents: dict, margin: float,

@@ -44,9 +44,6 @@ def cell_seed(seed: int, cell: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(cell)]).generate_state(1, np.uint32)[0])
 
 
-# ---------------------------------------------------------------- reading a cell
-
-
 def _halo_runs(group, halo: dict) -> dict:
     """The runs of the halo source cells, read from the store: {source: runs}."""
     return {int(s): cell_runs(group, int(s)) for s in halo}
@@ -122,9 +119,6 @@ def _record_duplicates(g, cell: int, n_copies: int) -> None:
 
 def _keep_duplicates(params: dict) -> bool:
     return bool(params.get("keep_duplicates", False))
-
-
-# ---------------------------------------------------------------- the tasks
 
 
 def cell_task(task: CellTask) -> dict[str, Any]:
@@ -216,9 +210,6 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     _record_duplicates(g, cell, int(copy.sum()))
     _mark_done(g, "simplify/done", cell)
     return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
-
-
-# ---------------------------------------------------------------- the stage
 
 
 def _marked(store, name: str) -> np.ndarray:

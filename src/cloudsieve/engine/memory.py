@@ -59,7 +59,6 @@ def small_pages():
         set_huge_pages(was)
 
 
-
 def small_pages_from_here() -> None:
     """:func:`small_pages` for the rest of this process and its children (through the environment
     variable numpy reads at import), unless ``NUMPY_MADVISE_HUGEPAGE`` is set."""
@@ -68,6 +67,7 @@ def small_pages_from_here() -> None:
     os.environ[HUGEPAGE_ENV] = "0"
     if "numpy" in sys.modules:
         set_huge_pages(False)
+
 
 def _proc_tree_rss() -> int | None:
     """:func:`process_tree_rss` from Linux's /proc (None elsewhere), read as psutil does, without its import."""

@@ -174,7 +174,6 @@ def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, par
     return int(sum(written))
 
 
-# ------------------------------------------------------------------ splice
 def _layout(parts: list[str], compressed: bool) -> tuple[list, int, list[int], object]:
     """The parts' headers, where their points start, their counts, and the LASzip VLR (None uncompressed)."""
     from ..io.las_layout import laszip_vlr, read_header

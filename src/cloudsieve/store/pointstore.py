@@ -106,7 +106,6 @@ class PointStore:
             return np.asarray(raw, dtype=np.float64)
         return decode_xyz(raw, self.xyz_scale, self.xyz_offset)
 
-    # ------------------------------------------------------------------ open
     @classmethod
     def open(cls, path: str | os.PathLike, mode: str = "r") -> PointStore:
         """Open an existing store; *mode* "r", "r+" or "a".
@@ -185,7 +184,6 @@ class PointStore:
         self._writable_group().attrs.update({STORE_ATTR: meta})
         self._use(meta)
 
-    # ------------------------------------------------------------------ read
     @property
     def attrs(self) -> dict:  # the group's attributes (update with ``store.group.attrs.update``)
         return dict(self.group.attrs)
@@ -252,7 +250,6 @@ class PointStore:
             out["xyz"] = self.decode_xyz(out["xyz"])
         return out
 
-    # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:
         if self._writable is None:
             self._writable = zarr.open_group(zarr_store(self.path, read_only=False), mode="r+", zarr_format=3,
