@@ -38,21 +38,15 @@ def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
 
 
 def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple | None = None, halo: bool = True):
-    """Cell of each point (nearest centre, ties to the lower index) and halo pairs.
+    """Cell of each point (n,) int64 (nearest centre, ties to the lower index) and halo pairs (q, 2) int64.
 
-    The halo test uses the tree's distances: ``s_ij(z) = (|z - c_i|^2 - |z -
-    c_j|^2) / (2 |c_i - c_j|)``, :func:`cloudsieve.engine.halo.halo_distance`
-    up to rounding, with a slack of 1e-6 of the margin so the candidate pairs
-    stay a superset. ``halo=False`` queries only 2 centres (more on ties)
-    and returns no pairs. *tree*: :func:`~cloudsieve.core.kernels.closest.site_tree`
-    of *centers*, built when None.
-
-    Returns
-    -------
-    labels : ndarray of shape (n,), int64
-    pairs : ndarray of shape (q, 2), int64
-        Distinct (halo cell i, source cell j): some point of j lies within
-        *margin* of the bisector of c_i and c_j.
+    A pair (i, j): some point of cell j lies within *margin* of the bisector
+    of c_i and c_j. The test uses the tree's distances, ``s_ij(z) = (|z -
+    c_i|^2 - |z - c_j|^2) / (2 |c_i - c_j|)``, with a slack of 1e-6 of the
+    margin so the candidates stay a superset of
+    :func:`cloudsieve.engine.halo.halo_distance`'s. ``halo=False`` queries
+    only 2 centres (more on ties) and returns no pairs. *tree*:
+    :func:`~cloudsieve.core.kernels.closest.site_tree` of *centers*, built when None.
     """
     p = len(centers)
     none = np.empty((0, 2), dtype=np.int64)

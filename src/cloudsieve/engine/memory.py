@@ -132,15 +132,9 @@ def worker_rss() -> int:
 class PeakMemory:
     """Samples resident memory in a thread; a context manager.
 
-    Attributes
-    ----------
-    peak : int
-        The largest sample (bytes): this process and its children, or after
-        :meth:`watch_workers` the sum over the cluster's workers.
-    workers : int
-        Workers in the largest sample (0: a local measure).
-    scope : str
-        What *peak* covers, for the summary.
+    *peak*: the largest sample (bytes), of this process and its children, or
+    after :meth:`watch_workers` summed over the cluster's workers; *workers*:
+    workers in that sample (0: local); *scope*: what *peak* covers.
     """
 
     def __init__(self, interval: float = 0.1, worker_interval: float = 1.0) -> None:
