@@ -1,15 +1,11 @@
 """Halos: the points of neighbouring cells near a cell's border (density context, never pruned).
 
 A point z of cell j is in the halo of cell i when its distance to the
-bisector plane of c_i and c_j is at most ``margin``::
-
-    s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i) / |c_j - c_i|  <=  margin
-
-a superset of the points within ``margin`` of i's Voronoi region. The
-partition lists each cell's halo sources; :func:`read_halo` reads their runs
-and applies the test. A rule that reads every cell first (``eliminate``)
-stores each cell's **band** instead (:func:`band_mask`), far less than whole
-cells; :func:`read_band_halo` gives the same points in the same order.
+bisector plane of c_i and c_j, ``s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i)
+/ |c_j - c_i|``, is at most ``margin``: a superset of the points within
+``margin`` of i's Voronoi region. :func:`read_halo` tests the source cells'
+runs; a rule that reads every cell first (``eliminate``) stores each cell's
+**band** (:func:`band_mask`), and :func:`read_band_halo` gives the same points.
 """
 
 from __future__ import annotations

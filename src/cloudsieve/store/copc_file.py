@@ -1,14 +1,10 @@
-"""The bytes of a COPC 1.0 file: header, point records, LAZ chunks, hierarchy.
+"""The bytes of a COPC 1.0 file (https://copc.io): header, point records, LAZ chunks, hierarchy.
 
-A COPC file (https://copc.io) is a LAS 1.4 file of point format 6, 7 or 8
-whose first VLR is the ``copc`` info VLR (root cube, spacing, root hierarchy
-page, GPS time range), whose points are LAZ chunks of variable size, one per
-octree node, and whose EVLR ``copc`` 1000 holds the hierarchy (:mod:`.copc_hierarchy`).
-
-Point formats follow PDAL's ``writers.copc``: 8 with NIR, 7 with RGB, else 6.
-Formats 0-5 are converted field by field, values kept, except ``scan_angle`` =
-``round(scan_angle_rank / 0.006)`` (PDAL's rule) and overlap and scanner
-channel 0. Wave packet fields have no place in COPC: dropped, with a warning.
+A LAS 1.4 file of point format 6, 7 or 8 (PDAL's choice: 8 with NIR, 7 with
+RGB), the ``copc`` info VLR first, one variable-size LAZ chunk per octree
+node, the hierarchy in EVLR ``copc`` 1000 (:mod:`.copc_hierarchy`). Formats
+0-5 convert field by field (``scan_angle = round(scan_angle_rank / 0.006)``,
+as PDAL); wave packet fields are dropped, with a warning.
 """
 
 from __future__ import annotations

@@ -1,11 +1,7 @@
-"""The COPC hierarchy: the nodes' 32-byte entries, in pages.
-
-An entry is ``(depth, x, y, z)`` int32, chunk offset uint64, byte size int32
-and point count int32; count -1 points to a child page. Pages are cut as
-EPT's "hierarchy step": at most :data:`ROOT_PAGE_NODES` nodes make one page,
-else each node at a depth multiple of :data:`HIERARCHY_STEP` starts a page
-of its subtree down to the next such depth. The pages follow from the nodes
-alone, whatever the split into tasks.
+"""The COPC hierarchy: the nodes' 32-byte entries (``(depth, x, y, z)`` int32, chunk offset uint64, byte
+size and point count int32; count -1 points to a child page), in pages cut as EPT's "hierarchy step": one
+page up to :data:`ROOT_PAGE_NODES` nodes, else a page per node at a depth multiple of
+:data:`HIERARCHY_STEP`. The pages follow from the nodes alone, whatever the split into tasks.
 """
 
 from __future__ import annotations

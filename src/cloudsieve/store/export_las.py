@@ -1,11 +1,8 @@
 """Point store -> one LAS/LAZ file, as tasks: :func:`export_las`.
 
-The kept points are cut into parts of whole LAZ chunks (:data:`LAZ_CHUNK`),
-in input order; each task writes its part as a complete file
-(:class:`cloudsieve.io.las.LasWriter`), and the driver only concatenates
-bytes (header, points, one chunk table, EVLRs, summed counts and bounds).
-The file is byte for byte the one :func:`cloudsieve.store.export` writes
-in one stream.
+Each task writes a part of whole LAZ chunks as a complete file; the driver
+only concatenates bytes. The file is byte for byte the one
+:func:`cloudsieve.store.export` writes in one stream.
 """
 
 from __future__ import annotations

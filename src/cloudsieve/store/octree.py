@@ -1,17 +1,12 @@
 """The COPC octree on numpy arrays: cube, node keys, and which node keeps each point.
 
-Node ``(d, i, j, k)`` is cell ``(i, j, k)`` of the root cube (:func:`root_cube`)
-cut into ``2^d`` along each axis. A point's cell at depth d is its cell at
-:data:`KEY_DEPTH` shifted right (exact: the scale factors are powers of two),
-so one Morton key per point (:func:`point_keys`) gives its node and voxel at
-every depth.
-
-:func:`assign_levels`, top down, as Untwine and PDAL's ``writers.copc``: a
-node holding at most *leaf_points* points keeps them all (a leaf); any other
-keeps the first point of each voxel of its ``2^GRID_BITS``-per-axis grid and
-passes the rest to its children; a node at :data:`MAX_DEPTH` keeps all.
-A node's subtree depends on its own points only, so a task holding one node
-at depth <= ``GRID_BITS`` finds the levels a whole-cloud build would
+Node ``(d, i, j, k)`` is cell ``(i, j, k)`` of the root cube cut into ``2^d``
+per axis; a point's cell at depth d is its cell at :data:`KEY_DEPTH` shifted
+right, so one Morton key per point (:func:`point_keys`) gives its node and
+voxel at every depth. :func:`assign_levels` follows Untwine and PDAL's
+``writers.copc``: a node of at most *leaf_points* points keeps them all;
+another keeps the first point of each voxel of its ``2^GRID_BITS``-per-axis
+grid and passes the rest down. A subtree depends on its own points only
 (:func:`cloudsieve.store.copc.export_copc` relies on it).
 """
 
