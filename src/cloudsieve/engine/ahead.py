@@ -1,13 +1,11 @@
 """A second core compiles ahead: the first run into an empty numba cache.
 
 numba compiles each kernel in the process that first calls it, one at a
-time. When numba's cache lacks the run's kernels that a second process can
-compile ahead (:data:`cloudsieve.core.warmup.AHEAD`, those the default rule
-reaches last), :func:`start` runs ``python -m cloudsieve.core.warmup`` beside
-the run, which later loads them from the cache or compiles them itself: the
-same code either way. ``cloudsieve warmup`` uses it for whole targets
-(:func:`start_targets`). The process dies with the run
-(:func:`cloudsieve.lifeline.die_with_parent`, :func:`finish`).
+time. When the cache lacks kernels of :data:`cloudsieve.core.warmup.AHEAD`,
+:func:`start` runs ``python -m cloudsieve.core.warmup`` beside the run, which
+later loads them from the cache (or compiles them itself: the same code).
+``cloudsieve warmup`` uses it for whole targets (:func:`start_targets`). The
+process dies with the run (:func:`cloudsieve.lifeline.die_with_parent`, :func:`finish`).
 """
 
 from __future__ import annotations

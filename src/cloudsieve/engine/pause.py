@@ -1,16 +1,10 @@
 """A test hook: stop a run at a named point, so a test interrupts it there and not by racing it.
 
-``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>``: reaching *point*, the run
-appends its pid to the marker file and blocks until a signal ends it or the
-test removes the file. Points:
-
-- ``driver:<stage>``: the driver, before it starts the tasks of *stage*;
-- ``task:<stage>``: each task of *stage*, in its worker, before it runs;
-  ``task:<stage>#<n>``: only the n-th task to start in a process (from 1);
-  ``task:<stage>#once``: only the first task in any process (the one that
-  creates the marker file).
-
-Used by ``tests/test_ops_orphans.py`` and ``tests/test_engine_simplify.py``.
+``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>``: at *point* the run appends
+its pid to the marker file and blocks until a signal or the file's removal.
+Points: ``driver:<stage>`` (before the stage's tasks start), ``task:<stage>``
+(each task, in its worker), ``task:<stage>#<n>`` (the n-th task to start in a
+process), ``task:<stage>#once`` (the first task in any process).
 """
 
 from __future__ import annotations

@@ -1,11 +1,8 @@
 """A small input in memory: the eliminate rule without a work store, dask or zarr.
 
 A LAS/LAZ/COPC or PLY cloud of at most :data:`IN_MEMORY_POINTS` points runs
-the out-of-core steps on arrays in this process and writes the same bytes:
-the cloud read whole (:func:`cloudsieve.io.whole.read_whole`, decoded as a
-store decodes it), the partition and cells stage of :mod:`.cell_scheme`, and
-the export's writer (:func:`cloudsieve.io.open_writer`, atomic) chunk by
-chunk. A store costs a small run more than its points (docs/benchmarks.md).
+the out-of-core steps on arrays in this process (:func:`cloudsieve.io.whole.read_whole`,
+:mod:`.cell_scheme`, the export's writer) and writes the same bytes.
 Nothing is left to resume: a rerun starts again.
 """
 

@@ -1,10 +1,8 @@
 """LAS/LAZ/COPC files -> point store, as tasks: :func:`ingest_las`.
 
-The driver reads headers only (:func:`cloudsieve.io.las_plan.plan_las`);
-each task (:func:`ingest_task`) writes one range of store chunks from the
-files holding it (a LAZ file entered through its chunk table). No point
-array passes through the driver; "xyz" is stored as the LAS integers
-(int32): exact and smallest. Atomic as :func:`.ingest.ingest`.
+The driver reads headers only (:func:`cloudsieve.io.las_plan.plan_las`); each
+task (:func:`ingest_task`) writes a range of store chunks from the files
+holding it. "xyz" is stored as the LAS integers (int32): exact and smallest.
 """
 
 from __future__ import annotations

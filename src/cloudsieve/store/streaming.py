@@ -23,11 +23,10 @@ TRIM_THRESHOLD = 256 << 20
 def bound_malloc(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) -> None:
     """Fix glibc's mmap and trim thresholds (``mallopt``), so memory stays flat in N and is reused.
 
-    glibc's default mmap threshold rises with the largest buffer freed, after
-    which chunk-sized buffers come from fragmenting per-thread heaps (peak RSS
-    grows with N); a large trim threshold keeps freed buffers mapped for the
-    next task instead of faulting them in again. Process-wide, set once; a
-    threshold whose environment variable (MALLOC_MMAP_THRESHOLD_,
+    The default mmap threshold rises with the largest buffer freed, after
+    which chunk-sized buffers fragment per-thread heaps; a large trim
+    threshold keeps freed buffers mapped for the next task. Process-wide,
+    once; a threshold whose variable (MALLOC_MMAP_THRESHOLD_,
     MALLOC_TRIM_THRESHOLD_) is set is skipped; nothing outside glibc.
     """
     global _MALLOC_TUNED
