@@ -1,8 +1,4 @@
-"""The out-of-core run on dask: partition, cells, merge, export.
-
-Each name is imported at its first use (PEP 562): a small input's run
-(:mod:`.small`) imports none of the stages' modules.
-"""
+"""The out-of-core run on dask; names import at first use (PEP 562), so a small input's run imports no stage."""
 
 from __future__ import annotations
 

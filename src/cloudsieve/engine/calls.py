@@ -1,11 +1,5 @@
-"""Calls run outside this process's own loop: streamed to a dask cluster, or each in a forked child.
-
-Used by the evaluation: :func:`imap` streams calls in this process or on a
-dask.distributed client with a bounded number in flight (the point-error
-chunks); :func:`forked` runs each call in its own forked child (the
-reproducible pymeshlab Metro figures depend on it). The engine's batches of
-tasks are :class:`.runner.Runner`'s.
-"""
+"""Calls outside the runner's batches, for the evaluation: :func:`imap` streams calls (here or on a dask
+client, a bounded number in flight); :func:`forked` runs each call in a forked child."""
 
 from __future__ import annotations
 
@@ -25,18 +19,10 @@ def imap(func: Callable, items: Iterable[tuple[tuple, dict]], client: Any = None
          kwargs: dict | None = None, max_inflight: int | None = None) -> Iterator[Any]:
     """Yield ``func(*args, *shared, **kw, **kwargs)`` for each ``(args, kw)`` of *items*, in item order.
 
-    Without a *client* the calls run one after the other in this process
-    (each may use every core itself). With a dask.distributed *client* they
-    are submitted as tasks, at most *max_inflight* (default: twice the
-    workers) pending at once, so *items* may be a generator over data larger
-    than memory; each of *shared* is scattered once to every worker.
-
-    Parameters
-    ----------
-    items : iterable of (tuple, dict)
-        Per-call positional and keyword arguments.
-    shared, kwargs : sequence, dict
-        Trailing positional (broadcast on a cluster) and keyword arguments common to every call.
+    Without a *client* the calls run here in turn. With a dask.distributed
+    *client* they are tasks, at most *max_inflight* (default: twice the
+    workers) pending, so *items* may be a generator over data larger than
+    memory; each of *shared* is scattered once to every worker.
     """
     kwargs = kwargs or {}
     if client is None:
@@ -67,24 +53,12 @@ def _child(conn, fn, args):  # pragma: no cover - runs in the forked child
 def forked(calls: Sequence[tuple], max_parallel: int | None = None, name: str = "pymeshlab") -> list:
     """Run each ``(fn, *args)`` of *calls* in its own forked child, up to *max_parallel* at once; results in order.
 
-    A forked child starts from the parent's state and ends with its call, so
-    a library with hidden process-wide state gives the same result for the
-    same call every time, as long as the parent never calls it itself.
-    pymeshlab's Metro sampling is such a case: it draws from a process-wide
-    random generator that is never reseeded, so in one process two identical
-    calls give different figures (see :mod:`cloudsieve.evaluate.mesh`).
-    It also runs single-threaded libraries on all cores. Without ``fork``
-    (Windows, macOS spawn) the calls run in process, one after the other.
-
-    Parameters
-    ----------
-    calls : sequence of tuple
-        ``(fn, *args)``; *fn* and the arguments need not be picklable (the
-        child inherits them), the result must be.
-    max_parallel : int, optional
-        Children at once (default: the machine's cores).
-    name : str
-        What the calls run, for the error messages.
+    A child starts from the parent's state and ends with its call, so a
+    library with hidden process-wide state (pymeshlab's Metro sampling, whose
+    random generator is never reseeded: :mod:`cloudsieve.evaluate.mesh`) gives
+    the same result for the same call. *fn* and its arguments need not
+    pickle, the result must. Without ``fork`` the calls run here in turn.
+    *name* names the calls in messages.
 
     Raises
     ------

@@ -1,35 +1,14 @@
 """Stage 3, cells: one dask task per cell runs the in-memory method on the cell's points.
 
-A cell task opens the store by path, reads its core points (and, with a
-density context, its halo) from its runs, calls the core
-(:func:`cloudsieve.core.simplify_points`: refine into clusters of
-~cluster_size, score, rule) with the cell's seed ``SeedSequence([seed,
-cell])``, writes its keep mask into its own region of
-``simplify/keep_cells`` and marks the cell done in ``simplify/done`` (one
-zarr chunk per cell, so concurrent writers never share a chunk). Its
-argument, a :class:`CellTask`, is small: it does not grow with the number of
-cells P.
-
-Targets (``ratio=`` / ``count=``) run two passes around the global threshold
-T (:mod:`cloudsieve.engine.threshold`):
-
-- pass 1, :func:`score_task`: :func:`cloudsieve.core.refine_labels` and
-  :func:`cloudsieve.core.unit_free_scores` (m*dH, comparable across clusters
-  and cells), stored in ``simplify/label_cells`` and ``simplify/score_cells``;
-- pass 2, :func:`apply_task`: a rule whose registry ``engine`` is
-  ``global_threshold`` (``target``) keeps score > T, the one-pass threshold
-  on the unit-free score m*dH; a ``cell_count`` rule (``iterative``,
-  ``coverage``) keeps in each cell as many
-  points as the target rule would (n_j - #{score <= T}), chosen by the core's
-  rule with that count on the stored clusters (``simplify_points(labels=...,
-  count=...)``), so the removals follow the scores across cells and the total
-  is the target rule's.
-
-Density context: by default each small cluster is scored alone (the paper;
-the core's default), so a cell border is just another cluster border. With
-``params["context"]`` the cell's halo is the density context of every
-cluster; pass 2 then uses the halo thinned by the neighbours' pass-1
-decisions (:func:`thinned_halo`).
+A task (its :class:`CellTask` argument does not grow with P) reads its core
+points, and its halo with a density context, calls the core with the seed
+``SeedSequence([seed, cell])``, writes its own region of
+``simplify/keep_cells`` and marks ``simplify/done[cell]``. Targets
+(``ratio=`` / ``count=``) take two passes around the global threshold T
+(:mod:`.threshold`): :func:`score_task` stores labels and unit-free scores;
+:func:`apply_task` keeps score > T, or for a ``cell_count`` rule the same
+number chosen by the core's rule. With ``params["context"]`` the cell's
+halo is every cluster's density context (the paper: each cluster alone).
 """
 
 from __future__ import annotations
@@ -65,9 +44,6 @@ def cell_seed(seed: int, cell: int) -> int:
     return int(np.random.SeedSequence([int(seed), int(cell)]).generate_state(1, np.uint32)[0])
 
 
-# ---------------------------------------------------------------- reading a cell
-
-
 def _halo_runs(group, halo: dict) -> dict:
     """The runs of the halo source cells, read from the store: {source: runs}."""
     return {int(s): cell_runs(group, int(s)) for s in halo}
@@ -85,16 +61,11 @@ def _open_cell(task: CellTask):
 
 
 def thinned_halo(group, task: CellTask, threshold: float) -> np.ndarray:
-    """The halo points whose own cell's pass-1 score exceeds T (those the target keeps).
+    """The halo points (h, 3) whose own cell's pass-1 score exceeds T (those the target keeps).
 
-    Pass 2 of an iterative ratio/count thins the cell over several rounds; a
-    halo left at full density would make the points near the border look
-    redundant and thin them more (a seam). The neighbours' pass-1 decisions
-    are the best deterministic guess of their final density.
-
-    Returns
-    -------
-    ndarray of shape (h, 3), float64
+    A halo left at full density would make border points look redundant
+    over pass 2's rounds (a seam); the pass-1 decisions are the best
+    deterministic guess of the neighbours' final density.
     """
     sources = _halo_runs(group, task.halo)
     pts, cells, pos = read_halo(group, sources, task.centers, task.cell, task.margin, return_index=True)
@@ -115,7 +86,7 @@ def _context(params: dict, halo: np.ndarray | None):
 
 
 def _threads(params: dict) -> int:
-    """k-d tree threads of a cell task (see :attr:`Runner.task_threads`); the results do not depend on it."""
+    """k-d tree threads of a cell task (:attr:`Runner.task_threads`); results do not depend on it."""
     return int(params.get("threads") or 1)
 
 
@@ -124,8 +95,7 @@ def _core_kwargs(params: dict) -> dict:
 
 
 def _simplify(core, params: dict, cell: int, *, threshold, target, labels, context) -> np.ndarray:
-    """The in-memory method on one cell (:func:`cloudsieve.core.simplify.simplify_unchecked`: the run's
-    options were validated once, by :func:`cloudsieve.engine.simplify`): the kept indices."""
+    """The kept indices of the in-memory method on one cell (options already validated, so unchecked)."""
     from ..core.simplify import simplify_unchecked
     from ..params_spec import OPTION_CLASSES
 
@@ -143,7 +113,7 @@ def _mark_done(g, name: str, cell: int) -> None:
 
 
 def _record_duplicates(g, cell: int, n_copies: int) -> None:
-    """The cell's count of exact duplicate points, in ``simplify/duplicates`` (summed by the summary)."""
+    """The cell's count of exact duplicates, in ``simplify/duplicates``."""
     g["simplify/duplicates"][cell : cell + 1] = np.full(1, n_copies, dtype=np.int64)
 
 
@@ -151,19 +121,10 @@ def _keep_duplicates(params: dict) -> bool:
     return bool(params.get("keep_duplicates", False))
 
 
-# ---------------------------------------------------------------- the tasks
-
-
 def cell_task(task: CellTask) -> dict[str, Any]:
-    """Simplify one cell with a threshold rule (a dask task): core + halo in, keep mask out.
+    """Task: simplify one cell with a threshold rule; writes ``simplify/keep_cells`` then ``simplify/done[cell]``.
 
-    Calls :func:`cloudsieve.core.simplify_points` (refine, score, rule) with
-    the cell's seed and its halo as density context. Writes
-    ``simplify/keep_cells[region:region + n]`` then ``simplify/done[cell]``.
-
-    Returns
-    -------
-    dict with "cell", "n", "kept", "halo", "duplicates", "seconds" (small).
+    Returns "cell", "n", "kept", "halo", "duplicates", "seconds".
     """
     from ..core import exact_copies
 
@@ -186,16 +147,10 @@ def cell_task(task: CellTask) -> dict[str, Any]:
 
 
 def score_task(task: CellTask) -> dict[str, Any]:
-    """Pass 1 of a ratio/count: refine one cell and score it (a dask task).
+    """Pass-1 task of a ratio/count: refine and score one cell (unit-free m*dH).
 
-    :func:`cloudsieve.core.refine_labels` then
-    :func:`cloudsieve.core.unit_free_scores` (m*dH, comparable across cells).
-    Writes ``simplify/score_cells`` and ``simplify/label_cells`` in the cell's
-    region, then ``simplify/scored[cell]``.
-
-    Returns
-    -------
-    dict with "cell", "n", "halo", "seconds" (small).
+    Writes ``simplify/score_cells`` and ``simplify/label_cells``, then
+    ``simplify/scored[cell]``. Returns "cell", "n", "halo", "seconds".
     """
     from ..core import exact_copies, refine_labels, score_points
 
@@ -205,7 +160,7 @@ def score_task(task: CellTask) -> dict[str, Any]:
     n = len(core)
     scores = np.zeros(n, dtype=np.float64)
     labels = np.zeros(n, dtype=np.int64)
-    if n:  # the run's options were validated once (engine.simplify): the unchecked calls
+    if n:  # options validated once: the unchecked calls
         labels = refine_labels.unchecked(
             core, params["method"], params["cluster_size"], cell_seed(params["seed"], cell), k_min=params["k_min"],
             threads=_threads(params),
@@ -222,17 +177,11 @@ def score_task(task: CellTask) -> dict[str, Any]:
 
 
 def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
-    """Pass 2 of a ratio/count: apply the global threshold T to one cell (a dask task).
+    """Pass-2 task of a ratio/count: apply the global threshold T to one cell.
 
-    A ``global_threshold`` rule of the registry (``target``): keep the points
-    with score > T (the one-pass threshold on the same unit-free scores).
-    A ``cell_count`` rule (``iterative``, ``coverage``): the cell keeps as many points as the
-    target rule would (n - #{score <= T}), chosen by the core's rule on the
-    stored clusters (``simplify_points(labels=..., count=...)``).
-
-    Returns
-    -------
-    dict with "cell", "n", "kept", "seconds" (small).
+    A ``global_threshold`` rule keeps score > T; a ``cell_count`` rule keeps as
+    many points, chosen by the core's rule on the stored clusters. Returns
+    "cell", "n", "kept", "seconds".
     """
     from ..core import first_copies
     from ..store import PointStore
@@ -263,21 +212,13 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     return {"cell": int(cell), "n": int(n), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 
 
-# ---------------------------------------------------------------- the stage
-
-
 def _marked(store, name: str) -> np.ndarray:
     """Which cells are marked in ``simplify/<name>`` ("done" or "scored"), bool (P,)."""
     return np.asarray(store.group[f"simplify/{name}"][:]).astype(bool)
 
 
 def run_keep(store, part, regions: np.ndarray, params: dict, runner) -> tuple[int, int, int]:
-    """The cells stage of a threshold rule: a :func:`cell_task` for every cell not done yet.
-
-    Returns
-    -------
-    (computed, reused, points) : cells computed now, cells found done, points in the computed cells
-    """
+    """Threshold-rule cells stage: a :func:`cell_task` per cell not done; (computed, reused, points)."""
     done = _marked(store, "done")
     todo = largest_first(part, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads)
@@ -286,12 +227,7 @@ def run_keep(store, part, regions: np.ndarray, params: dict, runner) -> tuple[in
 
 
 def run_score(store, part, regions: np.ndarray, params: dict, runner) -> tuple[int, int]:
-    """Pass 1 of a ratio/count: a :func:`score_task` for every cell neither scored nor done.
-
-    Returns
-    -------
-    (reused, points) : cells found done, points in the cells scored now
-    """
+    """Pass 1: a :func:`score_task` per cell neither scored nor done; (reused, points scored)."""
     done = _marked(store, "done")
     scored = _marked(store, "scored")
     todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j] and not done[j]])
@@ -301,12 +237,7 @@ def run_score(store, part, regions: np.ndarray, params: dict, runner) -> tuple[i
 
 
 def run_apply(store, part, regions: np.ndarray, params: dict, runner, threshold: float) -> int:
-    """Pass 2 of a ratio/count: an :func:`apply_task` with threshold T for every cell not done.
-
-    Returns
-    -------
-    int : cells computed now
-    """
+    """Pass 2: an :func:`apply_task` with threshold T per cell not done; the cells computed."""
     done = _marked(store, "done")
     todo = largest_first(part, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(store, part, regions, todo, params, runner.task_threads)

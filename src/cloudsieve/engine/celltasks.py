@@ -1,5 +1,4 @@
-"""The argument of a cell task (:class:`CellTask`), the tasks of a list of cells and their order: every rule's
-cells stage builds its tasks here (:mod:`.cells`, :mod:`.cell_scheme`)."""
+"""The argument of a cell task (:class:`CellTask`) and the tasks of a list of cells, for every rule's cells stage."""
 
 from __future__ import annotations
 
@@ -14,24 +13,10 @@ __all__ = ["CellTask", "cell_tasks", "largest_first"]
 class CellTask:
     """The argument of one cell task: small, independent of the number of cells.
 
-    Attributes
-    ----------
-    store_path : str
-        The store, opened by the task (local path or fsspec URL).
-    cell : int
-        The cell's id.
-    halo : dict int -> int
-        Each halo source cell -> the start of its region (empty without a
-        density context).
-    centers : dict int -> ndarray of shape (3,)
-        Centres of the cell and of its halo sources.
-    margin : float
-        Halo margin.
-    region : int
-        Start of the cell's region in the cell-ordered ``simplify/*`` arrays.
-    params : dict
-        The run's parameters (as recorded in the store) and the task's k-d
-        tree thread count under ``"threads"``.
+    *halo*: each halo source cell -> its region's start (empty without a
+    density context); *centers*: the cell's and its sources' centres;
+    *region*: the cell's start in the cell-ordered ``simplify/*`` arrays;
+    *params*: the run's recorded parameters plus ``"threads"``.
     """
 
     store_path: str
@@ -45,12 +30,9 @@ class CellTask:
 
 def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: int = 1,
                halo: bool | None = None) -> list[CellTask]:
-    """The tasks of *cells*, in the order given.
+    """The tasks of *cells*, in the order given; with halo sources when *halo* (None: ``params["context"]``).
 
-    *params* gets the tasks' k-d tree thread count under "threads" (not part
-    of the parameters recorded for resume: the results do not depend on it).
-    The tasks list their halo sources when *halo* is True (None: with a
-    density context, ``params["context"]``).
+    "threads" is not part of the parameters recorded for resume: results do not depend on it.
     """
     c = part.centers
     params = {**params, "threads": int(threads)}
@@ -65,7 +47,6 @@ def cell_tasks(store, part, regions: np.ndarray, cells, params: dict, threads: i
 
 
 def largest_first(part, cells) -> list[int]:
-    """*cells* by decreasing point count (ties by id): the longest tasks start first, so the
-    stage does not end with one worker busy on a large cell while the others wait."""
+    """*cells* by decreasing point count (ties by id): the longest tasks start first."""
     cells = np.asarray(cells, dtype=np.int64)
     return [int(j) for j in cells[np.lexsort((cells, -part.cell_counts[cells]))]] if len(cells) else []

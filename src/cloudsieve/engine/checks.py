@@ -1,7 +1,5 @@
-"""A simplification's checks before any work (:func:`cloudsieve.engine.simplify.run_simplify`): the source(s),
-the destination, the work store a rerun would reuse and the scheduler, in that order, before any file or store
-is created and before any scheduler starts. The options were validated before (:func:`cloudsieve.params.validate`).
-"""
+"""A simplification's checks before any file or store is created or any scheduler started: source,
+destination, reusable work store, scheduler (options: :func:`cloudsieve.params.validate`)."""
 
 from __future__ import annotations
 
@@ -23,7 +21,7 @@ from .small import fits_in_memory
 
 __all__ = ["RunChecks", "check_run"]
 
-#: a SRC file that names others (io/sources.py: a list, a VPC)
+#: SRC files that name others (a list, a VPC)
 _LISTINGS = (".lst", ".txt", ".vpc")
 
 
@@ -45,23 +43,22 @@ class RunChecks:
     store: object | None
     #: a small input that runs in memory, without a work store (:mod:`.small`)
     in_memory: bool = False
-    #: the input's points from its headers, when counted (the scheduler is this module's choice) and known
+    #: the input's points from its headers, when counted and known
     points: int | None = None
 
 
 def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> RunChecks:
-    """Check SRC, DST, the work store and the scheduler of a run on the validated *opts*; *params*: the run's
-    record (:func:`cloudsieve.params.run_record`), stored in a reused work store."""
+    """Check SRC, DST, the work store and the scheduler; *params*: the run's record, stored in a reused store."""
     overwrite, scheduler, store = opts["overwrite"], opts["scheduler"], opts["store"]
     tiles = opts["tile_size"] is not None
-    if tiles:  # the folder's own name, as the tiles are written (``out/`` is ``out``)
+    if tiles:  # as the tiles are written (``out/`` is ``out``)
         dst = dst.rstrip("/") or dst
     dst_local = local_path(dst)
     sources = expand_sources(src)
-    # a list or a VPC is an input too: never overwritten, never in a folder replaced
+    # a list or VPC is an input too
     inputs = sources + ([src] if src.lower().endswith(_LISTINGS) and not any(same_path(s, src) for s in sources)
                         else [])
-    # first: overwriting would not help, so it is not suggested
+    # first: overwriting would not help
     _refuse_inputs_inside(dst, inputs, "destination")
     src_is_store = is_store(src)
     if src_is_store and holds(src, dst):
@@ -82,14 +79,14 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         bounds = _header_bounds(src, sources)
         if bounds is not None:
             check_grid(bounds, opts["tile_size"], src)
-    points = None  # counted only when the run's scheduler is this module's choice
+    points = None  # counted only when this module picks the scheduler
     if scheduler is None and client is None and opts["memory_limit"] is None and opts["workers"] is None:
         points = source_points(sources, src if src_is_store else None)
-        scheduler = scheduler_for(points)  # small: in process
+        scheduler = scheduler_for(points)
     store_path = workstore.work_store_path(src, dst, store, src_is_store)
     if not src_is_store:
         _check_work_store(store_path, dst if tiles else None, inputs)
-    # a work store of another source or other options is refused before any scheduler is contacted
+    # another source's or options' work store is refused before any scheduler is contacted
     st = workstore.reusable_store(src, store_path, src_is_store=src_is_store, overwrite=overwrite,
                                   resume=opts["resume"])
     if st is not None:
@@ -103,8 +100,7 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
 
 
 def _refuse_inputs_inside(path: str, sources: list[str], what: str) -> None:
-    """Refuse *path* (the destination or the work store) when it is one of *sources* or a folder holding
-    one: writing or replacing it would delete the input."""
+    """Refuse *path* when it is one of *sources* or a folder holding one (replacing it deletes the input)."""
     for source in sources:
         if same_path(source, path):
             raise SameSourceDestinationError(f"{path} is the source: cloudsieve never overwrites its input")
@@ -114,8 +110,7 @@ def _refuse_inputs_inside(path: str, sources: list[str], what: str) -> None:
 
 
 def _check_work_store(store_path: str, tile_folder: str | None, sources: list[str]) -> None:
-    """Refuse a work store that is or holds an input, lies in the tile folder written (replaced at the
-    end), or is an existing folder or file that is not a cloudsieve point store (never deleted)."""
+    """Refuse a work store that is or holds an input, lies in the tile folder, or is a non-store file or folder."""
     _refuse_inputs_inside(store_path, sources, "work store")
     if tile_folder is not None and holds(tile_folder, store_path):
         raise InvalidParameterError(f"work store {store_path} lies in the tile folder {tile_folder}, "
@@ -125,7 +120,6 @@ def _check_work_store(store_path: str, tile_folder: str | None, sources: list[st
             os.path.isdir(local):
         raise DestinationExistsError(f"work store {store_path} is a file: cloudsieve never replaces a file "
                                      "with a point store (choose another store)")
-    # a URL: a prefix holding objects (absent: nothing found)
     found = store_foreign(local or store_path) if local is None or os.path.isdir(local) else None
     if found is not None:
         raise DestinationExistsError(f"work store {store_path} holds {found}: cloudsieve replaces only "

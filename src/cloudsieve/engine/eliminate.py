@@ -1,5 +1,4 @@
-"""The cells stage of the ``eliminate`` rule on the work store: its reads and writes (:class:`StoreCells`) for
-the stage's driver, :func:`~.cell_scheme.run_cells` (the stage: module :mod:`.cell_scheme`)."""
+"""The work store's reads and writes (:class:`StoreCells`) for the ``eliminate`` cells stage, :func:`~.cell_scheme.run_cells`."""
 
 from __future__ import annotations
 
@@ -9,12 +8,10 @@ __all__ = ["StoreCells"]
 
 
 class StoreCells:
-    """The stage's reads and writes (:func:`~.cell_scheme.run_cells`) on the work store at *path*; a task opens
-    it (:meth:`open`) in its own process.
+    """The stage's reads and writes on the work store at *path*; a task opens it (:meth:`open`).
 
-    A cell's share is ``simplify/share[cell]`` = (distinct, sizes of the packings), its band
-    ``simplify/band_*`` in the cell's region, then the marker ``simplify/scored[cell]``; its keep mask
-    ``simplify/keep_cells`` in its region, then ``simplify/done[cell]``."""
+    A share goes to ``simplify/share[cell]`` and ``simplify/band_*``, then
+    ``simplify/scored[cell]``; a keep mask to ``simplify/keep_cells``, then ``simplify/done[cell]``."""
 
     def __init__(self, path: str, group=None) -> None:
         self.path, self.group = path, group

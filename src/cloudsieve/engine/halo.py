@@ -1,24 +1,11 @@
 """Halos: the points of neighbouring cells near a cell's border (density context, never pruned).
 
-A point z of cell j lies in the halo of cell i when its distance to the
-bisector plane of c_i and c_j is at most ``margin``::
-
-    s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i) / |c_j - c_i|  <=  margin
-
-Since the Voronoi region of i lies on c_i's side of that plane, every point
-within ``margin`` of cell i's region passes (the test is a safe superset).
-The partition (:mod:`cloudsieve.engine.partition`) lists, for every cell,
-the cells that may hold points of its halo; a cell task reads those cells'
-runs and applies the test itself (:func:`read_halo`).
-
-Those runs are whole cells: about 7 times a cell's points are read for a
-halo of a few percent of them. A rule that reads every cell before its halos
-(``eliminate``: its count pass) stores each cell's **band** instead
-(:func:`band_mask`: the points within ``margin`` of the bisector with any
-cell that lists it as a halo source, in the cell's order, with their
-positions); :func:`read_band_halo` then reads the sources' bands and applies
-the same test, which gives the same points in the same order as
-:func:`read_halo` (the band holds every point the test can pass).
+A point z of cell j is in the halo of cell i when its distance to the
+bisector plane of c_i and c_j, ``s_ij(z) = (z - (c_i + c_j) / 2) . (c_j - c_i)
+/ |c_j - c_i|``, is at most ``margin``: a superset of the points within
+``margin`` of i's Voronoi region. :func:`read_halo` tests the source cells'
+runs; a rule that reads every cell first (``eliminate``) stores each cell's
+**band** (:func:`band_mask`), and :func:`read_band_halo` gives the same points.
 """
 
 from __future__ import annotations
@@ -32,14 +19,7 @@ __all__ = ["halo_distance", "halo_mask", "read_halo", "band_mask", "read_band_ha
 
 
 def halo_distance(z: np.ndarray, ci: np.ndarray, cj: np.ndarray) -> np.ndarray:
-    """Signed distance of points z of cell j to the bisector plane of c_i and c_j.
-
-    Positive on c_j's side. ``ci``/``cj`` broadcast against ``z`` (n, 3).
-
-    Returns
-    -------
-    ndarray of shape (n,), float64
-    """
+    """Signed distance (n,) of points z (n, 3) of cell j to the bisector of c_i and c_j, positive on c_j's side."""
     mid, diff, norm = _bisector(ci, cj)
     return ((z - mid) * diff).sum(axis=-1) / norm
 
@@ -51,47 +31,25 @@ def _bisector(ci, cj):
 
 
 def halo_mask(z: np.ndarray, centers: np.ndarray, cell: int, source: int, margin: float) -> np.ndarray:
-    """Which points z of cell *source* belong to the halo of *cell*.
-
-    Returns
-    -------
-    ndarray of shape (n,), bool
-    """
+    """Which points z of cell *source* belong to the halo of *cell*: (n,) bool."""
     return halo_distance(z, centers[cell], centers[source]) <= margin
 
 
 def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell: int, margin: float,
               return_index: bool = False):
-    """Halo of *cell*: points of its halo source cells within *margin* of its region.
+    """Halo of *cell*: points (h, 3) float64 of its source cells within *margin* of its region.
 
-    Parameters
-    ----------
-    group : zarr.Group
-        The store's group (reads ``partition/xyz``).
-    part_runs : dict int -> ndarray of shape (r, 3) or (r, 4)
-        Runs ``(chunk, start, stop[, first])`` of each halo source cell (see
-        :func:`cloudsieve.engine.runs.cell_runs`); ``first`` is the position of the run's first
-        point among its cell's points (needed for *return_index*).
-    centers : ndarray of shape (P, 3) or dict int -> ndarray of shape (3,)
-        Centres of *cell* and of its halo sources.
-    cell : int
-    margin : float
-    return_index : bool
-        Also return, for every halo point, its cell and its position among
-        that cell's points (to look up per-cell results such as scores).
-
-    Returns
-    -------
-    points : ndarray of shape (h, 3), float64
-        Source cells in increasing id, each in increasing input index.
-    cells, positions : ndarray of shape (h,), int64
-        Only with *return_index*.
+    *part_runs*: each source cell's runs ``(chunk, start, stop[, first])``
+    (:func:`cloudsieve.engine.runs.cell_runs`; ``first`` needed for
+    *return_index*); *centers*: (P, 3) or int -> (3,). Points come by source
+    cell, increasing, each in input order. *return_index* also returns each
+    point's cell and position in that cell, (h,) int64 each.
     """
     arr = group["partition/xyz"].async_array
     out, cells, pos = [], [], []
     for src in sorted(part_runs):
         runs = [run for run in part_runs[src] if int(run[2]) > int(run[1])]
-        # one source's runs read concurrently (one source's points in memory at a time)
+        # one source's runs read concurrently
         got = gathered(arr.getitem((int(run[0]), slice(int(run[1]), int(run[2])))) for run in runs)
         for run, raw in zip(runs, got):
             z = decode_rows(group, np.asarray(raw))
@@ -111,22 +69,9 @@ def read_halo(group, part_runs: dict[int, np.ndarray], centers: np.ndarray, cell
 
 
 def band_mask(z: np.ndarray, centers: dict, source: int, dependents, margin: float) -> np.ndarray:
-    """Which points z of cell *source* lie in the halo of some cell of *dependents* (its band).
+    """Which points z (n, 3) of cell *source* lie in the halo of a cell of *dependents* (its band): (n,) bool.
 
-    Parameters
-    ----------
-    z : ndarray of shape (n, 3)
-        The points of cell *source*.
-    centers : dict int -> ndarray of shape (3,)
-        Centres of *source* and of every dependent.
-    source : int
-    dependents : iterable of int
-        The cells that list *source* among their halo sources.
-    margin : float
-
-    Returns
-    -------
-    ndarray of shape (n,), bool
+    *centers*: int -> centre of *source* and every dependent.
     """
     from ..core.kernels.bisector import within_any
 
@@ -141,25 +86,13 @@ def band_mask(z: np.ndarray, centers: dict, source: int, dependents, margin: flo
 def read_band_halo(group, sources: dict[int, int], centers, cell: int, margin: float, prefix: str = "simplify/band"):
     """:func:`read_halo` (with ``return_index``) from the stored bands of the halo sources.
 
-    Parameters
-    ----------
-    group : zarr.Group
-        Holds ``{prefix}_xyz`` (R, 3), ``{prefix}_pos`` (R,) in the
-        cell-ordered layout (a cell's band at the start of its region) and
-        ``{prefix}_count`` (P,).
-    sources : dict int -> int
-        Each halo source cell -> the start of its region.
-    centers, cell, margin
-        As in :func:`read_halo`.
-
-    Returns
-    -------
-    points : ndarray of shape (h, 3), float64
-    cells, positions : ndarray of shape (h,), int64
+    *group* holds ``{prefix}_xyz`` (R, 3) and ``{prefix}_pos`` (R,), a cell's
+    band at the start of its region, and ``{prefix}_count`` (P,); *sources*
+    maps each source cell to its region's start.
     """
     xyz, pos, cnt = (group[f"{prefix}_{n}"].async_array for n in ("xyz", "pos", "count"))
     srcs = sorted(sources)
-    # in two calls of zarr's event loop (the counts, then the bands), not three a source
+        # two event-loop calls (counts, then bands), not three per source
     counts = [int(np.asarray(c)[0]) for c in gathered(cnt.getitem(slice(s, s + 1)) for s in srcs)]
     spans = [(s, int(sources[s]), int(sources[s]) + c) for s, c in zip(srcs, counts) if c > 0]
     got = gathered(arr.getitem(slice(a, b)) for _, a, b in spans for arr in (xyz, pos))
@@ -168,9 +101,7 @@ def read_band_halo(group, sources: dict[int, int], centers, cell: int, margin: f
 
 
 def band_halo(bands, centers, cell: int, margin: float):
-    """The halo of *cell* from its sources' bands: *bands* yields (source, points (b, 3), positions (b,)) in
-    increasing source; returns the points within *margin* (:func:`halo_mask`), their cells and positions,
-    as :func:`read_band_halo` (which reads the bands from a store)."""
+    """:func:`read_band_halo` from bands in hand: (source, points (b, 3), positions (b,)), sources increasing."""
     out, cells, where = [], [], []
     for src, z, p in bands:
         m = halo_mask(z, centers, cell, src, margin)

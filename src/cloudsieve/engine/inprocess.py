@@ -1,16 +1,9 @@
-"""Small inputs run in the calling process: no process pool, no fork server.
+"""Small inputs run in the calling process, on dask's "sync" scheduler: no process pool, no fork server.
 
-Up to :data:`IN_PROCESS_POINTS` points the run's tasks run one after the
-other in this process, on dask's synchronous scheduler (:class:`~.runner.Runner`
-"sync"), each cell's kernels on every core: starting the local process pool (a
-fork server that imports the engine and loads the kernels, then the workers)
-costs more than two workers gain up to about 1.5 M points, and the pool
-doubles the peak memory (docs/benchmarks.md, "Small inputs"). The tasks are
-the same and run in the same order, so the output is the same, byte for
-byte (tests/test_speed_start.py); its LAZ is decoded on every core.
-
-Only when the caller chose nothing: no scheduler, no client, no memory limit, no worker count.
-A LAS/LAZ/COPC or PLY input of the eliminate rule needs no work store either (:mod:`.small`).
+Up to :data:`IN_PROCESS_POINTS` points, starting the pool costs more than
+its workers gain and doubles the peak memory (docs/benchmarks.md, "Small
+inputs"); the tasks and their order are the same, so is the output. Only
+when the caller chose no scheduler, client, memory limit or worker count.
 """
 
 from __future__ import annotations
@@ -22,17 +15,15 @@ __all__ = ["IN_PROCESS_POINTS", "source_points", "local_scheduler", "scheduler_f
 
 logger = logging.getLogger(__name__)
 
-#: at most this many input points run in the calling process (module docstring: the process pool is no faster
-#: below about 2 M points on 2 cores)
+#: at most this many input points run in the calling process
 IN_PROCESS_POINTS = 1_500_000
 #: the formats whose count is read from the header, silently
 _HEADER_COUNTS = ("las", "laz", "copc", "ply")
 
 
 def source_points(sources: Sequence[str], store: str | None = None) -> int | None:
-    """The points of *sources* (files) or of the point *store*, from their headers; None when a format
-    does not say (XYZ text), its reader may log at opening (E57: the fields it skips, which the ingest
-    logs once), or a source cannot be opened (the run then reports it)."""
+    """The points of *sources* (files) or of the point *store*, from their headers; None when a format does
+    not say (XYZ), may log at opening (E57), or a source cannot be opened (the run reports it)."""
     try:
         if store is not None:
             from ..store import PointStore
@@ -49,24 +40,13 @@ def source_points(sources: Sequence[str], store: str | None = None) -> int | Non
                     return None
                 total += int(reader.count)
         return total
-    except Exception:  # noqa: BLE001 - only a choice of scheduler: the run itself reports what is wrong
+    except Exception:  # noqa: BLE001 - only a choice of scheduler
         return None
 
 
 def local_scheduler(sources: Sequence[str], store: str | None = None, *,
                     limit: int = IN_PROCESS_POINTS) -> str | None:
-    """``"sync"`` (the calling process) when the input has at most *limit* points, else None (the default
-    local process pool).
-
-    Parameters
-    ----------
-    sources : sequence of str
-        The input files (:func:`cloudsieve.io.sources.expand_sources`).
-    store : str, optional
-        The input point store, instead of files.
-    limit : int
-        The largest input run in the calling process.
-    """
+    """``"sync"`` (this process) when the input (files or a *store*) has at most *limit* points, else None."""
     return scheduler_for(source_points(sources, store), limit=limit)
 
 

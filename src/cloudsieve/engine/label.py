@@ -1,13 +1,10 @@
-"""Partition step 3, label + bucket: one task per input chunk.
+"""Partition label + bucket: one task per input chunk.
 
-Each point gets the nearest cell centre (the compiled k-d tree of the
-centres, :mod:`cloudsieve.core.kernels.closest`; exact ties to the lower
-index); the chunk's points are sorted by cell *inside the chunk* (stable)
-and the sorted copy is written to the chunk's own row of
-``partition/xyz``. Nothing is written to another task's zarr chunk, nothing is
-ever sorted globally. The same pass lists, from each point's
-``HALO_NEIGHBOURS`` nearest centres, which cells can contribute to which
-halos (see :mod:`cloudsieve.engine.halo`).
+Each point gets its nearest cell centre (ties to the lower index,
+:mod:`cloudsieve.core.kernels.closest`); the chunk sorted by cell (stable)
+goes to the chunk's own row of ``partition/xyz``, so nothing is sorted
+globally or written to another task's chunk. The same pass lists the halo
+pairs from each point's ``HALO_NEIGHBOURS`` nearest centres (:mod:`.halo`).
 """
 
 from __future__ import annotations
@@ -41,26 +38,15 @@ def _lowest_tied(d: np.ndarray, nn: np.ndarray) -> np.ndarray:
 
 
 def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple | None = None, halo: bool = True):
-    """Cell of each point (nearest centre, ties to the lower index) and halo pairs.
+    """Cell of each point (n,) int64 (nearest centre, ties to the lower index) and halo pairs (q, 2) int64.
 
-    With ``halo=False`` (no density context: the cell tasks never read a
-    halo) only the 2 nearest centres are queried, the rows with a tie again
-    with ``HALO_NEIGHBOURS + 1``, and no pairs are returned (a third less
-    CPU time than every point's ``HALO_NEIGHBOURS + 1`` centres).
-
-    *tree*: :func:`~cloudsieve.core.kernels.closest.site_tree` of *centers*
-    (built when None). The halo test uses the distances the tree already returned:
-    ``s_ij(z) = (|z - c_i|^2 - |z - c_j|^2) / (2 |c_i - c_j|)``, the same
-    bisector distance as :func:`cloudsieve.engine.halo.halo_distance` up to rounding; pairs are only
-    candidates (the cell task applies the exact test), so a relative slack
-    of 1e-6 of the margin keeps them a superset.
-
-    Returns
-    -------
-    labels : ndarray of shape (n,), int64
-    pairs : ndarray of shape (q, 2), int64
-        Distinct (halo cell i, source cell j) pairs: some point of cell j lies
-        within *margin* of the bisector of c_i and c_j.
+    A pair (i, j): some point of cell j lies within *margin* of the bisector
+    of c_i and c_j. The test uses the tree's distances, ``s_ij(z) = (|z -
+    c_i|^2 - |z - c_j|^2) / (2 |c_i - c_j|)``, with a slack of 1e-6 of the
+    margin so the candidates stay a superset of
+    :func:`cloudsieve.engine.halo.halo_distance`'s. ``halo=False`` queries
+    only 2 centres (more on ties) and returns no pairs. *tree*:
+    :func:`~cloudsieve.core.kernels.closest.site_tree` of *centers*, built when None.
     """
     p = len(centers)
     none = np.empty((0, 2), dtype=np.int64)
@@ -69,8 +55,7 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
     if tree is None:
         tree = site_tree(centers)
     kq = min(p, HALO_NEIGHBOURS + 1)
-    # the 2 nearest centres of every point; again with kq only the rows whose second centre is close enough
-    # for a pair (without a halo: an exact tie), since a farther centre is farther still
+    # 2 nearest centres for all; kq only where the second is close enough for a pair (or, without halo, tied)
     bound = 2.0 * margin * (1 + 1e-6) + 1e-12 if halo else 0.0
     d, nn = nearest_sites(tree, xyz, 2)
     labels = nn[:, 0].astype(np.int64)
@@ -83,7 +68,7 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
     if not halo:
         return labels, none
     d2 = d * d
-    # every column but the label's (column 0 too: on an exact tie the label may be a later column)
+    # every column but the label's (column 0 too: on a tie the label may be a later column)
     other = nn.astype(np.int64)
     # cheap bound first: s_ij <= margin needs d_i - d_j <= 2 margin (|c_i - c_j| >= d_i - d_j)
     cand = (d - d[:, :1]) <= bound
@@ -105,10 +90,8 @@ def label_block(centers: np.ndarray, xyz: np.ndarray, margin: float, tree: tuple
 
 def label_points(centers: np.ndarray, xyz: np.ndarray, margin: float, halo: bool = True,
                  threads: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`label_block` of *xyz* ``LABEL_BLOCK`` points at a time, the blocks on *threads* threads (each
-    point's label is its own, so neither changes a label): the labels (n,) and the distinct halo pairs
-    (q, 2) of all the blocks."""
-    tree = site_tree(centers) if len(centers) > 1 else None  # one cell: every label 0, no tree (nor its compile)
+    """:func:`label_block` over blocks of ``LABEL_BLOCK`` points on *threads* threads: labels (n,) and distinct pairs (q, 2)."""
+    tree = site_tree(centers) if len(centers) > 1 else None  # one cell: no tree
     labels = np.empty(len(xyz), dtype=np.int64)
 
     def block(a: int) -> np.ndarray:
@@ -126,30 +109,23 @@ def label_chunk(
 ) -> tuple[np.ndarray, int]:
     """Label + bucket task for input chunk *chunk* (points ``[start, stop)``).
 
-    Reads the centres from ``partition/centers`` (not passed through the
-    scheduler: P x 3 floats per task would be O(n_chunks x P) in all). Writes
-    ``partition/cell[start:stop]``, ``partition/xyz[chunk, :stop - start]`` (the
-    chunk sorted by cell, stable) and the chunk's nonzero runs (cell, count),
-    cells increasing, into ``partition/label_runs[chunk, :nnz]`` (a scratch
-    array read back by :func:`cloudsieve.engine.runs.index_runs`).
-
-    Returns
-    -------
-    pairs : ndarray of shape (q, 2), int64
-        Distinct (halo cell, source cell) pairs seen in this chunk (small).
-    nnz : int
-        Number of cells with points in this chunk.
+    Reads the centres from the store (passing P x 3 per task would cost
+    O(n_chunks x P)). Writes ``partition/cell[start:stop]``,
+    ``partition/xyz[chunk]`` (sorted by cell, stable) and the nonzero runs
+    (cell, count) into the scratch ``partition/label_runs[chunk]`` for
+    :func:`cloudsieve.engine.runs.index_runs`. Returns the chunk's distinct
+    halo pairs (q, 2) and its count of cells.
     """
     from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
     g = st.group
     centers = np.asarray(g["partition/centers"][:])
-    raw = np.asarray(st.array("xyz")[start:stop])  # the stored rows: LAS integers, kept so in partition/xyz
+    raw = np.asarray(st.array("xyz")[start:stop])  # stored rows (LAS integers stay so)
     xyz = st.decode_xyz(raw)
     n = len(xyz)
     labels, pairs = label_points(centers, xyz, margin, halo)
-    order, bounds = group_rows(labels, len(centers))  # the chunk's points cell by cell, each cell's in input order
+    order, bounds = group_rows(labels, len(centers))  # cell by cell, input order within each
     sizes = np.diff(bounds)
     cells = np.flatnonzero(sizes)
     counts = sizes[cells]

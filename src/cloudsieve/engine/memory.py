@@ -1,18 +1,10 @@
 """Peak memory of a run: this process and its children, or the workers of a dask cluster.
 
-:class:`PeakMemory` samples in a thread. A local run (every scheduler that
-starts its workers here, a LocalCluster included) measures the resident
-memory of this process and all its children (read from /proc on Linux). A
-run on a dask.distributed cluster whose workers live elsewhere
-(``--scheduler tcp://...`` or a given client) measures the workers instead:
-each worker reports its own resident memory (psutil, through
-``client.run``), and the peak of their sum is reported, labelled with the
-number of workers (:attr:`PeakMemory.scope`); the client's own memory is not
-part of it.
-
-:func:`small_pages` keeps numpy's large arrays off transparent huge pages
-while a cloud is simplified in memory; :func:`small_pages_from_here` for
-the rest of the process and every process it starts (the command).
+:class:`PeakMemory` samples in a thread: locally the resident memory of this
+process and its children (/proc on Linux); on a dask.distributed cluster
+whose workers live elsewhere, the sum of the workers' own (psutil, through
+``client.run``), the client excluded. :func:`small_pages` keeps numpy's
+large arrays off transparent huge pages.
 """
 
 from __future__ import annotations
@@ -31,15 +23,15 @@ logger = logging.getLogger(__name__)
 
 #: what a local measure covers
 LOCAL_SCOPE = "this process and its children"
-#: how long stopping waits for a sample in flight (a worker's answer takes milliseconds)
+#: how long stopping waits for a sample in flight
 JOIN_SECONDS = 60
 #: numpy's own switch of its huge-page advice, read when numpy is imported
 HUGEPAGE_ENV = "NUMPY_MADVISE_HUGEPAGE"
 
 
 def set_huge_pages(on: bool) -> bool:
-    """Tell numpy whether to advise huge pages for its large arrays; returns what it did before (False, and
-    nothing changed, for a numpy without the switch: it is private)."""
+    """Tell numpy whether to advise huge pages for large arrays; returns the previous setting (False,
+    unchanged, for a numpy without this private switch)."""
     for module in ("numpy._core.multiarray", "numpy.core.multiarray"):  # numpy 2, numpy 1
         try:
             switch = importlib.import_module(module)._set_madvise_hugepage
@@ -51,15 +43,11 @@ def set_huge_pages(on: bool) -> bool:
 
 @contextlib.contextmanager
 def small_pages():
-    """Inside, numpy's arrays of 4 MiB and more go on the kernel's 4 KiB pages; unless ``NUMPY_MADVISE_HUGEPAGE``
-    is set, which is then obeyed.
+    """Inside, numpy's arrays of 4 MiB and more go on 4 KiB pages, unless ``NUMPY_MADVISE_HUGEPAGE`` is set.
 
-    On Linux numpy advises transparent huge pages (``madvise``) for such
-    arrays, and the kernel zeroes a whole 2 MiB page at its first touch. On
-    a virtual machine that zeroing is slow: it is most of the system time of
-    a 10 M-point simplify in memory, which 4 KiB pages save, the same bytes
-    out (docs/architecture.md, "Design reasons").
-    The switch is numpy's, for the whole process: it is restored on leaving.
+    The kernel zeroes a whole 2 MiB huge page at first touch, slow on a
+    virtual machine (docs/architecture.md, "Design reasons"). The switch is
+    process-wide; it is restored on leaving.
     """
     if HUGEPAGE_ENV in os.environ:
         yield
@@ -71,21 +59,18 @@ def small_pages():
         set_huge_pages(was)
 
 
-
 def small_pages_from_here() -> None:
-    """:func:`small_pages` for the rest of this process and every process started from it, unless
-    ``NUMPY_MADVISE_HUGEPAGE`` is set: the variable set to 0, which numpy reads at its import (the fork
-    server, the workers), and numpy told at once if already imported."""
+    """:func:`small_pages` for the rest of this process and its children (through the environment
+    variable numpy reads at import), unless ``NUMPY_MADVISE_HUGEPAGE`` is set."""
     if HUGEPAGE_ENV in os.environ:
         return
     os.environ[HUGEPAGE_ENV] = "0"
     if "numpy" in sys.modules:
         set_huge_pages(False)
 
+
 def _proc_tree_rss() -> int | None:
-    """:func:`process_tree_rss` from Linux's /proc (None elsewhere), as psutil reads it there (each process's
-    parent from ``/proc/<pid>/stat``, its resident pages from ``/proc/<pid>/statm``). Read here because
-    psutil's import alone is a twentieth of a 1,065-point run."""
+    """:func:`process_tree_rss` from Linux's /proc (None elsewhere), read as psutil does, without its import."""
     try:
         names = os.listdir("/proc")
         page = os.sysconf("SC_PAGE_SIZE")
@@ -147,16 +132,9 @@ def worker_rss() -> int:
 class PeakMemory:
     """Samples resident memory in a thread; a context manager.
 
-    Attributes
-    ----------
-    peak : int
-        The largest sample (bytes): of this process and its children, or,
-        after :meth:`watch_workers`, of the sum over the cluster's workers.
-    workers : int
-        Workers in the largest sample (0: a local measure).
-    scope : str
-        What *peak* covers, for the summary: ``"this process and its
-        children"`` or ``"2 dask workers (sum of their resident memory)"``.
+    *peak*: the largest sample (bytes), of this process and its children, or
+    after :meth:`watch_workers` summed over the cluster's workers; *workers*:
+    workers in that sample (0: local); *scope*: what *peak* covers.
     """
 
     def __init__(self, interval: float = 0.1, worker_interval: float = 1.0) -> None:
@@ -209,16 +187,15 @@ class PeakMemory:
     def stop(self) -> None:
         """Stop sampling and take one last sample (again: nothing).
 
-        Call it before the watched client closes: a ``client.run`` still in
-        flight when its client closes never returns (dask.distributed
-        2026.8), and the run would wait on it for ever.
+        Call it before the watched client closes: a ``client.run`` in flight
+        then never returns.
         """
         if self._stop.is_set():
             return
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=JOIN_SECONDS)
-            if self._thread.is_alive():  # a worker that does not answer: the run goes on without its sample
+            if self._thread.is_alive():  # a worker that does not answer
                 logger.warning("peak memory: the sampling thread did not stop within %d s", JOIN_SECONDS)
                 return
         self._sample()

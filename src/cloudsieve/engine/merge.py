@@ -1,10 +1,7 @@
 """Stage 4, merge: the cells' keep masks scattered back to input order as ``simplify/keep``.
 
-One task per input chunk reads the chunk's runs (``partition/chunk_runs``)
-and their cells' regions (``simplify/regions``) from the store, so its
-arguments do not grow with the number of cells, and writes its own slice of
-``simplify/keep`` (chunk-aligned: no two tasks share a zarr chunk). Export
-then writes the kept points in input order.
+One task per input chunk reads its runs and their cells' regions from the
+store (arguments independent of P) and writes its own chunk-aligned slice.
 """
 
 from __future__ import annotations
@@ -20,12 +17,7 @@ __all__ = ["merge_task", "run_merge"]
 
 
 def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
-    """Scatter the cells' keep masks back to input order for input chunk *chunk*, points ``[start, stop)``.
-
-    Returns
-    -------
-    int : kept points in the chunk.
-    """
+    """Task: input chunk *chunk*'s keep mask in input order, points ``[start, stop)``; returns its kept count."""
     from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
@@ -37,9 +29,8 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     labels = np.asarray(g["partition/cell"][start:stop])
     regions = g["simplify/regions"]
     first = np.asarray(regions.get_coordinate_selection(runs[:, 0])) if len(runs) else np.empty(0, np.int64)
-    # each run's keep decisions are a slice of the cell-ordered array: read in one call of zarr's event loop
-    # and put back in input order in one pass (not a coordinate selection of the chunk's n positions and a
-    # stable argsort of its labels, which cost twice as much)
+    # each run's decisions are a slice of the cell-ordered array: read in one event-loop call, put back
+    # in input order in one pass
     kc = g["simplify/keep_cells"].async_array
     parts = gathered(kc.getitem(slice(int(b), int(b) + int(c))) for b, c in zip(first + runs[:, 2], runs[:, 1]))
     src = np.concatenate([np.asarray(p) for p in parts]) if parts else np.empty(0, bool)
@@ -51,12 +42,7 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
 
 
 def run_merge(store, runner) -> list[int]:
-    """The merge stage: one :func:`merge_task` per input chunk of *store* (``simplify/keep`` must exist).
-
-    Returns
-    -------
-    list of int : kept points per input chunk (the export's plan).
-    """
+    """The merge stage: a :func:`merge_task` per input chunk; kept points per chunk (the export's plan)."""
     n, step = store.count, store.chunk_size
     args = [(store.path, c, s, min(s + step, n)) for c, s in enumerate(range(0, n, step))]
     return [int(k) for k in runner(merge_task, args, "merge")]

@@ -1,11 +1,5 @@
-"""The out-of-core run of :func:`cloudsieve.engine.simplify.run_simplify`: the work store and the stages on dask.
-
-:func:`run_store` runs the stages the module docstring of :mod:`.simplify`
-lists, through one :class:`~.runner.Runner`, on a run already checked
-(:func:`.checks.check_run`). A small input's run (:mod:`.small`) imports
-none of this: the store, zarr, dask and the stages' modules, whose imports
-cost a small file's run more than its points.
-"""
+"""The out-of-core run: :func:`run_store` runs the stages :mod:`.simplify` lists on a checked run
+(:func:`.checks.check_run`). A small input's run (:mod:`.small`) imports none of this."""
 
 from __future__ import annotations
 
@@ -37,14 +31,13 @@ from .summary import Summary
 
 __all__ = ["run_store"]
 
-logger = logging.getLogger("cloudsieve.engine.simplify")  # the run's messages, under the name users filter on
+logger = logging.getLogger("cloudsieve.engine.simplify")  # the name users filter on
 
 
 @dataclass(frozen=True)
 class RunHooks:
-    """How a run reports: *account* is called once the kept count is known, before DST is written; *progress*
-    with the points done; *finished* with the summary before it is recorded in the store; *bars* and *notify*
-    as :func:`cloudsieve.engine.simplify` takes them."""
+    """How a run reports: *account* once the kept count is known, before DST is written; *progress* with
+    the points done; *finished* with the summary before it is stored; *bars*, *notify* as in simplify."""
 
     account: Callable[[Summary], None]
     progress: Callable[[int], None]
@@ -55,8 +48,7 @@ class RunHooks:
 
 def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, summary: Summary, hooks: RunHooks, *,
               client=None) -> Summary:
-    """The run through the work store of *checked*: ingest (unless the store holds it), partition, cells, merge,
-    export, reported through *hooks*. Returns *summary*."""
+    """The run through the work store of *checked*, reported through *hooks*; returns *summary*."""
     account, progress, bars, notify, finished = hooks.account, hooks.progress, hooks.bars, hooks.notify, hooks.finished
     (rule, ratio, count, cluster_size, cell_size, workers, memory_limit, seed, overwrite, format, chunk_size,
      context, k0, k_min, drop_invalid, tile_size) = (
@@ -70,12 +62,12 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
         runner = Runner(scheduler, workers, memory_limit, client, bars, warm=targets_of(rule))
 
         def close_runner():
-            if runner.remote_client is not None:  # no worker sample in flight on the client that closes
+            if runner.remote_client is not None:  # no sample in flight on a closing client
                 peak.stop()
             runner.close()
 
         summary.scheduler = runner.name
-        if runner.remote_client is not None:  # the work runs on the workers: their memory, not the client's
+        if runner.remote_client is not None:  # the workers' memory, not the client's
             peak.watch_workers(runner.remote_client)
         if runner.dashboard_link:
             logger.info("dask dashboard: %s", runner.dashboard_link)
@@ -83,9 +75,9 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 notify(f"dask dashboard: {runner.dashboard_link}")
         try:
             t0 = time.perf_counter()
-            taken = None  # the partition's sample, taken while ingesting (a streamed format only)
+            taken = None  # sampled during a streamed ingest
             if st is None:
-                runner.prestart()  # the workers start while the driver plans (or streams) the ingest
+                runner.prestart()  # workers start during the ingest
                 taken = IngestSample(cell_size, seed)
                 st = workstore.ingest_source(src, store_path, chunk_size=chunk_size, progress=progress,
                                              drop_invalid=drop_invalid, on_chunk=taken, run=runner, bars=bars)
@@ -98,9 +90,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             target = None
             if ratio is not None or count is not None:
                 target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
-            # the elimination's r_max and margin come with the partition
             elim = target if get_rule(rule).engine == ELIMINATION else None
-            halo = bool(context) or elim is not None  # halo sources: read with a density context, or to eliminate
+            halo = bool(context) or elim is not None
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
                                       eliminate_target=elim)
             if part is None:
@@ -114,7 +105,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            block = workstore.region_block(cell_size, remote=local_path(st.path) is None)  # larger on S3
+            block = workstore.region_block(cell_size, remote=local_path(st.path) is None)
             regions, total = workstore.regions(part.cell_counts, block)
             workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions, workstore.region_block(cell_size))
             if target is None:
@@ -126,7 +117,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
                 progress(points)
-                with runner.stage("cells: threshold"):  # its histogram rounds: one bar
+                with runner.stage("cells: threshold"):  # one bar for all rounds
                     summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
@@ -143,19 +134,19 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.seconds["merge"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            # tasks write the parts (or the tiles), to a path or a URL; otherwise (PLY, XYZ) the export streams here
+            # tasks write the parts or tiles; other formats (PLY, XYZ) stream here
             tasks = tile_size is not None or detect_format(dst, format) in ("las", "laz", "copc")
             if not tasks:
-                close_runner()  # the workers' memory goes now
-            staging.remove_stale_scratch(dst)  # a URL: the parts an interrupted run left beside DST
+                close_runner()  # frees the workers' memory
+            staging.remove_stale_scratch(dst)  # a URL: parts an interrupted run left
             with stage_bar(bars, "export", summary.kept, "pt") as bar:
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"], retries = runner.worker_counts()
-            summary.storage = {"retries": retries}  # the driver's own are added when the run is finished
+            summary.storage = {"retries": retries}  # the driver's are added at the end
         except TargetNotMetError:
-            if default_store:  # the run is complete and would end the same: nothing is left behind
+            if default_store:  # complete and would end the same
                 delete_store(store_path)
             raise
         finally:

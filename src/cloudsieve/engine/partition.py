@@ -1,48 +1,21 @@
-"""Stage 2, partition: coarse spatial K-means cells, bucketed out of core, with halos.
+"""Stage 2, partition: P = ceil(N / cell_size) coarse K-means cells, bucketed out of core, with halos.
 
-A store of N points is cut into P = ceil(N / cell_size) cells:
+A seeded uniform sample (:mod:`.sample`), P centres by
+:class:`~cloudsieve.core.KMeans` on it, one label-and-bucket task per input
+chunk (:mod:`.label`), and the run tables (:mod:`.runs`). Layout under ``partition/``::
 
-1. **sample** -- a uniform sample of S points (indices drawn once from the seed,
-   so the sample does not depend on the store's chunking), read chunk by chunk,
-   or taken while the ingest wrote the store (:mod:`.sample`);
-2. **fit** -- P centres by the core :class:`~cloudsieve.core.KMeans` on the
-   sample (coordinates taken relative to the store's lower bound);
-3. **label + bucket** -- one task per input chunk (:mod:`.label`) labels its
-   points with the nearest centre and writes them, sorted by cell inside the
-   chunk, to its own row of ``partition/xyz``;
-4. **index** -- the nonzero (chunk, cell) runs as two CSR tables (:mod:`.runs`).
+    centers     float64 (P, 3)           cell centres (absolute coordinates)
+    cell        int32   (N,)             cell of every point, input order
+    xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell (stable),
+                                         one shard per row (int32 for LAS integers)
+    chunk_ptr, chunk_runs, cell_ptr,     the run tables and points per cell (:mod:`.runs`)
+    cell_runs, cell_count
+    halo_ptr, halo_src                   CSR: for cell i, the cells that may hold its halo
 
-Layout written into the store (all under ``partition/``)::
-
-    centers     float64 (P, 3)          cell centres (absolute coordinates)
-    cell        int32   (N,)            cell of every point, input order
-    xyz         float64 (n_chunks, R, 3) row c: chunk c's points sorted by cell
-                                         (stable), R = chunk size rounded up to the
-                                         inner chunk; sharded, one shard per row,
-                                         so a slice reads only the inner chunks it
-                                         touches; int32, the LAS integers, in a store
-                                         that keeps them (decoded as its xyz)
-    chunk_ptr, chunk_runs, cell_ptr,     the run tables and points per cell
-    cell_runs, cell_count                (see :mod:`cloudsieve.engine.runs`)
-    halo_ptr, halo_src                   CSR: for cell i, the cells that may hold
-                                         points of i's halo
-
-This is a two-level CSR: the points of cell j are, in input order, its runs
-``xyz[c, start:start + count]``. ``xyz`` is written in one pass with
-chunk-aligned, conflict-free writes (concurrent tasks never share a zarr chunk),
-and read back with one small sharded slice per run. The order of a cell's
-points is increasing input index, whatever the scheduler.
-
-Halo (:mod:`cloudsieve.engine.halo`): the points of other cells within
-``margin`` of a cell's region. ``margin`` is a few k-NN radii (``HALO_RADII``
-times r_k, k the entropy neighbourhood size of a cluster of ``cluster_size``
-points), r_k estimated on the sample and scaled to full density with the
-sample's intrinsic dimension. Halo points are density context only, never
-pruned. For the ``eliminate`` rule (``eliminate_target``), the one global
-elimination radius r_max is solved on the same sample
-(:func:`cloudsieve.core.radius.global_radius`), recorded as ``r_max``,
-and the margin is at least ``ELIMINATE_RADII`` r_max (the elimination and the
-relocation reach 2 r_max).
+The halo (:mod:`cloudsieve.engine.halo`) is the points of other cells within
+``margin``: ``HALO_RADII`` k-NN radii estimated on the sample, and for the
+eliminate rule at least ``ELIMINATE_RADII`` r_max
+(:func:`cloudsieve.core.radius.global_radius`).
 """
 
 from __future__ import annotations
@@ -80,24 +53,20 @@ __all__ = [
 logger = logging.getLogger(__name__)
 
 PARTITION_ATTR = "cloudsieve_partition"
-PARTITION_VERSION = 3  # 3: partition/xyz holds the LAS integers of such a store; 2 float64; 1 a dense counts table
+PARTITION_VERSION = 3
 #: halo margin, in k-NN radii of the full-density cloud
 HALO_RADII = 3.0
 #: halo margin of the eliminate rule, in elimination radii r_max (its reach is 2 r_max)
 ELIMINATE_RADII = 2.2
-#: inner chunk of the sharded ``partition/xyz`` rows (points): each is read whole, by one request in a
-#: store on object storage (REMOTE_INNER_CHUNK there: a request costs what about 3 MB of bytes does)
+#: inner chunk of the sharded ``partition/xyz`` rows, in points (REMOTE_INNER_CHUNK on object storage)
 INNER_CHUNK = 16384
 REMOTE_INNER_CHUNK = 65536
 
 
 def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray) -> np.ndarray:
-    """P centres by K-means on the sample (relative to *origin*), absolute coordinates.
+    """P centres by K-means on the sample (relative to *origin*): (n_cells, 3) float64, absolute.
 
-    Returns
-    -------
-    ndarray of shape (n_cells, 3), float64, sorted lexicographically (x, y, z)
-    so that cell ids do not depend on the K-means initialisation order.
+    Sorted lexicographically (x, y, z) so cell ids do not depend on the K-means initialisation.
     """
     rel = sample - origin
     if n_cells <= 1:
@@ -113,15 +82,10 @@ def fit_centers(sample: np.ndarray, n_cells: int, seed: int, origin: np.ndarray)
 
 
 def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tuple[float, float, float]:
-    """k-NN radius of the full cloud, estimated on the sample; and the halo margin.
+    """``(r_k, dimension, margin)``: the full cloud's k-NN radius estimated on the sample, and the halo margin.
 
-    The median distance to the k-th neighbour is measured at sample sizes S
-    and S/8; their ratio gives the intrinsic dimension d (clipped to [1, 3]),
-    and ``r_full = r_S * (S / N) ** (1 / d)``.
-
-    Returns
-    -------
-    (r_k, dimension, margin) : tuple of float
+    Median k-th neighbour distances at sample sizes S and S/8 give the
+    intrinsic dimension d (clipped to [1, 3]); ``r_full = r_S * (S / N) ** (1 / d)``.
     """
     s = len(sample)
     if s < 16 * (k + 2):
@@ -135,7 +99,7 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
     rel = sample - sample.mean(axis=0)
     q = rel[perm[: min(s, 4000)]]
     sub = rel[perm[: s // 8]]
-    from scipy.spatial import cKDTree  # here: scipy.spatial's import costs a small run more than its work
+    from scipy.spatial import cKDTree  # here: its import costs a small run more than its work
 
     r1 = float(np.median(cKDTree(rel).query(q, k=k + 1)[0][:, k]))
     r2 = float(np.median(cKDTree(sub).query(q, k=k + 1)[0][:, k]))
@@ -149,26 +113,12 @@ def estimate_margin(sample: np.ndarray, n_total: int, k: int, seed: int) -> tupl
 
 @dataclass
 class Partition:
-    """The partition of a store, as read back from ``partition/`` (arrays of size P only).
+    """The partition of a store, read back from ``partition/`` (arrays of size P only).
 
-    Attributes
-    ----------
-    centers : ndarray of shape (P, 3)
-    cell_counts : ndarray of shape (P,), int64
-        Points per cell.
-    halo_ptr : ndarray of shape (P + 1,), int64
-    halo_src : ndarray of shape (h,), int64
-        Cells that may hold halo points of cell i: ``halo_src[halo_ptr[i]:halo_ptr[i+1]]``.
-    margin : float
-    chunk_size : int
-        Points per input chunk.
-    r_max : float or None
-        The global elimination radius of the eliminate rule (inf: every point
-        kept), None for the other rules.
-    n_chunks, n_runs : int
-        Input chunks; nonzero (chunk, cell) runs.
-    group : zarr.Group
-        The store's group: the run tables are read from it on demand.
+    ``halo_src[halo_ptr[i]:halo_ptr[i+1]]`` are the cells that may hold halo
+    points of cell i; *r_max* is the eliminate rule's global radius (inf:
+    every point kept; None for other rules); *group* is the store's group,
+    from which the run tables are read on demand.
     """
 
     centers: np.ndarray
@@ -204,8 +154,7 @@ class Partition:
         Raises
         ------
         PartitionLayoutError
-            The store holds no complete partition, or one written in another
-            layout (an older cloudsieve): partition the store again.
+            No complete partition, or one in another layout: partition again.
         """
         g = store.group
         meta = store.attrs.get(PARTITION_ATTR)
@@ -238,10 +187,9 @@ def row_layout(chunk_size: int, remote: bool = False) -> tuple[int, int]:
 
 def fit_sample(sample: np.ndarray, n: int, n_cells: int, seed: int, origin: np.ndarray, k: int,
                eliminate_target: int | None) -> tuple[np.ndarray, tuple[float, float, float], float | None]:
-    """What the partition draws from its sample of a cloud of *n* points: the centres (:func:`fit_centers`),
-    ``(r_k, dimension, margin)`` (:func:`estimate_margin`; zeros for one cell, which has no halo) and r_max
-    for *eliminate_target* (None without), the margin then at least ``ELIMINATE_RADII`` r_max. The K-means
-    runs on a second thread beside the margin and r_max (each a function of the sample alone)."""
+    """Centres, ``(r_k, dimension, margin)`` (zeros for one cell) and r_max (None without *eliminate_target*).
+
+    The K-means runs on a second thread beside the margin and r_max."""
     with ThreadPoolExecutor(1) as side:
         centers = side.submit(fit_centers, sample, n_cells, seed, origin)
         if n_cells > 1:
@@ -259,8 +207,7 @@ def fit_sample(sample: np.ndarray, n: int, n_cells: int, seed: int, origin: np.n
 
 
 def halo_lists(pairs: np.ndarray, n_cells: int) -> tuple[np.ndarray, np.ndarray]:
-    """The halo CSR (``halo_ptr`` (P + 1,), ``halo_src`` (h,), int64) of the (cell, source) *pairs* (h, 2),
-    rows sorted by (cell, source)."""
+    """The halo CSR (``halo_ptr`` (P + 1,), ``halo_src`` (h,), int64) of (cell, source) *pairs* sorted by row."""
     halo_ptr = np.zeros(n_cells + 1, dtype=np.int64)
     np.cumsum(np.bincount(pairs[:, 0], minlength=n_cells), out=halo_ptr[1:])
     return halo_ptr, pairs[:, 1].astype(np.int64)
@@ -270,34 +217,13 @@ def build_partition(
     store, *, cell_size: int, cluster_size: int, seed: int, run, k0: float = 1.0, k_min: int = 4, halo: bool = True,
     eliminate_target: int | None = None, sample: np.ndarray | None = None,
 ) -> Partition:
-    """Partition *store* into cells (stage 2) and record it in the store.
+    """Partition *store* (opened "r+") into P = ceil(N / cell_size) cells and record it in the store.
 
-    Parameters
-    ----------
-    store : PointStore
-        Opened writable ("r+").
-    cell_size : int
-        Target points per cell; P = ceil(N / cell_size).
-    cluster_size : int
-        Points per small cluster of the refine stage (sets the halo's k).
-    seed : int
-    run : callable
-        ``run(func, argument_tuples, stage) -> list of results in order``: the
-        engine's task runner (any dask scheduler).
-    halo : bool
-        List the halo sources of every cell (needed by cell tasks that use a
-        density context); False leaves them empty and labels faster. Recorded
-        as ``"halo"`` in the partition's attributes.
-    eliminate_target : int, optional
-        The kept count of an ``eliminate`` run: r_max is solved on the sample
-        for it and recorded, and the margin is at least ``ELIMINATE_RADII`` r_max.
-    sample : ndarray of shape (S, 3), optional
-        The sample of :func:`plan_sample` already in hand (taken by the
-        ingest, :meth:`IngestSample.sample`); else read from the store.
-
-    Returns
-    -------
-    Partition
+    *cluster_size* sets the halo's k; *run* is the engine's runner; *halo*
+    lists every cell's halo sources (for a density context; False labels
+    faster); *eliminate_target*, the kept count of an ``eliminate`` run, has
+    r_max solved and recorded; *sample*: the ingest's
+    (:meth:`IngestSample.sample`), else read from the store.
     """
     n = store.count
     chunk = store.chunk_size
@@ -331,8 +257,7 @@ def build_partition(
         "partition/xyz", shape=(n_chunks, r_len, 3), dtype="float64" if store.xyz_scale is None else "int32",
         chunks=(1, inner, 3), shards=(1, r_len, 3)
     )
-    # scratch: row c holds chunk c's nonzero runs; only the zarr chunks a task
-    # writes are stored (about nnz entries), the logical shape is never filled
+    # scratch: row c holds chunk c's nonzero runs; only the written zarr chunks are stored
     width = max(1, min(chunk, p))
     store.create_array("partition/label_runs", shape=(n_chunks, width, 2), dtype="int64", chunks=(1, min(width, 4096), 2))
     args = [(path, c, s, min(s + chunk, n), margin, bool(halo)) for c, s in enumerate(starts)]
@@ -370,20 +295,17 @@ def build_partition(
 
 def reusable_partition(store, *, cell_size: int, cluster_size: int, seed: int, halo: bool,
                        eliminate_target: int | None = None) -> Partition | None:
-    """The partition recorded in *store* if a run with these parameters can reuse it, else None.
+    """The partition in *store* if a run with these parameters can reuse it, else None.
 
-    It must be complete, in this version's layout (an older layout is
-    rebuilt, with a log message), made with the same cell size, cluster
-    size and seed, list halo sources when *halo* is needed, and have been
-    made for the same *eliminate_target* (None: not for the eliminate rule;
-    its r_max and margin depend on the count).
+    Requires a complete partition in this layout, the same cell size,
+    cluster size, seed and *eliminate_target*, and halo sources if *halo*.
     """
     meta = store.attrs.get(PARTITION_ATTR)
     want = {"cell_size": int(cell_size), "cluster_size": int(cluster_size), "seed": int(seed),
             "eliminate_target": None if eliminate_target is None else int(eliminate_target)}
     complete = isinstance(meta, dict) and meta.get("complete")
     if complete and meta.get("version") != PARTITION_VERSION:
-        # an older layout (version 1: a dense chunks x cells table): rebuilt, with the cells
+        # an older layout: rebuilt, with the cells
         logger.info(
             "the partition in %s has layout version %s (this version writes %d): partitioning again",
             store.path, meta.get("version"), PARTITION_VERSION,

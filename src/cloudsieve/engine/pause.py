@@ -1,26 +1,10 @@
 """A test hook: stop a run at a named point, so a test interrupts it there and not by racing it.
 
-``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>`` in a run's environment:
-when the run reaches *point* it appends its process id and a newline to the
-marker file (``#once``: creates it) and blocks until a signal ends it or the test removes the marker
-file (the run then goes on: a test changes the world meanwhile, e.g. stops a server). Unset, or naming another
-point, it does nothing. The points (:class:`.runner.Runner`, the one task
-runner):
-
-- ``driver:<stage>``: the driver, before it starts the tasks of *stage*
-  (``cells``, ``cells: score``, ``partition: label``...);
-- ``task:<stage>``: each task of *stage*, in its worker process, before it
-  runs (the environment is the driver's: workers and the fork server
-  inherit it); ``task:<stage>#<n>``: only the n-th task of *stage* to start
-  in a process (from 1; the others run): with the "sync" or "threads"
-  scheduler, n - 1 tasks are done when the run stops;
-  ``task:<stage>#once``: only the first task of *stage* to start in any
-  process (the one that creates the marker file; the others, and the task
-  again when its worker is killed and the task rerun, run on).
-
-``tests/test_ops_orphans.py`` waits for the marker, then sends SIGKILL or
-SIGINT to the driver; ``tests/test_engine_simplify.py`` kills the driver
-after 3 cells, or the worker that holds a task.
+``CLOUDSIEVE_TEST_PAUSE_AT=<point>=<marker file>``: at *point* the run appends
+its pid to the marker file and blocks until a signal or the file's removal.
+Points: ``driver:<stage>`` (before the stage's tasks start), ``task:<stage>``
+(each task, in its worker), ``task:<stage>#<n>`` (the n-th task to start in a
+process), ``task:<stage>#once`` (the first task in any process).
 """
 
 from __future__ import annotations
@@ -35,11 +19,11 @@ __all__ = ["PAUSE_ENV", "paused", "pause_at", "pausing_task"]
 PAUSE_ENV = "CLOUDSIEVE_TEST_PAUSE_AT"
 
 
-_arrivals: dict[str, itertools.count] = {}  # point -> the calls of pause_at there in this process
+_arrivals: dict[str, itertools.count] = {}  # point -> calls of pause_at there in this process
 
 
 def paused(point: str) -> str | None:
-    """The marker file when the environment asks to pause at *point* (at one of its arrivals), else None."""
+    """The marker file when the environment asks to pause at *point*, else None."""
     value = os.environ.get(PAUSE_ENV)
     if not value:
         return None
@@ -63,10 +47,10 @@ def pause_at(point: str) -> None:
     else:
         if nth and next(_arrivals.setdefault(point, itertools.count(1))) != int(nth):
             return
-        with open(marker, "a") as fh:  # one line per process that stopped here (O_APPEND: lines never interleave)
+        with open(marker, "a") as fh:  # O_APPEND: lines never interleave
             fh.write(f"{os.getpid()}\n")
-    while os.path.exists(marker):  # a signal ends it (SIGINT: KeyboardInterrupt in the driver)
-        time.sleep(0.1)  # the test removed the marker: the run goes on
+    while os.path.exists(marker):  # a signal ends it
+        time.sleep(0.1)  # removed marker: the run goes on
 
 
 def pausing_task(func: Callable, stage: str) -> Callable:
@@ -76,7 +60,7 @@ def pausing_task(func: Callable, stage: str) -> Callable:
     import functools
 
     wrapped = functools.partial(_paused_call, f"task:{stage}", func)
-    wrapped.__name__ = getattr(func, "__name__", "task")  # the runner names the tasks' keys after it
+    wrapped.__name__ = getattr(func, "__name__", "task")  # the runner names task keys after it
     return wrapped
 
 

@@ -1,11 +1,7 @@
-"""The one task runner: batches of independent calls on dask.
+"""The one task runner: :class:`Runner` runs batches of independent calls on dask.
 
-Used by the engine (every stage's tasks) and by the evaluation's stages:
-:class:`Runner` runs a batch of tasks on the chosen dask scheduler (results in
-argument order, one progress bar per stage); its local process pool is
-:mod:`.pool`'s. Calls streamed to a cluster or run in forked children are
-:mod:`.calls`' (:func:`~.calls.imap`, :func:`~.calls.forked`);
-:class:`PeakMemory` samples the memory of this process and its children.
+Used by the engine's stages and the evaluation's; its local process pool is
+:mod:`.pool`'s, streamed and forked calls are :mod:`.calls`'.
 """
 
 from __future__ import annotations
@@ -25,7 +21,7 @@ from ..errors import InvalidParameterError
 from ..progress import stage_bar
 from .. import handles
 from . import ahead
-from .memory import PeakMemory  # noqa: F401  (re-exported: its home before engine/memory.py)
+from .memory import PeakMemory  # noqa: F401  (re-exported)
 from .pause import pause_at, pausing_task
 from .pool import local_pool, start_forkserver, worker_context
 
@@ -33,43 +29,33 @@ __all__ = ["Runner", "PeakMemory", "DEFAULT_SCHEDULER"]
 
 logger = logging.getLogger(__name__)
 
-#: the embedded default local scheduler (measured faster than threads: see :class:`Runner`)
+#: the embedded default local scheduler (faster than threads: see :class:`Runner`)
 DEFAULT_SCHEDULER = "processes"
 
-#: the scheduler of a LocalCluster without a dashboard still serves HTTP (health checks), on port 8787 unless told
-#: otherwise: any free port instead, so no "Port 8787 is already in use" warning beside another cluster
+#: a LocalCluster's scheduler serves HTTP even without a dashboard: any free port, not a clash on 8787
 NO_HTTP_PORT = {"dashboard_address": ":0"}
 
 
 class Runner:
     """Runs batches of independent tasks on the chosen dask scheduler.
 
-    ``runner(func, argument_tuples, stage)`` returns the results in the order
-    of the arguments, whatever the completion order.
+    ``runner(func, argument_tuples, stage)`` returns the results in argument
+    order, whatever the completion order.
 
     Parameters
     ----------
     scheduler : str, optional
-        None (the embedded default, :data:`DEFAULT_SCHEDULER`): dask's local
-        "processes" scheduler with one process pool for the whole run
-        (faster than threads: the in-memory method holds the GIL in its
-        Python parts); with *memory_limit* a
-        :class:`distributed.LocalCluster` of *workers* processes, each
-        capped. "sync", "threads", "processes": dask's local schedulers.
-        "tcp://host:port": an existing dask.distributed cluster whose workers
-        can reach the store path.
-    workers : int, optional
-        Local worker count (threads/processes/LocalCluster).
-    memory_limit : str or int, optional
-        Per-worker memory cap: runs a LocalCluster of *workers* processes.
-    client : distributed.Client, optional
-        Run on this cluster.
-    bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``.
+        None (:data:`DEFAULT_SCHEDULER`): dask's "processes" scheduler with one
+        process pool for the whole run (the in-memory method holds the GIL in
+        its Python parts), or with *memory_limit* a
+        :class:`distributed.LocalCluster` of capped workers. "sync",
+        "threads", "processes": dask's local schedulers. "tcp://host:port": an
+        existing dask.distributed cluster whose workers reach the store.
+    workers, memory_limit, client, bars
+        As :func:`cloudsieve.engine.simplify` takes them.
     warm : tuple of str
-        The warm-up targets of the run's tasks
-        (:func:`cloudsieve.rule_table.targets_of`): the local
-        process pool's fork server compiles them before it forks a worker.
+        Warm-up targets (:func:`cloudsieve.rule_table.targets_of`) the pool's
+        fork server compiles before it forks a worker.
     """
 
     def __init__(self, scheduler=None, workers=None, memory_limit=None, client=None, bars=None,
@@ -79,14 +65,14 @@ class Runner:
         self._cluster = None
         self.workers = workers
         self.bars = bars
-        self._stages: dict[str, Callable[[int], None]] = {}  # stages opened by :meth:`stage`
+        self._stages: dict[str, Callable[[int], None]] = {}  # open :meth:`stage` blocks
         self._pool = None  # the local process pool ("processes")
-        self._prestart: threading.Thread | None = None  # :meth:`prestart`'s thread
-        self.task_cpu = 0.0  # CPU seconds of the local worker processes' tasks (the "processes" pool)
-        self.task_retries = 0  # the object store's retries in those tasks (:mod:`cloudsieve.storage_retries`)
-        self._cpu_start: dict | None = None  # each dask.distributed worker's (CPU time, retries) when the run began
-        self._cpu_closed: tuple[float, int] | None = None  # (:meth:`worker_counts`) at close
-        self._ahead = None  # a process compiling kernels ahead into an empty numba cache (:mod:`.ahead`)
+        self._prestart: threading.Thread | None = None
+        self.task_cpu = 0.0  # CPU seconds of the local pool's tasks
+        self.task_retries = 0  # object-store retries in those tasks
+        self._cpu_start: dict | None = None  # each distributed worker's (CPU, retries) at the start
+        self._cpu_closed: tuple[float, int] | None = None  # :meth:`worker_counts` at close
+        self._ahead = None  # a process compiling kernels ahead (:mod:`.ahead`)
         if client is not None:
             self.name = f"distributed ({getattr(client, 'scheduler', None) and client.scheduler.address})"
             self._cpu_start = _workers_cpu(client)
@@ -94,7 +80,7 @@ class Runner:
         if isinstance(scheduler, str) and "://" in scheduler:
             from ..scheduler import connect
 
-            self.client = connect(scheduler)  # dask's OSError becomes a SchedulerUnreachableError
+            self.client = connect(scheduler)
             self._own_client = True
             self.name = f"distributed ({scheduler})"
             self._cpu_start = _workers_cpu(self.client)
@@ -129,23 +115,19 @@ class Runner:
             )
         self.local = "sync" if scheduler == "synchronous" else scheduler
         self.name = self.local + (f" ({workers} workers)" if workers and self.local != "sync" else "")
-        self._ahead = ahead.start(warm)  # this process (or the fork server) compiles the rest meanwhile
+        self._ahead = ahead.start(warm)
         if self.local == "processes":
-            # one pool for the whole run: dask would start (and import into) a
-            # new pool at every compute() otherwise, seconds per stage
+            # one pool for the whole run: dask would start a new pool at every compute()
             self._context = worker_context()
-            start_forkserver(self._context, warm)  # it warms up while the driver ingests
+            start_forkserver(self._context, warm)  # warms up while the driver ingests
             self._pool = local_pool(int(workers or os.cpu_count() or 1), self._context)
 
     @property
     def task_threads(self) -> int:
-        """k-d tree threads for each cell task: the machine's cores shared by the tasks running at once.
+        """k-d tree threads per cell task: the cores shared by the tasks running at once.
 
-        Without this every task queries with all cores (the core's
-        default): 2 worker processes on 2 cores ran 4 k-d tree threads. A
-        single worker still gets every core (its queries are threaded). On a
-        dask.distributed cluster the workers' threads are assumed to fill
-        their machines: 1. The results do not depend on it.
+        One local worker gets every core; a dask.distributed cluster's workers
+        are assumed to fill their machines (1). Results do not depend on it.
         """
         cores = os.cpu_count() or 1
         if self.client is not None and self._cluster is None:
@@ -156,8 +138,7 @@ class Runner:
 
     @property
     def remote_client(self):
-        """The client of a dask.distributed cluster this runner did not start (its workers live
-        elsewhere: their memory is not this process's children's), or None."""
+        """The client of a dask.distributed cluster this runner did not start, or None."""
         return self.client if self.client is not None and self._cluster is None else None
 
     @property
@@ -170,29 +151,26 @@ class Runner:
         return None
 
     def prestart(self) -> None:
-        """Start the local worker processes now, in a background thread (the local process pool only).
+        """Start the local pool's worker processes now, in a background thread, and return.
 
-        The first task of a run otherwise waits for the fork server to start,
-        import its preload modules and load the kernels; started while the
-        driver ingests, that overlaps the ingest. Returns at once; the tasks and their results are the same.
+        Overlaps the workers' start-up (fork server, preload imports, kernels)
+        with the ingest; tasks and results are the same.
         """
         pool = self._pool
-        # spawned workers would be the thread's children, and die with it (PR_SET_PDEATHSIG)
+        # a thread's spawned children die with it (PR_SET_PDEATHSIG)
         if pool is None or self._prestart is not None or self._context.get_start_method() != "forkserver":
             return
         from multiprocessing import forkserver
 
-        # the fork server from this thread: it dies with the thread that started it (PR_SET_PDEATHSIG), and
-        # the workers it forks with it, so not from the short-lived thread below
+        # the fork server from this long-lived thread: it dies with the thread that starts it
         forkserver.ensure_running()
         n = int(self.workers or os.cpu_count() or 1)
 
         def start() -> None:
-            with contextlib.suppress(RuntimeError):  # the pool was shut down first (a run that failed early)
+            with contextlib.suppress(RuntimeError):  # the pool was shut down first
                 for _ in range(n):
                     pool.submit(os.getpid)
-                # CPython's executor starts a worker only when none is idle: one whose task ended before the
-                # next submit took that one too, so the rest are started here (its own method, 3.9 and later)
+                # CPython's executor starts a worker only when none is idle: start the rest here
                 with pool._shutdown_lock:
                     while not pool._shutdown_thread and len(pool._processes) < n:
                         pool._spawn_process()
@@ -201,20 +179,15 @@ class Runner:
         self._prestart.start()
 
     def worker_cpu(self) -> float:
-        """CPU seconds the worker processes spent on this run so far (0 when the tasks run in this process).
+        """CPU seconds the worker processes spent on this run so far (0 when tasks run in this process).
 
-        The local process pool: the sum of its tasks' CPU times, each measured
-        in its worker process (one task at a time there). A dask.distributed
-        cluster: each worker process's CPU time now less when the run began,
-        summed (a worker that left during the run is missed). The "sync" and
-        "threads" schedulers run the tasks in this process: their CPU is
-        this process's own.
+        The local pool sums its tasks' CPU times; a dask.distributed cluster
+        sums each worker's CPU since the start (a worker that left is missed).
         """
         return self.worker_counts()[0]
 
     def worker_counts(self) -> tuple[float, int]:
-        """``(worker_cpu(), the object store's retries in the worker processes during this run so far)``, the
-        retries counted as the CPU is (0 when the tasks run in this process: its own count has them)."""
+        """``(worker_cpu(), object-store retries in the workers so far)``, counted as the CPU is."""
         if self._cpu_closed is not None:
             return self._cpu_closed
         if self.client is not None and self._cpu_start is not None:
@@ -235,7 +208,7 @@ class Runner:
             self._pool.shutdown(wait=True)
             self._pool = None
         if self._own_client and self.client is not None:
-            self._cpu_closed = self.worker_counts()  # a closed client asks its workers nothing
+            self._cpu_closed = self.worker_counts()  # a closed client cannot ask its workers
             self.client.close()
             self._own_client = False
         if self._cluster is not None:
@@ -243,12 +216,7 @@ class Runner:
 
     @contextlib.contextmanager
     def stage(self, stage: str, unit: str = "task") -> Iterator[None]:
-        """One bar (or log line) for every batch of stage *stage* run inside the block.
-
-        A stage of several batches (the rounds of the global threshold's
-        histograms) is then shown once, counting all their tasks, not once
-        per batch.
-        """
+        """One bar (or log line) for every batch of stage *stage* run inside the block (e.g. threshold rounds)."""
         with stage_bar(self.bars, stage, None, unit) as update:
             self._stages[stage] = update
             try:
@@ -260,9 +228,8 @@ class Runner:
                  after: Sequence[Sequence[int]] | None = None) -> list:
         """``[func(*a) for a in args]`` as tasks of stage *stage*, results in argument order.
 
-        *after*, one sequence per task: the tasks (indices into *args*, each
-        lower than the task's own) that must finish before it starts; the
-        others run in parallel. None: all in parallel.
+        *after*, one sequence per task: indices of earlier tasks that must
+        finish before it starts. None: all in parallel.
         """
         args = list(args)
         if not args:
@@ -276,9 +243,9 @@ class Runner:
             return self._run(func, args, deps, stage, update)
 
     def _run(self, func, args, deps, stage, update) -> list:
-        pause_at(f"driver:{stage}")  # a test's stop (engine/pause.py); nothing unless the environment asks
-        func = storage.bound(pausing_task(func, stage))  # the run's storage options, in whichever process
-        func = handles.per_stage(func)  # a store's group and arrays opened once per stage in a worker process
+        pause_at(f"driver:{stage}")  # a test's stop (engine/pause.py)
+        func = storage.bound(pausing_task(func, stage))  # the run's storage options, in any process
+        func = handles.per_stage(func)  # store handles opened once per stage in a worker
         if self.client is not None:
             return self._distributed(func, args, deps, stage, update)
         return self._local(func, args, deps, update)
@@ -291,7 +258,7 @@ class Runner:
         futures: list = []
         for i, a in enumerate(args):
             key = f"cloudsieve-{tag}-{i}-{token}"
-            if deps[i]:  # futures as arguments: the scheduler starts the task once they are done
+            if deps[i]:  # futures as arguments: started once they are done
                 f = self.client.submit(_after, func, len(a), *a, *[futures[j] for j in deps[i]], key=key, pure=False)
             else:
                 f = self.client.submit(func, *a, key=key, pure=False)
@@ -308,20 +275,18 @@ class Runner:
         import dask
         from dask.callbacks import Callback
 
-        # keys that sort in reverse argument order: dask's local scheduler then
-        # starts the tasks in argument order (with random keys it picks them
-        # in key order, i.e. at random), which the cells stage uses to start
-        # the largest cells first
+        # keys sorting in reverse argument order make dask's local scheduler start
+        # tasks in argument order (the cells stage starts the largest first)
         token = uuid.uuid4().hex[:8]
         last = len(args) - 1
         tasks: list = []
         name = func.__name__
         timed = self._pool is not None
-        if timed:  # each task's CPU and retries, measured in its worker process
+        if timed:  # each task's CPU and retries, measured in its worker
             func = functools.partial(_timed, func)
         for i, a in enumerate(args):
             key = f"cloudsieve-{name}-{token}-{last - i:09d}"
-            if deps[i]:  # delayed arguments: dependencies of the graph
+            if deps[i]:  # delayed arguments: graph dependencies
                 t = dask.delayed(_after, pure=False)(func, len(a), *a, *[tasks[j] for j in deps[i]], dask_key_name=key)
             else:
                 t = dask.delayed(func, pure=False)(*a, dask_key_name=key)
@@ -333,8 +298,7 @@ class Runner:
                 if key in keys:
                     update(1)
 
-        # the scheduler as a function: named by a string, dask imports distributed (a cost of its own) to
-        # look for a client first
+        # the scheduler as a function: a name makes dask import distributed
         from dask import local, multiprocessing, threaded
 
         get = {"sync": local.get_sync, "threads": threaded.get, "processes": multiprocessing.get}[self.local]
@@ -343,7 +307,7 @@ class Runner:
             kwargs["num_workers"] = int(self.workers)
         if self._pool is not None:
             kwargs["pool"] = self._pool
-            kwargs["chunksize"] = 1  # dask batches 6 tasks per submission by default: 6 cells on one worker
+            kwargs["chunksize"] = 1  # dask's default batches 6 tasks per worker
         with _Count():
             results = list(dask.compute(*tasks, **kwargs))
         if timed:
@@ -354,8 +318,7 @@ class Runner:
 
 
 def _timed(func: Callable, *args):
-    """``(func(*args), CPU seconds of this process while it ran, the object store's retries meanwhile)``: a
-    task in a worker process of its own."""
+    """``(func(*args), CPU seconds, object-store retries)`` of a task in a worker process."""
     t0, r0 = time.process_time(), storage_retries.counts()[1]
     result = func(*args)
     return result, time.process_time() - t0, storage_retries.counts()[1] - r0
@@ -366,8 +329,7 @@ def _process_counts() -> tuple[float, int]:
 
 
 def _workers_cpu(client) -> dict:
-    """Each dask.distributed worker's process CPU time (seconds) and the object store's retries in it, by
-    worker address."""
+    """Each dask.distributed worker's (CPU seconds, object-store retries), by address."""
     try:
         return {w: (float(v[0]), int(v[1])) for w, v in client.run(_process_counts).items()}
     except Exception:  # pragma: no cover - a cluster that refuses client.run
@@ -375,5 +337,5 @@ def _workers_cpu(client) -> dict:
 
 
 def _after(func: Callable, n: int, *args):
-    """``func(*args[:n])``: the rest are the results of the tasks it waited for (a task's extra inputs)."""
+    """``func(*args[:n])``: the other arguments are the results of the tasks it waited for."""
     return func(*args[:n])

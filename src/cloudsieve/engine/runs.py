@@ -1,27 +1,14 @@
 """The partition's run tables: two CSR views of the (chunk, cell) runs, and reading points by runs.
 
-The label pass (:func:`cloudsieve.engine.partition.label_chunk`) sorts each
-input chunk by cell into its row of ``partition/xyz``; a *run* is the points
-of one cell inside one chunk, contiguous in that row. Only the nonzero runs
-are stored (nnz of them, at most min(N, n_chunks * P) and about
-n_chunks + P for a spatially coherent input), so nothing of size
-n_chunks x P exists anywhere::
+A *run* is the points of one cell in one input chunk, contiguous in that
+chunk's row of ``partition/xyz``; only nonzero runs are stored::
 
-    chunk_ptr   int64   (n_chunks + 1,) CSR by chunk: the runs of chunk c are
-    chunk_runs  int64   (nnz, 3)          chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]],
-                                         rows (cell, count, first), cells increasing;
+    chunk_ptr   int64 (n_chunks + 1,)  by chunk: chunk_runs[chunk_ptr[c]:chunk_ptr[c + 1]]
+    chunk_runs  int64 (nnz, 3)           rows (cell, count, first), cells increasing;
                                          first = points of that cell in chunks < c
-    cell_ptr    int64   (P + 1,)        CSR by cell: the runs of cell j are
-    cell_runs   int64   (nnz, 3)          cell_runs[cell_ptr[j]:cell_ptr[j + 1]],
-                                         rows (chunk, start, count), chunks increasing;
-                                         the points are xyz[chunk, start:start + count]
-    cell_count  int64   (P,)            points per cell
-
-A cell task reads its own runs (:func:`cell_runs`), a merge task its chunk's
-(:func:`chunk_runs`); the driver holds arrays of size P or n_chunks only (the
-tables are built by streaming, :func:`index_runs`). The points of cell j are,
-in input order, its runs ``xyz[c, start:start + count]``
-(:func:`read_cell`).
+    cell_ptr    int64 (P + 1,)         by cell: cell_runs[cell_ptr[j]:cell_ptr[j + 1]]
+    cell_runs   int64 (nnz, 3)           rows (chunk, start, count), chunks increasing
+    cell_count  int64 (P,)             points per cell
 """
 
 from __future__ import annotations
@@ -37,7 +24,7 @@ __all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "d
 
 #: zarr chunk of the run tables (runs)
 _RUN_CHUNK = 65536
-#: runs of a table read whole once per stage in a task's process (24 MiB)
+#: tables up to this many runs are read whole once per stage in a task's process (24 MiB)
 _TABLE_KEPT = 1 << 20
 #: runs held in memory while the run tables are built
 _RUN_FLUSH = 1 << 21
@@ -48,25 +35,11 @@ def _chunks_1d(n: int) -> int:
 
 
 def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int | None = None) -> None:
-    """Build the run tables (both CSR views) from the label pass's scratch rows.
+    """Build both run tables and ``cell_count`` from the label pass's ``partition/label_runs``, then delete it.
 
-    Streams ``partition/label_runs`` chunk by chunk and writes
-    ``chunk_ptr``/``chunk_runs`` (by chunk, with each run's position inside
-    its cell) and ``cell_ptr``/``cell_runs`` (by cell, chunks increasing) and
-    ``cell_count``; then deletes the scratch array. Memory: arrays of size P
-    and n_chunks, plus a buffer of *flush* runs (the by-cell view is written
-    in blocks of cells holding about *flush* runs, one pass over the by-chunk
-    view per block: one pass unless the input is spatially incoherent).
-
-    Parameters
-    ----------
-    store : PointStore
-        Opened writable; holds ``partition/label_runs``.
-    nnz : ndarray of shape (n_chunks,)
-        Runs of each chunk (as returned by :func:`cloudsieve.engine.label.label_chunk`).
-    n_cells : int
-    chunk_size : int
-        Points per input chunk (chunk c starts at point c * chunk_size).
+    Streams the scratch; memory: arrays of size P and n_chunks plus *flush*
+    runs (the by-cell view is written in blocks of cells of about *flush*
+    runs). *nnz*: runs per chunk (:func:`cloudsieve.engine.label.label_chunk`).
     """
     flush = int(flush or _RUN_FLUSH)
     nnz = np.asarray(nnz, dtype=np.int64)
@@ -79,7 +52,7 @@ def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int
         store.delete_array(f"partition/{name}")
     by_chunk = store.create_array("partition/chunk_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3))
     tmp = store.group["partition/label_runs"]
-    acc = np.zeros(p, dtype=np.int64)  # points of each cell in the chunks seen so far
+    acc = np.zeros(p, dtype=np.int64)
     n_runs = np.zeros(p, dtype=np.int64)
     buf: list[np.ndarray] = []
     held, pos = 0, 0
@@ -117,7 +90,7 @@ def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int
         for a in range(0, total, max(flush, rc)):
             b = min(total, a + max(flush, rc))
             rows = np.asarray(by_chunk[a:b])
-            cum = done_points + np.cumsum(rows[:, 1]) - rows[:, 1]  # points before each run, input order
+            cum = done_points + np.cumsum(rows[:, 1]) - rows[:, 1]
             done_points += int(rows[:, 1].sum())
             sel = np.flatnonzero((rows[:, 0] >= j0) & (rows[:, 0] < j1))
             if not len(sel):
@@ -142,11 +115,9 @@ def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int
 
 
 def cell_runs(group, cell: int) -> np.ndarray:
-    """The runs of *cell* read from the store: rows (chunk, start, stop, first), shape (r, 4).
+    """The runs of *cell*: (r, 4) int64 rows (chunk, start, stop, first), chunks increasing.
 
-    ``partition/xyz[chunk, start:stop]`` are the points; ``first`` is the
-    position of the run's first point among the cell's points (the runs are
-    in increasing chunk, i.e. input, order).
+    ``first``: the run's first point's position among the cell's points.
     """
     ptr, rows = _table(group, "cell")
     a, b = (int(v) for v in ptr[cell : cell + 2])
@@ -156,10 +127,7 @@ def cell_runs(group, cell: int) -> np.ndarray:
 
 
 def chunk_runs(group, chunk: int) -> np.ndarray:
-    """The runs of input chunk *chunk*: rows (cell, count, first), cells increasing, shape (r, 3).
-
-    ``first`` is the position of the run's first point among its cell's points.
-    """
+    """The runs of input chunk *chunk*: (r, 3) rows (cell, count, first), cells increasing."""
     ptr, rows = _table(group, "chunk")
     a, b = (int(v) for v in ptr[chunk : chunk + 2])
     if b <= a:
@@ -168,9 +136,8 @@ def chunk_runs(group, chunk: int) -> np.ndarray:
 
 
 def _table(group, by: str) -> tuple:
-    """``partition/{by}_ptr`` and ``partition/{by}_runs``: the zarr arrays, or in a stage's task, when the table
-    is small (about n_chunks + P runs, at most 2^20), both read whole once for the stage's later tasks in
-    this process (:func:`cloudsieve.handles.once`: two requests a process, not two a task)."""
+    """``partition/{by}_ptr`` and ``_runs``: the zarr arrays, or inside a stage, for a small table,
+    both read whole once per process (:func:`cloudsieve.handles.once`)."""
     ptr, rows = group[f"partition/{by}_ptr"], group[f"partition/{by}_runs"]
     if not handles.in_stage() or rows.shape[0] > _TABLE_KEPT:
         return ptr, rows
@@ -178,12 +145,7 @@ def _table(group, by: str) -> tuple:
 
 
 def read_runs(group, runs: np.ndarray) -> np.ndarray:
-    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop, ...)``.
-
-    Returns
-    -------
-    ndarray of shape (sum(stop - start), 3), float64
-    """
+    """Concatenate the ``partition/xyz`` runs ``(chunk, start, stop, ...)``: (n, 3) float64."""
     arr = group["partition/xyz"].async_array
     parts = gathered(arr.getitem((int(r[0]), slice(int(r[1]), int(r[2])))) for r in runs if r[2] > r[1])
     if not parts:
@@ -192,8 +154,7 @@ def read_runs(group, runs: np.ndarray) -> np.ndarray:
 
 
 def decode_rows(group, raw: np.ndarray) -> np.ndarray:
-    """Coordinates (n, 3) float64 of ``partition/xyz`` rows *raw*: a store of LAS integers keeps them there
-    too (12 bytes a point before compression, not 24), decoded as the store decodes its ``xyz``."""
+    """Coordinates (n, 3) float64 of ``partition/xyz`` rows *raw* (LAS integers in such a store)."""
     if raw.dtype == np.float64:
         return raw
     enc = group.attrs[STORE_ATTR]["xyz_encoding"]
@@ -201,18 +162,13 @@ def decode_rows(group, raw: np.ndarray) -> np.ndarray:
 
 
 def read_cell(group, runs: np.ndarray) -> np.ndarray:
-    """Core points of a cell (increasing input index), from its runs.
-
-    Returns
-    -------
-    ndarray of shape (n, 3), float64
-    """
+    """Core points (n, 3) float64 of a cell, in input order, from its runs."""
     return read_runs(group, runs)
 
 
 def write_slices(group, items) -> None:
-    """Write ``group[name][start:start + len(values)] = values`` for each (name, start, values) of *items*,
-    concurrently (:func:`~cloudsieve.store.streaming.gathered`): a crash may leave any subset written, so a marker written after them
-    tells a resumed run they are all there."""
+    """Write ``group[name][start:start + len(values)] = values`` for each item, concurrently.
+
+    A crash may leave any subset written: a marker written afterwards tells a resumed run they all are."""
     gathered(group[name].async_array.setitem(slice(int(start), int(start) + len(values)), values)
              for name, start, values in items)

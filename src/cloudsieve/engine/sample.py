@@ -1,11 +1,5 @@
-"""The partition's uniform sample (stage 2, step 1): its size, its rows, and two ways to read them.
-
-The rows are drawn once from the seed (:func:`plan_sample`), so the sample
-does not depend on the store's chunking. They are read from the store by
-one task per chunk (:func:`sample_chunk`), or picked while the ingest
-writes the store (:class:`IngestSample`, the ingest's ``on_chunk``), the
-same coordinates without a second read.
-"""
+"""The partition's uniform sample: its size, its rows (drawn once from the seed, independent of the
+chunking), read by one task per chunk (:func:`sample_chunk`) or picked during the ingest (:class:`IngestSample`)."""
 
 from __future__ import annotations
 
@@ -25,12 +19,7 @@ def sample_size(n: int, n_cells: int) -> int:
 
 
 def plan_sample(n: int, n_cells: int, seed: int) -> np.ndarray:
-    """Sorted indices of the uniform sample, drawn from (seed, "partition").
-
-    Returns
-    -------
-    ndarray of shape (S,), int64, sorted
-    """
+    """Sorted indices (S,) int64 of the uniform sample, drawn from (seed, "partition")."""
     s = sample_size(n, n_cells)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x9A27]))
     if s >= n:
@@ -39,18 +28,12 @@ def plan_sample(n: int, n_cells: int, seed: int) -> np.ndarray:
 
 
 class IngestSample:
-    """The partition's uniform sample, taken while the ingest writes the store (its ``on_chunk``).
+    """The partition's sample, taken while the ingest writes the store (its ``on_chunk``).
 
-    The rows are :func:`plan_sample`'s for the count the reader announced,
-    so when the store ends with that count (no point dropped) the sample is
-    the one :func:`build_partition` would read from the store, the same
-    coordinates: the partition then skips its sample stage (tasks reading
-    every chunk again).
-
-    Parameters
-    ----------
-    cell_size, seed : int
-        As given to :func:`build_partition`.
+    Its rows are :func:`plan_sample`'s for the reader's announced count, so
+    when no point is dropped it equals the sample :func:`build_partition`
+    would read, and the partition skips its sample stage. *cell_size*,
+    *seed*: as given to :func:`build_partition`.
     """
 
     def __init__(self, cell_size: int, seed: int) -> None:
@@ -77,12 +60,7 @@ class IngestSample:
 
 
 def sample_chunk(store_path: str, start: int, stop: int, indices: np.ndarray) -> np.ndarray:
-    """Coordinates of the sample points in ``[start, stop)`` (a task).
-
-    Returns
-    -------
-    ndarray of shape (len(indices), 3), float64
-    """
+    """Task: coordinates (len(indices), 3) float64 of the sample points in ``[start, stop)``."""
     from ..store import PointStore
 
     if len(indices) == 0:

@@ -1,32 +1,11 @@
-"""Out-of-core, distributed simplification: the whole pipeline as dask tasks.
+"""Out-of-core, distributed simplification: :func:`simplify`, the whole pipeline as dask tasks.
 
-:func:`simplify` wires the stages, each reading and writing the point store
-and each in its own module:
-
-1. **ingest** (when SRC is a file) into a work store (:mod:`.workstore`:
-   identity, resume checks, derived arrays);
-2. **partition** (:mod:`.partition`, :mod:`.label`, :mod:`.runs`,
-   :mod:`.halo`): P = ceil(N / cell_size) coarse K-means cells, bucketed out
-   of core, with halos;
-3. **cells** (:mod:`.cells`): one task per cell runs the in-memory method on
-   its points and writes its keep mask; with a ratio/count, two passes around
-   one global threshold (:mod:`.threshold`); the eliminate rule: per-cell
-   counts from greedy packings (:mod:`cloudsieve.core.packing`), then one
-   elimination per cell (:mod:`.eliminate`), colour by colour
-   (:mod:`cloudsieve.core.colours`);
-4. **merge** (:mod:`.merge`): one task per input chunk scatters the keep
-   masks back to input order as ``simplify/keep``;
-5. **export** of the kept points, every attribute and the header
-   (:func:`cloudsieve.store.export`, atomic).
-
-A small input needs none of this: :mod:`.small` runs the same steps in
-memory (no store, no dask). Every batch of tasks goes through one
-:class:`~.runner.Runner` (any dask scheduler). Only a few numbers pass through the scheduler, never an array of
-size P or N: every task opens the store by path and reads its own runs there.
-Results do not depend on the scheduler, the number of workers or task
-completion order: a cell's points are in input order, its seed is
-``SeedSequence([seed, cell])``, and every reduction is over integers or in a
-fixed order.
+The stages (ingest, partition, cells, merge, export) are in their own
+modules (docs/architecture.md); a small input runs them in memory
+(:mod:`.small`). Tasks exchange only a few numbers, never an array of size
+P or N. Results do not depend on the scheduler, worker count or completion
+order: cells keep input order, seeds are ``SeedSequence([seed, cell])``,
+reductions are over integers or in a fixed order.
 """
 
 from __future__ import annotations
@@ -51,9 +30,6 @@ from .workstore import ENGINE_VERSION
 __all__ = ["simplify", "run_simplify", "Summary"]
 
 logger = logging.getLogger(__name__)
-
-
-# ---------------------------------------------------------------- simplify
 
 
 def simplify(
@@ -92,45 +68,34 @@ def simplify(
     """Simplify a point cloud of any size, out of core, on dask.
 
     Every option (:mod:`cloudsieve.params`), the source, the destination and
-    the scheduler are checked first, before any work starts and before any
-    file or store is created.
+    the scheduler are checked before any file or store is created.
 
     Parameters
     ----------
     src : str or path-like
         Input file (any format :mod:`cloudsieve.io` reads), a point store, or
-        LAS/LAZ/COPC files as one cloud: a glob, a directory, a list file or a
-        VPC (:mod:`cloudsieve.io.sources`; one partition, one exact count).
+        LAS/LAZ/COPC files as one cloud: a glob, a directory, a list file or
+        a VPC (:mod:`cloudsieve.io.sources`).
     dst : str or path-like
         Output file (any format :mod:`cloudsieve.io` writes), written atomically.
     method : {"km", "fcm"}
-        Refinement into small clusters: K-means (the default: as good as FCM and faster end to end) or fuzzy C-means.
+        Refinement into small clusters: K-means (default) or fuzzy C-means.
     rule : str, optional
-        Pruning rule, a name of the registry (:data:`cloudsieve.core.rules.RULES`). ``eliminate``: weighted
-        sample elimination (:mod:`cloudsieve.engine.eliminate`), exactly the
-        requested count; it uses no clusters (``method``, ``cluster_size``
-        and ``halo_context`` are unused). Default (None): ``eliminate`` when
-        *ratio* or *count* is given, ``threshold`` (the paper's one-pass
-        rule) when only *threshold* is; with none of the three,
-        InvalidParameterError. The resolved rule is the one recorded.
+        Pruning rule of :data:`cloudsieve.core.rules.RULES`. ``eliminate``
+        (:mod:`cloudsieve.engine.eliminate`) keeps exactly the requested count
+        and ignores ``method``, ``cluster_size`` and ``halo_context``. Default:
+        ``eliminate`` with *ratio* or *count*, ``threshold`` with only
+        *threshold*; none of the three is an InvalidParameterError.
     threshold : float, optional
-        S, the entropy-change threshold of the threshold/iterative rules
-        (default 1e-3, the paper's, with those rules).
+        S, the entropy-change threshold of the threshold/iterative rules (default 1e-3).
     ratio, count : float in (0, 1] or int >= 1, optional
-        Keep this share / number of the input points instead of using S
-        (one of them; required by the rules target, coverage and eliminate).
-        The total lands within 1% of the request (exactly on it with eliminate).
+        Keep this share / number of the input points instead of using S;
+        the total lands within 1% of it (exactly with eliminate).
     cluster_size : int
-        Points per small cluster (c = ceil(n / cluster_size) per cell), at
-        least ``k_min + 2``.
+        Points per small cluster (c = ceil(n / cluster_size) per cell), >= ``k_min + 2``.
     cell_size : int
-        Points per coarse cell, i.e. per task; bounds a task's memory. The
-        in-memory method peaks at about 2 kB per point, and K-means cells
-        vary (largest 1.54x the mean on the 10 M benchmark scan). The
-        process tree's peak follows the cell size, not the cloud's: the same
-        at 10 M and 50 M points; the round rules (``iterative``) peak higher
-        than ``eliminate``, and 100,000 lowers them (docs/benchmarks.md,
-        "Out of core on dask").
+        Points per coarse cell, i.e. per task; bounds a task's memory (about
+        2 kB per point; docs/benchmarks.md, "Out of core on dask").
     scheduler : str, optional
         None (embedded default), "sync", "threads", "processes" or a
         "tcp://host:port" dask.distributed scheduler address.
@@ -145,62 +110,39 @@ def simplify(
         One seed for everything; the output is the same bit for bit on any
         scheduler and worker count.
     resume : bool
-        Continue the run recorded in the work store: reuse its ingest, its
-        partition and every cell marked done. A rerun with the same store
-        does so anyway (the flag states the intent; without a store to
-        resume the run starts from the beginning, with a log message).
+        Continue the run recorded in the work store (a rerun with the same store does so anyway).
     client : distributed.Client, optional
         Run on this cluster (workers must reach the store path).
     overwrite : bool
         Overwrite DST, and discard a work store left by another run.
-    progress : callable, optional
-        ``progress(n)`` after n points of a stage are processed.
-    bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
-        (e.g. :func:`cloudsieve.progress.bar`): one progress bar per stage.
-    notify : callable, optional
-        ``notify(message)`` for what a user should see at once (the dask
-        dashboard link of a distributed run); the CLI prints it.
+    progress, bars, notify : callable, optional
+        ``progress(n)`` after n points of a stage; ``bars(stage, total,
+        unit)`` -> context manager yielding ``update(n)``
+        (:func:`cloudsieve.progress.bar`); ``notify(message)`` for what a
+        user should see at once (the dashboard link).
     format : str, optional
         Output format (default: by DST's extension).
     chunk_size : int
         Points per chunk of the ingested store.
     halo_context : bool
-        False (default): density neighbours come from each small cluster R
-        alone (the paper; the core's default), and a cell border is just
-        another cluster border. True: the cell's halo and the whole cell are
-        the density context of every cluster (``context=`` of the core).
-        Measured on a uniform plane cut into 8 cells and pruned to 50%: kept
-        density within one cluster radius of the cell borders / interior =
-        0.98-0.99 with False, 0.94-0.95 with True (the halo is thinned by
-        the pass-1 decisions, see :func:`cloudsieve.engine.cells.thinned_halo`; 0.91 unthinned).
+        True: the cell and its halo (:func:`cloudsieve.engine.cells.thinned_halo`)
+        are every cluster's density context; False (default): each small
+        cluster alone (the paper).
     k0, k_min : float, int
         The k-NN rule k = max(k_min, round(k0 * sqrt(m))).
     drop_invalid : bool
-        Drop the points of a file SRC whose coordinates are NaN or infinite
-        (logged with their count) instead of refusing SRC
-        (:class:`~cloudsieve.errors.InvalidPointsError`). A point store never
-        holds such points.
+        Drop (and log) points of a file SRC with NaN or infinite coordinates.
     keep_duplicates : bool
-        Keep every exact copy (same x, y, z) of a kept point. Default: exact
-        duplicates are scored once and kept once (a ratio or count then counts
-        distinct points); their number is in :attr:`Summary.duplicates` and logged.
+        Keep every exact copy (same x, y, z) of a kept point; by default
+        duplicates are scored and kept once (:attr:`Summary.duplicates`).
     strict : bool
-        A ratio or count that cannot be met exactly is an error
-        (:class:`~cloudsieve.errors.TargetNotMetError`, raised before DST is
-        written; the default work store is removed) instead of a logged
-        warning. Both name the requested and delivered counts and why.
-
+        Raise instead of logging when a ratio or count is not met exactly.
     tile_size : float, optional
-        Write DST as a folder of square LAZ tiles of this edge (the CRS's
-        units, a grid anchored at 0), each written by a task, and
-        ``DST/index.vpc`` listing them (:func:`cloudsieve.store.tiles.export_tiles`).
+        Write DST as a folder of square LAZ tiles plus ``DST/index.vpc``
+        (:func:`cloudsieve.store.tiles.export_tiles`).
     storage_options : dict, optional
-        Options of the fsspec filesystem of every URL the run reads or writes
-        (SRC, DST, the store), as pandas, dask and xarray take them: s3fs's
-        ``{"key", "secret", "endpoint_url", "profile", ...}``. Default: the
-        object store's own chain (``AWS_*`` variables, config files, roles).
-        Handed to every task; never logged, recorded or printed.
+        fsspec options for every URL of the run (e.g. s3fs's ``key``,
+        ``secret``, ``endpoint_url``); never logged, recorded or printed.
 
     Returns
     -------
@@ -222,10 +164,10 @@ def simplify(
     ResumeMismatchError
         The work store holds a run with other parameters or another source.
     InvalidPointsError
-        SRC has points with NaN or infinite coordinates and *drop_invalid* is
-        False (found while SRC is ingested; nothing is left behind).
+        SRC has NaN or infinite coordinates and *drop_invalid* is False.
     TargetNotMetError
-        *strict* and the kept count differs from the ratio or count asked.
+        *strict* and the kept count differs from the ratio or count asked
+        (before DST is written).
     """
     t_start = time.perf_counter()
     opts = validate("simplify", {
@@ -241,8 +183,7 @@ def simplify(
 
 def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, client=None, progress=None, bars=None,
                  notify=None, t_start: float | None = None) -> Summary:
-    """:func:`simplify` with options already validated (``opts``, from :func:`cloudsieve.params.validate`
-    for ``simplify``: a pipeline stage validated when its file was loaded); no option is checked again."""
+    """:func:`simplify` with ``opts`` already validated by :func:`cloudsieve.params.validate`."""
     # every URL of the run, here and in its tasks; SRC listed once
     with storage.using(opts.get("storage_options")), remembered():
         return _run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify,
@@ -286,9 +227,9 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
 
 
 def _finished(summary: Summary, t_start: float, cpu0: tuple) -> Summary:
-    """*summary* with the run's total time, this process's CPU and (a run that touched a URL) the object store's
-    retries in this process added to the workers', logged. *cpu0*: ``(CPU time, storage_retries.counts())`` when
-    the run began."""
+    """*summary* with total time, driver CPU and object-store retries added, logged.
+
+    *cpu0*: ``(CPU time, storage_retries.counts())`` at the start."""
     summary.seconds["total"] = time.perf_counter() - t_start
     summary.cpu_seconds["driver"] = time.process_time() - cpu0[0]
     (uses0, retries0), (uses, retries) = cpu0[1], storage_retries.counts()

@@ -13,16 +13,11 @@ __all__ = ["Summary", "missed_target"]
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
                   keep_duplicates: bool = False, exact: bool = False) -> str | None:
-    """What to say when a ratio or count was asked and the kept count differs.
+    """What to say when a ratio or count was asked and the kept count differs, else None.
 
-    Returns
-    -------
-    str or None
-        ``"SRC: asked to keep A points, kept K: why"`` (logged as a warning,
-        or raised with ``strict``), None when the request was met or there
-        was none. With *exact* (a rule that keeps exactly the count asked,
-        ``eliminate``: no thresholds, no clusters) only the input's size and
-        its exact duplicates can explain a miss.
+    ``"SRC: asked to keep A points, kept K: why"``, logged as a warning or
+    raised with ``strict``. With *exact* (a rule keeping exactly the count,
+    ``eliminate``) only the input's size and its duplicates explain a miss.
     """
     if ratio is None and count is None:
         return None
@@ -51,43 +46,25 @@ class Summary:
 
     Attributes
     ----------
-    points_in, kept, removed : int
-    cells : int
-        Number of cells P.
+    points_in, kept, removed, cells : int
     cells_computed, cells_reused : int
         Cells computed in this run, and cells found done in the store (resume).
-    duplicates : int
-        Exact duplicate points (copies of an earlier point with the same x, y,
-        z): removed, or kept with their first copy when ``keep_duplicates``.
-    duplicates_kept : bool
-        Whether they were kept (``keep_duplicates``).
+    duplicates, duplicates_kept : int, bool
+        Exact duplicate points (same x, y, z as an earlier point), and whether
+        they were kept with their first copy (``keep_duplicates``).
     threshold : float or None
-        The global threshold on the unit-free score chosen for a ratio/count
-        with the target, iterative or coverage rule; None otherwise (the
-        eliminate rule gives its cells exact counts instead).
+        The global threshold on the unit-free score of a ratio/count with the
+        target, iterative or coverage rule; None otherwise.
     seconds : dict str -> float
-        Wall time per stage ("ingest", "partition", "cells", "merge",
-        "export") and "total".
+        Wall time per stage ("ingest", "partition", "cells", "merge", "export") and "total".
     cpu_seconds : dict str -> float
-        ``{"driver": d, "workers": w}``: this process's own CPU time during
-        the run, and the sum over the worker processes (see
-        :meth:`cloudsieve.engine.runner.Runner.worker_cpu`; 0 with the "sync"
-        and "threads" schedulers, whose tasks run in this process).
-    peak_memory : int
-        Peak resident memory (bytes), sampled: of this process and its
-        children, or, on a dask.distributed cluster, the peak of the sum over
-        its workers (each asked for its own; see :mod:`.memory`).
-    peak_memory_of : str
-        What *peak_memory* covers: ``"this process and its children"`` or
-        ``"N dask workers (sum of their resident memory)"``.
+        ``{"driver": d, "workers": w}`` (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
+    peak_memory, peak_memory_of : int, str
+        Peak resident memory (bytes), sampled, and what it covers (:mod:`.memory`).
     storage : dict or None
-        ``{"retries": n}`` for a run that reads or writes a URL: the
-        requests to the object store sent again after a timeout, throttling
-        or a 5xx answer (S3: botocore's attempts after the first), in the
-        driver and the worker processes (:mod:`cloudsieve.storage_retries`);
-        None (and absent from :meth:`to_dict`) for a run on local paths.
-    scheduler : str
-    source, destination : str
+        ``{"retries": n}``, object-store requests sent again
+        (:mod:`cloudsieve.storage_retries`); None, absent from :meth:`to_dict`, on local paths.
+    scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
     """

@@ -1,13 +1,10 @@
 """The global threshold of a ratio/count: one T on the unit-free scores of all cells.
 
-A run asked for a ratio or a count keeps ``target`` of the N points: T is
-chosen so that N - target points score <= T. Pass 1 of the cells stage
-stored every cell's unit-free scores (m*dH) in ``simplify/score_cells``;
-summed per-cell histograms of log10(score) (one small task per cell: the
-chunk / combine / aggregate pattern) narrow T to a bin, whose few scores are
-gathered and T picked exactly with :func:`cloudsieve.core.threshold_for_count`
-(exact up to equal scores). Only histograms and the scores of one bin pass
-through the scheduler, never an array of size N.
+T is chosen so that N - target points score <= T. Per-cell histograms of
+log10(score), summed, narrow T to a bin whose few scores are gathered;
+:func:`cloudsieve.core.threshold_for_count` picks T among them (exact up to
+equal scores). Only histograms and one bin's scores pass through the
+scheduler, and every sum is over integers (independent of task order).
 """
 
 from __future__ import annotations
@@ -34,12 +31,7 @@ def _cell_scores(store_path: str, region: int, n: int) -> np.ndarray:
 
 
 def score_hist_task(store_path: str, region: int, n: int, lo: float, hi: float, bins: int) -> np.ndarray:
-    """Histogram of log10 of one cell's stored scores over [lo, hi), plus under/over counts (a task).
-
-    Returns
-    -------
-    ndarray of shape (bins + 2,), int64: [below lo, bins..., at or above hi]
-    """
+    """Task: histogram (bins + 2,) int64 of log10 of one cell's scores over [lo, hi), with below/above counts at the ends."""
     s = _cell_scores(store_path, region, n)
     with np.errstate(divide="ignore"):
         ls = np.log10(s)
@@ -53,12 +45,7 @@ def score_hist_task(store_path: str, region: int, n: int, lo: float, hi: float, 
 
 
 def scores_between_task(store_path: str, region: int, n: int, lo: float, hi: float) -> np.ndarray:
-    """The stored scores of one cell with lo <= log10(score) < hi (few, by construction; a task).
-
-    Returns
-    -------
-    ndarray of shape (k,), float64
-    """
+    """Task: one cell's scores (k,) with lo <= log10(score) < hi (few, by construction)."""
     s = _cell_scores(store_path, region, n)
     with np.errstate(divide="ignore"):
         ls = np.log10(s)
@@ -68,26 +55,8 @@ def scores_between_task(store_path: str, region: int, n: int, lo: float, hi: flo
 def global_threshold(store, part, regions: np.ndarray, runner, remove: int) -> float:
     """The global threshold T on the stored unit-free scores: *remove* points have score <= T.
 
-    Summed histograms of log10(score) (one small task per cell) narrow the
-    range that holds the remove-th smallest score until it holds few points;
-    those scores are then gathered and T is picked exactly among them with
-    :func:`cloudsieve.core.threshold_for_count`. Exact up to ties (equal
-    scores go together). Every sum is over integers: the result does not
-    depend on the task order.
-
-    Parameters
-    ----------
-    store : PointStore
-    part : Partition
-    regions : ndarray of shape (P,), int64
-        Start of each cell's region in ``simplify/score_cells``.
-    runner : Runner
-    remove : int
-        Points to remove; -inf when <= 0, +inf when >= N.
-
-    Returns
-    -------
-    float
+    *regions*: each cell's start in ``simplify/score_cells``. Returns -inf
+    when *remove* <= 0, +inf when >= N.
     """
     from ..core import threshold_for_count
 

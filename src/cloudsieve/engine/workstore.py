@@ -1,32 +1,18 @@
 """The work store of a run: where it is, what it was made from, what a rerun may reuse.
 
-When SRC is a file it is ingested into a work store, by default
-``DST + ".cloudsieve.zarr"`` beside DST; that default store is deleted after
-a successful run (pass ``store=`` to keep it). A run that crashed leaves it
-in place, and a rerun (``resume=True``, or simply the same command) reuses
-the ingest, the partition and every completed cell, after checking that the
-source file (its size and mtime, recorded under ``"source"``) and the
-parameters (recorded under ``"params"``) are the same
-(:class:`~cloudsieve.errors.ResumeMismatchError` otherwise; ``overwrite=True``
-starts again). When SRC is a store, the derived arrays are written into it.
-Both records, and the run's summary, live in the store's attribute
-``"cloudsieve_simplify"``.
+A file SRC is ingested into a work store (default ``DST + ".cloudsieve.zarr"``,
+deleted after success); a rerun reuses its ingest, partition and done cells
+when the source and parameters match, both recorded in the attribute
+``"cloudsieve_simplify"``. Derived arrays (``simplify/``)::
 
-Derived arrays of the cells stage (``simplify/``; created and deleted
-through :class:`~cloudsieve.store.PointStore`)::
-
-    keep_cells   bool    (T,)  keep mask, cell-ordered: cell j's points at
-                               regions[j]:regions[j] + n_j (T: the padded total)
+    keep_cells   bool    (T,)  keep mask, cell-ordered: cell j at regions[j]:regions[j] + n_j
     score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
-    label_cells  int32   (T,)  pass-1 small-cluster labels (ratio/count); -1: an exact copy
-    done, scored uint8   (P,)  one zarr chunk per cell: concurrent tasks never share one
-    duplicates   int64   (P,)  exact duplicate points of each cell (one chunk per cell)
-    share        float64 (P, 1 + L) eliminate: each cell's distinct points, its packing sizes (L radii)
-    regions      int64   (P,)  start of each cell's region
-    keep         bool    (N,)  keep mask in input order (the merge stage)
-
-Each cell's region starts on a zarr-chunk boundary (:func:`regions`), so the
-tasks of different cells never write the same chunk.
+    label_cells  int32   (T,)  pass-1 small-cluster labels; -1: an exact copy
+    done, scored uint8   (P,)  one zarr chunk per cell
+    duplicates   int64   (P,)  exact duplicates of each cell
+    share        float64 (P, 1 + L) eliminate: distinct points, packing sizes
+    regions      int64   (P,)  start of each cell's region, on a zarr-chunk boundary
+    keep         bool    (N,)  keep mask in input order (merge)
 """
 
 from __future__ import annotations
@@ -69,15 +55,15 @@ SHARE_COLUMNS = 1 + len(LADDER)
 
 
 def source_identity(src: str) -> dict:
-    """What identifies a source for resume: its absolute path, size and mtime (ns); for several files
-    (:func:`cloudsieve.io.sources.expand_sources`) the sum of their sizes and the latest mtime."""
+    """A source's identity for resume: absolute path, size and mtime (ns); several files sum
+    sizes and take the latest mtime; objects a digest of their versions."""
     from ..io.sources import expand_sources
 
     stats = [storage.identity(p) for p in expand_sources(src)]
     if not storage.is_url(src):
         return {"path": os.path.abspath(src) if "*" not in src else src, "size": int(sum(s for s, _ in stats)),
                 "mtime_ns": int(max(int(v) for _, v in stats))}
-    # objects: their ETags (or modification times) stand for the version, as one digest
+    # objects: their ETags (or modification times), as one digest
     import hashlib
 
     digest = hashlib.sha256("\n".join(v for _, v in stats).encode()).hexdigest()[:16]
@@ -85,11 +71,9 @@ def source_identity(src: str) -> dict:
 
 
 def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_store: bool) -> str:
-    """The store a run works in: SRC itself when it is a store, else *store* or ``DST + ".cloudsieve.zarr"``.
+    """The store a run works in: SRC when it is a store, else *store* or ``DST + ".cloudsieve.zarr"``.
 
-    A DST folder given with a trailing slash (``out/``) has its store beside
-    it (``out.cloudsieve.zarr``), not inside. A local path is made absolute:
-    workers may run elsewhere (another cwd).
+    ``out/`` puts it beside the folder; a local path is made absolute (workers may have another cwd).
     """
     if src_is_store:
         path = src
@@ -102,11 +86,9 @@ def work_store_path(src: str, dst: str, store: str | os.PathLike | None, src_is_
 
 
 def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: bool, resume: bool):
-    """The store to work in when no ingest is needed, else None.
+    """The store to work in when no ingest is needed (SRC itself, or a work store of the same source), else None.
 
-    SRC itself when it is a store; the work store at *store_path* when it
-    holds an ingest of the same source file. With *overwrite* an existing work
-    store is deleted (None: ingest again).
+    With *overwrite* an existing work store is deleted.
 
     Raises
     ------
@@ -126,7 +108,7 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
         logger.info("resume: no complete work store at %s, starting from the ingest", store_path)
     if not existing:
         return None
-    from ..store import PointStore  # zarr: imported only when a store is there
+    from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
     rec = st.attrs.get(SIMPLIFY_ATTR, {}).get("source")
@@ -143,17 +125,10 @@ def reusable_store(src: str, store_path: str, *, src_is_store: bool, overwrite: 
 
 def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, drop_invalid: bool = False,
                   on_chunk=None, run=None, bars=None):
-    """Ingest the file *src* into a new work store at *store_path* and record the source's identity.
+    """Ingest the file *src* into a new work store at *store_path*, record the source's identity, open it "r+".
 
-    *drop_invalid* drops the points with NaN or infinite coordinates (see
-    :func:`cloudsieve.store.ingest`) instead of refusing the file; *on_chunk*
-    sees each block of points as it is stored (as in :func:`~cloudsieve.store.ingest`); *run* runs the
-    tasks of a LAS source (one bar, "ingest", counting them), *bars* shows a streamed format's points.
-
-    Returns
-    -------
-    PointStore
-        Opened writable ("r+").
+    *drop_invalid* and *on_chunk* are :func:`cloudsieve.store.ingest`'s;
+    *run* runs a LAS source's tasks; *bars* shows one "ingest" bar in points.
     """
     from ..store import PointStore, ingest
 
@@ -162,7 +137,7 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
     from ..progress import both, stage_bar
 
     identity = source_identity(src)
-    with stage_bar(bars, "ingest", None, "pt") as bar:  # one line, in points, whether tasks read or this process
+    with stage_bar(bars, "ingest", None, "pt") as bar:
         update = both(bar, progress)
         if is_las_source(expand_sources(src)):
             ingest.unchecked(src, store_path, chunk_size=chunk_size, overwrite=True, progress=update, run=run)
@@ -175,11 +150,11 @@ def ingest_source(src: str, store_path: str, *, chunk_size: int, progress=None, 
 
 
 def record_params(store, params: dict, overwrite: bool) -> None:
-    """Check the parameters of the run recorded in *store* against *params*, then record *params*.
+    """Check the run recorded in *store* against *params*, then record *params*.
 
-    A store holding another run's results is refused (or, with *overwrite*,
-    its derived arrays deleted); a store with no run recorded gets its derived
-    arrays deleted. A summary stored by another run is dropped.
+    Another run's store is refused, or with *overwrite* its derived arrays
+    deleted; so are those of a store with no run recorded. A stored summary
+    is dropped.
 
     Raises
     ------
@@ -220,12 +195,8 @@ def clear_derived(store) -> None:
 def region_block(cell_size: int, remote: bool = False) -> int:
     """zarr chunk of the cell-ordered arrays: a power of two near cell_size / 4, in [2^10, 2^16].
 
-    A cell's region is padded to whole chunks (unwritten chunks take no
-    space) and each chunk is a file: cell_size / 4 writes a cell's keep
-    mask in about 7 files, where cell_size / 16 writes 27, each a file's
-    cost. A store on object storage (*remote*), where each object is a
-    request: a power of two at least cell_size, in [2^10, 2^20] (most
-    regions one object).
+    Regions are padded to whole chunks, each a file: fewer, larger files per
+    cell. *remote* (each object a request): at least cell_size, in [2^10, 2^20].
     """
     if remote:
         return 1 << max(10, min(20, math.ceil(math.log2(max(1, cell_size)))))
@@ -233,14 +204,7 @@ def region_block(cell_size: int, remote: bool = False) -> int:
 
 
 def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
-    """Start of each cell's region in the cell-ordered arrays, aligned to *block*.
-
-    Returns
-    -------
-    starts : ndarray of shape (P,), int64
-    total : int
-        Length of the cell-ordered arrays (at least *block*).
-    """
+    """Start (P,) int64 of each cell's region in the cell-ordered arrays, aligned to *block*, and their length."""
     padded = -(-cell_counts // block) * block
     padded = np.maximum(padded, 0)
     starts = np.zeros(len(cell_counts), dtype=np.int64)
@@ -250,24 +214,24 @@ def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
 
 
 def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray, band_block: int = 0) -> None:
-    """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (a resumed run); the
-    bands in chunks of *band_block* (a divisor of *block*; default *block*: a band is a region's start)."""
+    """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (resume); bands in
+    chunks of *band_block* (a divisor of *block*; default *block*)."""
     band_block = band_block or block
     g = store.group
-    # the same layout: length, chunk and regions (a store of a version with another chunk starts again)
+    # the same layout: length, chunk and regions (another layout starts again)
     same = ("simplify/keep_cells" in g and "simplify/regions" in g and g["simplify/keep_cells"].shape == (total,)
             and tuple(g["simplify/keep_cells"].chunks) == (block,)
             and np.array_equal(np.asarray(g["simplify/regions"][:]), np.asarray(starts, dtype=np.int64)))
     if same:
-        if "simplify/duplicates" not in g:  # a store of a version before the count (its done cells count 0)
+        if "simplify/duplicates" not in g:  # an older store: its done cells count 0
             store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
         if "simplify/share" not in g or g["simplify/share"].shape != (n_cells, SHARE_COLUMNS):
-            # a store of a version before the shares or the packings: its cells start again
+            # an older store without shares or packings: its cells start again
             store.delete_array("simplify/share")
             _share_array(store, n_cells)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
-        if "simplify/band_count" not in g:  # a store of a version before the bands: its cells start again
+        if "simplify/band_count" not in g:  # an older store without bands: its cells start again
             _band_arrays(store, n_cells, total, band_block)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
@@ -282,9 +246,9 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     _share_array(store, n_cells)
     _band_arrays(store, n_cells, total, band_block)
-    # exact duplicate points of each cell (written with done)
+    # exact duplicates of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
-    # start of each cell's region, read by the merge tasks (P numbers: not passed to every task)
+    # region starts, read by the merge tasks (not passed to every task)
     store.create_array(
         "simplify/regions", data=np.asarray(starts, dtype=np.int64), chunks=(max(1, min(len(starts), 65536)),)
     )

@@ -1,8 +1,5 @@
-"""The point store (zarr v3) and the ways in and out of it: ingest, export, read_cloud.
-
-Each name is imported at its first use (PEP 562), so a run that needs no
-store (a small input, :mod:`cloudsieve.engine.small`) imports no zarr.
-"""
+"""The point store (zarr v3) and the ways in and out of it; names import at first use (PEP 562), so a run
+without a store (:mod:`cloudsieve.engine.small`) imports no zarr."""
 
 from __future__ import annotations
 

@@ -1,51 +1,25 @@
 """Grouping a store's points by an integer key, out of core: :func:`bucket` and :class:`Buckets`.
 
-The tiled export (:mod:`.tiles`: a key per square tile) and the COPC writer
-(a key per octree node) both need every point of a key together, for N points
-that do not fit in memory. As the partition does with cells
-(:mod:`cloudsieve.engine.label`, :mod:`cloudsieve.engine.runs`), one map task
-per store chunk computes the keys of the chunk's (kept) points, sorts the
-chunk by key (stable) and writes every attribute, sorted, into the chunk's
-own row of scratch arrays; it returns only its distinct keys and their
-counts. The driver turns those into a run table: the points of key k are, in
-input order, its runs ``records[chunk, start:start + count]``. Nothing of size N
-passes through the driver or the scheduler; a map task holds two copies of
-one chunk. The attributes travel packed in one record per point: one zarr
-read per run instead of one per run and attribute (each zarr call has an
-overhead of its own: unpacked, the tiles' reads are about half of a tile
-export). The rows are not sharded: sharded (one shard per row), records write
-1.5 times and read nearly 4 times slower, a run of them 7 times; one file per
-16384 points (6100 files for 10^8 points).
+For the tiled export (a key per tile) and the COPC writer (a key per octree
+node). One map task per store chunk sorts the chunk's points by key
+(stable) into its row of scratch arrays, each point one packed record, and
+returns only its distinct keys and counts; nothing of size N passes
+through the driver. Layout under ``export/<name>/``::
 
-Layout written into the store, under ``export/<name>/``::
-
-    records      uint8 (n_chunks, C, B) row c: chunk c's selected points sorted by key
-                                     (stable), each point one packed record of B
-                                     bytes holding every input dimension ("xyz"
-                                     float64 (3,) first; the record's fields in the
-                                     array's attribute "fields"); C the store's chunk
-                                     size, in zarr chunks of 16384 points (a run
-                                     reads only the zarr chunks it touches)
-    runs         int64 (nnz, 3)      rows (chunk, start, count), by key, chunks increasing
-    ptr          int64 (K + 1,)      the runs of key i: runs[ptr[i]:ptr[i + 1]]
-    counts       int64 (K,)          points per key
-    keys         int64 (K,)          the distinct keys, increasing; written last,
-                                     so its presence marks complete buckets
-
-Reading: the driver holds :class:`Buckets` (keys, counts and the run table,
-arrays of size K and nnz); a task for one key is handed ``buckets.runs(key)``
-and reads its points with :func:`read_runs`, or :func:`iter_runs` in blocks
-of at most a chunk.
+    records  uint8 (n_chunks, C, B)  row c: chunk c's points sorted by key, records of B
+                                     bytes ("xyz" float64 (3,) first; attribute "fields")
+    runs     int64 (nnz, 3)          rows (chunk, start, count), by key, chunks increasing
+    ptr      int64 (K + 1,)          the runs of key i: runs[ptr[i]:ptr[i + 1]]
+    counts   int64 (K,)              points per key
+    keys     int64 (K,)              the distinct keys, increasing; written last: the
+                                     mark of complete buckets
 
 Example
 -------
 >>> from functools import partial
 >>> from cloudsieve.store.tiles import tile_keys
 >>> b = bucket(store, partial(tile_keys, tile_size=100.0), "tiles")  # doctest: +SKIP
->>> for key in b.keys:  # doctest: +SKIP
-...     points = b.read(key)  # {"xyz": (n, 3) float64, "intensity": (n,), ...}
->>> args = [(store.path, "tiles", b.runs(k)) for k in b.keys]  # doctest: +SKIP
->>> run(read_runs, args, "read")  # in tasks, the same dicts  # doctest: +SKIP
+>>> points = b.read(b.keys[0])  # {"xyz": (n, 3) float64, ...}  # doctest: +SKIP
 >>> b.delete()  # doctest: +SKIP
 """
 
@@ -68,8 +42,7 @@ __all__ = ["bucket", "Buckets", "bucket_chunk", "open_runs", "read_runs", "iter_
 
 logger = logging.getLogger(__name__)
 
-#: zarr chunk of the scratch rows, in points: the unit a run's read decodes (REMOTE_INNER_CHUNK in a store on
-#: object storage, where each is a request)
+#: zarr chunk of the scratch rows, in points (REMOTE_INNER_CHUNK on object storage, where each is a request)
 INNER_CHUNK = 16384
 REMOTE_INNER_CHUNK = 65536
 _EMPTY = np.empty((0,), dtype=np.int64)
@@ -110,19 +83,9 @@ def _check_mask(store: PointStore, mask: str) -> None:
 
 def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, keys: Callable,
                  mask: str | None) -> tuple[np.ndarray, np.ndarray]:
-    """Map task of :func:`bucket`: key, sort and write the selected points of store chunk *chunk*.
+    """Map task of :func:`bucket`: key, sort (stable) and write chunk *chunk*'s selected points.
 
-    Reads points ``[start, stop)`` (coordinates through :meth:`PointStore.read`),
-    keeps those of *mask*, computes their keys, sorts them by key (stable)
-    and writes them, every attribute packed in one record per point, to row
-    *chunk* of ``export/<name>/records``.
-
-    Returns
-    -------
-    keys : ndarray of shape (r,), int64
-        The chunk's distinct keys, increasing.
-    counts : ndarray of shape (r,), int64
-        Points of each key in the chunk.
+    Returns the chunk's distinct keys, increasing, and their counts: (r,) int64 each.
     """
     store = PointStore.open(store_path, "r+")
     out = store.group[f"{_prefix(name)}/records"]
@@ -160,19 +123,15 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     store : PointStore or str
         The store or its path (local, or a URL every worker can reach).
     keys : callable
-        ``keys(xyz)``, xyz ndarray of shape (n, 3), float64 -> ndarray of
-        shape (n,), integer: the key of each point. A module-level function
-        or a :func:`functools.partial` of one (it is pickled into the tasks).
+        ``keys(xyz (n, 3) float64) -> (n,) integer``; module-level or a
+        :func:`functools.partial` of one (it is pickled into the tasks).
     name : str
-        The scratch's name: arrays under ``export/<name>/`` (replaced when
-        present; see the module's docstring for the layout).
+        Scratch name: arrays under ``export/<name>/``, replaced when present.
     mask : str, optional
-        A boolean array of the store, one entry per point (e.g.
-        "simplify/keep"): only its True points are bucketed.
+        A boolean store array, one entry per point: only its True points are bucketed.
     run : callable, optional
-        ``run(func, argument_tuples, stage)`` -> results in argument order (a
-        :class:`cloudsieve.engine.runner.Runner`); None runs the tasks here,
-        one after the other.
+        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
+        None runs the tasks here in turn.
 
     Returns
     -------
@@ -182,8 +141,7 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     Raises
     ------
     InvalidParameterError
-        A bad *name*, a *mask* that is not a boolean array of N entries, or
-        *keys* returning something other than one integer per point.
+        A bad *name* or *mask*, or *keys* not returning one integer per point.
     ArrayNotFoundError
         No array *mask* in the store.
     """
@@ -239,16 +197,13 @@ def _record(arr) -> np.dtype:
 
 
 def open_runs(store_path: str, name: str) -> tuple:
-    """The scratch of buckets *name*, opened to read runs from: (zarr array, record dtype).
-
-    Pass it to :func:`read_runs` / :func:`iter_runs` for several reads in one task.
-    """
+    """The scratch of buckets *name* opened for reading: (zarr array, record dtype), once per process and stage."""
     import zarr
 
     from ..paths import zarr_store
 
     def make() -> tuple:
-        # the array alone: opening the store (its attributes, the header) too costs every task its reads
+        # the array alone: opening the whole store costs every task its reads
         arr = zarr.open_array(zarr_store(str(store_path), read_only=True), path=f"{_prefix(name)}/records",
                               mode="r", zarr_format=3)
         return arr, _record(arr)
@@ -257,17 +212,10 @@ def open_runs(store_path: str, name: str) -> tuple:
 
 
 def read_runs(store_path: str, name: str, runs: np.ndarray, scratch: tuple | None = None) -> dict[str, np.ndarray]:
-    """Every attribute of the points of *runs* (rows (chunk, start, count), as :meth:`Buckets.runs` gives).
+    """Every attribute of the points of *runs* (rows (chunk, start, count)), runs in order.
 
-    The task-side read: a task handed its key's runs reads them without
-    loading the buckets' index (arrays of size K). *scratch*: :func:`open_runs`'s,
-    else opened here.
-
-    Returns
-    -------
-    dict of str to ndarray
-        ``"xyz"``: (n, 3) float64, then each attribute (n,) or (n, k), the
-        runs' points one run after the other.
+    The task-side read; needs no index. *scratch*: :func:`open_runs`'s, else opened here.
+    Returns ``{"xyz": (n, 3) float64, attribute: (n,) or (n, k), ...}``.
     """
     arr, record = open_runs(store_path, name) if scratch is None else scratch
     runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
@@ -280,11 +228,9 @@ def read_runs(store_path: str, name: str, runs: np.ndarray, scratch: tuple | Non
 
 def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
               scratch: tuple | None = None) -> Iterator[dict[str, np.ndarray]]:
-    """:func:`read_runs` in consecutive blocks of whole runs, each of at most *max_points* points.
+    """:func:`read_runs` in blocks of whole runs of at most *max_points* points (or one larger run).
 
-    A block holds one run when that run alone is larger (a run is at most
-    one store chunk): memory stays bounded by the chunk size however many
-    points the runs hold.
+    A run is at most one store chunk, so memory stays bounded by the chunk size.
     """
     scratch = open_runs(store_path, name) if scratch is None else scratch
     runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
@@ -298,27 +244,13 @@ def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
 
 
 class Buckets:
-    """The points of a store grouped by key (made by :func:`bucket`): the driver's index of them.
+    """The driver's index of a store's points grouped by key (made by :func:`bucket`).
 
-    Holds arrays of size K (keys, counts) and the run table (one row per
-    nonzero (key, chunk) pair), nothing of size N. A task for one key is
-    best handed ``(store_path, name, buckets.runs(key))`` and reads with
-    :func:`read_runs` / :func:`iter_runs`, rather than this object (each
-    task would load or unpickle the whole index). It pickles, and
-    :meth:`Buckets.open` reopens it from the store's path and the name.
-
-    Attributes
-    ----------
-    store_path : str
-        The store's path or URL.
-    name : str
-        The scratch's name (``export/<name>/``).
-    keys : ndarray of shape (K,), int64
-        The distinct keys, increasing.
-    counts : ndarray of shape (K,), int64
-        Points of each key.
-    ptr : ndarray of shape (K + 1,), int64
-        The runs of ``keys[i]`` are rows ``ptr[i]:ptr[i + 1]`` of the run table.
+    Holds *keys* and *counts* (K,) int64, *ptr* (K + 1,) (the runs of
+    ``keys[i]`` are rows ``ptr[i]:ptr[i + 1]`` of the run table) and the run
+    table, nothing of size N. Hand tasks ``(store_path, name, buckets.runs(key))``
+    rather than this object, so each does not load the whole index. Pickles;
+    :meth:`open` reopens it.
     """
 
     def __init__(self, store_path: str, name: str, keys: np.ndarray, counts: np.ndarray, ptr: np.ndarray) -> None:
@@ -356,11 +288,7 @@ class Buckets:
         return list(open_runs(self.store_path, self.name)[1].names)
 
     def runs(self, key: int) -> np.ndarray:
-        """The runs of *key*: rows (chunk, start, count), chunks increasing, shape (r, 3), int64.
-
-        Its points are ``export/<name>/records[chunk, start:start + count]``
-        for the rows in turn; no row for a key without points.
-        """
+        """The runs of *key*: (r, 3) int64 rows (chunk, start, count), chunks increasing; none for an absent key."""
         i = int(np.searchsorted(self.keys, key))
         if i >= len(self.keys) or self.keys[i] != key:
             return np.empty((0, 3), dtype=np.int64)
@@ -370,14 +298,7 @@ class Buckets:
         return self._table[int(self.ptr[i]):int(self.ptr[i + 1])]
 
     def read(self, key: int) -> dict[str, np.ndarray]:
-        """Every attribute of the points of *key*, in input order.
-
-        Returns
-        -------
-        dict of str to ndarray
-            ``"xyz"``: (n, 3) float64, and each attribute (n,) or (n, k); n = 0
-            for a key without points.
-        """
+        """Every attribute of the points of *key*, in input order (as :func:`read_runs`; n = 0 for an absent key)."""
         return read_runs(self.store_path, self.name, self.runs(key))
 
     def blocks(self, key: int, max_points: int) -> Iterator[dict[str, np.ndarray]]:

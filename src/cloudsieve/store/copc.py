@@ -1,49 +1,21 @@
 """Point store -> COPC file, out of core: :func:`export_copc`.
 
-The steps, each a batch of tasks (no point passes through the driver):
+1. **Bucket** the points by octree node at depth H (:func:`cloudsieve.store.buckets.bucket`,
+   :func:`.octree.node_keys`), H the smallest depth <= :data:`.octree.GRID_BITS`
+   at which a surface of the cloud's size puts about *task_points* / 4 in a node.
+2. **Plan** (driver): a task per top-most node holding <= *task_points* points.
+3. **Subtrees**: a task per such node T assigns levels (:func:`.octree.assign_levels`,
+   points by cell at depth 7, input order within), writes a LAZ chunk per
+   node of T's subtree and T's ancestors' records to scratch files, and
+   returns sizes and counts only.
+4. **Ancestors**: tasks gather and compress each ancestor's records.
+5. **File**: one task writes it (:func:`.copc_file.write_copc`).
 
-1. **Bucket** the points by their node at depth H (:func:`cloudsieve.store.buckets.bucket`,
-   keys = Morton keys of :func:`.octree.node_keys`); H is the smallest depth,
-   at most :data:`.octree.GRID_BITS` (7), at which a surface of the cloud's
-   size would put about a quarter of *task_points* in a node.
-2. **Plan** (driver, arrays of one entry per bucket): each task takes the
-   top-most node holding at most *task_points* points (or a node at depth H).
-3. **Subtrees**: one task per such node T reads its points, orders them by
-   their cell at depth 7 (Morton order; input order within a cell), finds
-   the node keeping each point (:func:`.octree.assign_levels`), compresses
-   each node of T's subtree into one LAZ chunk (its points in GPS time
-   order), appended to its scratch file, and writes the raw records its
-   points give to T's ancestors (at most one per voxel of an ancestor's
-   grid) to a second scratch file. It returns sizes and counts only.
-4. **Ancestors**: tasks gather each ancestor's records from the subtree
-   tasks (in their order), compress them into its chunk.
-5. **File**: one task copies the chunks into the file, in (depth, Morton
-   key) order, between the header (COPC info VLR first, LASzip VLR, the
-   source's VLRs) and the chunk table, and writes the hierarchy EVLR and the
-   source's EVLRs (:func:`.copc_file.write_copc`).
-
-Since every voxel of a node at depth at most 7 lies inside one node at depth
-7, each task finds exactly the levels a single build over the whole cloud
-(in that order) would: the file depends on the cloud and *leaf_points*
-only, never on the runner, the worker count, *task_points* or the bucket
-depth. A task holds its node's points, at most *task_points* unless one
-node at depth H (at most 7) alone holds more (a cloud denser than about
-10^6 points per 1/128 of its extent, cubed), about 165 bytes each (measured);
-the final step only copies bytes.
-
-A local file is written under a temporary name beside *dst* and renamed
-when complete; scratch files live in a temporary folder beside *dst* (workers
-must reach it, as they reach the store) and the buckets in the store, both
-removed at the end, also on failure.
-
-A URL *dst* (an object store: no disk shared by the workers, no rename):
-the scratch files are objects under the prefix ``.<name>.scratch-<id>/``
-beside *dst*; each task writes its own in its worker's temporary folder and
-uploads it, readers fetch byte ranges (:mod:`.copc_scratch`). The final
-task writes the file front to back as one upload to *dst*
-(:func:`.copc_file.write_copc`): the object appears complete or not at all.
-The prefix is removed at the end, also on failure. The bytes are the same
-as a local *dst*'s.
+Every voxel of a node at depth <= 7 lies inside one node at depth 7, so the
+file depends on the cloud and *leaf_points* only, never on the runner,
+worker count, *task_points* or H. A local *dst* is written under a
+temporary name and renamed; a URL *dst* is one upload, with the same bytes.
+Scratch (:mod:`.copc_scratch`) and buckets are removed at the end, also on failure.
 """
 
 from __future__ import annotations
@@ -70,7 +42,7 @@ __all__ = ["export_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
 
 logger = logging.getLogger(__name__)
 
-#: points per subtree task (its memory: about 165 bytes per point, measured with tracemalloc)
+#: points per subtree task (its memory: about 165 bytes per point)
 DEFAULT_TASK_POINTS = 1_000_000
 #: points per read of a subtree task's buckets
 _READ_BLOCK = 1 << 18
@@ -109,19 +81,14 @@ def _plan(keys: np.ndarray, counts: np.ndarray, depth: int, task_points: int) ->
 
 
 def _chunk(records: np.ndarray, vlr) -> bytes:
-    """The LAZ chunk of one node, its points in GPS time order (stable: ties keep the cell order).
-
-    The order of acquisition, as the source's: chunks 18% smaller than in
-    cell order on autzen_trim.
-    """
+    """The LAZ chunk of one node, its points in GPS time order (stable), as acquired: smaller chunks."""
     return compress(records.take(np.argsort(records["gps_time"], kind="stable")), vlr)
 
 
 @dataclass(frozen=True)
 class _Build:
-    """What every subtree task of one COPC export shares: the store's bucketed points (*store_path*, the
-    buckets' array *name*), the octree's cube (*origin*, *size*), *leaf_points*, the output's *header* and
-    record *mapping*, and the *scratch* folder."""
+    """What every subtree task of one export shares: the bucketed points, the octree's cube, *leaf_points*,
+    the output's *header* and record *mapping*, the *scratch* folder."""
 
     store_path: str
     name: str
@@ -134,17 +101,16 @@ class _Build:
 
 
 def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> dict:
-    """Build the subtree of one node at *depth* (its buckets' *runs*): its chunks and its ancestors' records.
+    """Build the subtree of one node at *depth* from its buckets' *runs*.
 
-    Writes ``scratch/nodes-<index>.bin`` (one LAZ chunk per node of the
-    subtree) and ``scratch/up-<index>.bin`` (raw records of the ancestors'
-    points, shallowest ancestor first) through :func:`.copc_scratch.scratch_output`;
-    returns their tables and the statistics of every point.
+    Writes ``nodes-<index>.bin`` (a LAZ chunk per subtree node) and
+    ``up-<index>.bin`` (raw ancestor records, shallowest first) to the
+    scratch; returns their tables and the points' statistics.
     """
     scratch, mapping = build.scratch, build.mapping
     hdr, _ = header_from_dict(build.header)
     xyz_parts, record_parts = [], []
-    # block by block: packed records (36 bytes a point in format 7) and coordinates only
+    # block by block: packed records and coordinates only
     for part in iter_runs(build.store_path, build.name, runs, _READ_BLOCK):
         xyz_parts.append(part["xyz"])
         record_parts.append(point_records(part, hdr, mapping))
@@ -154,9 +120,9 @@ def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> di
     stats = record_stats(records, hdr.point_format)
     keys = point_keys(xyz, build.origin, build.size)
     del xyz
-    # the order of the points: by their cell at depth GRID_BITS, then input order (whatever the bucket depth)
+    # by cell at depth GRID_BITS, then input order (whatever the bucket depth)
     order = np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")
-    keys, records = keys[order], records.take(order)  # take: faster than indexing on records
+    keys, records = keys[order], records.take(order)
     level = assign_levels(keys, base_depth=depth, leaf_points=build.leaf_points)
     order, depths, nkeys, counts = group_nodes(keys, level)
     del keys, level
@@ -183,13 +149,11 @@ def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> di
 
 
 def _ancestor_task(header: dict, scratch: str, index: int, parts: list[list[tuple[int, int, int]]]) -> np.ndarray:
-    """Compress ancestor nodes: for each, its records gathered from the subtree tasks' ``up`` files.
+    """Compress a batch of ancestor nodes from the subtree tasks' ``up`` files into ``anc-<index>.bin``.
 
-    *parts*: one list per node of (task index, record offset, record count),
-    in task order. The nodes of a batch follow each other in (depth, key)
-    order, as every ``up`` file holds its records: one read per subtree task
-    (one ranged request for a URL) fetches its records for the whole batch.
-    Writes ``scratch/anc-<index>.bin``; returns the chunks' sizes.
+    *parts*: per node, (task index, record offset, record count) in task
+    order. The batch's nodes are consecutive in every ``up`` file, so one read
+    (one ranged request) per subtree task suffices. Returns the chunks' sizes.
     """
     hdr, _ = header_from_dict(header)
     dtype = hdr.point_format.dtype()
@@ -223,7 +187,7 @@ def _bounds_task(store_path: str, mask: str, start: int, stop: int) -> np.ndarra
 
 
 def _kept_bounds(store: PointStore, mask: str, run) -> np.ndarray:
-    """Bounds of the points *mask* keeps (the header's, and the root cube's corner), one task per store chunk."""
+    """Bounds of the points *mask* keeps, one task per store chunk."""
     arr = store.array(mask)  # a missing mask: ArrayNotFoundError here, before any task
     if arr.ndim != 1 or arr.shape[0] != store.count or np.dtype(arr.dtype) != np.bool_:
         raise InvalidParameterError(f"{store.path}: mask {mask!r} must be a boolean array of {store.count} entries "
@@ -271,27 +235,16 @@ def _ancestors(results: list[dict], task_points: int) -> tuple[np.ndarray, np.nd
 def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, run=None, overwrite: bool = False,
                 progress=None, task_points: int = DEFAULT_TASK_POINTS,
                 leaf_points: int = DEFAULT_LEAF_POINTS) -> dict:
-    """Write the points of *store* (all, or those of *mask*) to the COPC file *dst*, out of core.
+    """Write the points of *store* (all, or those of the bool store array *mask*) to the COPC file *dst*.
 
-    Every point is an exact copy of its input record (point format 6/7/8:
-    see :mod:`.copc_file` for formats 0-5), every attribute, extra bytes,
-    VLR and EVLR kept; the same bytes with any runner and worker count.
+    Every point is an exact copy of its input record (formats 6/7/8; see
+    :mod:`.copc_file` for 0-5), every attribute, extra bytes, VLR and EVLR
+    kept; the same bytes with any runner and worker count. *dst* is a local
+    path or a URL (module docstring); *run* as :func:`.buckets.bucket`'s;
+    *progress* is called with the points placed after the subtree tasks.
 
     Parameters
     ----------
-    store : PointStore or str
-        The store or its path (a URL the workers can reach).
-    dst : str
-        Destination file (``.copc.laz``): a local path or a URL (see the module's notes).
-    mask : str, optional
-        A boolean array of the store, one entry per point (e.g. "simplify/keep").
-    run : callable, optional
-        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
-        None runs the tasks here, one after the other.
-    overwrite : bool
-        Replace an existing *dst*.
-    progress : callable, optional
-        Called with the number of points placed after the subtree tasks.
     task_points : int
         Points per subtree task (bounds a task's memory).
     leaf_points : int

@@ -1,28 +1,10 @@
-"""The bytes of a COPC 1.0 file: header, point records, LAZ chunks, hierarchy.
+"""The bytes of a COPC 1.0 file (https://copc.io): header, point records, LAZ chunks, hierarchy.
 
-A COPC file (https://copc.io, version 1.0) is a LAS 1.4 file of point format
-6, 7 or 8 (extra bytes allowed) whose first VLR, right after the 375-byte
-header, is the ``copc`` info VLR (record 1: the root cube, the spacing, the
-place of the root hierarchy page, the GPS time range), whose points are
-LAZ-compressed with variable-size chunks, one chunk per octree node, and
-whose EVLR ``copc`` 1000 holds the hierarchy (:mod:`.copc_hierarchy`).
-
-Point formats (as PDAL's ``writers.copc``): a source with NIR gives 8, with
-RGB 7, else 6. A source of format 0-5 is converted field by field:
-X/Y/Z, intensity, return number, number of returns, scan direction, edge of
-flight line, classification (5 bits into the 8-bit field, same value),
-synthetic/key-point/withheld flags, user data, point source id, GPS time,
-RGB, NIR and extra bytes keep their values; ``scan_angle`` =
-``round(scan_angle_rank / 0.006)`` in float32 (PDAL's rule: same angle,
-0.006 degree units); overlap and scanner channel are 0. The wave packet
-fields of formats 4, 5, 9 and 10 have no place in COPC: dropped, with a
-warning.
-
-Functions: :func:`copc_header` (the output header, as the JSON dict of
-:mod:`cloudsieve.io.las_header`, and the attribute mapping),
-:func:`point_records` (store arrays -> packed records), :func:`compress`
-(records -> one LAZ chunk), :func:`record_stats` / :func:`merge_stats` and
-:func:`write_copc` (the file from chunks written elsewhere).
+A LAS 1.4 file of point format 6, 7 or 8 (PDAL's choice: 8 with NIR, 7 with
+RGB), the ``copc`` info VLR first, one variable-size LAZ chunk per octree
+node, the hierarchy in EVLR ``copc`` 1000 (:mod:`.copc_hierarchy`). Formats
+0-5 convert field by field (``scan_angle = round(scan_angle_rank / 0.006)``,
+as PDAL); wave packet fields are dropped, with a warning.
 """
 
 from __future__ import annotations
@@ -49,7 +31,7 @@ __all__ = ["copc_header", "point_records", "compress", "record_stats", "merge_st
 
 logger = logging.getLogger(__name__)
 
-#: the spacing of the root is its edge / SPAN (the voxels along an axis of a node's grid)
+#: the root's spacing is its edge / SPAN (voxels along an axis of a node's grid)
 SPAN = 128
 _WAVE = ("wavepacket_index", "wavepacket_offset", "wavepacket_size", "return_point_wave_location",
          "x_t", "y_t", "z_t")
@@ -64,29 +46,15 @@ def _output_format(point_format: int) -> int:
 
 def copc_header(header: dict, dtypes: dict, source_format: str | None, bounds: np.ndarray | None = None,
                 path: str = "") -> tuple[dict, list[tuple[str, str, str]]]:
-    """The COPC header of a store's cloud, and how each attribute goes into the records.
+    """The COPC header (dict) of a store's cloud, and how each attribute goes into the records.
 
-    Parameters
-    ----------
-    header : dict
-        The store's header (:func:`cloudsieve.io.las_header.header_to_dict`; any dict for non-LAS sources).
-    dtypes : dict
-        The store's attribute name -> (dtype, per-point shape).
-    source_format : str or None
-        "las", "laz", "copc", or another format (a fresh header from
-        :func:`cloudsieve.io.las_header.build_header`).
-    bounds : ndarray of shape (2, 3), optional
-        Bounds of the cloud (scales and offsets of a fresh header).
-    path : str
-        The destination, for messages.
-
-    Returns
-    -------
-    header : dict
-        LAS 1.4, point format 6/7/8 with the source's extra bytes, the
-        WKT bit set, the source's VLRs and EVLRs but the LASzip and COPC ones.
-    mapping : list of (str, str, str)
-        (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" | "int" | "angle").
+    *header*, *dtypes*, *source_format*: the store's (a fresh header from
+    :func:`cloudsieve.io.las_header.build_header` and *bounds* for a non-LAS
+    source); *path*: the destination, for messages. The header is LAS 1.4,
+    format 6/7/8 with the source's extra bytes, the WKT bit set, and the
+    source's VLRs and EVLRs but the LASzip and COPC ones. The mapping lists
+    (store attribute, LAS dimension, conversion "copy" | "color8" | "unit16" |
+    "int" | "angle").
     """
     if source_format in ("las", "laz", "copc") or (source_format is None and "point_format" in header):
         d = dict(header)
@@ -116,12 +84,10 @@ def copc_header(header: dict, dtypes: dict, source_format: str | None, bounds: n
 
 
 def _wkt_from_geotiff(d: dict, path: str) -> list[dict]:
-    """A WKT VLR (as a header dict entry) for a CRS given by GeoTIFF keys only, or none (with a warning).
+    """A WKT VLR (header dict entry) for a CRS given by GeoTIFF keys only, or none (with a warning).
 
-    LAS 1.4 point formats 6-10 take their CRS from a WKT VLR (COPC: "if
-    the data has a CRS"); PDAL writes WKT1 (GDAL's flavour): the same here,
-    through pyproj (laspy's ``parse_crs``: GeoTIFF keys naming an EPSG code).
-    The GeoTIFF keys are kept too.
+    Point formats 6-10 take their CRS from a WKT VLR; written as WKT1 (GDAL's
+    flavour, as PDAL) through pyproj. The GeoTIFF keys are kept too.
     """
     try:
         import pyproj  # noqa: F401 - laspy's parse_crs needs it
@@ -153,13 +119,9 @@ def laz_vlr(header: laspy.LasHeader) -> lazrs.LazVlr:
 
 def point_records(arrays: dict[str, np.ndarray], header: laspy.LasHeader,
                   mapping: list[tuple[str, str, str]]) -> np.ndarray:
-    """The packed point records of *arrays* (store attributes, "xyz" float64) in *header*'s point format.
+    """The packed point records (n,) of *arrays* (store attributes, "xyz" float64) in *header*'s format.
 
     X/Y/Z are ``round((xyz - offset) / scale)``: the source's integers.
-
-    Returns
-    -------
-    ndarray of shape (n,), structured (the point format's packed dtype)
     """
     xyz = np.asarray(arrays["xyz"], dtype=np.float64)
     n = len(xyz)
@@ -246,8 +208,7 @@ def _runs(sources: np.ndarray, offsets: np.ndarray, nbytes: np.ndarray) -> list[
 
 
 def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
-    """*nbytes* of the scratch file *path* (a local path or a URL) from *offset*, appended to *dst* in reads of
-    at most :data:`cloudsieve.storage.READ_BLOCK` (one ranged request each for a URL)."""
+    """Append *nbytes* of the scratch file *path* from *offset* to *dst*, in reads of at most READ_BLOCK."""
     done = 0
     while done < nbytes:
         step = min(nbytes - done, storage.READ_BLOCK)
@@ -261,39 +222,28 @@ def _copy(dst: BinaryIO, path: str, offset: int, nbytes: int) -> None:
 
 def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: dict[str, np.ndarray],
                sources: list[str], stats: dict, root_nodes: int = ROOT_PAGE_NODES) -> int:
-    """Write the COPC file *path* from node chunks already compressed into *sources*.
+    """Write the COPC file *path* from node chunks already compressed into *sources*; returns bytes written.
 
-    The bytes go out front to back (every header field and the chunk table are
-    worked out before the first write), so a URL is written as one upload
-    (:func:`cloudsieve.storage.open_output`): the object appears when the file
-    is complete; a failure aborts the upload (:func:`cloudsieve.storage.discard`)
-    and leaves nothing under *path*. Chunks that follow each other in one
-    source are copied as one run, in reads of at most
-    :data:`cloudsieve.storage.READ_BLOCK`.
+    The bytes go out front to back (header fields and chunk table computed
+    first), so a URL is one upload (:func:`cloudsieve.storage.open_output`)
+    that appears complete or not at all. Consecutive chunks of one source
+    are copied as one run.
 
     Parameters
     ----------
-    path : str
-        The file to write (replaced): a local path or a URL.
     header : dict
         From :func:`copc_header`.
     origin, size
         The root cube (:func:`cloudsieve.store.octree.root_cube`).
     nodes : dict of str to ndarray
-        One entry per node, in file order: "depth", "x", "y", "z" (the
-        node's key), "count" (points), "nbytes" (its LAZ chunk), "source"
-        (index into *sources*) and "offset" (the chunk's place in that file).
+        One entry per node, in file order: "depth", "x", "y", "z" (its key),
+        "count", "nbytes", "source" (index into *sources*) and "offset".
     sources : list of str
         Scratch files holding the chunks (local paths or URLs).
     stats : dict
         :func:`merge_stats` of every point.
     root_nodes : int
-        At most this many nodes: one hierarchy page (see :mod:`.copc_hierarchy`).
-
-    Returns
-    -------
-    int
-        Bytes written.
+        At most this many nodes in one hierarchy page (:mod:`.copc_hierarchy`).
     """
     hdr, evlrs = header_from_dict(header, path)
     vlr = laz_vlr(hdr)
@@ -311,7 +261,7 @@ def write_copc(path: str, header: dict, origin: np.ndarray, size: float, nodes: 
         hdr.write_to(out)
         data = bytearray(out.getvalue())
         day_year = header.get("creation_day_year")
-        if header.get("creation_date") is None:  # laspy writes the current date for an unset one: the source's bytes
+        if header.get("creation_date") is None:  # laspy would write the current date: keep the source's bytes
             day, year = day_year if day_year else (0, 0)
             data[90:94] = int(day).to_bytes(2, "little") + int(year).to_bytes(2, "little")
         return bytes(data)

@@ -1,15 +1,7 @@
-"""The COPC hierarchy: the nodes' 32-byte entries, in pages.
-
-An entry is ``(depth, x, y, z)`` int32, the node's chunk offset uint64, its
-byte size int32 and its point count int32; a count of -1 points to a page
-(offset and size of the page) holding the entries of that node's part of the
-tree. A reader loads the root page first, then the pages its query reaches.
-
-Pages as EPT's "hierarchy step" (Entwine) cuts them: with at most
-:data:`ROOT_PAGE_NODES` nodes, one page; else every node at a depth that is a
-multiple of :data:`HIERARCHY_STEP` (4) starts a page holding the nodes of its
-subtree down to the next such depth, and pointers to the pages below. The
-pages follow from the nodes alone: the same for any split into tasks.
+"""The COPC hierarchy: the nodes' 32-byte entries (``(depth, x, y, z)`` int32, chunk offset uint64, byte
+size and point count int32; count -1 points to a child page), in pages cut as EPT's "hierarchy step": one
+page up to :data:`ROOT_PAGE_NODES` nodes, else a page per node at a depth multiple of
+:data:`HIERARCHY_STEP`. The pages follow from the nodes alone, whatever the split into tasks.
 """
 
 from __future__ import annotations
@@ -30,25 +22,11 @@ ROOT_PAGE_NODES = 1024
 
 def hierarchy_pages(entries: np.ndarray, at: int, *, step: int = HIERARCHY_STEP,
                     root_nodes: int = ROOT_PAGE_NODES) -> tuple[bytes, int]:
-    """The hierarchy's pages, root page first, as they go into the file at offset *at*.
+    """The hierarchy's pages, root page first, for file offset *at*: (bytes, root page size).
 
-    Parameters
-    ----------
-    entries : ndarray of shape (m,), ENTRY_DTYPE
-        Every node's entry (every ancestor of a node is a node).
-    at : int
-        File offset of the first page (the root page).
-    step : int
-        Depths of the page roots: the multiples of *step*.
-    root_nodes : int
-        With at most this many nodes, a single page.
-
-    Returns
-    -------
-    data : bytes
-        Every page, back to back.
-    root_size : int
-        Bytes of the root page.
+    *entries*: every node's entry, ENTRY_DTYPE (every ancestor of a node is a
+    node); page roots at depths multiple of *step*; at most *root_nodes*
+    nodes make a single page.
     """
     entries = np.asarray(entries, dtype=ENTRY_DTYPE)
     if len(entries) <= root_nodes:
@@ -57,7 +35,7 @@ def hierarchy_pages(entries: np.ndarray, at: int, *, step: int = HIERARCHY_STEP,
     key = morton(np.stack([entries["x"], entries["y"], entries["z"]], axis=1))
     pd = (d // step) * step
     pkey = key >> (3 * (d - pd))
-    # the pages below the root, by (depth, key); a node's page index (0: the root page)
+    # the pages below the root by (depth, key); each node's page (0: root)
     page_depths, page_keys = [], []
     node_page = np.zeros(len(entries), dtype=np.int64)
     for depth in np.unique(pd[pd > 0]):
@@ -69,7 +47,7 @@ def hierarchy_pages(entries: np.ndarray, at: int, *, step: int = HIERARCHY_STEP,
     pdepth = np.concatenate(page_depths)
     pkeys = np.concatenate(page_keys)
     n_pages = 1 + len(pkeys)
-    # a page's pointer goes in the page of its root's ancestor at the depth one step up
+    # a page's pointer goes in the page one step up
     parent = np.zeros(len(pkeys), dtype=np.int64)
     for depth in np.unique(pdepth):
         if depth == step:

@@ -1,13 +1,6 @@
-"""The scratch files of a COPC export (:mod:`.copc`): where they live, how tasks write and read them.
-
-For a local destination, the scratch is a temporary folder beside it (the
-workers reach it as they reach the store). For a URL (an object store, where
-workers share no disk), it is the prefix ``.<name>.scratch-<id>`` beside the
-destination: a task writes each of its scratch files in its worker's
-temporary folder and uploads it whole (:func:`cloudsieve.storage.upload`);
-readers fetch byte ranges (:func:`cloudsieve.storage.read_range`). Either is
-removed at the end of the export, also on failure (:func:`remove_scratch`).
-"""
+"""The scratch files of a COPC export (:mod:`.copc`): a temporary folder beside a local destination, or
+for a URL a prefix ``.<name>.scratch-<id>`` beside it (files written locally, uploaded whole, read by
+byte ranges); removed at the end, also on failure."""
 
 from __future__ import annotations
 
@@ -32,8 +25,7 @@ logger = logging.getLogger(__name__)
 
 
 def make_scratch(dst: str) -> str:
-    """The scratch of an export to *dst*: a new temporary folder beside a local *dst*; for a URL, a prefix
-    beside it no other export uses (nothing is created until a task uploads its first file)."""
+    """The scratch of an export to *dst*: a new temporary folder, or for a URL an unused prefix beside it."""
     if storage.is_url(dst):
         return storage.join(storage.parent(dst), f".{storage.name(dst)}.scratch-{uuid.uuid4().hex[:12]}")
     return make_temp_path(dst, directory=True)
@@ -41,8 +33,7 @@ def make_scratch(dst: str) -> str:
 
 @contextlib.contextmanager
 def scratch_output(scratch: str, name: str) -> Iterator[BinaryIO]:
-    """A binary file writing the scratch file *name*: in the local folder *scratch*; for a prefix on an object
-    store, in this worker's temporary folder, uploaded to ``scratch/name`` once written whole, then removed."""
+    """A binary file writing scratch file *name*; for a prefix, written locally and uploaded whole."""
     if not storage.is_url(scratch):
         with open(os.path.join(scratch, name), "wb") as f:
             yield f
@@ -58,8 +49,7 @@ def scratch_output(scratch: str, name: str) -> Iterator[BinaryIO]:
 
 
 def read_records(path: str, first: int, count: int, dtype: np.dtype) -> np.ndarray:
-    """*count* raw records of *dtype* of the scratch file *path* (a local path or a URL: one ranged request)
-    from record *first*.
+    """*count* raw records of *dtype* of scratch file *path* from record *first* (one ranged request).
 
     Raises
     ------
@@ -75,14 +65,13 @@ def read_records(path: str, first: int, count: int, dtype: np.dtype) -> np.ndarr
 
 
 def remove_scratch(scratch: str) -> None:
-    """Remove the scratch folder or prefix and everything in it; an error is logged, not raised (raised in
-    a ``finally``, it would replace the export's own)."""
+    """Remove the scratch and everything in it; errors are logged, not raised (in a ``finally``)."""
     if not storage.is_url(scratch):
         remove(scratch)
         return
     try:
         storage.remove(scratch, recursive=True)
-        # s3fs deletes in bulk and does not raise for the keys the store refused: what is left is looked up
+        # s3fs does not raise for keys the store refused: look up what is left
         left = storage.isdir(scratch)
     except Exception as exc:  # noqa: BLE001 - best effort, as the local folder's removal
         logger.warning("could not remove the scratch objects under %s: %s", scratch, exc)

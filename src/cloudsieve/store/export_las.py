@@ -1,15 +1,8 @@
 """Point store -> one LAS/LAZ file, as tasks: :func:`export_las`.
 
-The kept points are cut into parts of a whole number of LAZ chunks (50,000
-points, laspy's chunk size), in input order. Each task writes its part as a
-complete LAS/LAZ file with :class:`cloudsieve.io.las.LasWriter` (every
-attribute, VLR and the CRS; each point the exact record it came from); then
-the driver only concatenates bytes: the first part's header and VLRs, the
-parts' point data (kernel-side copies, ``os.copy_file_range``), one chunk
-table made of the parts' tables, the EVLRs, and the header's counts, bounds
-and return histogram summed over the parts. Every chunk but the last holds
-50,000 points, as in a file written in one stream, so the file is the same,
-byte for byte, as the one :func:`cloudsieve.store.export` writes alone.
+Each task writes a part of whole LAZ chunks as a complete file; the driver
+only concatenates bytes. The file is byte for byte the one
+:func:`cloudsieve.store.export` writes in one stream.
 """
 
 from __future__ import annotations
@@ -45,7 +38,7 @@ def count_task(store_path: str, mask: str, start: int, stop: int) -> int:
 
 
 class _Quiet(logging.Filter):
-    """Drops warnings about the header and the conversion: every part has the same, the first part gives them."""
+    """Drops the header and conversion warnings every part repeats (the first part gives them)."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         return record.levelno < logging.WARNING
@@ -53,13 +46,9 @@ class _Quiet(logging.Filter):
 
 def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunks: list[tuple[int, int, int, int]],
               label: str, first: bool) -> int:
-    """Write one part: for each store rows ``[start, stop)``, its kept points ``lo:hi`` (a task).
+    """Task: write one part, for each store rows ``[start, stop)`` its kept points ``lo:hi``; points written.
 
-    *label* is the whole file's name, for messages; only the *first* part warns about the header.
-
-    Returns
-    -------
-    int : points written.
+    *label* names the whole file in messages; only the *first* part warns.
     """
     bound_malloc()
     st = PointStore.open(store_path, "r")
@@ -92,8 +81,8 @@ def _write_part(st: PointStore, part_path: str, fmt: str, mask: str | None, chun
 
 
 def _plan(counts: np.ndarray, chunk_size: int, n: int, part_size: int) -> list[list[tuple[int, int, int, int]]]:
-    """Parts of *part_size* kept points: per part, the store rows ``(start, stop)`` and the slice ``lo:hi`` of
-    their kept points (one empty part when nothing is kept)."""
+    """Per part of *part_size* kept points: store rows ``(start, stop)`` and the slice ``lo:hi`` of their kept
+    points (one empty part when nothing is kept)."""
     ends = np.cumsum(counts)
     starts = ends - counts
     total = int(ends[-1]) if len(ends) else 0
@@ -129,24 +118,11 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
                counts: list[int] | None = None, overwrite: bool = False, part_size: int | None = None) -> int:
     """Write the points of *store* kept by the bool array *mask* to the LAS/LAZ file *dst*, as tasks.
 
-    Parameters
-    ----------
-    store : PointStore
-    dst : str
-        Destination; written under a temporary name beside it, renamed when complete.
-    fmt : {"las", "laz"}
-    mask : str, optional
-        A bool array of the store ("simplify/keep"); None keeps every point.
-    run : Runner, optional
-        Runs the tasks; None: one after the other in this process.
-    counts : list of int, optional
-        Kept points per store chunk, when known (the merge stage's results).
-    part_size : int, optional
-        Points per task, a multiple of :data:`LAZ_CHUNK` (default: about a store chunk).
-
-    Returns
-    -------
-    int : points written.
+    *dst* is written under a temporary name and renamed; *fmt* "las" or
+    "laz"; *mask* None keeps every point; *run* None runs the tasks here;
+    *counts*: kept points per store chunk when known (the merge's);
+    *part_size*: points per task, a multiple of :data:`LAZ_CHUNK` (default
+    about a store chunk). Returns the points written.
     """
     from ..atomic import check_destination, make_temp_path, remove, replace
 
@@ -176,9 +152,8 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
 
 
 def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, part_size) -> int:
-    """:func:`export_las` to a URL: the parts go to a scratch prefix beside *dst* (each written in its
-    worker's temporary folder and uploaded), then one task streams them into *dst* (:func:`stream_splice`:
-    a multipart upload that completes only when every byte is in); the scratch is removed either way."""
+    """:func:`export_las` to a URL: parts go to a scratch prefix beside *dst*, then one task streams them
+    into *dst* as one upload (:func:`stream_splice`); the scratch is removed either way."""
     import uuid
 
     counts, plan = _parts_plan(store, mask, run, counts, part_size)
@@ -188,7 +163,7 @@ def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, par
                 for i, items in enumerate(plan)]
         written = run_tasks(run, part_task, args, "export: write")
         splice_args = [([a[1] for a in args], dst, fmt == "laz")]
-        # a task of its own even on a local pool: the driver handles no point bytes
+        # a task of its own: the driver handles no point bytes
         (run(stream_splice, splice_args, "export: assemble") if run is not None
          else [stream_splice(*a) for a in splice_args])
     finally:
@@ -196,7 +171,6 @@ def _export_remote(store: PointStore, dst: str, fmt: str, mask, run, counts, par
     return int(sum(written))
 
 
-# ------------------------------------------------------------------ splice
 def _layout(parts: list[str], compressed: bool) -> tuple[list, int, list[int], object]:
     """The parts' headers, where their points start, their counts, and the LASzip VLR (None uncompressed)."""
     from ..io.las_layout import laszip_vlr, read_header
@@ -207,8 +181,7 @@ def _layout(parts: list[str], compressed: bool) -> tuple[list, int, list[int], o
 
 
 def splice(parts: list[str], dst: str, *, compressed: bool) -> None:
-    """Concatenate the LAS/LAZ files *parts* (same header and VLRs, every LAZ part but the last a whole
-    number of chunks) into *dst*: one header, the points in order, one chunk table, the first part's EVLRs."""
+    """Concatenate the LAS/LAZ *parts* (same header and VLRs, whole LAZ chunks but the last) into *dst*."""
     import lazrs
 
     from ..io.las_layout import chunk_table
@@ -279,7 +252,7 @@ def _patch_header(out, headers, counts: list[int], evlr_at: int) -> None:
     out.seek(0)
     raw = bytearray(out.read(h0.offset_to_point_data))
     legacy = int.from_bytes(raw[107:111], "little")
-    if legacy and total < 2**32:  # laspy fills the legacy fields where they can hold the count (point formats 0-5)
+    if legacy and total < 2**32:  # laspy fills the legacy fields where they fit (formats 0-5)
         struct.pack_into("<I", raw, 107, total)
         struct.pack_into("<5I", raw, 111, *[int(v) for v in by_return[:5]])
     struct.pack_into("<6d", raw, 179, maxs[0], mins[0], maxs[1], mins[1], maxs[2], mins[2])
@@ -293,11 +266,10 @@ def _patch_header(out, headers, counts: list[int], evlr_at: int) -> None:
 
 
 def stream_splice(parts: list[str], dst: str, compressed: bool) -> None:
-    """:func:`splice` written front to back, for a destination that cannot seek (an object store's upload):
-    every header field and the chunk table are worked out from the parts' headers and tables first (small
-    ranged reads), then the bytes go out in order: the header, the points part after part (copied in blocks
-    of :data:`cloudsieve.storage.COPY_BLOCK`), the chunk table, the EVLRs. The same bytes as :func:`splice`.
-    A failure discards the upload: nothing appears under *dst*."""
+    """:func:`splice` written front to back, for an upload that cannot seek: same bytes.
+
+    Header fields and the chunk table come first from the parts' headers
+    and tables; a failure discards the upload, leaving nothing at *dst*."""
     import io
 
     import lazrs

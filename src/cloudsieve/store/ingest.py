@@ -1,11 +1,9 @@
 """File -> point store: :func:`ingest`.
 
-Streams chunk by chunk (memory bounded by the chunk size, never by the
-cloud) and is atomic: the store (a folder) is written under a temporary name
-beside the destination and renamed only when complete, so a failure leaves
-nothing under the destination name. (For a remote fsspec store URL there is
-no rename: the store is marked complete only at the end, and
-:meth:`PointStore.open` refuses an incomplete one.)
+Streams chunk by chunk (memory bounded by the chunk size) and is atomic: a
+local store is written under a temporary name and renamed when complete; a
+URL store is marked complete only at the end (:meth:`PointStore.open`
+refuses an incomplete one).
 """
 
 from __future__ import annotations
@@ -79,7 +77,7 @@ class _StoreFiller:
             self.capacity = stop
             for arr in self.arrays.values():
                 arr.resize((stop, *arr.shape[1:]))
-        # all arrays compressed and written concurrently, without a thread per array
+        # all arrays compressed and written concurrently
         sel = slice(start, stop)
         gathered(arr.async_array.setitem(sel, block[name]) for name, arr in self.arrays.items())
         self.written = stop
@@ -109,43 +107,33 @@ def ingest(
     storage_options: dict | None = None,
     **reader_options: Any,
 ) -> PointStore:
-    """Stream the point cloud file *src* into a new point store *store*.
+    """Stream the point cloud file *src* into a new point store *store* (a folder or fsspec URL).
 
     Parameters
     ----------
     src : str or path-like
-        LAS/LAZ/COPC/PLY/E57/XYZ file, or LAS/LAZ/COPC files as one cloud: a
-        glob, a directory, a list file or a VPC
+        LAS/LAZ/COPC/PLY/E57/XYZ file, or LAS/LAZ/COPC files as one cloud
         (:func:`cloudsieve.io.sources.expand_sources`). LAS sources are
-        ingested as tasks (:func:`.ingest_las.ingest_las`, "xyz" stored as the
-        LAS integers); the other formats stream through this process.
-    store : str or path-like
-        Store folder or fsspec URL (``file:///...`` works like a path).
+        ingested as tasks (:func:`.ingest_las.ingest_las`, "xyz" as LAS
+        integers); other formats stream through this process.
     format : str, optional
         Overrides the format found from *src*'s extension.
     chunk_size : int
         Points per read chunk and per store chunk.
     drop_invalid : bool
-        Drop points with NaN or infinite coordinates (count logged and kept in
-        the store attribute "dropped_invalid") instead of refusing the input.
+        Drop points with NaN or infinite coordinates (counted in the store
+        attribute "dropped_invalid") instead of refusing the input.
     overwrite : bool
-        Replace an existing store.
     progress : callable, optional
         Called with the number of points read after each chunk.
     on_chunk : callable, optional
-        Called as ``on_chunk(start, xyz, count)`` with each block of valid
-        points as it is stored: ``start`` its first row in the store, ``xyz``
-        its coordinates (n, 3), float64, ``count`` the points the reader
-        announced (None when the format does not say). For work that needs
-        every point once, without reading the store again (the partition's
-        sample, :class:`cloudsieve.engine.sample.IngestSample`). Streamed
-        formats only: LAS sources are read by tasks.
+        ``on_chunk(start, xyz (n, 3) float64, count)`` for each block of valid
+        points as stored (*count*: the reader's announced total, or None), e.g.
+        :class:`cloudsieve.engine.sample.IngestSample`. Streamed formats only.
     run : Runner, optional
-        Runs the ingest tasks of a LAS source (:class:`cloudsieve.engine.runner.Runner`);
-        None: one after the other in this process.
+        Runs a LAS source's tasks (:class:`cloudsieve.engine.runner.Runner`); None: here.
     storage_options : dict, optional
-        Options of the fsspec filesystem of a URL *src* or *store*
-        (:mod:`cloudsieve.storage`); default: the object store's own chain.
+        fsspec options of a URL *src* or *store* (:mod:`cloudsieve.storage`).
     **reader_options
         Passed to the reader (XYZ: ``delimiter``, ``columns``, ...).
 
@@ -166,8 +154,7 @@ def ingest(
             return ingest.unchecked(src, store, format=format, chunk_size=chunk_size, drop_invalid=drop_invalid,
                                     overwrite=overwrite, progress=progress, on_chunk=on_chunk, run=run,
                                     **reader_options)
-    # io is imported here, not at the top: io imports the store's Chunk and DEFAULT_CHUNK_SIZE,
-    # so either package can be imported first
+    # imported here: io imports the store's Chunk, so either package can be imported first
     from ..io import open_reader
     from ..atomic import check_destination, make_temp_path, remove, replace
     from ..io.valid import ValidPoints
@@ -175,7 +162,7 @@ def ingest(
     src, store = os.fspath(src), os.fspath(store)
     if same_path(src, store):
         raise SameSourceDestinationError(f"destination {store} is the source {src}: cloudsieve never overwrites its input")
-    chunk_size = int(chunk_size)  # its options were validated by params (the decorator), once
+    chunk_size = int(chunk_size)  # validated once by the decorator
     bound_malloc()
     update = _progress.callback(progress)
     from ..io.sources import expand_sources
@@ -200,12 +187,12 @@ def ingest(
         if local is not None:
             check_destination(local, overwrite, folder=True, foreign=store_foreign)
             target = make_temp_path(local, directory=True)
-        else:  # an object, or a prefix of other objects, is never replaced (PointStore.create refuses the rest)
+        else:  # an existing object or prefix is never replaced
             if overwrite:
                 check_destination(store, overwrite, folder=True, foreign=store_foreign)
             target = store
         try:
-            # a local target is the fresh temporary folder; a remote one is refused if it exists unless overwrite
+            # a local target is a fresh temporary folder; a remote one exists only with overwrite
             new = PointStore.create(
                 target, dtypes=reader.dtypes, chunk_size=chunk_size, count=reader.count or 0,
                 overwrite=overwrite or local is not None,
@@ -213,7 +200,7 @@ def ingest(
             filler = _StoreFiller(new.group, list(reader.dtypes), chunk_size, reader.count or 0)
             lo = np.full(3, np.inf)
             hi = np.full(3, -np.inf)
-            # NaN/infinite coordinates refused or dropped (InvalidPointsError, EmptyInputError at the end)
+            # NaN/infinite coordinates refused or dropped
             valid = ValidPoints(src, drop_invalid)
             prefetched = prefetch(reader.chunks())
             for start, chunk in valid.chunks(prefetched, progress=update):
@@ -243,7 +230,7 @@ def ingest(
             raise
         finally:
             if "prefetched" in locals():
-                prefetched.close()  # stops the reading thread before the reader closes
+                prefetched.close()  # stops the reading thread first
             if "filler" in locals():
                 filler.close()
     if local is not None:

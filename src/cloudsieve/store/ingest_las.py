@@ -1,16 +1,8 @@
 """LAS/LAZ/COPC files -> point store, as tasks: :func:`ingest_las`.
 
-The driver reads headers only (:func:`cloudsieve.io.las_plan.plan_las`) and creates the
-store's arrays; each task (:func:`ingest_task`) reads the records of one
-range of store chunks from the files that hold them (entering a LAZ file
-through its chunk table, so a large file is read by many tasks), and writes
-that range. Every store chunk is written by one task, no point array passes
-through the driver or the scheduler, and a task's memory is bounded by the
-chunk size. "xyz" is stored as the LAS integers (int32) with the store's
-scale and offset: exact, and the store's smallest form.
-
-The store is written under a temporary name beside the destination and
-renamed when complete (as :func:`.ingest.ingest`).
+The driver reads headers only (:func:`cloudsieve.io.las_plan.plan_las`); each
+task (:func:`ingest_task`) writes a range of store chunks from the files
+holding it. "xyz" is stored as the LAS integers (int32): exact and smallest.
 """
 
 from __future__ import annotations
@@ -34,14 +26,8 @@ logger = logging.getLogger(__name__)
 
 
 def ingest_task(store_path: str, row_start: int, row_stop: int, pieces: list[tuple], parallel: bool = False) -> dict:
-    """Write rows ``[row_start, row_stop)`` of the store from *pieces* (a task; see :meth:`LasPlan.tasks`), LAZ
-    decoded on every core when *parallel* (the tasks run in this process, one after the other).
-
-    Returns
-    -------
-    dict
-        ``"mins"``, ``"maxs"``: the stored integers' per-axis extremes (lists of 3 ints).
-    """
+    """Task: write store rows ``[row_start, row_stop)`` from *pieces* (:meth:`LasPlan.tasks`), LAZ decoded
+    on every core when *parallel*; returns ``"mins"``, ``"maxs"``: the stored integers' extremes (3 ints each)."""
     bound_malloc()
     group = handles.open_group(store_path, "ingest", lambda p, _: (_open_group(p), {}))[0]  # once per stage
     names = [n for n in group.array_keys() if n != "xyz"]
@@ -71,29 +57,12 @@ def ingest_las(
     overwrite: bool = False,
     plan: LasPlan | None = None,
 ) -> PointStore:
-    """Ingest the LAS/LAZ/COPC files *sources*, one cloud, into a new store at *store*, as tasks.
+    """Ingest the LAS/LAZ/COPC files *sources* (in order, one cloud) into a new store at *store*, as tasks.
 
-    Parameters
-    ----------
-    sources : list of str
-        The files, in order (:func:`cloudsieve.io.sources.expand_sources`).
-    store : str or path-like
-        The new store (a local folder, written under a temporary name and
-        renamed when complete, or an fsspec URL).
-    run : Runner, optional
-        Runs the tasks (:class:`cloudsieve.engine.runner.Runner`); None: one
-        after the other in this process.
-    chunk_size : int
-        Points per store chunk (and per task).
-    overwrite : bool
-        Replace an existing store.
-    plan : LasPlan, optional
-        The plan when the caller already made it (:func:`cloudsieve.io.las_plan.plan_las`).
-
-    Returns
-    -------
-    PointStore
-        Opened read-only.
+    *store*: a local folder (written under a temporary name and renamed) or
+    an fsspec URL; *run* runs the tasks (None: here); *chunk_size*: points per
+    store chunk and per task; *plan*: the caller's
+    :func:`cloudsieve.io.las_plan.plan_las`. Returns the store, read-only.
 
     Raises
     ------
@@ -110,7 +79,7 @@ def ingest_las(
     if local is not None:
         check_destination(local, overwrite, folder=True, foreign=store_foreign)
         target = make_temp_path(local, directory=True)
-    else:  # an object, or a prefix of other objects, is never replaced (PointStore.create refuses the rest)
+    else:  # an existing object or prefix is never replaced
         if overwrite:
             check_destination(store, overwrite, folder=True, foreign=store_foreign)
         target = store

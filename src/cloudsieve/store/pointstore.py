@@ -1,26 +1,16 @@
 """The point store: a zarr (v3) group holding one cloud, chunked along points.
 
-Layout (see DESIGN.md)::
+Layout::
 
     STORE/
-      zarr.json            group attributes; key "cloudsieve" holds
-                           {"version": 1, "count", "bounds", "format", "header",
-                            "dimensions", "chunk_size", "complete": true}
-      xyz                  float64 (N, 3), chunks (chunk_size, 3); LAS sources: int32, the LAS
-                           integers, with "xyz_encoding" {"scale": [3], "offset": [3]}
-      intensity, ...       one array per attribute under its laspy name,
-                           shape (N,) or (N, k), chunks (chunk_size, ...)
+      zarr.json       attribute "cloudsieve": {"version": 1, "count", "bounds", "format",
+                      "header", "dimensions", "chunk_size", "complete": true}
+      xyz             float64 (N, 3); LAS sources: int32 LAS integers with "xyz_encoding"
+      intensity, ...  one array per attribute (laspy names), (N,) or (N, k)
       partition/..., simplify/...   derived arrays of later stages
 
-Every array is compressed (:func:`.codecs.compressors`). A store path is a
-local path or an fsspec URL (``file:///...`` is the local path it names).
-Only this module creates store arrays (:meth:`PointStore.create`,
-:meth:`~PointStore.create_array`, :meth:`~PointStore.require_array`) and
-deletes them (:meth:`~PointStore.delete_array`; whole stores:
-:func:`.paths.delete_store`); :func:`is_store` is the one test of whether a
-path holds a store. :meth:`PointStore.chunks` yields
-:class:`~cloudsieve.store.chunk.Chunk` ``(start, arrays)``, as every chunk
-iterator of cloudsieve does.
+A store path is a local path or an fsspec URL. Only this module creates and
+deletes store arrays; :func:`is_store` is the one test of whether a path holds a store.
 """
 
 from __future__ import annotations
@@ -75,29 +65,12 @@ def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.
 class PointStore:
     """A cloud of N points in a zarr group, read and extended chunk by chunk.
 
-    Open an existing store with :meth:`PointStore.open`; create one with
-    :func:`cloudsieve.store.ingest` (which uses :meth:`create` and :meth:`finish`).
-
-    Attributes
-    ----------
-    path : str
-        Local path or fsspec URL of the store, as given.
-    group : zarr.Group
-        The zarr group.
-    complete : bool
-        False only for a store being written (from :meth:`create` until :meth:`finish`).
-    count : int
-        Number of points N.
-    bounds : ndarray of shape (2, 3), float64
-        ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
-    header : dict
-        The source header (JSON-serialisable, as ``Reader.header``).
-    source_format : str
-        Format of the source ("las", "laz", "copc", "ply", "e57", "xyz").
-    dimensions : list of str
-        Input attribute names, ``"xyz"`` first.
-    chunk_size : int
-        Points per chunk of the input arrays.
+    Open with :meth:`PointStore.open`; create with :func:`cloudsieve.store.ingest`.
+    Its attributes mirror the "cloudsieve" group attribute: *path* (as
+    given), *group*, *complete* (False from :meth:`create` until
+    :meth:`finish`), *count*, *bounds* (2, 3) float64 ``[[xmin, ymin, zmin],
+    [xmax, ymax, zmax]]``, *header* (JSON-serialisable, as ``Reader.header``),
+    *source_format*, *dimensions* ("xyz" first) and *chunk_size*.
     """
 
     def __init__(self, group: zarr.Group, path: str, mode: str = "r", *, meta: dict | None = None) -> None:
@@ -110,7 +83,7 @@ class PointStore:
         self.path = str(path)
         self.mode = mode
         self._writable: zarr.Group | None = group if mode != "r" else None
-        #: input arrays opened so far (written once by the ingest: their metadata is read once per object)
+        #: input arrays opened so far (written once, so their metadata is read once)
         self._inputs: dict[str, zarr.Array] = {}
         self._use(meta)
 
@@ -133,18 +106,11 @@ class PointStore:
             return np.asarray(raw, dtype=np.float64)
         return decode_xyz(raw, self.xyz_scale, self.xyz_offset)
 
-    # ------------------------------------------------------------------ open
     @classmethod
     def open(cls, path: str | os.PathLike, mode: str = "r") -> PointStore:
-        """Open an existing store.
+        """Open an existing store; *mode* "r", "r+" or "a".
 
-        Parameters
-        ----------
-        path : str or path-like
-            Local path or fsspec URL.
-        mode : {"r", "r+", "a"}
-            "r" opens read-only; derived arrays can still be added with
-            :meth:`create_array`, which opens a writable handle on demand.
+        "r" is read-only, but :meth:`create_array` still opens a writable handle on demand.
 
         Raises
         ------
@@ -170,22 +136,19 @@ class PointStore:
         overwrite: bool = False,
         xyz_encoding: dict | None = None,
     ) -> PointStore:
-        """Create an empty store at *path* (local path or URL): one array per entry of *dtypes*.
+        """Create an empty, incomplete store at *path*: one array per entry of *dtypes*.
 
-        *dtypes* maps attribute name -> (dtype, per-point shape), ``"xyz"``
-        first (as ``Reader.dtypes``); arrays start with *count* points (0 when
-        unknown), in chunks of *chunk_size*. The store returned (mode "w") is
-        incomplete, and :meth:`open` refuses it, until :meth:`finish`.
-        An existing *path* raises :class:`DestinationExistsError` unless *overwrite*.
-        *xyz_encoding* ``{"scale": [3 floats], "offset": [3 floats]}`` stores
-        "xyz" as the LAS integers (int32): exact for a LAS source, and 12 bytes
-        a point instead of 24 before compression.
+        *dtypes*: name -> (dtype, per-point shape), ``"xyz"`` first (as
+        ``Reader.dtypes``); arrays start with *count* points. :meth:`open`
+        refuses the store until :meth:`finish`. An existing *path* raises
+        :class:`DestinationExistsError` unless *overwrite*. *xyz_encoding*
+        ``{"scale": [3], "offset": [3]}`` stores "xyz" as LAS integers (int32, exact).
         """
         path = os.fspath(path)
         if not overwrite and path_exists(path):
             raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
-        # marked as a store (incomplete) before any array: a crash in between leaves cloudsieve's, not foreign, content
+        # marked (incomplete) before any array: a crash in between leaves no foreign-looking content
         group.attrs.update({STORE_ATTR: {"complete": False}})
         for name, (dtype, shape) in dtypes.items():
             if name == "xyz" and xyz_encoding is not None:
@@ -213,22 +176,14 @@ class PointStore:
         return cls(group, path, "w", meta=meta)
 
     def finish(self, meta: dict[str, Any]) -> None:
-        """Record the store's metadata and mark it complete (the last step of writing a store).
-
-        Parameters
-        ----------
-        meta : dict
-            ``count``, ``bounds``, ``format``, ``header``, ``dimensions``,
-            ``chunk_size`` and any further keys to keep (JSON-serialisable);
-            ``version`` is added when missing.
-        """
+        """Record *meta* (``count``, ``bounds``, ``format``, ``header``, ``dimensions``, ``chunk_size``, ...)
+        and mark the store complete: the last step of writing it; ``version`` is added when missing."""
         meta = dict(meta)
         meta.setdefault("version", STORE_VERSION)
         meta["complete"] = True
         self._writable_group().attrs.update({STORE_ATTR: meta})
         self._use(meta)
 
-    # ------------------------------------------------------------------ read
     @property
     def attrs(self) -> dict:  # the group's attributes (update with ``store.group.attrs.update``)
         return dict(self.group.attrs)
@@ -247,7 +202,7 @@ class PointStore:
         return name in self.group
 
     def array(self, name: str) -> zarr.Array:
-        """The zarr array *name* (input attribute or derived, e.g. "simplify/keep").
+        """The zarr array *name* (input or derived, e.g. "simplify/keep").
 
         Raises
         ------
@@ -267,27 +222,17 @@ class PointStore:
         return node
 
     def read(self, name: str, start: int = 0, stop: int | None = None) -> np.ndarray:
-        """Points ``start:stop`` of array *name* ("xyz" always as float64 coordinates).
-
-        Returns
-        -------
-        ndarray of shape (stop - start,) or (stop - start, k)
-        """
+        """Points ``start:stop`` of array *name*, (n,) or (n, k) ("xyz" as float64 coordinates)."""
         arr = self.array(name)
         stop = arr.shape[0] if stop is None else min(stop, arr.shape[0])
         values = np.asarray(arr[start:stop])
         return self.decode_xyz(values) if name == "xyz" else values
 
     def chunks(self, names: Sequence[str] | None = None, chunk_size: int | None = None) -> Iterator[Chunk]:
-        """Yield :class:`Chunk` ``(start, {name: array})`` over the point axis, in point order.
+        """Yield :class:`Chunk` ``(start, {name: array})`` in point order.
 
-        Parameters
-        ----------
-        names : sequence of str, optional
-            Arrays to read (default: every input dimension, "xyz" first).
-        chunk_size : int, optional
-            Points per block (default: the store's chunk size; a multiple of it
-            reads whole zarr chunks).
+        *names* default to every input dimension; *chunk_size* to the store's
+        (a multiple of it reads whole zarr chunks).
         """
         step = int(self.chunk_size if chunk_size is None else check("chunk_size", chunk_size))  # params' check
         for start in range(0, self.count, step):
@@ -298,14 +243,13 @@ class PointStore:
         names = list(self.dimensions if names is None else names)
         arrays = [self.array(n) for n in names]
         sel = slice(int(start), min(int(stop), self.count))
-        # all arrays read and decoded concurrently, not one after the other
+        # all arrays read and decoded concurrently
         got = gathered(a.async_array.getitem(sel) for a in arrays)
         out = {n: np.asarray(v) for n, v in zip(names, got)}
         if "xyz" in out:
             out["xyz"] = self.decode_xyz(out["xyz"])
         return out
 
-    # ----------------------------------------------------------------- write
     def _writable_group(self) -> zarr.Group:
         if self._writable is None:
             self._writable = zarr.open_group(zarr_store(self.path, read_only=False), mode="r+", zarr_format=3,
@@ -339,11 +283,10 @@ class PointStore:
     ) -> zarr.Array:
         """Create a derived array *name* ("stage/name"), compressed like the input arrays.
 
-        Give *shape* and *dtype*, or *data* (initial content). *chunks*
-        defaults to the store's chunk size along the first axis; *shards*
-        (zarr shard shape) stores several chunks per object; *codecs* replaces the work arrays'
-        compressors (:func:`.codecs.compressors`). Input arrays are never rewritten: an input
-        dimension as *name* raises :class:`InvalidParameterError`, as does a missing shape or dtype.
+        Give *shape* and *dtype*, or *data*. *chunks* default to the store's
+        chunk size along axis 0; *shards* is the zarr shard shape; *codecs*
+        replaces the compressors. An input dimension as *name*, or a missing
+        shape or dtype, raises :class:`InvalidParameterError`.
         """
         self._check_derived(name)
         if data is not None:
@@ -367,10 +310,7 @@ class PointStore:
     def require_array(
         self, name: str, *, shape: Sequence[int], dtype: Any, chunks: Sequence[int] | None = None, fill_value: Any = 0
     ) -> zarr.Array:
-        """The derived array *name*: the existing one when its shape and dtype match, else a new one.
-
-        Parameters are those of :meth:`create_array`; a mismatching array is replaced.
-        """
+        """The derived array *name* if its shape and dtype match, else a new one (as :meth:`create_array`)."""
         shape = tuple(int(s) for s in shape)
         node = self.group.get(name)
         if isinstance(node, zarr.Array) and node.shape == shape and np.dtype(node.dtype) == np.dtype(dtype):

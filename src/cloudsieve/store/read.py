@@ -15,12 +15,9 @@ __all__ = ["read_cloud"]
 
 
 def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Load a whole (small) cloud: a point store (see :func:`cloudsieve.store.is_store`), else a file.
-
-    This loads everything into memory: use it for tests, tiles and small
-    clouds; stream large ones with :meth:`PointStore.chunks` or
-    :func:`cloudsieve.io.open_reader`. A file is read by
-    :func:`cloudsieve.io.read_cloud` (*format*: its format, default by extension).
+    """Load a whole (small) cloud into memory: a point store (:func:`cloudsieve.store.is_store`), else a file
+    (:func:`cloudsieve.io.read_cloud`; *format* default: by extension). Stream large ones with
+    :meth:`PointStore.chunks` or :func:`cloudsieve.io.open_reader`.
 
     Returns
     -------

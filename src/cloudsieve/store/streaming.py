@@ -1,5 +1,4 @@
-"""Helpers of the streaming stages (ingest, export), the store's reads and writes and the local workers:
-a read-ahead thread, zarr calls in one event-loop call, a bounded heap."""
+"""Helpers of the streaming stages and store I/O: a read-ahead thread, batched zarr calls, a bounded heap."""
 
 from __future__ import annotations
 
@@ -12,33 +11,23 @@ import threading
 __all__ = ["prefetch", "gathered", "bound_malloc", "in_process", "run_tasks"]
 
 logger = logging.getLogger(__name__)
-
-
 _MALLOC_TUNED = False
 
 
-#: glibc's mmap threshold, fixed (bytes): buffers above it are mapped, and unmapped on free
+#: glibc's mmap threshold, fixed (bytes)
 MMAP_THRESHOLD = 16 << 20
-#: glibc's trim threshold, fixed (bytes): up to this much free memory at the top of a heap stays mapped
+#: glibc's trim threshold, fixed (bytes): free memory kept mapped at a heap's top
 TRIM_THRESHOLD = 256 << 20
 
 
 def bound_malloc(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) -> None:
     """Fix glibc's mmap and trim thresholds (``mallopt``), so memory stays flat in N and is reused.
 
-    glibc's default mmap threshold rises with the largest buffer freed, after
-    which chunk-sized buffers (megabytes) come from per-thread heaps that
-    fragment: an ingest's peak RSS grows with N before levelling off, and the
-    local workers (which free the label tasks' large arrays) grow the
-    process tree's by half. A fixed mmap threshold of 16 MiB keeps it flat.
-    With it, glibc's default trim threshold (128 KiB) gives each task's and
-    each chunk's buffers back to the OS, and the next one faults them in
-    again; a trim threshold of 256 MiB, in the workers and the driver, cuts
-    a run's page faults by more than half for a little more peak RSS, still
-    flat from 10 M to 50 M points. Process-wide,
-    set once; each threshold is skipped when the user set its environment
-    variable (MALLOC_MMAP_THRESHOLD_, MALLOC_TRIM_THRESHOLD_), and both when
-    the C library is not glibc.
+    The default mmap threshold rises with the largest buffer freed, after
+    which chunk-sized buffers fragment per-thread heaps; a large trim
+    threshold keeps freed buffers mapped for the next task. Process-wide,
+    once; a threshold whose variable (MALLOC_MMAP_THRESHOLD_,
+    MALLOC_TRIM_THRESHOLD_) is set is skipped; nothing outside glibc.
     """
     global _MALLOC_TUNED
     if _MALLOC_TUNED or not sys.platform.startswith("linux"):
@@ -58,14 +47,9 @@ def bound_malloc(threshold: int = MMAP_THRESHOLD, trim: int = TRIM_THRESHOLD) ->
 
 
 def gathered(calls) -> list:
-    """The results of zarr's coroutines *calls* (``Array.async_array`` reads and writes), in order, run
-    concurrently in one call of zarr's event loop.
-
-    Each call of zarr's event loop has an overhead of its own, whatever its
-    size (a cell's ten runs, a task's five small writes), and the codecs
-    release the GIL: a store chunk's arrays read together decode at once.
-    """
-    import asyncio  # here, as zarr: a run without a store (engine.small) imports neither
+    """The results of zarr coroutines *calls* (``async_array`` reads and writes), in order, run concurrently
+    in one event-loop call: each call has a fixed overhead, and the codecs release the GIL."""
+    import asyncio  # here: a run without a store imports no zarr
 
     from zarr.core.sync import sync
 
@@ -82,13 +66,9 @@ def gathered(calls) -> list:
 def prefetch(chunks, depth: int = 1):
     """Iterate *chunks* produced by a background thread, *depth* chunks ahead.
 
-    The producer's work overlaps with the consumer's where one of them
-    releases the GIL (ingest: decoding the next chunk with compressing and
-    writing the previous one, in the codecs' threads; export: reading and
-    selecting a chunk with encoding the previous one). lazrs holds the GIL
-    while it decodes or encodes: a Python thread that counts ran at 5-7% of
-    its rate during a 1 M-point decode. Memory grows by *depth* chunks at
-    most. Close the generator to stop the thread early.
+    Overlaps producer and consumer where either releases the GIL (lazrs does
+    not). Memory grows by *depth* chunks at most. Close the generator to stop
+    the thread early.
     """
     q: queue.Queue = queue.Queue(maxsize=depth)
     done = object()
@@ -145,9 +125,8 @@ def in_process(run, n_tasks: int) -> bool:
 def run_tasks(run, func, args: list, stage: str) -> list:
     """``[func(*a) for a in args]`` through *run* (a :class:`cloudsieve.engine.runner.Runner`), results in order.
 
-    In this process, one after the other, when *run* is None, or when there
-    is a single task and no dask.distributed cluster: a local worker process
-    would only add its start-up (the fork server's imports and kernels) to that task.
+    Runs here, in turn, when *run* is None or for a single task without a
+    dask.distributed cluster (a worker would only add its start-up).
     """
     if _direct(run, len(args)):
         return [func(*a) for a in args]

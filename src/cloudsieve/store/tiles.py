@@ -1,20 +1,12 @@
 """Point store -> a folder of square LAZ tiles and their ``index.vpc``: :func:`export_tiles`.
 
 Tiles are the squares ``[ix S, (ix + 1) S) x [iy S, (iy + 1) S)`` of a grid
-anchored at the CRS's origin (never at the first point), so two exports of
-overlapping clouds with the same S cut the same squares. The points are
-grouped by tile out of core (:func:`cloudsieve.store.buckets.bucket`, one
-task per store chunk); then one task per non-empty tile writes its LAZ
-(through :func:`cloudsieve.io.open_writer`: every attribute, VLR and the CRS
-kept, each point an exact copy of its input record, in input order). The
-driver only plans and writes ``index.vpc`` (:func:`cloudsieve.io.vpc.write_vpc`).
-
-The folder is written under a temporary name beside the destination and
-renamed when every tile and the index are written: a failure leaves nothing
-under the destination (and no scratch in the store). The output's bytes
-depend on the store and S only, not on the scheduler or the number of
-workers. Workers write into that temporary folder: on a dask.distributed
-cluster, the destination must be on a file system they share (as the store).
+anchored at the CRS's origin, so overlapping clouds exported with the same S
+share squares. Points are grouped by tile (:func:`cloudsieve.store.buckets.bucket`),
+then one task per non-empty tile writes its LAZ (:func:`cloudsieve.io.open_writer`:
+exact records, input order). The folder is written under a temporary name and
+renamed when complete (workers must share its file system); the bytes depend
+on the store and S only.
 """
 
 from __future__ import annotations
@@ -43,7 +35,7 @@ logger = logging.getLogger(__name__)
 
 #: the index written beside the tiles
 VPC_NAME = "index.vpc"
-#: the scratch of the grouping (``export/tiles/`` in the store), deleted at the end
+#: the grouping's scratch (``export/tiles/`` in the store), deleted at the end
 _SCRATCH = "tiles"
 _HALF = np.int64(1 << 31)
 
@@ -57,19 +49,7 @@ def _cells(v: np.ndarray, size: float) -> np.ndarray:
 
 
 def tile_keys(xyz: np.ndarray, tile_size: float) -> np.ndarray:
-    """The tile of each point as one int64 key, ordered as (ix, iy).
-
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-    tile_size : float
-        Edge S of the square tiles, in the coordinates' units.
-
-    Returns
-    -------
-    ndarray of shape (n,), int64
-        ``ix * 2**32 + (iy + 2**31)`` with ``ix = floor(x / S)``,
-        ``iy = floor(y / S)`` (see :func:`tile_index`).
+    """The tile of each point (n,) int64: ``ix * 2**32 + (iy + 2**31)``, ``ix = floor(x / S)`` (:func:`tile_index`).
 
     Raises
     ------
@@ -99,15 +79,10 @@ def tile_name(stem: str, key: int) -> str:
 
 
 def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False) -> dict:
-    """Task of :func:`export_tiles`: write the points of a tile, its *runs* in the buckets *name*, to the LAZ *path*.
+    """Task of :func:`export_tiles`: write a tile's points (its *runs* in buckets *name*) to the LAZ *path*.
 
-    Reads them in blocks of at most a store chunk (memory bounded by the
-    chunk size, whatever the tile's count).
-
-    Returns
-    -------
-    dict
-        The tile's VPC entry (:func:`cloudsieve.io.vpc.describe_tile` of the file written).
+    Reads blocks of at most a store chunk; returns the tile's VPC entry
+    (:func:`cloudsieve.io.vpc.describe_tile`).
     """
     from ..io import open_writer
     from ..io.vpc import describe_tile
@@ -124,16 +99,15 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace:
 
 
 def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
-    """The checked *tile_size* for a cloud of *bounds* (2 x 3, from its headers or its store), named *what*
-    in messages: the option's own check, then the grid's bound (tile indices within 32 bits).
+    """The checked *tile_size* for a cloud of *bounds* (2, 3), named *what* in messages.
 
     Raises
     ------
     InvalidParameterError
-        *tile_size* not a positive number, or too small for the cloud's coordinates.
+        *tile_size* not a positive number, or too small for 32-bit tile indices.
     """
-    size = check("tile_size", tile_size)  # the option's one check (params); the grid's own bound below
-    if size is None:  # an optional option elsewhere; required here
+    size = check("tile_size", tile_size)
+    if size is None:  # optional elsewhere, required here
         raise named(InvalidParameterError(f"tile_size must be {OPTIONS['tile_size'].describe()}, got None"),
                     "tile_size")
     reach = float(np.abs(np.asarray(bounds, dtype=np.float64)[:, :2]).max())
@@ -146,7 +120,7 @@ def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
 
 def tiles_foreign(stem: str):
     """A ``foreign`` check for :func:`cloudsieve.atomic.check_destination`: None when a folder holds only
-    tiles named for *stem* (``{stem}_{ix}_{iy}.laz``) and ``index.vpc``, else what else it holds."""
+    *stem*'s tiles and ``index.vpc``, else a description of the rest."""
     pattern = re.compile(re.escape(stem) + r"_-?\d+_-?\d+\.laz")
 
     def foreign(folder: str) -> str | None:
@@ -163,11 +137,9 @@ def tiles_foreign(stem: str):
 def check_tile_destination(dst: str, overwrite: bool, sources=()) -> str:
     """Check the tile folder *dst* before any work; returns it as a local path (a URL as it is).
 
-    Refused: a name with a point cloud file's extension (``x.copc.laz``,
-    ``x.ply``: one file, not a folder of tiles); a folder that is or holds one
-    of *sources* (replacing it would delete the input); an existing file; an
-    existing folder (unless *overwrite*) or one holding anything but this
-    folder's tiles and ``index.vpc``.
+    Refused: a point cloud file's name (``x.ply``), a folder that is or holds
+    one of *sources*, an existing file, an existing folder without
+    *overwrite*, or one holding anything but its tiles and ``index.vpc``.
 
     Raises
     ------
@@ -209,27 +181,11 @@ def export_tiles(
 ) -> dict:
     """Write the points of *store* (all, or those of *mask*) as square LAZ tiles in *dst_dir*, with an index.vpc.
 
-    One file per non-empty tile, ``{stem}_{ix}_{iy}.laz`` (*stem* is
-    *dst_dir*'s name; the tile covers ``[ix S, (ix + 1) S) x [iy S, (iy + 1) S)``),
-    and ``index.vpc`` listing them (:mod:`cloudsieve.io.vpc`), in (ix, iy) order.
-
-    Parameters
-    ----------
-    store : PointStore or str
-        The store or its path.
-    dst_dir : str or path-like
-        The folder to write (it must not exist, unless *overwrite*).
-    tile_size : float
-        Edge S of the tiles, in the CRS's units.
-    mask : str, optional
-        A boolean array of the store (e.g. "simplify/keep"): only its True points are written.
-    run : callable, optional
-        ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
-        None runs the tasks here, one after the other.
-    overwrite : bool
-        Replace an existing *dst_dir* (only once the new tiles are complete).
-    progress : callable, optional
-        Called with the points of each tile written.
+    One file per non-empty tile, ``{stem}_{ix}_{iy}.laz`` (*stem*: *dst_dir*'s
+    name), listed in (ix, iy) order in ``index.vpc`` (:mod:`cloudsieve.io.vpc`).
+    *tile_size*: edge S in the CRS's units; *mask*: a bool store array name;
+    *run* as :func:`.buckets.bucket`'s; *overwrite* replaces *dst_dir* once
+    the new tiles are complete; *progress* gets each tile's points.
 
     Returns
     -------
@@ -239,8 +195,7 @@ def export_tiles(
     Raises
     ------
     InvalidParameterError
-        *tile_size* not a positive number, or too small for 32-bit tile
-        indices; a remote *dst_dir*; a bad *mask*.
+        A bad *tile_size* or *mask*.
     DestinationExistsError, DestinationNotWritableError, SameSourceDestinationError
         (the last one also when *dst_dir* holds the store).
     """
@@ -279,10 +234,10 @@ def export_tiles(
 
 
 def _export_remote(store: PointStore, dst: str, stem: str, size: float, mask, run, update) -> dict:
-    """:func:`export_tiles` to a URL prefix: an object store has no rename, so the tiles go under their final
-    names and ``index.vpc``, written last, commits the set. An earlier set's index is removed first (it no
-    longer describes the prefix), and its tiles that the new set does not have after the new ones are in; a
-    failure removes the new tiles and leaves no index."""
+    """:func:`export_tiles` to a URL prefix, which has no rename: ``index.vpc``, written last, commits the set.
+
+    A previous index is removed first, its stale tiles once the new ones are
+    in; a failure removes the new tiles and leaves no index."""
     from ..io.vpc import write_vpc
 
     vpc = storage.join(dst, VPC_NAME)
