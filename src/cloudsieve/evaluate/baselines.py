@@ -1,30 +1,19 @@
-"""Baseline simplifications, each returning indices of kept original points.
+"""Baseline simplifications, each returning sorted indices of kept original points.
 
-All of them keep a *subset* of the original points (so every attribute comes
-through) and aim at a requested output count; all are seeded and
-deterministic.
+All keep a subset of the original points (every attribute comes through),
+aim at a requested count, are seeded and deterministic, and work in memory.
 
 - ``random``: a uniform seeded sample, exactly *count* points.
 - ``voxel``: the original point nearest each occupied voxel's centroid, the
-  voxel size found by bisection (on its logarithm) so that the number of
-  occupied voxels lands within 0.5% of *count* (the closest reached otherwise).
-- ``poisson``: Poisson-disk subsampling of the original points: the greedy
-  dart-throwing sample in a seeded random order with minimum distance r (no
-  two kept points closer than r, every dropped point within r of a kept
-  one), computed as the lexicographically-first maximal independent set of
-  the r-neighbour graph in vectorised Luby rounds; r found by bisection to
-  land within 0.5% of *count*. (pymeshlab's ``generate_sampling_poisson_disk``
-  with ``subsample=True`` does the same job but was measured to return
-  different samples from one call to the next, so it cannot be seeded.)
-- ``fps``: farthest point sampling (open3d ``farthest_point_down_sample``),
-  exactly *count* points, mapped back to original indices by exact
-  coordinates; O(n x count), refused beyond ``FPS_MAX_WORK`` = 2e10, which
-  bounds its time (autzen_trim's 110k -> 99k points is 1.1e10).
-- ``km`` / ``fcm``: entropy simplification (:func:`cloudsieve.core.simplify.simplify_points`,
-  rule ``target`` with the count by default).
-
-Everything here works on clouds in memory (compare is for choosing a method
-on a sample or a tile).
+  voxel size bisected (on its log) to land within 0.5% of *count*.
+- ``poisson``: Poisson-disk subsampling: the greedy dart-throwing sample in a
+  seeded random order (the lexicographically-first maximal independent set of
+  the r-neighbour graph, in vectorised Luby rounds), r bisected to within
+  0.5% of *count*. pymeshlab's Poisson-disk sampling cannot be seeded.
+- ``fps``: farthest point sampling (open3d), exactly *count* points;
+  O(n x count), refused beyond ``FPS_MAX_WORK``.
+- ``km`` / ``fcm``: entropy simplification
+  (:func:`cloudsieve.core.simplify.simplify_points`).
 """
 
 from __future__ import annotations
@@ -124,10 +113,7 @@ def _greedy_mis(n: int, i: np.ndarray, j: np.ndarray, prio: np.ndarray) -> np.nd
 
 
 def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float = 0.005, max_iter: int = 40) -> np.ndarray:
-    """Poisson-disk subsample of the original points, radius bisected to give *count* points (within *tol*).
-
-    Returns sorted int64 indices. Seeded and deterministic (see module doc).
-    """
+    """Poisson-disk subsample, radius bisected to give *count* points (within *tol*); sorted int64 indices."""
     points, count = _check(points, count)
     n = len(points)
     if count == n:
@@ -164,10 +150,7 @@ def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float 
 def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK) -> np.ndarray:
     """Farthest point sampling (open3d) of *count* points; sorted int64 indices.
 
-    Raises
-    ------
-    InvalidParameterError
-        When n x count exceeds *max_work* (FPS is O(n x count)).
+    Raises InvalidParameterError when n x count exceeds *max_work*.
     """
     points, count = _check(points, count)
     work = float(len(points)) * count
@@ -190,10 +173,8 @@ def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km",
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.core.simplify.simplify_points`.
 
-    *count* is passed to every rule that takes one (``target``,
-    ``iterative`` and ``coverage`` then stop at the count); with ``threshold``
-    (the paper's single pass at S) or ``count=None`` the rule's threshold
-    decides the count.
+    *count* goes to every rule that takes one; with ``threshold`` or
+    ``count=None`` the rule's threshold decides the count.
     """
     from ..core import simplify_points
 
