@@ -1,15 +1,8 @@
 """LAS, LAZ and COPC through laspy (lazrs for compression), in chunks.
 
-Reading uses ``laspy.open(...).chunk_iterator`` with lazrs' parallel
-decompression; every dimension comes out under its laspy name with its raw
-value (bit fields unpacked, scaled extra bytes unscaled), plus "xyz" =
-``X * scale + offset`` in float64.
-
-The header travels as a JSON-serialisable dict (:mod:`.las_header`): the
-reader describes the file's header with :func:`.las_header.header_to_dict`,
-the writer rebuilds it with :func:`.las_header.header_from_dict` (LAS
-sources) or makes a fresh one with :func:`.las_header.build_header` (PLY,
-E57, XYZ sources).
+Each dimension comes out under its laspy name with its raw value (bit fields
+unpacked, extra bytes unscaled), plus "xyz" = ``X * scale + offset`` float64.
+The header travels as a dict (:mod:`.las_header`).
 """
 
 from __future__ import annotations
@@ -53,13 +46,7 @@ def _las_dtypes(header: laspy.LasHeader) -> dict:
 
 
 class LasReader(Reader):
-    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10).
-
-    Options
-    -------
-    laz_backend : laspy.LazBackend, optional
-        Default: lazrs with parallel decompression when available.
-    """
+    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10); option ``laz_backend`` (default lazrs, parallel)."""
 
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
@@ -152,12 +139,10 @@ class LasReader(Reader):
 class LasWriter(Writer):
     """Chunked LAS/LAZ writer.
 
-    A LAS-sourced header (``source_format`` in las/laz/copc) is carried over
-    (see :func:`.las_header.header_from_dict`); other sources get
-    :func:`.las_header.build_header`
-    (pass ``bounds=`` to choose scales and offsets). laspy updates the point
-    counts, returns histogram and bounds. ``label=`` names the file messages
-    speak of, when this one is a part of it.
+    A LAS-sourced header is carried over (:func:`.las_header.header_from_dict`);
+    other sources get :func:`.las_header.build_header` (``bounds=`` sets
+    scales and offsets). ``label=`` names the whole file in messages when
+    this is a part of it.
     """
 
     def _open(self) -> None:
