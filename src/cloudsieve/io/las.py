@@ -181,12 +181,7 @@ class LasWriter(Writer):
         self._said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
 
     def _keep_extra_bytes_vlrs(self) -> None:
-        """Write the source's extra-bytes VLRs verbatim.
-
-        laspy resets and regrows the min/max statistics of the first
-        extra-bytes VLR (and leaves them inverted for some files); the source
-        record is kept instead, so a round trip gives the same VLR bytes.
-        """
+        """Write the source's extra-bytes VLRs verbatim (laspy regrows their min/max statistics), for a byte-exact round trip."""
         source = [v for v in self._header_dict.get("vlrs", []) if v["user_id"] == "LASF_Spec" and v["record_id"] == 4]
         vlrs = self._writer.header.vlrs
         positions = [i for i, v in enumerate(vlrs) if type(v).__name__ == "ExtraBytesVlr"]
