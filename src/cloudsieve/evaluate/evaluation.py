@@ -132,29 +132,25 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     surface : bool
         Also compute the paper's surface level (meshes, Metro, compactness).
     tiles, tile_points : int
-        T tiles of at most M original points for the surface level (the whole
-        cloud when it has at most M points and fits the budget); T None: 8
-        with the budget (4 without one).
+        T tiles of at most M original points (the whole cloud when it has at
+        most M points and fits the budget); T None: 8 with a budget, else 4.
     surface_budget : float
         Seconds for the surface level: T random tiles sized by the rate
-        measured on 2 cores (never timed at run time, so results do not
-        depend on the machine), with standard errors (:mod:`.tiles`).
+        measured on 2 cores (not timed, so results do not depend on the
+        machine), with standard errors (:mod:`.tiles`).
     surface_full : bool
-        The surface level on the whole cloud: every point in a tile of about
-        M points, no budget (time proportional to the cloud's size).
+        The surface level on every point, in tiles of about M points, no budget.
     d2_sample : int
         D2 on a uniform seeded sample of at most this many points per
         direction, with its standard error (D1 and Chamfer stay exact).
     seed : int
         Seeds every sample and the tile choice.
     subset : bool
-        Claim the simplified cloud is a subset of the original:
-        :class:`~cloudsieve.errors.NotASubsetError` when it is not.
+        Claim the simplified cloud is a subset of the original.
     strict : bool
-        Different CRS or units raise :class:`~cloudsieve.errors.IncompatibleCloudsError`
-        (else a warning, recorded in ``report["warnings"]``).
+        Refuse different CRS or units (else a warning in ``report["warnings"]``).
     report_dir : str, optional
-        Write report.json, report.md, plots and errors.ply there.
+        Write report.json, report.md, report.html, plots and errors.ply there.
     error_points : int
         At most this many original points in errors.ply (uniform seeded sample).
     chunk_size : int
@@ -168,18 +164,16 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     reference_mesh : path, optional
         A mesh of the scanned surface (any file pymeshlab reads), compared by
         Metro with both tile meshes (``report["surface"]["reference"]``).
-        Needs *surface*.
     progress : callable, optional
         Called with the number of original points done (point level).
     drop_invalid : bool
-        Drop the points of either file whose coordinates are NaN or infinite
-        (a warning gives their count) instead of refusing the file.
-        fsspec options for URL inputs and a URL report folder
-        (:mod:`cloudsieve.storage`).
+        Drop points with NaN or infinite coordinates (with a warning) instead
+        of refusing the file.
+    storage_options : dict, optional
+        fsspec options for URL inputs and a URL report folder (:mod:`cloudsieve.storage`).
     bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
-        (e.g. :func:`cloudsieve.progress.bar`): one per stage, "point errors"
-        (points) and "surface" (tiles).
+        ``bars(stage, total, unit)`` -> context yielding ``update(n)``
+        (:func:`cloudsieve.progress.bar`), for "point errors" and "surface".
 
     Returns
     -------
@@ -195,7 +189,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     IncompatibleCloudsError, NotASubsetError
         See *strict* and *subset*.
     InvalidPointsError
-        A file has NaN or infinite coordinates and *drop_invalid* is False.
+        NaN or infinite coordinates and not *drop_invalid*.
     """
     o = options("evaluate", {
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
