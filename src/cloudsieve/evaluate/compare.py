@@ -1,14 +1,7 @@
-"""``compare``: entropy simplification vs baselines at the same output count.
+"""``compare``: entropy simplification vs baselines at the same output count, in memory, one table.
 
-Runs each method on one cloud held in memory (for choosing a method on a
-sample or a tile, not a billion points), evaluates each with
-:func:`cloudsieve.evaluate` (the original's meshes built once) and writes one
-table: kept, time, point errors, D1/D2 PSNR, Chamfer, Metro, compactness.
-
-The count is ``count`` or ``ratio`` x n; with ``threshold`` (or
-``iterative`` and neither) the first entropy method sets it. The default rule
-follows :func:`cloudsieve.params.validate`. Several rules run each entropy
-method once per rule (rows "km (target)", ...).
+The count is ``count`` or ``ratio`` x n, else the first entropy method's; each method is evaluated with
+:func:`cloudsieve.evaluate` (the original's meshes built once).
 """
 
 from __future__ import annotations
@@ -134,11 +127,8 @@ def _share(v: Any) -> str:
 
 
 def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
-    """The rows of a comparison: (row name, method, rule or None), entropy methods first.
-
-    Each rule runs once per entropy method (km, fcm), except a rule that
-    uses no clusters (``eliminate``): it runs once, as the row of its name.
-    """
+    """The rows of a comparison: (row name, method, rule or None), entropy methods first; a rule without
+    clusters (``eliminate``) runs once, under its own name."""
     runs = []
     first = next((m for m in methods if m in ("km", "fcm")), None)
     for m in methods:
@@ -189,8 +179,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         ``threshold``, ``cluster_size``, ``k0``, ``k_min``
         (:func:`cloudsieve.core.simplify.simplify_points`).
 
-    Every option is checked (:func:`cloudsieve.params.validate`) before the
-    source is loaded.
+    Every option is checked (:func:`cloudsieve.params.validate`) first.
 
     Returns
     -------
@@ -243,8 +232,7 @@ def _run_compare(source: Any, opts: Any, *, progress=None) -> dict:
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = compare_runs(methods, rules)
-    # each method's evaluation: compare's options (validated at its entry), evaluate's defaults, a fixed number of
-    # tiles (no time budget), the kept points a subset of the source's
+    # each method's evaluation: a fixed number of tiles (no budget), the kept points a subset of the source's
     evaluation = OPTION_CLASSES["evaluate"](subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
                                             seed=seed, metro_samples=metro_samples, psnr_peak=psnr_peak,
                                             surface_budget=None)

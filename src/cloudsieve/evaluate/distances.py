@@ -38,8 +38,7 @@ __all__ = [
     "d2_figures",
 ]
 
-#: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
-#: so that partial histograms of any chunk can be summed; zeros counted apart.
+#: the error histogram's fixed log bins from 1e-12 to 1e12 (cloud units), so partials sum; zeros counted apart
 HIST_DECADES = (-12, 12)
 HIST_PER_DECADE = 20
 _NBINS = (HIST_DECADES[1] - HIST_DECADES[0]) * HIST_PER_DECADE
@@ -183,29 +182,16 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
                   d2_rows: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
     """Partial forward statistics of one chunk *xyz* (n, 3) of original points against *target*.
 
-    Parameters
-    ----------
-    select : ndarray of int, optional
-        Rows of *xyz* to evaluate (a sample); all when None.
-    backward_index, n_backward : optional
-        Sampled mode: exact index of the sampled simplified points and their
-        number (the ``matched`` bitmask's length); else points at distance 0
-        are marked directly.
-    keep : ndarray of int, optional
-        Rows of *xyz* whose (xyz, distance) are returned for the error PLY.
-    normals, d2_k, d2_rows : optional
-        D2 (:func:`.planes.d2_squares`): file normals, else estimated from
-        *d2_k* neighbours; *d2_rows*: positions among the evaluated rows in
-        the D2 sample. No D2 when *d2_k* is None.
+    *select*: rows to evaluate (a sample; all when None). *backward_index*,
+    *n_backward*: in sampled mode, the sampled simplified points' index and
+    count (else points at distance 0 are marked directly). *keep*: rows whose
+    (xyz, distance) go to the error PLY. D2 (:func:`.planes.d2_squares`) with
+    *d2_k* (None: no D2), file *normals*, *d2_rows* (positions in the D2 sample).
 
-    Returns
-    -------
-    partial : dict
-        ``count, sum, sumsq, sum4, d2sq, d2sq2, d2_count, max, argmax, zeros,
-        hist, bbox, matched`` (packed bitmask of simplified points found
-        exactly) and ``seen`` (points read).
-    ply : (ndarray (k, 3), ndarray (k,)) or None
-        Coordinates and forward errors of the *keep* rows.
+    Returns ``(partial, ply)``: ``count, sum, sumsq, sum4, d2sq, d2sq2,
+    d2_count, max, argmax, zeros, hist, bbox, matched`` (packed bitmask of
+    simplified points found exactly), ``seen``; and the *keep* rows'
+    coordinates and errors, or None.
     """
     m = len(target) if n_backward is None else n_backward
     q = xyz if select is None else xyz[select]

@@ -194,22 +194,13 @@ def psnr(mse: float, peak: float) -> float:
 
 def field_figures(forward: dict, backward: dict, *, diagonal: float, peak: float | None = None,
                   normals: str = "estimated", k: int = K_NORMALS) -> tuple[dict, dict]:
-    """``report["psnr"]`` and ``report["chamfer"]`` from the point level's two directions.
+    """``report["psnr"]`` and ``report["chamfer"]`` from the point level's :func:`.distances.aggregate` directions.
 
-    *forward*, *backward*: :func:`.distances.aggregate` results (``mse``,
-    ``d2_mse``); *peak* defaults to *diagonal*; *normals* is ``"file"`` or
-    ``"estimated"``, *k* the estimate's neighbours.
-
-    Returns
-    -------
-    psnr : dict
-        ``peak``, ``peak_from``, ``formula``, ``normals``, ``k_normals``
-        (None with file normals), ``d1`` and ``d2`` (``forward``,
-        ``backward``, ``symmetric`` in dB), ``mse``; for a sampled D2,
-        ``d2_sample`` (sizes) and ``d2_se_db`` (standard errors in dB).
-    chamfer : dict
-        ``value``, ``forward``, ``backward`` (squared cloud units),
-        ``value_pct2`` (100**2 value / diagonal**2), ``definition``.
+    *peak* defaults to *diagonal*; *normals* is ``"file"`` or ``"estimated"`` (*k* neighbours).
+    psnr: ``peak``, ``peak_from``, ``formula``, ``normals``, ``k_normals``, ``d1`` and ``d2``
+    (``forward``, ``backward``, ``symmetric`` dB), ``mse``, and for a sampled D2 ``d2_sample``,
+    ``d2_se_db``. chamfer: ``value``, ``forward``, ``backward`` (squared units), ``value_pct2``,
+    ``definition``.
     """
     p = float(diagonal if peak is None else peak)
     mse, out = {}, {}

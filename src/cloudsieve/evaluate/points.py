@@ -1,27 +1,15 @@
 """Point-level errors between an original cloud and its simplification.
 
-- **forward** (original -> simplified): each original point's distance to
-  the nearest simplified point; zero for kept points.
-- **backward** (simplified -> original): each simplified point's distance to
-  the nearest original point; zero for methods that keep a subset.
+**forward** (original -> simplified): each original point's distance to the
+nearest simplified point; **backward**: each simplified point's distance to
+the nearest original point (zero for a subset). Hausdorff is the larger
+maximum; figures in cloud units and % of the original's diagonal.
 
-Hausdorff is the larger maximum. Figures are in cloud units and in % of the
-original's bounding-box diagonal.
-
-The original is streamed; the simplified cloud is held in memory with one
-k-d tree. Each chunk returns a small partial (moments, max, log histogram,
-bounding box, exact matches), combined afterwards in the driver or as dask
-tasks; results do not depend on chunk size or scheduler (up to summation
-order). Per-chunk kernels live in :mod:`.distances`.
-
-Backward: simplified points matched exactly in the forward pass have
-distance 0; the others are searched in a second streamed pass keeping a
-running minimum (chunks farther than the best are skipped).
-
-``sample=N`` evaluates a uniform seeded sample of N points per direction,
-with 95% confidence intervals for mean and RMS (normal approximation,
-finite-population correction); the sampled max is a lower bound
-(``max_is_lower_bound``).
+The original is streamed; per-chunk partials (:mod:`.distances`) are
+combined in the driver or as dask tasks, independent of chunk size and
+scheduler. Backward searches again, in a second streamed pass, only the
+points not matched exactly. ``sample=N``: N points per direction, 95%
+confidence intervals for mean and RMS, the max a lower bound.
 """
 
 from __future__ import annotations
@@ -65,10 +53,7 @@ def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray 
 
 
 def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """*xyz* as a LAS file of *grid* = (scales, offsets) stores and reads it back (None: unchanged).
-
-    The writer stores round((x - offset) / scale); laspy reads X * scale + offset.
-    """
+    """*xyz* as a LAS file of *grid* = (scales, offsets) stores and reads it back (None: unchanged)."""
     if grid is None:
         return xyz
     scales, offsets = grid
@@ -79,10 +64,8 @@ def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
                    grid: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Multiplicities of the simplified points *rows* found at distance 0 but not matched (copies).
 
-    A point held c times is a subset member only if the original holds it at
-    least c times. Returns ``(points (q, 3), held (q,), original (q,))``: the
-    distinct points, how often the simplified points hold each and how often
-    the original (on *grid* when given, :func:`quantise`) does.
+    Returns ``(points (q, 3), held (q,), original (q,))``: the distinct points and how often the simplified
+    cloud and the original (on *grid*, :func:`quantise`) hold each; a subset holds none more often.
     """
     q = np.unique(bpoints[rows], axis=0)
     index = ExactIndex(q)
@@ -111,39 +94,20 @@ class PointLevel:
 
 def point_errors(original: Any, simplified: np.ndarray, level: PointLevel = PointLevel(), *, client: Any = None,
                  on_error_points=None, progress=None, grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
-    """Point-level errors of *simplified* against *original*, both directions.
+    """Point-level errors of *simplified* (m, 3) against *original* (streamed: array, store, path or Source).
 
-    Parameters
-    ----------
-    original : ndarray (n, 3), PointStore, store path, file path or Source
-        Streamed chunk by chunk.
-    simplified : ndarray of shape (m, 3), float64
-        In memory.
-    level : PointLevel
-        ``sample``, ``seed``, ``chunk_size``, ``subset`` (raise
-        :class:`~cloudsieve.errors.NotASubsetError` when not one), ``error_points``,
-        ``d2_k``, ``d2_sample``, ``keep_sample``, as in
-        :func:`cloudsieve.evaluate.evaluate`; ``d2_k`` None: D1 only.
-        ``error_points`` > 0 sends the forward errors of that many sampled
-        original points to *on_error_points* ``(xyz (k, 3), error (k,) float32)``
-        chunk by chunk; ``keep_sample`` returns ``uniform_sample``, that many
-        original points as :func:`.tiles.uniform_sample` draws them.
-    client : distributed.Client, optional
-        Run the chunk tasks on this dask cluster.
-    progress : callable, optional
-        Called with the number of original points read, per chunk.
-    grid : (scales, offsets), optional
-        The LAS quantisation of *simplified*: a point not found exactly still
-        counts as an original point if it is one on this grid (``subset``,
-        ``not_in_original``); distances stay measured.
+    *level* holds the options as in :func:`cloudsieve.evaluate.evaluate`
+    (``subset`` raises NotASubsetError; ``d2_k`` None: D1 only;
+    ``error_points`` sends sampled forward errors to *on_error_points*
+    ``(xyz (k, 3), error (k,) float32)`` chunk by chunk; ``keep_sample``
+    returns ``uniform_sample`` as :func:`.tiles.uniform_sample` draws it).
+    *grid* (scales, offsets): the LAS quantisation of *simplified*, on which
+    a point still counts as an original one. *progress* gets points read.
 
-    Returns
-    -------
-    dict
-        ``forward``, ``backward`` (:func:`.distances.aggregate`), ``hausdorff``,
-        ``hausdorff_pct``, ``diagonal``, ``bounds``, ``original_count``,
-        ``simplified_count``, ``mode``, ``sample``, ``seed``, ``subset``,
-        ``not_in_original``, ``histogram``.
+    Returns ``forward``, ``backward`` (:func:`.distances.aggregate`),
+    ``hausdorff``, ``hausdorff_pct``, ``diagonal``, ``bounds``,
+    ``original_count``, ``simplified_count``, ``mode``, ``sample``, ``seed``,
+    ``subset``, ``not_in_original``, ``histogram``.
     """
     sample, seed, subset, error_points = level.sample, level.seed, level.subset, level.error_points
     d2_k, d2_sample, keep_sample = level.d2_k, level.d2_sample, level.keep_sample

@@ -194,45 +194,22 @@ def surface_errors(original: Any, simplified: np.ndarray, tiling: TilePlan = Til
                    diagonal: float | None = None, samples: int | None = None, max_samples: int = 500_000,
                    progress=None, cache: dict | None = None, reference: tuple[np.ndarray, np.ndarray] | None = None,
                    sample: tuple[np.ndarray, int] | None = None) -> dict:
-    """The paper's surface-level figures on tiles of the cloud.
+    """The paper's surface-level figures on tiles of *original* (streamed) and *simplified* (m, 3).
 
-    Parameters
-    ----------
-    original : ndarray (n, 3), PointStore, store path, file path or Source
-        Streamed (tiles gathered in one pass).
-    simplified : ndarray of shape (m, 3)
-        In memory.
-    tiling : TilePlan
-        ``tiles`` T (None: 4, or with a budget as many as fit, sized for 8),
-        ``budget`` (seconds at :data:`.tiles.SURFACE_RATE`; None: T tiles of M
-        points however long), ``full``, ``tile_points`` M, ``seed``.
-    sample : (ndarray (s, 3), int), optional
-        A uniform sample of the original and its count (saves a pass).
-    diagonal : float, optional
-        The original's bounding-box diagonal for ``*_pct`` (computed when not given).
-    samples, max_samples : int
-        Metro samples per direction (:func:`.mesh.metro`).
-    progress : callable, optional
-        Called with 1 per tile done.
-    cache : dict, optional
-        The original's tiles and meshes, reused across calls on one original
-        with the same tile options (compare).
-    reference : (vertices (v, 3), faces (f, 3)), optional
-        A mesh of the scanned surface; both tile meshes are compared with it
-        by Metro (cropped to each tile), in ``reference``.
+    *tiling*: ``tiles`` T (None: 4, or with a budget as many as fit, sized
+    for 8), ``budget`` (seconds at :data:`.tiles.SURFACE_RATE`), ``full``,
+    ``tile_points`` M, ``seed``. *sample*: a uniform sample of the original
+    and its count, saving a pass. *samples*, *max_samples*: Metro's
+    (:func:`.mesh.metro`). *cache*: the original's tiles and meshes across
+    calls (compare). *reference*: a mesh both tile meshes are compared with.
 
-    Returns
-    -------
-    dict
-        ``tiles`` (per tile figures); ``forward``, ``backward`` and ``mean,
-        rms, max`` (+ ``_pct``, the larger direction); ``on_surface`` (Metro
-        without the backward samples facing a hole of the original's mesh,
-        with ``excluded``, ``excluded_share``); ``reference``; ``original``
-        and ``simplified`` mesh totals (``vertices, border_edges, faces,
-        compact_share, compact, compactness_mean, compactness_hist``) and the
-        simplified ones at top level; ``sampling`` (``mode``, ``tiles``,
-        ``tile_points``, ``seconds``, ``population``, ``points_share``,
-        ``budget``, ``rate``, ``spread`` (:func:`.tiles.spread`)).
+    Returns ``tiles``; ``forward``, ``backward``, ``mean, rms, max`` (+
+    ``_pct``, the larger direction); ``on_surface`` (without backward samples
+    facing a hole of the original's mesh; ``excluded``, ``excluded_share``);
+    ``reference``; ``original`` and ``simplified`` mesh totals, the latter
+    also at top level; ``sampling`` (``mode``, ``tiles``, ``tile_points``,
+    ``seconds``, ``population``, ``points_share``, ``budget``, ``rate``,
+    ``spread``).
     """
     t0 = time.perf_counter()
     src = open_source(original)
