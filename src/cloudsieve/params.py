@@ -1,15 +1,10 @@
 """Every user option of cloudsieve checked once: :func:`validate`, :func:`validate_params`.
 
-The options (name, type, range, default, help) are data in
-:mod:`cloudsieve.params_spec`, re-exported here. Every entry checks them
-here, once, before any work or file: the command line (:mod:`cloudsieve.cli`
-builds its flags from :data:`COMMANDS`), pipelines (:mod:`cloudsieve.pipeline`,
-at load), :func:`cloudsieve.simplify`, :func:`cloudsieve.evaluate`,
-:func:`cloudsieve.compare`, and the in-memory API through
-:func:`validate_params`. So all refuse the same values with the same message
-(``ratio must be a number in (0, 1], got 0.0``). A leaf: it imports
-params_spec, rule_table, address and errors only. A count larger than the
-cloud is not an error: all the points are kept.
+The options are data in :mod:`cloudsieve.params_spec` (re-exported). The
+command line, pipelines, :func:`cloudsieve.simplify`, :func:`cloudsieve.evaluate`,
+:func:`cloudsieve.compare` and the in-memory API (:func:`validate_params`)
+check them here, once, before any work, so all refuse the same values with
+the same message. A leaf. A count above the cloud's size keeps every point.
 
 >>> from cloudsieve.params import validate
 >>> validate("simplify", {"method": "km", "ratio": 0.5})["cluster_size"]
@@ -239,32 +234,14 @@ _CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simpli
 
 
 def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
-    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together.
+    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together; returns all of them, normalised.
 
-    For ``simplify`` and ``compare`` the rule is resolved here
+    *values* holds some options (the others take their defaults); *caller*
+    names the call in errors (default ``cloudsieve.<command>``). For
+    ``simplify`` and ``compare`` the rule is resolved here
     (:func:`cloudsieve.rule_table.resolve_rule`), so validating the result
-    again gives it back.
-
-    Parameters
-    ----------
-    command : str
-        ``simplify``, ``evaluate``, ``compare``, ``ingest``, ``export``,
-        ``pipeline``, ``warmup``, or the in-memory ``simplify_points``,
-        ``prune``, ``scores``, ``refine``, ``eliminate``.
-    values : mapping of str to object
-        Some of the command's options; the others take their defaults.
-    caller : str, optional
-        The call's name in errors (default ``cloudsieve.<command>``).
-
-    Returns
-    -------
-    dict
-        Every option of the command, normalised.
-
-    Raises
-    ------
-    InvalidParameterError
-        An unknown option, a value out of range, or contradicting options.
+    gives it back. InvalidParameterError for an unknown option, a value out of
+    range, or contradicting options.
     """
     spec = COMMANDS[command]
     unknown = sorted(set(values) - set(spec))

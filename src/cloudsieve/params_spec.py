@@ -50,26 +50,11 @@ def _and(names: tuple[str, ...]) -> str:
 
 @dataclass(frozen=True)
 class Option:
-    """One user option.
-
-    Attributes
-    ----------
-    name : str
-        The API keyword and pipeline key (CLI flag: ``--`` + name with dashes).
-    kind : str
-        ``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list or a
-        comma-separated string), ``format`` (any case, dot optional),
-        ``text``, ``path``, ``size`` (bytes, or text such as "2GB"), ``scheduler``.
-    default : object
-        None for an optional option.
-    help : str
-        One line for ``--help`` describing the flag (``--no-NAME`` for a bool defaulting to True).
-    low, high : float, optional
-        Range of an int or float; *low* excluded when *low_open*.
-    choices : tuple of str
-    aliases : tuple of str
-        Old CLI flags that still work.
-    metavar : str, optional
+    """One user option: ``name`` (API keyword and pipeline key; flag ``--`` + name with dashes); ``kind``
+    (``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list or comma-separated), ``format`` (any
+    case, dot optional), ``text``, ``path``, ``size`` (bytes or "2GB"), ``scheduler``); ``default`` (None:
+    optional); ``help`` (one ``--help`` line describing the flag: ``--no-NAME`` for a bool defaulting to
+    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (old flags); ``metavar``.
     """
 
     name: str

@@ -1,47 +1,24 @@
-"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines.
+"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines (README, "Pipelines")::
 
-A pipeline file is JSON::
-
-    {
-      "pipeline": [
+    {"pipeline": [
         {"type": "readers.las", "filename": "scans/*.laz"},
         {"type": "filters.entropy", "method": "fcm", "rule": "iterative", "threshold": 0.001},
         {"type": "writers.las", "filename": "out/{stem}.laz"},
-        {"type": "evaluate", "report_dir": "out/{stem}-report"}
-      ]
-    }
+        {"type": "evaluate", "report_dir": "out/{stem}-report"}]}
 
-Stages, in this order:
+Stages, in order: one ``readers.*`` (``las``, ``copc``, ``ply``, ``e57``,
+``text``, ``store``; ``filename`` may be a glob, run once per file, or with
+``merge`` one cloud; ``drop_invalid``); at most one ``filters.entropy``
+(:func:`cloudsieve.simplify`'s options but the writer's ``format``,
+``overwrite`` and the reader's ``drop_invalid``); a ``writers.*`` after it
+(``filename`` with ``{stem}`` / ``{name}``, ``overwrite``); ``evaluate``
+after the writer, or ``compare`` instead of filter and writer. Top-level
+``scheduler``, ``workers`` and ``storage_options`` apply to every stage.
 
-``readers.*`` (exactly one, first)
-    ``readers.las``, ``readers.copc``, ``readers.ply``, ``readers.e57``,
-    ``readers.text`` or ``readers.store``; a bare string picks one by
-    extension. ``filename`` may be a glob: the pipeline runs once per file.
-    ``merge`` (``readers.las``): the glob's files, or a directory, list file
-    or VPC, are one cloud (:mod:`cloudsieve.io.sources`), ``{stem}`` their
-    folder's name; not with ``evaluate`` or ``compare``. ``drop_invalid``:
-    drop NaN or infinite coordinates in every stage that reads the file.
-``filters.entropy`` (at most one)
-    The options of :func:`cloudsieve.simplify` but ``format``,
-    ``overwrite`` (the writer's) and ``drop_invalid`` (the reader's).
-``writers.*`` (one, required after ``filters.entropy``)
-    ``writers.las`` (LAZ by extension), ``writers.ply``, ``writers.text``.
-    ``filename`` may use ``{stem}`` and ``{name}``, and must with a glob of
-    several files. ``overwrite`` replaces an existing file.
-``evaluate`` (optional, after the writer)
-    The written cloud against the input; options of :func:`cloudsieve.evaluate`.
-``compare`` (optional, instead of filters/writers)
-    :func:`cloudsieve.compare` on the input.
-
-Top-level ``"scheduler"`` and ``"workers"`` apply to every dask stage.
-Every option is checked at load (:mod:`cloudsieve.params`), naming the
-stage; the stages then run on the validated options
-(:func:`cloudsieve.engine.simplify.run_simplify`,
-:func:`cloudsieve.evaluate.evaluation.run_evaluation`,
-:func:`cloudsieve.evaluate.compare.run_compare`). Relative paths are
-relative to the working folder; ``$VAR`` and ``${VAR}`` are expanded (an
-unset one is an error). :func:`check_inputs` (``cloudsieve run --check``)
-checks the inputs; ``--set STAGE.OPTION=VALUE`` overrides any option.
+Options are validated at load (:mod:`cloudsieve.pipeline_load`), naming the
+stage, and the stages run on them. ``$VAR`` in paths is expanded (unset: an
+error); :func:`check_inputs` checks the inputs; ``--set STAGE.OPTION=VALUE``
+overrides any option.
 """
 from __future__ import annotations
 

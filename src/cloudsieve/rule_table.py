@@ -1,14 +1,8 @@
 """The rule table, a leaf: each pruning rule's metadata, the default rule, the warm-up targets' names.
 
-Each rule (``threshold``, ``iterative``, ``target``, ``coverage``,
-``eliminate``) is one :class:`Rule`; its in-memory selection lives under
-:mod:`cloudsieve.core.rules`, loaded by name at its first call. Callers ask
-the table (:data:`RULES`, :func:`get`, :func:`names`); it is the only place
-rule names are written as strings. It imports :mod:`cloudsieve.errors`
-only, so :mod:`cloudsieve.params` reads it without the in-memory method.
-
-:func:`resolve_rule` picks the default: ``eliminate`` with a ratio or a
-count, ``threshold`` with a threshold alone (README, "Rules").
+Each rule is one :class:`Rule`, its selection under :mod:`cloudsieve.core.rules` loaded at first call.
+The table (:data:`RULES`, :func:`get`, :func:`names`) is the only place rule names are written as strings;
+it imports :mod:`cloudsieve.errors` only. Default rule: :func:`resolve_rule` (README, "Rules").
 
 >>> from cloudsieve.rule_table import get, targets_of
 >>> get("eliminate").clusters, get("threshold").target
@@ -55,30 +49,12 @@ ENTROPY_TARGETS: tuple[str, ...] = ("common", "partition", "scores")
 
 @dataclass(frozen=True)
 class Rule:
-    """One pruning rule.
-
-    Attributes
-    ----------
-    name : str
-        The value of the ``rule`` option.
-    target : {"needed", "optional", "refused"}
-        Whether it needs a ratio or a count, may take one (else uses the
-        threshold S), or takes S only.
-    clusters : bool
-        Refines into small clusters (KM/FCM) and scores ΔH; False:
-        ``method``, ``cluster_size`` and the entropy options are unused.
-    options : tuple of str
-        The user options it reads beside ratio/count.
-    engine : {"global_threshold", "cell_count", "elimination"}
-        What an engine cell runs with a ratio or a count.
-    module : str
-        Its in-memory selection's module under :mod:`cloudsieve.core.rules`.
-    summary : str
-        One line for the help.
-    coverage_test : bool
-        Drops a point only where its neighbours are at least as dense.
-    warm : tuple of str
-        The warm-up targets its runs compile.
+    """One pruning rule: ``name`` (the ``rule`` option's value); ``target`` ("needed", "optional": else
+    the threshold S, "refused"); ``clusters`` (refines into KM/FCM clusters and scores ΔH; False: the
+    entropy options are unused); ``options`` (user options read beside ratio/count); ``engine`` (what an
+    engine cell runs with a target: "global_threshold", "cell_count", "elimination"); ``module`` (its
+    in-memory selection under :mod:`cloudsieve.core.rules`); ``summary`` (help line); ``coverage_test``
+    (drops a point only where its neighbours are at least as dense); ``warm`` (its warm-up targets).
     """
 
     name: str
@@ -165,16 +141,11 @@ class Metavar(str):
 
 
 def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]) -> None:
-    """Resolve the default rule and threshold (None: not given), once, in *o* in place.
+    """Resolve the default rule and threshold (None: not given) of *command*'s options *o*, once, in place.
 
-    No rule: ``eliminate`` with a ratio or a count, ``threshold`` with a
-    threshold alone; the threshold becomes :data:`PAPER_THRESHOLD` when not
-    given. *command* is ``simplify`` or ``compare`` (a list of rules);
-    *o* holds options already checked alone; *caller* names the call in the
-    message; *metavars* are the values an error leaves to the user.
-
-    Raises InvalidParameterError with no rule and neither a ratio, a count
-    nor a threshold, or a threshold beside a ratio or count.
+    No rule: ``eliminate`` with a ratio or a count, ``threshold`` with a threshold alone, else
+    InvalidParameterError (also for a threshold beside a ratio or count); the threshold defaults to
+    :data:`PAPER_THRESHOLD`. *caller* names the call in the message; *metavars* the values left to the user.
     """
     has_target = o["ratio"] is not None or o["count"] is not None
     given = o["threshold"] is not None
