@@ -1,18 +1,10 @@
-"""SRC as one cloud of many files: a glob, a directory, a list file or a VPC.
+"""SRC as one cloud of many files: :func:`expand_sources` (README, "Usage").
 
-:func:`expand_sources` turns SRC into the ordered files of one cloud:
-
-- a glob (``'tiles/*.laz'``, quoted): the matching files, sorted by path;
-- a directory or prefix that is not a point store: its LAS/LAZ/COPC files
-  (not recursive), sorted by name;
-- a list file (``.lst``, or a ``.txt`` whose first line names an existing
-  cloud file): one path or URL per line, relative to the list's folder;
-  blank and ``#`` lines skipped;
-- a VPC (:func:`cloudsieve.io.vpc.read_vpc`): its tiles, in its order;
-- anything else: SRC itself.
-
-Every form may be a URL (:mod:`cloudsieve.storage`). The order numbers the
-points, which fixes the result for a seed.
+A glob (sorted by path), a directory or prefix that is not a store (its
+LAS/LAZ files, sorted), a list file (``.lst``, or a ``.txt`` whose first line
+names a cloud file; one path per line, relative to the list), a VPC (its
+order), else SRC itself. Any may be a URL. The order numbers the points,
+which fixes the result for a seed.
 """
 
 from __future__ import annotations

@@ -1,17 +1,11 @@
 """Virtual point clouds (VPC): the tile index PDAL wrench and QGIS read and write.
 
-A VPC (``.vpc``) is a STAC ItemCollection: a GeoJSON FeatureCollection with
-one STAC item per file, with the pointcloud and projection extensions
-(wrench's ``vpc-spec.md``). :func:`write_vpc` writes wrench's layout:
-``proj:bbox`` and ``proj:geometry`` are the header bounds in the file's CRS;
-``bbox`` and ``geometry`` the same box in WGS 84 lon/lat (:mod:`cloudsieve.io.vpc_crs`),
-or in the file's coordinates when it has no CRS or one that does not
-reproject; ``proj:wkt2`` the WKT VLR's WKT, else the WKT2 of the GeoTIFF
-keys' EPSG code, else ""; ``proj:epsg`` when the header gives one code.
-
-:func:`read_vpc` reads each item's data asset ``href`` (the first asset
-when none has the "data" role), relative to the VPC's folder;
-:func:`read_vpc_items` adds count, CRS and native bounds.
+A ``.vpc`` is a STAC ItemCollection (GeoJSON FeatureCollection), one item
+per file (wrench's ``vpc-spec.md``). :func:`write_vpc` writes wrench's
+layout: ``proj:bbox``/``proj:geometry`` in the file's CRS, ``bbox``/``geometry``
+in WGS 84 (:mod:`cloudsieve.io.vpc_crs`; the file's own coordinates when it
+does not reproject), ``proj:wkt2`` ("" without CRS), ``proj:epsg`` when known.
+:func:`read_vpc` resolves each item's data asset ``href`` against the VPC's folder.
 """
 
 from __future__ import annotations
@@ -51,16 +45,9 @@ def _data_asset(assets: dict) -> object:
 def read_vpc(path: str | os.PathLike) -> list[str]:
     """The files a ``.vpc`` lists, as absolute paths (a URL as it is), in its order.
 
-    Raises
-    ------
-    InputNotFoundError
-        *path*, or a file it lists, does not exist.
-    InputFormatError
-        Not JSON, not a FeatureCollection, an item without a data asset, a
-        file listed twice, or a ``bbox`` or ``proj:bbox`` that is not 4 or 6
-        finite numbers.
-    EmptyInputError
-        The VPC lists no files.
+    Raises InputNotFoundError (the VPC or a listed file is missing),
+    InputFormatError (not a FeatureCollection, an item without a data asset,
+    a file listed twice, a bad ``bbox``), EmptyInputError (no files).
     """
     return [item["path"] for item in read_vpc_items(path)]
 
@@ -263,23 +250,11 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
 def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = False) -> str:
     """Write a VPC listing *tiles* (under a temporary name, then renamed); returns *path*.
 
-    Parameters
-    ----------
-    path : str or path-like
-        The ``.vpc`` file.
-    tiles : list of dict
-        One entry per file, in order: ``path``, ``count``, ``bounds``
-        [[xmin, ymin, zmin], [xmax, ymax, zmax]], optionally ``wkt``, ``epsg``,
-        ``datetime``, ``schemas``, ``id`` (default: the file's stem).
-        :func:`describe_tile` makes one.
-    overwrite : bool
-        Replace an existing *path*.
-
-    Raises
-    ------
-    InvalidParameterError
-        An entry without path, count or finite bounds.
-    DestinationExistsError, DestinationNotWritableError
+    Each entry of *tiles*: ``path``, ``count``, ``bounds`` [[xmin, ymin, zmin],
+    [xmax, ymax, zmax]], optionally ``wkt``, ``epsg``, ``datetime``,
+    ``schemas``, ``id`` (default: the file's stem); :func:`describe_tile`
+    makes one. Raises InvalidParameterError (an entry without path, count or
+    finite bounds), DestinationExistsError, DestinationNotWritableError.
     """
     path = os.fspath(path)
     folder = storage.parent(path)
