@@ -33,13 +33,9 @@ logger = logging.getLogger(__name__)
 def check_destination(path: str, overwrite: bool, *, folder: bool = False,
                       foreign: Callable[[str], str | None] | None = None) -> None:
     """Refuse a destination that exists (unless *overwrite*), is of the other kind, or cannot be written.
-
-    *folder*: the destination is a folder (never replaced by a file, nor a
-    file by a folder). An existing folder is replaced only when
-    ``foreign(path)`` returns None (else a description of what cloudsieve did
-    not write there). Raises DestinationExistsError, or
-    DestinationNotWritableError when the parent folder is missing.
-    """
+    *folder*: the destination is a folder (never replaced by a file, nor a file by a folder). An existing folder is
+    replaced only when ``foreign(path)`` returns None (else a description of what cloudsieve did not write there).
+    Raises DestinationExistsError, or DestinationNotWritableError when the parent folder is missing."""
     if is_url(path):
         _check_remote(path, overwrite, folder, foreign)
         return
@@ -154,7 +150,8 @@ def remove(path: str) -> None:
 
 
 def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
-    """Write *text* to *path* atomically (a temporary file renamed); DestinationNotWritableError if the folder is not writable."""
+    """Write *text* to *path* atomically (a temporary file renamed); DestinationNotWritableError if the folder is not
+    writable."""
     path = os.fspath(path)
     tmp = make_temp_path(path)
     try:

@@ -13,7 +13,8 @@ DEFAULT_CHUNK_SIZE = 1_000_000
 
 
 class Chunk(NamedTuple):
-    """Consecutive points from *start* on (``start, arrays = chunk``): ``"xyz"`` (n, 3) float64 and attributes (n,) or (n, k)."""
+    """Consecutive points from *start* on (``start, arrays = chunk``): ``"xyz"`` (n, 3) float64 and attributes (n,) or
+    (n, k)."""
 
     start: int
     arrays: dict[str, np.ndarray]
@@ -35,5 +36,6 @@ def xyz_bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def take_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``a[rows]`` (a new C-ordered array) for integer *rows* of an (n, k) array, by ``a.take`` (faster than fancy indexing)."""
+    """``a[rows]`` (a new C-ordered array) for integer *rows* of an (n, k) array, by ``a.take`` (faster than fancy
+    indexing)."""
     return a.take(rows, axis=0)

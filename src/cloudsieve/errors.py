@@ -40,12 +40,9 @@ __all__ = [
 
 class CloudsieveError(Exception):
     """Root of every error cloudsieve raises on purpose.
-
-    *advice* maps the options the message advises to their values
-    (``{"overwrite": True}``, worded ``overwrite=True``; the command line
-    rewrites those words as its own). Kept in ``__dict__``, so it survives
-    pickling from dask workers.
-    """
+    *advice* maps the options the message advises to their values (``{"overwrite": True}``, worded
+    ``overwrite=True``; the command line rewrites those words as its own). Kept in ``__dict__``, so it survives
+    pickling from dask workers."""
 
     def __init__(self, *args: object, advice: dict | None = None) -> None:
         super().__init__(*args)
@@ -152,4 +149,5 @@ class ConvergenceWarning(UserWarning):
 
 
 class IncompatibleCloudsWarning(UserWarning):
-    """Clouds of different CRS or units compared anyway (``strict=False``); also logged, once (the CLI shows the log line only)."""
+    """Clouds of different CRS or units compared anyway (``strict=False``); also logged, once (the CLI shows the log
+    line only)."""

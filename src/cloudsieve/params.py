@@ -134,9 +134,7 @@ def _choices(option: Option, value: Any) -> list[str]:
 
 def check(option: Option | str, value: Any) -> Any:
     """Validate one value of *option*; returns it normalised (None where the default is None).
-
-    Raises InvalidParameterError ``"<name> must be <what>, got <value>"``.
-    """
+    Raises InvalidParameterError ``"<name> must be <what>, got <value>"``."""
     if isinstance(option, str):
         option = OPTIONS[option]
     if value is None and option.default is None:
@@ -234,15 +232,11 @@ _CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simpli
 
 
 def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
-    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together; returns all of them, normalised.
-
-    *values* holds some options (the others take their defaults); *caller*
-    names the call in errors (default ``cloudsieve.<command>``). For
-    ``simplify`` and ``compare`` the rule is resolved here
-    (:func:`cloudsieve.rule_table.resolve_rule`), so validating the result
-    gives it back. InvalidParameterError for an unknown option, a value out of
-    range, or contradicting options.
-    """
+    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together; returns all, normalised.
+    *values* holds some options (the others take their defaults); *caller* names the call in errors (default
+    ``cloudsieve.<command>``). For ``simplify`` and ``compare`` the rule is resolved here
+    (:func:`cloudsieve.rule_table.resolve_rule`), so validating the result gives it back. InvalidParameterError for
+    an unknown option, a value out of range, or contradicting options."""
     spec = COMMANDS[command]
     unknown = sorted(set(values) - set(spec))
     if unknown:
@@ -291,10 +285,8 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
 
 def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options that define a simplification, as its work store records them (resume compares them).
-
-    halo_context is recorded as ``"context"`` and keep_duplicates only when
-    True, so version-1 work stores still resume.
-    """
+    halo_context is recorded as ``"context"`` and keep_duplicates only when True, so version-1 work stores still
+    resume."""
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])

@@ -113,10 +113,8 @@ def delete_store(path: str | os.PathLike) -> None:
 
 def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, dict]:
     """The zarr group of the complete point store at *path* and its "cloudsieve" attributes.
-
-    *mode* "r" opens read-only, else read-write. StoreNotFoundError when
-    *path* is missing or not a complete point store.
-    """
+    *mode* "r" opens read-only, else read-write. StoreNotFoundError when *path* is missing or not a complete point
+    store."""
     path = os.fspath(path)
     # a URL: opening the group finds out (a prefix's existence would take a listing)
     if not storage.is_url(path) and not path_exists(path):

@@ -64,10 +64,8 @@ def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, drop_i
 
 def check_inputs(pipeline: Pipeline) -> None:
     """Raise PipelineError unless the reader can read every input of *pipeline* (file system checks only).
-
-    The message names the pipeline, stage 1 and the input:
-    ``"simplify.json: stage 1 (readers.las): input.laz: no such file"``.
-    """
+    The message names the pipeline, stage 1 and the input: ``"simplify.json: stage 1 (readers.las): input.laz: no
+    such file"``."""
     from .io import check_readable, detect_format
     from .store import is_store
 
@@ -104,11 +102,8 @@ def check_inputs(pipeline: Pipeline) -> None:
 
 def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None, bars: Any = None) -> list[dict]:
     """Run a pipeline, once per input file.
-
-    *progress* ``(n)`` gets each input's points once done; *bars* as
-    :func:`cloudsieve.progress.bar`. Returns one dict per input: ``input``,
-    ``output`` (or None), ``summary``, ``report``.
-    """
+    *progress* ``(n)`` gets each input's points once done; *bars* as :func:`cloudsieve.progress.bar`. Returns one
+    dict per input: ``input``, ``output`` (or None), ``summary``, ``report``."""
     from .params import check
 
     # the pipeline's top-level key (validated at load), for every stage

@@ -130,11 +130,8 @@ def _expand(stage: dict, label: str) -> None:
 
 def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tuple = ()) -> Pipeline:
     """Parse and validate a pipeline file (a JSON path, or its content as a mapping).
-
-    *overrides* are ``STAGE.OPTION=VALUE`` items applied first (VALUE parsed
-    as JSON when valid, else a string). Raises PipelineError naming the file,
-    the stage (number and type) and the problem.
-    """
+    *overrides* are ``STAGE.OPTION=VALUE`` items applied first (VALUE parsed as JSON when valid, else a string).
+    Raises PipelineError naming the file, the stage (number and type) and the problem."""
     if isinstance(source, dict):
         doc, where = copy.deepcopy(source), "<pipeline>"
     else:

@@ -130,9 +130,7 @@ def targets_of(rule: str | None) -> tuple[str, ...]:
 
 class Metavar(str):
     """A value an error advises without choosing it (``R``, ``N``, ``S``); its repr is itself.
-
-    ``advice={"ratio": Metavar("R")}`` reads ``ratio=R`` (CLI: ``--ratio R``).
-    """
+    ``advice={"ratio": Metavar("R")}`` reads ``ratio=R`` (CLI: ``--ratio R``)."""
 
     __slots__ = ()
 
@@ -142,11 +140,9 @@ class Metavar(str):
 
 def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]) -> None:
     """Resolve the default rule and threshold (None: not given) of *command*'s options *o*, once, in place.
-
     No rule: ``eliminate`` with a ratio or a count, ``threshold`` with a threshold alone, else
     InvalidParameterError (also for a threshold beside a ratio or count); the threshold defaults to
-    :data:`PAPER_THRESHOLD`. *caller* names the call in the message; *metavars* the values left to the user.
-    """
+    :data:`PAPER_THRESHOLD`. *caller* names the call in the message; *metavars* the values left to the user."""
     has_target = o["ratio"] is not None or o["count"] is not None
     given = o["threshold"] is not None
     entropy = command == "simplify" or any(m in METHODS for m in o["methods"])

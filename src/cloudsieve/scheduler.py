@@ -25,11 +25,8 @@ def _reason(exc: BaseException) -> str:
 
 def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
     """Raise unless something accepts connections at the scheduler *address* within *timeout* seconds.
-
-    *address* is ``tcp://host:port`` (also ``tls://``, ``ws://``, ``wss://``).
-    Raises InvalidParameterError (no host or port) or
-    SchedulerUnreachableError (refused, unknown host, timed out).
-    """
+    *address* is ``tcp://host:port`` (also ``tls://``, ``ws://``, ``wss://``). Raises InvalidParameterError (no
+    host or port) or SchedulerUnreachableError (refused, unknown host, timed out)."""
     where = host_port(address)
     if where is None:
         return
@@ -44,9 +41,7 @@ def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
 
 def connect(address: str, timeout: float | None = None) -> Any:
     """A :class:`distributed.Client` of the scheduler at *address* (*timeout* default: dask's).
-
-    Raises SchedulerUnreachableError when dask cannot connect (e.g. not a dask scheduler).
-    """
+    Raises SchedulerUnreachableError when dask cannot connect (e.g. not a dask scheduler)."""
     from distributed import Client
 
     try:

@@ -32,12 +32,9 @@ def _buildings(rng: np.random.Generator) -> np.ndarray:
 
 def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE) -> Iterator[dict[str, np.ndarray]]:
     """Yield the example scene of *n* points (layout and chunks from *seed*) in chunks of at most *chunk_size*.
-
-    Each chunk: ``xyz`` (m, 3) float64 and laspy-named attributes:
-    ``intensity`` (uint16), ``classification`` (uint8; 2 ground, 5 high
-    vegetation, 6 building), ``gps_time`` (float64),
-    ``return_number``/``number_of_returns`` (uint8), ``red``/``green``/``blue`` (uint16).
-    """
+    Each chunk: ``xyz`` (m, 3) float64 and laspy-named attributes: ``intensity`` (uint16), ``classification``
+    (uint8; 2 ground, 5 high vegetation, 6 building), ``gps_time`` (float64),
+    ``return_number``/``number_of_returns`` (uint8), ``red``/``green``/``blue`` (uint16)."""
     root = np.random.SeedSequence(seed)
     layout_seq, *_ = root.spawn(1)
     buildings = _buildings(np.random.default_rng(layout_seq))

@@ -117,15 +117,11 @@ def _with_storage(args: argparse.Namespace):
 
 def run() -> NoReturn:
     """The ``cloudsieve`` command: :func:`main` in a process tuned for one run, which then exits.
-
-    glibc's malloc keeps freed blocks (:func:`_keep_freed_memory`); numpy's
-    large arrays avoid transparent huge pages
-    (:func:`cloudsieve.engine.memory.small_pages_from_here`;
-    ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default); the imports' objects
-    are frozen (``gc.freeze``); unused imports are skipped
-    (:mod:`cloudsieve.lean_start`); :func:`_exit` skips the module teardown.
-    Not for a process that goes on (tests call :func:`main`).
-    """
+    glibc's malloc keeps freed blocks (:func:`_keep_freed_memory`); numpy's large arrays avoid transparent huge
+    pages (:func:`cloudsieve.engine.memory.small_pages_from_here`; ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's
+    default); the imports' objects are frozen (``gc.freeze``); unused imports are skipped
+    (:mod:`cloudsieve.lean_start`); :func:`_exit` skips the module teardown. Not for a process that goes on (tests
+    call :func:`main`)."""
     from ..engine.memory import small_pages_from_here
     from ..lean_start import skip_unused_imports
 
@@ -141,7 +137,8 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 
 
 def _keep_freed_memory() -> None:
-    """glibc's ``mallopt``: blocks up to 32 MiB from the heap, never trimmed below 1 GiB (fewer page faults); a no-op elsewhere."""
+    """glibc's ``mallopt``: blocks up to 32 MiB from the heap, never trimmed below 1 GiB (fewer page faults); a no-op
+    elsewhere."""
     import ctypes
 
     try:

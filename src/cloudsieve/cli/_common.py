@@ -59,11 +59,8 @@ _TYPES = {params.INT: parse_int, params.FLOAT: parse_float, params.SIZE: _size}
 def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[str] | None = None, *,
                 defaults: Mapping[str, Any] | None = None, helps: Mapping[str, str] | None = None) -> None:
     """Add the options of *command* (all, or *names*) to *parser*, from the spec.
-
-    Flags are the names with dashes, ``--no-NAME`` for a bool defaulting to
-    True; old flags are aliases. *defaults* and *helps* override the spec's
-    (``demo`` has some of simplify's options only).
-    """
+    Flags are the names with dashes, ``--no-NAME`` for a bool defaulting to True; old flags are aliases. *defaults*
+    and *helps* override the spec's (``demo`` has some of simplify's options only)."""
     spec = params.COMMANDS[command]
     defaults, helps = defaults or {}, helps or {}
     for name in names if names is not None else spec:
@@ -108,12 +105,9 @@ def flag_wording(name: str, value: Any) -> str:
 
 def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_wording) -> str:
     """The message of *exc* with the options it advises worded for the command line.
-
-    The options in ``exc.advice`` (``overwrite=True``) become
-    ``wording(name, value)``: flags, or a pipeline stage's key under
-    ``cloudsieve run``. With flags, the options named in ``exc.options``
-    become flags too and ``exc.caller`` (``cloudsieve.simplify``) the command.
-    """
+    The options in ``exc.advice`` (``overwrite=True``) become ``wording(name, value)``: flags, or a pipeline
+    stage's key under ``cloudsieve run``. With flags, the options named in ``exc.options`` become flags too and
+    ``exc.caller`` (``cloudsieve.simplify``) the command."""
     message = str(exc)
     for name, value in getattr(exc, "advice", {}).items():
         message = message.replace(f"{name}={value!r}", wording(name, value))

@@ -66,10 +66,8 @@ def _describe_store(path: str) -> dict:
 
 def coordinate_text(value: float, scale: float | None = None) -> str:
     """A bound as text with every digit it has: ``1816492.71``, not ``1.81649e+06``.
-
-    With a LAS *scale*, the decimals it gives; else the shortest text that
-    reads back (in float32 for a float32 value: ``-0.09469``).
-    """
+    With a LAS *scale*, the decimals it gives; else the shortest text that reads back (in float32 for a float32
+    value: ``-0.09469``)."""
     value = float(value)
     if scale is not None and scale > 0:
         return f"{value:.{max(0, math.ceil(-math.log10(scale) - 1e-9))}f}"

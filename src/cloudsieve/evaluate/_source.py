@@ -29,12 +29,9 @@ _NORMALS = ("nx", "ny", "nz")
 
 class Source:
     """A cloud read chunk by chunk.
-
-    Attributes: ``name`` (path or ``"<array>"``), ``count`` (None when
-    unknown without a scan, as for a file with *drop_invalid*), ``header``,
-    ``format`` (``"array"``, ``"store"`` or the IO format), ``drop_invalid``,
-    ``has_normals`` (chunks then hold ``"normals"`` (n, 3) beside ``"xyz"``).
-    """
+    Attributes: ``name`` (path or ``"<array>"``), ``count`` (None when unknown without a scan, as for a file with
+    *drop_invalid*), ``header``, ``format`` (``"array"``, ``"store"`` or the IO format), ``drop_invalid``,
+    ``has_normals`` (chunks then hold ``"normals"`` (n, 3) beside ``"xyz"``)."""
 
     def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False):
         self.chunk_size = int(chunk_size)
@@ -88,9 +85,7 @@ class Source:
 
     def chunks(self) -> Iterator[Chunk]:
         """Yield :class:`~cloudsieve.store.Chunk` ``(start, {"xyz": xyz})``, xyz of shape (n, 3) float64, in point order.
-
-        With :attr:`has_normals`, the arrays also hold ``"normals"`` (n, 3) float64.
-        """
+        With :attr:`has_normals`, the arrays also hold ``"normals"`` (n, 3) float64."""
         if self._array is not None:
             for start in range(0, len(self._array), self.chunk_size):
                 yield Chunk(start, {"xyz": self._array[start : start + self.chunk_size]})
@@ -143,10 +138,7 @@ def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bo
 
 def load_points(obj: Any, *, what: str = "simplified cloud", drop_invalid: bool = False) -> tuple[np.ndarray, dict, str]:
     """Load a (small) cloud whole: ``(xyz (n,3) float64, header, name)``.
-
-    Raises EmptyInputError (no point) or InvalidPointsError (NaN or infinite
-    coordinates, unless *drop_invalid*).
-    """
+    Raises EmptyInputError (no point) or InvalidPointsError (NaN or infinite coordinates, unless *drop_invalid*)."""
     src = open_source(obj, drop_invalid=drop_invalid)
     if src._array is not None:
         xyz = src._array

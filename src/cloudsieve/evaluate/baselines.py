@@ -62,9 +62,7 @@ def _voxel_keys(points: np.ndarray, lo: np.ndarray, size: float) -> np.ndarray:
 
 def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.005, max_iter: int = 80) -> np.ndarray:
     """The original point nearest each voxel's centroid, voxel size bisected to give *count* voxels (within *tol*).
-
-    Returns sorted int64 indices (one per occupied voxel).
-    """
+    Returns sorted int64 indices (one per occupied voxel)."""
     points, count = _check(points, count)
     lo = points.min(axis=0)
     span = float((points.max(axis=0) - lo).max()) or 1.0
@@ -96,7 +94,8 @@ def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.005, max_iter
 
 
 def _greedy_mis(n: int, i: np.ndarray, j: np.ndarray, prio: np.ndarray) -> np.ndarray:
-    """Lexicographically-first maximal independent set (lowest priority first) of the graph (i, j), both directions listed."""
+    """Lexicographically-first maximal independent set (lowest priority first) of the graph (i, j), both directions
+    listed."""
     state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, 2 dropped
     while True:
         und = state == 0
@@ -149,9 +148,7 @@ def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float 
 
 def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK) -> np.ndarray:
     """Farthest point sampling (open3d) of *count* points; sorted int64 indices.
-
-    Raises InvalidParameterError when n x count exceeds *max_work*.
-    """
+    Raises InvalidParameterError when n x count exceeds *max_work*."""
     points, count = _check(points, count)
     work = float(len(points)) * count
     if work > max_work:
@@ -172,10 +169,8 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
 def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = MEMORY_RULE,
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.core.simplify.simplify_points`.
-
-    *count* goes to every rule that takes one; with ``threshold`` or
-    ``count=None`` the rule's threshold decides the count.
-    """
+    *count* goes to every rule that takes one; with ``threshold`` or ``count=None`` the rule's threshold decides
+    the count."""
     from ..core import simplify_points
 
     kw = dict(options)

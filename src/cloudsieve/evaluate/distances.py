@@ -97,11 +97,8 @@ class ExactIndex:
 
 class Target:
     """The in-memory simplified cloud *points* (m, 3), ready for nearest-neighbour queries.
-
-    The k-d tree is over a Morton-sorted copy; :meth:`query` returns indices
-    into *points*. The distance bound is twice the previous query's 99th
-    percentile. Picklable (sent once to dask workers).
-    """
+    The k-d tree is over a Morton-sorted copy; :meth:`query` returns indices into *points*. The distance bound is
+    twice the previous query's 99th percentile. Picklable (sent once to dask workers)."""
 
     def __init__(self, points: np.ndarray):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
@@ -157,10 +154,8 @@ def _empty_partial(m: int) -> dict:
 
 def stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
     """Partial statistics of distances *d* (n,) measured at *where* (n, 3) (a chunk kernel: input assumed valid).
-
-    Returns the partial of :func:`forward_chunk` with an all-zero ``matched``
-    bitmask of length *m_matched*, no ``bbox`` and ``seen`` 0.
-    """
+    Returns the partial of :func:`forward_chunk` with an all-zero ``matched`` bitmask of length *m_matched*, no
+    ``bbox`` and ``seen`` 0."""
     p = _empty_partial(m_matched)
     if len(d):
         p["count"] = int(len(d))
@@ -267,12 +262,9 @@ def d2_figures(partial: dict, population: int) -> dict:
 
 def aggregate(partial: dict, diagonal: float, population: int | None = None) -> dict:
     """Final figures from a :func:`combine` partial; ``*_pct`` in % of *diagonal*.
-
-    Returns ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros,
-    argmax``, ``mse`` (D1) and :func:`d2_figures`; when *population* (the
-    size the partial is a sample of) is given, also ``ci`` (95% intervals),
-    ``population`` and ``max_is_lower_bound``.
-    """
+    Returns ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``, ``mse`` (D1) and
+    :func:`d2_figures`; when *population* (the size the partial is a sample of) is given, also ``ci`` (95%
+    intervals), ``population`` and ``max_is_lower_bound``."""
     n = partial["count"]
     if n == 0:
         raise EmptyInputError("no point to evaluate (0 distances)")

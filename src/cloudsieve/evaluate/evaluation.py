@@ -71,14 +71,11 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
                      simplified: np.ndarray, *, names: tuple[str, str] = ("original", "simplified"),
                      strict: bool = True) -> list[str]:
     """Flag clouds that cannot be compared: different CRS, or different units/scale.
-
-    CRS: EPSG codes when both have one, else WKT (whitespace-normalised), else
-    names. Units: over 10% of the simplified points outside the original's
-    bounding box (enlarged by 1% of its diagonal), or a simplified diagonal
-    over 3 times the original's. Returns the warnings; a mismatch raises
-    :class:`~cloudsieve.errors.IncompatibleCloudsError` when *strict*, else
-    warns and is returned among the messages.
-    """
+    CRS: EPSG codes when both have one, else WKT (whitespace-normalised), else names. Units: over 10% of the
+    simplified points outside the original's bounding box (enlarged by 1% of its diagonal), or a simplified
+    diagonal over 3 times the original's. Returns the warnings; a mismatch raises
+    :class:`~cloudsieve.errors.IncompatibleCloudsError` when *strict*, else warns and is returned among the
+    messages."""
     msgs, problems = [], []
     a, b = (original_header or {}).get("crs"), (simplified_header or {}).get("crs")
     diff = _crs_differ(a, b)
@@ -219,10 +216,8 @@ def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
 def run_evaluation(original: Any, simplified: Any, options: Any, *, client: Any = None, progress=None, bars=None,
                    names: tuple[str, str] | None = None, surface_cache: dict | None = None) -> dict:
     """:func:`evaluate` on validated options (:func:`cloudsieve.params.options`).
-
-    *names* overrides the clouds' names in the report; *surface_cache* holds
-    the original's tile meshes across calls on one original (compare).
-    """
+    *names* overrides the clouds' names in the report; *surface_cache* holds the original's tile meshes across
+    calls on one original (compare)."""
     with storage.using(options.storage_options):
         return _evaluation(original, simplified, options, client, progress, bars, names, surface_cache)
 

@@ -69,10 +69,8 @@ def _inline(text: str) -> str:
 
 def markdown_html(md: str) -> str:
     """HTML of the Markdown that :func:`.report.markdown` and :func:`.compare.compare_markdown` write.
-
-    Handles what they use: ``#`` headings, pipe tables, ``>`` quotes, ``-``
-    lists and paragraphs (text escaped, inline code and bold).
-    """
+    Handles what they use: ``#`` headings, pipe tables, ``>`` quotes, ``-`` lists and paragraphs (text escaped,
+    inline code and bold)."""
     out: list[str] = []
     lines = md.splitlines()
     i = 0
@@ -119,14 +117,10 @@ def page(title: str, md: str, *, images: dict[str, str] | None = None, original:
          errors: dict[str, np.ndarray] | None = None, kept: dict[str, np.ndarray] | None = None,
          bounds: np.ndarray | None = None) -> str:
     """The report page's HTML text.
-
-    *title* (replaced by the Markdown's own ``# `` title line when there is
-    one); *md* the report's Markdown; *images* PNG paths by caption;
-    *original* (s, 3) the original's points shown; *errors* per label (a
-    method in compare) their forward errors (s,), one view each; *kept* per
-    label the kept points (k, 3), one view each; *bounds* (2, 3) the
-    quantisation box (default: the original's).
-    """
+    *title* (replaced by the Markdown's own ``# `` title line when there is one); *md* the report's Markdown;
+    *images* PNG paths by caption; *original* (s, 3) the original's points shown; *errors* per label (a method in
+    compare) their forward errors (s,), one view each; *kept* per label the kept points (k, 3), one view each;
+    *bounds* (2, 3) the quantisation box (default: the original's)."""
     images, errors, kept = images or {}, errors or {}, kept or {}
     lines = md.splitlines()
     if lines and lines[0].startswith("# "):  # the Markdown's title: the page's

@@ -116,9 +116,7 @@ def _pymeshlab():
 
 def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals: int = 10) -> tuple[np.ndarray, np.ndarray]:
     """Mesh *points* (n, 3) by ball pivoting (pymeshlab), radius r then 2r (default :func:`point_spacing`).
-
-    Returns ``(vertices (v, 3) float64, faces (f, 3) int32)``.
-    """
+    Returns ``(vertices (v, 3) float64, faces (f, 3) int32)``."""
     pml = _pymeshlab()
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) < 3:
@@ -136,9 +134,7 @@ def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals:
 
 def load_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
     """A triangle mesh from a file pymeshlab reads: ``(vertices (v, 3), faces (f, 3))``.
-
-    Raises InputNotFoundError (no file) or InputFormatError (unreadable, or no triangle).
-    """
+    Raises InputNotFoundError (no file) or InputFormatError (unreadable, or no triangle)."""
     import os
 
     from ..errors import InputFormatError, InputNotFoundError
@@ -179,9 +175,7 @@ def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float, save
 
 def on_border(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tol: float) -> np.ndarray:
     """Which *points* (p, 3) lie within *tol* of a border edge of the mesh: bool (p,).
-
-    Candidates are the 8 border edges with the nearest midpoints.
-    """
+    Candidates are the 8 border edges with the nearest midpoints."""
     edges = border_edges(faces)
     out = np.zeros(len(points), bool)
     if len(edges) == 0 or len(points) == 0:
@@ -199,10 +193,8 @@ def on_border(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tol: 
 
 def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float, holes: bool = False) -> dict:
     """One Metro direction: samples on *mesh_s*, distances to *mesh_t*.
-
-    *holes* adds ``on_surface``: the figures over samples whose closest point
-    is not on *mesh_t*'s border (within 1e-3 median edge), and ``excluded``.
-    """
+    *holes* adds ``on_surface``: the figures over samples whose closest point is not on *mesh_t*'s border (within
+    1e-3 median edge), and ``excluded``."""
     pml = _pymeshlab()
     ms = pml.MeshSet()
     ms.add_mesh(pml.Mesh(mesh_s[0], mesh_s[1]))
@@ -224,13 +216,10 @@ def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float, holes: bool = False) -> d
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
           samples: int | None = None, max_samples: int = 500_000) -> dict:
     """Metro distances between two meshes, both ways (pymeshlab, face sampling), each in a forked child.
-
-    *samples* per direction defaults to 10 x the sampled mesh's faces, at
-    most *max_samples*. Returns ``forward`` (samples on a, distances to b) and
-    ``backward``, each ``mean, rms, max, min, samples``; ``backward["on_surface"]``
-    as :func:`_metro_dir`'s *holes*. The figures equal a direct
-    ``get_hausdorff_distance`` call made first in a fresh process.
-    """
+    *samples* per direction defaults to 10 x the sampled mesh's faces, at most *max_samples*. Returns ``forward``
+    (samples on a, distances to b) and ``backward``, each ``mean, rms, max, min, samples``;
+    ``backward["on_surface"]`` as :func:`_metro_dir`'s *holes*. The figures equal a direct
+    ``get_hausdorff_distance`` call made first in a fresh process."""
     a = (np.ascontiguousarray(mesh_a[0], dtype=np.float64), np.ascontiguousarray(mesh_a[1], dtype=np.int32))
     b = (np.ascontiguousarray(mesh_b[0], dtype=np.float64), np.ascontiguousarray(mesh_b[1], dtype=np.int32))
     allv = np.concatenate([a[0], b[0]])

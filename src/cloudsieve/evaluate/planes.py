@@ -110,11 +110,9 @@ def _normals_kernel(points: np.ndarray, nb: np.ndarray, out: np.ndarray) -> None
 
 
 def pca_normals(points: np.ndarray, centres: np.ndarray, k: int = K_NORMALS, tree: cKDTree | None = None) -> np.ndarray:
-    """Unit normals (c, 3), arbitrary sign, at *centres* (c, 3) by PCA of their *k* nearest neighbours among *points* (n, 3).
-
-    At most n neighbours are used; with fewer than 3 the normals are 0.
-    *tree*: a cKDTree over *points*, when one is at hand.
-    """
+    """Unit normals (c, 3), arbitrary sign, at *centres* (c, 3) by PCA of their *k* nearest neighbours in *points*.
+    At most n neighbours are used; with fewer than 3 the normals are 0. *tree*: a cKDTree over *points*, when one
+    is at hand."""
     k = min(int(k), len(points))
     out = np.zeros((len(centres), 3))
     if k < 3 or len(centres) == 0:
@@ -142,10 +140,8 @@ def unit_normals(normals: np.ndarray) -> np.ndarray:
 def d2_squares(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: np.ndarray | None = None,
                k: int = K_NORMALS, tree: cKDTree | None = None) -> np.ndarray:
     """Squared projections (r,) of *errors* (r, 3) on the original's normals at ``xyz[rows]`` (a chunk kernel).
-
-    *xyz* is a chunk of the original; *normals* (n, 3) the chunk's normals from
-    the file, estimated (PCA, *k*) when None.
-    """
+    *xyz* is a chunk of the original; *normals* (n, 3) the chunk's normals from the file, estimated (PCA, *k*) when
+    None."""
     if len(rows) == 0:
         return np.zeros(0)
     n = unit_normals(normals[rows]) if normals is not None else pca_normals(xyz, xyz[rows], k, tree)
@@ -195,13 +191,10 @@ def psnr(mse: float, peak: float) -> float:
 def field_figures(forward: dict, backward: dict, *, diagonal: float, peak: float | None = None,
                   normals: str = "estimated", k: int = K_NORMALS) -> tuple[dict, dict]:
     """``report["psnr"]`` and ``report["chamfer"]`` from the point level's :func:`.distances.aggregate` directions.
-
-    *peak* defaults to *diagonal*; *normals* is ``"file"`` or ``"estimated"`` (*k* neighbours).
-    psnr: ``peak``, ``peak_from``, ``formula``, ``normals``, ``k_normals``, ``d1`` and ``d2``
-    (``forward``, ``backward``, ``symmetric`` dB), ``mse``, and for a sampled D2 ``d2_sample``,
-    ``d2_se_db``. chamfer: ``value``, ``forward``, ``backward`` (squared units), ``value_pct2``,
-    ``definition``.
-    """
+    *peak* defaults to *diagonal*; *normals* is ``"file"`` or ``"estimated"`` (*k* neighbours). psnr: ``peak``,
+    ``peak_from``, ``formula``, ``normals``, ``k_normals``, ``d1`` and ``d2`` (``forward``, ``backward``,
+    ``symmetric`` dB), ``mse``, and for a sampled D2 ``d2_sample``, ``d2_se_db``. chamfer: ``value``, ``forward``,
+    ``backward`` (squared units), ``value_pct2``, ``definition``."""
     p = float(diagonal if peak is None else peak)
     mse, out = {}, {}
     for name, key in (("d1", "mse"), ("d2", "d2_mse")):

@@ -63,10 +63,8 @@ def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.
 def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
                    grid: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Multiplicities of the simplified points *rows* found at distance 0 but not matched (copies).
-
-    Returns ``(points (q, 3), held (q,), original (q,))``: the distinct points and how often the simplified
-    cloud and the original (on *grid*, :func:`quantise`) hold each; a subset holds none more often.
-    """
+    Returns ``(points (q, 3), held (q,), original (q,))``: the distinct points and how often the simplified cloud
+    and the original (on *grid*, :func:`quantise`) hold each; a subset holds none more often."""
     q = np.unique(bpoints[rows], axis=0)
     index = ExactIndex(q)
     hit, idx = index.lookup(bpoints)

@@ -276,7 +276,8 @@ def plot_compactness(series: dict[str, list[int]], path: str | os.PathLike, titl
 
 
 def plot_point_errors(series: dict[str, dict], path: str | os.PathLike, title: str = "Point-level errors") -> str:
-    """Histograms of point errors over the fixed log bins; *series* maps a label to a report["point"]["histogram"]-like dict with ``log10_edges``, ``per_decade`` and ``forward``."""
+    """Histograms of point errors over the fixed log bins; *series* maps a label to a
+    report["point"]["histogram"]-like dict with ``log10_edges``, ``per_decade`` and ``forward``."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
     for label, h in series.items():
@@ -322,10 +323,8 @@ def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray)
 def write_report(report: dict, directory: str | os.PathLike, *, error_points: tuple[np.ndarray, np.ndarray] | None = None,
                  kept: np.ndarray | None = None) -> dict:
     """Write report.json, report.md, report.html, the plots and (given points and errors) errors.ply into *directory*.
-
-    *error_points* (xyz (n, 3), error (n,)) and *kept* (m, 3) also feed
-    report.html's 3D views. Returns the file kinds' paths (``report["files"]``).
-    """
+    *error_points* (xyz (n, 3), error (n,)) and *kept* (m, 3) also feed report.html's 3D views. Returns the file
+    kinds' paths (``report["files"]``)."""
     from .html import view_sample, write_html
 
     d = Path(directory)

@@ -166,7 +166,8 @@ def _whole(src):
 
 
 def _simplified_tiles(simplified: np.ndarray, chosen: list[dict], centres: np.ndarray | None) -> list[np.ndarray]:
-    """The points of *simplified* in each tile: all (whole cloud), nearest each cell's centre (*full*), or in each ball."""
+    """The points of *simplified* in each tile: all (whole cloud), nearest each cell's centre (*full*), or in each
+    ball."""
     if chosen and chosen[0].get("whole_cloud"):
         return [simplified]
     if centres is not None:

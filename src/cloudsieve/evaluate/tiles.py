@@ -68,11 +68,8 @@ def _radii(tree: cKDTree, centres: np.ndarray, tile_points: int, n: int, margin:
 
 def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
     """Pick *tiles* tile centres spread over the cloud and a first radius each: ``[{"centre", "radius"}]``.
-
-    Centres are seeded k-means centres of a uniform sample, snapped to a
-    sample point; radii hold about *tile_points* points. Empty when the cloud
-    has at most *tile_points* points (one tile, the whole cloud).
-    """
+    Centres are seeded k-means centres of a uniform sample, snapped to a sample point; radii hold about
+    *tile_points* points. Empty when the cloud has at most *tile_points* points (one tile, the whole cloud)."""
     from scipy.cluster.vq import kmeans2
 
     from ._source import open_source
@@ -102,9 +99,7 @@ def random_tiles(sample: np.ndarray, n: int, count: int, tile_points: int, *, se
 
 def gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
     """Stream the original, keeping per tile the points within its radius (at most the *tile_points* nearest).
-
-    Sets each tile's ``radius`` to the one it ends with.
-    """
+    Sets each tile's ``radius`` to the one it ends with."""
     centres = np.array([t["centre"] for t in tiles], dtype=np.float64).reshape(-1, 3)
     radii = np.array([t["radius"] for t in tiles], dtype=np.float64)
     kept: list[list[np.ndarray]] = [[] for _ in tiles]
@@ -143,11 +138,8 @@ def gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
 def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, *,
                     seed: int = 0) -> tuple[list[dict], list[np.ndarray], np.ndarray]:
     """Every point in one tile: the cells of ceil(n / M) k-means centres of *sample* (one streamed pass).
-
-    Returns (tiles, original points per tile, every centre); a tile has
-    ``centre``, ``cell`` (the centre's index) and ``radius`` (its farthest
-    point). Empty cells make no tile.
-    """
+    Returns (tiles, original points per tile, every centre); a tile has ``centre``, ``cell`` (the centre's index)
+    and ``radius`` (its farthest point). Empty cells make no tile."""
     from scipy.cluster.vq import kmeans2
 
     count = max(1, -(-n // tile_points))
@@ -179,7 +171,8 @@ def cell_points(xyz: np.ndarray, centres: np.ndarray, tiles: list[dict]) -> list
 
 
 def budget_tile_points(rate: float, remaining: float, tiles: int, tile_points: int) -> int:
-    """Tile size for *tiles* tiles to take *remaining* seconds at *rate* points/s, within [MIN_TILE_POINTS, *tile_points*]."""
+    """Tile size for *tiles* tiles to take *remaining* seconds at *rate* points/s, within [MIN_TILE_POINTS,
+    *tile_points*]."""
     low = min(MIN_TILE_POINTS, tile_points)
     return int(min(tile_points, max(low, rate * max(remaining, 0.0) / max(tiles, 1))))
 
@@ -195,10 +188,8 @@ def _weighted_se(x: np.ndarray, w: np.ndarray) -> float:
 
 def spread(recs: list[dict], diagonal: float) -> dict:
     """Standard errors over sampled tiles of the aggregated figures (% of *diagonal*).
-
-    Per direction (and ``on_surface``): ``mean_pct_se`` and ``rms_pct_se``,
-    tiles taken as a random sample (NaN below 2 tiles); ``compact_share_se``.
-    """
+    Per direction (and ``on_surface``): ``mean_pct_se`` and ``rms_pct_se``, tiles taken as a random sample (NaN
+    below 2 tiles); ``compact_share_se``."""
     scale = 100.0 / diagonal if diagonal > 0 else math.nan
     out: dict[str, Any] = {"tiles": len(recs)}
     for name, get in (("forward", lambda r: r.get("forward")), ("backward", lambda r: r.get("backward")),

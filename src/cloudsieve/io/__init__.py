@@ -66,10 +66,8 @@ _EXTENSIONS: dict[str, str] = {}
 
 def register_format(name: str, extensions: list[str], reader: Any = None, writer: Any = None) -> None:
     """Register format *name*: its lower-case *extensions* (with the dot) and its reader/writer.
-
-    *reader* and *writer* are :class:`Reader` / :class:`Writer` subclasses or
-    ``"module:Class"`` strings imported on first use.
-    """
+    *reader* and *writer* are :class:`Reader` / :class:`Writer` subclasses or ``"module:Class"`` strings imported
+    on first use."""
     FORMATS[name] = {"extensions": list(extensions), "reader": reader, "writer": writer}
     for ext in extensions:
         _EXTENSIONS[ext.lower()] = name
@@ -127,13 +125,9 @@ def check_input_file(path: str) -> None:
 
 def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
     """Raise unless *path* is a point cloud file cloudsieve can read, or a point store.
-
-    Checks what is known without reading points: exists, is a non-empty
-    file, opens, and its format has a reader. A folder must be a point store;
-    a URL is a store or a file. Raises InputNotFoundError,
-    InputIsDirectoryError, EmptyInputError, InputNotReadableError,
-    UnknownFormatError or StoreNotFoundError.
-    """
+    Checks what is known without reading points: exists, is a non-empty file, opens, and its format has a reader. A
+    folder must be a point store; a URL is a store or a file. Raises InputNotFoundError, InputIsDirectoryError,
+    EmptyInputError, InputNotReadableError, UnknownFormatError or StoreNotFoundError."""
     path = os.fspath(path)
     local = local_path(path)
     if local is None:  # a URL: a point store (a zarr.json at its root), else a file
@@ -165,12 +159,9 @@ def _writable_formats() -> str:
 
 def check_writable(path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False) -> str:
     """Raise unless a cloud of *format* (default: by extension) can be written at *path*; returns the format.
-
-    Creates nothing. UnknownFormatError (listing the writable formats) for a
-    format without a writer (E57, COPC); for a local path,
-    DestinationExistsError unless *overwrite*, DestinationNotWritableError
-    when its folder is missing or not writable.
-    """
+    Creates nothing. UnknownFormatError (listing the writable formats) for a format without a writer (E57, COPC);
+    for a local path, DestinationExistsError unless *overwrite*, DestinationNotWritableError when its folder is
+    missing or not writable."""
     path = os.fspath(path)
     try:
         fmt = detect_format(path, format)
@@ -195,9 +186,7 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
 
 def check_folder(path: str | os.PathLike) -> None:
     """Raise DestinationNotWritableError unless the folder *path* exists and is writable, or could be created.
-
-    Nothing is created; a remote URL is not checked.
-    """
+    Nothing is created; a remote URL is not checked."""
     path = os.fspath(path)
     if "://" in path and not path.startswith("file://"):
         return
@@ -295,10 +284,7 @@ def open_writer(
 
 def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """Load a whole (small) cloud file into memory: ``(xyz (n, 3) float64, attributes)``.
-
-    Stream large ones with :func:`open_reader`; a point store:
-    :func:`cloudsieve.store.read_cloud`.
-    """
+    Stream large ones with :func:`open_reader`; a point store: :func:`cloudsieve.store.read_cloud`."""
     with open_reader(path, format=format) as reader:
         return concatenated([arrays for _, arrays in reader.chunks()], reader.dtypes)
 

@@ -27,12 +27,9 @@ Dtypes = dict[str, tuple[np.dtype, tuple]]
 
 class Reader:
     """Streaming reader of one point cloud file (base class).
-
-    Attributes: ``path``, ``format`` ("las", "laz", "copc", "ply", "e57",
-    "xyz"), ``count`` (None only when unknown without a scan: XYZ),
-    ``header`` (JSON-serialisable), ``dtypes`` (name -> (dtype, per-point
-    shape), with ``"xyz": (float64, (3,))``), ``chunk_size``.
-    """
+    Attributes: ``path``, ``format`` ("las", "laz", "copc", "ply", "e57", "xyz"), ``count`` (None only when unknown
+    without a scan: XYZ), ``header`` (JSON-serialisable), ``dtypes`` (name -> (dtype, per-point shape), with
+    ``"xyz": (float64, (3,))``), ``chunk_size``."""
 
     path: str
     format: str
@@ -52,9 +49,7 @@ class Reader:
 
     def chunks(self) -> Iterator[Chunk]:
         """Yield :class:`~cloudsieve.store.Chunk` ``(start, arrays)`` of at most ``chunk_size`` points, in file order.
-
-        ``arrays`` is ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``.
-        """
+        ``arrays`` is ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``."""
         start = 0
         for arrays in self._read_chunks():
             yield Chunk(start, arrays)
@@ -79,10 +74,8 @@ class Reader:
 
 class Writer:
     """Chunked writer to a temporary file renamed on clean exit (base class).
-
-    Subclasses implement :meth:`_open` (``self.file`` is open), :meth:`_write`
-    and :meth:`_close`. Attributes: ``path``, ``tmp_path``, ``count``.
-    """
+    Subclasses implement :meth:`_open` (``self.file`` is open), :meth:`_write` and :meth:`_close`. Attributes:
+    ``path``, ``tmp_path``, ``count``."""
 
     def __init__(
         self,

@@ -65,12 +65,9 @@ def _ply_notes(header: dict, out: str) -> list[str]:
 def conversion_note(path: str, out_format: str, source_format: str | None, header: dict,
                     mapping: list[tuple[str, str, str]] | None = None) -> str | None:
     """One message naming what writing *header*'s cloud as *out_format* drops and maps, or None.
-
-    *path* is the destination; *source_format* None is guessed from the
-    header's keys; *mapping* a LAS writer's
-    (:func:`~cloudsieve.io.las_header.build_header`). The message reads
-    ``"DST: converting FORMAT to OUT drops ...; maps ..."``.
-    """
+    *path* is the destination; *source_format* None is guessed from the header's keys; *mapping* a LAS writer's
+    (:func:`~cloudsieve.io.las_header.build_header`). The message reads ``"DST: converting FORMAT to OUT drops ...;
+    maps ..."``."""
     header = header or {}
     source = _source_family(source_format, header)
     out = "las" if out_format in _LAS else out_format

@@ -46,7 +46,8 @@ def _las_dtypes(header: laspy.LasHeader) -> dict:
 
 
 class LasReader(Reader):
-    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10); option ``laz_backend`` (default lazrs, parallel)."""
+    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10); option ``laz_backend`` (default lazrs,
+    parallel)."""
 
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
@@ -138,12 +139,9 @@ class LasReader(Reader):
 # --------------------------------------------------------------------- writer
 class LasWriter(Writer):
     """Chunked LAS/LAZ writer.
-
-    A LAS-sourced header is carried over (:func:`.las_header.header_from_dict`);
-    other sources get :func:`.las_header.build_header` (``bounds=`` sets
-    scales and offsets). ``label=`` names the whole file in messages when
-    this is a part of it.
-    """
+    A LAS-sourced header is carried over (:func:`.las_header.header_from_dict`); other sources get
+    :func:`.las_header.build_header` (``bounds=`` sets scales and offsets). ``label=`` names the whole file in
+    messages when this is a part of it."""
 
     def _open(self) -> None:
         self._label = self.options.get("label", self.path)  # the file named in messages (a part: its whole file)
@@ -181,7 +179,8 @@ class LasWriter(Writer):
         self._said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
 
     def _keep_extra_bytes_vlrs(self) -> None:
-        """Write the source's extra-bytes VLRs verbatim (laspy regrows their min/max statistics), for a byte-exact round trip."""
+        """Write the source's extra-bytes VLRs verbatim (laspy regrows their min/max statistics), for a byte-exact
+        round trip."""
         source = [v for v in self._header_dict.get("vlrs", []) if v["user_id"] == "LASF_Spec" and v["record_id"] == 4]
         vlrs = self._writer.header.vlrs
         positions = [i for i, v in enumerate(vlrs) if type(v).__name__ == "ExtraBytesVlr"]

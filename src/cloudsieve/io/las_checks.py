@@ -23,9 +23,7 @@ __all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points", "dec
 
 class QuietReads(logging.Filter):
     """Drops laspy's reader log records while cloudsieve reads a file (its error repeats them).
-
-    Counted, not per thread: ingest reads in a background thread.
-    """
+    Counted, not per thread: ingest reads in a background thread."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -52,11 +50,8 @@ logging.getLogger("laspy.lasreader").addFilter(QUIET_READS)
 
 class _ChunkTableView(io.RawIOBase):
     """A LAZ file seen with an empty chunk table appended (read-only).
-
-    A truncated LAZ file has lost its chunk table (at its end); with
-    fixed-size chunks lazrs decodes in order without it, so this view points
-    the table offset past the end of the file, at an empty table.
-    """
+    A truncated LAZ file has lost its chunk table (at its end); with fixed-size chunks lazrs decodes in order
+    without it, so this view points the table offset past the end of the file, at an empty table."""
 
     def __init__(self, path: str, offset_to_points: int) -> None:
         self._file = open(path, "rb")  # noqa: SIM115 - closed in close()
@@ -100,11 +95,8 @@ class _ChunkTableView(io.RawIOBase):
 
 def decodable_points(path: str) -> int | None:
     """How many points of the truncated LAZ file *path* decode in order before its data ends (error path only).
-
-    Decodes again with lazrs, LAZ chunk by chunk, then point by point within
-    the failing chunk. None when it cannot tell: the chunk table is in place
-    (not truncated), chunks have variable sizes (COPC), or lazrs is missing.
-    """
+    Decodes again with lazrs, LAZ chunk by chunk, then point by point within the failing chunk. None when it cannot
+    tell: the chunk table is in place (not truncated), chunks have variable sizes (COPC), or lazrs is missing."""
     try:
         import lazrs
 
@@ -149,10 +141,8 @@ def decodable_points(path: str) -> int | None:
 
 def check_layout(path: str) -> None:
     """Refuse a LAS header whose record counts and offsets point past the file, before laspy reads it.
-
-    laspy trusts them, and a flipped byte can make it allocate gigabytes.
-    Checks the point data offset, then walks the VLRs and EVLRs.
-    """
+    laspy trusts them, and a flipped byte can make it allocate gigabytes. Checks the point data offset, then walks
+    the VLRs and EVLRs."""
     size = storage.size(path)
     with storage.open_input(path, storage.HEADER_BLOCK) as fh:
         head = fh.read(375)

@@ -191,7 +191,8 @@ def _is_dropped(v: dict, path: str) -> bool:
 
 
 def _writable_version(version: str, point_format: int, path: str) -> str:
-    """*version* when laspy writes it with *point_format* (not 1.0), else the lowest version that does (with a warning)."""
+    """*version* when laspy writes it with *point_format* (not 1.0), else the lowest version that does (with a
+    warning)."""
     from laspy.point.dims import VERSION_TO_POINT_FMT
 
     if point_format in VERSION_TO_POINT_FMT.get(str(version), ()):
@@ -203,7 +204,7 @@ def _writable_version(version: str, point_format: int, path: str) -> str:
 
 
 def header_from_dict(d: dict, path: str = "") -> tuple[laspy.LasHeader, list]:
-    """Rebuild a ``laspy.LasHeader`` (and the EVLR list) from :func:`header_to_dict`, without LASzip and COPC records."""
+    """Rebuild a ``laspy.LasHeader`` and its EVLRs from :func:`header_to_dict`, without LASzip and COPC records."""
     point_format = _point_format(d)
     header = laspy.LasHeader(version=_writable_version(d["version"], point_format.id, path), point_format=point_format)
     header.scales = np.asarray(d["scales"], dtype=np.float64)

@@ -44,13 +44,10 @@ def is_las_source(paths: list[str]) -> bool:
 @dataclass
 class LasPlan:
     """The files of one LAS cloud and how their records map to the store.
-
     ``counts`` (F,) int64 points per file; ``header`` the store's header
-    (:func:`cloudsieve.io.las_header.header_to_dict` layout, merged by the
-    module's rules); ``dtypes`` "xyz" first; ``scale``, ``offset`` (3,) the
-    store's encoding; ``factors`` (F, 2, 3) int64 per file the integer
-    multiplier and addend; ``format`` the first file's.
-    """
+    (:func:`cloudsieve.io.las_header.header_to_dict` layout, merged by the module's rules); ``dtypes`` "xyz" first;
+    ``scale``, ``offset`` (3,) the store's encoding; ``factors`` (F, 2, 3) int64 per file the integer multiplier
+    and addend; ``format`` the first file's."""
 
     paths: list[str]
     counts: np.ndarray
@@ -67,11 +64,8 @@ class LasPlan:
 
     def tasks(self, chunk_size: int, chunks_per_task: int = 1) -> list[tuple[int, int, list[tuple]]]:
         """The ingest's tasks: ``(row_start, row_stop, pieces)``, each a whole number of store chunks.
-
-        *pieces* are ``(path, first, n, factors)``: *n* points of *path* from
-        point *first*, with its re-quantisation factors. Every store chunk is
-        written by exactly one task.
-        """
+        *pieces* are ``(path, first, n, factors)``: *n* points of *path* from point *first*, with its
+        re-quantisation factors. Every store chunk is written by exactly one task."""
         step = int(chunk_size) * int(chunks_per_task)
         ends = np.cumsum(self.counts)
         starts = ends - self.counts
@@ -151,10 +145,7 @@ def _merge_records(headers: list[dict], key: str) -> list[dict]:
 
 def plan_las(paths: list[str]) -> LasPlan:
     """Read the headers of *paths* (LAS/LAZ/COPC) and plan their ingest as one cloud.
-
-    Raises MismatchedInputsError (the module's rules), or the errors of
-    :func:`cloudsieve.io.open_reader`.
-    """
+    Raises MismatchedInputsError (the module's rules), or the errors of :func:`cloudsieve.io.open_reader`."""
     from . import open_reader
 
     headers, counts, dtypes, fmt = [], [], None, None

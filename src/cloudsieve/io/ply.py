@@ -54,11 +54,8 @@ _COUNT_WIDTH = 20
 
 def read_ply_header(path: str) -> dict:
     """Parse the header of the PLY file *path*.
-
-    Returns ``{"format", "version", "comments", "obj_info", "elements":
-    [{"name", "count", "properties": [[name, type] or [name, "list",
-    count_type, item_type]]}], "header_size", "header_lines"}``.
-    """
+    Returns ``{"format", "version", "comments", "obj_info", "elements": [{"name", "count", "properties": [[name,
+    type] or [name, "list", count_type, item_type]]}], "header_size", "header_lines"}``."""
     header: dict[str, Any] = {"comments": [], "obj_info": [], "elements": []}
     with open(path, "rb") as fh:
         first = fh.readline()

@@ -91,11 +91,8 @@ def _read_list(src: str) -> list[str]:
 
 def expand_sources(src: str | os.PathLike) -> list[str]:
     """The files that make the cloud *src*, in order, absolute; ``[src]`` for one file or a store.
-
-    Raises EmptyInputError (a glob, list or VPC naming no file),
-    InputIsDirectoryError (a directory with no LAS/LAZ), InputNotFoundError
-    (a listed file is missing), InputFormatError (a bad VPC or list).
-    """
+    Raises EmptyInputError (a glob, list or VPC naming no file), InputIsDirectoryError (a directory with no
+    LAS/LAZ), InputNotFoundError (a listed file is missing), InputFormatError (a bad VPC or list)."""
     src = os.fspath(src)
     if _remembered is not None:
         if src not in _remembered:

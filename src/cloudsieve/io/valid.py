@@ -32,11 +32,8 @@ logger = logging.getLogger(__name__)
 
 class ValidPoints:
     """Refuse or drop the points of *path* whose coordinates are NaN or infinite.
-
-    *drop_invalid* drops them (their count logged as a warning, unless not
-    *warn*) instead of refusing the file. Attributes: ``read`` (points read),
-    ``invalid``, ``first_invalid`` (index of the first), ``kept``.
-    """
+    *drop_invalid* drops them (their count logged as a warning, unless not *warn*) instead of refusing the file.
+    Attributes: ``read`` (points read), ``invalid``, ``first_invalid`` (index of the first), ``kept``."""
 
     def __init__(self, path: str, drop_invalid: bool = False, warn: bool = True) -> None:
         self.path = str(path)
@@ -49,12 +46,9 @@ class ValidPoints:
 
     def chunks(self, chunks: Iterable[Chunk], progress: Callable[[int], None] | None = None) -> Iterator[Chunk]:
         """The chunks of *chunks* with their valid points only, numbered from 0 without gaps; empty ones skipped.
-
-        Without *drop_invalid*, the first invalid point stops the output and
-        the rest is only counted. *progress* gets the points read per chunk.
-        At the end, raises InvalidPointsError (invalid points, not dropped)
-        or EmptyInputError (every point dropped).
-        """
+        Without *drop_invalid*, the first invalid point stops the output and the rest is only counted. *progress*
+        gets the points read per chunk. At the end, raises InvalidPointsError (invalid points, not dropped) or
+        EmptyInputError (every point dropped)."""
         for _, arrays in chunks:
             xyz = arrays["xyz"]
             n = len(xyz)

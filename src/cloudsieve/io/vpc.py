@@ -44,11 +44,8 @@ def _data_asset(assets: dict) -> object:
 
 def read_vpc(path: str | os.PathLike) -> list[str]:
     """The files a ``.vpc`` lists, as absolute paths (a URL as it is), in its order.
-
-    Raises InputNotFoundError (the VPC or a listed file is missing),
-    InputFormatError (not a FeatureCollection, an item without a data asset,
-    a file listed twice, a bad ``bbox``), EmptyInputError (no files).
-    """
+    Raises InputNotFoundError (the VPC or a listed file is missing), InputFormatError (not a FeatureCollection, an
+    item without a data asset, a file listed twice, a bad ``bbox``), EmptyInputError (no files)."""
     return [item["path"] for item in read_vpc_items(path)]
 
 
@@ -75,12 +72,9 @@ def _native_bounds(f: dict, props: dict, where: str) -> list | None:
 
 def read_vpc_items(path: str | os.PathLike) -> list[dict]:
     """The items of a VPC, in its order: dicts of ``path`` (:func:`read_vpc`), ``count``, ``wkt`` and ``bounds``.
-
-    ``wkt`` is ``proj:wkt2``, else ``EPSG:code``, else None; ``bounds``
-    [[xmin, ymin, zmin], [xmax, ymax, zmax]] in the file's CRS (``proj:bbox``,
-    else ``bbox`` of an item without CRS, else None; z None for a 2D box).
-    Raises as :func:`read_vpc`.
-    """
+    ``wkt`` is ``proj:wkt2``, else ``EPSG:code``, else None; ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]] in
+    the file's CRS (``proj:bbox``, else ``bbox`` of an item without CRS, else None; z None for a 2D box). Raises as
+    :func:`read_vpc`."""
     from . import check_input_file
 
     path = os.fspath(path)
@@ -163,10 +157,8 @@ def _schemas(dtypes: dict) -> list[dict]:
 
 def describe_tile(path: str | os.PathLike) -> dict:
     """The :func:`write_vpc` entry of a LAS/LAZ/COPC file, from its header (no point is read).
-
-    Keys: ``path`` (absolute), ``count``, ``bounds``, ``wkt``, ``epsg``,
-    ``datetime``, ``schemas``. InputFormatError for another format.
-    """
+    Keys: ``path`` (absolute), ``count``, ``bounds``, ``wkt``, ``epsg``, ``datetime``, ``schemas``.
+    InputFormatError for another format."""
     from . import detect_format, open_reader
 
     path = os.fspath(path)
@@ -249,13 +241,10 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
 
 def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = False) -> str:
     """Write a VPC listing *tiles* (under a temporary name, then renamed); returns *path*.
-
-    Each entry of *tiles*: ``path``, ``count``, ``bounds`` [[xmin, ymin, zmin],
-    [xmax, ymax, zmax]], optionally ``wkt``, ``epsg``, ``datetime``,
-    ``schemas``, ``id`` (default: the file's stem); :func:`describe_tile`
-    makes one. Raises InvalidParameterError (an entry without path, count or
-    finite bounds), DestinationExistsError, DestinationNotWritableError.
-    """
+    Each entry of *tiles*: ``path``, ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]], optionally
+    ``wkt``, ``epsg``, ``datetime``, ``schemas``, ``id`` (default: the file's stem); :func:`describe_tile` makes
+    one. Raises InvalidParameterError (an entry without path, count or finite bounds), DestinationExistsError,
+    DestinationNotWritableError."""
     path = os.fspath(path)
     folder = storage.parent(path)
     unprojected: dict[str, str] = {}

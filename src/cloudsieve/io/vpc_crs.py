@@ -33,11 +33,8 @@ def _code(keys: dict, key_id: int) -> int | None:
 
 def geotiff_wkt(path: str) -> tuple[str | None, int | None]:
     """The CRS of the LAS/LAZ/COPC file *path*'s GeoTIFF keys, as (WKT2 2019, its EPSG code).
-
-    A projected (else geographic) code plus a vertical one make a compound
-    CRS, with EPSG code None. (None, None) without keys, without a code, or
-    for a code pyproj does not know.
-    """
+    A projected (else geographic) code plus a vertical one make a compound CRS, with EPSG code None. (None, None)
+    without keys, without a code, or for a code pyproj does not know."""
     from .las_layout import read_header
 
     header = read_header(path)
@@ -79,12 +76,9 @@ def _to_wgs84(wkt: str):
 
 def wgs84_extent(wkt: str, lo: list[float], hi: list[float]) -> tuple[list[float], dict]:
     """The WGS 84 ``bbox`` and ``geometry`` of the native box [*lo*, *hi*] in the CRS *wkt*.
-
-    The bbox ``[lon_min, lat_min, z_min, lon_max, lat_max, z_max]`` bounds the
-    box's densified edges (heights as in the file); the geometry is a
-    counter-clockwise GeoJSON Polygon of the corners. ValueError (saying why)
-    when *wkt* does not reproject to WGS 84 here.
-    """
+    The bbox ``[lon_min, lat_min, z_min, lon_max, lat_max, z_max]`` bounds the box's densified edges (heights as in
+    the file); the geometry is a counter-clockwise GeoJSON Polygon of the corners. ValueError (saying why) when
+    *wkt* does not reproject to WGS 84 here."""
     transformer = _to_wgs84(wkt)
     if isinstance(transformer, str):
         raise ValueError(transformer)

@@ -13,11 +13,8 @@ __all__ = ["read_whole"]
 
 def read_whole(sources: list[str], chunk_size: int, drop_invalid: bool) -> tuple:
     """The cloud of *sources* (LAS/LAZ/COPC files, or one file of another format) in memory.
-
-    Returns ``(xyz (n, 3) float64, attributes, dtypes ("xyz" included),
-    header (LAS: "mins"/"maxs" decoded), bounds (2, 3), format)``. Raises
-    EmptyInputError, InvalidPointsError, CorruptInputError, MismatchedInputsError.
-    """
+    Returns ``(xyz (n, 3) float64, attributes, dtypes ("xyz" included), header (LAS: "mins"/"maxs" decoded), bounds
+    (2, 3), format)``. Raises EmptyInputError, InvalidPointsError, CorruptInputError, MismatchedInputsError."""
     from ..chunk import xyz_bounds
     from ..errors import EmptyInputError
     from . import concatenated, open_reader
