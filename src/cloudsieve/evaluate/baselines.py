@@ -1,19 +1,10 @@
-"""Baseline simplifications, each returning sorted indices of kept original points.
+"""Baseline simplifications, each returning sorted indices of kept original points (seeded, in memory).
 
-All keep a subset of the original points (every attribute comes through),
-aim at a requested count, are seeded and deterministic, and work in memory.
-
-- ``random``: a uniform seeded sample, exactly *count* points.
-- ``voxel``: the original point nearest each occupied voxel's centroid, the
-  voxel size bisected (on its log) to land within 0.5% of *count*.
-- ``poisson``: Poisson-disk subsampling: the greedy dart-throwing sample in a
-  seeded random order (the lexicographically-first maximal independent set of
-  the r-neighbour graph, in vectorised Luby rounds), r bisected to within
-  0.5% of *count*. pymeshlab's Poisson-disk sampling cannot be seeded.
-- ``fps``: farthest point sampling (open3d), exactly *count* points;
-  O(n x count), refused beyond ``FPS_MAX_WORK``.
-- ``km`` / ``fcm``: entropy simplification
-  (:func:`cloudsieve.core.simplify.simplify_points`).
+``random``: a uniform sample of exactly *count*; ``voxel``: the point nearest each occupied voxel's centroid, the
+size bisected to within 0.5% of *count*; ``poisson``: Poisson-disk dart throwing in a seeded order (the first
+maximal independent set of the r-neighbour graph, Luby rounds), r bisected likewise (pymeshlab's cannot be
+seeded); ``fps``: farthest point sampling (open3d), O(n x count), refused beyond ``FPS_MAX_WORK``; ``km`` /
+``fcm``: :func:`cloudsieve.core.simplify.simplify_points`.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
 """Nearest-neighbour distances of one chunk, and their chunk / combine / aggregate statistics.
 
-The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`:
-:class:`Target` (the simplified cloud behind a k-d tree), :class:`ExactIndex`
-(exact-coordinate lookup), :func:`forward_chunk` (backward's kernel is
-:func:`.planes.backward_chunk`), and :func:`stats_partial`, :func:`combine`,
-:func:`aggregate`: small per-chunk partials merged in any order, as dask
-reductions do.
-
-Shortcuts that change no figure: kept points are answered by hash lookup
-(distance 0); the other queries run in Morton order with a distance bound
-learnt from the previous chunk, points beyond it queried again unbounded.
+The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`, merged in any order as dask
+reductions do. Shortcuts that change no figure: kept points are found by hash lookup (distance 0); other
+queries run in Morton order with a distance bound learnt from the previous chunk.
 """
 
 from __future__ import annotations

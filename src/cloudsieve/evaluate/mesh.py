@@ -1,20 +1,12 @@
 """Meshes and their figures: ball pivoting, Metro distances, triangle compactness.
 
-Ball pivoting (pymeshlab; normals from 10 neighbours; radius r then 2r, r =
-:func:`point_spacing`) meshes one cloud. :func:`metro` compares two meshes
-both ways with pymeshlab's ``get_hausdorff_distance`` (Metro), sampling faces,
-10 x faces samples (capped), MaxDist ten diagonals so that no sample is
-dropped. Metro runs in a forked child (:func:`cloudsieve.engine.calls.forked`):
-pymeshlab's random generator is process-wide and never reseeded, so this
-module never samples in the parent, and the same meshes give the same figures.
-
-Compactness c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2) (vcg's mean-ratio
-quality): 1 equilateral, 0 degenerate. A mesh is "compact" when at least 50%
-of its triangles have c >= 0.6 (the paper's criterion).
-
-Border edges (:func:`border_edges`) measure a mesh's holes, where ball
-pivoting found points too sparse or noisy; near them Metro measures the holes
-more than the sampling (docs/benchmarks.md, "Where Metro's distance comes from").
+Ball pivoting (pymeshlab; radius r then 2r, r = :func:`point_spacing`) meshes a cloud. :func:`metro` compares two
+meshes both ways (pymeshlab's ``get_hausdorff_distance``, face sampling, MaxDist ten diagonals so no sample is
+dropped) in forked children (:func:`cloudsieve.engine.calls.forked`): pymeshlab's random generator is
+process-wide and never reseeded, so the same meshes give the same figures. Compactness c = 4*sqrt(3)*area /
+(l1^2 + l2^2 + l3^2): 1 equilateral, 0 degenerate; a mesh is "compact" when at least 50% of its triangles have
+c >= 0.6 (the paper's criterion). Border edges measure a mesh's holes, which Metro measures more than the
+sampling (docs/benchmarks.md, "Where Metro's distance comes from").
 """
 
 from __future__ import annotations

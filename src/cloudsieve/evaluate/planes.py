@@ -1,23 +1,14 @@
-"""Point-to-plane (D2) errors, the original's normals, and the field's figures: D1/D2 PSNR and Chamfer.
+"""Point-to-plane (D2) errors, the original's normals, and MPEG ``pc_error``'s figures: D1/D2 PSNR, Chamfer.
 
-The figures of MPEG's ``pc_error``, with A = the original, B = the simplified cloud:
+With A the original and B the simplified cloud: **D1** is the squared distance to the nearest neighbour in the
+other cloud; **D2** that pair's error projected on the original's normal, ``((b - a) . n_a)**2`` (``pc_error``
+moves the normal to B; on a smooth surface the plane is the same, and ``n_a`` keeps one streamed pass). Per
+direction the MSE, **symmetric** the larger, ``PSNR = 10 log10(3 p**2 / MSE)`` dB (peak ``p``: the diagonal by
+default; MSE 0: inf, ``null`` in JSON). **Chamfer** is the sum of the two D1 MSEs (squared units).
 
-- **D1**: the squared distance from a point to its nearest neighbour in the other cloud;
-- **D2**: that pair's error vector projected on the original's normal,
-  ``((b - a) . n_a)**2``, ``a`` the pair's original point. ``pc_error``
-  projects forward pairs on a normal moved to B; on a smooth surface that is
-  the same plane, and ``n_a`` keeps the computation to one streamed pass;
-- per direction the **MSE**, the **symmetric** MSE the larger of the two, and
-  ``PSNR = 10 log10(3 p**2 / MSE)`` dB, peak ``p`` the original's diagonal by
-  default; an MSE of 0 gives inf (``null`` in report.json);
-- **Chamfer**: the sum of the two D1 MSEs, in squared cloud units.
-
-Normals come from the file (``nx, ny, nz``) or from PCA of the point's
-``K_NORMALS`` nearest neighbours within its chunk of the original (exact for a
-one-chunk cloud; one-sided at chunk edges), only where D1 is not zero.
-Normals dominate the point level's time, so D2 is measured on a uniform seeded
-sample of at most ``d2_sample`` points per direction, with its standard error
-(``d2_se``; in dB 10/ln 10 x se/MSE); D1 and Chamfer stay exact.
+Normals come from the file or from PCA of ``K_NORMALS`` neighbours within the point's chunk (one-sided at chunk
+edges), only where D1 is not zero. They dominate the time, so D2 uses a uniform sample of at most ``d2_sample``
+points per direction, with its standard error; D1 and Chamfer stay exact.
 """
 
 from __future__ import annotations

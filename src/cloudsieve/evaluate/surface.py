@@ -1,16 +1,7 @@
-"""Surface-level errors, the paper's: meshes, Metro distances, compactness, on tiles.
+"""Surface-level errors, the paper's, on tiles: ball-pivoting meshes, Metro distances, compactness (:mod:`.mesh`).
 
-On T tiles (balls of at most M original points) the original and the
-simplified points are each meshed by ball pivoting, compared both ways by
-Metro and their triangles' compactness measured (:mod:`.mesh`). Figures are
-aggregated over tiles: Metro mean and RMS weighted by samples, max over
-tiles, compactness over all triangles.
-
-Tile choice (:mod:`.tiles`): T fixed tiles on k-means centres of a uniform
-sample; with a time *budget*, random tiles sized by the measured rate
-:data:`.tiles.SURFACE_RATE`, with standard errors; or *full*, every point.
-One tile holds a cloud of at most M points. Tiles are gathered in one
-streamed pass (after one for the sample); the simplified cloud is in memory.
+Per tile both clouds are meshed and compared both ways; figures are aggregated over tiles (Metro mean and RMS
+weighted by samples, max over tiles, compactness over all triangles). Tiles: :mod:`.tiles`.
 """
 
 from __future__ import annotations

@@ -1,17 +1,10 @@
 """The surface level's tiles: where they are, which points they hold, and the spread of their figures.
 
-Three ways to choose them (:func:`.surface.surface_errors`):
-
-- **fixed** (:func:`choose_tiles`): T tiles on k-means centres of a uniform
-  sample, each the M original points nearest its centre;
-- **budget** (``cloudsieve evaluate``'s default): T tiles (8 unless given)
-  centred on random original points, sized so that they take the budget at
-  :data:`SURFACE_RATE` (:func:`budget_tile_points`); with their standard
-  errors (:func:`spread`);
-- **full** (:func:`partition_tiles`): every original point in one cell of
-  about M points.
-
-Tiles are gathered in one streamed pass, after one for :func:`uniform_sample`.
+**fixed** (:func:`choose_tiles`): T tiles on k-means centres of a uniform sample, M points each; **budget**
+(``cloudsieve evaluate``'s default): T tiles (8) on random points, sized to take the budget at
+:data:`SURFACE_RATE` (:func:`budget_tile_points`), with standard errors (:func:`spread`); **full**
+(:func:`partition_tiles`): every point, in cells of about M. One streamed pass gathers them, after one for
+:func:`uniform_sample`.
 """
 
 from __future__ import annotations
