@@ -1,22 +1,12 @@
 """What the package's own processes (the command, the local fork server) skip at start.
 
-Modules the command loads import, at their import, what a run never uses:
-``numba`` (scipy, for a version check), ``numba.core.config`` (yaml, skipped
-only without a ``.numba_config.yaml`` here), ``numba.np.arraymath`` (all of
-``scipy.linalg`` to probe BLAS for ``np.dot``; no kernel here uses it, which
-tests/test_speed_start.py checks, and a later ``np.dot`` compiles to numba's
-loop), ``laspy.copc`` (``requests``) and ``laspy.vlrs.geotiff``
-(``pyproj``, for type hints). :func:`skip_unused_imports` installs an import
-hook that makes those imports fail while each such module alone executes;
-they import as usual afterwards.
-
-numba's cache loads also refresh the compiler's target context (every
-typing and lowering registry), which only a compilation reads; the hook
-makes them initialise the runtime (NRT) alone
-(:func:`load_without_registries`); a compilation still refreshes first.
-Why: docs/architecture.md, "Design reasons". Not for a process that is not
-the package's: its code may compile ``np.dot``, read COPC over HTTP or rely
-on numba's registries.
+:func:`skip_unused_imports` installs an import hook that, while each module alone executes, blocks what it
+imports and a run never uses: ``numba``'s scipy (a version check), ``numba.core.config``'s yaml (without a
+``.numba_config.yaml`` here), ``numba.np.arraymath``'s ``scipy.linalg`` (a BLAS probe for ``np.dot``, which no
+kernel here uses: tests/test_speed_start.py), ``laspy.copc``'s ``requests`` and ``laspy.vlrs.geotiff``'s
+``pyproj``. numba's cache loads initialise the runtime (NRT) alone instead of every compiler registry
+(:func:`load_without_registries`); a compilation still refreshes them. Why: docs/architecture.md, "Design
+reasons". Not for other processes: their code may compile ``np.dot`` or read COPC over HTTP.
 """
 
 from __future__ import annotations

@@ -1,19 +1,11 @@
 """Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
 reading, ``memory://``), with a run's storage options.
 
-A leaf (imports :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage_errors`, :mod:`cloudsieve.storage_retries`).
-Every module that opens, lists or removes a cloud, list, VPC or store goes through it, so a URL works
-wherever a path does: :func:`open_input` reads by ranged requests (never a whole-file download),
-:func:`open_output` writes (multipart on S3).
-
-Storage options follow pandas and dask: a dict for the URL's filesystem (s3fs: ``key``, ``secret``,
-``endpoint_url``); without one, the ecosystem's chain (``AWS_*`` variables, config files, roles).
-:func:`using` sets them in the driver; the task runner hands them to every task with :func:`bound`.
-They are never logged, stored, or printed in an error (:func:`redact`).
-
->>> with using({"anon": False}):  # doctest: +SKIP
-...     with open_input("s3://bucket/tiles/a.laz") as fh:
-...         head = fh.read(375)
+A leaf. Every module that opens, lists or removes a cloud, list, VPC or store goes through it, so a URL works
+wherever a path does: :func:`open_input` reads by ranged requests, :func:`open_output` writes (multipart on S3).
+Storage options are a dict for the URL's filesystem (s3fs: ``key``, ``secret``, ``endpoint_url``), else the
+ecosystem's chain (``AWS_*``, config files, roles); :func:`using` sets them in the driver, :func:`bound` hands
+them to tasks. They are never logged, stored, or printed in an error (:func:`redact`).
 """
 
 from __future__ import annotations

@@ -1,14 +1,9 @@
 """report.html: one self-contained page (no network access) with the tables, the plots and 3D views.
 
-Everything is inline: the Markdown tables as HTML, the PNG plots as ``data:``
-URIs, the vendored WebGL viewer (:file:`viewer.js`, with a 2D-canvas
-fallback), and the clouds as base64: coordinates quantised to 16 bits over
-the original's bounding box, errors as one byte. A view holds at most
-``VIEW_POINTS`` points (a uniform seeded sample), so the page stays a few MB.
-
-The original's points are coloured by forward error, red = 0 to blue = the
-99th percentile shown (one scale for every method in compare); kept points
-in one colour.
+Everything is inline: tables, PNG plots as ``data:`` URIs, the vendored WebGL viewer (:file:`viewer.js`), and
+at most ``VIEW_POINTS`` points a view, quantised to 16 bits over the original's box with one byte of error.
+Original points are coloured by forward error, red = 0 to blue = the shown 99th percentile (one scale for every
+method); kept points in one colour.
 """
 
 from __future__ import annotations

@@ -1,19 +1,10 @@
 """The read plan of LAS/LAZ/COPC sources: headers only, read by the driver.
 
-One or many files (:func:`cloudsieve.io.sources.expand_sources`) are one
-cloud. The driver reads their headers, checks that they agree, fixes the
-cloud's integer encoding and cuts the rows into pieces
-(:func:`.las_records.read_pieces` reads them). The rules:
-
-- **Point format and extra-bytes dimensions** the same in every file, else
-  :class:`~cloudsieve.errors.MismatchedInputsError` naming the first that differs.
-- **CRS**: projection VLRs/EVLRs byte-identical to the first file's.
-- **Scales and offsets**: per axis the finest scale and the first offset; a
-  file is re-quantised, ``X' = X * (s / s') + (o - o') / s'``, only when both
-  factors are integers (exact), else MismatchedInputsError. Results must fit
-  int32 (checked per task).
-- **VLRs and EVLRs**: the first file's, then every later record not already
-  present (same user id, record id, bytes). The LAS version is the highest.
+The files of one cloud (:func:`cloudsieve.io.sources.expand_sources`) must share point format, extra-bytes
+dimensions and CRS records, else :class:`~cloudsieve.errors.MismatchedInputsError`. Per axis the finest scale and
+the first offset are kept; a file is re-quantised, ``X' = X * (s / s') + (o - o') / s'``, only when both factors
+are integers (exact). VLRs and EVLRs: the first file's, then every later one not already present; the version is
+the highest. Rows are cut into pieces for :func:`.las_records.read_pieces`.
 """
 
 from __future__ import annotations
