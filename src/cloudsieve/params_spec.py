@@ -54,7 +54,7 @@ class Option:
     (``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list or comma-separated), ``format`` (any
     case, dot optional), ``text``, ``path``, ``size`` (bytes or "2GB"), ``scheduler``); ``default`` (None:
     optional); ``help`` (one ``--help`` line describing the flag: ``--no-NAME`` for a bool defaulting to
-    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (old flags); ``metavar``.
+    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (other flags); ``metavar``.
     """
 
     name: str

@@ -59,7 +59,7 @@ _TYPES = {params.INT: parse_int, params.FLOAT: parse_float, params.SIZE: _size}
 def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[str] | None = None, *,
                 defaults: Mapping[str, Any] | None = None, helps: Mapping[str, str] | None = None) -> None:
     """Add the options of *command* (all, or *names*) to *parser*, from the spec.
-    Flags are the names with dashes, ``--no-NAME`` for a bool defaulting to True; old flags are aliases. *defaults*
+    Flags are the names with dashes, ``--no-NAME`` for a bool defaulting to True; aliases are other flags. *defaults*
     and *helps* override the spec's (``demo`` has some of simplify's options only)."""
     spec = params.COMMANDS[command]
     defaults, helps = defaults or {}, helps or {}

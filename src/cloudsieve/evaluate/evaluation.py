@@ -1,25 +1,21 @@
 """``evaluate(original, simplified)``: what simplification cost, as one report.
 
-The original is streamed (any size); the simplified cloud is loaded into
-memory. Levels: :mod:`.points`, :mod:`.planes` (PSNR), :mod:`.surface`;
-files: :mod:`.report`.
+The original is streamed (any size); the simplified cloud is loaded into memory. Levels: :mod:`.points`,
+:mod:`.planes` (PSNR), :mod:`.surface`; files: :mod:`.report`.
 
-Report keys (``report.json`` holds the same dict); ``*_pct`` is in % of
-``diagonal``, the original's bounding-box diagonal (cloud units):
+Report keys (``report.json`` holds the same dict); ``*_pct`` is in % of ``diagonal``, the original's
+bounding-box diagonal (cloud units):
 
 - ``original``, ``simplified``: ``name``, ``count``, ``format``, ``crs`` (LAS).
-- ``point`` (:func:`.points.point_errors`): ``forward`` (original ->
-  simplified) and ``backward``, each ``mean``, ``rms``, ``max`` (+ ``_pct``),
-  ``count`` and, when sampled, ``ci`` (95% intervals); ``hausdorff``,
+- ``point`` (:func:`.points.point_errors`): ``forward`` (original -> simplified) and ``backward``, each
+  ``mean``, ``rms``, ``max`` (+ ``_pct``), ``count`` and, when sampled, ``ci`` (95% intervals); ``hausdorff``,
   ``hausdorff_pct``, ``mode``, ``subset``, ``histogram``.
-- ``psnr`` (:mod:`.planes`): ``peak``, ``peak_from``, ``d1`` and ``d2``, each
-  ``forward``, ``backward``, ``symmetric`` (larger MSE) in dB, None for an
-  MSE of 0; ``mse``, ``normals``, ``k_normals``.
-- ``chamfer``: ``value`` = ``forward`` + ``backward`` mean squared
-  nearest-neighbour distances (squared units), ``value_pct2``, ``definition``.
-- ``surface`` (:func:`.surface.surface_errors`, unless ``surface=False``):
-  Metro ``mean``, ``rms``, ``max`` (+ ``_pct``), ``forward``, ``backward``,
-  ``compact_share`` (share of triangles with c >= 0.6), ``compact``,
+- ``psnr`` (:mod:`.planes`): ``peak``, ``peak_from``, ``d1`` and ``d2``, each ``forward``, ``backward``,
+  ``symmetric`` (larger MSE) in dB, None for an MSE of 0; ``mse``, ``normals``, ``k_normals``.
+- ``chamfer``: ``value`` = ``forward`` + ``backward`` mean squared nearest-neighbour distances (squared
+  units), ``value_pct2``, ``definition``.
+- ``surface`` (:func:`.surface.surface_errors`, unless ``surface=False``): Metro ``mean``, ``rms``, ``max``
+  (+ ``_pct``), ``forward``, ``backward``, ``compact_share`` (share of triangles with c >= 0.6), ``compact``,
   ``vertices``, ``faces``, ``original``, ``simplified``, ``tiles``.
 - ``warnings``, ``timing`` (seconds per level), ``parameters``, ``files``.
 """

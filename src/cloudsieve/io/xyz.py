@@ -1,19 +1,15 @@
 """XYZ / TXT / CSV / PTS text clouds: one point per row, in blocks of rows.
 
-Reading: the delimiter is given or sniffed from the first data row (comma,
-semicolon, else whitespace). A first row with a non-numeric value names the
-columns (a leading ``#`` or ``//`` stripped); a first row of one integer
-(PTS count) is skipped; ``columns=[...]`` and ``skiprows=k`` override.
-Unnamed columns are ``x y z`` + ``intensity`` (4), ``red green blue`` (6),
-``intensity red green blue`` (7, PTS), else ``col3, ...``; ``x``, ``y``,
-``z`` are required (any case). An attribute column is int64 when its values
-in the first :data:`TYPED_ROWS` rows are integer literals, else float64.
-Blank and ``#``/``//`` lines are skipped; a bad row raises
-CorruptInputError naming its line. ``count`` is None until read.
+Reading: the delimiter is given or sniffed (comma, semicolon, else whitespace). A first row with a non-numeric
+value names the columns (a leading ``#`` or ``//`` stripped); a first row of one integer (PTS count) is skipped;
+``columns=[...]`` and ``skiprows=k`` override. Unnamed columns are ``x y z`` + ``intensity`` (4), ``red green
+blue`` (6), ``intensity red green blue`` (7, PTS), else ``col3, ...``; ``x``, ``y``, ``z`` (any case) are
+required. An attribute column is int64 when its values in the first :data:`TYPED_ROWS` rows are integer
+literals, else float64. Blank and ``#``/``//`` lines are skipped; a bad row raises CorruptInputError naming its
+line. ``count`` is None until read.
 
-Writing: a header row, then one row per point, space separated (comma for
-.csv); floats as their shortest round-tripping text, always with ``.`` or an
-exponent; (n, k) attributes as ``name_0 .. name_{k-1}``.
+Writing: a header row, then one row per point, space separated (comma for .csv); floats as their shortest
+round-tripping text, always with ``.`` or an exponent; (n, k) attributes as ``name_0 .. name_{k-1}``.
 """
 
 from __future__ import annotations
