@@ -1,13 +1,9 @@
 """Store handles opened once per stage in a worker process, not once per task.
 
-Opening a store or an array reads its ``zarr.json`` (a request on object
-storage), and a stage's tasks open the same ones again and again. The driver
-creates and deletes arrays between stages only, so within a stage they do
-not change: a task marked by :func:`per_stage` keeps the groups and arrays
-it opens for the stage's later tasks in its process; elsewhere nothing is
-kept. A task that creates or deletes an array drops them (:func:`forget`).
-On object storage the shard indexes read are kept too (:func:`remote_store`).
-A leaf: zarr is imported at the first store opened.
+Opening a store or an array reads its ``zarr.json`` (a request on object storage). Arrays change between stages
+only, so a task marked by :func:`per_stage` keeps the groups and arrays it opens (and, on object storage, the
+shard indexes read: :func:`remote_store`) for the stage's later tasks in its process; a task that creates or
+deletes an array drops them (:func:`forget`). A leaf: zarr is imported at the first store opened.
 """
 
 from __future__ import annotations

@@ -1,12 +1,9 @@
 """``cloudsieve warmup``: compile every kernel into numba's on-disk cache, once (thin wiring over
 :func:`cloudsieve.core.warmup.warm_report`).
 
-For a fresh install, a container image or a cluster worker, so that a first
-run loads its kernels instead of compiling them (docs/benchmarks.md,
-"Start-up"). The cache is ``__pycache__`` beside the kernels, numba's user
-cache directory when that is read-only, or ``NUMBA_CACHE_DIR`` (shareable
-by a cluster's workers). With two cores or more a second process compiles
-:data:`cloudsieve.core.warmup.SECOND`.
+For a fresh install, an image or a cluster worker, so that a first run loads its kernels (docs/benchmarks.md,
+"Start-up"). The cache: ``__pycache__`` beside the kernels, numba's user cache directory when that is read-only,
+or ``NUMBA_CACHE_DIR`` (shareable). With two cores a second process compiles :data:`cloudsieve.core.warmup.SECOND`.
 """
 
 from __future__ import annotations
