@@ -14,13 +14,8 @@ TCP_SCHEMES = ("tcp", "tls", "ws", "wss")
 
 
 def host_port(address: str) -> tuple[str, int] | None:
-    """The (host, port) of a TCP scheduler *address*; None for a scheme that is not TCP (left to dask).
-
-    Raises
-    ------
-    InvalidParameterError
-        A ``tcp://`` (``tls://``, ``ws://``, ``wss://``) address without a host or a port.
-    """
+    """The (host, port) of a TCP scheduler *address*; None for a non-TCP scheme (left to dask).
+    InvalidParameterError for a ``tcp://`` (``tls://``, ``ws://``, ``wss://``) address without host or port."""
     url = urlparse(address)
     if url.scheme not in TCP_SCHEMES:
         return None

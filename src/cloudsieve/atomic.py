@@ -1,15 +1,9 @@
 """Atomic outputs: a file or folder written under a temporary name beside its destination, then renamed.
 
-An object store has no rename: a file there is uploaded whole (a multipart upload completes, or the object
-never appears), and a folder of tiles is committed by its ``index.vpc``, written last.
+On an object store a file is uploaded whole (or never appears) and a folder of tiles is committed by its
+``index.vpc``, written last. A leaf (imports :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage`),
+used by every writer: a failed write leaves nothing under the destination's name.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors` and :mod:`cloudsieve.storage`), used by every
-writer: the format writers (:mod:`cloudsieve.io`), the store's ingest and
-exports (:mod:`cloudsieve.store`). A failed write leaves nothing under the
-destination's name.
-
-Example
--------
 >>> check_destination(dst, overwrite)  # doctest: +SKIP
 >>> tmp = make_temp_path(dst)
 >>> try:
@@ -39,21 +33,9 @@ logger = logging.getLogger(__name__)
 def check_destination(path: str, overwrite: bool, *, folder: bool = False,
                       foreign: Callable[[str], str | None] | None = None) -> None:
     """Refuse a destination that exists (unless *overwrite*), is of the other kind, or cannot be written.
-
-    *folder* says the destination is a folder (tiles, a point store), else a
-    file. A folder is never replaced by a file nor a file by a folder, with
-    or without *overwrite*; an existing folder is replaced only when
-    ``foreign(path)`` finds nothing in it that cloudsieve did not write (it
-    returns None, else a description of what it found, for the message).
-
-    Raises
-    ------
-    DestinationExistsError
-        *path* exists and *overwrite* is False; *path* is of the other kind;
-        the folder holds anything but cloudsieve's own output.
-    DestinationNotWritableError
-        Its parent folder is missing or not a folder.
-    """
+    *folder*: the destination is a folder (never replaced by a file, nor a file by a folder). An existing folder is
+    replaced only when ``foreign(path)`` returns None (else a description of what cloudsieve did not write there).
+    Raises DestinationExistsError, or DestinationNotWritableError when the parent folder is missing."""
     if is_url(path):
         _check_remote(path, overwrite, folder, foreign)
         return
@@ -122,12 +104,8 @@ def current_umask() -> int:
 
 
 def make_temp_path(path: str, *, directory: bool = False) -> str:
-    """Create (and return) a temporary file or folder beside *path*, with the mode a new file gets.
-
-    ``mkstemp``/``mkdtemp`` create 0600/0700 (private); the output renamed
-    from it gets what ``open()`` or ``mkdir`` would give under the umask
-    (0644/0755 under umask 022), as every other tool's outputs do.
-    """
+    """Create (and return) a temporary file or folder beside *path*, with the mode a new file gets under the umask
+    (not ``mkstemp``'s private 0600/0700)."""
     parent = os.path.dirname(os.path.abspath(path))
     prefix = "." + os.path.basename(path) + "."
     try:
@@ -172,13 +150,8 @@ def remove(path: str) -> None:
 
 
 def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
-    """Write *text* to *path* atomically: a temporary file beside it, renamed when written (replacing *path*).
-
-    Raises
-    ------
-    DestinationNotWritableError
-        The folder cannot be written.
-    """
+    """Write *text* to *path* atomically (a temporary file renamed); DestinationNotWritableError if the folder is not
+    writable."""
     path = os.fspath(path)
     tmp = make_temp_path(path)
     try:

@@ -1,9 +1,4 @@
-"""The one chunk shape: what every chunk iterator yields, and the default chunk size.
-
-File readers (:meth:`cloudsieve.io.Reader.chunks`), point stores
-(:meth:`cloudsieve.store.PointStore.chunks`) and the evaluation's sources all
-yield :class:`Chunk` ``(start, arrays)``.
-"""
+"""The one chunk shape every chunk iterator yields (readers, stores, evaluation sources), and the default chunk size."""
 
 from __future__ import annotations
 
@@ -18,11 +13,8 @@ DEFAULT_CHUNK_SIZE = 1_000_000
 
 
 class Chunk(NamedTuple):
-    """Consecutive points from *start* on, as every chunk iterator yields them (``start, arrays = chunk``).
-
-    *arrays* holds ``"xyz"``, ndarray of shape (n, 3), float64, and one array
-    per attribute of shape (n,) or (n, k).
-    """
+    """Consecutive points from *start* on (``start, arrays = chunk``): ``"xyz"`` (n, 3) float64 and attributes (n,) or
+    (n, k)."""
 
     start: int
     arrays: dict[str, np.ndarray]
@@ -39,18 +31,11 @@ class Chunk(NamedTuple):
 
 
 def xyz_bounds(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per-axis minimum and maximum of *xyz* (n >= 1, 3), each ndarray of shape (3,).
-
-    Column by column: a strided 1-D reduction is about 5-10x faster than
-    ``xyz.min(axis=0)`` on an (n, 3) array.
-    """
+    """Per-axis minimum and maximum of *xyz* (n >= 1, 3), each (3,); column by column (faster than ``min(axis=0)``)."""
     return (np.array([xyz[:, j].min() for j in range(3)]), np.array([xyz[:, j].max() for j in range(3)]))
 
 
 def take_rows(a: np.ndarray, rows: np.ndarray) -> np.ndarray:
-    """``a[rows]`` (a new C-ordered array) for integer *rows* of an (n, k) array, by ``a.take(rows, axis=0)``.
-
-    numpy's fancy indexing copies a row of a 2-D array with a call each: ``take`` is three to five times
-    faster on (n, 3) float64 rows (the same values).
-    """
+    """``a[rows]`` (a new C-ordered array) for integer *rows* of an (n, k) array, by ``a.take`` (faster than fancy
+    indexing)."""
     return a.take(rows, axis=0)

@@ -1,10 +1,9 @@
-"""The exceptions and warnings cloudsieve raises: every one of them is here.
+"""The exceptions and warnings cloudsieve raises, all of them.
 
-One root, :class:`CloudsieveError`; every subclass also inherits the built-in
-exception a caller would expect (``ValueError``, ``FileNotFoundError``, ...), so
-``except ValueError`` keeps working. Messages name the file and the problem.
-Warnings: :class:`ConvergenceWarning` and :class:`IncompatibleCloudsWarning`
-(both a ``UserWarning``).
+Root :class:`CloudsieveError`; each subclass also inherits the built-in a
+caller expects (``ValueError``, ``FileNotFoundError``, ...). Messages name
+the file and the problem. Warnings (``UserWarning``): :class:`ConvergenceWarning`,
+:class:`IncompatibleCloudsWarning`.
 """
 
 from __future__ import annotations
@@ -41,19 +40,9 @@ __all__ = [
 
 class CloudsieveError(Exception):
     """Root of every error cloudsieve raises on purpose.
-
-    Parameters
-    ----------
-    *args
-        The message (as for any exception).
-    advice : mapping of str to object, optional
-        The options the message advises, by name, with the value it advises
-        (``{"overwrite": True}``). The message words them as the API does,
-        ``overwrite=True``; the command line rewrites exactly those words as
-        its own (``--overwrite``, or a pipeline stage's key under
-        ``cloudsieve run``). Kept in the exception's ``__dict__``, so it
-        survives pickling (errors raised in dask workers).
-    """
+    *advice* maps the options the message advises to their values (``{"overwrite": True}``, worded
+    ``overwrite=True``; the command line rewrites those words as its own). Kept in ``__dict__``, so it survives
+    pickling from dask workers."""
 
     def __init__(self, *args: object, advice: dict | None = None) -> None:
         super().__init__(*args)
@@ -160,7 +149,5 @@ class ConvergenceWarning(UserWarning):
 
 
 class IncompatibleCloudsWarning(UserWarning):
-    """Clouds of different CRS or units compared anyway (``strict=False``); also logged, once.
-
-    The command line shows the log line only (it ignores this warning).
-    """
+    """Clouds of different CRS or units compared anyway (``strict=False``); also logged, once (the CLI shows the log
+    line only)."""

@@ -1,8 +1,6 @@
 """The point cloud formats by name: extensions, reader and writer, as a table (a leaf: imports nothing).
 
-:mod:`cloudsieve.io` registers each row (:func:`cloudsieve.io.register_format`);
-:mod:`cloudsieve.params` reads the names of the formats that can be read or
-written (the ``format`` options) without importing :mod:`cloudsieve.io`.
+:mod:`cloudsieve.io` registers each row; :mod:`cloudsieve.params` reads the format names without importing io.
 """
 
 from __future__ import annotations

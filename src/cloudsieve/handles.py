@@ -1,17 +1,9 @@
 """Store handles opened once per stage in a worker process, not once per task.
 
-Opening a store reads its group's ``zarr.json``; opening an array, the array's. On object storage each is
-a request (a few milliseconds of CPU in the client and in the server), and a stage's tasks open the same
-store and the same arrays again and again: 10 of the 40 requests of a cell task. The driver creates and
-deletes arrays between stages only, never while a stage's tasks run, so within one stage a store's group
-and its arrays are what they were when the stage began. :func:`per_stage` marks a task function with a
-stage token (new for every call of the runner); a task so marked keeps the groups it opens and the
-arrays it looks up (``group[name]``, ``name in group``) for the later tasks of the same stage in its
-process. Outside a stage's task (the driver, a call of the API) nothing is kept. A task that creates or
-deletes an array (:meth:`~cloudsieve.store.PointStore.create_array` and the like) drops what its
-process kept (:func:`forget`). A store on object storage opened in a stage's task also keeps the shard
-indexes it reads (:func:`remote_store`): a sharded array's rows are read by runs, each of which would
-read its shard's index again. A leaf: zarr is imported at the first store opened.
+Opening a store or an array reads its ``zarr.json`` (a request on object storage). Arrays change between stages
+only, so a task marked by :func:`per_stage` keeps the groups and arrays it opens (and, on object storage, the
+shard indexes read: :func:`remote_store`) for the stage's later tasks in its process; a task that creates or
+deletes an array drops them (:func:`forget`). A leaf: zarr is imported at the first store opened.
 """
 
 from __future__ import annotations

@@ -1,16 +1,9 @@
 """Packages that import their names at first use (PEP 562): a leaf, imported by the packages' ``__init__``.
 
-:func:`lazy_names` gives a package the ``__getattr__`` and ``__dir__`` that
-import each public name from its module when it is first asked for, so a run
-imports only the modules it uses (a small input's run no zarr, dask or
-stages: ``cloudsieve.store``, ``cloudsieve.engine``).
-
-Importing a submodule binds it as an attribute of its package, which would
-hide the function of the same name that the package imports at first use
-(``cloudsieve.evaluate``, ``cloudsieve.store.export``,
-``cloudsieve.engine.simplify``). :func:`keep_functions` gives the package a
-module type whose properties always answer the function, and ignore the
-import system's binding.
+:func:`lazy_names` gives a package ``__getattr__`` and ``__dir__`` importing each public name at its
+first use, so a run imports only what it uses. Importing a submodule binds it over the package's
+function of the same name (``cloudsieve.evaluate``, ``cloudsieve.store.export``,
+``cloudsieve.engine.simplify``): :func:`keep_functions` makes the package always answer the function.
 """
 
 from __future__ import annotations

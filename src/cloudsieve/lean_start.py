@@ -1,48 +1,12 @@
 """What the package's own processes (the command, the local fork server) skip at start.
 
-Five modules the command loads import, at their own import, what a run never
-uses:
-
-- ``numba`` imports scipy for a version check only.
-- ``numba.core.config`` imports yaml to read a ``.numba_config.yaml`` in the
-  working folder: skipped only where there is none.
-- ``numba.np.arraymath`` (loaded with the first kernel numba compiles)
-  checks that ``np.dot`` could call BLAS by importing
-  ``scipy.linalg.cython_blas``: all of ``scipy.linalg``, with a second OpenBLAS
-  and its threads. No compiled kernel of this package calls ``np.dot``,
-  ``np.vdot``, ``@`` or ``np.linalg`` (tests/test_speed_start.py reads their
-  sources); numba then takes BLAS as absent, so an ``np.dot`` compiled later
-  in the process would be numba's loop.
-- ``laspy.copc`` imports ``requests`` for COPC files over HTTP (this package
-  reads local files only; laspy's HTTP reader then says "HTTP support requires
-  the 'requests' package").
-- ``laspy.vlrs.geotiff`` imports ``pyproj`` for type hints (laspy's
-  ``parse_crs`` imports it again where it needs it, as
-  :mod:`cloudsieve.store.copc_file` does).
-
-:func:`skip_unused_imports` installs an import hook that, while each of these
-modules and only it is executed, makes the import of what it would not need
-fail at once (a module that is already loaded is left: it costs nothing
-there), then removes the block: scipy, yaml, pyproj and requests import as
-usual afterwards (``evaluate``'s k-d trees, a CRS from GeoTIFF keys).
-
-And numba's cache (``numba.core.caching.Cache.load_overload``) refreshes the
-compiler's target context before each load: it imports and installs every
-typing and lowering registry of numba (its array, random, typed-container
-and polynomial modules; 251 overload templates initialised), which only a
-compilation reads. A kernel taken from the cache is machine code; what its
-run needs of numba is the runtime (NRT, its allocator), which the refresh
-also initialises (without it the process crashes). The hook makes the loads
-initialise the runtime only (:func:`load_without_registries`); a
-compilation still refreshes both contexts first
-(``numba.core.compiler.compile_extra``), so a kernel compiled later in the
-process, a cache miss included, sees every registry.
-
-A warm small run is mostly the process's start, so these skips take nearly
-half off a 1,065-point file's run (docs/architecture.md, "Design
-reasons").
-Not for a process that is not the package's: user code in it may compile
-``np.dot``, read COPC over HTTP or rely on numba's registries at run time.
+:func:`skip_unused_imports` installs an import hook that, while each module alone executes, blocks what it
+imports and a run never uses: ``numba``'s scipy (a version check), ``numba.core.config``'s yaml (without a
+``.numba_config.yaml`` here), ``numba.np.arraymath``'s ``scipy.linalg`` (a BLAS probe for ``np.dot``, which no
+kernel here uses: tests/test_speed_start.py), ``laspy.copc``'s ``requests`` and ``laspy.vlrs.geotiff``'s
+``pyproj``. numba's cache loads initialise the runtime (NRT) alone instead of every compiler registry
+(:func:`load_without_registries`); a compilation still refreshes them. Why: docs/architecture.md, "Design
+reasons". Not for other processes: their code may compile ``np.dot`` or read COPC over HTTP.
 """
 
 from __future__ import annotations

@@ -1,17 +1,10 @@
 """Helper processes die with the process that started them.
 
-A ``kill -9`` of a running ``cloudsieve simplify`` gives its children no chance
-to clean up: without this, the fork server and the worker processes it
-forked stay alive (a few hundred MB each), and the multiprocessing resource
-tracker with them (it exits when the last holder of its pipe does).
-
-On Linux a process can ask the kernel to send it a signal when its parent
-dies (``prctl(PR_SET_PDEATHSIG)``): the fork server asks for SIGKILL when the
-driver dies (it imports :mod:`cloudsieve.engine.forkserver_init` at start-up),
-and every worker asks for SIGKILL when the fork server dies (the pool's
-initializer). So the whole tree goes with the driver, whatever killed it.
-Elsewhere :func:`die_with_parent` starts a watchdog thread that polls the
-parent's pid instead.
+A ``kill -9`` of the driver would leave the fork server, its workers and the
+resource tracker alive. On Linux each asks the kernel for SIGKILL when its
+parent dies (``prctl(PR_SET_PDEATHSIG)``): the fork server at start-up
+(:mod:`cloudsieve.engine.forkserver_init`), the workers in the pool's
+initializer. Elsewhere :func:`die_with_parent` polls the parent's pid.
 """
 
 from __future__ import annotations
@@ -48,14 +41,7 @@ def _watchdog(parent: int) -> None:
 
 
 def die_with_parent(expected_parent: int | None = None) -> None:
-    """End this process (SIGKILL) as soon as its parent process ends.
-
-    Parameters
-    ----------
-    expected_parent : int, optional
-        The parent's pid as the parent saw it. If the parent is already gone
-        when this runs (a death between fork and this call), exit at once.
-    """
+    """End this process (SIGKILL) as soon as its parent ends; at once if *expected_parent* (its pid) is already gone."""
     parent = os.getppid() if expected_parent is None else int(expected_parent)
     if not _prctl_deathsig(signal.SIGKILL):
         threading.Thread(target=_watchdog, args=(parent,), daemon=True, name="cloudsieve-lifeline").start()

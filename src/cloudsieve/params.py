@@ -1,33 +1,11 @@
 """Every user option of cloudsieve checked once: :func:`validate`, :func:`validate_params`.
 
-The options themselves (name, type, range, default, help) are data in
-:mod:`cloudsieve.params_spec`, re-exported here. Every public entry checks
-its options here, once, before any work starts and before any file or store
-is created:
+The options are data in :mod:`cloudsieve.params_spec` (re-exported). The
+command line, pipelines, :func:`cloudsieve.simplify`, :func:`cloudsieve.evaluate`,
+:func:`cloudsieve.compare` and the in-memory API (:func:`validate_params`)
+check them here, once, before any work, so all refuse the same values with
+the same message. A leaf. A count above the cloud's size keeps every point.
 
-- the command line: :mod:`cloudsieve.cli` builds each subcommand's arguments
-  from :data:`COMMANDS` (the flag is the option's name with dashes,
-  ``cluster_size`` -> ``--cluster-size``; a bool that defaults to True is
-  turned off with ``--no-NAME``; old flags stay as aliases) and leaves the
-  checks to the API it calls;
-- the pipeline parser (:mod:`cloudsieve.pipeline`): a stage accepts the options
-  of its command, checked when the file is loaded;
-- the API: :func:`cloudsieve.simplify`, :func:`cloudsieve.evaluate` and
-  :func:`cloudsieve.compare` call :func:`validate` first; the in-memory
-  :func:`cloudsieve.core.simplify_points`, :func:`cloudsieve.core.prune` and
-  :func:`cloudsieve.core.eliminate.eliminate` are wrapped by :func:`validate_params`. The kernels below them check no option.
-
-So all of them accept and refuse the same values with the same message
-(``ratio must be a number in (0, 1], got 0.0``); the command line writes the
-option as its flag (``--ratio must be ...``). A leaf: it imports
-:mod:`cloudsieve.params_spec`, :mod:`cloudsieve.rule_table`,
-:mod:`cloudsieve.address` and :mod:`cloudsieve.errors` only.
-
-A count larger than the cloud is not an error (the cloud's size is not known
-here): every surface keeps all the points and reports the count it kept.
-
-Example
--------
 >>> from cloudsieve.params import validate
 >>> validate("simplify", {"method": "km", "ratio": 0.5})["cluster_size"]
 400
@@ -155,15 +133,8 @@ def _choices(option: Option, value: Any) -> list[str]:
 
 
 def check(option: Option | str, value: Any) -> Any:
-    """Validate one value of *option*; returns it normalised (Python int/float/bool/str/list).
-
-    None is accepted where the default is None (an optional option).
-
-    Raises
-    ------
-    InvalidParameterError
-        ``"<name> must be <what>, got <value>"``.
-    """
+    """Validate one value of *option*; returns it normalised (None where the default is None).
+    Raises InvalidParameterError ``"<name> must be <what>, got <value>"``."""
     if isinstance(option, str):
         option = OPTIONS[option]
     if value is None and option.default is None:
@@ -261,43 +232,11 @@ _CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simpli
 
 
 def validate(command: str, values: Mapping[str, Any], *, caller: str | None = None) -> dict[str, Any]:
-    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together.
-
-    For ``simplify`` and ``compare`` the rule is resolved here, once: no
-    rule given -> :data:`DEFAULT_RULE` (``eliminate``) with a ratio or a
-    count, ``threshold`` with a threshold alone, an error with neither (or
-    with a threshold beside a ratio/count); a threshold not given becomes
-    :data:`rules.PAPER_THRESHOLD`. The result holds the resolved values, so
-    validating it again gives it back. Whether a rule needs, takes or refuses
-    a ratio/count is the rule table's (:data:`cloudsieve.rule_table.RULES`).
-
-    Parameters
-    ----------
-    command : str
-        ``simplify``, ``evaluate``, ``compare``, ``ingest``, ``export``,
-        ``pipeline`` (a pipeline's top-level keys), ``warmup``, or the
-        in-memory API's ``simplify_points``, ``prune``, ``scores``, ``refine``
-        and ``eliminate``.
-    values : mapping of str to object
-        Some of the command's options; the others take their defaults.
-    caller : str, optional
-        The name an error gives the call (default ``cloudsieve.<command>``;
-        a pipeline passes its stage's type). The command line writes
-        ``cloudsieve.simplify`` as ``cloudsieve simplify``.
-
-    Returns
-    -------
-    dict
-        Every option of the command, normalised.
-
-    Raises
-    ------
-    InvalidParameterError
-        An unknown option, a value out of its range, or options that
-        contradict each other (ratio and count; no rule and neither a ratio, a
-        count nor a threshold; rule target without a ratio or a count;
-        cluster_size < k_min + 2; cell_size < cluster_size; ...).
-    """
+    """Validate the options of *command* (a key of :data:`COMMANDS`), alone and together; returns all, normalised.
+    *values* holds some options (the others take their defaults); *caller* names the call in errors (default
+    ``cloudsieve.<command>``). For ``simplify`` and ``compare`` the rule is resolved here
+    (:func:`cloudsieve.rule_table.resolve_rule`), so validating the result gives it back. InvalidParameterError for
+    an unknown option, a value out of range, or contradicting options."""
     spec = COMMANDS[command]
     unknown = sorted(set(values) - set(spec))
     if unknown:
@@ -323,12 +262,8 @@ def options(command: str, values: Mapping[str, Any], *, caller: str | None = Non
 
 
 def validate_params(command: str) -> Callable[[Callable], Callable]:
-    """Decorate a public function: its options (those of *command* among its parameters) are validated
-    once, by :func:`validate`, before it runs (scikit-learn's ``validate_params``).
-
-    The function receives the values as given (validated, not normalised):
-    its arrays and its other arguments are its own to check.
-    """
+    """Decorate a public function: its options are validated once by :func:`validate` before it runs
+    (values passed as given, not normalised)."""
     spec = COMMANDS[command]
 
     def decorate(func: Callable) -> Callable:
@@ -349,12 +284,9 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
 
 
 def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
-    """The options that define a simplification, as recorded in its work store (resume compares them).
-
-    The halo_context option is recorded under its version-1 key ``"context"``,
-    and keep_duplicates only when True, so work stores left by earlier runs
-    still resume.
-    """
+    """The options that define a simplification, as its work store records them (resume compares them).
+    halo_context is recorded as ``"context"`` and keep_duplicates only when True, so version-1 work stores still
+    resume."""
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])

@@ -1,10 +1,7 @@
-"""The user options, as data: one :class:`Option` each (name, type, range, default, help) and
-:data:`COMMANDS`, the options of each command and API entry.
+"""The user options, as data: one :class:`Option` each and :data:`COMMANDS`, the options of each command.
 
-A leaf: it imports the rule table (:mod:`cloudsieve.rule_table`: the rules,
-the refinement methods, the warm-up targets' names) and the formats table
-(:mod:`cloudsieve.formats`), nothing else of cloudsieve. :mod:`cloudsieve.params` checks values against
-it; :mod:`cloudsieve.cli` builds its flags from it.
+A leaf: it imports :mod:`cloudsieve.rule_table` and :mod:`cloudsieve.formats` only.
+:mod:`cloudsieve.params` checks values against it; :mod:`cloudsieve.cli` builds its flags from it.
 """
 
 from __future__ import annotations
@@ -53,30 +50,11 @@ def _and(names: tuple[str, ...]) -> str:
 
 @dataclass(frozen=True)
 class Option:
-    """One user option.
-
-    Attributes
-    ----------
-    name : str
-        The API keyword and pipeline key; the CLI flag is ``--`` + name with dashes.
-    kind : str
-        ``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list, or a
-        comma-separated string), ``format`` (a choice in any case, with or
-        without a dot: "LAZ", ".laz"), ``text``, ``path``, ``size`` (bytes: an
-        int or text such as "2GB") or ``scheduler``.
-    default : object
-        The default (None for an optional option).
-    help : str
-        One line for ``--help``, describing the flag: for a bool that
-        defaults to True, what ``--no-NAME`` does.
-    low, high : float, optional
-        Range of an int or float; *low* is excluded when *low_open*.
-    choices : tuple of str
-        Of a ``choice`` / ``choices`` option.
-    aliases : tuple of str
-        Old CLI flags that still work.
-    metavar : str, optional
-        The CLI's name for the value.
+    """One user option: ``name`` (API keyword and pipeline key; flag ``--`` + name with dashes); ``kind``
+    (``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list or comma-separated), ``format`` (any
+    case, dot optional), ``text``, ``path``, ``size`` (bytes or "2GB"), ``scheduler``); ``default`` (None:
+    optional); ``help`` (one ``--help`` line describing the flag: ``--no-NAME`` for a bool defaulting to
+    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (other flags); ``metavar``.
     """
 
     name: str
@@ -282,9 +260,8 @@ MEMORY_COMMANDS = ("simplify_points", "prune", "scores", "refine", "eliminate")
 
 
 def _options_class(command: str) -> type:
-    """The frozen options object of *command*: one field per option, in :data:`COMMANDS`' order, with its
-    default (``EvaluateOptions`` for ``evaluate``). Made at its first use (a dataclass costs milliseconds
-    to build, and a start-up reads this module), then kept; importable from here by name, so it pickles."""
+    """The frozen options object of *command* (``EvaluateOptions`` for ``evaluate``), one field per option with
+    its default; made at first use (start-up reads this module), importable by name so it pickles."""
     name = _CLASS_NAMES[command]
     cls = make_dataclass(name, [(n, Any, field(default=o.default)) for n, o in COMMANDS[command].items()],
                          frozen=True)
@@ -309,8 +286,7 @@ class _OptionClasses(Mapping):
 
 
 _CLASS_NAMES = {command: "".join(word.title() for word in command.split("_")) + "Options" for command in COMMANDS}
-#: command -> its frozen options class; an instance is built by :func:`cloudsieve.params.options`, once, at
-#: the entry, and passed whole
+#: command -> its frozen options class; :func:`cloudsieve.params.options` builds one at the entry
 OPTION_CLASSES: Mapping[str, type] = _OptionClasses()
 
 

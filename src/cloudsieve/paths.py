@@ -1,9 +1,7 @@
 """Where clouds and stores live: local paths and fsspec URLs (``file:///...`` is the local path it names).
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage` and
-:mod:`cloudsieve.handles`): :mod:`cloudsieve.io` and
-:mod:`cloudsieve.store` both use it. :func:`store_group` is the one test of whether a point store
-is at a path (what :meth:`cloudsieve.store.PointStore.open` and :func:`is_store` accept).
+A leaf (imports :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage`, :mod:`cloudsieve.handles`).
+:func:`store_group` is the one test of whether a point store is at a path.
 """
 
 from __future__ import annotations
@@ -30,8 +28,7 @@ _ALIASES = {"s3a": "s3", "gcs": "gs", "abfs": "az"}
 
 def _canonical(url: str) -> str:
     """*url* as URLs are compared: the protocol's one name, the path normalised (``b//in/./a.laz`` is
-    ``b/in/a.laz``, no trailing "/"): SeaweedFS reads ``in//a.laz`` as ``in/a.laz``; "." and ".." go the same
-    way, on the safe side (a store that keeps them in a key is refused a name it would not confuse)."""
+    ``b/in/a.laz``, no trailing "/"), as some stores read keys; on the safe side."""
     proto, _, rest = url.partition("://")
     proto = proto.lower()
     return f"{_ALIASES.get(proto, proto)}://{posixpath.normpath(rest) if rest else ''}"
@@ -93,13 +90,11 @@ def zarr_store(path: str, read_only: bool):
         return zarr.storage.LocalStore(local, read_only=read_only)
     import warnings
 
-    # some object stores (SeaweedFS) list a deleted group's prefix for a while: zarr finds no node there and
-    # warns; the store holds no such node, which is all the caller asked
+    # some object stores list a deleted group's prefix for a while: zarr warns of no node, which is the answer
     warnings.filterwarnings("ignore", message=r"Object at .* is not recognized as a component of a Zarr hierarchy")
     options = storage.fs_options(path)
     if storage.protocol(path) in ("s3", "s3a"):
-        # zarr reads whole objects: one GET each, not s3fs's HEAD for the size first (and a LIST after a
-        # missing key's HEAD), which its default of concurrent ranged GETs for large objects costs
+    # zarr reads whole objects: one GET each, not s3fs's HEAD for the size first
         options.setdefault("max_concurrency", 1)
     # in a stage's task: a store that reads each shard's index once (handles.py)
     return handles.remote_store(lambda: zarr.storage.FsspecStore.from_url(path, read_only=read_only,
@@ -118,14 +113,8 @@ def delete_store(path: str | os.PathLike) -> None:
 
 def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, dict]:
     """The zarr group of the complete point store at *path* and its "cloudsieve" attributes.
-
-    *mode* "r" opens read-only, else read-write.
-
-    Raises
-    ------
-    StoreNotFoundError
-        When *path* does not exist or is not a complete point store.
-    """
+    *mode* "r" opens read-only, else read-write. StoreNotFoundError when *path* is missing or not a complete point
+    store."""
     path = os.fspath(path)
     # a URL: opening the group finds out (a prefix's existence would take a listing)
     if not storage.is_url(path) and not path_exists(path):
@@ -152,12 +141,7 @@ def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, d
 
 
 def is_store(path: str | os.PathLike) -> bool:
-    """True when *path* (local path or fsspec URL) holds a complete point store.
-
-    That is, when :func:`store_group` (and so :meth:`cloudsieve.store.PointStore.open`)
-    accepts it; a missing path, a file, a folder that is not a zarr group and a
-    store left incomplete by an interrupted ingest are not stores.
-    """
+    """True when *path* (local path or fsspec URL) holds a complete point store (:func:`store_group` accepts it)."""
     try:
         store_group(path)
     except (CloudsieveError, OSError, ValueError):

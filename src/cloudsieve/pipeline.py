@@ -1,65 +1,24 @@
-"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines.
+"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines (README, "Pipelines")::
 
-A pipeline file is JSON::
-
-    {
-      "pipeline": [
+    {"pipeline": [
         {"type": "readers.las", "filename": "scans/*.laz"},
         {"type": "filters.entropy", "method": "fcm", "rule": "iterative", "threshold": 0.001},
         {"type": "writers.las", "filename": "out/{stem}.laz"},
-        {"type": "evaluate", "report_dir": "out/{stem}-report"}
-      ]
-    }
+        {"type": "evaluate", "report_dir": "out/{stem}-report"}]}
 
-Stages, in this order:
+Stages, in order: one ``readers.*`` (``las``, ``copc``, ``ply``, ``e57``,
+``text``, ``store``; ``filename`` may be a glob, run once per file, or with
+``merge`` one cloud; ``drop_invalid``); at most one ``filters.entropy``
+(:func:`cloudsieve.simplify`'s options but the writer's ``format``,
+``overwrite`` and the reader's ``drop_invalid``); a ``writers.*`` after it
+(``filename`` with ``{stem}`` / ``{name}``, ``overwrite``); ``evaluate``
+after the writer, or ``compare`` instead of filter and writer. Top-level
+``scheduler``, ``workers`` and ``storage_options`` apply to every stage.
 
-``readers.*`` (exactly one, first)
-    ``readers.las``, ``readers.copc``, ``readers.ply``, ``readers.e57``,
-    ``readers.text`` or ``readers.store`` (a cloudsieve point store).
-    ``filename`` may be a glob; the pipeline then runs once per matching file.
-    ``merge`` (default false, ``readers.las``): the glob's files, or a
-    directory, list file or VPC as ``filename``, are one cloud
-    (:mod:`cloudsieve.io.sources`), simplified in one run; ``{stem}`` is then
-    the name of the folder that holds them. Not with ``evaluate`` or ``compare``.
-    ``drop_invalid`` (default false): drop the points with NaN or infinite
-    coordinates instead of refusing the file, in every stage that reads it.
-    A bare string stands for a reader chosen by extension (as in PDAL).
-``filters.entropy`` (at most one)
-    The simplification; its options are those of :func:`cloudsieve.simplify`
-    (``method``, ``rule``, ``threshold``, ``ratio``, ``count``,
-    ``cluster_size``, ``cell_size``, ``seed``, ``halo_context``, ...) but
-    ``format`` and ``overwrite`` (the writer's) and ``drop_invalid`` (the reader's).
-    Without ``rule``, ``ratio`` or ``count`` selects ``eliminate`` (exactly
-    that many points) and ``threshold`` alone the paper's ``threshold`` rule;
-    with none of them the stage is refused when the file is loaded.
-``writers.*`` (one, required after ``filters.entropy``)
-    ``writers.las`` (also LAZ, by extension), ``writers.ply``, ``writers.text``.
-    ``filename`` may use ``{stem}`` (the input's name without extensions) and
-    ``{name}`` (its file name); it must use one of them when the reader's glob
-    matches several files. ``overwrite`` (default false) replaces an existing file.
-``evaluate`` (optional, after the writer)
-    Evaluates the written cloud against the input; options are the keyword
-    arguments of :func:`cloudsieve.evaluate` (``report_dir``, ``sample``, ...).
-``compare`` (optional, instead of filters/writers)
-    Runs :func:`cloudsieve.compare` on the input: the paper's comparison of KM,
-    FCM and the baselines at equal count.
-
-Top-level keys beside ``"pipeline"``: ``"scheduler"`` and ``"workers"`` apply to
-every stage that runs on dask.
-
-Every option is checked when the file is loaded, as the API checks it (names,
-types, ranges, options that contradict each other: :mod:`cloudsieve.params`),
-so a bad value fails before any stage runs, naming the stage; ``filters.entropy``,
-``evaluate`` and ``compare`` then run on the options validated there
-(:func:`cloudsieve.engine.simplify.run_simplify`,
-:func:`cloudsieve.evaluate.evaluation.run_evaluation`,
-:func:`cloudsieve.evaluate.compare.run_compare`), checked once. Relative paths are relative to the working
-folder, as in PDAL; ``$VAR`` and ``${VAR}`` in them are expanded from the
-environment (the shipped pipelines use ``$CLOUDSIEVE_DATA``); a variable
-that is not set is an error. :func:`check_inputs` (``cloudsieve run --check``,
-and :func:`run_pipeline` before any stage) checks that every input can be
-read by the reader. Any option can be overridden from the command line with
-``--set STAGE.OPTION=VALUE`` (``--set readers.las.filename=scan.laz``).
+Options are validated at load (:mod:`cloudsieve.pipeline_load`), naming the
+stage, and the stages run on them. ``$VAR`` in paths is expanded (unset: an
+error); :func:`check_inputs` checks the inputs; ``--set STAGE.OPTION=VALUE``
+overrides any option.
 """
 from __future__ import annotations
 
@@ -104,17 +63,9 @@ def _convert(src: str, dst: str, out_format: str | None, overwrite: bool, drop_i
 
 
 def check_inputs(pipeline: Pipeline) -> None:
-    """Raise unless the reader can read every input of *pipeline*; nothing is read but the file system.
-
-    Each input exists, is a file (a point store for ``readers.store``), is
-    not empty, can be opened, and its extension is one the reader reads.
-
-    Raises
-    ------
-    PipelineError
-        Naming the pipeline, stage 1 and the input:
-        ``"simplify.json: stage 1 (readers.las): input.laz: no such file"``.
-    """
+    """Raise PipelineError unless the reader can read every input of *pipeline* (file system checks only).
+    The message names the pipeline, stage 1 and the input: ``"simplify.json: stage 1 (readers.las): input.laz: no
+    such file"``."""
     from .io import check_readable, detect_format
     from .store import is_store
 
@@ -151,18 +102,8 @@ def check_inputs(pipeline: Pipeline) -> None:
 
 def run_pipeline(pipeline: Pipeline, *, client: Any = None, progress: Any = None, bars: Any = None) -> list[dict]:
     """Run a pipeline, once per input file.
-
-    *progress* ``(n)`` is called with an input's points when it is done (each
-    input counted once); *bars* ``(stage, total, unit)`` gives each stage of
-    the simplification and the evaluation its own bar (see
-    :func:`cloudsieve.progress.bar`).
-
-    Returns
-    -------
-    list of dict
-        One entry per input: ``{"input": path, "output": path or None,
-        "summary": ..., "report": ...}``.
-    """
+    *progress* ``(n)`` gets each input's points once done; *bars* as :func:`cloudsieve.progress.bar`. Returns one
+    dict per input: ``input``, ``output`` (or None), ``summary``, ``report``."""
     from .params import check
 
     # the pipeline's top-level key (validated at load), for every stage

@@ -1,7 +1,5 @@
-"""The pipeline file read and checked: its stages, their options (validated once, as the API validates them),
-``--set`` overrides, ``$VAR`` paths and the reader's inputs: :func:`load_pipeline` gives a :class:`Pipeline`.
-
-The format is described in :mod:`cloudsieve.pipeline`, which runs it.
+"""The pipeline file read and checked (stages, options validated once, ``--set``, ``$VAR`` paths, inputs):
+:func:`load_pipeline` gives a :class:`Pipeline`. The format: :mod:`cloudsieve.pipeline`.
 """
 
 from __future__ import annotations
@@ -41,29 +39,15 @@ _UNSET_VARIABLE = re.compile(r"\$(?:\{(\w+)\}|(\w+))")
 
 @dataclass
 class Pipeline:
-    """A parsed, validated pipeline.
-
-    Attributes
-    ----------
-    inputs : list of str
-        The input files (the reader's glob expanded, sorted).
-    reader : dict
-        The reader stage (``type``, ``filename`` and options).
-    stages : list of dict
-        The stages after the reader, in order.
-    options : dict
-        Top-level options (``scheduler``, ``workers``).
-    source : str
-        Where the pipeline came from (for messages).
-    """
+    """A parsed, validated pipeline: ``inputs`` (the reader's glob expanded, sorted), ``reader`` (its stage),
+    ``stages`` (those after it), ``options`` (top-level keys), ``source`` (for messages)."""
 
     inputs: list[str]
     reader: dict
     stages: list[dict]
     options: dict = field(default_factory=dict)
     source: str = "<pipeline>"
-    #: the options of each stage after the reader that runs a command (by its index in *stages*), validated
-    #: once when the file was loaded (:func:`cloudsieve.params.validate`): :func:`run_pipeline` checks none again
+    #: the validated options of each stage after the reader that runs a command, by index in *stages*
     validated: dict = field(default_factory=dict)
 
 
@@ -145,21 +129,9 @@ def _expand(stage: dict, label: str) -> None:
 
 
 def load_pipeline(source: str | os.PathLike | dict, *, overrides: list[str] | tuple = ()) -> Pipeline:
-    """Parse and validate a pipeline file (or an already-loaded mapping).
-
-    Parameters
-    ----------
-    source : path or dict
-        A JSON pipeline file, or its content.
-    overrides : list of str
-        ``STAGE.OPTION=VALUE`` items applied before validation; VALUE is parsed
-        as JSON when it is valid JSON, else taken as a string.
-
-    Raises
-    ------
-    PipelineError
-        Naming the file, the stage (by number and type) and the problem.
-    """
+    """Parse and validate a pipeline file (a JSON path, or its content as a mapping).
+    *overrides* are ``STAGE.OPTION=VALUE`` items applied first (VALUE parsed as JSON when valid, else a string).
+    Raises PipelineError naming the file, the stage (number and type) and the problem."""
     if isinstance(source, dict):
         doc, where = copy.deepcopy(source), "<pipeline>"
     else:

@@ -1,12 +1,9 @@
 """Progress reporting: library code takes a callback, the CLI shows a bar or a log line.
 
-Library functions accept ``progress=None`` or a callable ``progress(n)`` called
-with the number of points (or tasks) just finished, or ``bars`` (one
-:func:`bar` per stage); they never print. The CLI builds them with :func:`bar`:
-in a terminal a tqdm bar on stderr (redrawn every second, so a long stage
-shows its elapsed time even between updates); without a terminal (stderr
-piped to a file or a CI log) one INFO line per stage on the
-``cloudsieve.progress`` logger when it ends, with its count and seconds::
+Library functions take ``progress(n)`` (points or tasks just finished) or
+``bars`` (one :func:`bar` per stage) and never print. :func:`bar` shows a
+tqdm bar on stderr in a terminal (redrawn every second), else one INFO line
+per stage on ``cloudsieve.progress`` when it ends::
 
     INFO cloudsieve.progress: cells: 12 tasks in 3.4 s
 """
@@ -95,13 +92,8 @@ def _redrawn(t) -> Iterator[None]:
 
 @contextlib.contextmanager
 def bar(desc: str, total: int | None, unit: str = "pt", enabled: bool = True) -> Iterator[ProgressCallback]:
-    """A stage's progress, yielded as an ``update(n)`` callback.
-
-    In a terminal, a tqdm bar on stderr (a counter with elapsed time when
-    *total* is None), redrawn every second; when stderr is not a terminal, one
-    log line when the stage ends (:func:`stage_line`). A no-op when *enabled*
-    is False.
-    """
+    """A stage's progress, yielded as an ``update(n)`` callback: a tqdm bar in a terminal (a counter when
+    *total* is None), else one log line at its end (:func:`stage_line`); a no-op unless *enabled*."""
     if not enabled:
         yield _noop
         return

@@ -1,25 +1,8 @@
 """The rule table, a leaf: each pruning rule's metadata, the default rule, the warm-up targets' names.
 
-Each rule (``threshold``, ``iterative``, ``target``, ``coverage``,
-``eliminate``) is one :class:`Rule`: its name, whether it needs a target (a
-ratio or a count), takes one or refuses one, whether it uses clusters
-(KM/FCM), the user options it reads, the work of an engine cell with a
-target, its warm-up targets, and the module of its in-memory selection
-(under :mod:`cloudsieve.core.rules`, loaded by name at its first call by
-:func:`cloudsieve.core.rules.dispatch.prune_unchecked`). Callers ask the table
-(:data:`RULES`, :func:`get`, :func:`names`, re-exported by
-:mod:`cloudsieve.core.rules`); it is the only place rule names are written as
-strings.
-
-It imports :mod:`cloudsieve.errors` only, so :mod:`cloudsieve.params_spec` and
-:mod:`cloudsieve.params` read it without loading the in-memory method.
-
-Without a rule, :func:`resolve_rule` selects :data:`DEFAULT_RULE` with a
-ratio or a count (``eliminate``: weighted sample elimination, an exact count)
-and the paper's one-pass ``threshold`` rule with a threshold alone; with none
-of them, or a threshold beside a ratio or count, the options are refused
-before any work. Why eliminate: README, "Rules" and the quality tables it
-points at.
+Each rule is one :class:`Rule`, its selection under :mod:`cloudsieve.core.rules` loaded at first call.
+The table (:data:`RULES`, :func:`get`, :func:`names`) is the only place rule names are written as strings;
+it imports :mod:`cloudsieve.errors` only. Default rule: :func:`resolve_rule` (README, "Rules").
 
 >>> from cloudsieve.rule_table import get, targets_of
 >>> get("eliminate").clusters, get("threshold").target
@@ -59,40 +42,19 @@ METHODS = ("fcm", "km")
 
 #: every warm-up target, in the order ``cloudsieve warmup`` runs them (:mod:`cloudsieve.core.warmup`)
 TARGETS: tuple[str, ...] = ("common", "partition", "eliminate", "scores", "km", "fcm", "rules")
-#: the targets of an entropy rule's worker tasks; a rule may name its own (:attr:`Rule.warm`). The local
-#: fork server warms these up; none starts numba's threading layer (a fork server that has started GNU
-#: OpenMP's cannot fork)
+#: the targets of an entropy rule's worker tasks (a rule may name its own, :attr:`Rule.warm`); none starts
+#: numba's threading layer (a fork server that has started GNU OpenMP's cannot fork)
 ENTROPY_TARGETS: tuple[str, ...] = ("common", "partition", "scores")
 
 
 @dataclass(frozen=True)
 class Rule:
-    """One pruning rule.
-
-    Attributes
-    ----------
-    name : str
-        The value of the ``rule`` option.
-    target : {"needed", "optional", "refused"}
-        Whether the rule needs a ratio or a count, may take one (else it uses
-        the threshold S), or takes the threshold S only.
-    clusters : bool
-        Whether it refines into small clusters (KM/FCM) and scores ΔH; False:
-        ``method``, ``cluster_size`` and the entropy options are unused.
-    options : tuple of str
-        The user options (:mod:`cloudsieve.params_spec`) it reads beside ratio/count.
-    engine : {"global_threshold", "cell_count", "elimination"}
-        What the engine runs per cell with a ratio or a count (without one,
-        each cell runs the in-memory selection).
-    module : str
-        The module of its in-memory selection (``prune(rule, pts, lab, options, *, target, ctx, progress)``),
-        relative to :mod:`cloudsieve.core.rules`, loaded at the first call.
-    summary : str
-        One line for the help.
-    coverage_test : bool
-        Its rounds drop a point only where its neighbours are at least as dense.
-    warm : tuple of str
-        The warm-up targets its runs compile (names of :data:`TARGETS`).
+    """One pruning rule: ``name`` (the ``rule`` option's value); ``target`` ("needed", "optional": else
+    the threshold S, "refused"); ``clusters`` (refines into KM/FCM clusters and scores ΔH; False: the
+    entropy options are unused); ``options`` (user options read beside ratio/count); ``engine`` (what an
+    engine cell runs with a target: "global_threshold", "cell_count", "elimination"); ``module`` (its
+    in-memory selection under :mod:`cloudsieve.core.rules`); ``summary`` (help line); ``coverage_test``
+    (drops a point only where its neighbours are at least as dense); ``warm`` (its warm-up targets).
     """
 
     name: str
@@ -153,13 +115,7 @@ def names() -> tuple[str, ...]:
 
 
 def get(name: Any) -> Rule:
-    """The rule called *name*.
-
-    Raises
-    ------
-    InvalidParameterError
-        ``rule must be one of iterative, threshold, target, coverage, eliminate, got 'x'``.
-    """
+    """The rule called *name*; InvalidParameterError for an unknown one."""
     try:
         return RULES[name]
     except (KeyError, TypeError):
@@ -174,11 +130,7 @@ def targets_of(rule: str | None) -> tuple[str, ...]:
 
 class Metavar(str):
     """A value an error advises without choosing it (``R``, ``N``, ``S``); its repr is itself.
-
-    In ``InvalidParameterError(..., advice={"ratio": Metavar("R")})`` the
-    message words it as the API does, ``ratio=R``; the command line rewrites
-    that as ``--ratio R``.
-    """
+    ``advice={"ratio": Metavar("R")}`` reads ``ratio=R`` (CLI: ``--ratio R``)."""
 
     __slots__ = ()
 
@@ -187,33 +139,10 @@ class Metavar(str):
 
 
 def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]) -> None:
-    """Resolve the default rule (None: not given) and threshold (None: not given), once, in place.
-
-    No rule: ``eliminate`` with a ratio or a count; ``threshold`` with a
-    threshold alone; neither is an error. The threshold becomes
-    :data:`PAPER_THRESHOLD` when not given (what the work store records).
-
-    Parameters
-    ----------
-    command : {"simplify", "compare"}
-        compare's rule is a list of rules.
-    o : dict
-        The command's options, each already checked alone
-        (:func:`cloudsieve.params.validate`); ``rule`` and ``threshold`` are
-        set here.
-    caller : str
-        The call's name in the message: ``cloudsieve.simplify`` (the API),
-        ``cloudsieve simplify`` (the CLI), ``filters.entropy`` (a pipeline stage).
-    metavars : mapping of str to str
-        The values an error leaves to the user, by option (``{"ratio": "R", ...}``).
-
-    Raises
-    ------
-    InvalidParameterError
-        No rule and neither a ratio, a count nor a threshold (for compare:
-        when an entropy method runs), or no rule and a threshold beside a
-        ratio or count. The advice holds :class:`Metavar` values or the given ones.
-    """
+    """Resolve the default rule and threshold (None: not given) of *command*'s options *o*, once, in place.
+    No rule: ``eliminate`` with a ratio or a count, ``threshold`` with a threshold alone, else
+    InvalidParameterError (also for a threshold beside a ratio or count); the threshold defaults to
+    :data:`PAPER_THRESHOLD`. *caller* names the call in the message; *metavars* the values left to the user."""
     has_target = o["ratio"] is not None or o["count"] is not None
     given = o["threshold"] is not None
     entropy = command == "simplify" or any(m in METHODS for m in o["methods"])

@@ -1,9 +1,7 @@
 """Reaching a dask.distributed scheduler by address, with a short timeout.
 
-dask's own connect waits 30 s for a scheduler that is not there and then
-raises a raw ``OSError``; :func:`check_scheduler` asks the address with a plain
-socket connect first (before any work starts), and :func:`connect` turns
-whatever dask's connect raises into :class:`SchedulerUnreachableError`.
+dask's connect waits 30 s for a missing scheduler, then raises a raw ``OSError``:
+:func:`check_scheduler` tries a plain socket first, :func:`connect` maps dask's errors.
 """
 
 from __future__ import annotations
@@ -26,24 +24,9 @@ def _reason(exc: BaseException) -> str:
 
 
 def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
-    """Raise unless something accepts connections at the scheduler *address*.
-
-    Parameters
-    ----------
-    address : str
-        ``tcp://host:port`` (also ``tls://``, ``ws://``, ``wss://``; other
-        schemes are left to dask).
-    timeout : float
-        Seconds to wait for the connection.
-
-    Raises
-    ------
-    InvalidParameterError
-        The address has no host or port.
-    SchedulerUnreachableError
-        Nothing answers at the address within *timeout* (refused, unknown
-        host, timed out).
-    """
+    """Raise unless something accepts connections at the scheduler *address* within *timeout* seconds.
+    *address* is ``tcp://host:port`` (also ``tls://``, ``ws://``, ``wss://``). Raises InvalidParameterError (no
+    host or port) or SchedulerUnreachableError (refused, unknown host, timed out)."""
     where = host_port(address)
     if where is None:
         return
@@ -57,16 +40,8 @@ def check_scheduler(address: str, timeout: float = CONNECT_TIMEOUT) -> None:
 
 
 def connect(address: str, timeout: float | None = None) -> Any:
-    """A :class:`distributed.Client` of the scheduler at *address*.
-
-    *timeout* (seconds) defaults to dask's ``distributed.comm.timeouts.connect``.
-
-    Raises
-    ------
-    SchedulerUnreachableError
-        dask could not connect (its ``OSError`` / ``TimeoutError``, e.g. the
-        address answers but is not a dask scheduler).
-    """
+    """A :class:`distributed.Client` of the scheduler at *address* (*timeout* default: dask's).
+    Raises SchedulerUnreachableError when dask cannot connect (e.g. not a dask scheduler)."""
     from distributed import Client
 
     try:

@@ -16,9 +16,8 @@ __all__ = ["staged_folder", "remove_stale_scratch"]
 
 @contextlib.contextmanager
 def staged_folder(folder: str) -> Iterator[str]:
-    """A folder to write a report into: *folder* itself when local; for a URL, a local temporary folder
-    whose files are uploaded under *folder* when the block ends without error (the temporary folder's
-    path, where the reports name their files, becomes the URL), and removed either way."""
+    """A folder to write a report into: *folder* when local; for a URL, a local temporary folder uploaded
+    under *folder* when the block ends without error, and removed either way."""
     import shutil
     import tempfile
 
@@ -43,9 +42,8 @@ def staged_folder(folder: str) -> Iterator[str]:
 
 
 def remove_stale_scratch(dst: str) -> None:
-    """Remove what an interrupted write to the URL *dst* left beside it: the scratch prefixes of its parts
-    (``.<name>.parts-<id>``, ``.<name>.scratch-<id>``) and write probes; a local *dst* has none (its
-    temporary files are named apart and removed by the run that made them)."""
+    """Remove what an interrupted write to the URL *dst* left beside it (``.<name>.parts-<id>``,
+    ``.<name>.scratch-<id>`` prefixes, write probes); a local *dst* has none."""
     if not is_url(dst):
         return
     base = f"{parent(dst)}/.{_glob_escape(name(dst))}"

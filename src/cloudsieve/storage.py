@@ -1,26 +1,11 @@
 """Where the bytes live: local paths and fsspec URLs (``s3://``, ``gs://``, ``az://``, ``http(s)://`` for
 reading, ``memory://``), with a run's storage options.
 
-A leaf (no other cloudsieve module but :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage_errors` and
-:mod:`cloudsieve.storage_retries`).
-Every module that opens, lists or removes a cloud, a list, a VPC or a store goes through it, so a URL
-works wherever a path does:
-:func:`open_input` reads by ranged requests (a LAZ file's chunk table, then only its chunks: never
-a whole-file download), :func:`open_output` writes (multipart on S3 above the block size).
-
-Storage options follow pandas, dask and xarray: a dict passed to the filesystem of the URL's protocol
-(``{"key": ..., "secret": ..., "endpoint_url": ...}`` for s3fs). With none, each filesystem uses the
-ecosystem's own chain (``AWS_*`` environment variables including ``AWS_ENDPOINT_URL``, config files,
-instance roles). :func:`using` sets them for the calling process (the driver); the task runner
-(:class:`cloudsieve.engine.runner.Runner`) hands them to every task with :func:`bound`, on any
-scheduler, so workers that share no disk and no environment with the driver get them too. They are
-never logged, written to a store, a VPC or a report, nor printed in an error (:func:`redact`).
-
-Example
--------
->>> with using({"anon": False}):  # doctest: +SKIP
-...     with open_input("s3://bucket/tiles/a.laz") as fh:
-...         head = fh.read(375)
+A leaf. Every module that opens, lists or removes a cloud, list, VPC or store goes through it, so a URL works
+wherever a path does: :func:`open_input` reads by ranged requests, :func:`open_output` writes (multipart on S3).
+Storage options are a dict for the URL's filesystem (s3fs: ``key``, ``secret``, ``endpoint_url``), else the
+ecosystem's chain (``AWS_*``, config files, roles); :func:`using` sets them in the driver, :func:`bound` hands
+them to tasks. They are never logged, stored, or printed in an error (:func:`redact`).
 """
 
 from __future__ import annotations
@@ -44,9 +29,8 @@ __all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "
 
 logger = logging.getLogger(__name__)
 
-#: a remote file's read-ahead: one ranged request fetches at least this many bytes (a LAZ chunk of 50,000
-#: points is 0.3-1 MB); a task reads at most one block past its own chunks, so a run reads about its input's
-#: bytes once (the header and chunk table read with :data:`HEADER_BLOCK`; a larger block reads more past them)
+#: a remote file's read-ahead: one ranged request fetches at least this many bytes; a task reads at most one
+#: block past its chunks, so a run reads about its input's bytes once
 READ_BLOCK = 256 * 2**10
 #: the read-ahead of an opening that reads a header alone (the LAS header and its VLRs, a few KiB)
 HEADER_BLOCK = 16 * 2**10
@@ -56,9 +40,8 @@ COPY_BLOCK = 8 * 2**20
 WRITE_BLOCK = 16 * 2**20
 
 _OPTIONS: dict = {}
-#: the options an S3 filesystem gets unless the run's own say otherwise: a bounded connect time and retries
-#: (botocore's defaults wait 60 s per attempt on an unreachable endpoint), transient errors retried, 4 attempts
-#: in all; copied for each filesystem (botocore rewrites its "retries" in place)
+#: the options an S3 filesystem gets unless the run's say otherwise: a bounded connect time, transient errors
+#: retried, 4 attempts; copied per filesystem (botocore rewrites "retries" in place)
 _S3_DEFAULTS = {"config_kwargs": {"connect_timeout": 10, "read_timeout": 60,
                                   "retries": {"total_max_attempts": 4, "mode": "standard"}}}
 
@@ -272,8 +255,8 @@ def name(path: str) -> str:
 
 
 def identity(path: str) -> tuple[int, str]:
-    """``(size in bytes, version)`` of the file *path*: what tells a changed file for a resume (the
-    modification time in ns locally; the ETag, else the modification time, of an object)."""
+    """``(size in bytes, version)`` of the file *path*, telling a changed file for a resume (mtime in ns; an
+    object's ETag, else its mtime)."""
     if not is_url(path):
         st = os.stat(local(path))
         return int(st.st_size), str(st.st_mtime_ns)

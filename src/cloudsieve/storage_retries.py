@@ -1,18 +1,10 @@
 """The object store's retries, counted in each process: what a run's summary reports as ``storage.retries``.
 
-A leaf. S3 requests go through botocore, whose standard retry mode (set in :mod:`cloudsieve.storage`: 4
-attempts, a bounded exponential backoff) sends a request again after a timeout, throttling or a 5xx answer.
-Each such attempt after the first is counted here: a handler of botocore's ``request-created`` event for
-S3, which sees the attempt's number in the request's retry context. It is added to botocore's built-in
-handlers (:data:`botocore.handlers.BUILTIN_HANDLERS`) the first time this process makes a remote filesystem
-(:func:`watch`, called by :func:`cloudsieve.storage.fs_options` and :func:`cloudsieve.storage.filesystem`),
-so every client made after that counts: those of s3fs's synchronous filesystems, those zarr makes for a
-remote work store in its own event loop, and those s3fs makes anew when it renews its connection.
-
-:func:`counts` is this process's tally; the task runner sums the workers' (:mod:`cloudsieve.engine.runner`)
-and the run's summary adds the driver's (:mod:`cloudsieve.engine.summary`). s3fs retries a call that still
-fails after botocore's attempts (up to 5 calls, its own backoff): each of those calls is counted by its own
-attempts after the first.
+A leaf. botocore's standard retry mode (:mod:`cloudsieve.storage`) resends a request after a timeout,
+throttling or a 5xx; a ``request-created`` handler for S3 counts each attempt after the first. It joins
+botocore's built-in handlers at the process's first remote filesystem (:func:`watch`), so every client made
+later counts (s3fs's, zarr's, renewed ones). :func:`counts` is this process's tally; the task runner sums
+the workers' and the summary adds the driver's.
 """
 
 from __future__ import annotations

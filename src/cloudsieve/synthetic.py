@@ -1,8 +1,6 @@
-"""A built-in example scan: terrain, buildings and trees with LAS attributes.
+"""A built-in example scan: terrain, buildings and trees with LAS attributes (``cloudsieve demo``, benchmarks).
 
-Used by ``cloudsieve demo`` (which must run on a fresh machine with no data) and
-by benchmarks. Generated block by block from one seed, so any size can be made
-without holding it in memory, and the same seed gives the same points.
+Generated block by block from one seed: any size, bounded memory, same seed same points.
 """
 
 from __future__ import annotations
@@ -33,26 +31,10 @@ def _buildings(rng: np.random.Generator) -> np.ndarray:
 
 
 def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE) -> Iterator[dict[str, np.ndarray]]:
-    """Yield the example scene in chunks of at most *chunk_size* points.
-
-    Parameters
-    ----------
-    n : int
-        Number of points in the whole scene.
-    seed : int
-        The scene (building layout) and every chunk derive from this seed.
-    chunk_size : int
-        Points per chunk.
-
-    Yields
-    ------
-    dict
-        ``xyz`` ndarray of shape (m, 3), float64, and LAS attributes under
-        laspy names: ``intensity`` (uint16), ``classification`` (uint8; 2
-        ground, 5 high vegetation, 6 building), ``gps_time`` (float64),
-        ``return_number``/``number_of_returns`` (uint8), ``red``/``green``/
-        ``blue`` (uint16).
-    """
+    """Yield the example scene of *n* points (layout and chunks from *seed*) in chunks of at most *chunk_size*.
+    Each chunk: ``xyz`` (m, 3) float64 and laspy-named attributes: ``intensity`` (uint16), ``classification``
+    (uint8; 2 ground, 5 high vegetation, 6 building), ``gps_time`` (float64),
+    ``return_number``/``number_of_returns`` (uint8), ``red``/``green``/``blue`` (uint16)."""
     root = np.random.SeedSequence(seed)
     layout_seq, *_ = root.spawn(1)
     buildings = _buildings(np.random.default_rng(layout_seq))
@@ -93,11 +75,7 @@ def scene_chunks(n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE)
 
 
 def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAULT_CHUNK_SIZE) -> str:
-    """Write the example scene as a LAS 1.4 point format 7 file (LAZ by ``.laz``).
-
-    Streams chunk by chunk through laspy; the file is written under a temporary
-    name beside *path* and renamed when complete. Returns *path*.
-    """
+    """Write the example scene as a LAS 1.4 point format 7 file (LAZ by ``.laz``), atomically; returns *path*."""
     import laspy
 
     from .atomic import make_temp_path, remove, replace

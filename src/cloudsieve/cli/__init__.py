@@ -1,9 +1,8 @@
 """The ``cloudsieve`` command line: thin wiring over the library.
 
-Each subcommand lives in its own module of this package and exposes
-``add_parser(subparsers)``, which registers the subcommand and sets
-``func=run``; modules are discovered, so adding a command is adding a file.
-``ORDER`` (an int, lower first) in a module sets its place in ``--help``.
+Each subcommand is a module of this package exposing ``add_parser(subparsers)``
+(which sets ``func=run``); modules are discovered. ``ORDER`` (lower first)
+sets a module's place in ``--help``.
 """
 
 from __future__ import annotations
@@ -54,11 +53,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the CLI; returns the exit code (0 ok, 2 for a cloudsieve error).
-
-    A closed stdout (``cloudsieve info x.laz | head -1``) ends the command
-    quietly with 0, as ``cat`` would stop: the reader has what it wanted.
-    """
+    """Run the CLI; returns the exit code (0 ok, 2 for a cloudsieve error); a closed stdout ends it quietly with 0."""
     try:
         try:
             code = _main(argv)
@@ -122,26 +117,11 @@ def _with_storage(args: argparse.Namespace):
 
 def run() -> NoReturn:
     """The ``cloudsieve`` command: :func:`main` in a process tuned for one run, which then exits.
-
-    - glibc's malloc takes blocks of up to 32 MiB from its heaps and keeps
-      what is freed there (:func:`_keep_freed_memory`): a cell's arrays
-      reuse the pages of the cell before instead of faulting in new ones.
-    - numpy's large arrays go on ordinary pages, not transparent huge pages
-      (:func:`cloudsieve.engine.memory.small_pages_from_here`), here and in
-      every process it starts; ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's default.
-    - The objects of the imports (numpy, numba, scipy, zarr) are frozen
-      (``gc.freeze``): the collector does not walk them, which halves the
-      time of a run's collections.
-    - What no run uses is skipped (:mod:`cloudsieve.lean_start`): numba
-      imports neither scipy nor yaml (without a ``.numba_config.yaml``
-      here), its cache loads install none of the compiler's registries,
-      laspy imports neither ``requests`` nor ``pyproj``.
-    - The exit (:func:`_exit`) ends the threads and runs the exit handlers as
-      the interpreter's would, then skips tearing the modules down: every
-      file is closed by then.
-
-    Not for a process that goes on (tests call :func:`main`).
-    """
+    glibc's malloc keeps freed blocks (:func:`_keep_freed_memory`); numpy's large arrays avoid transparent huge
+    pages (:func:`cloudsieve.engine.memory.small_pages_from_here`; ``NUMPY_MADVISE_HUGEPAGE=1`` keeps numpy's
+    default); the imports' objects are frozen (``gc.freeze``); unused imports are skipped
+    (:mod:`cloudsieve.lean_start`); :func:`_exit` skips the module teardown. Not for a process that goes on (tests
+    call :func:`main`)."""
     from ..engine.memory import small_pages_from_here
     from ..lean_start import skip_unused_imports
 
@@ -157,14 +137,8 @@ M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
 
 
 def _keep_freed_memory() -> None:
-    """glibc's ``mallopt``: blocks up to 32 MiB (its largest threshold) from the heap, never trimmed below 1 GiB.
-
-    By default a freed block of more than the mmap threshold goes back to the
-    system, and the next one faults its pages in again, zeroed by the kernel
-    (a few percent of a 10 M-point simplify's CPU). Set so, the run faults
-    about a fifth fewer pages. Other C libraries have no ``mallopt``: nothing
-    is done.
-    """
+    """glibc's ``mallopt``: blocks up to 32 MiB from the heap, never trimmed below 1 GiB (fewer page faults); a no-op
+    elsewhere."""
     import ctypes
 
     try:
@@ -176,10 +150,8 @@ def _keep_freed_memory() -> None:
 
 
 def _exit(code: int) -> NoReturn:
-    """End the process as the interpreter's exit does, less the teardown of its modules (a tenth or more of
-    a small run): CPython's own two steps first, threading's shutdown (the thread pools told to stop,
-    then every non-daemon thread joined) and the exit handlers (logging's last flush, multiprocessing's
-    children, temporary folders). Elsewhere than CPython, the interpreter's exit."""
+    """End the process as the interpreter's exit does (threading's shutdown, the exit handlers), less the
+    teardown of its modules; elsewhere than CPython, the interpreter's exit."""
     shutdown = getattr(threading, "_shutdown", None)
     if shutdown is None:  # pragma: no cover
         sys.exit(code)

@@ -1,9 +1,8 @@
 """The subcommands' options, generated from :mod:`cloudsieve.params`.
 
-argparse only turns text into numbers and strings here; ranges and choices
-are checked by :func:`cloudsieve.params.validate` (in the API, or in
-:func:`option_values` for the commands without one), so the command line, the
-pipelines and the API refuse the same values with the same message.
+argparse only parses text; :func:`cloudsieve.params.validate` checks
+values, so the command line, the pipelines and the API refuse the same
+values with the same message.
 """
 
 from __future__ import annotations
@@ -60,12 +59,8 @@ _TYPES = {params.INT: parse_int, params.FLOAT: parse_float, params.SIZE: _size}
 def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[str] | None = None, *,
                 defaults: Mapping[str, Any] | None = None, helps: Mapping[str, str] | None = None) -> None:
     """Add the options of *command* (all, or *names*) to *parser*, from the spec.
-
-    The flag is the option's name with dashes (``--cluster-size``), ``--no-NAME``
-    for a bool that defaults to True; old flags are aliases. *defaults* and
-    *helps* override the spec's defaults and help texts (``demo``, which has
-    some of simplify's options only: its help names no option it lacks).
-    """
+    Flags are the names with dashes, ``--no-NAME`` for a bool defaulting to True; aliases are other flags. *defaults*
+    and *helps* override the spec's (``demo`` has some of simplify's options only)."""
     spec = params.COMMANDS[command]
     defaults, helps = defaults or {}, helps or {}
     for name in names if names is not None else spec:
@@ -89,11 +84,7 @@ def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[s
 
 def option_values(args: argparse.Namespace, command: str, names: Iterable[str] | None = None, *,
                   check: bool = False) -> dict[str, Any]:
-    """The options of *command* found in *args*, as keyword arguments of the API.
-
-    With *check*, they are validated (:func:`cloudsieve.params.validate`) and
-    returned normalised: for the commands whose API does not validate them.
-    """
+    """The options of *command* found in *args*, as API keyword arguments; validated and normalised with *check*."""
     spec = params.COMMANDS[command]
     values = {n: getattr(args, n) for n in (names if names is not None else spec) if hasattr(args, n)}
     if check:
@@ -114,15 +105,9 @@ def flag_wording(name: str, value: Any) -> str:
 
 def cli_message(exc: CloudsieveError, wording: Callable[[str, Any], str] = flag_wording) -> str:
     """The message of *exc* with the options it advises worded for the command line.
-
-    The library words an advised option as the API does (``overwrite=True``,
-    listed in ``exc.advice``); exactly those words are replaced by
-    ``wording(name, value)``: a flag by default, a pipeline stage's key under
-    ``cloudsieve run``. With the flags, the options the message names as
-    words (``exc.options``: ``ratio must be ...``) are written as flags
-    (``--ratio must be ...``), and the API's name (``exc.caller``,
-    ``cloudsieve.simplify``) as the command's.
-    """
+    The options in ``exc.advice`` (``overwrite=True``) become ``wording(name, value)``: flags, or a pipeline
+    stage's key under ``cloudsieve run``. With flags, the options named in ``exc.options`` become flags too and
+    ``exc.caller`` (``cloudsieve.simplify``) the command."""
     message = str(exc)
     for name, value in getattr(exc, "advice", {}).items():
         message = message.replace(f"{name}={value!r}", wording(name, value))

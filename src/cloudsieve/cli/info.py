@@ -66,12 +66,8 @@ def _describe_store(path: str) -> dict:
 
 def coordinate_text(value: float, scale: float | None = None) -> str:
     """A bound as text with every digit it has: ``1816492.71``, not ``1.81649e+06``.
-
-    With the LAS *scale* (0.01), the decimals the scale gives (``848899.70``);
-    otherwise the fewest digits that read back to the same number, in
-    float32 for a value that is one (PLY ``float``: ``-0.09469``, not
-    ``-0.09469000250101089``).
-    """
+    With a LAS *scale*, the decimals it gives; else the shortest text that reads back (in float32 for a float32
+    value: ``-0.09469``)."""
     value = float(value)
     if scale is not None and scale > 0:
         return f"{value:.{max(0, math.ceil(-math.log10(scale) - 1e-9))}f}"

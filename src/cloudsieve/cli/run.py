@@ -33,12 +33,8 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
 
 
 def stage_wording(pipeline):
-    """How ``cloudsieve run`` words an option an error advises: the stage key that sets it, and its ``--set``.
-
-    ``overwrite=True`` -> ``"overwrite": true in the writers.las stage (or
-    --set writers.las.overwrite=true)``; the reader holds drop_invalid, the
-    writer overwrite, the other stages their own options.
-    """
+    """How ``cloudsieve run`` words an option an error advises: the stage key that sets it, and its ``--set``
+    (``"overwrite": true in the writers.las stage (or --set writers.las.overwrite=true)``)."""
     def wording(name, value):
         import json
 

@@ -1,17 +1,9 @@
 """``cloudsieve warmup``: compile every kernel into numba's on-disk cache, once (thin wiring over
 :func:`cloudsieve.core.warmup.warm_report`).
 
-For a fresh install (setup.sh runs it), a container image or a cluster
-worker: afterwards a run loads its kernels from the cache instead of
-compiling them, which makes a first run many times longer than the next
-(docs/benchmarks.md, "Start-up"). The cache is numba's: ``__pycache__``
-beside the kernels' modules, numba's user cache directory when that is
-read-only, or ``NUMBA_CACHE_DIR`` (one directory the workers of a cluster
-can share).
-
-With two cores or more a second process compiles the refinements' and
-rounds' targets (:data:`cloudsieve.core.warmup.SECOND`) while this one
-compiles the others; the report is one, in the order of ``--targets``.
+For a fresh install, an image or a cluster worker, so that a first run loads its kernels (docs/benchmarks.md,
+"Start-up"). The cache: ``__pycache__`` beside the kernels, numba's user cache directory when that is read-only,
+or ``NUMBA_CACHE_DIR`` (shareable). With two cores a second process compiles :data:`cloudsieve.core.warmup.SECOND`.
 """
 
 from __future__ import annotations

@@ -1,15 +1,8 @@
-"""Evaluation: what simplification cost, and how it compares with baselines.
+"""Evaluation: :func:`evaluate` (point-level errors and the paper's surface level of a simplified cloud against
+its original, as a report) and :func:`compare` (entropy simplification and baselines at one count, one table).
 
-- :func:`evaluate` — point-level errors (streamed, or sampled with confidence
-  intervals) and the paper's surface level (ball-pivoting meshes, Metro
-  distances, triangle compactness) of a simplified cloud against its
-  original, as a report dict and, optionally, report files.
-- :func:`compare` — run entropy simplification (KM, FCM) and baselines
-  (random, voxel, Poisson disk, farthest point) to the same output count on a
-  cloud that fits in memory, evaluate each, one table.
-
-Building blocks: :mod:`.points`, :mod:`.distances`, :mod:`.surface`,
-:mod:`.mesh`, :mod:`.baselines`, :mod:`.report`.
+Building blocks: :mod:`.points`, :mod:`.distances`, :mod:`.surface`, :mod:`.mesh`, :mod:`.baselines`,
+:mod:`.report`.
 """
 
 from __future__ import annotations

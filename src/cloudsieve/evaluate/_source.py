@@ -1,13 +1,10 @@
 """Where the evaluation reads its points from (private).
 
-The original cloud may be huge: it is only ever *streamed* chunk by chunk
-(:class:`cloudsieve.store.Chunk`, as every chunk iterator), from a numpy array,
-a :class:`cloudsieve.store.PointStore` (or its path) or any file the IO layer
-reads (``open_reader(...).chunks()``). The simplified cloud is
-assumed to fit in memory (it is the smaller one) and is loaded whole by
-:func:`load_points`. A file's points with NaN or infinite coordinates are
-refused, or dropped with *drop_invalid* (:class:`cloudsieve.io.valid.ValidPoints`,
-as ingest does).
+The original is only streamed (:class:`cloudsieve.store.Chunk`) from an
+array, a :class:`cloudsieve.store.PointStore` (or its path) or any file
+``open_reader`` reads; the simplified cloud is loaded whole
+(:func:`load_points`). NaN or infinite coordinates are refused, or dropped
+with *drop_invalid* (:class:`cloudsieve.io.valid.ValidPoints`).
 """
 
 from __future__ import annotations
@@ -32,25 +29,9 @@ _NORMALS = ("nx", "ny", "nz")
 
 class Source:
     """A cloud read chunk by chunk.
-
-    Attributes
-    ----------
-    name : str
-        File or store path, or ``"<array>"``.
-    count : int or None
-        Number of points (None when unknown without a full scan).
-    header : dict
-        The source header (``{}`` for arrays).
-    format : str
-        ``"array"``, ``"store"`` or the IO layer's format name.
-    drop_invalid : bool
-        Drop a file's points with NaN or infinite coordinates (they are
-        refused otherwise); the count of such a file is then unknown (None)
-        until it is read.
-    has_normals : bool
-        The file or store has normals (``nx, ny, nz``): chunks then hold
-        ``"normals"`` (n, 3) beside ``"xyz"``.
-    """
+    Attributes: ``name`` (path or ``"<array>"``), ``count`` (None when unknown without a scan, as for a file with
+    *drop_invalid*), ``header``, ``format`` (``"array"``, ``"store"`` or the IO format), ``drop_invalid``,
+    ``has_normals`` (chunks then hold ``"normals"`` (n, 3) beside ``"xyz"``)."""
 
     def __init__(self, obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bool = False):
         self.chunk_size = int(chunk_size)
@@ -104,9 +85,7 @@ class Source:
 
     def chunks(self) -> Iterator[Chunk]:
         """Yield :class:`~cloudsieve.store.Chunk` ``(start, {"xyz": xyz})``, xyz of shape (n, 3) float64, in point order.
-
-        With :attr:`has_normals`, the arrays also hold ``"normals"`` (n, 3) float64.
-        """
+        With :attr:`has_normals`, the arrays also hold ``"normals"`` (n, 3) float64."""
         if self._array is not None:
             for start in range(0, len(self._array), self.chunk_size):
                 yield Chunk(start, {"xyz": self._array[start : start + self.chunk_size]})
@@ -159,14 +138,7 @@ def open_source(obj: Any, chunk_size: int = DEFAULT_CHUNK_SIZE, drop_invalid: bo
 
 def load_points(obj: Any, *, what: str = "simplified cloud", drop_invalid: bool = False) -> tuple[np.ndarray, dict, str]:
     """Load a (small) cloud whole: ``(xyz (n,3) float64, header, name)``.
-
-    Raises
-    ------
-    EmptyInputError
-        When the cloud holds no point.
-    InvalidPointsError
-        A file with NaN or infinite coordinates, unless *drop_invalid*.
-    """
+    Raises EmptyInputError (no point) or InvalidPointsError (NaN or infinite coordinates, unless *drop_invalid*)."""
     src = open_source(obj, drop_invalid=drop_invalid)
     if src._array is not None:
         xyz = src._array

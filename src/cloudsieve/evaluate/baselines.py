@@ -1,30 +1,10 @@
-"""Baseline simplifications, each returning indices of kept original points.
+"""Baseline simplifications, each returning sorted indices of kept original points (seeded, in memory).
 
-All of them keep a *subset* of the original points (so every attribute comes
-through) and aim at a requested output count; all are seeded and
-deterministic.
-
-- ``random``: a uniform seeded sample, exactly *count* points.
-- ``voxel``: the original point nearest each occupied voxel's centroid, the
-  voxel size found by bisection (on its logarithm) so that the number of
-  occupied voxels lands within 0.5% of *count* (the closest reached otherwise).
-- ``poisson``: Poisson-disk subsampling of the original points: the greedy
-  dart-throwing sample in a seeded random order with minimum distance r (no
-  two kept points closer than r, every dropped point within r of a kept
-  one), computed as the lexicographically-first maximal independent set of
-  the r-neighbour graph in vectorised Luby rounds; r found by bisection to
-  land within 0.5% of *count*. (pymeshlab's ``generate_sampling_poisson_disk``
-  with ``subsample=True`` does the same job but was measured to return
-  different samples from one call to the next, so it cannot be seeded.)
-- ``fps``: farthest point sampling (open3d ``farthest_point_down_sample``),
-  exactly *count* points, mapped back to original indices by exact
-  coordinates; O(n x count), refused beyond ``FPS_MAX_WORK`` = 2e10, which
-  bounds its time (autzen_trim's 110k -> 99k points is 1.1e10).
-- ``km`` / ``fcm``: entropy simplification (:func:`cloudsieve.core.simplify.simplify_points`,
-  rule ``target`` with the count by default).
-
-Everything here works on clouds in memory (compare is for choosing a method
-on a sample or a tile).
+``random``: a uniform sample of exactly *count*; ``voxel``: the point nearest each occupied voxel's centroid, the
+size bisected to within 0.5% of *count*; ``poisson``: Poisson-disk dart throwing in a seeded order (the first
+maximal independent set of the r-neighbour graph, Luby rounds), r bisected likewise (pymeshlab's cannot be
+seeded); ``fps``: farthest point sampling (open3d), O(n x count), refused beyond ``FPS_MAX_WORK``; ``km`` /
+``fcm``: :func:`cloudsieve.core.simplify.simplify_points`.
 """
 
 from __future__ import annotations
@@ -73,9 +53,7 @@ def _voxel_keys(points: np.ndarray, lo: np.ndarray, size: float) -> np.ndarray:
 
 def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.005, max_iter: int = 80) -> np.ndarray:
     """The original point nearest each voxel's centroid, voxel size bisected to give *count* voxels (within *tol*).
-
-    Returns sorted int64 indices (one per occupied voxel).
-    """
+    Returns sorted int64 indices (one per occupied voxel)."""
     points, count = _check(points, count)
     lo = points.min(axis=0)
     span = float((points.max(axis=0) - lo).max()) or 1.0
@@ -107,7 +85,8 @@ def voxel_subset(points: np.ndarray, count: int, *, tol: float = 0.005, max_iter
 
 
 def _greedy_mis(n: int, i: np.ndarray, j: np.ndarray, prio: np.ndarray) -> np.ndarray:
-    """Lexicographically-first maximal independent set (lowest priority first) of the graph (i, j), both directions listed."""
+    """Lexicographically-first maximal independent set (lowest priority first) of the graph (i, j), both directions
+    listed."""
     state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, 2 dropped
     while True:
         und = state == 0
@@ -124,10 +103,7 @@ def _greedy_mis(n: int, i: np.ndarray, j: np.ndarray, prio: np.ndarray) -> np.nd
 
 
 def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float = 0.005, max_iter: int = 40) -> np.ndarray:
-    """Poisson-disk subsample of the original points, radius bisected to give *count* points (within *tol*).
-
-    Returns sorted int64 indices. Seeded and deterministic (see module doc).
-    """
+    """Poisson-disk subsample, radius bisected to give *count* points (within *tol*); sorted int64 indices."""
     points, count = _check(points, count)
     n = len(points)
     if count == n:
@@ -163,12 +139,7 @@ def poisson_subset(points: np.ndarray, count: int, *, seed: int = 0, tol: float 
 
 def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK) -> np.ndarray:
     """Farthest point sampling (open3d) of *count* points; sorted int64 indices.
-
-    Raises
-    ------
-    InvalidParameterError
-        When n x count exceeds *max_work* (FPS is O(n x count)).
-    """
+    Raises InvalidParameterError when n x count exceeds *max_work*."""
     points, count = _check(points, count)
     work = float(len(points)) * count
     if work > max_work:
@@ -189,12 +160,8 @@ def fps_subset(points: np.ndarray, count: int, *, max_work: float = FPS_MAX_WORK
 def entropy_subset(points: np.ndarray, count: int | None, *, method: str = "km", rule: str = MEMORY_RULE,
                    seed: int = 0, **options) -> np.ndarray:
     """Entropy simplification (KM or FCM) via :func:`cloudsieve.core.simplify.simplify_points`.
-
-    *count* is passed to every rule that takes one (``target``,
-    ``iterative`` and ``coverage`` then stop at the count); with ``threshold``
-    (the paper's single pass at S) or ``count=None`` the rule's threshold
-    decides the count.
-    """
+    *count* goes to every rule that takes one; with ``threshold`` or ``count=None`` the rule's threshold decides
+    the count."""
     from ..core import simplify_points
 
     kw = dict(options)

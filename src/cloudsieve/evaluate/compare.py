@@ -1,22 +1,7 @@
-"""``compare``: entropy simplification vs baselines at the same output count.
+"""``compare``: entropy simplification vs baselines at the same output count, in memory, one table.
 
-Runs each method on one cloud **held in memory** (compare is meant for
-choosing a method on a sample, a tile or a model-sized scan, not for a
-billion points), to the same output count, evaluates each one with
-:func:`cloudsieve.evaluate` (point level exact, surface level on tiles, the
-original's meshes built once and shared), and writes one table: method,
-kept, time, point mean/RMS/max (% of the diagonal, original -> simplified),
-D1/D2 PSNR (original -> simplified, dB) and the Chamfer distance,
-Metro mean/max/RMS (% of the diagonal, the larger of both directions),
-compactness >= 0.6 (share of the simplified mesh's triangles).
-
-The count comes from ``count``, or ``ratio`` x n (the entropy rules
-``eliminate``, the default, ``iterative``, ``target`` and ``coverage`` stop
-at it); with the paper's ``threshold`` rule, or ``iterative`` and neither
-given, the first entropy method decides the count and the others follow it.
-Without a rule, a ratio or count selects ``eliminate`` and a threshold alone
-``threshold`` (:func:`cloudsieve.params.validate`). Several rules may be given: each entropy
-method then runs once per rule (rows "km (target)", ...).
+The count is ``count`` or ``ratio`` x n, else the first entropy method's; each method is evaluated with
+:func:`cloudsieve.evaluate` (the original's meshes built once).
 """
 
 from __future__ import annotations
@@ -119,12 +104,8 @@ def compare_markdown(result: dict) -> str:
 
 
 def _write_html(path: Path, xyz: np.ndarray, kept: dict[str, np.ndarray], md: str, files: dict, seed: int) -> str:
-    """compare's report.html: the methods side by side, each its error view and its kept points.
-
-    The original's view sample is the same for every method (one position
-    array); each method's kept points are a sample of at most
-    ``VIEW_POINTS / number of methods`` (at least 20,000) so the page stays small.
-    """
+    """compare's report.html: each method's error view and kept points (at most
+    ``VIEW_POINTS / methods``, at least 20,000), over one shared original sample."""
     from scipy.spatial import cKDTree
 
     from .html import VIEW_POINTS, view_sample, write_html
@@ -146,11 +127,8 @@ def _share(v: Any) -> str:
 
 
 def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
-    """The rows of a comparison: (row name, method, rule or None), entropy methods first.
-
-    Each rule runs once per entropy method (km, fcm), except a rule that
-    uses no clusters (``eliminate``): it runs once, as the row of its name.
-    """
+    """The rows of a comparison: (row name, method, rule or None), entropy methods first; a rule without
+    clusters (``eliminate``) runs once, under its own name."""
     runs = []
     first = next((m for m in methods if m in ("km", "fcm")), None)
     for m in methods:
@@ -180,52 +158,36 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         Loaded into memory.
     methods : sequence of str
         Among ``km``, ``fcm`` (entropy simplification), ``random``, ``voxel``,
-        ``poisson``, ``fps`` (baselines, :mod:`.baselines`).
+        ``poisson``, ``fps`` (:mod:`.baselines`).
     rule : str or list of str, optional
-        Rule(s) of the entropy methods (``eliminate``, ``iterative``,
-        ``target``, ``coverage``, ``threshold``); a comma-separated string or
-        a list runs each entropy method once per rule (``eliminate`` once: it
-        uses no clusters). Default (None): ``eliminate`` when *ratio* or
-        *count* is given, ``threshold`` when only ``threshold=`` is; an
-        entropy method with none of the three is an InvalidParameterError.
+        Rule(s) of the entropy methods; a comma-separated string or a list
+        runs each entropy method once per rule (:func:`compare_runs`).
+        Default: ``eliminate`` with *ratio* or *count*, ``threshold`` with
+        only ``threshold=``.
     ratio, count : optional
-        Kept share or kept count (one of them; required by the default rule
-        and by ``target``, ``coverage`` and ``eliminate`` unless no entropy
-        method runs).
+        Kept share or count (one of them).
     report_dir : path, optional
-        Writes report.md, report.html, report.json, compactness.png, point_errors.png and
-        one evaluation report per method in a sub-folder.
-    surface, tiles, tile_points, metro_samples, psnr_peak :
+        Writes report.md, report.html, report.json, compactness.png,
+        point_errors.png and each method's evaluation in a sub-folder.
+    surface, tiles, tile_points, metro_samples, psnr_peak, drop_invalid, storage_options :
         As in :func:`cloudsieve.evaluate`.
     seed : int
         Seeds every method and the evaluation.
     progress : callable, optional
         Called with 1 per method done.
-    drop_invalid : bool
-        Drop the source's points with NaN or infinite coordinates (a warning
-        gives their count) instead of refusing it.
-    storage_options : dict, optional
-        Options of the fsspec filesystem of URL inputs and a URL report folder
-        (:mod:`cloudsieve.storage`); default: the object store's own chain.
     **entropy_options
-        Passed to :func:`cloudsieve.core.simplify.simplify_points`: ``threshold``,
-        ``cluster_size``, ``k0``, ``k_min`` (:mod:`cloudsieve.params`).
+        ``threshold``, ``cluster_size``, ``k0``, ``k_min``
+        (:func:`cloudsieve.core.simplify.simplify_points`).
 
-    Every option is checked first (:func:`cloudsieve.params.validate`),
-    before the source is loaded.
+    Every option is checked (:func:`cloudsieve.params.validate`) first.
 
     Returns
     -------
     dict
         ``source``, ``points``, ``diagonal``, ``count``, ``rule``, ``seed``,
-        ``rows`` (one per method: ``method, kept, time, point_mean_pct,
-        point_rms_pct, point_max_pct, hausdorff_pct, d1_psnr, d2_psnr`` (forward,
-        dB), ``chamfer, metro_mean_pct,
-        metro_max_pct, metro_rms_pct, metro_surface_mean_pct,
-        metro_surface_excluded, compact_share, compact, vertices,
-        faces``, or ``error``), ``original_compact_share``, ``original_mesh``
-        (``vertices, faces, border_edges`` of the original's mesh), ``reports`` (the
-        full evaluation report of each method) and ``markdown``.
+        ``rows`` (per method: ``method, kept, time``, the figures of the
+        table, or ``error``), ``original_compact_share``, ``original_mesh``,
+        ``reports`` (each method's evaluation) and ``markdown``.
     """
     opts = options("compare", {
         "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
@@ -241,8 +203,7 @@ ENTROPY_OPTIONS = ("threshold", "cluster_size", "k0", "k_min", "keep_duplicates"
 
 
 def run_compare(source: Any, opts: Any, *, progress=None) -> dict:
-    """:func:`compare` with options already validated (``opts``, compare's frozen options object from
-    :func:`cloudsieve.params.options`: the command line, a pipeline stage); no option is checked again."""
+    """:func:`compare` with options validated by :func:`cloudsieve.params.options`; none is checked again."""
     with storage.using(opts.storage_options):
         report_dir = opts.report_dir
         if report_dir is None or not storage.is_url(str(report_dir)):
@@ -271,8 +232,7 @@ def _run_compare(source: Any, opts: Any, *, progress=None) -> dict:
     if count is None and not any(m in ("km", "fcm") for m in methods):
         raise InvalidParameterError("compare needs --ratio or --count (or an entropy method km/fcm to set the count)")
     runs = compare_runs(methods, rules)
-    # each method's evaluation: compare's options (validated at its entry), evaluate's defaults, a fixed number of
-    # tiles (no time budget), the kept points a subset of the source's
+    # each method's evaluation: a fixed number of tiles (no budget), the kept points a subset of the source's
     evaluation = OPTION_CLASSES["evaluate"](subset=True, surface=surface, tiles=tiles, tile_points=tile_points,
                                             seed=seed, metro_samples=metro_samples, psnr_peak=psnr_peak,
                                             surface_budget=None)

@@ -1,27 +1,8 @@
 """Nearest-neighbour distances of one chunk, and their chunk / combine / aggregate statistics.
 
-The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`:
-
-- :class:`Target` — the in-memory simplified cloud behind a k-d tree, queried
-  chunk after chunk (picklable; sent once to dask workers);
-- :class:`ExactIndex` — exact-coordinate lookup (hash, sorted search,
-  verification) of points kept unchanged;
-- :func:`forward_chunk` — the distances of one chunk of original points to
-  the simplified cloud (the backward direction's chunk kernel, with the
-  point-to-plane errors, is :func:`.planes.backward_chunk`);
-- :func:`stats_partial`, :func:`combine`, :func:`aggregate` — small partial
-  results per chunk (count, sums of powers, max and where it is, a fixed-bin
-  log histogram, the bounding box, the simplified points found exactly),
-  merged in any grouping and order, then turned into the final figures (with
-  95% confidence intervals when sampled), as dask reductions do;
-- :func:`hist_edges` — the histogram bins (the query order, :func:`.morton.morton_order`, is
-  re-exported here).
-
-Three shortcuts keep it fast without changing any figure: an exact-coordinate
-hash lookup answers the original points that were kept (distance 0) without a
-tree query; the remaining queries are sorted in Morton order for cache
-locality; and they run with a distance upper bound learnt from the previous
-chunk, the few points beyond it queried again without bound.
+The per-chunk machinery of :func:`cloudsieve.evaluate.points.point_errors`, merged in any order as dask
+reductions do. Shortcuts that change no figure: kept points are found by hash lookup (distance 0); other
+queries run in Morton order with a distance bound learnt from the previous chunk.
 """
 
 from __future__ import annotations
@@ -50,8 +31,7 @@ __all__ = [
     "d2_figures",
 ]
 
-#: The error histogram: log-spaced bins from 1e-12 to 1e12 (cloud units), fixed
-#: so that partial histograms of any chunk can be summed; zeros counted apart.
+#: the error histogram's fixed log bins from 1e-12 to 1e12 (cloud units), so partials sum; zeros counted apart
 HIST_DECADES = (-12, 12)
 HIST_PER_DECADE = 20
 _NBINS = (HIST_DECADES[1] - HIST_DECADES[0]) * HIST_PER_DECADE
@@ -83,13 +63,7 @@ def _hash(points: np.ndarray) -> np.ndarray:
 
 
 class ExactIndex:
-    """Exact-coordinate lookup of points (hash + sorted search + verification).
-
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3), float64
-        The points to find (kept by reference).
-    """
+    """Exact-coordinate lookup of *points* (n, 3) float64, kept by reference (hash + sorted search + verification)."""
 
     def __init__(self, points: np.ndarray):
         self.points = points
@@ -115,21 +89,9 @@ class ExactIndex:
 
 
 class Target:
-    """The in-memory simplified cloud, ready for nearest-neighbour queries.
-
-    Parameters
-    ----------
-    points : ndarray of shape (m, 3), float64
-        The simplified cloud (kept whole in memory).
-
-    Notes
-    -----
-    The k-d tree is built over a Morton-sorted copy; :meth:`query` returns
-    indices into *points* as given. Queries use a distance upper bound (twice
-    the 99th percentile of the previous query's distances; about 20% faster)
-    and query the few points beyond it again without bound, so results stay
-    exact. Picklable (sent once to dask workers).
-    """
+    """The in-memory simplified cloud *points* (m, 3), ready for nearest-neighbour queries.
+    The k-d tree is over a Morton-sorted copy; :meth:`query` returns indices into *points*. The distance bound is
+    twice the previous query's 99th percentile. Picklable (sent once to dask workers)."""
 
     def __init__(self, points: np.ndarray):
         self.points = np.ascontiguousarray(points, dtype=np.float64)
@@ -142,11 +104,7 @@ class Target:
         return len(self.points)
 
     def query(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Nearest simplified point of each row of *q* (m, 3): ``(distance, index)``.
-
-        Exact: identical points are answered by hash lookup, the rest by a k-d
-        tree query (Morton-sorted, all cores).
-        """
+        """Nearest simplified point of each row of *q* (m, 3): ``(distance, index)``, exact."""
         d = np.zeros(len(q))
         hit, idx = self._exact.lookup(q)
         rest = np.flatnonzero(~hit)
@@ -188,22 +146,9 @@ def _empty_partial(m: int) -> dict:
 
 
 def stats_partial(d: np.ndarray, where: np.ndarray, m_matched: int) -> dict:
-    """Partial statistics of a set of distances (a chunk kernel: input assumed valid).
-
-    Parameters
-    ----------
-    d : ndarray of shape (n,), float64
-        Distances.
-    where : ndarray of shape (n, 3), float64
-        The point each distance was measured at (for ``argmax``).
-    m_matched : int
-        Length of the (all-zero) ``matched`` bitmask.
-
-    Returns
-    -------
-    dict
-        The partial of :func:`forward_chunk`, without ``bbox`` and with ``seen`` 0.
-    """
+    """Partial statistics of distances *d* (n,) measured at *where* (n, 3) (a chunk kernel: input assumed valid).
+    Returns the partial of :func:`forward_chunk` with an all-zero ``matched`` bitmask of length *m_matched*, no
+    ``bbox`` and ``seen`` 0."""
     p = _empty_partial(m_matched)
     if len(d):
         p["count"] = int(len(d))
@@ -223,41 +168,18 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
                   keep: np.ndarray | None = None, normals: np.ndarray | None = None,
                   d2_k: int | None = None,
                   d2_rows: np.ndarray | None = None) -> tuple[dict, tuple[np.ndarray, np.ndarray] | None]:
-    """Partial forward statistics of one chunk of original points.
+    """Partial forward statistics of one chunk *xyz* (n, 3) of original points against *target*.
 
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-        One chunk of the original cloud.
-    target : Target
-        The simplified cloud.
-    select : ndarray of int, optional
-        Rows of *xyz* to evaluate (a sample); all rows when None.
-    backward_index : optional
-        Exact index of the sampled simplified points (sampled mode); when None
-        the simplified points found here at distance 0 are marked directly.
-    n_backward : int, optional
-        Number of (sampled) simplified points the ``matched`` bitmask covers.
-    keep : ndarray of int, optional
-        Rows of *xyz* whose (xyz, distance) are returned for the error PLY.
-    normals : ndarray of shape (n, 3), optional
-        The chunk's normals from the file (D2); estimated when None.
-    d2_k : int, optional
-        Also sum the point-to-plane (D2) errors, normals estimated from this
-        many neighbours in the chunk when *normals* is None
-        (:func:`.planes.d2_squares`); no D2 when None.
-    d2_rows : ndarray of int, optional
-        Positions among the evaluated rows (of *xyz*, or of *select*) in
-        the D2 sample; all of them when None.
+    *select*: rows to evaluate (a sample; all when None). *backward_index*,
+    *n_backward*: in sampled mode, the sampled simplified points' index and
+    count (else points at distance 0 are marked directly). *keep*: rows whose
+    (xyz, distance) go to the error PLY. D2 (:func:`.planes.d2_squares`) with
+    *d2_k* (None: no D2), file *normals*, *d2_rows* (positions in the D2 sample).
 
-    Returns
-    -------
-    partial : dict
-        ``count, sum, sumsq, sum4, d2sq, d2sq2, d2_count, max, argmax, zeros, hist, bbox, matched``
-        (packed bitmask over the simplified points found exactly in this chunk)
-        and ``seen`` (points read).
-    ply : (ndarray (k, 3), ndarray (k,)) or None
-        Coordinates and forward errors of the *keep* rows.
+    Returns ``(partial, ply)``: ``count, sum, sumsq, sum4, d2sq, d2sq2,
+    d2_count, max, argmax, zeros, hist, bbox, matched`` (packed bitmask of
+    simplified points found exactly), ``seen``; and the *keep* rows'
+    coordinates and errors, or None.
     """
     m = len(target) if n_backward is None else n_backward
     q = xyz if select is None else xyz[select]
@@ -332,28 +254,10 @@ def d2_figures(partial: dict, population: int) -> dict:
 
 
 def aggregate(partial: dict, diagonal: float, population: int | None = None) -> dict:
-    """Final figures from a combined partial.
-
-    Parameters
-    ----------
-    partial : dict
-        Output of :func:`combine`.
-    diagonal : float
-        The original's bounding-box diagonal (for the ``*_pct`` figures).
-    population : int, optional
-        Size of the population when *partial* covers a sample of it: adds
-        95% confidence intervals ``ci["mean"]``, ``ci["rms"]`` (and their
-        ``_pct``) and ``max_is_lower_bound``.
-
-    Returns
-    -------
-    dict
-        ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``,
-        ``mse`` (mean squared distance: D1) and ``d2_mse`` (mean squared
-        point-to-plane error: D2; with ``d2_sample`` and ``d2_se`` when
-        measured on a sample, :func:`d2_figures`)
-        and, when sampled, ``ci``, ``population``, ``max_is_lower_bound``.
-    """
+    """Final figures from a :func:`combine` partial; ``*_pct`` in % of *diagonal*.
+    Returns ``count, mean, rms, max, mean_pct, rms_pct, max_pct, zeros, argmax``, ``mse`` (D1) and
+    :func:`d2_figures`; when *population* (the size the partial is a sample of) is given, also ``ci`` (95%
+    intervals), ``population`` and ``max_is_lower_bound``."""
     n = partial["count"]
     if n == 0:
         raise EmptyInputError("no point to evaluate (0 distances)")

@@ -1,48 +1,23 @@
 """``evaluate(original, simplified)``: what simplification cost, as one report.
 
-The original is streamed (any size); the simplified cloud is loaded into
-memory (it is the smaller one). See :mod:`.points` for the point level,
-:mod:`.surface` for the paper's surface level and :mod:`.report` for the files.
+The original is streamed (any size); the simplified cloud is loaded into memory. Levels: :mod:`.points`,
+:mod:`.planes` (PSNR), :mod:`.surface`; files: :mod:`.report`.
 
-Report keys (``report.json`` holds the same dict)
--------------------------------------------------
-``original``, ``simplified``
-    ``name``, ``count``, ``format``, ``crs`` (LAS only).
-``diagonal``
-    The original's bounding-box diagonal (cloud units); every ``*_pct`` is in
-    % of it.
-``point``
-    From :func:`.points.point_errors`: ``point["forward"]`` (original ->
-    simplified) and ``point["backward"]`` (simplified -> original), each with
-    ``mean``, ``rms``, ``max`` (cloud units), ``mean_pct``, ``rms_pct``,
-    ``max_pct``, ``count`` and, when sampled, ``ci`` (95% intervals for mean
-    and RMS, ``*_pct`` too); ``hausdorff``, ``hausdorff_pct``, ``mode``,
-    ``subset``, ``histogram``.
-``psnr``
-    MPEG ``pc_error``'s figures (:mod:`.planes`): ``peak`` p (``peak_from``
-    "diagonal" or "given"), ``d1`` and ``d2``, each ``forward`` (original ->
-    simplified), ``backward`` and ``symmetric`` (the larger MSE) PSNR in dB,
-    10 log10(3 p^2 / MSE), None (JSON null) for an MSE of 0; ``mse`` (the
-    same MSEs), ``normals`` ("file" or "estimated") and ``k_normals``.
-``chamfer``
-    ``value`` = ``forward`` + ``backward``, the mean squared nearest-neighbour
-    distances of both directions (squared cloud units), ``value_pct2``,
-    ``definition``.
-``surface`` (unless ``surface=False``)
-    From :func:`.surface.surface_errors`: ``mean``, ``rms``, ``max`` and
-    their ``_pct`` (Metro, the larger of both directions), ``forward`` and
-    ``backward`` (each direction), ``compact_share`` (share of the
-    simplified mesh's triangles with c >= 0.6), ``compact``, ``vertices``,
-    ``faces`` (simplified mesh), ``original`` and ``simplified`` (mesh
-    figures), ``tiles`` (per tile).
-``warnings``
-    Messages about suspicious input that was not refused.
-``timing``
-    Seconds spent in each level.
-``parameters``
-    The arguments used.
-``files``
-    Paths written (with ``report_dir``).
+Report keys (``report.json`` holds the same dict); ``*_pct`` is in % of ``diagonal``, the original's
+bounding-box diagonal (cloud units):
+
+- ``original``, ``simplified``: ``name``, ``count``, ``format``, ``crs`` (LAS).
+- ``point`` (:func:`.points.point_errors`): ``forward`` (original -> simplified) and ``backward``, each
+  ``mean``, ``rms``, ``max`` (+ ``_pct``), ``count`` and, when sampled, ``ci`` (95% intervals); ``hausdorff``,
+  ``hausdorff_pct``, ``mode``, ``subset``, ``histogram``.
+- ``psnr`` (:mod:`.planes`): ``peak``, ``peak_from``, ``d1`` and ``d2``, each ``forward``, ``backward``,
+  ``symmetric`` (larger MSE) in dB, None for an MSE of 0; ``mse``, ``normals``, ``k_normals``.
+- ``chamfer``: ``value`` = ``forward`` + ``backward`` mean squared nearest-neighbour distances (squared
+  units), ``value_pct2``, ``definition``.
+- ``surface`` (:func:`.surface.surface_errors`, unless ``surface=False``): Metro ``mean``, ``rms``, ``max``
+  (+ ``_pct``), ``forward``, ``backward``, ``compact_share`` (share of triangles with c >= 0.6), ``compact``,
+  ``vertices``, ``faces``, ``original``, ``simplified``, ``tiles``.
+- ``warnings``, ``timing`` (seconds per level), ``parameters``, ``files``.
 """
 
 from __future__ import annotations
@@ -92,20 +67,11 @@ def check_compatible(original_header: dict, simplified_header: dict, original_bo
                      simplified: np.ndarray, *, names: tuple[str, str] = ("original", "simplified"),
                      strict: bool = True) -> list[str]:
     """Flag clouds that cannot be compared: different CRS, or different units/scale.
-
-    Checks
-    ------
-    - both headers carry a CRS (LAS CRS VLRs) and they differ: EPSG codes
-      when both have one, else WKT (whitespace-normalised), else names;
-    - the simplified points do not lie in the original's bounding box (more
-      than 10% outside it, enlarged by 1% of its diagonal), or the simplified
-      cloud's diagonal is over 3 times the original's: different units
-      (feet vs metres) or offsets.
-
-    Returns the warnings (one header has a CRS, the other none); raises
-    :class:`~cloudsieve.errors.IncompatibleCloudsError` on a mismatch when
-    *strict*, else warns (``UserWarning``) and returns it among the messages.
-    """
+    CRS: EPSG codes when both have one, else WKT (whitespace-normalised), else names. Units: over 10% of the
+    simplified points outside the original's bounding box (enlarged by 1% of its diagonal), or a simplified
+    diagonal over 3 times the original's. Returns the warnings; a mismatch raises
+    :class:`~cloudsieve.errors.IncompatibleCloudsError` when *strict*, else warns and is returned among the
+    messages."""
     msgs, problems = [], []
     a, b = (original_header or {}).get("crs"), (simplified_header or {}).get("crs")
     diff = _crs_differ(a, b)
@@ -159,30 +125,25 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     surface : bool
         Also compute the paper's surface level (meshes, Metro, compactness).
     tiles, tile_points : int
-        T tiles of at most M original points for the surface level (the whole
-        cloud when it has at most M points and fits the budget); T None: 8
-        with the budget (4 without one).
+        T tiles of at most M original points (the whole cloud when it has at
+        most M points and fits the budget); T None: 8 with a budget, else 4.
     surface_budget : float
-        Seconds for the surface level (60): T tiles drawn at random and sized
-        to take that long at the rate measured on 2 cores (never timed at
-        run time: the same figures on any machine), their standard errors given
-        (``report["surface"]["sampling"]``, :mod:`.tiles`).
+        Seconds for the surface level: T random tiles sized by the rate
+        measured on 2 cores (not timed, so results do not depend on the
+        machine), with standard errors (:mod:`.tiles`).
     surface_full : bool
-        The surface level on the whole cloud: every point in a tile of about
-        M points, no budget (time proportional to the cloud's size).
+        The surface level on every point, in tiles of about M points, no budget.
     d2_sample : int
         D2 on a uniform seeded sample of at most this many points per
         direction, with its standard error (D1 and Chamfer stay exact).
     seed : int
         Seeds every sample and the tile choice.
     subset : bool
-        Claim the simplified cloud is a subset of the original:
-        :class:`~cloudsieve.errors.NotASubsetError` when it is not.
+        Claim the simplified cloud is a subset of the original.
     strict : bool
-        Different CRS or units raise :class:`~cloudsieve.errors.IncompatibleCloudsError`
-        (else a warning, recorded in ``report["warnings"]``).
+        Refuse different CRS or units (else a warning in ``report["warnings"]``).
     report_dir : str, optional
-        Write report.json, report.md, plots and errors.ply there.
+        Write report.json, report.md, report.html, plots and errors.ply there.
     error_points : int
         At most this many original points in errors.ply (uniform seeded sample).
     chunk_size : int
@@ -194,21 +155,18 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     psnr_peak : float, optional
         Peak p of the D1/D2 PSNR (default: the original's bounding-box diagonal).
     reference_mesh : path, optional
-        A mesh of the scanned surface (a file pymeshlab reads): the surface
-        level also compares the simplified and the original's tile meshes
-        with it by Metro (``report["surface"]["reference"]``). Needs *surface*.
+        A mesh of the scanned surface (any file pymeshlab reads), compared by
+        Metro with both tile meshes (``report["surface"]["reference"]``).
     progress : callable, optional
         Called with the number of original points done (point level).
     drop_invalid : bool
-        Drop the points of either file whose coordinates are NaN or infinite
-        (a warning gives their count) instead of refusing the file.
+        Drop points with NaN or infinite coordinates (with a warning) instead
+        of refusing the file.
     storage_options : dict, optional
-        Options of the fsspec filesystem of URL inputs and a URL report folder
-        (:mod:`cloudsieve.storage`); default: the object store's own chain.
+        fsspec options for URL inputs and a URL report folder (:mod:`cloudsieve.storage`).
     bars : callable, optional
-        ``bars(stage, total, unit)`` -> context manager yielding ``update(n)``
-        (e.g. :func:`cloudsieve.progress.bar`): one per stage, "point errors"
-        (points) and "surface" (tiles).
+        ``bars(stage, total, unit)`` -> context yielding ``update(n)``
+        (:func:`cloudsieve.progress.bar`), for "point errors" and "surface".
 
     Returns
     -------
@@ -224,7 +182,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     IncompatibleCloudsError, NotASubsetError
         See *strict* and *subset*.
     InvalidPointsError
-        A file has NaN or infinite coordinates and *drop_invalid* is False.
+        NaN or infinite coordinates and not *drop_invalid*.
     """
     o = options("evaluate", {
         "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
@@ -253,23 +211,9 @@ def las_grid(header: dict | None) -> tuple[np.ndarray, np.ndarray] | None:
 
 def run_evaluation(original: Any, simplified: Any, options: Any, *, client: Any = None, progress=None, bars=None,
                    names: tuple[str, str] | None = None, surface_cache: dict | None = None) -> dict:
-    """:func:`evaluate` on validated options, the frozen object of ``evaluate``
-    (:func:`cloudsieve.params.options`); the other arguments and the result as there.
-
-    Parameters
-    ----------
-    options : cloudsieve.params_spec.EvaluateOptions
-        Every option of ``evaluate``, validated; compare's evaluations set
-        ``surface_budget`` None (a fixed number of tiles, no budget).
-    names : (str, str), optional
-        Names of the original and simplified clouds in the report (default:
-        their file names, or ``"<array>"``); compare names arrays after the
-        source file and the method.
-    surface_cache : dict, optional
-        Meshes of the original's tiles, filled by the first call and reused
-        by the next ones on the same original (compare evaluates several
-        simplified clouds of one original).
-    """
+    """:func:`evaluate` on validated options (:func:`cloudsieve.params.options`).
+    *names* overrides the clouds' names in the report; *surface_cache* holds the original's tile meshes across
+    calls on one original (compare)."""
     with storage.using(options.storage_options):
         return _evaluation(original, simplified, options, client, progress, bars, names, surface_cache)
 

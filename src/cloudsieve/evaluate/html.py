@@ -1,19 +1,9 @@
 """report.html: one self-contained page (no network access) with the tables, the plots and 3D views.
 
-The page holds everything inline: the report's Markdown tables rendered as
-HTML, the PNG plots as ``data:`` URIs, the viewer (:file:`viewer.js`, a small
-WebGL point viewer vendored in the package, with a 2D-canvas fallback) and
-the clouds as base64 arrays: coordinates quantised to 16 bits over the
-original's bounding box (6 bytes a point; 1.5e-5 of the box's largest side)
-and the error of each point as one byte. A view holds at most
-``VIEW_POINTS`` points, a uniform seeded sample: a 200 k-point view weighs
-about 1.6 MB in the page, so the page stays a few MB whatever the clouds'
-size.
-
-Colours: the original's points by their forward error (distance to the
-nearest simplified point), red = 0 to blue = the colour scale's top, the
-99th percentile of the errors shown (larger errors are blue too), the same
-scale for every method in compare; the kept points in one colour.
+Everything is inline: tables, PNG plots as ``data:`` URIs, the vendored WebGL viewer (:file:`viewer.js`), and
+at most ``VIEW_POINTS`` points a view, quantised to 16 bits over the original's box with one byte of error.
+Original points are coloured by forward error, red = 0 to blue = the shown 99th percentile (one scale for every
+method); kept points in one colour.
 """
 
 from __future__ import annotations
@@ -74,10 +64,8 @@ def _inline(text: str) -> str:
 
 def markdown_html(md: str) -> str:
     """HTML of the Markdown that :func:`.report.markdown` and :func:`.compare.compare_markdown` write.
-
-    Handles what they use: ``#`` headings, pipe tables, ``>`` quotes, ``-``
-    lists and paragraphs (text escaped, inline code and bold).
-    """
+    Handles what they use: ``#`` headings, pipe tables, ``>`` quotes, ``-`` lists and paragraphs (text escaped,
+    inline code and bold)."""
     out: list[str] = []
     lines = md.splitlines()
     i = 0
@@ -124,26 +112,10 @@ def page(title: str, md: str, *, images: dict[str, str] | None = None, original:
          errors: dict[str, np.ndarray] | None = None, kept: dict[str, np.ndarray] | None = None,
          bounds: np.ndarray | None = None) -> str:
     """The report page's HTML text.
-
-    Parameters
-    ----------
-    title : str
-        The page's title and heading (the Markdown's own ``# `` title line
-        when it starts with one).
-    md : str
-        The report's Markdown (tables).
-    images : dict of str to path, optional
-        Plots (PNG files) by caption, inlined.
-    original : ndarray of shape (s, 3), optional
-        The original's points shown (a sample).
-    errors : dict of str to ndarray of shape (s,), optional
-        Per label (a method in compare), the forward error of each point of
-        *original*: one view each, coloured by it.
-    kept : dict of str to ndarray of shape (k, 3), optional
-        Per label, the kept points shown (a sample): one view each.
-    bounds : ndarray of shape (2, 3), optional
-        The box the coordinates are quantised over (default: the original's).
-    """
+    *title* (replaced by the Markdown's own ``# `` title line when there is one); *md* the report's Markdown;
+    *images* PNG paths by caption; *original* (s, 3) the original's points shown; *errors* per label (a method in
+    compare) their forward errors (s,), one view each; *kept* per label the kept points (k, 3), one view each;
+    *bounds* (2, 3) the quantisation box (default: the original's)."""
     images, errors, kept = images or {}, errors or {}, kept or {}
     lines = md.splitlines()
     if lines and lines[0].startswith("# "):  # the Markdown's title: the page's

@@ -1,34 +1,12 @@
 """Meshes and their figures: ball pivoting, Metro distances, triangle compactness.
 
-Ball pivoting (pymeshlab: normals from 10 neighbours, two passes with radius
-r and 2r, r the median over points of the mean distance to their 6 nearest
-neighbours, :func:`point_spacing`) meshes one cloud. :func:`metro` compares
-two meshes both ways with pymeshlab's ``get_hausdorff_distance`` (Metro,
-Cignoni et al. 1998) with face sampling (not only vertices), as many samples
-as Metro's own default of 10 x faces (capped, ``samples``) and a MaxDist of
-ten bounding-box diagonals so that no sample is dropped (pymeshlab's default
-drops samples beyond half the diagonal). Metro runs in a forked child
-(:func:`cloudsieve.engine.calls.forked`) so that its random sampling starts
-from the same state every time: same meshes, same figures. pymeshlab's
-sampling draws from a process-wide random generator that is never reseeded,
-so this module never samples in the parent process.
-
-Triangle compactness is c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2): 1 for an
-equilateral triangle, 0 for a degenerate one; it equals vcg's mean-ratio
-quality (pymeshlab ``compute_scalar_by_aspect_ratio_per_face(metric="Mean
-ratio")``). A mesh is "compact" when at least 50% of its triangles have
-c >= 0.6 (the paper's criterion).
-
-Border edges (edges of one triangle, :func:`border_edges`) measure how much
-of a mesh is holes: ball pivoting leaves a hole wherever points are too
-sparse or too noisy for its ball. On the shared aerial and terrestrial scans
-the original's mesh has 0.13-0.69 border edges per triangle (bun_zipper
-0.003, maxplanck 0.007), and 58-98% of the Metro samples on a simplified
-mesh lie within two point spacings of that border (README, "Where Metro's
-distance comes from"): there, Metro measures the holes of the original's
-mesh more than the sampling.
-
-The tiled surface-level stage that uses these is :mod:`.surface`.
+Ball pivoting (pymeshlab; radius r then 2r, r = :func:`point_spacing`) meshes a cloud. :func:`metro` compares two
+meshes both ways (pymeshlab's ``get_hausdorff_distance``, face sampling, MaxDist ten diagonals so no sample is
+dropped) in forked children (:func:`cloudsieve.engine.calls.forked`): pymeshlab's random generator is
+process-wide and never reseeded, so the same meshes give the same figures. Compactness c = 4*sqrt(3)*area /
+(l1^2 + l2^2 + l3^2): 1 equilateral, 0 degenerate; a mesh is "compact" when at least 50% of its triangles have
+c >= 0.6 (the paper's criterion). Border edges measure a mesh's holes, which Metro measures more than the
+sampling (docs/benchmarks.md, "Where Metro's distance comes from").
 """
 
 from __future__ import annotations
@@ -61,21 +39,8 @@ HIST_BINS = 50
 
 
 def compactness(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Compactness c = 4*sqrt(3)*area / (l1^2 + l2^2 + l3^2) of every triangle.
+    """Compactness (f,) in [0, 1] of every triangle of *faces* (f, 3) over *vertices* (v, 3).
 
-    Parameters
-    ----------
-    vertices : ndarray of shape (v, 3)
-    faces : ndarray of shape (f, 3), int
-
-    Returns
-    -------
-    ndarray of shape (f,), float64
-        In [0, 1]; 1 for equilateral, 0 for degenerate triangles (including
-        triangles whose three corners coincide).
-
-    Examples
-    --------
     >>> v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
     >>> round(float(compactness(v, np.array([[0, 1, 2]]))[0]), 6)  # sqrt(3)/2
     0.866025
@@ -110,13 +75,8 @@ def compactness_summary(c: np.ndarray) -> dict:
 
 
 def border_edges(faces: np.ndarray) -> np.ndarray:
-    """Edges (e, 2) of exactly one triangle of *faces* (f, 3): the borders of the mesh's holes and its rim.
+    """Edges (e, 2) of exactly one triangle of *faces* (f, 3), lower index first, sorted: holes and rim.
 
-    Each edge is given by its two vertex indices, lower first, in
-    lexicographic order.
-
-    Examples
-    --------
     >>> border_edges(np.array([[0, 1, 2], [2, 1, 3]])).tolist()  # two triangles sharing edge 1-2
     [[0, 1], [0, 2], [1, 3], [2, 3]]
     """
@@ -147,21 +107,8 @@ def _pymeshlab():
 
 
 def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals: int = 10) -> tuple[np.ndarray, np.ndarray]:
-    """Mesh *points* (n, 3) by ball pivoting (pymeshlab), radius r then 2r.
-
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3)
-    radius : float, optional
-        Ball radius r; default :func:`point_spacing` of *points*.
-    k_normals : int
-        Neighbours for the normal estimate.
-
-    Returns
-    -------
-    vertices : ndarray of shape (v, 3), float64
-    faces : ndarray of shape (f, 3), int32
-    """
+    """Mesh *points* (n, 3) by ball pivoting (pymeshlab), radius r then 2r (default :func:`point_spacing`).
+    Returns ``(vertices (v, 3) float64, faces (f, 3) int32)``."""
     pml = _pymeshlab()
     points = np.ascontiguousarray(points, dtype=np.float64)
     if len(points) < 3:
@@ -178,15 +125,8 @@ def ball_pivoting(points: np.ndarray, *, radius: float | None = None, k_normals:
 
 
 def load_mesh(path: str) -> tuple[np.ndarray, np.ndarray]:
-    """A triangle mesh from a file pymeshlab reads (PLY, OBJ, STL, OFF, ...): ``(vertices (v, 3), faces (f, 3))``.
-
-    Raises
-    ------
-    InputNotFoundError
-        No such file.
-    InputFormatError
-        The file holds no triangle, or pymeshlab cannot read it.
-    """
+    """A triangle mesh from a file pymeshlab reads: ``(vertices (v, 3), faces (f, 3))``.
+    Raises InputNotFoundError (no file) or InputFormatError (unreadable, or no triangle)."""
     import os
 
     from ..errors import InputFormatError, InputNotFoundError
@@ -226,12 +166,8 @@ def _metro_one(ms, sampled: int, target: int, samples: int, maxdist: float, save
 
 
 def on_border(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tol: float) -> np.ndarray:
-    """Which *points* (p, 3) lie within *tol* of a border edge of the mesh (vertices, faces): bool (p,).
-
-    A Metro sample whose closest point on the target mesh lies on its border
-    faces no surface: the target has a hole there (or ends, at a tile's rim).
-    Candidates are the 8 border edges with the nearest midpoints.
-    """
+    """Which *points* (p, 3) lie within *tol* of a border edge of the mesh: bool (p,).
+    Candidates are the 8 border edges with the nearest midpoints."""
     edges = border_edges(faces)
     out = np.zeros(len(points), bool)
     if len(edges) == 0 or len(points) == 0:
@@ -249,11 +185,8 @@ def on_border(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, tol: 
 
 def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float, holes: bool = False) -> dict:
     """One Metro direction: samples on *mesh_s*, distances to *mesh_t*.
-
-    With *holes*, also ``on_surface``: the same figures over the samples
-    whose closest point on *mesh_t* is not on its border (:func:`on_border`,
-    within 1e-3 of its median edge length), and ``excluded`` (their count).
-    """
+    *holes* adds ``on_surface``: the figures over samples whose closest point is not on *mesh_t*'s border (within
+    1e-3 median edge), and ``excluded``."""
     pml = _pymeshlab()
     ms = pml.MeshSet()
     ms.add_mesh(pml.Mesh(mesh_s[0], mesh_s[1]))
@@ -274,34 +207,11 @@ def _metro_dir(mesh_s, mesh_t, n: int, maxdist: float, holes: bool = False) -> d
 
 def metro(mesh_a: tuple[np.ndarray, np.ndarray], mesh_b: tuple[np.ndarray, np.ndarray], *,
           samples: int | None = None, max_samples: int = 500_000) -> dict:
-    """Metro distances between two meshes, both ways (pymeshlab, face sampling).
-
-    Parameters
-    ----------
-    mesh_a, mesh_b : (vertices (v, 3), faces (f, 3))
-        Typically the original's and the simplified cloud's meshes.
-    samples : int, optional
-        Surface samples per direction; default 10 x the sampled mesh's faces
-        (Metro's default), at most *max_samples* (500,000).
-
-    Returns
-    -------
-    dict
-        ``forward`` (samples on a, distance to b) and ``backward`` (samples on
-        b, distance to a), each ``mean, rms, max, min, samples`` in the
-        meshes' units; ``backward["on_surface"]``: ``mean, rms, max,
-        samples`` over the backward samples whose closest point on a is not
-        on a's border (where a has surface), ``excluded`` (the others).
-
-    Notes
-    -----
-    Each direction runs in a forked child process (see
-    :func:`cloudsieve.engine.calls.forked`), both at once, so that the same
-    meshes always give the same figures: equal to
-    a direct ``get_hausdorff_distance`` call (``samplevert=False,
-    sampleface=True``, the same ``samplenum`` and ``maxdist``) made first
-    thing in a fresh Python process holding the two meshes.
-    """
+    """Metro distances between two meshes, both ways (pymeshlab, face sampling), each in a forked child.
+    *samples* per direction defaults to 10 x the sampled mesh's faces, at most *max_samples*. Returns ``forward``
+    (samples on a, distances to b) and ``backward``, each ``mean, rms, max, min, samples``;
+    ``backward["on_surface"]`` as :func:`_metro_dir`'s *holes*. The figures equal a direct
+    ``get_hausdorff_distance`` call made first in a fresh process."""
     a = (np.ascontiguousarray(mesh_a[0], dtype=np.float64), np.ascontiguousarray(mesh_a[1], dtype=np.int32))
     b = (np.ascontiguousarray(mesh_b[0], dtype=np.float64), np.ascontiguousarray(mesh_b[1], dtype=np.int32))
     allv = np.concatenate([a[0], b[0]])

@@ -9,10 +9,7 @@ __all__ = ["morton_order"]
 
 def morton_order(points: np.ndarray, bits: int = 10) -> np.ndarray:
     """Permutation sorting *points* (n, 3) along a Morton (Z-order) curve.
-
-    Used only to make k-d tree queries cache friendly; any order gives the
-    same distances.
-    """
+    Used only to make k-d tree queries cache friendly; any order gives the same distances."""
     n = len(points)
     if n < 2:
         return np.arange(n)

@@ -1,43 +1,14 @@
-"""Point-to-plane (D2) errors, the original's normals, and the field's figures: D1/D2 PSNR and Chamfer.
+"""Point-to-plane (D2) errors, the original's normals, and MPEG ``pc_error``'s figures: D1/D2 PSNR, Chamfer.
 
-The figures MPEG's ``pc_error`` (mpeg-pcc-dmetric) reports, with A = the
-original and B = the simplified cloud:
+With A the original and B the simplified cloud: **D1** is the squared distance to the nearest neighbour in the
+other cloud; **D2** that pair's error projected on the original's normal, ``((b - a) . n_a)**2`` (``pc_error``
+moves the normal to B; on a smooth surface the plane is the same, and ``n_a`` keeps one streamed pass). Per
+direction the MSE, **symmetric** the larger, ``PSNR = 10 log10(3 p**2 / MSE)`` dB (peak ``p``: the diagonal by
+default; MSE 0: inf, ``null`` in JSON). **Chamfer** is the sum of the two D1 MSEs (squared units).
 
-- **D1** (point-to-point): the squared distance from a point to its nearest
-  neighbour in the other cloud;
-- **D2** (point-to-plane): the error vector of the same pair projected on the
-  original's normal, squared: ``((b - a) . n_a)**2`` where ``a`` is the pair's
-  original point (forward A -> B: the query point itself; backward B -> A:
-  the nearest original point of ``b``). ``pc_error`` projects the forward
-  pairs on a normal moved from A to the matched point of B (the average of the
-  normals of the original points whose nearest neighbour it is); on a smooth
-  surface both are the same plane, and using ``n_a`` keeps the computation to
-  one streamed pass;
-- the **MSE** of each direction (mean over the points of the direction's
-  cloud), the **symmetric** MSE the larger of the two, and
-  ``PSNR = 10 log10(3 p**2 / MSE)`` dB with a stated peak ``p`` (default: the
-  original's bounding-box diagonal). An MSE of 0 (e.g. backward, when B is a
-  subset of A) gives an infinite PSNR (``null`` in report.json).
-- **Chamfer distance**: the mean squared nearest-neighbour distance A -> B
-  plus the mean squared nearest-neighbour distance B -> A, i.e. the sum of the
-  two D1 MSEs, in squared cloud units.
-
-Normals come from the file when it has ``nx, ny, nz``; otherwise each is
-estimated by PCA of the point's ``K_NORMALS`` nearest neighbours (the
-eigenvector of the smallest eigenvalue of their covariance). The original is
-streamed, so the neighbours are searched within the point's chunk of the
-original (``chunk_size`` points, 1 M by default): exact for a cloud of one
-chunk; at the edge of a chunk the neighbourhood may be one-sided.
-Normals are only computed where the D1 error is not zero (a zero error has a
-zero projection).
-
-On a large cloud the normals dominate the point level's time (a k-NN query
-and a 3x3 eigenproblem per dropped point: 3-6 times the D1 pass), so D2 is
-measured on a uniform seeded sample of at most ``d2_sample`` points per
-direction (:func:`cloudsieve.evaluate.points.point_errors`), every point of
-a smaller cloud: the MSE is the sample's mean squared projection, its
-standard error stated (``d2_se``; in dB, 10/ln 10 x se/MSE). D1 and the
-Chamfer distance stay exact.
+Normals come from the file or from PCA of ``K_NORMALS`` neighbours within the point's chunk (one-sided at chunk
+edges), only where D1 is not zero. They dominate the time, so D2 uses a uniform sample of at most ``d2_sample``
+points per direction, with its standard error; D1 and Chamfer stay exact.
 """
 
 from __future__ import annotations
@@ -130,26 +101,9 @@ def _normals_kernel(points: np.ndarray, nb: np.ndarray, out: np.ndarray) -> None
 
 
 def pca_normals(points: np.ndarray, centres: np.ndarray, k: int = K_NORMALS, tree: cKDTree | None = None) -> np.ndarray:
-    """Unit normals at *centres* by PCA of their *k* nearest neighbours among *points*.
-
-    Parameters
-    ----------
-    points : ndarray of shape (n, 3), float64
-        Where the neighbours are searched.
-    centres : ndarray of shape (c, 3), float64
-        Where the normals are wanted (usually rows of *points*: the point
-        itself is then one of its k neighbours).
-    k : int
-        Neighbours (at most n are used; with fewer than 3, the normals are 0
-        and every projection on them is 0).
-    tree : cKDTree, optional
-        A tree over *points*, when one is at hand.
-
-    Returns
-    -------
-    ndarray of shape (c, 3), float64
-        Unit normals, of arbitrary sign.
-    """
+    """Unit normals (c, 3), arbitrary sign, at *centres* (c, 3) by PCA of their *k* nearest neighbours in *points*.
+    At most n neighbours are used; with fewer than 3 the normals are 0. *tree*: a cKDTree over *points*, when one
+    is at hand."""
     k = min(int(k), len(points))
     out = np.zeros((len(centres), 3))
     if k < 3 or len(centres) == 0:
@@ -176,23 +130,9 @@ def unit_normals(normals: np.ndarray) -> np.ndarray:
 
 def d2_squares(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: np.ndarray | None = None,
                k: int = K_NORMALS, tree: cKDTree | None = None) -> np.ndarray:
-    """Squared projections of *errors* on the original's normals at ``xyz[rows]`` (a chunk kernel).
-
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-        A chunk of the original (the normals' neighbourhoods).
-    rows : ndarray of shape (r,), int
-        The original points whose errors are given.
-    errors : ndarray of shape (r, 3), float64
-        Error vectors (other point minus original point).
-    normals : ndarray of shape (n, 3), optional
-        The chunk's normals from the file; estimated (PCA, *k*) when None.
-
-    Returns
-    -------
-    ndarray of shape (r,), float64
-    """
+    """Squared projections (r,) of *errors* (r, 3) on the original's normals at ``xyz[rows]`` (a chunk kernel).
+    *xyz* is a chunk of the original; *normals* (n, 3) the chunk's normals from the file, estimated (PCA, *k*) when
+    None."""
     if len(rows) == 0:
         return np.zeros(0)
     n = unit_normals(normals[rows]) if normals is not None else pca_normals(xyz, xyz[rows], k, tree)
@@ -202,31 +142,15 @@ def d2_squares(xyz: np.ndarray, rows: np.ndarray, errors: np.ndarray, normals: n
 
 def backward_chunk(xyz: np.ndarray, points: np.ndarray, best: np.ndarray, *, normals: np.ndarray | None = None,
                    k: int | None = K_NORMALS, d2_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Distances from *points* (u, 3) to one chunk of original points, where they can beat *best*.
+    """Distances from *points* (u, 3) to one chunk *xyz* of the original, where they can beat *best* (u,).
 
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-        One chunk of the original.
-    points : ndarray of shape (u, 3), float64
-        The simplified points searched.
-    best : ndarray of shape (u,)
-        The best distances so far (chunks farther, by bounding box, are skipped).
-    normals : ndarray of shape (n, 3), optional
-        The chunk's normals from the file (else estimated, *k* neighbours).
-    k : int or None
-        Neighbours of the normal estimate; None: no D2.
-    d2_mask : ndarray of shape (u,), bool, optional
-        The points of the D2 sample (default: all); *d2* is 0 for the others.
+    Chunks farther than *best* by bounding box are skipped. *normals* as in
+    :func:`d2_squares`; *k* None: no D2; *d2_mask* (u,) bool: the D2 sample.
 
-    Returns
-    -------
-    d : ndarray of shape (u,)
-        Distances, ``inf`` where the chunk cannot beat *best*.
-    d2 : ndarray of shape (u,)
-        Squared projection of each error on the original's normal at the
-        nearest point of the chunk (0 where *d* is inf or 0, or without D2).
-        Combine chunks by keeping, per point, the pair of the smaller *d*.
+    Returns ``(d, d2)``, each (u,): distances (``inf`` where the chunk cannot
+    beat *best*) and squared projections on the normal at the nearest point
+    (0 where *d* is inf or 0, or without D2). Combine chunks by keeping, per
+    point, the pair of the smaller *d*.
     """
     out, out2 = np.full(len(points), np.inf), np.zeros(len(points))
     if len(xyz) == 0 or len(points) == 0:
@@ -257,37 +181,11 @@ def psnr(mse: float, peak: float) -> float:
 
 def field_figures(forward: dict, backward: dict, *, diagonal: float, peak: float | None = None,
                   normals: str = "estimated", k: int = K_NORMALS) -> tuple[dict, dict]:
-    """``report["psnr"]`` and ``report["chamfer"]`` from the point level's two directions.
-
-    Parameters
-    ----------
-    forward, backward : dict
-        :func:`.distances.aggregate` results holding ``mse`` and ``d2_mse``.
-    diagonal : float
-        The original's bounding-box diagonal (the default peak).
-    peak : float, optional
-        The PSNR peak p.
-    normals : str
-        ``"file"`` or ``"estimated"``: where the original's normals came from.
-    k : int
-        Neighbours of the estimate.
-
-    Returns
-    -------
-    psnr : dict
-        ``peak``, ``peak_from`` ("diagonal" or "given"), ``formula``,
-        ``normals``, ``k_normals`` (None with file normals), ``d1`` and ``d2``
-        (``forward``, ``backward``, ``symmetric`` in dB), ``mse`` (the same
-        three per metric, squared cloud units); when D2 was measured on a
-        sample, ``d2_sample`` (``forward``/``backward``: its size, None for
-        every point) and ``d2_se_db`` (the standard error of each D2 PSNR
-        in dB, 10/ln 10 x se/MSE; 0 for an exact one).
-    chamfer : dict
-        ``value`` (= ``forward`` + ``backward``), ``forward``, ``backward``
-        (mean squared nearest-neighbour distances, squared cloud units),
-        ``value_pct2`` (value in % of the diagonal, squared: 100**2 value /
-        diagonal**2) and ``definition``.
-    """
+    """``report["psnr"]`` and ``report["chamfer"]`` from the point level's :func:`.distances.aggregate` directions.
+    *peak* defaults to *diagonal*; *normals* is ``"file"`` or ``"estimated"`` (*k* neighbours). psnr: ``peak``,
+    ``peak_from``, ``formula``, ``normals``, ``k_normals``, ``d1`` and ``d2`` (``forward``, ``backward``,
+    ``symmetric`` dB), ``mse``, and for a sampled D2 ``d2_sample``, ``d2_se_db``. chamfer: ``value``, ``forward``,
+    ``backward`` (squared units), ``value_pct2``, ``definition``."""
     p = float(diagonal if peak is None else peak)
     mse, out = {}, {}
     for name, key in (("d1", "mse"), ("d2", "d2_mse")):

@@ -1,53 +1,15 @@
 """Point-level errors between an original cloud and its simplification.
 
-Two directions, each a distribution of nearest-neighbour distances:
+**forward** (original -> simplified): each original point's distance to the
+nearest simplified point; **backward**: each simplified point's distance to
+the nearest original point (zero for a subset). Hausdorff is the larger
+maximum; figures in cloud units and % of the original's diagonal.
 
-- **forward** (original -> simplified): for every original point, the distance
-  to the nearest simplified point. This is what simplification costs: zero for
-  the kept points, the gap to the nearest survivor for the dropped ones.
-- **backward** (simplified -> original): for every simplified point, the
-  distance to the nearest original point; zero for any method that keeps a
-  subset of the original points, non-zero for methods that move points
-  (voxel centroids, smoothing).
-
-The symmetric Hausdorff distance is the larger of the two maxima. Every
-figure is given in the cloud's units and as % of the original's bounding-box
-diagonal.
-
-Scale
------
-The original is **streamed** chunk by chunk (never loaded whole); the
-simplified cloud is **assumed to fit in memory** (it is the smaller one): a
-k-d tree is built over it once. Each chunk returns a small partial result
-(count, sum, sum of squares, sum of fourth powers, max and where it is, a
-fixed-bin log histogram, the bounding box, which simplified points it holds
-exactly) and the partials are combined afterwards (chunk / combine /
-aggregate, as dask reductions do), in the driver or as dask tasks on a
-``distributed.Client``. Results do not depend on chunk size or scheduler
-(up to floating-point summation order).
-
-The per-chunk distances and their statistics (and the shortcuts that keep
-them fast: exact hash lookup, Morton-ordered queries, a learnt distance bound)
-are in :mod:`.distances`; this module holds the streamed (or sampled) stage.
-
-The backward direction needs, for each simplified point, its nearest original
-point. Every simplified point found exactly among the original points during
-the forward pass has distance 0; only the others (none, for a subset) are
-searched again, in a second streamed pass that builds a k-d tree of each
-original chunk in turn and keeps the running minimum (chunks whose bounding
-box is farther than the current best are skipped). For a huge original and a
-simplified cloud whose points all moved, pass ``sample=N`` so that only N
-simplified points are searched.
-
-Sampling
---------
-With ``sample=N`` a uniform seeded sample of N original points (and of N
-simplified points for the backward direction) is evaluated instead of all of
-them, with 95% confidence intervals for the mean and the RMS (normal
-approximation with finite-population correction; the RMS interval is the
-square root of the interval for the mean of squared distances). The sampled
-maximum is only a lower bound of the true maximum (``max_is_lower_bound``).
-The source is still read once in full (decoding is cheap next to the queries).
+The original is streamed; per-chunk partials (:mod:`.distances`) are
+combined in the driver or as dask tasks, independent of chunk size and
+scheduler. Backward searches again, in a second streamed pass, only the
+points not matched exactly. ``sample=N``: N points per direction, 95%
+confidence intervals for mean and RMS, the max a lower bound.
 """
 
 from __future__ import annotations
@@ -91,10 +53,7 @@ def _select(sorted_idx: np.ndarray | None, start: int, stop: int) -> np.ndarray 
 
 
 def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray:
-    """*xyz* as a LAS file of *grid* = (scales, offsets) stores and reads it back (None: unchanged).
-
-    The writer stores round((x - offset) / scale); laspy reads X * scale + offset.
-    """
+    """*xyz* as a LAS file of *grid* = (scales, offsets) stores and reads it back (None: unchanged)."""
     if grid is None:
         return xyz
     scales, offsets = grid
@@ -104,22 +63,8 @@ def quantise(xyz: np.ndarray, grid: tuple[np.ndarray, np.ndarray] | None) -> np.
 def _excess_copies(src: Source, bpoints: np.ndarray, rows: np.ndarray,
                    grid: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Multiplicities of the simplified points *rows* found at distance 0 but not matched (copies).
-
-    A simplified cloud holding a point c times is a subset only if the
-    original holds it at least c times. Counts, for each distinct point among
-    ``bpoints[rows]``, how often the simplified points and the original (one
-    streamed pass; its points on *grid*, the simplified cloud's quantisation,
-    when given: :func:`quantise`) hold it.
-
-    Returns
-    -------
-    points : ndarray of shape (q, 3)
-        The distinct points.
-    held : ndarray of shape (q,), int64
-        How often the simplified points hold each.
-    original : ndarray of shape (q,), int64
-        How often the original holds each.
-    """
+    Returns ``(points (q, 3), held (q,), original (q,))``: the distinct points and how often the simplified cloud
+    and the original (on *grid*, :func:`quantise`) hold each; a subset holds none more often."""
     q = np.unique(bpoints[rows], axis=0)
     index = ExactIndex(q)
     hit, idx = index.lookup(bpoints)
@@ -147,67 +92,20 @@ class PointLevel:
 
 def point_errors(original: Any, simplified: np.ndarray, level: PointLevel = PointLevel(), *, client: Any = None,
                  on_error_points=None, progress=None, grid: tuple[np.ndarray, np.ndarray] | None = None) -> dict:
-    """Point-level errors of *simplified* against *original*, both directions.
+    """Point-level errors of *simplified* (m, 3) against *original* (streamed: array, store, path or Source).
 
-    Parameters
-    ----------
-    original : ndarray (n, 3), PointStore, store path, file path or Source
-        Streamed chunk by chunk (never loaded whole).
-    simplified : ndarray of shape (m, 3), float64
-        In memory.
-    level : PointLevel
-        The fields ``sample`` to ``keep_sample`` below (default: every point, exactly).
-    sample : int, optional
-        Evaluate a uniform seeded sample of this many original points (and as
-        many simplified points backward) with 95% confidence intervals.
-    seed : int
-        Seed of the samples.
-    chunk_size : int
-        Points per chunk of the original.
-    subset : bool
-        Claim that *simplified* is a subset of *original*; raises
-        :class:`~cloudsieve.errors.NotASubsetError` otherwise (checked on the
-        backward sample when sampled).
-    client : distributed.Client, optional
-        Run the chunk tasks on this dask cluster (the simplified tree is
-        broadcast once); default: in this process, all cores for queries.
-    error_points : int
-        Also return the forward error of a uniform seeded sample of at most
-        this many original points (all when there are fewer) through
-        *on_error_points* ``(xyz (k,3), error (k,) float32)`` chunk by chunk, in
-        point order (used for the coloured error PLY).
-    progress : callable, optional
-        Called with the number of original points read, per chunk.
-    grid : (scales, offsets), optional
-        The quantisation of *simplified* (a LAS file's scales and offsets):
-        a simplified point not found exactly is still an original point if
-        it is one on this grid (an original point as a LAS file of this grid
-        stores it: a PLY or a LAS of another scale simplified to LAS), for
-        ``subset`` and ``not_in_original``; the distances stay measured.
-    d2_k : int or None
-        Point-to-plane (D2) errors too, on the original's normals: from the
-        file (``nx, ny, nz``) or estimated from this many neighbours in the
-        point's chunk (:mod:`.planes`); None: D1 only (``d2_mse`` 0).
-    d2_sample : int or None
-        D2 on a uniform seeded sample of at most this many of the evaluated
-        points per direction (``d2_sample`` and ``d2_se`` in each direction
-        when smaller than it); None: every point.
-    keep_sample : int
-        Also return ``uniform_sample``: the coordinates of a uniform seeded
-        sample of this many original points (*seed*, as
-        :func:`.tiles.uniform_sample` draws it), taken on the way (for the
-        surface level's tiles; the caller removes it before writing JSON).
+    *level* holds the options as in :func:`cloudsieve.evaluate.evaluate`
+    (``subset`` raises NotASubsetError; ``d2_k`` None: D1 only;
+    ``error_points`` sends sampled forward errors to *on_error_points*
+    ``(xyz (k, 3), error (k,) float32)`` chunk by chunk; ``keep_sample``
+    returns ``uniform_sample`` as :func:`.tiles.uniform_sample` draws it).
+    *grid* (scales, offsets): the LAS quantisation of *simplified*, on which
+    a point still counts as an original one. *progress* gets points read.
 
-    Returns
-    -------
-    dict
-        ``forward`` and ``backward`` (see :func:`.distances.aggregate`), ``hausdorff``,
-        ``hausdorff_pct``, ``diagonal``, ``bounds`` [[min], [max]],
-        ``original_count``, ``simplified_count``, ``mode`` ("exact" or
-        "sampled"), ``sample``, ``seed``, ``subset`` (every (sampled)
-        simplified point is an original point), ``not_in_original`` (how many
-        are not), ``histogram`` (``forward``/``backward`` counts over the fixed
-        log bins, ``zeros``, ``log10_edges`` range).
+    Returns ``forward``, ``backward`` (:func:`.distances.aggregate`),
+    ``hausdorff``, ``hausdorff_pct``, ``diagonal``, ``bounds``,
+    ``original_count``, ``simplified_count``, ``mode``, ``sample``, ``seed``,
+    ``subset``, ``not_in_original``, ``histogram``.
     """
     sample, seed, subset, error_points = level.sample, level.seed, level.subset, level.error_points
     d2_k, d2_sample, keep_sample = level.d2_k, level.d2_sample, level.keep_sample

@@ -1,22 +1,13 @@
 """Writing an evaluation report: report.json, report.md, report.html, PNG plots, error PLY.
 
-``report.json`` holds the report dict of :func:`cloudsieve.evaluate` as is
-(keys documented there). ``report.md`` renders it as tables like the paper's
-Tables 1-4; ``report.html`` (:mod:`.html`) holds the same tables, the plots and
-3D views of the error-coloured original and of the kept points, in one file
-that needs no network. Plots (matplotlib, Agg backend, no display needed):
-
-- ``compactness.png``: histograms of triangle compactness, original mesh vs
-  simplified mesh (the paper's figures 4-5), with the 0.6 line;
-- ``point_errors.png``: histogram of the point-level errors (log scale),
-  forward and backward.
-
-``errors.ply`` (written by :func:`write_error_ply`): the original points (all
-of them, or a uniform sample of at most ``error_points``) coloured by their
-forward error, red = 0 to blue = max (the paper's figures 6-7, colour map
-``jet`` reversed), with the error as a float vertex property ``error``.
-Written with the IO layer's PLY writer (binary little-endian, x/y/z as
-double so survey coordinates keep their precision; atomic).
+``report.json`` holds :func:`cloudsieve.evaluate`'s dict as is; ``report.md``
+renders it as tables like the paper's Tables 1-4; ``report.html``
+(:mod:`.html`) adds 3D views. Plots (matplotlib, Agg): ``compactness.png``
+(original vs simplified mesh, the paper's figures 4-5) and
+``point_errors.png`` (log-scale error histograms). ``errors.ply``
+(:func:`write_error_ply`): original points (at most ``error_points``)
+coloured by forward error, red = 0 to blue = max (the paper's figures 6-7),
+with a float ``error`` property; x/y/z as double.
 """
 
 from __future__ import annotations
@@ -77,8 +68,7 @@ def fmt(v: Any, digits: int = 4) -> str:
     return f"{v:.{digits}g}"
 
 
-#: border edges per face above which the report notes the holes of the original's mesh (bun_zipper: 0.003, the
-#: shared aerial and terrestrial scans: 0.13-0.69)
+#: border edges per face above which the report notes the holes of the original's mesh
 HOLEY = 0.1
 
 
@@ -286,7 +276,8 @@ def plot_compactness(series: dict[str, list[int]], path: str | os.PathLike, titl
 
 
 def plot_point_errors(series: dict[str, dict], path: str | os.PathLike, title: str = "Point-level errors") -> str:
-    """Histograms of point errors over the fixed log bins; *series* maps a label to a report["point"]["histogram"]-like dict with ``log10_edges``, ``per_decade`` and ``forward``."""
+    """Histograms of point errors over the fixed log bins; *series* maps a label to a
+    report["point"]["histogram"]-like dict with ``log10_edges``, ``per_decade`` and ``forward``."""
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4))
     for label, h in series.items():
@@ -310,13 +301,7 @@ def plot_point_errors(series: dict[str, dict], path: str | os.PathLike, title: s
 
 
 def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray) -> str:
-    """Binary PLY of points coloured by *error* (red = 0, blue = max) with an ``error`` float property.
-
-    Parameters
-    ----------
-    xyz : ndarray of shape (n, 3), float64
-    error : ndarray of shape (n,)
-    """
+    """Binary PLY of points *xyz* (n, 3) coloured by *error* (n,) (red = 0, blue = max) with an ``error`` property."""
     import matplotlib
 
     xyz = np.asarray(xyz, dtype=np.float64)
@@ -338,17 +323,8 @@ def write_error_ply(path: str | os.PathLike, xyz: np.ndarray, error: np.ndarray)
 def write_report(report: dict, directory: str | os.PathLike, *, error_points: tuple[np.ndarray, np.ndarray] | None = None,
                  kept: np.ndarray | None = None) -> dict:
     """Write report.json, report.md, report.html, the plots and (given points and errors) errors.ply into *directory*.
-
-    Parameters
-    ----------
-    error_points : (ndarray (n, 3), ndarray (n,)), optional
-        Original points and their forward errors (errors.ply, and a sample
-        of them in report.html's 3D view).
-    kept : ndarray of shape (m, 3), optional
-        The simplified cloud (a sample of it in report.html's 3D view).
-
-    Returns the mapping of file kinds to paths (also stored in ``report["files"]``).
-    """
+    *error_points* (xyz (n, 3), error (n,)) and *kept* (m, 3) also feed report.html's 3D views. Returns the file
+    kinds' paths (``report["files"]``)."""
     from .html import view_sample, write_html
 
     d = Path(directory)

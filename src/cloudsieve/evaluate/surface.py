@@ -1,29 +1,7 @@
-"""Surface-level errors, the paper's: meshes, Metro distances, compactness, on tiles.
+"""Surface-level errors, the paper's, on tiles: ball-pivoting meshes, Metro distances, compactness (:mod:`.mesh`).
 
-On T *tiles* (balls of at most M original points, centred on k-means centres
-of a uniform sample so that they spread over the cloud in proportion to its
-points; one tile holding the whole cloud when it has at most M points) the
-original and the simplified points are each meshed by ball pivoting, the two
-meshes compared both ways by Metro, and the compactness of their triangles
-measured (see :mod:`.mesh` for each, and for why Metro runs in a forked
-child). Per-tile figures are aggregated over tiles: Metro mean and RMS
-weighted by samples, max over tiles, compactness over all triangles.
-
-Which tiles (:mod:`.tiles`): T fixed ones as above; or, with a time
-*budget* (``cloudsieve evaluate``'s default), tiles drawn at random and
-sized so that the level takes about the budget at the rate measured on 2
-cores (:data:`.tiles.SURFACE_RATE`; never timed at run time, so the tiles
-and the figures are the same on any machine), the figures then those of a
-sample of tiles, their standard errors given; or
-*full*: every original point in one tile. Tiles are gathered in one
-streamed pass over the original (memory: at most M points per tile plus
-one chunk; every point with *full*), after one pass for a uniform sample;
-the simplified cloud is in memory.
-
-Cost: ball pivoting dominates (pymeshlab, one core per mesh; the original's
-and the simplified tile meshes are built at once in two forked children),
-its 2r pass about twice its r pass; Metro costs more per sample where one
-mesh has holes (vcg's grid search widens up to MaxDist).
+Per tile both clouds are meshed and compared both ways; figures are aggregated over tiles (Metro mean and RMS
+weighted by samples, max over tiles, compactness over all triangles). Tiles: :mod:`.tiles`.
 """
 
 from __future__ import annotations
@@ -146,8 +124,8 @@ def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
 
 def _plan(src, tiles: int, tile_points: int, seed: int, budget: float | None, full: bool,
           sample: tuple[np.ndarray, int] | None) -> tuple[list[dict], list[np.ndarray], dict, np.ndarray | None]:
-    """The tiles (fixed, budget or full; see :mod:`.tiles`), their original points, how they were chosen, and with
-    *full* the centres of the cells (:func:`_simplified_tiles` finds a simplified cloud's points in each tile)."""
+    """The tiles (fixed, budget or full; :mod:`.tiles`), their original points, how they were chosen, and with
+    *full* the cells' centres."""
     if budget is None and not full:
         chosen = choose_tiles(src, tiles or 4, tile_points, seed=seed)
         if chosen:
@@ -179,8 +157,8 @@ def _whole(src):
 
 
 def _simplified_tiles(simplified: np.ndarray, chosen: list[dict], centres: np.ndarray | None) -> list[np.ndarray]:
-    """The points of *simplified* in each tile of a plan: all of them for the whole cloud, those nearest each
-    cell's centre for *full*, else those within each tile's ball."""
+    """The points of *simplified* in each tile: all (whole cloud), nearest each cell's centre (*full*), or in each
+    ball."""
     if chosen and chosen[0].get("whole_cloud"):
         return [simplified]
     if centres is not None:
@@ -208,78 +186,22 @@ def surface_errors(original: Any, simplified: np.ndarray, tiling: TilePlan = Til
                    diagonal: float | None = None, samples: int | None = None, max_samples: int = 500_000,
                    progress=None, cache: dict | None = None, reference: tuple[np.ndarray, np.ndarray] | None = None,
                    sample: tuple[np.ndarray, int] | None = None) -> dict:
-    """The paper's surface-level figures on tiles of the cloud.
+    """The paper's surface-level figures on tiles of *original* (streamed) and *simplified* (m, 3).
 
-    Parameters
-    ----------
-    original : ndarray (n, 3), PointStore, store path, file path or Source
-        Streamed (tiles gathered in one pass).
-    simplified : ndarray of shape (m, 3)
-        In memory.
-    tiling : TilePlan
-        The fields ``tiles``, ``budget``, ``full``, ``tile_points`` and ``seed`` below (default: 4 tiles of
-        200,000 points, seed 0).
-    tiles : int or None
-        Number of tiles T (fewer when the cloud has fewer than T*M points;
-        None: 4); with *budget*, T tiles sized to fit it (fewer if they do
-        not), None: as many as fit, sized for 8.
-    budget : float, optional
-        Seconds: T tiles drawn at random, sized so that they take about this
-        long at the measured rate :data:`.tiles.SURFACE_RATE` (:mod:`.tiles`).
-        None: T tiles of M points (k-means centres), however long they take.
-    full : bool
-        Every original point in one tile of about M points (no budget).
-    sample : (ndarray (s, 3), int), optional
-        A uniform sample of the original and its point count, when one is
-        at hand (saves a pass over the original).
-    tile_points : int
-        At most M original points per tile; the whole cloud is one tile when
-        it has at most M points.
-    seed : int
-        Seed of the tile choice.
-    diagonal : float, optional
-        The original's bounding-box diagonal for the ``*_pct`` figures
-        (computed when not given).
-    samples, max_samples : int
-        Metro samples per direction (see :func:`.mesh.metro`).
-    progress : callable, optional
-        Called with 1 per tile done.
-    cache : dict, optional
-        Keeps the original's tiles, their points and meshes between calls on
-        the same original with the same tile options (compare evaluates
-        several simplifications of one cloud); each call finds its own
-        simplified points in the tiles.
-    reference : (vertices (v, 3), faces (f, 3)), optional
-        A mesh of the scanned surface (:func:`.mesh.load_mesh`): the
-        simplified and the original tile meshes are compared with it by Metro
-        (cropped to each tile's ball), in ``reference``.
+    *tiling*: ``tiles`` T (None: 4, or with a budget as many as fit, sized
+    for 8), ``budget`` (seconds at :data:`.tiles.SURFACE_RATE`), ``full``,
+    ``tile_points`` M, ``seed``. *sample*: a uniform sample of the original
+    and its count, saving a pass. *samples*, *max_samples*: Metro's
+    (:func:`.mesh.metro`). *cache*: the original's tiles and meshes across
+    calls (compare). *reference*: a mesh both tile meshes are compared with.
 
-    Returns
-    -------
-    dict
-        ``tiles`` (per tile: centre, radius, points, diagonal, ``forward``,
-        ``backward``, ``original``/``simplified`` mesh figures), aggregated
-        ``forward`` and ``backward`` (mean and RMS weighted by samples, max
-        over tiles), ``mean, rms, max`` and their ``_pct`` (the larger of the
-        two directions, Metro's symmetric convention), ``on_surface`` (Metro
-        where the original's mesh has surface: ``backward`` over the samples
-        whose closest point on the original's mesh is not on its border,
-        ``excluded`` and ``excluded_share`` of the backward samples, and
-        ``mean, rms, max`` and their ``_pct``, the larger of ``forward`` and
-        that ``backward``), with *reference* ``reference`` (``faces``, and
-        for the ``simplified`` and the ``original`` tile meshes Metro against
-        the reference: ``forward`` (samples on the reference), ``backward``,
-        ``mean, rms, max`` and their ``_pct``, the larger), ``original`` and
-        ``simplified`` mesh totals (``vertices, border_edges, faces,
-        compact_share, compact, compactness_mean, compactness_hist``;
-        border edges: :func:`.mesh.border_edges`), and for the simplified
-        mesh at the top level ``vertices, faces, compact_share, compact``;
-        ``sampling``: ``mode`` ("whole" cloud, "fixed" T tiles, "budget" or
-        "full"), ``tiles`` (run), ``tile_points`` (M), ``seconds``,
-        ``population`` and ``points_share`` (the share of the original's
-        points in the tiles run), with a budget ``budget`` and ``rate`` (the
-        measured original points a second it was sized by), and for sampled tiles ``spread`` (:func:`.tiles.spread`:
-        standard errors over the tiles).
+    Returns ``tiles``; ``forward``, ``backward``, ``mean, rms, max`` (+
+    ``_pct``, the larger direction); ``on_surface`` (without backward samples
+    facing a hole of the original's mesh; ``excluded``, ``excluded_share``);
+    ``reference``; ``original`` and ``simplified`` mesh totals, the latter
+    also at top level; ``sampling`` (``mode``, ``tiles``, ``tile_points``,
+    ``seconds``, ``population``, ``points_share``, ``budget``, ``rate``,
+    ``spread``).
     """
     t0 = time.perf_counter()
     src = open_source(original)

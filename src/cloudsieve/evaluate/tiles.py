@@ -1,27 +1,10 @@
 """The surface level's tiles: where they are, which points they hold, and the spread of their figures.
 
-Three ways to choose them (:func:`.surface.surface_errors`):
-
-- **fixed** (:func:`choose_tiles`): T tiles, k-means centres of a uniform
-  sample (spread over the cloud in proportion to its points), each the M
-  original points nearest its centre;
-- **budget** (the default of ``cloudsieve evaluate``): T tiles (8 unless
-  given) drawn at random (centres uniform over the original's points,
-  seeded: a tile is where a random original point is), each of the size
-  that makes the T tiles take the budget at :data:`SURFACE_RATE`, the rate
-  measured on 2 cores (:func:`budget_tile_points`). The size is set by that
-  measurement, not by a clock at run time: the tiles, and so the figures,
-  are the same on any machine and under any load, and the time scales with
-  the machine's speed. The figures are the sampled tiles' and their spread
-  is given as a standard error (:func:`spread`);
-- **full** (:func:`partition_tiles`): every original point in one tile (the
-  cells of k-means centres of a uniform sample, at most about M points
-  each): the surface level of the whole cloud, in time proportional to its
-  size.
-
-Tiles are gathered in one streamed pass over the original
-(:func:`gather_tiles`, or :func:`partition_tiles`), after one pass for the
-uniform sample (:func:`uniform_sample`).
+**fixed** (:func:`choose_tiles`): T tiles on k-means centres of a uniform sample, M points each; **budget**
+(``cloudsieve evaluate``'s default): T tiles (8) on random points, sized to take the budget at
+:data:`SURFACE_RATE` (:func:`budget_tile_points`), with standard errors (:func:`spread`); **full**
+(:func:`partition_tiles`): every point, in cells of about M. One streamed pass gathers them, after one for
+:func:`uniform_sample`.
 """
 
 from __future__ import annotations
@@ -40,10 +23,8 @@ __all__ = ["SAMPLE_SIZE", "MIN_TILE_POINTS", "BUDGET_TILES", "SURFACE_RATE", "sa
 SAMPLE_SIZE = 200_000
 #: the smallest tile a budget makes (smaller tiles mesh too little surface to compare)
 MIN_TILE_POINTS = 10_000
-#: original points a second of the surface level (both tile meshes and both Metro directions, the two meshes
-#: in forked children at once) on 2 cores, rounded down from the rates of make_scan and autzen_trim clouds
-#: (docs/benchmarks.md, "Evaluation"); a budget sizes its tiles at this rate, never by a clock, so the tiles
-#: and the figures are the same on any machine and under any load
+#: original points a second of the surface level on 2 cores (docs/benchmarks.md, "Evaluation"); a budget sizes
+#: its tiles at this rate, never by a clock, so tiles and figures do not depend on the machine or its load
 SURFACE_RATE = 4_000
 #: tiles a budget is sized for (at least): enough for a standard error over tiles
 BUDGET_TILES = 8
@@ -79,14 +60,9 @@ def _radii(tree: cKDTree, centres: np.ndarray, tile_points: int, n: int, margin:
 
 
 def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sample_size: int = 200_000) -> list[dict]:
-    """Pick *tiles* tile centres spread over the cloud and a first radius each.
-
-    Returns a list of ``{"centre": [x, y, z], "radius": r}``; an empty list
-    when the cloud has at most *tile_points* points (then the whole cloud is
-    one tile). Centres are k-means centres (seeded) of a uniform sample of the
-    cloud, snapped to a sample point; the radius holds about *tile_points*
-    points by the sample's density.
-    """
+    """Pick *tiles* tile centres spread over the cloud and a first radius each: ``[{"centre", "radius"}]``.
+    Centres are seeded k-means centres of a uniform sample, snapped to a sample point; radii hold about
+    *tile_points* points. Empty when the cloud has at most *tile_points* points (one tile, the whole cloud)."""
     from scipy.cluster.vq import kmeans2
 
     from ._source import open_source
@@ -107,11 +83,7 @@ def choose_tiles(source: Any, tiles: int, tile_points: int, *, seed: int = 0, sa
 
 
 def random_tiles(sample: np.ndarray, n: int, count: int, tile_points: int, *, seed: int = 0) -> list[dict]:
-    """*count* tiles centred on random points of the uniform *sample* of a cloud of *n* points.
-
-    Each radius holds about 1.3 x *tile_points* points by the sample's
-    density (:func:`gather_tiles` keeps the *tile_points* nearest).
-    """
+    """*count* tiles centred on random points of *sample*, radii holding about 1.3 x *tile_points* points."""
     rng = np.random.default_rng([seed, 7])
     centres = sample[rng.choice(len(sample), size=min(count, len(sample)), replace=False)]
     radii = _radii(cKDTree(sample), centres, tile_points, n, margin=1.3)
@@ -120,10 +92,7 @@ def random_tiles(sample: np.ndarray, n: int, count: int, tile_points: int, *, se
 
 def gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
     """Stream the original, keeping per tile the points within its radius (at most the *tile_points* nearest).
-
-    Each chunk is sorted by x once; a tile looks only at the points of its
-    x range. Sets each tile's ``radius`` to the one it ends with.
-    """
+    Sets each tile's ``radius`` to the one it ends with."""
     centres = np.array([t["centre"] for t in tiles], dtype=np.float64).reshape(-1, 3)
     radii = np.array([t["radius"] for t in tiles], dtype=np.float64)
     kept: list[list[np.ndarray]] = [[] for _ in tiles]
@@ -162,13 +131,8 @@ def gather_tiles(src, tiles: list[dict], tile_points: int) -> list[np.ndarray]:
 def partition_tiles(src, sample: np.ndarray, n: int, tile_points: int, *,
                     seed: int = 0) -> tuple[list[dict], list[np.ndarray], np.ndarray]:
     """Every point in one tile: the cells of ceil(n / M) k-means centres of *sample* (one streamed pass).
-
-    Returns (tiles, original points per tile, every centre); each tile's
-    ``centre`` is its k-means centre, ``cell`` the centre's index and
-    ``radius`` the distance of its farthest original point (for cropping a
-    reference mesh). Cells without an original point make no tile.
-    :func:`cell_points` gives another cloud's points per tile.
-    """
+    Returns (tiles, original points per tile, every centre); a tile has ``centre``, ``cell`` (the centre's index)
+    and ``radius`` (its farthest point). Empty cells make no tile."""
     from scipy.cluster.vq import kmeans2
 
     count = max(1, -(-n // tile_points))
@@ -200,10 +164,8 @@ def cell_points(xyz: np.ndarray, centres: np.ndarray, tiles: list[dict]) -> list
 
 
 def budget_tile_points(rate: float, remaining: float, tiles: int, tile_points: int) -> int:
-    """Tile size for a budget: *tiles* tiles of it take *remaining* seconds at *rate* points/s.
-
-    At least :data:`MIN_TILE_POINTS` (or *tile_points* when smaller), at most *tile_points*.
-    """
+    """Tile size for *tiles* tiles to take *remaining* seconds at *rate* points/s, within [MIN_TILE_POINTS,
+    *tile_points*]."""
     low = min(MIN_TILE_POINTS, tile_points)
     return int(min(tile_points, max(low, rate * max(remaining, 0.0) / max(tiles, 1))))
 
@@ -219,13 +181,8 @@ def _weighted_se(x: np.ndarray, w: np.ndarray) -> float:
 
 def spread(recs: list[dict], diagonal: float) -> dict:
     """Standard errors over sampled tiles of the aggregated figures (% of *diagonal*).
-
-    For each direction (and Metro where the original has surface), the
-    standard error of the samples-weighted mean (``mean_pct_se``) and of the
-    RMS (``rms_pct_se``, from that of the mean square), treating the tiles
-    as a random sample of the cloud's tiles (NaN with fewer than 2 tiles);
-    ``compact_share_se`` over the simplified meshes' faces.
-    """
+    Per direction (and ``on_surface``): ``mean_pct_se`` and ``rms_pct_se``, tiles taken as a random sample (NaN
+    below 2 tiles); ``compact_share_se``."""
     scale = 100.0 / diagonal if diagonal > 0 else math.nan
     out: dict[str, Any] = {"tiles": len(recs)}
     for name, get in (("forward", lambda r: r.get("forward")), ("backward", lambda r: r.get("backward")),

@@ -1,9 +1,8 @@
 """Point cloud file formats: streaming readers and writers picked by extension.
 
-Each format module exposes a :class:`~cloudsieve.io._base.Reader` and/or a
-:class:`~cloudsieve.io._base.Writer` subclass and is registered here with
-:func:`register_format` (as in meshio). Modules are imported lazily, so an
-optional dependency (pye57 for E57) is needed only when its format is used.
+Each format module has a :class:`~cloudsieve.io._base.Reader` and/or
+:class:`~cloudsieve.io._base.Writer` subclass, registered here with
+:func:`register_format` and imported lazily (pye57 is needed only for E57).
 
 ============  ====================================  ======  ======
 format        extensions                            read    write
@@ -16,13 +15,10 @@ e57           .e57                                  yes     no
 xyz           .xyz .txt .csv .pts                   yes     yes
 ============  ====================================  ======  ======
 
-Example
--------
 >>> from cloudsieve.io import open_reader
 >>> with open_reader("scan.laz", chunk_size=500_000) as reader:  # doctest: +SKIP
 ...     for start, arrays in reader.chunks():  # cloudsieve.store.Chunk
 ...         xyz = arrays["xyz"]          # (n, 3) float64, points start .. start + n - 1
-...         intensity = arrays["intensity"]
 """
 
 from __future__ import annotations
@@ -69,18 +65,9 @@ _EXTENSIONS: dict[str, str] = {}
 
 
 def register_format(name: str, extensions: list[str], reader: Any = None, writer: Any = None) -> None:
-    """Register a format: its extensions and its reader/writer classes.
-
-    Parameters
-    ----------
-    name : str
-        Format name ("las", ...).
-    extensions : list of str
-        Suffixes including the dot, lower case (".copc.laz" is allowed).
-    reader, writer : class or "module:Class" string, optional
-        Classes following :class:`Reader` / :class:`Writer`; strings are
-        imported on first use.
-    """
+    """Register format *name*: its lower-case *extensions* (with the dot) and its reader/writer.
+    *reader* and *writer* are :class:`Reader` / :class:`Writer` subclasses or ``"module:Class"`` strings imported
+    on first use."""
     FORMATS[name] = {"extensions": list(extensions), "reader": reader, "writer": writer}
     for ext in extensions:
         _EXTENSIONS[ext.lower()] = name
@@ -98,15 +85,7 @@ for _name, (_extensions, _reader, _writer) in FORMAT_TABLE.items():  # the table
 
 
 def detect_format(path: str | os.PathLike, format: str | None = None) -> str:
-    """The format of *path*: *format* if given, else by extension.
-
-    ``.copc.laz`` is "copc"; ``.txt``, ``.csv``, ``.xyz``, ``.pts`` are "xyz".
-
-    Raises
-    ------
-    UnknownFormatError
-        Unknown *format* or extension.
-    """
+    """The format of *path*: *format* if given, else by extension; UnknownFormatError otherwise."""
     path = os.fspath(path)
     if format is not None:
         fmt = format.lower().lstrip(".")
@@ -146,17 +125,9 @@ def check_input_file(path: str) -> None:
 
 def check_readable(path: str | os.PathLike, format: str | None = None) -> None:
     """Raise unless *path* is a point cloud file cloudsieve can read, or a point store.
-
-    Checks only what can be known without reading the points: the file exists,
-    is a file, is not empty, can be opened, and its format (*format*, else the
-    extension) has a reader. A folder must be a point store; a URL is a point
-    store or a file.
-
-    Raises
-    ------
-    InputNotFoundError, InputIsDirectoryError, EmptyInputError,
-    InputNotReadableError, UnknownFormatError, StoreNotFoundError
-    """
+    Checks what is known without reading points: exists, is a non-empty file, opens, and its format has a reader. A
+    folder must be a point store; a URL is a store or a file. Raises InputNotFoundError, InputIsDirectoryError,
+    EmptyInputError, InputNotReadableError, UnknownFormatError or StoreNotFoundError."""
     path = os.fspath(path)
     local = local_path(path)
     if local is None:  # a URL: a point store (a zarr.json at its root), else a file
@@ -188,18 +159,9 @@ def _writable_formats() -> str:
 
 def check_writable(path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False) -> str:
     """Raise unless a cloud of *format* (default: by extension) can be written at *path*; returns the format.
-
-    Checks, without creating anything: the format has a writer; for a local
-    path, that *path* does not exist (unless *overwrite*) and its folder
-    exists, is a folder and is writable.
-
-    Raises
-    ------
-    UnknownFormatError
-        Unknown extension or format, or a format that cannot be written
-        (E57, COPC); the message lists the formats that can.
-    DestinationExistsError, DestinationNotWritableError
-    """
+    Creates nothing. UnknownFormatError (listing the writable formats) for a format without a writer (E57, COPC);
+    for a local path, DestinationExistsError unless *overwrite*, DestinationNotWritableError when its folder is
+    missing or not writable."""
     path = os.fspath(path)
     try:
         fmt = detect_format(path, format)
@@ -223,15 +185,8 @@ def check_writable(path: str | os.PathLike, format: str | None = None, *, overwr
 
 
 def check_folder(path: str | os.PathLike) -> None:
-    """Raise unless the folder *path* exists and is writable, or could be created (nothing is created).
-
-    For outputs written into a folder (reports): the nearest existing
-    ancestor must be a writable folder. A remote URL is not checked.
-
-    Raises
-    ------
-    DestinationNotWritableError
-    """
+    """Raise DestinationNotWritableError unless the folder *path* exists and is writable, or could be created.
+    Nothing is created; a remote URL is not checked."""
     path = os.fspath(path)
     if "://" in path and not path.startswith("file://"):
         return
@@ -328,16 +283,8 @@ def open_writer(
 
 
 def read_cloud(path: str | os.PathLike, *, format: str | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Load a whole (small) cloud file (a point store: :func:`cloudsieve.store.read_cloud`).
-
-    This loads everything into memory: use it for tests, tiles and small
-    clouds; stream large ones with :func:`open_reader`.
-
-    Returns
-    -------
-    xyz : ndarray of shape (n, 3), float64
-    attributes : dict of str to ndarray of shape (n,) or (n, k)
-    """
+    """Load a whole (small) cloud file into memory: ``(xyz (n, 3) float64, attributes)``.
+    Stream large ones with :func:`open_reader`; a point store: :func:`cloudsieve.store.read_cloud`."""
     with open_reader(path, format=format) as reader:
         return concatenated([arrays for _, arrays in reader.chunks()], reader.dtypes)
 

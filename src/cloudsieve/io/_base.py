@@ -1,12 +1,8 @@
 """Reader and Writer base classes shared by the format modules.
 
-A :class:`Reader` is a context manager whose :meth:`Reader.chunks` yields
-:class:`~cloudsieve.store.Chunk` ``(start, arrays)``: ``arrays`` maps "xyz"
-(n, 3) float64 and each attribute to numpy arrays; it never holds the whole
-file. A :class:`Writer` writes to a temporary file
-in the destination's folder and renames it to the destination only when the
-``with`` block exits cleanly, so a failed write leaves nothing under the
-destination name.
+A :class:`Reader` streams :class:`~cloudsieve.store.Chunk` ``(start, arrays)``
+and never holds the whole file. A :class:`Writer` writes a temporary file
+renamed to the destination only when the ``with`` block exits cleanly.
 """
 
 from __future__ import annotations
@@ -31,23 +27,9 @@ Dtypes = dict[str, tuple[np.dtype, tuple]]
 
 class Reader:
     """Streaming reader of one point cloud file (base class).
-
-    Attributes
-    ----------
-    path : str
-        The file read.
-    format : str
-        "las", "laz", "copc", "ply", "e57" or "xyz".
-    count : int or None
-        Number of points; None only when unknown without a full scan (XYZ).
-    header : dict
-        JSON-serialisable source header (format-specific).
-    dtypes : dict of str to (numpy.dtype, tuple)
-        Attribute name -> (dtype, per-point shape); always has
-        ``"xyz": (float64, (3,))``.
-    chunk_size : int
-        Points per chunk yielded by :meth:`chunks`.
-    """
+    Attributes: ``path``, ``format`` ("las", "laz", "copc", "ply", "e57", "xyz"), ``count`` (None only when unknown
+    without a scan: XYZ), ``header`` (JSON-serialisable), ``dtypes`` (name -> (dtype, per-point shape), with
+    ``"xyz": (float64, (3,))``), ``chunk_size``."""
 
     path: str
     format: str
@@ -67,9 +49,7 @@ class Reader:
 
     def chunks(self) -> Iterator[Chunk]:
         """Yield :class:`~cloudsieve.store.Chunk` ``(start, arrays)`` of at most ``chunk_size`` points, in file order.
-
-        ``arrays`` is ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``.
-        """
+        ``arrays`` is ``{"xyz": (n, 3) float64, name: (n,) or (n, k), ...}``."""
         start = 0
         for arrays in self._read_chunks():
             yield Chunk(start, arrays)
@@ -94,19 +74,8 @@ class Reader:
 
 class Writer:
     """Chunked writer to a temporary file renamed on clean exit (base class).
-
-    Subclasses implement :meth:`_open` (the temporary file is open as
-    ``self.file``), :meth:`_write` and :meth:`_close`.
-
-    Attributes
-    ----------
-    path : str
-        Destination.
-    tmp_path : str
-        Temporary file beside the destination.
-    count : int
-        Points written so far.
-    """
+    Subclasses implement :meth:`_open` (``self.file`` is open), :meth:`_write` and :meth:`_close`. Attributes:
+    ``path``, ``tmp_path``, ``count``."""
 
     def __init__(
         self,
@@ -127,8 +96,7 @@ class Writer:
         self.options = options
         self.count = 0
         check_destination(path, overwrite)
-        # a URL: written in this process's temporary folder (the writers seek back to their header), then
-        # uploaded whole; a local path: beside the destination, then renamed
+        # a URL: written in a local temporary file (writers seek back to their header), then uploaded
         self._remote = storage.is_url(path)
         self.tmp_path = _local_temp(path) if self._remote else make_temp_path(path)
         self.file: BinaryIO = open(self.tmp_path, "wb")  # noqa: SIM115 - closed in __exit__

@@ -52,11 +52,8 @@ def _tokens(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: str 
 
 def parse_rows(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: str | None = None) -> np.ndarray:
     """Parse ``[(line_number, text), ...]`` into a float64 array of shape (n, ncols).
-
-    *delimiter* None splits on whitespace. Raises CorruptInputError naming
-    the first bad line (wrong number of values, or a value that is not a
-    number).
-    """
+    *delimiter* None splits on whitespace. Raises CorruptInputError naming the first bad line (wrong number of
+    values, or a value that is not a number)."""
     tokens, split = _tokens(lines, ncols, path, delimiter)
     try:
         values = np.array(tokens, dtype=np.float64)
@@ -68,11 +65,8 @@ def parse_rows(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: s
 def parse_typed_rows(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: str | None,
                      integers: dict[int, str], typed_rows: int) -> tuple[np.ndarray, dict[int, np.ndarray]]:
     """:func:`parse_rows`, and the columns *integers* (index -> name) as int64 arrays.
-
-    A value of an integer column may be written as a float of no fraction
-    (``3.0``); one with a fraction raises CorruptInputError naming its line
-    and saying that the column's first *typed_rows* rows made it integers.
-    """
+    A value of an integer column may be written as a float of no fraction (``3.0``); one with a fraction raises
+    CorruptInputError naming its line and saying that the column's first *typed_rows* rows made it integers."""
     tokens, split = _tokens(lines, ncols, path, delimiter)
     try:
         values = np.array(tokens, dtype=np.float64).reshape(len(lines), ncols)

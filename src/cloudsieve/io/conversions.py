@@ -1,14 +1,10 @@
 """What a conversion between formats drops or maps, said once per written file.
 
-A writer fed a header of another format (LAZ to PLY, PLY to LAZ, a store to
-XYZ) cannot keep everything: :func:`conversion_note` names each field the
-destination has no place for (the CRS and the other VLRs of a LAS source,
-the comments and the other elements of a PLY source, such as its faces) and
-each attribute written under another name or with its values converted
-(PLY ``intensity`` as float to LAS intensity, 8-bit colour to LAS 16-bit
-colour, names LAS does not take). :class:`~cloudsieve.io._base.Writer` logs
-it as one warning when the file is opened. Writing a format to itself says
-nothing (everything is carried over).
+:func:`conversion_note` names each field the destination has no place for
+(a LAS source's CRS and VLRs, a PLY source's comments and other elements)
+and each attribute renamed or converted (float intensity, 8-bit colour,
+names LAS does not take); :class:`~cloudsieve.io._base.Writer` logs it as
+one warning. A format written to itself says nothing.
 """
 
 from __future__ import annotations
@@ -69,26 +65,9 @@ def _ply_notes(header: dict, out: str) -> list[str]:
 def conversion_note(path: str, out_format: str, source_format: str | None, header: dict,
                     mapping: list[tuple[str, str, str]] | None = None) -> str | None:
     """One message naming what writing *header*'s cloud as *out_format* drops and maps, or None.
-
-    Parameters
-    ----------
-    path : str
-        The destination (named in the message).
-    out_format : str
-        The destination's format (``las``, ``laz``, ``ply``, ``xyz``).
-    source_format : str or None
-        The format *header* came from (None: guessed from the header's keys).
-    header : dict
-        The source header (``Reader.header`` / ``PointStore.header``).
-    mapping : list of (str, str, str), optional
-        A LAS writer's attribute -> (LAS dimension, conversion) map
-        (:func:`~cloudsieve.io.las_header.build_header`).
-
-    Returns
-    -------
-    str or None
-        ``"DST: converting FORMAT to OUT drops ...; maps ..."``.
-    """
+    *path* is the destination; *source_format* None is guessed from the header's keys; *mapping* a LAS writer's
+    (:func:`~cloudsieve.io.las_header.build_header`). The message reads ``"DST: converting FORMAT to OUT drops ...;
+    maps ..."``."""
     header = header or {}
     source = _source_family(source_format, header)
     out = "las" if out_format in _LAS else out_format

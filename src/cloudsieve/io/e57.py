@@ -1,19 +1,11 @@
-"""E57 (ASTM E2807) terrestrial scans through pye57 (optional: ``pip install pye57``).
+"""E57 (ASTM E2807) terrestrial scans through pye57 (optional: ``pip install pye57``); read-only.
 
-Every ``data3D`` scan is read in turn and the scans are concatenated into
-one cloud, each scan's pose (rotation, translation) applied so all points
-share the file's frame; spherical scans are converted to Cartesian.
-
-Memory: pye57's convenience ``read_scan``/``read_scan_raw`` load a whole scan
-at once; this reader instead drives libE57's compressed-vector reader with
-buffers of ``chunk_size`` points, so memory stays bounded by the chunk size
-even for a scan of billions of points. (Images in ``images2D`` are ignored.)
-
-Attributes keep their E57 names (``intensity``, ``colorRed``, ``colorGreen``,
-``colorBlue``, ``rowIndex``, ``columnIndex``, ``cartesianInvalidState``,
-...) with pye57's types; point fields pye57 has no buffer type for are
-skipped (logged). Points flagged invalid by ``cartesianInvalidState`` are
-kept, with the flag, as in the file. E57 is read-only here.
+Every ``data3D`` scan is read in turn, its pose applied, spherical
+coordinates converted, into one cloud. libE57's compressed-vector reader is
+driven with ``chunk_size`` buffers (pye57's ``read_scan`` loads a whole
+scan), so memory is bounded. Attributes keep their E57 names and pye57's
+types; fields without a pye57 buffer type are skipped (logged); points
+flagged by ``cartesianInvalidState`` are kept with the flag. Images are ignored.
 """
 
 from __future__ import annotations

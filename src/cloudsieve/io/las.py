@@ -1,15 +1,8 @@
 """LAS, LAZ and COPC through laspy (lazrs for compression), in chunks.
 
-Reading uses ``laspy.open(...).chunk_iterator`` with lazrs' parallel
-decompression; every dimension comes out under its laspy name with its raw
-value (bit fields unpacked, scaled extra bytes unscaled), plus "xyz" =
-``X * scale + offset`` in float64.
-
-The header travels as a JSON-serialisable dict (:mod:`.las_header`): the
-reader describes the file's header with :func:`.las_header.header_to_dict`,
-the writer rebuilds it with :func:`.las_header.header_from_dict` (LAS
-sources) or makes a fresh one with :func:`.las_header.build_header` (PLY,
-E57, XYZ sources).
+Each dimension comes out under its laspy name with its raw value (bit fields
+unpacked, extra bytes unscaled), plus "xyz" = ``X * scale + offset`` float64.
+The header travels as a dict (:mod:`.las_header`).
 """
 
 from __future__ import annotations
@@ -53,13 +46,8 @@ def _las_dtypes(header: laspy.LasHeader) -> dict:
 
 
 class LasReader(Reader):
-    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10).
-
-    Options
-    -------
-    laz_backend : laspy.LazBackend, optional
-        Default: lazrs with parallel decompression when available.
-    """
+    """Chunked reader of LAS 1.0-1.4 / LAZ / COPC files (point formats 0-10); option ``laz_backend`` (default lazrs,
+    parallel)."""
 
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
@@ -151,14 +139,9 @@ class LasReader(Reader):
 # --------------------------------------------------------------------- writer
 class LasWriter(Writer):
     """Chunked LAS/LAZ writer.
-
-    A LAS-sourced header (``source_format`` in las/laz/copc) is carried over
-    (see :func:`.las_header.header_from_dict`); other sources get
-    :func:`.las_header.build_header`
-    (pass ``bounds=`` to choose scales and offsets). laspy updates the point
-    counts, returns histogram and bounds. ``label=`` names the file messages
-    speak of, when this one is a part of it.
-    """
+    A LAS-sourced header is carried over (:func:`.las_header.header_from_dict`); other sources get
+    :func:`.las_header.build_header` (``bounds=`` sets scales and offsets). ``label=`` names the whole file in
+    messages when this is a part of it."""
 
     def _open(self) -> None:
         self._label = self.options.get("label", self.path)  # the file named in messages (a part: its whole file)
@@ -196,12 +179,8 @@ class LasWriter(Writer):
         self._said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
 
     def _keep_extra_bytes_vlrs(self) -> None:
-        """Write the source's extra-bytes VLRs verbatim.
-
-        laspy resets and regrows the min/max statistics of the first
-        extra-bytes VLR (and leaves them inverted for some files); the source
-        record is kept instead, so a round trip gives the same VLR bytes.
-        """
+        """Write the source's extra-bytes VLRs verbatim (laspy regrows their min/max statistics), for a byte-exact
+        round trip."""
         source = [v for v in self._header_dict.get("vlrs", []) if v["user_id"] == "LASF_Spec" and v["record_id"] == 4]
         vlrs = self._writer.header.vlrs
         positions = [i for i, v in enumerate(vlrs) if type(v).__name__ == "ExtraBytesVlr"]

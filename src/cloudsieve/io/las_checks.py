@@ -1,14 +1,10 @@
 """Checks of LAS/LAZ files that laspy does not make, for clear errors on damaged files.
 
-- :func:`check_layout`: the header's offsets and record counts fit in the
-  file (laspy trusts them, and a flipped byte made it allocate gigabytes);
-- :func:`decodable_points`: where the points of a truncated LAZ file stop
-  decoding, for a message that names the point;
-- :func:`decode_error`: the error of a failed decode, naming that point;
-- :data:`QUIET_READS`: laspy's reader log is silenced while cloudsieve
-  reads, which raises the error itself.
-
-Used by :class:`cloudsieve.io.las.LasReader`.
+:func:`check_layout` (header offsets and counts fit the file),
+:func:`decodable_points` and :func:`decode_error` (name the first point of a
+LAZ file that fails to decode), :data:`QUIET_READS` (laspy's reader log
+silenced while cloudsieve reads and raises itself). Used by
+:class:`cloudsieve.io.las.LasReader`.
 """
 
 from __future__ import annotations
@@ -26,14 +22,8 @@ __all__ = ["QuietReads", "QUIET_READS", "check_layout", "decodable_points", "dec
 
 
 class QuietReads(logging.Filter):
-    """Drops laspy's reader log records while cloudsieve reads a file.
-
-    laspy logs a failed decompression (``ERROR laspy.lasreader: IoError:
-    failed to fill whole buffer``, once per LAZ backend) and then raises; the
-    reader raises :class:`CorruptInputError` with that text and the point
-    where decoding failed, so the raw lines would only repeat it. Counted,
-    not per thread: ingest reads in a background thread.
-    """
+    """Drops laspy's reader log records while cloudsieve reads a file (its error repeats them).
+    Counted, not per thread: ingest reads in a background thread."""
 
     def __init__(self) -> None:
         super().__init__()
@@ -59,14 +49,9 @@ logging.getLogger("laspy.lasreader").addFilter(QUIET_READS)
 
 
 class _ChunkTableView(io.RawIOBase):
-    """A LAZ file seen with an empty chunk table appended (read-only, nothing written).
-
-    A truncated LAZ file has lost its chunk table (stored at the end), so
-    lazrs cannot open it. With fixed-size chunks the table is not needed to
-    decode in order: this view points the table offset (the 8 bytes at the
-    start of the point data) past the end of the file, where it shows an
-    empty table (version 0, no chunk).
-    """
+    """A LAZ file seen with an empty chunk table appended (read-only).
+    A truncated LAZ file has lost its chunk table (at its end); with fixed-size chunks lazrs decodes in order
+    without it, so this view points the table offset past the end of the file, at an empty table."""
 
     def __init__(self, path: str, offset_to_points: int) -> None:
         self._file = open(path, "rb")  # noqa: SIM115 - closed in close()
@@ -109,17 +94,9 @@ class _ChunkTableView(io.RawIOBase):
 
 
 def decodable_points(path: str) -> int | None:
-    """How many points of the truncated LAZ file *path* decode in order before its data ends.
-
-    Error path only: decodes the file again from its first point with lazrs
-    alone (no chunk table needed, see :class:`_ChunkTableView`), LAZ chunk by
-    LAZ chunk, then one point at a time within the chunk that fails (at most
-    one LAZ chunk, 50,000 points by default). None when it cannot tell: the
-    file is not truncated (its chunk table is in place: corrupt data may
-    decode to garbage before it fails, so the failing chunk is all that is
-    known), its chunks have variable sizes (COPC: they need the lost table),
-    or lazrs is missing.
-    """
+    """How many points of the truncated LAZ file *path* decode in order before its data ends (error path only).
+    Decodes again with lazrs, LAZ chunk by chunk, then point by point within the failing chunk. None when it cannot
+    tell: the chunk table is in place (not truncated), chunks have variable sizes (COPC), or lazrs is missing."""
     try:
         import lazrs
 
@@ -164,12 +141,8 @@ def decodable_points(path: str) -> int | None:
 
 def check_layout(path: str) -> None:
     """Refuse a LAS header whose record counts and offsets point past the file, before laspy reads it.
-
-    laspy trusts them: a flipped byte in an EVLR length made it allocate
-    gigabytes (a MemoryError, or the memory actually taken), a huge VLR count
-    loops. Only what the header says about where things are is checked: the
-    point data offset, then the VLRs and EVLRs walked header by header.
-    """
+    laspy trusts them, and a flipped byte can make it allocate gigabytes. Checks the point data offset, then walks
+    the VLRs and EVLRs."""
     size = storage.size(path)
     with storage.open_input(path, storage.HEADER_BLOCK) as fh:
         head = fh.read(375)
@@ -207,11 +180,7 @@ def check_layout(path: str) -> None:
 
 
 def decode_error(path: str, count: int, compressed: bool, done: int, last: int, exc: Exception) -> CorruptInputError:
-    """The error for points *done* to *last* of *path* failing to decode: it names the first point that fails.
-
-    For LAZ with fixed-size chunks the point is exact (see
-    :func:`decodable_points`); otherwise the message gives the points read.
-    """
+    """The error for points *done* to *last* of *path* failing to decode, naming the first failing point when known."""
     decodable = decodable_points(path) if compressed else None
     if decodable is not None and decodable >= count:
         return CorruptInputError(

@@ -1,21 +1,12 @@
 """The LAS header as a JSON-serialisable dict, and back; headers for non-LAS clouds.
 
-The header becomes a dict (:func:`header_to_dict`): version, point format
-(with every extra-bytes definition), scales, offsets, VLRs and EVLRs (record
-data in base64), CRS, and the identification fields. :func:`header_from_dict`
-rebuilds a ``laspy.LasHeader`` from it so a LAS source comes back with the
-same header; laspy updates counts and bounds. Compression-specific records
-are not carried: the LASzip VLR is made afresh by laspy, and the COPC records
-(user id "copc": the info VLR and the hierarchy EVLR) are dropped with a
-warning, because they describe the octree layout of the source file and
-would be wrong in any other file.
-
-Non-LAS sources (PLY, E57, XYZ) get a fresh header (:func:`build_header`):
-point format 0-3 by the attributes present, scales fine enough for the
-bounds, offsets at the minimum, LAS-named attributes mapped (colour to
-16 bits) and every other attribute stored as extra bytes.
-
-The chunked reader and writer that use these dicts are in :mod:`.las`.
+:func:`header_to_dict`: version, point format with extra-bytes definitions,
+scales, offsets, VLRs and EVLRs (data in base64), CRS, identification.
+:func:`header_from_dict` rebuilds a ``laspy.LasHeader``; laspy updates counts
+and bounds. The LASzip VLR is made afresh by laspy; COPC records (user id
+"copc") are dropped with a warning: they describe the source's octree.
+:func:`build_header` makes a header for PLY, E57 or XYZ clouds.
+The chunked reader and writer are in :mod:`.las`.
 """
 
 from __future__ import annotations
@@ -200,10 +191,8 @@ def _is_dropped(v: dict, path: str) -> bool:
 
 
 def _writable_version(version: str, point_format: int, path: str) -> str:
-    """*version* when laspy writes it with *point_format*, else the lowest version that does (with a warning).
-
-    LAS 1.0 files are read but laspy does not write 1.0; their points go out as 1.1 or 1.2.
-    """
+    """*version* when laspy writes it with *point_format* (not 1.0), else the lowest version that does (with a
+    warning)."""
     from laspy.point.dims import VERSION_TO_POINT_FMT
 
     if point_format in VERSION_TO_POINT_FMT.get(str(version), ()):
@@ -215,11 +204,7 @@ def _writable_version(version: str, point_format: int, path: str) -> str:
 
 
 def header_from_dict(d: dict, path: str = "") -> tuple[laspy.LasHeader, list]:
-    """Rebuild a ``laspy.LasHeader`` (and the EVLR list) from :func:`header_to_dict`.
-
-    Counts and bounds are reset (the writer fills them); LASzip and COPC
-    records are left out (see the module docstring).
-    """
+    """Rebuild a ``laspy.LasHeader`` and its EVLRs from :func:`header_to_dict`, without LASzip and COPC records."""
     point_format = _point_format(d)
     header = laspy.LasHeader(version=_writable_version(d["version"], point_format.id, path), point_format=point_format)
     header.scales = np.asarray(d["scales"], dtype=np.float64)
@@ -289,24 +274,17 @@ def _extra_name(name: str, taken: set) -> str:
 def build_header(dtypes: dict, bounds: np.ndarray | None = None, path: str = "") -> tuple[dict, dict]:
     """A LAS header dict for a non-LAS cloud, and the attribute -> LAS name map.
 
-    Point format 0 (1 with gps_time, 2 with colour, 3 with both); scales the
-    finest power of ten that keeps the bounds within int32 (never coarser
-    than needed), offsets at the minimum; attributes with a LAS name and a
-    compatible type go to the standard dimension, colour is scaled to 16 bits
-    (8-bit values x 257, floats taken as 0..1 x 65535), a float ``intensity``
-    (E57, PLY: normally 0..1) goes to LAS intensity as round(v x 65535),
-    clipped, *and* unchanged to the extra-bytes dimension ``intensity_``;
-    integers of a LAS name wider than its dimension (a text file's int64)
-    go to it unchanged, values beyond its range clipped ("int");
-    everything else becomes extra bytes (names sanitised to 32 characters).
+    Point format 0 (1 with gps_time, 2 with colour, 3 with both); scale the
+    finest power of ten keeping the bounds within int32; offsets at the
+    minimum. Attributes with a LAS name and a compatible type go to the
+    standard dimension; colour is scaled to 16 bits (8-bit x 257, floats 0..1
+    x 65535); a float ``intensity`` goes to LAS intensity as round(v x 65535)
+    and unchanged to the extra bytes ``intensity_``; wider integers are
+    clipped ("int"); everything else becomes extra bytes (names sanitised).
 
-    Returns
-    -------
-    header : dict
-        As :func:`header_to_dict`.
-    mapping : list of (str, str, str)
-        (attribute, LAS dimension name, conversion "copy" | "color8" |
-        "unit16" | "int"), one attribute possibly to several dimensions.
+    Returns ``(header, mapping)``: a :func:`header_to_dict` dict and
+    ``(attribute, LAS dimension, conversion "copy" | "color8" | "unit16" | "int")``
+    tuples, one attribute possibly to several dimensions.
     """
     color = _color_source(dtypes)
     has_gps = "gps_time" in dtypes and np.dtype(dtypes["gps_time"][0]).kind in "fiu"

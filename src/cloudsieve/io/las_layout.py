@@ -1,11 +1,6 @@
-"""Where a LAS/LAZ/COPC file keeps its parts, read without decoding a point.
+"""Where a LAS/LAZ/COPC file keeps its parts, read without decoding a point: header, LASzip VLR, chunk table.
 
-- :func:`read_header`: the laspy header of a file or URL (a ranged read of its start);
-- :func:`laszip_vlr`: the LASzip VLR of a LAZ header (lazrs' view: chunk size, variable or fixed);
-- :func:`chunk_table`: a LAZ file's chunk table, (points, bytes) per chunk.
-
-Used by the readers (:mod:`.las_records`, :mod:`.las_checks`, :mod:`.vpc_crs`) and by the LAS export's
-splice (:mod:`cloudsieve.store.export_las`), which copies compressed chunks without decoding them.
+Used by the readers and by the LAS export's splice (:mod:`cloudsieve.store.export_las`).
 """
 
 from __future__ import annotations

@@ -1,28 +1,10 @@
 """The read plan of LAS/LAZ/COPC sources: headers only, read by the driver.
 
-One or many files (:func:`cloudsieve.io.sources.expand_sources`) are one
-cloud. The driver reads their headers (never a point), checks that they
-agree, fixes the cloud's integer encoding and cuts the rows into pieces
-(:func:`.las_records.read_pieces` reads them: the ingest's tasks,
-:mod:`cloudsieve.store.ingest_las`, and a cloud read whole, :mod:`.whole`).
-The rules, exact and documented:
-
-- **Point format and attributes** must be the same in every file (same LAS
-  point format, same extra-bytes dimensions), else
-  :class:`~cloudsieve.errors.MismatchedInputsError` naming the first file
-  that differs.
-- **CRS**: every file's projection records (``LASF_Projection`` VLRs and
-  EVLRs: WKT, GeoTIFF keys) must be byte-identical to the first file's.
-- **Scales and offsets**: the store takes, per axis, the finest scale of all
-  files and the first file's offset. A file with another scale or offset is
-  re-quantised, ``X' = X * (s / s') + (o - o') / s'``, only when both
-  factors are integers (so every record is exactly representable: a 0.01 m
-  file into a 0.001 m store, or offsets a whole number of steps apart), else
-  MismatchedInputsError. The result must fit LAS int32 (checked per task).
-- **VLRs and EVLRs**: the first file's, then every record of a later file
-  not already present with the same user id, record id and bytes (the
-  projection and extra-bytes records are the same in all files, by the rules
-  above). The LAS version is the highest among the files.
+The files of one cloud (:func:`cloudsieve.io.sources.expand_sources`) must share point format, extra-bytes
+dimensions and CRS records, else :class:`~cloudsieve.errors.MismatchedInputsError`. Per axis the finest scale and
+the first offset are kept; a file is re-quantised, ``X' = X * (s / s') + (o - o') / s'``, only when both factors
+are integers (exact). VLRs and EVLRs: the first file's, then every later one not already present; the version is
+the highest. Rows are cut into pieces for :func:`.las_records.read_pieces`.
 """
 
 from __future__ import annotations
@@ -53,25 +35,10 @@ def is_las_source(paths: list[str]) -> bool:
 @dataclass
 class LasPlan:
     """The files of one LAS cloud and how their records map to the store.
-
-    Attributes
-    ----------
-    paths : list of str
-    counts : ndarray of shape (F,), int64
-        Points per file (from the headers).
-    header : dict
-        The store's header (:func:`cloudsieve.io.las_header.header_to_dict`
-        layout): the first file's, merged as the module docstring says.
-    dtypes : dict
-        Attribute name -> (dtype, per-point shape), "xyz" first.
-    scale, offset : ndarray of shape (3,), float64
-        The store's integer encoding of x, y, z.
-    factors : ndarray of shape (F, 2, 3), int64
-        Per file, the integer multiplier and addend of the re-quantisation
-        (``[[1, 1, 1], [0, 0, 0]]`` for a file already in the store's encoding).
-    format : str
-        The first file's format ("las", "laz", "copc").
-    """
+    ``counts`` (F,) int64 points per file; ``header`` the store's header
+    (:func:`cloudsieve.io.las_header.header_to_dict` layout, merged by the module's rules); ``dtypes`` "xyz" first;
+    ``scale``, ``offset`` (3,) the store's encoding; ``factors`` (F, 2, 3) int64 per file the integer multiplier
+    and addend; ``format`` the first file's."""
 
     paths: list[str]
     counts: np.ndarray
@@ -88,13 +55,8 @@ class LasPlan:
 
     def tasks(self, chunk_size: int, chunks_per_task: int = 1) -> list[tuple[int, int, list[tuple]]]:
         """The ingest's tasks: ``(row_start, row_stop, pieces)``, each a whole number of store chunks.
-
-        *pieces* are ``(path, first, n, factors)``: *n* points of *path* from
-        its point *first* on, with the file's re-quantisation factors (an
-        (2, 3) int64 list). A task reads only its pieces (a large LAZ file is
-        entered through its chunk table), and every store chunk is written by
-        exactly one task.
-        """
+        *pieces* are ``(path, first, n, factors)``: *n* points of *path* from point *first*, with its
+        re-quantisation factors. Every store chunk is written by exactly one task."""
         step = int(chunk_size) * int(chunks_per_task)
         ends = np.cumsum(self.counts)
         starts = ends - self.counts
@@ -174,14 +136,7 @@ def _merge_records(headers: list[dict], key: str) -> list[dict]:
 
 def plan_las(paths: list[str]) -> LasPlan:
     """Read the headers of *paths* (LAS/LAZ/COPC) and plan their ingest as one cloud.
-
-    Raises
-    ------
-    MismatchedInputsError
-        Point formats, attributes, CRS or scales that the module's rules refuse.
-    CorruptInputError, InputNotFoundError, ...
-        A file that is not a readable LAS file (as :func:`cloudsieve.io.open_reader`).
-    """
+    Raises MismatchedInputsError (the module's rules), or the errors of :func:`cloudsieve.io.open_reader`."""
     from . import open_reader
 
     headers, counts, dtypes, fmt = [], [], None, None

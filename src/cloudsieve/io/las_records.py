@@ -1,12 +1,9 @@
-"""The records of LAS/LAZ/COPC files, piece by piece (:func:`read_pieces`), the LAS coordinates'
-decoding, ``X * scale + offset`` (:func:`decode_xyz`), and a record's attributes as their raw values
-(:func:`record_arrays`).
+"""LAS/LAZ/COPC records piece by piece (:func:`read_pieces`), coordinate decoding (:func:`decode_xyz`)
+and a record's raw attribute values (:func:`record_arrays`).
 
-Every reader of LAS integers decodes with :func:`decode_xyz`: the chunked reader
-(:class:`.las.LasReader`), the point store's int32 "xyz" and the header bounds of an ingest.
-:func:`read_pieces` is what an ingest task reads (:mod:`cloudsieve.store.ingest_las` writes it into
-the store) and what a small input's in-memory run (:mod:`cloudsieve.engine.small`) keeps in memory,
-so both hold the same integers and attributes. No zarr.
+Every reader of LAS integers decodes with :func:`decode_xyz`. :func:`read_pieces` serves both an
+ingest task (:mod:`cloudsieve.store.ingest_las`) and a small input's in-memory run
+(:mod:`cloudsieve.engine.small`), so both hold the same integers. No zarr.
 """
 
 from __future__ import annotations
@@ -27,10 +24,7 @@ THREADED_POINTS = 1_000_000
 
 
 def decode_xyz(raw, scale: np.ndarray, offset: np.ndarray) -> np.ndarray:
-    """Coordinates (n, 3) float64 of the LAS integers *raw*: ``X * scale + offset``.
-
-    *raw* is an (n, 3) array or the three columns X, Y, Z (a record's fields, not copied together).
-    """
+    """Coordinates (n, 3) float64 of the LAS integers *raw* ((n, 3) or three columns): ``X * scale + offset``."""
     cols = [raw[:, i] for i in range(3)] if isinstance(raw, np.ndarray) else list(raw)
     out = np.empty((len(cols[0]), 3), dtype=np.float64)
     for i in range(3):  # per column: a 1-D multiply-add, no (n, 3) temporaries
@@ -64,28 +58,13 @@ def read_pieces(pieces: list[tuple], names: list[str], parallel: bool = False,
                 decode: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[np.ndarray, dict, np.ndarray, np.ndarray]:
     """The records of *pieces* (:meth:`.las_plan.LasPlan.tasks`: ``(path, first, n, factors)``), in order.
 
-    Parameters
-    ----------
-    pieces : list of tuple
-    names : list of str
-        The attributes read (the plan's dtypes but "xyz").
-    parallel : bool
-        Decode LAZ on every core (the tasks run one after the other in this process).
-    decode : (scale, offset), optional
-        Return the coordinates instead of the integers: ``X * scale + offset`` as :func:`decode_xyz`
-        gives them from the integers, without the integers.
+    *names*: the attributes read; *parallel*: decode LAZ on every core;
+    *decode* (scale, offset): return float64 coordinates as :func:`decode_xyz`
+    instead of the integers.
 
-    Returns
-    -------
-    xyz : ndarray of shape (n, 3), int32 (float64 with *decode*)
-        X, Y, Z in the cloud's scale and offset (re-quantised by the pieces' integer factors).
-    attributes : dict of str to ndarray
-    lo, hi : ndarray of shape (3,), int64
-        Per-axis extremes of the integers.
-
-    Raises
-    ------
-    CorruptInputError, InputFormatError
+    Returns ``(xyz (n, 3) int32 or float64, attributes, lo (3,), hi (3,))``,
+    xyz in the cloud's scale and offset, lo/hi the integers' extremes.
+    Raises CorruptInputError or InputFormatError.
     """
     from ..core.kernels.records import first_call, las_xyz
     from ..core.kernels.threads import Chunks
@@ -131,8 +110,7 @@ def _read_piece(path: str, first: int, n: int, parallel: bool) -> tuple[np.ndarr
 
     from .las_checks import QUIET_READS, decode_error
 
-    # one thread per task when the tasks are the parallelism (lazrs' parallel decoder would oversubscribe the
-    # cores); the tasks of a run in this process decode on every core (about twice as fast as on one)
+    # one thread per task when tasks are the parallelism (lazrs' parallel decoder would oversubscribe)
     backend = laspy.LazBackend.LazrsParallel if parallel else laspy.LazBackend.Lazrs
     # a URL is read by ranged requests: the header and the chunk table (small reads), then this piece's chunks
     fh = storage.open_input(path, storage.HEADER_BLOCK)

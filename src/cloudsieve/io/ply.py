@@ -1,20 +1,14 @@
 """PLY: ASCII and binary (little/big endian) vertices in, binary PLY out.
 
-The reader takes the ``vertex`` element (faces and other elements are
-ignored: cloudsieve works on the points), with any scalar vertex properties;
-it needs ``x``, ``y``, ``z``. A binary body is memory-mapped
-(``np.memmap`` at the vertex element's offset) and sliced chunk by chunk; an
-ASCII body is parsed in blocks of lines. The header dict keeps the format,
-comments and the element/property layout.
+The reader takes the ``vertex`` element (other elements ignored), any
+scalar properties, and needs ``x``, ``y``, ``z``; a binary body is
+memory-mapped and sliced, an ASCII body parsed in blocks of lines.
 
-The writer writes binary little-endian PLY, streamed: "xyz" as ``x, y, z``
-``float`` when the source was a binary PLY with ``float`` x, y, z (exact:
-the values were read from float32), else as double (an ASCII body is
-parsed to double, so its digits are kept), and every attribute as a vertex
-property of its type ((n, k)
-attributes as ``name_0 .. name_{k-1}``). 64-bit integers, which PLY has no
-type for, are written as double (a warning names them). The vertex count is
-a fixed-width field patched when the file is complete.
+The writer writes binary little-endian PLY: x, y, z as ``float`` when the
+source was a binary PLY with float x, y, z (exact), else double; attributes
+as vertex properties of their type ((n, k) as ``name_0 .. name_{k-1}``;
+64-bit integers as double, with a warning). The vertex count is patched at
+the end.
 """
 
 from __future__ import annotations
@@ -60,16 +54,8 @@ _COUNT_WIDTH = 20
 
 def read_ply_header(path: str) -> dict:
     """Parse the header of the PLY file *path*.
-
-    Returns
-    -------
-    dict
-        ``{"format": "ascii" | "binary_little_endian" | "binary_big_endian",
-        "version": "1.0", "comments": [...], "obj_info": [...],
-        "elements": [{"name", "count", "properties": [[name, type] or
-        [name, "list", count_type, item_type]]}], "header_size": bytes,
-        "header_lines": lines}``
-    """
+    Returns ``{"format", "version", "comments", "obj_info", "elements": [{"name", "count", "properties": [[name,
+    type] or [name, "list", count_type, item_type]]}], "header_size", "header_lines"}``."""
     header: dict[str, Any] = {"comments": [], "obj_info": [], "elements": []}
     with open(path, "rb") as fh:
         first = fh.readline()

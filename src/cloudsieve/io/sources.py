@@ -1,25 +1,9 @@
-"""SRC as one cloud of many files: a glob, a directory, a list file or a VPC.
+"""SRC as one cloud of many files: :func:`expand_sources` (README, "Usage").
 
-Large scans come as tiles (national and city programs ship thousands of LAZ
-files). :func:`expand_sources` turns SRC into the ordered list of files that
-make one cloud:
-
-- a glob (``'tiles/*.laz'``, quoted so the shell leaves it): the matching
-  files, sorted by path;
-- a directory (or an object store's prefix, ``s3://bucket/tiles/``) that is
-  not a point store: its LAS/LAZ/COPC files (not recursive), sorted by name;
-- a list file (``.lst``, or a ``.txt`` whose first non-blank line names an
-  existing point cloud file): one path or URL per line, a relative one taken
-  relative to the list's folder (or prefix); blank lines and lines starting
-  with ``#`` are skipped;
-- a VPC (``.vpc``, the STAC ItemCollection of PDAL wrench and QGIS): its
-  tiles, in the order it lists them (:func:`cloudsieve.io.vpc.read_vpc`);
-- anything else: SRC itself, one file.
-
-Every form may be a URL (:mod:`cloudsieve.storage`): ``s3://b/tiles/*.laz``,
-``s3://b/tiles/``, ``s3://b/list.lst``, ``s3://b/index.vpc``.
-
-The order is part of the input: points are numbered file after file in it,
+A glob (sorted by path), a directory or prefix that is not a store (its
+LAS/LAZ files, sorted), a list file (``.lst``, or a ``.txt`` whose first line
+names a cloud file; one path per line, relative to the list), a VPC (its
+order), else SRC itself. Any may be a URL. The order numbers the points,
 which fixes the result for a seed.
 """
 
@@ -106,24 +90,9 @@ def _read_list(src: str) -> list[str]:
 
 
 def expand_sources(src: str | os.PathLike) -> list[str]:
-    """The files that make the cloud *src*, in order (see the module docstring).
-
-    Returns
-    -------
-    list of str
-        Absolute paths; ``[src]`` when *src* is one file (or a point store).
-
-    Raises
-    ------
-    EmptyInputError
-        A glob, list or VPC that names no file.
-    InputIsDirectoryError
-        A directory with no LAS/LAZ file.
-    InputNotFoundError
-        A listed file does not exist.
-    InputFormatError
-        A VPC that is not a STAC ItemCollection, a list that is not UTF-8 text.
-    """
+    """The files that make the cloud *src*, in order, absolute; ``[src]`` for one file or a store.
+    Raises EmptyInputError (a glob, list or VPC naming no file), InputIsDirectoryError (a directory with no
+    LAS/LAZ), InputNotFoundError (a listed file is missing), InputFormatError (a bad VPC or list)."""
     src = os.fspath(src)
     if _remembered is not None:
         if src not in _remembered:
@@ -134,8 +103,7 @@ def expand_sources(src: str | os.PathLike) -> list[str]:
 
 @contextlib.contextmanager
 def remembered() -> Iterator[None]:
-    """Within the block, each SRC is expanded once: a run reads its input's listing in its checks, its
-    identity and its ingest (a prefix on S3: five requests each time), and the input does not change under it."""
+    """Within the block, each SRC is expanded once: checks, identity and ingest see the same listing, at one cost."""
     global _remembered
     saved = _remembered
     _remembered = {} if saved is None else saved

@@ -1,13 +1,9 @@
 """Points with NaN or infinite coordinates: refused (the default) or dropped, chunk by chunk.
 
-Every way in that reads a file's points goes through :class:`ValidPoints`:
-:func:`cloudsieve.store.ingest` (and so :func:`cloudsieve.simplify` and the
-pipelines), :func:`cloudsieve.evaluate` and :func:`cloudsieve.compare`. So
-they refuse such points with the same message, and drop them the same way
-when asked (``drop_invalid=True``, ``--drop-invalid``).
+Every reader of a file's points (ingest, and so simplify and the pipelines;
+evaluate; compare) goes through :class:`ValidPoints`, for one message and
+one way to drop (``drop_invalid=True``, ``--drop-invalid``).
 
-Example
--------
 >>> import numpy as np
 >>> from cloudsieve.io.valid import ValidPoints
 >>> from cloudsieve.store import Chunk
@@ -36,28 +32,8 @@ logger = logging.getLogger(__name__)
 
 class ValidPoints:
     """Refuse or drop the points of *path* whose coordinates are NaN or infinite.
-
-    Parameters
-    ----------
-    path : str
-        The file read (named in the messages).
-    drop_invalid : bool
-        Drop such points (their count is logged as a warning) instead of
-        refusing the file.
-    warn : bool
-        Log that warning (False for a second pass over the same file).
-
-    Attributes
-    ----------
-    read : int
-        Points read so far (valid or not).
-    invalid : int
-        Points with a NaN or infinite coordinate among them.
-    first_invalid : int or None
-        Index in the file of the first such point.
-    kept : int
-        Points passed on.
-    """
+    *drop_invalid* drops them (their count logged as a warning, unless not *warn*) instead of refusing the file.
+    Attributes: ``read`` (points read), ``invalid``, ``first_invalid`` (index of the first), ``kept``."""
 
     def __init__(self, path: str, drop_invalid: bool = False, warn: bool = True) -> None:
         self.path = str(path)
@@ -69,27 +45,10 @@ class ValidPoints:
         self.kept = 0
 
     def chunks(self, chunks: Iterable[Chunk], progress: Callable[[int], None] | None = None) -> Iterator[Chunk]:
-        """The chunks of *chunks* with their valid points only, numbered from 0 without gaps.
-
-        Without *drop_invalid*, the first invalid point stops the points
-        passed on, and the rest is read only to count the invalid ones for
-        the message. *progress* is called with the points read per chunk.
-
-        Yields
-        ------
-        Chunk
-            ``(start, arrays)``, every array of the chunk filtered alike;
-            empty chunks are skipped.
-
-        Raises
-        ------
-        InvalidPointsError
-            At the end, when some point is invalid and *drop_invalid* is False:
-            ``"<path>: 3 of 6 points have NaN or infinite coordinates (first:
-            point 1); pass drop_invalid=True to drop them"``.
-        EmptyInputError
-            At the end, when every point read was invalid and dropped.
-        """
+        """The chunks of *chunks* with their valid points only, numbered from 0 without gaps; empty ones skipped.
+        Without *drop_invalid*, the first invalid point stops the output and the rest is only counted. *progress*
+        gets the points read per chunk. At the end, raises InvalidPointsError (invalid points, not dropped) or
+        EmptyInputError (every point dropped)."""
         for _, arrays in chunks:
             xyz = arrays["xyz"]
             n = len(xyz)

@@ -1,40 +1,11 @@
 """Virtual point clouds (VPC): the tile index PDAL wrench and QGIS read and write.
 
-A VPC (``.vpc``) is a STAC ItemCollection: a GeoJSON FeatureCollection with
-one STAC item per file, carrying the pointcloud and projection extensions
-(see wrench's ``vpc-spec.md`` and ``VirtualPointCloud::write`` in
-``src/vpc.cpp``). :func:`write_vpc` writes the layout wrench writes::
-
-    {"type": "FeatureCollection", "features": [
-      {"type": "Feature", "stac_version": "1.0.0",
-       "stac_extensions": ["https://stac-extensions.github.io/pointcloud/v1.0.0/schema.json",
-                           "https://stac-extensions.github.io/projection/v1.1.0/schema.json"],
-       "id": "tiles_6360_8489",
-       "geometry": {"type": "Polygon", "coordinates": [[[lon, lat], ...]]},     # WGS 84
-       "bbox": [lon0, lat0, z0, lon1, lat1, z1],
-       "properties": {"datetime": "2015-09-10T00:00:00Z", "pc:count": 27340, "pc:type": "lidar",
-                      "pc:encoding": "?", "pc:schemas": [{"name": "X", "type": "floating", "size": 8}, ...],
-                      "proj:wkt2": "PROJCS[...]",
-                      "proj:geometry": {"type": "Polygon", "coordinates": [[[x0, y0], [x1, y0], ...]]},
-                      "proj:bbox": [x0, y0, z0, x1, y1, z1]},
-       "links": [],
-       "assets": {"data": {"href": "./tiles_6360_8489.laz", "roles": ["data"]}}}]}
-
-``proj:bbox`` and ``proj:geometry``, which wrench and QGIS read, are the
-file's header bounds in its own CRS; ``bbox`` and ``geometry`` are the same
-box in WGS 84 longitude/latitude, heights as in the file
-(:mod:`cloudsieve.io.vpc_crs`), as GeoJSON requires. A file with no CRS, or
-one that does not reproject to WGS 84 (a local frame), keeps its own
-coordinates there too, as wrench does. ``proj:wkt2`` is the WKT of the file's
-WKT VLR, else the WKT2 of the CRS its GeoTIFF keys name by EPSG code, "" when
-it has no CRS (as wrench writes it); ``proj:epsg`` is added when the header
-gives one code for the whole CRS.
-
-:func:`read_vpc` reads any such file, and those whose ``bbox`` is in the
-files' own coordinates: the ``href`` of each item's data asset (the first
-asset when none has the "data" role), relative to the VPC's folder.
-:func:`read_vpc_items` adds each item's count, CRS and native bounds
-(``proj:bbox`` first).
+A ``.vpc`` is a STAC ItemCollection (GeoJSON FeatureCollection), one item
+per file (wrench's ``vpc-spec.md``). :func:`write_vpc` writes wrench's
+layout: ``proj:bbox``/``proj:geometry`` in the file's CRS, ``bbox``/``geometry``
+in WGS 84 (:mod:`cloudsieve.io.vpc_crs`; the file's own coordinates when it
+does not reproject), ``proj:wkt2`` ("" without CRS), ``proj:epsg`` when known.
+:func:`read_vpc` resolves each item's data asset ``href`` against the VPC's folder.
 """
 
 from __future__ import annotations
@@ -72,31 +43,9 @@ def _data_asset(assets: dict) -> object:
 
 
 def read_vpc(path: str | os.PathLike) -> list[str]:
-    """The files a VPC lists, as absolute paths, in its order.
-
-    Parameters
-    ----------
-    path : str or path-like
-        A ``.vpc`` file (STAC ItemCollection, as PDAL wrench and QGIS write).
-
-    Returns
-    -------
-    list of str
-        The ``href`` of each item's data asset; a relative one is taken
-        relative to the VPC's folder or prefix, a URL (``s3://...``) as it is
-        (a ``file://`` URL as the path it names).
-
-    Raises
-    ------
-    InputNotFoundError
-        *path*, or a file it lists, does not exist.
-    InputFormatError
-        Not JSON, not a FeatureCollection, an item without a data asset, a
-        file listed twice, or a ``bbox`` or
-        ``proj:bbox`` that is not 4 or 6 finite numbers.
-    EmptyInputError
-        The VPC lists no files.
-    """
+    """The files a ``.vpc`` lists, as absolute paths (a URL as it is), in its order.
+    Raises InputNotFoundError (the VPC or a listed file is missing), InputFormatError (not a FeatureCollection, an
+    item without a data asset, a file listed twice, a bad ``bbox``), EmptyInputError (no files)."""
     return [item["path"] for item in read_vpc_items(path)]
 
 
@@ -122,22 +71,10 @@ def _native_bounds(f: dict, props: dict, where: str) -> list | None:
 
 
 def read_vpc_items(path: str | os.PathLike) -> list[dict]:
-    """The items of a VPC, in its order: each file with its count, CRS and native bounds.
-
-    Returns
-    -------
-    list of dict
-        ``path`` (as :func:`read_vpc` gives it), ``count`` (``pc:count``, or
-        None), ``wkt`` (``proj:wkt2``, else ``EPSG:code`` of ``proj:epsg``,
-        else None), ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]] in the
-        file's own CRS: ``proj:bbox`` when the item has one (wrench, QGIS and
-        cloudsieve write it), else ``bbox`` for an item without a CRS; None
-        when neither gives them (a ``bbox`` in WGS 84 only). A 2D box has z None.
-
-    Raises
-    ------
-    The errors of :func:`read_vpc`.
-    """
+    """The items of a VPC, in its order: dicts of ``path`` (:func:`read_vpc`), ``count``, ``wkt`` and ``bounds``.
+    ``wkt`` is ``proj:wkt2``, else ``EPSG:code``, else None; ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]] in
+    the file's CRS (``proj:bbox``, else ``bbox`` of an item without CRS, else None; z None for a 2D box). Raises as
+    :func:`read_vpc`."""
     from . import check_input_file
 
     path = os.fspath(path)
@@ -195,11 +132,7 @@ def read_vpc_items(path: str | os.PathLike) -> list[dict]:
 
 # ------------------------------------------------------------------ writing
 def _datetime(day_year) -> str:
-    """The STAC datetime of a LAS creation (day of year, year), as wrench writes it.
-
-    An unset or invalid year becomes 1970 and an invalid day the 1st of
-    January (wrench's fallbacks; wrench keeps a year 0, an unset date here).
-    """
+    """The STAC datetime of a LAS creation (day of year, year), with wrench's fallbacks (1970, January 1st)."""
     day, year = (int(v) for v in (day_year or (0, 0)))
     year = year if year > 0 else 1970
     last = datetime.date(year, 12, 31).timetuple().tm_yday
@@ -223,21 +156,9 @@ def _schemas(dtypes: dict) -> list[dict]:
 
 
 def describe_tile(path: str | os.PathLike) -> dict:
-    """The :func:`write_vpc` entry of a LAS/LAZ file, from its header (no point is read).
-
-    Returns
-    -------
-    dict
-        ``path`` (absolute), ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax,
-        ymax, zmax]], ``wkt`` (the WKT VLR's; else the WKT2 of the CRS the
-        GeoTIFF keys name by EPSG code; else None), ``epsg`` (or None),
-        ``datetime`` and ``schemas``.
-
-    Raises
-    ------
-    InputFormatError
-        Not a LAS, LAZ or COPC file (and the errors of :func:`cloudsieve.io.open_reader`).
-    """
+    """The :func:`write_vpc` entry of a LAS/LAZ/COPC file, from its header (no point is read).
+    Keys: ``path`` (absolute), ``count``, ``bounds``, ``wkt``, ``epsg``, ``datetime``, ``schemas``.
+    InputFormatError for another format."""
     from . import detect_format, open_reader
 
     path = os.fspath(path)
@@ -319,32 +240,11 @@ def _feature(entry: dict, folder: str, i: int, unprojected: dict) -> dict:
 
 
 def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = False) -> str:
-    """Write a VPC listing *tiles* (written under a temporary name, then renamed).
-
-    Parameters
-    ----------
-    path : str or path-like
-        The ``.vpc`` file.
-    tiles : list of dict
-        One entry per file, in the order listed: ``path`` (the file),
-        ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]], and
-        optionally ``wkt``, ``epsg``, ``datetime``, ``schemas`` and ``id``
-        (default: the file name without its last suffix, as wrench names
-        items). :func:`describe_tile` makes one from a LAS/LAZ file.
-    overwrite : bool
-        Replace an existing *path*.
-
-    Returns
-    -------
-    str
-        *path*.
-
-    Raises
-    ------
-    InvalidParameterError
-        An entry without path, count or finite bounds.
-    DestinationExistsError, DestinationNotWritableError
-    """
+    """Write a VPC listing *tiles* (under a temporary name, then renamed); returns *path*.
+    Each entry of *tiles*: ``path``, ``count``, ``bounds`` [[xmin, ymin, zmin], [xmax, ymax, zmax]], optionally
+    ``wkt``, ``epsg``, ``datetime``, ``schemas``, ``id`` (default: the file's stem); :func:`describe_tile` makes
+    one. Raises InvalidParameterError (an entry without path, count or finite bounds), DestinationExistsError,
+    DestinationNotWritableError."""
     path = os.fspath(path)
     folder = storage.parent(path)
     unprojected: dict[str, str] = {}

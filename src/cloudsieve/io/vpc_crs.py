@@ -1,15 +1,10 @@
 """The CRS and the WGS 84 footprint of a VPC item, through pyproj.
 
-A VPC item carries its file's CRS as ``proj:wkt2`` (the one key PDAL wrench
-reads) and its extent twice: ``proj:bbox``/``proj:geometry`` in the file's
-own coordinates, ``bbox``/``geometry`` in WGS 84 longitude/latitude, as
-GeoJSON and STAC require and as wrench writes them (``VirtualPointCloud::write``
-in its ``src/vpc.cpp`` reprojects to EPSG:4326 when it can and keeps the
-native extent otherwise).
-
-- :func:`geotiff_wkt`: the WKT of a CRS given by a LAS file's GeoTIFF keys
-  alone (LAS 1.2 files often have no WKT record).
-- :func:`wgs84_extent`: the WGS 84 bbox and polygon of a native box.
+A VPC item carries ``proj:wkt2`` and its extent in the file's coordinates
+(``proj:bbox``/``proj:geometry``) and in WGS 84 (``bbox``/``geometry``), as
+STAC requires and wrench writes. :func:`geotiff_wkt`: the WKT of a CRS
+given by GeoTIFF keys alone; :func:`wgs84_extent`: the WGS 84 bbox and
+polygon of a native box.
 """
 
 from __future__ import annotations
@@ -38,13 +33,8 @@ def _code(keys: dict, key_id: int) -> int | None:
 
 def geotiff_wkt(path: str) -> tuple[str | None, int | None]:
     """The CRS of the LAS/LAZ/COPC file *path*'s GeoTIFF keys, as (WKT2 2019, its EPSG code).
-
-    The keys name a projected (else geographic) CRS by its EPSG code, and
-    optionally a vertical one: the two make a compound CRS, which has no
-    single EPSG code (the code returned is None then). Returns (None, None)
-    when the file has no GeoTIFF keys, when they name no CRS by code
-    (user-defined parameters), or when pyproj does not know a code.
-    """
+    A projected (else geographic) code plus a vertical one make a compound CRS, with EPSG code None. (None, None)
+    without keys, without a code, or for a code pyproj does not know."""
     from .las_layout import read_header
 
     header = read_header(path)
@@ -86,21 +76,9 @@ def _to_wgs84(wkt: str):
 
 def wgs84_extent(wkt: str, lo: list[float], hi: list[float]) -> tuple[list[float], dict]:
     """The WGS 84 ``bbox`` and ``geometry`` of the native box [*lo*, *hi*] in the CRS *wkt*.
-
-    Returns
-    -------
-    (list of 6 float, dict)
-        ``[lon_min, lat_min, z_min, lon_max, lat_max, z_max]``: the bounds
-        of the box's edges reprojected (:data:`DENSIFY` points each), so that
-        it holds the whole footprint, heights as in the file; and a GeoJSON
-        Polygon of the reprojected corners, counter-clockwise.
-
-    Raises
-    ------
-    ValueError
-        *wkt* does not reproject to WGS 84 (a local frame, an unknown CRS),
-        or not at this box; the message says why.
-    """
+    The bbox ``[lon_min, lat_min, z_min, lon_max, lat_max, z_max]`` bounds the box's densified edges (heights as in
+    the file); the geometry is a counter-clockwise GeoJSON Polygon of the corners. ValueError (saying why) when
+    *wkt* does not reproject to WGS 84 here."""
     transformer = _to_wgs84(wkt)
     if isinstance(transformer, str):
         raise ValueError(transformer)

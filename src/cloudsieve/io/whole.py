@@ -1,10 +1,7 @@
 """A whole (small) cloud read into memory as the ingest stores it: :func:`read_whole`.
 
-LAS/LAZ/COPC files (one cloud) are read as the ingest's tasks read them, every record in one piece
-(:func:`.las_plan.plan_las`, :func:`.las_records.read_pieces`), x, y, z decoded as the store decodes its
-integers; another file is streamed as :func:`cloudsieve.store.ingest` streams it, NaN or infinite
-coordinates refused, or dropped with *drop_invalid* (:class:`.valid.ValidPoints`). Used by the small
-in-memory run (:mod:`cloudsieve.engine.small`).
+LAS/LAZ/COPC files are read as one ingest piece (:func:`.las_records.read_pieces`); other files are
+streamed through :class:`.valid.ValidPoints`. Used by :mod:`cloudsieve.engine.small`.
 """
 
 from __future__ import annotations
@@ -16,23 +13,8 @@ __all__ = ["read_whole"]
 
 def read_whole(sources: list[str], chunk_size: int, drop_invalid: bool) -> tuple:
     """The cloud of *sources* (LAS/LAZ/COPC files, or one file of another format) in memory.
-
-    Returns
-    -------
-    xyz : ndarray of shape (n, 3), float64
-    attributes : dict of str to ndarray
-    dtypes : dict
-        ``{name: (dtype, shape)}``, "xyz" included (the reader's, or the plan's).
-    header : dict
-        With "mins" and "maxs" the decoded extremes for LAS sources.
-    bounds : ndarray of shape (2, 3), float64
-    format : str
-        The source format.
-
-    Raises
-    ------
-    EmptyInputError, InvalidPointsError, CorruptInputError, MismatchedInputsError
-    """
+    Returns ``(xyz (n, 3) float64, attributes, dtypes ("xyz" included), header (LAS: "mins"/"maxs" decoded), bounds
+    (2, 3), format)``. Raises EmptyInputError, InvalidPointsError, CorruptInputError, MismatchedInputsError."""
     from ..chunk import xyz_bounds
     from ..errors import EmptyInputError
     from . import concatenated, open_reader

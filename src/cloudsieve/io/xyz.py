@@ -1,33 +1,15 @@
 """XYZ / TXT / CSV / PTS text clouds: one point per row, in blocks of rows.
 
-Reading
-    * delimiter: given (``delimiter=","``) or sniffed from the first data row
-      (comma, semicolon, else whitespace);
-    * header line optional: a first row with a non-numeric value names the
-      columns (a leading ``#`` or ``//`` is stripped); a first row holding a
-      single integer (the PTS point count) is skipped; ``columns=[...]``
-      names them explicitly, ``skiprows=k`` skips k leading lines;
-    * without names, columns are ``x y z`` + ``intensity`` (4 columns),
-      ``red green blue`` (6), ``intensity red green blue`` (7, the PTS
-      layout), else ``col3, col4, ...``;
-    * ``x``, ``y``, ``z`` are required (matched case-insensitively);
-    * an attribute column is read as int64 when each of its values in the
-      first :data:`TYPED_ROWS` data rows is an integer literal (``17``, not
-      ``17.0``), else as float64 (a later value with a fraction in an
-      integer column raises CorruptInputError naming its line); x, y, z are
-      float64; blank lines and lines starting with ``#`` or ``//`` are
-      skipped;
-    * a bad row (wrong number of values, or a value that is not a number)
-      raises CorruptInputError naming its line number.
+Reading: the delimiter is given or sniffed (comma, semicolon, else whitespace). A first row with a non-numeric
+value names the columns (a leading ``#`` or ``//`` stripped); a first row of one integer (PTS count) is skipped;
+``columns=[...]`` and ``skiprows=k`` override. Unnamed columns are ``x y z`` + ``intensity`` (4), ``red green
+blue`` (6), ``intensity red green blue`` (7, PTS), else ``col3, ...``; ``x``, ``y``, ``z`` (any case) are
+required. An attribute column is int64 when its values in the first :data:`TYPED_ROWS` rows are integer
+literals, else float64. Blank and ``#``/``//`` lines are skipped; a bad row raises CorruptInputError naming its
+line. ``count`` is None until read.
 
-    The point count is unknown until the file has been read (``count`` is None).
-
-Writing
-    A header row of column names, then one row per point, space separated
-    (comma for .csv); floats as the shortest text that reads back to the same
-    value, always with a decimal point or an exponent (``1.0``), so that a
-    float column reads back as floats; integers as integers; (n, k)
-    attributes as ``name_0 .. name_{k-1}``.
+Writing: a header row, then one row per point, space separated (comma for .csv); floats as their shortest
+round-tripping text, always with ``.`` or an exponent; (n, k) attributes as ``name_0 .. name_{k-1}``.
 """
 
 from __future__ import annotations
@@ -79,17 +61,7 @@ def _split(line: str, delimiter: str | None) -> list[str]:
 
 
 class XyzReader(Reader):
-    """Block reader of text point clouds (see the module docstring).
-
-    Options
-    -------
-    delimiter : str, optional
-        Column separator (default: sniffed).
-    columns : list of str, optional
-        Column names (default: header row, else by column count).
-    skiprows : int
-        Lines to skip before the data (default 0).
-    """
+    """Block reader of text point clouds; options ``delimiter``, ``columns``, ``skiprows`` (module docstring)."""
 
     def __init__(self, path: str, format: str, chunk_size: int = DEFAULT_CHUNK_SIZE, **options: Any) -> None:
         super().__init__(path, format, chunk_size, **options)
