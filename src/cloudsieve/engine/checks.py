@@ -136,12 +136,10 @@ def _header_bounds(src: str, sources: list[str]) -> np.ndarray | None:
         return PointStore.open(src).bounds
     if any(detect_format(p) not in ("las", "laz", "copc") for p in sources):
         return None
-    import laspy
+    from ..io.las_layout import read_header
 
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
-    for path in sources:
-        with laspy.open(storage.open_input(path, storage.HEADER_BLOCK), closefd=True) as reader:
-            if reader.header.point_count:
-                lo = np.minimum(lo, reader.header.mins)
-                hi = np.maximum(hi, reader.header.maxs)
+    for header in map(read_header, sources):
+        if header.point_count:
+            lo, hi = np.minimum(lo, header.mins), np.maximum(hi, header.maxs)
     return np.stack([lo, hi])
