@@ -154,7 +154,7 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
     *dependents*: int -> centre of the cells whose halo may hold its points.
     The halo is not read (most of a cell's reading); the border packings only
     grow slightly, alike in every cell, and the shares only split an exact total.
-    Returns "cell", "n", "band", "seconds".
+    Returns "cell", "n", "band", "share" (the row stored) and "seconds".
     """
     t0 = time.perf_counter()
     io = where.open()
@@ -162,7 +162,8 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
     sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
                                        task.margin, _threads(task), ladder=task.params["ladder"])
     io.put_share(task, core, sizes, distinct, band)
-    return {"cell": task.cell, "n": len(core), "band": len(band), "seconds": time.perf_counter() - t0}
+    return {"cell": task.cell, "n": len(core), "band": len(band), "share": np.r_[float(distinct), sizes],
+            "seconds": time.perf_counter() - t0}
 
 
 def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
@@ -212,7 +213,11 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     deps = readers(part.halo_ptr, part.halo_src)  # the cells that read each cell's band
     args = [(where, t, {int(i): part.centers[i] for i in deps[t.cell]}) for t in tasks]
     results = runner(share_task, args, "cells: share")
-    share = where.shares()
+    # the shares of this run's tasks from their results; the store's only for cells scored before (resume)
+    fresh = results and len(todo) == part.n_cells
+    share = np.zeros((part.n_cells, len(results[0]["share"]))) if fresh else where.shares()
+    for r in results:
+        share[r["cell"]] = r["share"]
     distinct = share[:, 0].astype(np.int64)
     q, params["staged"] = cell_counts(share[:, 1:], distinct, target, r_max)
     colours = cell_colours(part.halo_ptr, part.halo_src)

@@ -25,7 +25,10 @@ class StoreCells:
     def markers(self) -> tuple[np.ndarray, np.ndarray]:
         """The cells done and the cells scored, (P,) bool each."""
         g = self.open().group
-        return tuple(np.asarray(g[f"simplify/{name}"][:]).astype(bool) for name in ("done", "scored"))
+        arrays = [g[f"simplify/{name}"] for name in ("done", "scored")]
+        # an array no task has marked is all zeros: one listing, not a read per cell (a request each on S3)
+        return tuple(np.zeros(a.shape, dtype=bool) if a.nchunks_initialized == 0 else np.asarray(a[:]).astype(bool)
+                     for a in arrays)
 
     def shares(self) -> np.ndarray:
         return np.asarray(self.open().group["simplify/share"][:])
