@@ -282,3 +282,22 @@ def test_other_formats_to_a_url_give_the_local_bytes(tiles, bucket, s3, tmp_path
     cloudsieve.simplify(str(tiles / "t0.laz"), local, ratio=0.5)
     cloudsieve.simplify(str(tiles / "t0.laz"), f"{bucket}/o.{ext}", ratio=0.5, storage_options=opts)
     assert _remote_sha(s3.filesystem(), f"{bucket}/o.{ext}") == _sha(local)
+
+
+def test_stale_scratch_removal_keeps_sources_and_names_not_cloudsieve_s(bucket, s3):
+    """Only cloudsieve's own scratch names beside DST (``.<name>.parts-<12 hex>`` ...) are removed: an object
+    of another name, and a source under a scratch name, keep their bytes."""
+    from cloudsieve import staging, storage
+
+    fs = s3.filesystem()
+    root = f"{bucket[5:]}/out"
+    left = f"{root}/.small.laz.parts-0123456789ab/part-000000.laz"
+    mine = f"{root}/.small.laz.parts-mine/notes.txt"
+    source = f"{root}/.small.laz.scratch-abcdefabcdef/input.laz"
+    for key in (left, mine, source):
+        fs.pipe_file(key, b"bytes")
+    with storage.using(s3.storage_options()):
+        staging.remove_stale_scratch(f"{bucket}/out/small.laz", [f"s3://{source}"])
+    fs.invalidate_cache()
+    assert sorted(fs.find(root)) == sorted([mine, source])
+    assert fs.cat_file(mine) == fs.cat_file(source) == b"bytes"

@@ -41,18 +41,23 @@ def staged_folder(folder: str) -> Iterator[str]:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
-def remove_stale_scratch(dst: str) -> None:
+def remove_stale_scratch(dst: str, sources: list[str]) -> None:
     """Remove what an interrupted write to the URL *dst* left beside it (``.<name>.parts-<id>``,
-    ``.<name>.scratch-<id>`` prefixes, write probes); a local *dst* has none."""
+    ``.<name>.scratch-<id>`` prefixes, write probes: cloudsieve's own names, ``<id>`` 12 hex digits); never
+    one that is or holds one of *sources*. A local *dst* has none."""
+    from .paths import holds
+
     if not is_url(dst):
         return
     base = f"{parent(dst)}/.{_glob_escape(name(dst))}"
-    for pattern in (base + ".parts-*", base + ".scratch-*", base + ".cloudsieve-probe-*"):
-        fs, p = filesystem(pattern)
+    for kind in ("parts", "scratch", "cloudsieve-probe"):
+        fs, p = filesystem(f"{base}.{kind}-{'[0-9a-f]' * 12}")
         with remote_errors(dst):
             found = fs.glob(p)
         for key in found:
-            remove(f"{protocol(dst)}://{key}", recursive=True)
+            url = f"{protocol(dst)}://{key}"
+            if not any(holds(url, s) for s in sources):
+                remove(url, recursive=True)
 
 
 def _glob_escape(text: str) -> str:

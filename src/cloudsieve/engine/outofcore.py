@@ -138,7 +138,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             tasks = tile_size is not None or detect_format(dst, format) in ("las", "laz", "copc")
             if not tasks:
                 close_runner()  # frees the workers' memory
-            staging.remove_stale_scratch(dst)  # a URL: parts an interrupted run left
+            staging.remove_stale_scratch(dst, checked.sources)  # a URL: parts an interrupted run left
             with stage_bar(bars, "export", summary.kept, "pt") as bar:
                 export(st, dst, format=format, mask="simplify/keep", overwrite=overwrite, progress=both(bar, progress),
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
