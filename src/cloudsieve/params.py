@@ -78,6 +78,21 @@ def _number(option: Option, value: Any) -> float | int:
     return value
 
 
+def _numbers(option: Option, value: Any) -> float | int | tuple:
+    """A number, or a list of them in decreasing order (a tuple of two or more; one value: that number)."""
+    if not isinstance(value, (list, tuple)):
+        return _number(option, value)
+    if not value:
+        raise _refuse(option, value)
+    values = [_number(option, v) for v in value]
+    twice = sorted({v for v in values if values.count(v) > 1})
+    if twice:
+        raise named(InvalidParameterError(f"{option.name} lists {twice[0]:g} more than once: each output needs its "
+                                          f"own {option.name}"), option.name)
+    values.sort(reverse=True)  # each output a subset of the one before
+    return values[0] if len(values) == 1 else tuple(values)
+
+
 def _scheduler(option: Option, value: Any) -> str:
     if not isinstance(value, str):
         raise _refuse(option, value)
@@ -141,7 +156,7 @@ def check(option: Option | str, value: Any) -> Any:
         return None
     kind = option.kind
     if kind in (INT, FLOAT):
-        return _number(option, value)
+        return _numbers(option, value) if option.many else _number(option, value)
     if kind == BOOL:
         if not isinstance(value, (bool, np.bool_)):
             raise _refuse(option, value)
@@ -198,6 +213,12 @@ def _rule_target(o: dict) -> None:
 
 def _simplify(o: dict) -> None:
     _rule_target(o)
+    listed = next((name for name in ("ratio", "count") if isinstance(o[name], tuple)), None)
+    if listed and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"a list of {listed}s (nested outputs) needs the rule "
+                                          f"{rules.DEFAULT_RULE!r}, not {o['rule']!r}"), listed)
+    if o["rank"] and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"rank needs the rule {rules.DEFAULT_RULE!r}, not {o['rule']!r}"), "rank")
     _cluster_size(o)
     if o["cell_size"] < o["cluster_size"]:
         raise InvalidParameterError(f"cell_size ({o['cell_size']}) must be >= cluster_size ({o['cluster_size']})")
@@ -242,6 +263,10 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     if unknown:
         raise InvalidParameterError(f"{command}: unknown option(s) {unknown}; accepted: {sorted(spec)}")
     out = {name: check(opt, values.get(name, opt.default)) for name, opt in spec.items()}
+    many = [name for name, opt in spec.items() if opt.many and isinstance(out[name], tuple)]
+    if many and command != "simplify":
+        raise named(InvalidParameterError(f"{many[0]} takes one value here, got {values[many[0]]!r} (a list writes "
+                                          f"nested outputs, in cloudsieve.simplify)"), many[0])
     if command in _CROSS:
         if "ratio" in out:
             _target(out)

@@ -67,6 +67,10 @@ class Summary:
     scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
+    outputs : list of dict
+        Nested outputs (a list of ratios or counts, :mod:`.levels`): per output its
+        ``ratio`` or ``count``, ``destination``, ``kept`` and ``seconds``; the other
+        fields are the first output's. Empty, absent from :meth:`to_dict`, otherwise.
     """
 
     points_in: int = 0
@@ -87,11 +91,13 @@ class Summary:
     source: str = ""
     destination: str = ""
     store: str = ""
+    outputs: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        if record["storage"] is None:
-            del record["storage"]
+        for name in ("storage", "outputs"):
+            if record[name] in (None, []):
+                del record[name]
         return record
 
     def __str__(self) -> str:
@@ -117,4 +123,8 @@ class Summary:
             lines.append(f"storage       {s.storage['retries']:>14,}  retries (requests sent again after a timeout, "
                          f"throttling or a 5xx)")
         lines.append(f"scheduler     {s.scheduler}")
+        for out in s.outputs:
+            key = "ratio" if "ratio" in out else "count"
+            lines.append(f"output        {out['kept']:>14,}  {key} {out[key]:g}: {out['destination']} "
+                         f"({out['seconds']:.2f}s)")
         return "\n".join(lines)

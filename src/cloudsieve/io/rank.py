@@ -1,0 +1,136 @@
+"""The rank dimension of LAS/LAZ outputs: ``cloudsieve_rank``, written by ``simplify --rank``, cut by ``export --keep-rank``.
+
+A point's rank (uint64, 0 = the most important) orders the points of a run's
+outputs so that the first N_k ranks are output k exactly (the nested outputs
+of :mod:`cloudsieve.engine.levels`; one output: the kept points). Between two
+outputs' counts, and below the last, the ranks follow the bit-reversed Morton
+code of the points (21 bits an axis, over the first output's bounding cube):
+its lowest bits lead, so consecutive ranks fall in different octants at every
+level of the octree and a prefix takes, from every region of the cloud, its
+share of the band it cuts (a stratified sample, not an elimination).
+Ties (same code) go in input order. So::
+
+    rank = the position of (-depth, reversed Morton code, row) in ascending order
+
+with depth the number of outputs that hold the point. :func:`write_ranks`
+holds the outputs in memory; :func:`cut_rank` streams.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+from ..atomic import make_temp_path, remove, replace
+from ..errors import InputFormatError, NotASubsetError
+
+__all__ = ["RANK_DIM", "reversed_morton", "rank_order", "nested_rows", "write_ranks", "cut_rank"]
+
+#: the extra bytes dimension holding the rank
+RANK_DIM = "cloudsieve_rank"
+_BITS = 21  # Morton bits an axis: 63 in all
+
+
+def reversed_morton(xyz: np.ndarray) -> np.ndarray:
+    """The Morton code (n,) uint64 of *xyz* (n, 3) on a 2^21 grid over its bounding cube, its 63 bits reversed."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    if not len(xyz):
+        return np.zeros(0, dtype=np.uint64)
+    lo = xyz.min(axis=0)
+    span = float((xyz.max(axis=0) - lo).max()) or 1.0
+    q = np.minimum(((xyz - lo) / span * (1 << _BITS)).astype(np.uint64), np.uint64((1 << _BITS) - 1))
+    code = np.zeros(len(xyz), dtype=np.uint64)
+    one = np.uint64(1)
+    for bit in range(_BITS):  # bit b of axis a is bit 3b + a of the code, 62 - (3b + a) reversed
+        for axis in range(3):
+            code |= ((q[:, axis] >> np.uint64(bit)) & one) << np.uint64(62 - (3 * bit + axis))
+    return code
+
+
+def rank_order(depth: np.ndarray, xyz: np.ndarray) -> np.ndarray:
+    """The rank (n,) uint64 of points in *depth* (n,) outputs at *xyz* (n, 3): deeper first, then
+    :func:`reversed_morton`, then row."""
+    n = len(depth)
+    order = np.lexsort((np.arange(n), reversed_morton(xyz), -np.asarray(depth, dtype=np.int64)))
+    rank = np.empty(n, dtype=np.uint64)
+    rank[order] = np.arange(n, dtype=np.uint64)
+    return rank
+
+
+def _records(points) -> np.ndarray:
+    """A LAS file's point records as rows of bytes (n, record length)."""
+    array = np.ascontiguousarray(points.array)
+    return array.view(np.uint8).reshape(len(array), -1)
+
+
+def nested_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The rows of *a* (n, w) uint8 that the rows of *b* (m, w) are, in order: *b* is *a* with rows left out.
+
+    Equal rows are matched first to first. NotASubsetError when *b* holds a row *a* lacks."""
+    if len(b) == 0:
+        return np.zeros(0, dtype=np.int64)
+    _, ids = np.unique(np.concatenate([a, b]), axis=0, return_inverse=True)
+    ids = ids.ravel()
+    ia, ib = ids[: len(a)], ids[len(a):]
+    wanted = np.bincount(ib, minlength=int(ids.max()) + 1)
+    order = np.argsort(ia, kind="stable")
+    grouped = ia[order]
+    first = np.searchsorted(grouped, grouped, side="left")  # each row's rank among its equals, in a's order
+    member = np.zeros(len(a), dtype=bool)
+    member[order] = np.arange(len(a)) - first < wanted[grouped]
+    rows = np.flatnonzero(member)
+    if len(rows) != len(b) or not np.array_equal(a[rows], b):
+        raise NotASubsetError(f"{len(b) - int(member.sum())} of {len(b)} points are not in the output before")
+    return rows
+
+
+def write_ranks(paths: list[str]) -> None:
+    """Add :data:`RANK_DIM` to the LAS/LAZ files *paths*, each a subset of the one before in its order
+    (:func:`rank_order`); each file rewritten atomically."""
+    import laspy
+
+    clouds = [laspy.read(p) for p in paths]
+    index = [np.arange(len(clouds[0].points), dtype=np.int64)]  # each output's rows in the first
+    depth = np.ones(len(index[0]), dtype=np.int64)
+    for before, after in zip(clouds, clouds[1:]):
+        index.append(index[-1][nested_rows(_records(before.points), _records(after.points))])
+        depth[index[-1]] += 1
+    rank = rank_order(depth, np.column_stack([clouds[0].x, clouds[0].y, clouds[0].z]))
+    for path, cloud, rows in zip(paths, clouds, index):
+        if RANK_DIM not in cloud.point_format.dimension_names:
+            cloud.add_extra_dim(laspy.ExtraBytesParams(RANK_DIM, "uint64", description="cloudsieve keep order"))
+        cloud[RANK_DIM] = rank[rows]
+        tmp = make_temp_path(path)
+        try:
+            cloud.write(tmp, do_compress=path.lower().endswith(".laz"))
+            replace(tmp, path)
+        finally:
+            remove(tmp)
+
+
+def cut_rank(src: str, dst: str, keep: int, *, overwrite: bool = False, chunk_size: int = 1_000_000) -> int:
+    """Write the points of *src* of rank below *keep* to *dst* (LAS/LAZ), chunk by chunk; returns their count."""
+    import laspy
+
+    from . import check_readable, check_writable
+
+    check_readable(src)
+    fmt = check_writable(dst, None, overwrite=overwrite)
+    if fmt not in ("las", "laz"):
+        raise InputFormatError(f"{dst}: keep_rank writes LAS or LAZ, not {fmt}")
+    written = 0
+    with laspy.open(src) as reader:
+        if RANK_DIM not in reader.header.point_format.dimension_names:
+            raise InputFormatError(f"{src} has no {RANK_DIM} dimension: write one with cloudsieve simplify --rank")
+        tmp = make_temp_path(dst)
+        try:
+            with laspy.open(tmp, mode="w", header=reader.header, do_compress=fmt == "laz") as writer:
+                for points in reader.chunk_iterator(chunk_size):
+                    chosen = points[points[RANK_DIM] < np.uint64(keep)]
+                    writer.write_points(chosen)
+                    written += len(chosen)
+            replace(tmp, os.fspath(dst))
+        finally:
+            remove(tmp)
+    return written
