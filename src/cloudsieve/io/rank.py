@@ -2,18 +2,19 @@
 
 A point's rank (uint64, 0 = the most important) orders the points of a run's
 outputs so that the first N_k ranks are output k exactly (the nested outputs
-of :mod:`cloudsieve.engine.levels`; one output: the kept points). Between two
-outputs' counts, and below the last, the ranks follow the bit-reversed Morton
-code of the points (21 bits an axis, over the first output's bounding cube):
-its lowest bits lead, so consecutive ranks fall in different octants at every
-level of the octree and a prefix takes, from every region of the cloud, its
-share of the band it cuts (a stratified sample, not an elimination).
-Ties (same code) go in input order. So::
+of :mod:`cloudsieve.engine.levels`; one output: its kept points). Between two
+outputs' counts, and below the last, the ranks go level by level down an
+octree (the first output's bounding cube, 21 levels): a point's level is the
+first at which it is the first point (lowest Morton code, then row) of its
+node among the points of its band, so the points of levels <= d are one point
+per occupied node of level d, as in a level of detail. Within a level the
+nodes go by their Morton code with its bits reversed (their octant in the
+parent first), so a cut inside a level takes from every parent alike. So::
 
-    rank = the position of (-depth, reversed Morton code, row) in ascending order
+    rank = the position of (-outputs holding the point, octree level, reversed node code, row)
 
-with depth the number of outputs that hold the point. :func:`write_ranks`
-holds the outputs in memory; :func:`cut_rank` streams.
+in ascending order. :func:`write_ranks` holds the outputs in memory;
+:func:`cut_rank` streams.
 """
 
 from __future__ import annotations
@@ -25,15 +26,15 @@ import numpy as np
 from ..atomic import make_temp_path, remove, replace
 from ..errors import InputFormatError, NotASubsetError
 
-__all__ = ["RANK_DIM", "reversed_morton", "rank_order", "nested_rows", "write_ranks", "cut_rank"]
+__all__ = ["RANK_DIM", "morton", "octree_levels", "rank_order", "nested_rows", "write_ranks", "cut_rank"]
 
 #: the extra bytes dimension holding the rank
 RANK_DIM = "cloudsieve_rank"
 _BITS = 21  # Morton bits an axis: 63 in all
 
 
-def reversed_morton(xyz: np.ndarray) -> np.ndarray:
-    """The Morton code (n,) uint64 of *xyz* (n, 3) on a 2^21 grid over its bounding cube, its 63 bits reversed."""
+def morton(xyz: np.ndarray) -> np.ndarray:
+    """The Morton code (n,) uint64 of *xyz* (n, 3) on a 2^21 grid over its bounding cube (bit 3b + a: bit b of axis a)."""
     xyz = np.asarray(xyz, dtype=np.float64)
     if not len(xyz):
         return np.zeros(0, dtype=np.uint64)
@@ -41,18 +42,45 @@ def reversed_morton(xyz: np.ndarray) -> np.ndarray:
     span = float((xyz.max(axis=0) - lo).max()) or 1.0
     q = np.minimum(((xyz - lo) / span * (1 << _BITS)).astype(np.uint64), np.uint64((1 << _BITS) - 1))
     code = np.zeros(len(xyz), dtype=np.uint64)
-    one = np.uint64(1)
-    for bit in range(_BITS):  # bit b of axis a is bit 3b + a of the code, 62 - (3b + a) reversed
+    for bit in range(_BITS):
         for axis in range(3):
-            code |= ((q[:, axis] >> np.uint64(bit)) & one) << np.uint64(62 - (3 * bit + axis))
+            code |= ((q[:, axis] >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * bit + axis)
     return code
 
 
+def _reversed(code: np.ndarray) -> np.ndarray:
+    """The 63 bits of *code* (n,) uint64 in reverse order."""
+    out = np.zeros_like(code)
+    for bit in range(3 * _BITS):
+        out |= ((code >> np.uint64(bit)) & np.uint64(1)) << np.uint64(3 * _BITS - 1 - bit)
+    return out
+
+
+def octree_levels(code: np.ndarray, band: np.ndarray) -> np.ndarray:
+    """Each point's octree level (n,) int64: the first level (0 the root .. 21, 22 past the finest) at which it is
+    the first of its node among the points of its *band* (n,), by Morton *code* (n,) then row."""
+    n = len(code)
+    order = np.lexsort((np.arange(n), code, band))
+    c, b = code[order], band[order]
+    differ = c[1:] ^ c[:-1]
+    top = np.full(n - 1 if n else 0, -1, dtype=np.int64)  # the highest group of 3 bits that differs
+    for group in range(_BITS):
+        top[(differ >> np.uint64(3 * group)) != 0] = group
+    level = np.empty(n, dtype=np.int64)
+    level[order] = np.r_[0, np.where(b[1:] != b[:-1], 0, np.where(top < 0, _BITS + 1, _BITS - top))][:n]
+    return level
+
+
 def rank_order(depth: np.ndarray, xyz: np.ndarray) -> np.ndarray:
-    """The rank (n,) uint64 of points in *depth* (n,) outputs at *xyz* (n, 3): deeper first, then
-    :func:`reversed_morton`, then row."""
+    """The rank (n,) uint64 of points held by *depth* (n,) outputs at *xyz* (n, 3): deeper first, then
+    :func:`octree_levels` within each depth, then the node's reversed Morton code, then row."""
     n = len(depth)
-    order = np.lexsort((np.arange(n), reversed_morton(xyz), -np.asarray(depth, dtype=np.int64)))
+    band = -np.asarray(depth, dtype=np.int64)
+    code = morton(xyz)
+    level = octree_levels(code, band)
+    bits = np.minimum(3 * level, 3 * _BITS).astype(np.uint64)
+    node = _reversed(code) & ((np.uint64(1) << bits) - np.uint64(1))  # the node's code at its level, reversed
+    order = np.lexsort((np.arange(n), node, level, band))
     rank = np.empty(n, dtype=np.uint64)
     rank[order] = np.arange(n, dtype=np.uint64)
     return rank
