@@ -215,3 +215,24 @@ def test_bad_lists_exit_2_before_any_work(capsys, tmp_path):
     assert os.listdir(tmp_path) == ["o-0.1.laz"] and (tmp_path / "o-0.1.laz").read_bytes() == b"mine"
     assert _fails(["export", src, str(tmp_path / "k.laz"), "--keep-rank", "10"], capsys, tmp_path) == (
         f"cloudsieve export: error: {src} has no {RANK_DIM} dimension: write one with cloudsieve simplify --rank")
+
+
+def _points(paths) -> set:
+    """The points of LAS/LAZ/COPC files as a set of (X, Y, Z, GPS time)."""
+    out = set()
+    for path in paths:
+        cloud = laspy.read(path)
+        out |= set(zip(cloud.X.tolist(), cloud.Y.tolist(), cloud.Z.tolist(), cloud.gps_time.tolist()))
+    return out
+
+
+def test_nested_tiles_and_copc(tmp_path):
+    src = str(shared_file("autzen_trim.laz"))
+    summary = cloudsieve.simplify(src, tmp_path / "t", ratio=[0.5, 0.2], tile_size=500.0)
+    tiles = [sorted(str(p) for p in (tmp_path / f"t-{r}").glob("*.laz")) for r in ("0.5", "0.2")]
+    assert [o["destination"] for o in summary.outputs] == [str(tmp_path / "t-0.5"), str(tmp_path / "t-0.2")]
+    big, small = _points(tiles[0]), _points(tiles[1])
+    assert (len(big), len(small)) == (55_000, 22_000) and small <= big
+    summary = cloudsieve.simplify(src, tmp_path / "c.copc.laz", ratio=[0.5, 0.2])
+    big, small = (_points([o["destination"]]) for o in summary.outputs)
+    assert (len(big), len(small)) == (55_000, 22_000) and small <= big
