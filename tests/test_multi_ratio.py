@@ -236,3 +236,18 @@ def test_nested_tiles_and_copc(tmp_path):
     summary = cloudsieve.simplify(src, tmp_path / "c.copc.laz", ratio=[0.5, 0.2])
     big, small = (_points([o["destination"]]) for o in summary.outputs)
     assert (len(big), len(small)) == (55_000, 22_000) and small <= big
+
+
+def test_pipeline_with_a_list_of_ratios(tmp_path):
+    from cloudsieve.pipeline import load_pipeline, run_pipeline
+
+    src = str(shared_file("autzen_trim.laz"))
+    doc = {"pipeline": [{"type": "readers.las", "filename": src},
+                        {"type": "filters.entropy", "ratio": [0.2, 0.5]},
+                        {"type": "writers.las", "filename": str(tmp_path / "{stem}-{ratio}.laz")},
+                        {"type": "evaluate", "surface": False}]}
+    [entry] = run_pipeline(load_pipeline(doc))
+    assert entry["output"] == str(tmp_path / "autzen_trim-0.5.laz")
+    assert entry["report"]["point"]["simplified_count"] == 55_000
+    assert nested_rows(_records(str(tmp_path / "autzen_trim-0.5.laz")),
+                       _records(str(tmp_path / "autzen_trim-0.2.laz"))).size == 22_000
