@@ -251,3 +251,21 @@ def test_pipeline_with_a_list_of_ratios(tmp_path):
     assert entry["report"]["point"]["simplified_count"] == 55_000
     assert nested_rows(_records(str(tmp_path / "autzen_trim-0.5.laz")),
                        _records(str(tmp_path / "autzen_trim-0.2.laz"))).size == 22_000
+
+
+def test_one_elimination_at_a_fixed_radius_is_nested_the_relocation_is_not():
+    """The kernel's removal order does not depend on the count: without relocation, at one r_max, the kept
+    sets are nested; the relocation step after it (and r_max, the cells' counts per count) are why a run at
+    each ratio is not (docs/architecture.md, "Nested outputs")."""
+    from cloudsieve.core.elimination import area_radius
+    from cloudsieve.core.eliminate_cells import eliminate_cell
+
+    xyz = np.asarray(cloudsieve.read_cloud(str(shared_file("bun_zipper.ply")))[0], dtype=np.float64)
+    n = len(xyz)
+    r_max = area_radius(xyz, xyz, n // 10)
+    counts = (n // 2, n // 5, n // 10)
+    kept = [eliminate_cell(xyz, q, r_max, steps=0, staged=False) for q in counts]
+    assert [int(k.sum()) for k in kept] == list(counts)
+    assert all(not (small & ~big).any() for big, small in zip(kept, kept[1:]))
+    moved = [eliminate_cell(xyz, q, r_max, steps=1, staged=False) for q in counts]
+    assert all((small & ~big).any() for big, small in zip(moved, moved[1:]))
