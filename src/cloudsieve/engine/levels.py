@@ -66,11 +66,12 @@ def _check_levels(paths: list[str], opts: dict, key: str) -> None:
 
     tiles = opts["tile_size"] is not None
     fmt = "laz" if tiles else detect_format(paths[0], opts["format"])
-    if fmt not in _READ_BACK:
+    if len(paths) > 1 and fmt not in _READ_BACK:
         raise InvalidParameterError(f"a list of {key}s writes LAS, LAZ, COPC, PLY or tiles (each output is the next "
                                     f"one's source), not {fmt}: {paths[0]}")
-    if opts["rank"] and (tiles or fmt == "copc" or any(local_path(p) is None for p in paths)):
-        raise InvalidParameterError("rank writes local LAS or LAZ files (tiles and COPC reorder the points)")
+    if opts["rank"] and (tiles or fmt not in ("las", "laz") or any(local_path(p) is None for p in paths)):
+        raise InvalidParameterError(f"rank writes local LAS or LAZ files (tiles and COPC reorder the points), not "
+                                    f"{'tiles' if tiles else fmt}: {paths[0]}")
     if len(set(paths)) < len(paths):
         raise InvalidParameterError(f"the outputs of {key} {opts[key]} need distinct paths, got {paths}")
     for path in paths[1:]:
