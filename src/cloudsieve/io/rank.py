@@ -92,21 +92,41 @@ def _records(points) -> np.ndarray:
     return array.view(np.uint8).reshape(len(array), -1)
 
 
+def _row_hash(rows: np.ndarray) -> np.ndarray:
+    """A 64-bit hash (n,) uint64 of each row of *rows* (n, w) uint8."""
+    words = np.pad(rows, ((0, 0), (0, -rows.shape[1] % 8))).view(np.uint64)
+    h = np.full(len(rows), 0x9E3779B97F4A7C15, dtype=np.uint64)
+    for j in range(words.shape[1]):
+        h = (h ^ words[:, j]) * np.uint64(0xFF51AFD7ED558CCD)
+        h ^= h >> np.uint64(33)
+    return h
+
+
+def _members(ka: np.ndarray, kb: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the keys *ka* matched by the keys *kb*: as many of each key, the first ones, as *kb* holds."""
+    order = np.argsort(ka, kind="stable")
+    grouped = ka[order]
+    first = np.searchsorted(grouped, grouped, side="left")  # each key's rank among its equals, in a's order
+    sb = np.sort(kb)
+    wanted = np.searchsorted(sb, grouped, side="right") - np.searchsorted(sb, grouped, side="left")
+    member = np.zeros(len(ka), dtype=bool)
+    member[order] = np.arange(len(ka)) - first < wanted
+    return member
+
+
 def nested_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rows of *a* (n, w) uint8 that the rows of *b* (m, w) are, in order: *b* is *a* with rows left out.
 
     Equal rows are matched first to first. NotASubsetError when *b* holds a row *a* lacks."""
     if len(b) == 0:
         return np.zeros(0, dtype=np.int64)
+    rows = np.flatnonzero(_members(_row_hash(a), _row_hash(b)))
+    if len(rows) == len(b) and np.array_equal(a[rows], b):
+        return rows
+    # a hash collision, or b is not nested in a: the exact match, by the rows themselves
     _, ids = np.unique(np.concatenate([a, b]), axis=0, return_inverse=True)
     ids = ids.ravel()
-    ia, ib = ids[: len(a)], ids[len(a):]
-    wanted = np.bincount(ib, minlength=int(ids.max()) + 1)
-    order = np.argsort(ia, kind="stable")
-    grouped = ia[order]
-    first = np.searchsorted(grouped, grouped, side="left")  # each row's rank among its equals, in a's order
-    member = np.zeros(len(a), dtype=bool)
-    member[order] = np.arange(len(a)) - first < wanted[grouped]
+    member = _members(ids[: len(a)], ids[len(a):])
     rows = np.flatnonzero(member)
     if len(rows) != len(b) or not np.array_equal(a[rows], b):
         raise NotASubsetError(f"{len(b) - int(member.sum())} of {len(b)} points are not in the output before")
