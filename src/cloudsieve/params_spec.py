@@ -185,9 +185,7 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-#: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
-_STRICT_COUNT = Option("strict", BOOL, False,
-                       "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
+_EXACT = Option("exact", BOOL, False, "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
 _RULE_LIST = Option("rule", CHOICES, None, "entropy rule(s), comma-separated; each runs once per method (eliminate: "
                     "once, no clusters) (default: eliminate, with --ratio or --count; with --threshold alone: threshold)",
                     choices=rules.names(), metavar="RULES")
@@ -229,7 +227,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
         "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", "keep_duplicates", "tile_size", "storage_options", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
+        "drop_invalid", "keep_duplicates", "tile_size", "storage_options", extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid",

@@ -61,7 +61,7 @@ def simplify(
     k_min: int = 4,
     drop_invalid: bool = False,
     keep_duplicates: bool = False,
-    strict: bool = False,
+    exact: bool = False,
     tile_size: float | None = None,
     storage_options: dict | None = None,
 ) -> Summary:
@@ -135,7 +135,7 @@ def simplify(
     keep_duplicates : bool
         Keep every exact copy (same x, y, z) of a kept point; by default
         duplicates are scored and kept once (:attr:`Summary.duplicates`).
-    strict : bool
+    exact : bool
         Raise instead of logging when a ratio or count is not met exactly.
     tile_size : float, optional
         Write DST as a folder of square LAZ tiles plus ``DST/index.vpc``
@@ -166,7 +166,7 @@ def simplify(
     InvalidPointsError
         SRC has NaN or infinite coordinates and *drop_invalid* is False.
     TargetNotMetError
-        *strict* and the kept count differs from the ratio or count asked
+        *exact* and the kept count differs from the ratio or count asked
         (before DST is written).
     """
     t_start = time.perf_counter()
@@ -175,7 +175,7 @@ def simplify(
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "exact": exact, "tile_size": tile_size,
         "storage_options": storage_options,
     })
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
@@ -192,8 +192,8 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
 
 def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_start) -> Summary:
     t_start, src, dst = time.perf_counter() if t_start is None else t_start, os.fspath(src), os.fspath(dst)
-    ratio, count, keep_duplicates, strict, tile_size = (
-        opts[name] for name in ("ratio", "count", "keep_duplicates", "strict", "tile_size"))
+    ratio, count, keep_duplicates, exact, tile_size = (
+        opts[name] for name in ("ratio", "count", "keep_duplicates", "exact", "tile_size"))
     if tile_size is not None and len(dst) > 1:
         dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
@@ -208,7 +208,7 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
                         "kept (keep_duplicates)" if keep_duplicates else "removed")
         missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
                                keep_duplicates, exact=get_rule(rule).engine == ELIMINATION)
-        if missed and strict:
+        if missed and exact:
             raise TargetNotMetError(missed)
         if missed:
             logger.warning("%s", missed)

@@ -16,7 +16,7 @@ def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0
     """What to say when a ratio or count was asked and the kept count differs, else None.
 
     ``"SRC: asked to keep A points, kept K: why"``, logged as a warning or
-    raised with ``strict``. With *exact* (a rule keeping exactly the count,
+    raised with the option ``exact``. With *exact* (a rule keeping exactly the count,
     ``eliminate``) only the input's size and its duplicates explain a miss.
     """
     if ratio is None and count is None:
