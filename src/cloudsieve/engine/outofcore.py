@@ -85,6 +85,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
+            summary.stage_cpu["ingest"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             target = None
@@ -103,6 +104,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             progress(st.count)
             summary.cells = part.n_cells
             summary.seconds["partition"] = time.perf_counter() - t0
+            summary.stage_cpu["partition"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             block = workstore.region_block(cell_size, remote=local_path(st.path) is None)
@@ -123,6 +125,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.cells_computed, summary.cells_reused = computed, reused
             summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
             summary.seconds["cells"] = time.perf_counter() - t0
+            summary.stage_cpu["cells"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
@@ -132,6 +135,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             account(summary)
             progress(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
+            summary.stage_cpu["merge"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             # tasks write the parts or tiles; other formats (PLY, XYZ) stream here
@@ -144,6 +148,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"], retries = runner.worker_counts()
+            summary.stage_cpu["export"] = max(0.0, summary.cpu_seconds["workers"] - sum(summary.stage_cpu.values()))
             summary.storage = {"retries": retries}  # the driver's are added at the end
         except TargetNotMetError:
             if default_store:  # complete and would end the same
@@ -158,3 +163,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
         delete_store(store_path)
         summary.store = ""
     return summary
+
+
+def _cpu_lap(runner, summary) -> float:
+    """The workers' CPU seconds since the stages *summary* holds (one request to a cluster's workers)."""
+    return max(0.0, runner.worker_counts()[0] - sum(summary.stage_cpu.values()))

@@ -59,6 +59,9 @@ class Summary:
         Wall time per stage ("ingest", "partition", "cells", "merge", "export") and "total".
     cpu_seconds : dict str -> float
         ``{"driver": d, "workers": w}`` (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
+    stage_cpu : dict str -> float
+        The workers' CPU seconds in each stage of a run through the work store (their sum is
+        ``cpu_seconds["workers"]``); empty for a small input run in memory.
     peak_memory, peak_memory_of : int, str
         Peak resident memory (bytes), sampled, and what it covers (:mod:`.memory`).
     storage : dict or None
@@ -80,6 +83,7 @@ class Summary:
     threshold: float | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=lambda: {"driver": 0.0, "workers": 0.0})
+    stage_cpu: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
     peak_memory_of: str = "this process and its children"
     storage: dict[str, int] | None = None
@@ -112,6 +116,8 @@ class Summary:
         cpu = s.cpu_seconds
         lines.append(f"cpu           {cpu['driver'] + cpu['workers']:>13.2f}s  (driver {cpu['driver']:.2f}s, "
                      f"workers {cpu['workers']:.2f}s)")
+        if s.stage_cpu:
+            lines.append("  workers     " + ", ".join(f"{k} {v:.2f}s" for k, v in s.stage_cpu.items()))
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
         if s.storage is not None:
             lines.append(f"storage       {s.storage['retries']:>14,}  retries (requests sent again after a timeout, "
