@@ -37,7 +37,8 @@ import numpy as np
 
 from ..chunk import take_rows
 from ..core.kernels.scatter import group_rows
-from .halo import band_halo, band_mask
+from .cell_work import task_threads, cell_counts, cell_keep, cell_share
+from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
            "run_cells", "cell_share", "cell_counts", "cell_keep"]
@@ -163,10 +164,6 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
-def _threads(task) -> int:
-    return int(task.params.get("threads") or 1)
-
-
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
     """A task: one cell's share (:func:`cell_share`) computed and stored in *where* (store or :class:`ArrayCells`).
 
@@ -184,7 +181,7 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
         row, band, copies = group_share(io, task, core, dependents)
     else:
         sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
-                                           task.margin, _threads(task), ladder=task.params["ladder"])
+                                           task.margin, task_threads(task), ladder=task.params["ladder"])
         row, copies = np.r_[float(distinct), sizes], len(core) - distinct
     io.put_share(task, core, row, band, copies)
     return {"cell": task.cell, "n": len(core), "band": len(band), "share": row, "seconds": time.perf_counter() - t0}
@@ -216,7 +213,7 @@ def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
             src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
             halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
         halo = points, fixed, halo_keep
-    keep = cell_keep(core, count, float(task.params["r_max"]), halo, _threads(task), task.params.get("staged"),
+    keep = cell_keep(core, count, float(task.params["r_max"]), halo, task_threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
     io.put_keep(task, keep)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
@@ -265,53 +262,3 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
     runner(apply_task, args, "cells: apply", after=after)
     return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), int(distinct.sum())
-
-
-def cell_share(core: np.ndarray, r_max: float, centers, cell: int, dependents: dict, margin: float,
-               threads: int | None = None, ladder: bool = True) -> tuple[np.ndarray, int, np.ndarray]:
-    """Packing sizes (L,) of *core* (n, 3) along LADDER x *r_max*, its distinct points, and its band.
-
-    Sizes are zeros when r_max is infinite or not *ladder*. The band: rows of
-    *core* in the halo of a cell of *dependents* (int -> centre)."""
-    from ..core.duplicates import copy_rows
-    from ..core.packing import LADDER, packing_ladder
-    from ..core.relocate import numba_threads
-
-    n = len(core)
-    if n and math.isfinite(r_max) and ladder:
-        with numba_threads(threads):  # the task's share of the cores
-            sizes, distinct = packing_ladder(core, r_max)
-    else:
-        sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
-    band = np.flatnonzero(band_mask(core, {**dependents, cell: centers[cell]}, cell, dependents, margin))
-    return sizes, int(distinct), band
-
-
-def cell_counts(sizes: np.ndarray, distinct: np.ndarray, target: int, r_max: float) -> tuple[np.ndarray, bool]:
-    """Each cell's kept count q (P,), summing to *target*, and whether every cell runs in stages."""
-    from ..core.packing import kept_counts, ladder_shares
-    from ..core.staged import small_share
-
-    expected = ladder_shares(sizes, int(target)) if math.isfinite(r_max) else distinct
-    return kept_counts(expected, distinct, int(target)), small_share(int(target), int(distinct.sum()))
-
-
-def cell_keep(core: np.ndarray, count: int, r_max: float, halo: tuple, threads: int | None, staged,
-              keep_duplicates) -> np.ndarray:
-    """The keep mask (n,) of *core* eliminated to *count* points (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`).
-
-    *halo*: (points (h, 3), decided (h,), kept (h,)); *keep_duplicates* keeps every copy of a kept point."""
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-
-    n = len(core)
-    keep = np.full(n, count >= n)
-    if 0 < count < n:
-        points, fixed, halo_keep = halo
-        keep = eliminate_cell(core, int(count), r_max, halo=points, decided=fixed, halo_keep=halo_keep,
-                              threads=threads, cell_points=CELL_POINTS, staged=staged)
-    if keep_duplicates and n:
-        from ..core.duplicates import first_copies
-
-        keep = keep[first_copies(core)]
-    return keep

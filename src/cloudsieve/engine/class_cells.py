@@ -29,7 +29,7 @@ _COLUMNS = 1 + len(LADDER)
 def group_share(io, task, core: np.ndarray, dependents: dict) -> tuple[np.ndarray, np.ndarray, int]:
     """The cell's groups stored (``io.put_groups``) and its share row: points kept whole, then per group
     its distinct points and packing sizes; its band (over all its points) and its exact copies."""
-    from .cell_scheme import _threads, cell_share
+    from .cell_work import task_threads, cell_share
     from .halo import band_mask
 
     groups = np.asarray(task.params["lookup"], dtype=np.int8)[io.classes(task)]
@@ -38,7 +38,7 @@ def group_share(io, task, core: np.ndarray, dependents: dict) -> tuple[np.ndarra
     row, copies = [float((groups == WHOLE).sum())], 0
     for g in range(int(task.params["groups"])):  # no dependents: a group's band is not needed
         own = groups == g
-        sizes, distinct, _ = cell_share(core[own], r_max, task.centers, task.cell, {}, task.margin, _threads(task),
+        sizes, distinct, _ = cell_share(core[own], r_max, task.centers, task.cell, {}, task.margin, task_threads(task),
                                         ladder=task.params["ladder"])
         row += [float(distinct), *sizes]
         copies += int(own.sum()) - distinct
@@ -51,7 +51,7 @@ def group_share(io, task, core: np.ndarray, dependents: dict) -> tuple[np.ndarra
 def group_counts(share: np.ndarray, targets: np.ndarray, r_max: float) -> tuple[np.ndarray, list, np.ndarray]:
     """Counts (P, G) from the share rows (P, 1 + G (1 + L)), column g summing to ``targets[g]``; whether each
     group runs in stages; each cell's distinct points (the whole ones included)."""
-    from .cell_scheme import cell_counts
+    from .cell_work import cell_counts
 
     distinct = share[:, 0].astype(np.int64)
     q, staged = np.zeros((len(share), len(targets)), dtype=np.int64), []
@@ -66,7 +66,7 @@ def group_counts(share: np.ndarray, targets: np.ndarray, r_max: float) -> tuple[
 
 def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.ndarray:
     """The keep mask (n,) of a cell, its groups eliminated in order to *counts* (G,), the whole ones kept."""
-    from .cell_scheme import _threads, cell_keep
+    from .cell_work import task_threads, cell_keep
 
     groups = np.asarray(io.groups(task, len(core)))
     keep = groups == WHOLE
@@ -94,6 +94,6 @@ def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.nd
         other = hgroup != g  # the halo's other groups: fixed; decided in lower colours, else kept
         halo = (np.concatenate([core[rest], points]), np.r_[np.ones(int(rest.sum()), dtype=bool), fixed | other],
                 np.r_[keep[rest] | (groups[rest] > g), np.where(fixed, hkeep, other)])
-        keep[own] = cell_keep(core[own], int(q), r_max, halo, _threads(task), staged[g],
+        keep[own] = cell_keep(core[own], int(q), r_max, halo, task_threads(task), staged[g],
                               task.params.get("keep_duplicates"))
     return keep
