@@ -117,7 +117,7 @@ _OPTIONS = [
            "they stay context for the others' crowding); --ratio/--count then apply to the points not kept whole "
            "(rule eliminate)", metavar="CODES"),
     Option("class_ratio", CLASS_RATIOS, None, "a ratio per LAS class, e.g. 5=0.1,2=1.0 (1.0: kept whole), each "
-           "class's count exact; classes not listed follow --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
+           "class's count exact; the classes not listed are thinned together to --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),

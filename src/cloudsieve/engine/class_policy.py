@@ -19,8 +19,8 @@ import numpy as np
 from ..core._validation import ratio_count
 from ..errors import InputFormatError
 
-__all__ = ["WHOLE", "ClassPolicy", "check_classified", "class_counts_task", "class_rows_task", "run_class_counts",
-           "run_class_rows"]
+__all__ = ["WHOLE", "ClassPolicy", "check_classified", "class_codes", "class_counts_task", "class_rows_task",
+           "run_class_counts", "run_class_rows"]
 
 #: the group of the points kept whole
 WHOLE = -1
@@ -128,12 +128,22 @@ def check_classified(sources: list[str], store: bool) -> None:
                                        "need (LAS/LAZ/COPC have one)")
 
 
+def class_codes(values, where: str) -> np.ndarray:
+    """*values* as class codes (n,) uint8; InputFormatError naming *where* for a value that is not one of 0..255
+    (a PLY or store attribute of another type)."""
+    v = np.asarray(values)
+    if v.size and (v.dtype.kind not in "iub" or int(v.min()) < 0 or int(v.max()) > 255):
+        raise InputFormatError(f"{where}: its classification holds values that are not class codes 0..255 "
+                               f"({v.dtype}, {v.min()} to {v.max()})")
+    return v.astype(np.uint8, copy=False)
+
+
 def class_counts_task(store_path: str, start: int, stop: int, mask: str | None) -> np.ndarray:
     """Task: points (256,) int64 of each class among ``[start, stop)``, only those of *mask* when given."""
     from ..store import PointStore
 
     st = PointStore.open(store_path)
-    codes = np.asarray(st.array(CLASSIFICATION)[start:stop])
+    codes = class_codes(st.array(CLASSIFICATION)[start:stop], store_path)
     if mask is not None:
         codes = codes[np.asarray(st.group[mask][start:stop], dtype=bool)]
     return np.bincount(codes.astype(np.int64), minlength=256)
@@ -154,7 +164,7 @@ def class_rows_task(store_path: str, chunk: int, start: int, stop: int) -> None:
 
     st = PointStore.open(store_path, "r+")
     labels = np.asarray(st.group["partition/cell"][start:stop])
-    codes = np.asarray(st.array(CLASSIFICATION)[start:stop]).astype(np.uint8)
+    codes = class_codes(st.array(CLASSIFICATION)[start:stop], store_path)
     st.group["partition/class"][chunk, : stop - start] = codes[np.argsort(labels, kind="stable")]
 
 

@@ -87,7 +87,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     from ..io import detect_format, open_writer
     from ..io.whole import read_whole
     from .cell_scheme import eliminate_cells, partition
-    from .class_policy import ClassPolicy
+    from .class_policy import ClassPolicy, class_codes
 
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # a second core compiles ahead
@@ -107,7 +107,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
             policy = ClassPolicy.from_options(opts)
             if policy is not None:  # each group's target; r_max for all the points kept
-                codes = attrs["classification"]
+                codes = class_codes(attrs["classification"], ", ".join(sources))
                 classes = np.bincount(codes, minlength=256)
                 target = policy.asked(classes)
             part, order = partition(xyz, bounds[0], opts, target)
