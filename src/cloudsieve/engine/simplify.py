@@ -41,6 +41,8 @@ def simplify(
     threshold: float | None = None,
     ratio: float | None = None,
     count: int | None = None,
+    keep_class=None,
+    class_ratio=None,
     cluster_size: int = 400,
     cell_size: int = 200_000,
     scheduler: str | None = None,
@@ -90,7 +92,16 @@ def simplify(
         S, the entropy-change threshold of the threshold/iterative rules (default 1e-3).
     ratio, count : float in (0, 1] or int >= 1, optional
         Keep this share / number of the input points instead of using S;
-        the total lands within 1% of it (exactly with eliminate).
+        the total lands within 1% of it (exactly with eliminate). With
+        *keep_class* or *class_ratio*, of the points not kept whole and not
+        in *class_ratio*.
+    keep_class : str or list of int, optional
+        LAS classes kept whole ("2,9" or ``[2, 9]``), exact records; they
+        stay context for the others' crowding (rule eliminate only).
+    class_ratio : str or dict, optional
+        A ratio per LAS class ("5=0.1,2=1.0" or ``{5: 0.1}``; 1.0 keeps it
+        whole), each class's count exact (rule eliminate only). The summary's
+        ``classes`` states per class the points in and kept.
     cluster_size : int
         Points per small cluster (c = ceil(n / cluster_size) per cell), >= ``k_min + 2``.
     cell_size : int
@@ -172,6 +183,7 @@ def simplify(
     t_start = time.perf_counter()
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
+        "keep_class": keep_class, "class_ratio": class_ratio,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
@@ -207,7 +219,8 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
             logger.info("%d exact duplicates %s", summary.duplicates,
                         "kept (keep_duplicates)" if keep_duplicates else "removed")
         missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
-                               keep_duplicates, exact=get_rule(rule).engine == ELIMINATION)
+                               keep_duplicates, exact=get_rule(rule).engine == ELIMINATION,
+                               asked=summary.classes["asked"] if summary.classes else None)
         if missed and exact:
             raise TargetNotMetError(missed)
         if missed:

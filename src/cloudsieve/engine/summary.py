@@ -12,16 +12,18 @@ __all__ = ["Summary", "missed_target"]
 
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
-                  keep_duplicates: bool = False, exact: bool = False) -> str | None:
+                  keep_duplicates: bool = False, exact: bool = False, asked: int | None = None) -> str | None:
     """What to say when a ratio or count was asked and the kept count differs, else None.
 
     ``"SRC: asked to keep A points, kept K: why"``, logged as a warning or
     raised with the option ``exact``. With *exact* (a rule keeping exactly the count,
     ``eliminate``) only the input's size and its duplicates explain a miss.
+    *asked*: the count of class policies (:meth:`.class_policy.ClassPolicy.asked`).
     """
     if ratio is None and count is None:
         return None
-    asked = ratio_count(ratio, n) if ratio is not None else int(count)
+    if asked is None:
+        asked = ratio_count(ratio, n) if ratio is not None else int(count)
     if kept == asked:
         return None
     if asked > n:
@@ -70,6 +72,10 @@ class Summary:
     scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
+    classes : dict or None
+        With ``keep_class``/``class_ratio``: ``asked``, per policy and per class the
+        input and kept points (:meth:`cloudsieve.engine.class_policy.ClassPolicy.report`);
+        None, absent from :meth:`to_dict`, without them.
     """
 
     points_in: int = 0
@@ -91,11 +97,13 @@ class Summary:
     source: str = ""
     destination: str = ""
     store: str = ""
+    classes: dict | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        if record["storage"] is None:
-            del record["storage"]
+        for name in ("storage", "classes"):
+            if record[name] is None:
+                del record[name]
         return record
 
     def __str__(self) -> str:
@@ -111,6 +119,10 @@ class Summary:
         ]
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
+        if s.classes is not None:
+            lines.append("classes       (--ratio/--count apply to the points not kept whole and not in --class-ratio)")
+            lines += [f"  class {c['class']:<5} {c['policy']:<18} in {c['points_in']:>12,}  kept {c['kept']:>12,}  "
+                      f"({100.0 * c['ratio']:.2f}%)" for c in s.classes["classes"]]
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
         cpu = s.cpu_seconds
