@@ -193,6 +193,9 @@ def test_bad_lists_exit_2_before_any_work(capsys, tmp_path):
                                                       "(got ratio=(0.5, 0.2), count=(100, 10))"),
         (["--ratio", "0.5,0.2", "--rule", "iterative"], "cloudsieve simplify: error: a list of ratios (nested "
                                                         "outputs) needs the rule 'eliminate', not 'iterative'"),
+        (["--ratio", "0.5,0.2", "--keep-class", "2"], "cloudsieve simplify: error: a list of ratios (nested "
+                                                      "outputs) does not take --keep-class: run one --ratio at a "
+                                                      "time"),
         (["--ratio", "0.5", "--rank", "--rule", "target"], "cloudsieve simplify: error: --rank needs the rule "
                                                            "'eliminate', not 'target'"),
     ]
