@@ -166,6 +166,21 @@ def test_rank_of_one_ratio(tmp_path):
     assert np.array_equal(ranked.X, plain.X) and sorted(ranked[RANK_DIM].tolist()) == list(range(len(plain)))
 
 
+def test_rank_refuses_a_first_output_too_large_to_hold(tmp_path, monkeypatch):
+    """The outputs are held whole to rank them: a first output above the in-memory bound is refused before any
+    work (the bound lowered to autzen_trim's scale; the message names the bound, the count and the source)."""
+    import cloudsieve.engine.small as small
+
+    monkeypatch.setattr(small, "IN_MEMORY_POINTS", 50_000)
+    src = str(shared_file("autzen_trim.laz"))
+    with pytest.raises(cloudsieve.InvalidParameterError) as exc:
+        cloudsieve.simplify(src, tmp_path / "lod.laz", ratio=(0.5, 0.2), rank=True)
+    assert str(exc.value) == (f"rank holds the outputs in memory to rank them: at most 50,000 points in the first "
+                              f"output, got 55,000 ({src})")
+    assert list(tmp_path.iterdir()) == []
+    cloudsieve.simplify(src, tmp_path / "ok.laz", ratio=(0.4, 0.2), rank=True)  # 44,000: within the bound
+
+
 def _fails(argv, capsys, tmp_path) -> str:
     capsys.readouterr()
     try:

@@ -57,7 +57,25 @@ def level_paths(dst: str, key: str, values: tuple, folder: bool = False) -> list
     return [posixpath.join(head, f"{stem}-{label}{ext}") if head else f"{stem}-{label}{ext}" for label in labels]
 
 
-def _check_levels(paths: list[str], opts: dict, key: str) -> None:
+def _check_rank_size(src: str, opts: dict, key: str) -> None:
+    """Refuse ``rank`` when the first output could hold more points than a run in memory: the outputs are held
+    whole to rank them (:func:`cloudsieve.io.rank.write_ranks`). Counted from the headers; a source that does not
+    say (XYZ) is let through."""
+    from ..io.sources import expand_sources
+    from .inprocess import source_points
+    from .small import IN_MEMORY_POINTS
+
+    points = source_points(expand_sources(src))
+    if points is None:
+        return
+    first = opts[key][0] if isinstance(opts[key], tuple) else opts[key]
+    kept = ratio_count(first, points) if key == "ratio" else min(int(first), points)
+    if kept > IN_MEMORY_POINTS:
+        raise InvalidParameterError(f"rank holds the outputs in memory to rank them: at most "
+                                    f"{IN_MEMORY_POINTS:,} points in the first output, got {kept:,} ({src})")
+
+
+def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
     """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ,
     an existing or unwritable destination after the first (the first run checks its own)."""
     from ..atomic import check_destination
@@ -72,6 +90,8 @@ def _check_levels(paths: list[str], opts: dict, key: str) -> None:
     if opts["rank"] and (tiles or fmt not in ("las", "laz") or any(local_path(p) is None for p in paths)):
         raise InvalidParameterError(f"rank writes local LAS or LAZ files (tiles and COPC reorder the points), not "
                                     f"{'tiles' if tiles else fmt}: {paths[0]}")
+    if opts["rank"]:
+        _check_rank_size(src, opts, key)
     if len(set(paths)) < len(paths):
         raise InvalidParameterError(f"the outputs of {key} {opts[key]} need distinct paths, got {paths}")
     for path in paths[1:]:
@@ -97,7 +117,7 @@ def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict
     key = listed(opts) or ("ratio" if opts["ratio"] is not None else "count")
     values = opts[key] if isinstance(opts[key], tuple) else (opts[key],)  # one value: rank alone, DST as given
     paths = level_paths(dst, key, values, opts["tile_size"] is not None) if len(values) > 1 else [dst]
-    _check_levels(paths, opts, key)
+    _check_levels(src, paths, opts, key)
     summaries, n = [], 0
     for i, (value, path) in enumerate(zip(values, paths)):
         if i == 0:
