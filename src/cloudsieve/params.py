@@ -198,6 +198,9 @@ def _rule_target(o: dict) -> None:
 
 def _simplify(o: dict) -> None:
     _rule_target(o)
+    if o["max_gap"] is not None and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"max_gap needs the rule eliminate (the default), not rule "
+                                          f"{o['rule']!r}"), "max_gap")
     _cluster_size(o)
     if o["cell_size"] < o["cluster_size"]:
         raise InvalidParameterError(f"cell_size ({o['cell_size']}) must be >= cluster_size ({o['cluster_size']})")
@@ -285,11 +288,13 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
 
 def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options that define a simplification, as its work store records them (resume compares them).
-    halo_context is recorded as ``"context"`` and keep_duplicates only when True, so version-1 work stores still
-    resume."""
+    halo_context is recorded as ``"context"``, keep_duplicates only when True and max_gap only when given, so
+    version-1 work stores still resume."""
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
     if options.get("keep_duplicates"):
         record["keep_duplicates"] = True
+    if options.get("max_gap") is not None:
+        record["max_gap"] = options["max_gap"]
     return record

@@ -108,6 +108,9 @@ _OPTIONS = [
            "eliminate)", low=0.0, low_open=True,
            high=1.0, metavar="R"),
     Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
+    Option("max_gap", FLOAT, None, "gap bound: no input point ends farther than D (CRS units, 3D) from the kept set; "
+           "points are added back after the elimination, so --ratio/--count become at least that many (rule "
+           "eliminate only)", low=0.0, low_open=True, metavar="D"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
@@ -227,8 +230,8 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "scheduler", "workers",
-        "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
+        "method", "rule", "threshold", "ratio", "count", "max_gap", "cluster_size", "cell_size", "scheduler",
+        "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
         "drop_invalid", "keep_duplicates", "tile_size", "storage_options", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",

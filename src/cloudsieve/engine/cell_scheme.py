@@ -77,6 +77,7 @@ class ArrayCells:
         p = part.n_cells
         self.share, self.bands = [None] * p, [None] * p
         self.keep = np.zeros(len(xyz), dtype=bool)
+        self.fill = np.zeros(len(xyz), dtype=bool)  # the gap bound's (max_gap)
         self.markers = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)  # done, scored: none
 
     def open(self) -> "ArrayCells":
@@ -99,13 +100,18 @@ class ArrayCells:
     def keep_at(self, rows: np.ndarray) -> np.ndarray:
         return self.keep[rows]
 
-    def put_keep(self, task, keep: np.ndarray) -> None:
+    def fill_at(self, rows: np.ndarray) -> np.ndarray:
+        return self.fill[rows]
+
+    def put_keep(self, task, keep: np.ndarray, fill: np.ndarray | None = None) -> None:
         self.keep[task.region : task.region + len(keep)] = keep
+        if fill is not None:
+            self.fill[task.region : task.region + len(fill)] = fill
 
     def input_keep(self) -> np.ndarray:
-        """The keep mask in input order."""
+        """The keep mask in input order (the gap bound's fill included)."""
         keep = np.empty_like(self.keep)
-        keep[self.order] = self.keep
+        keep[self.order] = self.keep | self.fill
         return keep
 
 
@@ -121,13 +127,20 @@ class ThreadMap:
             return list(pool.map(lambda a: func(*a), args))
 
 
-def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target: int,
-                    keep_duplicates: bool) -> tuple[np.ndarray, int]:
-    """The keep mask (input order) and distinct points of :func:`run_cells` in memory."""
+def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target: int, keep_duplicates: bool,
+                    max_gap: float | None = None) -> tuple[np.ndarray, int, dict | None]:
+    """The keep mask (input order) and distinct points of :func:`run_cells` in memory, and with *max_gap* the
+    gap bound's record (:func:`~.gap.run_gap`; else None)."""
     where = ArrayCells(xyz, part, order)
-    *_, distinct = run_cells(where, part, where.regions, {"keep_duplicates": keep_duplicates}, ThreadMap(),
-                             int(target))
-    return where.input_keep(), distinct
+    params = {"keep_duplicates": keep_duplicates, **({"max_gap": float(max_gap)} if max_gap is not None else {})}
+    runner = ThreadMap()
+    *_, distinct = run_cells(where, part, where.regions, params, runner, int(target))
+    record = None
+    if max_gap is not None:
+        from .gap import run_gap
+
+        record = run_gap(where, part, where.regions, params, runner)
+    return where.input_keep(), distinct, record
 
 
 def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: int, k0: float, k_min: int,
@@ -175,19 +188,25 @@ def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
-    n, halo = len(core), None
-    if 0 < count < n:  # else no elimination: no halo
+    n, halo, gap = len(core), None, task.params.get("max_gap")
+    if 0 < count < n or (gap is not None and count < n):  # else no elimination nor fill: no halo
         points, cells, pos = io.halo(task)
         earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
         fixed = np.isin(cells, earlier)
-        halo_keep = np.zeros(len(points), dtype=bool)
+        halo_keep, rows = np.zeros(len(points), dtype=bool), None
         if fixed.any():  # their final decisions, at their regions' positions
             src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-            halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
+            rows = start[np.searchsorted(src, cells[fixed])] + pos[fixed]
+            halo_keep[fixed] = io.keep_at(rows)
         halo = points, fixed, halo_keep
     keep = cell_keep(core, count, float(task.params["r_max"]), halo, _threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
-    io.put_keep(task, keep)
+    fill = None
+    if gap is not None:  # the gap bound: lower colours' final points (their fill too) are known, not the others'
+        from .gap import cell_fill
+
+        fill = cell_fill(io, core, keep, halo, rows, gap, task.params.get("keep_duplicates"))
+    io.put_keep(task, keep, fill)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 
 
@@ -207,6 +226,10 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
 
     r_max = math.inf if part.r_max is None else float(part.r_max)
     params = {**params, "r_max": r_max, "ladder": part.n_cells > 1}  # one cell's count is the target
+    if params.get("max_gap") is not None:  # the bound the cells fill to (engine/gap.py)
+        from .gap import fill_bound
+
+        params["max_gap"] = fill_bound(params["max_gap"], part)
     done, scored = where.markers
     todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
     tasks = cell_tasks(where, part, regions, todo, params, runner.task_threads, halo=False)

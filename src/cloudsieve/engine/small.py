@@ -111,7 +111,8 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            keep, distinct = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"])
+            keep, distinct, summary.gap = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"],
+                                                          opts.get("max_gap"))
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())
             summary.removed = n - summary.kept

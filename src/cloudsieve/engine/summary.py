@@ -67,6 +67,11 @@ class Summary:
     scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
+    gap : dict or None
+        With ``max_gap``: ``{"bound": D, "filled": points added back after
+        the elimination (in *kept*), "max": the largest distance from an input
+        point to the kept set, checked exactly, "fill_to": the distance the
+        cells filled to}``; None, absent from :meth:`to_dict`, otherwise.
     """
 
     points_in: int = 0
@@ -87,11 +92,13 @@ class Summary:
     source: str = ""
     destination: str = ""
     store: str = ""
+    gap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        if record["storage"] is None:
-            del record["storage"]
+        for name in ("storage", "gap"):
+            if record[name] is None:
+                del record[name]
         return record
 
     def __str__(self) -> str:
@@ -105,6 +112,10 @@ class Summary:
             f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
             f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
         ]
+        if s.gap is not None:
+            g = s.gap
+            lines.insert(2, f"gap bound     {g['bound']:>14.6g}  (at least the count: {g['filled']:,} points added "
+                            f"back; largest gap {g['max']:.6g}, checked exactly)")
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")

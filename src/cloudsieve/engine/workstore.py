@@ -6,6 +6,7 @@ when the source and parameters match, both recorded in the attribute
 ``"cloudsieve_simplify"``. Derived arrays (``simplify/``)::
 
     keep_cells   bool    (T,)  keep mask, cell-ordered: cell j at regions[j]:regions[j] + n_j
+    fill_cells   bool    (T,)  the gap bound's fill (max_gap only), cell-ordered
     score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
     label_cells  int32   (T,)  pass-1 small-cluster labels; -1: an exact copy
     done, scored uint8   (P,)  one zarr chunk per cell
@@ -42,6 +43,7 @@ __all__ = [
     "regions",
     "ensure_cell_arrays",
     "ensure_keep_array",
+    "ensure_fill_array",
     "record_summary",
 ]
 
@@ -236,7 +238,7 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
-    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
+    for name in ("keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
                  "share", "band_xyz", "band_pos", "band_count"):
         store.delete_array(f"simplify/{name}")
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
@@ -265,6 +267,13 @@ def _band_arrays(store, n_cells: int, total: int, block: int) -> None:
     store.create_array("simplify/band_xyz", shape=(total, 3), dtype="float64", chunks=(block, 3), fill_value=0.0)
     store.create_array("simplify/band_pos", shape=(total,), dtype="int64", chunks=(block,), fill_value=0)
     store.create_array("simplify/band_count", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
+
+
+def ensure_fill_array(store) -> None:
+    """Create ``simplify/fill_cells`` (the gap bound's fill, as ``keep_cells``) unless it exists."""
+    if "simplify/fill_cells" not in store:
+        kc = store.group["simplify/keep_cells"]
+        store.create_array("simplify/fill_cells", shape=kc.shape, dtype="bool", chunks=kc.chunks, fill_value=False)
 
 
 def ensure_keep_array(store) -> None:
