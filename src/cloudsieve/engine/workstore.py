@@ -167,7 +167,8 @@ def record_params(store, params: dict, overwrite: bool) -> None:
     old = rec.get("params")
     if old is not None and old != params:
         if not overwrite:
-            diff = {k: (old.get(k), params[k]) for k in params if old.get(k) != params[k]}
+            names = [*params, *(k for k in old if k not in params)]  # a recorded option this run lacks too
+            diff = {k: (old.get(k), params.get(k)) for k in names if old.get(k) != params.get(k)}
             raise ResumeMismatchError(
                 f"store {store.path} holds a run with other parameters "
                 + ", ".join(f"{k}: stored {a!r}, asked {b!r}" for k, (a, b) in diff.items())
