@@ -67,7 +67,8 @@ def context(command: str, name: str, value) -> dict:
 
     simplify and compare need a rule that can run: the default, eliminate,
     needs a ratio or a count, so the other options are walked with the
-    paper's rule iterative (which needs neither).
+    paper's rule iterative (which needs neither); max_gap, the default
+    rule's only, with a ratio.
     """
     if command == "simplify" and name == "rule" and (value is None or value in params.TARGET_RULES):
         return {"ratio": 0.5}
@@ -77,6 +78,8 @@ def context(command: str, name: str, value) -> dict:
         return {}
     if name in ("ratio", "count", "threshold") and value is not None:
         return {}
+    if name == "max_gap" and value is not None:  # the default rule's only
+        return {"ratio": 0.5}
     return {"rule": "iterative"}
 
 
