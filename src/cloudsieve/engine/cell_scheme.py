@@ -103,10 +103,11 @@ class ArrayCells:
     def fill_at(self, rows: np.ndarray) -> np.ndarray:
         return self.fill[rows]
 
-    def put_keep(self, task, keep: np.ndarray, fill: np.ndarray | None = None) -> None:
+    def put_keep(self, task, keep: np.ndarray) -> None:
         self.keep[task.region : task.region + len(keep)] = keep
-        if fill is not None:
-            self.fill[task.region : task.region + len(fill)] = fill
+
+    def put_fill(self, task, fill: np.ndarray) -> None:
+        self.fill[task.region : task.region + len(fill)] = fill
 
     def input_keep(self) -> np.ndarray:
         """The keep mask in input order (the gap bound's fill included)."""
@@ -188,25 +189,19 @@ def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
-    n, halo, gap = len(core), None, task.params.get("max_gap")
-    if 0 < count < n or (gap is not None and count < n):  # else no elimination nor fill: no halo
+    n, halo = len(core), None
+    if 0 < count < n:  # else no elimination: no halo
         points, cells, pos = io.halo(task)
         earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
         fixed = np.isin(cells, earlier)
-        halo_keep, rows = np.zeros(len(points), dtype=bool), None
+        halo_keep = np.zeros(len(points), dtype=bool)
         if fixed.any():  # their final decisions, at their regions' positions
             src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-            rows = start[np.searchsorted(src, cells[fixed])] + pos[fixed]
-            halo_keep[fixed] = io.keep_at(rows)
+            halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
         halo = points, fixed, halo_keep
     keep = cell_keep(core, count, float(task.params["r_max"]), halo, _threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
-    fill = None
-    if gap is not None:  # the gap bound: lower colours' final points (their fill too) are known, not the others'
-        from .gap import cell_fill
-
-        fill = cell_fill(io, core, keep, halo, rows, gap, task.params.get("keep_duplicates"))
-    io.put_keep(task, keep, fill)
+    io.put_keep(task, keep)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
 
 
@@ -226,10 +221,6 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
 
     r_max = math.inf if part.r_max is None else float(part.r_max)
     params = {**params, "r_max": r_max, "ladder": part.n_cells > 1}  # one cell's count is the target
-    if params.get("max_gap") is not None:  # the bound the cells fill to (engine/gap.py)
-        from .gap import fill_bound
-
-        params["max_gap"] = fill_bound(params["max_gap"], part)
     done, scored = where.markers
     todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
     tasks = cell_tasks(where, part, regions, todo, params, runner.task_threads, halo=False)

@@ -1,22 +1,22 @@
 """The gap bound (``max_gap``) across the cells of the ``eliminate`` rule: the fill and its exact check.
 
-**The fill** runs in each cell's elimination task
-(:func:`~.cell_scheme.apply_task`, colour by colour), right after the
-elimination: :func:`cell_fill` adds the cell's points that lie farther than D
-from every kept point the cell knows (:func:`~cloudsieve.core.gap.fill_cell`):
-its own kept points and, in its halo, the final points of the lower-colour
-cells (their elimination and their fill). Higher-colour cells are not decided
-yet and count for nothing: a conservative fill, exact since the kept set only
-grows. The elimination itself still sees only the other cells' eliminations,
-so the run without the bound keeps a subset of this one's points. The fill
-is kept apart (``simplify/fill_cells``, :attr:`~.cell_scheme.ArrayCells.fill`)
-and joined to the keep mask by the merge.
+Two passes after the cells' eliminations (:func:`~.cell_scheme.run_cells`), run by :func:`run_gap`:
 
-**The check** (:func:`run_gap`, a task per cell once every cell is final)
-measures each point's distance to the nearest final kept point of its cell
-and halo. A kept point outside the halo is farther than the halo's margin, so
-with the fill bound at most the margin (:func:`fill_bound`) the largest
-distance found is the cloud's, exactly.
+1. **fill** (:func:`fill_task`), colour by colour as the elimination: a cell
+   adds its points that lie farther than D from every kept point it knows
+   (:func:`~cloudsieve.core.gap.fill_cell`): the final elimination of its
+   cell and halo, and the fill of its lower-colour halo cells. The
+   higher-colour cells' fill is not decided yet and counts for nothing: a
+   conservative fill, exact since the kept set only grows. The eliminations
+   are those of the run without the bound, so that run keeps a subset of
+   this one's points. The fill is kept apart (``simplify/fill_cells``,
+   :attr:`~.cell_scheme.ArrayCells.fill`) and joined to the keep mask by the
+   merge; a resume fills every cell again (the same bytes).
+2. **check** (:func:`gap_task`), once every cell is final: each point's
+   distance to the nearest kept point of its cell and halo. A kept point
+   outside the halo is farther than the halo's margin, so with the fill
+   bound at most the margin (:func:`fill_bound`) the largest distance found
+   is the cloud's, exactly.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import CloudsieveError
 
-__all__ = ["fill_bound", "cell_fill", "gap_task", "run_gap"]
+__all__ = ["fill_bound", "fill_task", "gap_task", "run_gap"]
 
 
 def fill_bound(gap: float, part) -> float:
@@ -36,19 +36,36 @@ def fill_bound(gap: float, part) -> float:
     return float(gap)
 
 
-def cell_fill(io, core: np.ndarray, keep: np.ndarray, halo, rows, gap: float, keep_duplicates) -> np.ndarray:
-    """The fill (n,) of one cell after its elimination *keep*; *halo*: (points, lower colour, their kept) or None
-    (every point kept); *rows*: the lower-colour halo points' rows in the cell-ordered arrays of *io*."""
+def _halo_rows(io, task) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cell's halo: points (h, 3), their cells, and their rows in the cell-ordered arrays of *io*."""
+    if not task.halo:
+        return np.empty((0, 3)), np.empty(0, np.int64), np.empty(0, np.int64)
+    points, cells, pos = io.halo(task)
+    src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
+    rows = start[np.searchsorted(src, cells)] + pos if len(points) else np.empty(0, np.int64)
+    return points, cells, rows
+
+
+def fill_task(where, task, colours: dict) -> dict:
+    """A task: one cell's fill, after its lower-colour halo cells' (*colours*: int -> colour of the cell and its
+    halo sources). Returns "cell" and "filled"."""
     from ..core.gap import fill_cell
 
+    io = where.open()
+    core = io.core(task)
     n = len(core)
-    if halo is None or not n or keep.all():
-        return np.zeros(n, dtype=bool)
-    points, fixed, known = halo
-    known = known.copy()
-    if rows is not None:
-        known[fixed] |= io.fill_at(rows)
-    return fill_cell(core, keep, points[known], float(gap), bool(keep_duplicates))
+    keep = io.keep_at(np.arange(task.region, task.region + n, dtype=np.int64))
+    fill = np.zeros(n, dtype=bool)
+    if n and not keep.all():
+        points, cells, rows = _halo_rows(io, task)
+        known = io.keep_at(rows) if len(rows) else np.zeros(0, dtype=bool)
+        lower = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
+        if lower.any():  # their fill is final
+            known[lower] |= io.fill_at(rows[lower])
+        fill = fill_cell(core, keep, points[known], float(task.params["max_gap"]),
+                         bool(task.params.get("keep_duplicates")))
+    io.put_fill(task, fill)
+    return {"cell": task.cell, "filled": int(fill.sum())}
 
 
 def gap_task(where, task) -> dict:
@@ -59,23 +76,17 @@ def gap_task(where, task) -> dict:
 
     io = where.open()
     core = io.core(task)
-    n = len(core)
-    own = np.arange(task.region, task.region + n, dtype=np.int64)
+    own = np.arange(task.region, task.region + len(core), dtype=np.int64)
     fill = io.fill_at(own)
     kept = io.keep_at(own) | fill
-    known = np.empty((0, 3))
-    if task.halo and n:
-        points, cells, pos = io.halo(task)
-        if len(points):
-            src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-            rows = start[np.searchsorted(src, cells)] + pos
-            known = points[io.keep_at(rows) | io.fill_at(rows)]
+    points, _, rows = _halo_rows(io, task) if len(core) else (np.empty((0, 3)), None, np.empty(0, np.int64))
+    known = points[io.keep_at(rows) | io.fill_at(rows)] if len(rows) else np.empty((0, 3))
     return {"cell": task.cell, "gap": cell_gap(core, np.concatenate([core[kept], known])),
             "filled": int(fill.sum()), "kept": int(kept.sum())}
 
 
 def run_gap(where, part, regions: np.ndarray, params: dict, runner) -> dict:
-    """The check of the gap bound ``params["max_gap"]`` on *where* after :func:`~.cell_scheme.run_cells`.
+    """The gap bound ``params["max_gap"]`` on *where* after :func:`~.cell_scheme.run_cells`: fill, then check.
 
     Returns ``{"bound": D, "filled": points added, "max": the largest
     distance from a point to the kept set, "fill_to": fill_bound}``.
@@ -85,9 +96,18 @@ def run_gap(where, part, regions: np.ndarray, params: dict, runner) -> dict:
     CloudsieveError
         A point is farther than D from the kept set (a bug).
     """
+    from ..core.colours import apply_order, cell_colours
     from .celltasks import cell_tasks, largest_first
 
     bound = float(params["max_gap"])
+    fill_to = fill_bound(bound, part)
+    colours = cell_colours(part.halo_ptr, part.halo_src)
+    ordered = apply_order(colours, part.cell_counts, range(part.n_cells))
+    tasks = cell_tasks(where, part, regions, ordered, {**params, "max_gap": fill_to}, runner.task_threads, halo=True)
+    at = {t.cell: i for i, t in enumerate(tasks)}
+    after = [sorted(at[s] for s in t.halo if colours[s] < colours[t.cell]) for t in tasks]
+    runner(fill_task, [(where, t, {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks],
+           "cells: fill", after=after)
     tasks = cell_tasks(where, part, regions, largest_first(part, range(part.n_cells)), params, runner.task_threads,
                        halo=True)
     results = runner(gap_task, [(where, t) for t in tasks], "cells: gap")
@@ -96,4 +116,4 @@ def run_gap(where, part, regions: np.ndarray, params: dict, runner) -> dict:
         raise CloudsieveError(f"the gap bound was not met: a point lies {found:.6g} from the kept set, above "
                               f"max_gap {bound:g} (a bug: please report it with the input)")
     return {"bound": bound, "filled": int(sum(r["filled"] for r in results)), "max": float(found),
-            "fill_to": fill_bound(bound, part)}
+            "fill_to": fill_to}
