@@ -156,3 +156,35 @@ def test_another_rule_with_a_bound_is_refused(tmp_path, capsys):
     assert capsys.readouterr().err == ("cloudsieve simplify: error: --max-gap needs the rule eliminate (the default), "
                                        "not rule 'iterative'\n")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_run_killed_during_the_fill_resumes_to_the_same_bytes(tmp_path):
+    """SIGKILL at the third fill task (two cells filled): the rerun fills every cell again, the same file."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from cloudsieve.engine.pause import PAUSE_ENV
+
+    src, dst, store, marker = shared_file("bun_zipper.ply"), tmp_path / "out.ply", tmp_path / "w.zarr", tmp_path / "p"
+    cloudsieve.simplify(src, tmp_path / "whole.ply", ratio=0.2, cell_size=5_000, max_gap=0.0018)
+    cmd = [sys.executable, "-m", "cloudsieve", "simplify", str(src), str(dst), "--ratio", "0.2", "--cell-size",
+           "5000", "--max-gap", "0.0018", "--scheduler", "sync", "--store", str(store), "--no-progress"]
+    driver = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True,
+                              env={**os.environ, PAUSE_ENV: f"task:cells: fill#3={marker}"})
+    try:
+        deadline = time.monotonic() + 300
+        while not marker.exists() and driver.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert marker.exists(), "the run did not reach its third fill task"
+        os.kill(driver.pid, signal.SIGKILL)
+        driver.wait(timeout=60)
+    finally:
+        if driver.poll() is None:
+            driver.kill()
+    assert not dst.exists()
+    done = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    assert dst.read_bytes() == (tmp_path / "whole.ply").read_bytes()
