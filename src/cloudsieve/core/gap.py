@@ -61,6 +61,8 @@ def fill_cell(core: np.ndarray, keep: np.ndarray, known: np.ndarray, gap: float,
     return fill
 
 
-def cell_gap(core: np.ndarray, kept: np.ndarray) -> float:
-    """The largest distance from a point of *core* (n, 3) to the nearest of *kept* (k, 3); 0 for no point."""
-    return float(_nearest(kept, core).max()) if len(core) else 0.0
+def cell_gap(core: np.ndarray, kept: np.ndarray, bound: float = np.inf) -> float:
+    """The largest distance from a point of *core* (n, 3) to the nearest of *kept* (k, 3); 0 for no point.
+
+    inf when a point has none within *bound* (a faster search)."""
+    return float(_nearest(kept, core, bound).max()) if len(core) else 0.0

@@ -81,7 +81,9 @@ def gap_task(where, task) -> dict:
     kept = io.keep_at(own) | fill
     points, _, rows = _halo_rows(io, task) if len(core) else (np.empty((0, 3)), None, np.empty(0, np.int64))
     known = points[io.keep_at(rows) | io.fill_at(rows)] if len(rows) else np.empty((0, 3))
-    return {"cell": task.cell, "gap": cell_gap(core, np.concatenate([core[kept], known])),
+    # every point is within max_gap once filled: a search bounded just above it finds each nearest kept point
+    bound = float(task.params["max_gap"]) * (1 + 1e-9)
+    return {"cell": task.cell, "gap": cell_gap(core, np.concatenate([core[kept], known]), bound),
             "filled": int(fill.sum()), "kept": int(kept.sum())}
 
 
