@@ -31,6 +31,7 @@ import os
 import shutil
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -89,18 +90,40 @@ def io_run(src: Path, workdir: Path, workers: int) -> dict:
     return res
 
 
-def cli(args: list[str]) -> dict:
-    """One ``cloudsieve simplify ... --json`` run: its summary, wall time, tree and driver peak RSS."""
+class DiskPeak:
+    """The most disk a run takes on *path*'s file system: free space at the start minus its lowest, sampled."""
+
+    def __init__(self, path: Path, interval: float = 1.0) -> None:
+        self.path, self.start, self.low = path, shutil.disk_usage(path).free, shutil.disk_usage(path).free
+        self._stop = threading.Event()
+        self._t = threading.Thread(target=self._loop, args=(interval,), daemon=True)
+        self._t.start()
+
+    def _loop(self, interval: float) -> None:
+        while not self._stop.wait(interval):
+            self.low = min(self.low, shutil.disk_usage(self.path).free)
+
+    def stop(self) -> int:
+        self._stop.set()
+        self._t.join()
+        return self.start - min(self.low, shutil.disk_usage(self.path).free)
+
+
+def cli(args: list[str], workdir: Path | None = None) -> dict:
+    """One ``cloudsieve simplify ... --json`` run: its summary, wall time, tree and driver peak RSS, and the
+    peak disk it took on *workdir*'s file system (other writers on it count too)."""
     cmd = [PY, "-m", "cloudsieve", "simplify", *args, "--overwrite", "--json", "--no-progress"]
     t0 = time.perf_counter()
+    disk = DiskPeak(workdir or Path(args[1]).parent)
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     tree, alone = TreePeak(proc.pid), TreePeak(proc.pid, children=False)
     out, err = proc.communicate()
     wall = time.perf_counter() - t0
+    summary_disk = disk.stop()
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{err[-3000:]}")
     summary = json.loads(out)
-    summary.update(wall=wall, tree_peak=tree.stop(), driver_peak=alone.stop())
+    summary.update(wall=wall, tree_peak=tree.stop(), driver_peak=alone.stop(), disk_peak=summary_disk)
     return summary
 
 
@@ -155,22 +178,24 @@ def main(argv: list[str] | None = None) -> int:
         folder = make(big, work / f"tiles{big}-{args.files}", files=args.files)
         print(f"## {big:,} points in {args.files} LAZ tiles, simplified as one cloud (`--ratio 0.5`, "
               f"2 workers; load before {load()})\n")
-        print("| output | wall s | points/s | stages s | CPU driver / workers s | driver peak RSS | tree peak RSS |")
-        print("|---|---:|---:|---|---|---:|---:|")
+        print("| output | wall s | points/s | stages s | CPU driver / workers s | driver peak RSS | tree peak RSS | "
+              "peak disk | output |")
+        print("|---|---:|---:|---|---|---:|---:|---:|---:|")
         outs = {"laz": ("one LAZ", [str(work / "big.laz")]),
                 "tiles": (f"tiles of {args.tile_size:g} + index.vpc", [str(work / "big-tiles"), "--tile-size",
                                                                          str(args.tile_size)]),
                 "copc": ("one COPC", [str(work / "big.copc.laz")])}
         for name, dst in (outs[k] for k in args.outputs.split(",") if k):
             try:
-                s = cli([str(folder), *dst, "--ratio", "0.5", "--workers", "2"])
+                s = cli([str(folder), *dst, "--ratio", "0.5", "--workers", "2"], work)
             except RuntimeError as exc:
-                print(f"| {name} | failed: {str(exc).splitlines()[-1][:120]} | | | | | |")
+                print(f"| {name} | failed: {str(exc).splitlines()[-1][:120]} | | | | | | | |")
                 continue
             cpu = s["cpu_seconds"]
             stages = ", ".join(f"{k} {v:.1f}" for k, v in s["seconds"].items() if k != "total")
             print(f"| {name} | {s['wall']:.1f} | {big / s['wall']:,.0f} | {stages} | {cpu['driver']:.1f} / "
-                  f"{cpu['workers']:.1f} | {mib(s['driver_peak'])} | {mib(s['tree_peak'])} |")
+                  f"{cpu['workers']:.1f} | {mib(s['driver_peak'])} | {mib(s['tree_peak'])} | {mib(s['disk_peak'])} | "
+                  f"{mib(du(Path(dst[0])) if Path(dst[0]).is_dir() else Path(dst[0]).stat().st_size)} |", flush=True)
         print(f"\n(load after {load()})")
     return 0
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from cloudsieve.core._validation import ratio_count
 from cloudsieve.core.cellgrid import CellGrid, check_points
-from cloudsieve.core.elimination import ALPHA, alpha_int, area_radius, run_elimination
+from cloudsieve.core.elimination import ALPHA, Terms, alpha_int, area_radius, run_elimination
 from cloudsieve.core.kernels import neighbours as kn
 from cloudsieve.core.relocate import check_r_max, numba_threads
 from cloudsieve.errors import InvalidParameterError
@@ -106,9 +106,8 @@ def _order(pts, hal, fix, gon, r_max, alpha, coverage, floor) -> tuple:
     if len(gon) and coverage:  # the gone points: represented by their nearest alive point (not their copies)
         rows = np.flatnonzero((src >= n + nh + nf) & ~grid.copy)
         gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)
-    ones = np.ones(len(allp))
     lists = kn.build_lists(*grid.args(), grid.order, state, two_r, alpha, alpha_int(alpha), coverage)
-    prio, _ = run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, ones, ones, floor)
+    prio, _ = run_elimination(grid, lists, state, n, gone_rep, r_max, floor, Terms(alpha, coverage))
     copy = np.zeros(len(allp), dtype=bool)
     copy[src[grid.copy]] = True
     left = np.isnan(prio[n : n + nh]) & ~copy[n : n + nh]

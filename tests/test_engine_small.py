@@ -7,7 +7,7 @@ scans, several output formats, a count, a seed, copies with and without
 ``keep_duplicates``, NaN points refused or dropped, and the degenerate
 clouds (at most 8 points: no radius; one spot; copies) give the same file
 (or error), the same summary counts and the same log lines; ``simplify_points`` with the rule ``eliminate``
-keeps the points both write. Then: what decides the path, that it imports no zarr or dask, and that a strict
+keeps the points both write. Then: what decides the path, that it imports no zarr or dask, and that an exact
 miss writes nothing.
 """
 
@@ -179,10 +179,10 @@ def test_small_and_degenerate_clouds_give_the_same_file_counts_and_words(cloud, 
     assert logs[0] == logs[1]  # the duplicates and a missed target, said the same way
 
 
-def test_strict_miss_writes_nothing(tmp_path):
+def test_exact_miss_writes_nothing(tmp_path):
     src = _las(tmp_path / "spot.las", np.full((300, 3), 1.5))
     with pytest.raises(TargetNotMetError, match="asked to keep 150 points, kept 1"):
-        cloudsieve.simplify(src, tmp_path / "o.las", ratio=0.5, strict=True)
+        cloudsieve.simplify(src, tmp_path / "o.las", ratio=0.5, exact=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["spot.las"]
 
 

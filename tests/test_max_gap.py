@@ -188,3 +188,19 @@ def test_a_run_killed_during_the_fill_resumes_to_the_same_bytes(tmp_path):
     done = subprocess.run(cmd + ["--resume"], capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     assert dst.read_bytes() == (tmp_path / "whole.ply").read_bytes()
+
+
+def test_with_a_class_kept_whole_the_bound_holds_and_the_class_stays_whole(tmp_path):
+    src = shared_file("autzen_trim.laz")
+    options = {"ratio": 0.1, "keep_class": [2], "cell_size": 30_000}
+    plain = cloudsieve.simplify(src, tmp_path / "plain.laz", **options)
+    memory = cloudsieve.simplify(src, tmp_path / "memory.laz", max_gap=4.0, **options)
+    store = cloudsieve.simplify(src, tmp_path / "store.laz", max_gap=4.0, scheduler="sync", **options)
+    assert (tmp_path / "memory.laz").read_bytes() == (tmp_path / "store.laz").read_bytes()
+    assert memory.gap == store.gap and memory.gap["filled"] > 0
+    assert memory.kept == plain.kept + memory.gap["filled"]
+    kept, points = xyz(tmp_path / "memory.laz"), xyz(src)
+    assert gap_of(points, kept) <= 4.0 and rows(xyz(tmp_path / "plain.laz")) <= rows(kept)
+    las = laspy.read(src)
+    assert rows(points[np.asarray(las.classification) == 2]) <= rows(kept)
+    assert [(c["points_in"], c["kept"]) for c in memory.classes["classes"] if c["class"] == 2] == [(26_107, 26_107)]

@@ -159,7 +159,6 @@ def test_the_registry_refuses_a_rule_as_the_option_does():
 SEVERAL = {
     "rule": "compare takes a list; the in-memory API defaults to iterative, the commands resolve it",
     "threshold": "the in-memory API's default is the paper's S, the commands' is resolved with the rule",
-    "strict": "evaluate's refuses clouds of other CRS/units (on by default), simplify's a missed count (off)",
     "format": "ingest's names a readable format, simplify's and export's a writable one",
 }
 

@@ -56,6 +56,11 @@ def good_and_bad(option: params.Option, command: str) -> tuple[list, list]:
         good, bad = [1, "2GB", "auto"], [0, "lots", 2.5]
     elif k == params.JSON:
         good, bad = [{}, {"anon": True}, '{"anon": true}'], ["{nope", "[1]", 3]
+    elif k == params.CLASSES:
+        good, bad = ["2", "2,9", [0, 255], (7,)], ["", "x", "256", [-1], [2.5], True, 3]
+    elif k == params.CLASS_RATIOS:
+        good, bad = ["5=0.1", "5=0.1,2=1", {5: 0.5}, [[2, 1.0]]], ["", "5", "5=0", "5=1.5", "256=0.5", {5: "x"},
+                                                                   "5=0.1,5=0.2", 3]
     else:  # scheduler
         good, bad = ["sync", "threads", "processes", "tcp://127.0.0.1:1"], ["fast", "tcp://nohost", 3]
     (good if optional else bad).append(None)
@@ -78,7 +83,7 @@ def context(command: str, name: str, value) -> dict:
         return {}
     if name in ("ratio", "count", "threshold") and value is not None:
         return {}
-    if name == "max_gap" and value is not None:  # the default rule's only
+    if name in ("keep_class", "class_ratio") or (name == "max_gap" and value is not None):  # the eliminate rule's
         return {"ratio": 0.5}
     return {"rule": "iterative"}
 

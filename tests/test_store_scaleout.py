@@ -191,6 +191,10 @@ def test_simplify_tiles_equals_the_merged_file(tiles, tmp_path):
     ra, rb = laspy.read(tmp_path / "a.laz"), laspy.read(tmp_path / "b.laz")
     np.testing.assert_array_equal(ra.points.array, rb.points.array)
     assert b.cpu_seconds["workers"] > 0 and b.cpu_seconds["driver"] > 0
+    # the workers' CPU split by stage: every stage, each part of the total
+    assert list(b.stage_cpu) == ["ingest", "partition", "cells", "merge", "export"]
+    assert all(v >= 0 for v in b.stage_cpu.values()) and b.stage_cpu["cells"] > 0
+    assert sum(b.stage_cpu.values()) == pytest.approx(b.cpu_seconds["workers"])
 
 
 def test_cli_json_reports_cpu(tiles, tmp_path, capsys):
@@ -198,6 +202,7 @@ def test_cli_json_reports_cpu(tiles, tmp_path, capsys):
                  "--no-progress"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert set(out["cpu_seconds"]) == {"driver", "workers"}
+    assert out["stage_cpu"] == {}  # 110,000 points run in memory, in this process: no workers
     assert out["points_in"] == 110_000 and out["kept"] == 55_000
 
 

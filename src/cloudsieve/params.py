@@ -28,8 +28,8 @@ from .address import host_port
 from . import rule_table as rules
 from .errors import InvalidParameterError
 from .params_spec import *  # noqa: F401,F403 - the options, re-exported
-from .params_spec import (BOOL, CHOICE, CHOICES, COMMANDS, FLOAT, FORMAT, INT, JSON, LOCAL_SCHEDULERS, MEMORY_COMMANDS,
-                          OPTION_CLASSES, OPTIONS, PATH, SIZE, TEXT, Option)
+from .params_spec import (BOOL, CHOICE, CHOICES, CLASS_RATIOS, CLASSES, COMMANDS, FLOAT, FORMAT, INT, JSON,
+                          LOCAL_SCHEDULERS, MEMORY_COMMANDS, OPTION_CLASSES, OPTIONS, PATH, SIZE, TEXT, Option)
 from .params_spec import __all__ as _spec_all
 from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
@@ -132,6 +132,62 @@ def _choices(option: Option, value: Any) -> list[str]:
     return items
 
 
+def _code(option: Option, item: Any) -> int:
+    """One LAS classification code of *option*: an integer 0..255 (text from the command line)."""
+    text = item.strip() if isinstance(item, str) else item
+    if isinstance(text, str) and text.lstrip("-").isdigit():
+        text = int(text)
+    if isinstance(text, (bool, np.bool_)) or not isinstance(text, numbers.Integral):
+        raise named(InvalidParameterError(f"{option.name}: {item!r} is not a class code (an integer 0..255)"),
+                    option.name)
+    if not 0 <= int(text) <= 255:
+        raise named(InvalidParameterError(f"{option.name}: class code {int(text)} is out of 0..255"), option.name)
+    return int(text)
+
+
+def _items(option: Option, value: Any) -> list:
+    """The items of a comma-separated text, a list or (class ratios) a dict's pairs; none is an error."""
+    if isinstance(value, str):
+        items = [v for v in value.split(",") if v.strip()]
+    elif isinstance(value, Mapping) and option.kind == CLASS_RATIOS:
+        items = list(value.items())
+    elif isinstance(value, (list, tuple)):
+        items = list(value)
+    else:
+        raise _refuse(option, value)
+    if not items:
+        raise _refuse(option, value)
+    return items
+
+
+def _classes(option: Option, value: Any) -> list[int]:
+    """LAS classification codes, sorted, each once: ``"2,9"`` or ``[2, 9]`` -> ``[2, 9]``."""
+    return sorted({_code(option, item) for item in _items(option, value)})
+
+
+def _class_ratios(option: Option, value: Any) -> list[list]:
+    """``[[code, ratio], ...]`` sorted by code from ``"5=0.1,2=1.0"``, ``{5: 0.1}`` or pairs; a code once."""
+    out: dict[int, float] = {}
+    for item in _items(option, value):
+        pair = item.split("=") if isinstance(item, str) else item
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise named(InvalidParameterError(f"{option.name}: {item!r} is not CODE=RATIO (e.g. 5=0.1)"),
+                        option.name)
+        code, ratio = _code(option, pair[0]), pair[1]
+        try:
+            ratio = float(ratio.strip()) if isinstance(ratio, str) else ratio
+        except ValueError:
+            ratio = pair[1]
+        if isinstance(ratio, (bool, np.bool_)) or not isinstance(ratio, numbers.Real) or not 0 < ratio <= 1:
+            raise named(InvalidParameterError(f"{option.name}: the ratio of class {code} must be a number in "
+                                              f"(0, 1], got {pair[1]!r}"), option.name)
+        if code in out and out[code] != float(ratio):
+            raise named(InvalidParameterError(f"{option.name}: class {code} is given two ratios, {out[code]:g} and "
+                                              f"{float(ratio):g}"), option.name)
+        out[code] = float(ratio)
+    return [[code, out[code]] for code in sorted(out)]
+
+
 def check(option: Option | str, value: Any) -> Any:
     """Validate one value of *option*; returns it normalised (None where the default is None).
     Raises InvalidParameterError ``"<name> must be <what>, got <value>"``."""
@@ -166,6 +222,10 @@ def check(option: Option | str, value: Any) -> Any:
         return _size(option, value)
     if kind == JSON:
         return _json(option, value)
+    if kind == CLASSES:
+        return _classes(option, value)
+    if kind == CLASS_RATIOS:
+        return _class_ratios(option, value)
     return _scheduler(option, value)
 
 
@@ -196,12 +256,29 @@ def _rule_target(o: dict) -> None:
             f"use rule {' or '.join(map(repr, others))}")
 
 
+def _class_policy(o: dict) -> None:
+    """keep_class and class_ratio: options of the elimination rule only; a class in one of them only."""
+    given = [name for name in ("keep_class", "class_ratio") if o[name] is not None]
+    if not given:
+        return
+    rule = rules.get(o["rule"])
+    if rule.engine != rules.ELIMINATION:
+        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
+        raise named(InvalidParameterError(f"{given[0]} is an option of rule {elimination!r} only, not of rule "
+                                          f"{rule.name!r}"), *given)
+    both = sorted(set(o["keep_class"] or ()) & {code for code, ratio in o["class_ratio"] or () if ratio < 1})
+    if both:
+        raise named(InvalidParameterError(f"class {both[0]} is in keep_class and has a ratio below 1 in "
+                                          f"class_ratio: give it in one of them"), "keep_class", "class_ratio")
+
+
 def _simplify(o: dict) -> None:
     _rule_target(o)
     if o["max_gap"] is not None and rules.get(o["rule"]).engine != rules.ELIMINATION:
         raise named(InvalidParameterError(f"max_gap needs the rule eliminate (the default), not rule "
                                           f"{o['rule']!r}"), "max_gap")
     _cluster_size(o)
+    _class_policy(o)
     if o["cell_size"] < o["cluster_size"]:
         raise InvalidParameterError(f"cell_size ({o['cell_size']}) must be >= cluster_size ({o['cluster_size']})")
     if o["memory_limit"] is not None and o["scheduler"] not in (None, "processes"):
@@ -297,4 +374,7 @@ def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
         record["keep_duplicates"] = True
     if options.get("max_gap") is not None:
         record["max_gap"] = options["max_gap"]
+    for name in ("keep_class", "class_ratio"):  # only when given: a run without them records what it did
+        if options.get(name) is not None:
+            record[name] = options[name]
     return record

@@ -26,10 +26,13 @@ __all__ = [
     "MEMORY_COMMANDS",
     "OPTION_CLASSES",
     "INT", "FLOAT", "BOOL", "CHOICE", "CHOICES", "FORMAT", "TEXT", "PATH", "SIZE", "SCHEDULER", "JSON",
+    "CLASSES", "CLASS_RATIOS",
 ]
 
 INT, FLOAT, BOOL, CHOICE, CHOICES, FORMAT, TEXT, PATH, SIZE, SCHEDULER, JSON = (
     "int", "float", "bool", "choice", "choices", "format", "text", "path", "size", "scheduler", "json")
+#: LAS classification codes ("2,9" or a list), and a ratio per code ("5=0.1,2=1.0" or a dict)
+CLASSES, CLASS_RATIOS = "classes", "class_ratios"
 
 #: the refinements into small clusters: fuzzy C-means, K-means (:mod:`cloudsieve.core.refine`)
 METHODS = rules.METHODS
@@ -91,6 +94,8 @@ class Option:
             PATH: "a path",
             SIZE: "a size in bytes (an integer, or text such as '2GB')",
             SCHEDULER: "sync, threads, processes or a tcp://host:port address",
+            CLASSES: "LAS classification codes 0..255, comma-separated (e.g. 2,9)",
+            CLASS_RATIOS: "CODE=RATIO pairs, comma-separated, codes 0..255 and ratios in (0, 1] (e.g. 5=0.1,2=1.0)",
         }[self.kind]
 
 
@@ -108,6 +113,11 @@ _OPTIONS = [
            "eliminate)", low=0.0, low_open=True,
            high=1.0, metavar="R"),
     Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
+    Option("keep_class", CLASSES, None, "keep every point of these LAS classes whole, e.g. 2,9 (exact records; "
+           "they stay context for the others' crowding); --ratio/--count then apply to the points not kept whole "
+           "(rule eliminate)", metavar="CODES"),
+    Option("class_ratio", CLASS_RATIOS, None, "a ratio per LAS class, e.g. 5=0.1,2=1.0 (1.0: kept whole), each "
+           "class's count exact; the classes not listed are thinned together to --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
     Option("max_gap", FLOAT, None, "gap bound: no input point ends farther than D (CRS units, 3D) from the kept set; "
            "points are added back after the elimination, so --ratio/--count become at least that many (rule "
            "eliminate only)", low=0.0, low_open=True, metavar="D"),
@@ -188,9 +198,7 @@ OPTIONS: dict[str, Option] = {o.name: o for o in _OPTIONS}
 _OUTPUT_FORMAT = Option("format", FORMAT, None, "output format (default: by the destination's extension)",
                         choices=_WRITABLE)
 _INPUT_FORMAT = Option("format", FORMAT, None, "input format (default: by the extension)", choices=_READABLE)
-#: simplify's strict: off by default (evaluate's strict, on by default, is about CRS and units)
-_STRICT_COUNT = Option("strict", BOOL, False,
-                       "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
+_EXACT = Option("exact", BOOL, False, "a ratio or count that cannot be met exactly is an error (exit 2), not a warning")
 _RULE_LIST = Option("rule", CHOICES, None, "entropy rule(s), comma-separated; each runs once per method (eliminate: "
                     "once, no clusters) (default: eliminate, with --ratio or --count; with --threshold alone: threshold)",
                     choices=rules.names(), metavar="RULES")
@@ -230,9 +238,10 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "max_gap", "cluster_size", "cell_size", "scheduler",
-        "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min",
-        "drop_invalid", "keep_duplicates", "tile_size", "storage_options", extra=(_OUTPUT_FORMAT, _STRICT_COUNT)),
+        "method", "rule", "threshold", "ratio", "count", "max_gap", "keep_class", "class_ratio", "cluster_size",
+        "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite",
+        "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
+        extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
         "error_points", "metro_samples", "psnr_peak", "reference_mesh", "drop_invalid",

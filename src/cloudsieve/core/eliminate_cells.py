@@ -224,8 +224,7 @@ def _finish(n: int, grid, lists, kind: np.ndarray, r_max: float, count: int, ste
     gone_rep = np.full(len(src), -1, dtype=np.int64)
     rows = np.flatnonzero(halo_row & (state == 0) & ~grid.copy)  # the gone points: represented by their nearest
     gone_rep[rows] = grid.nearest_kept((state != 0).astype(np.uint8), rows)  # point alive
-    ones = np.ones(len(src))
-    prio, rep = run_elimination(grid, lists, state, n, gone_rep, r_max, ALPHA, True, ones, ones, int(count), False)
+    prio, rep = run_elimination(grid, lists, state, n, gone_rep, r_max, int(count), keys_left=False)
     copy = np.zeros(len(src), dtype=bool)
     copy[src[grid.copy]] = True
     mine = prio[:n]

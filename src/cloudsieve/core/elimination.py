@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,7 +18,7 @@ from .kernels import eliminate as _ke
 from .kernels import neighbours as _kn
 from .radius import AREA_K, AREA_SAMPLE, areas_of, radius_of
 
-__all__ = ["ALPHA", "COVER_RADIUS", "COVER_GAMMA", "COVER_LAMBDA", "alpha_int", "area_radius", "run_elimination",
+__all__ = ["ALPHA", "COVER_RADIUS", "COVER_GAMMA", "COVER_LAMBDA", "Terms", "alpha_int", "area_radius", "run_elimination",
            "keep_lowest"]
 
 logger = logging.getLogger(__name__)
@@ -26,6 +27,15 @@ ALPHA = 1.0  # exponent of the crowding weight (Yuksel: 8; module docstring)
 COVER_RADIUS = 0.8  # r_cov / r_max: beyond it the coverage factor falls
 COVER_GAMMA = 8.0  # exponent of the coverage factor
 COVER_LAMBDA = 10.0  # weight of the squared-error factor
+
+
+class Terms(NamedTuple):
+    """The weight's terms: crowding exponent, coverage factor on or off, per-row scale and squared importance (None: ones)."""
+
+    alpha: float = ALPHA
+    coverage: bool = True
+    scale: np.ndarray | None = None
+    imp2: np.ndarray | None = None
 
 
 def area_radius(pts: np.ndarray, ctx: np.ndarray, target: int) -> float:
@@ -41,9 +51,9 @@ def alpha_int(alpha: float) -> int:
     return int(alpha) if alpha == int(alpha) and alpha <= 64 else -1
 
 
-def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, scale, imp2, floor,
+def run_elimination(grid, lists, state, n, gone_rep, r_max, floor, terms: Terms = Terms(),
                     keys_left: bool = True) -> tuple:
-    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows).
+    """The elimination on a grid and its neighbour lists (``state`` of the grid's rows), to *floor* points, with *terms*.
 
     Returns the priority of every grid position (NaN: not removed nor own; own points
     left: their keys at the stop, or -1.0 without ``keys_left``), and each row's rep at
@@ -53,6 +63,10 @@ def run_elimination(grid, lists, state, n, gone_rep, r_max, alpha, coverage, sca
     two_r = 2.0 * r_max
     nptr, nbr, low, soff, w, term = lists
     src = grid.order
+    alpha, coverage = terms.alpha, terms.coverage
+    ones = np.ones(len(src)) if terms.scale is None or terms.imp2 is None else None
+    scale = ones if terms.scale is None else terms.scale
+    imp2 = ones if terms.imp2 is None else terms.imp2
     r_cov, lam = (COVER_RADIUS * r_max, COVER_LAMBDA) if coverage else (0.0, 0.0)
     links = np.full((len(src), 8), -1, dtype=_kn.index_type(len(src), nptr[-1]))
     prio, stats = _ke.eliminate(*grid.args(), nptr, nbr, low, term, soff, state, scale, imp2, w, src, two_r, alpha,

@@ -37,7 +37,8 @@ import numpy as np
 
 from ..chunk import take_rows
 from ..core.kernels.scatter import group_rows
-from .halo import band_halo, band_mask
+from .cell_work import task_threads, cell_counts, cell_keep, cell_share
+from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
            "run_cells", "cell_share", "cell_counts", "cell_keep"]
@@ -71,7 +72,7 @@ class ArrayCells:
 
     path = ""  # no store to open
 
-    def __init__(self, xyz: np.ndarray, part, order: np.ndarray) -> None:
+    def __init__(self, xyz: np.ndarray, part, order: np.ndarray, classes: np.ndarray | None = None) -> None:
         self.xyz, self.part, self.order = xyz, part, order
         self.regions = np.cumsum(part.cell_counts) - part.cell_counts
         p = part.n_cells
@@ -79,6 +80,9 @@ class ArrayCells:
         self.keep = np.zeros(len(xyz), dtype=bool)
         self.fill = np.zeros(len(xyz), dtype=bool)  # the gap bound's (max_gap)
         self.markers = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)  # done, scored: none
+        # class policies (module .class_cells): the classes and groups in cell order
+        self.codes = None if classes is None else np.asarray(classes)[order]
+        self.group = np.zeros(len(xyz), dtype=np.int8)
 
     def open(self) -> "ArrayCells":
         return self
@@ -86,9 +90,21 @@ class ArrayCells:
     def core(self, task) -> np.ndarray:
         return take_rows(self.xyz, self.order[task.region : task.region + self.part.cell_counts[task.cell]])
 
-    def put_share(self, task, core, sizes, distinct, band) -> None:
-        self.share[task.cell] = np.r_[float(distinct), sizes]
+    def put_share(self, task, core, row, band, copies) -> None:
+        self.share[task.cell] = row
         self.bands[task.cell] = core[band], band
+
+    def classes(self, task) -> np.ndarray:
+        return self.codes[task.region : task.region + self.part.cell_counts[task.cell]]
+
+    def put_groups(self, task, groups: np.ndarray) -> None:
+        self.group[task.region : task.region + len(groups)] = groups
+
+    def groups(self, task, n: int) -> np.ndarray:
+        return self.group[task.region : task.region + n]
+
+    def groups_at(self, rows: np.ndarray) -> np.ndarray:
+        return self.group[rows]
 
     def shares(self) -> np.ndarray:
         return np.array(self.share)
@@ -128,19 +144,23 @@ class ThreadMap:
             return list(pool.map(lambda a: func(*a), args))
 
 
-def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target: int, keep_duplicates: bool,
-                    max_gap: float | None = None) -> tuple[np.ndarray, int, dict | None]:
+def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_duplicates: bool,
+                    policy: tuple | None = None, max_gap: float | None = None) -> tuple[np.ndarray, int, dict | None]:
     """The keep mask (input order) and distinct points of :func:`run_cells` in memory, and with *max_gap* the
-    gap bound's record (:func:`~.gap.run_gap`; else None)."""
-    where = ArrayCells(xyz, part, order)
-    params = {"keep_duplicates": keep_duplicates, **({"max_gap": float(max_gap)} if max_gap is not None else {})}
+    gap bound's record (:func:`~.gap.run_gap`; else None).
+
+    *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,)."""
+    where = ArrayCells(xyz, part, order, None if policy is None else policy[0])
+    params = {"keep_duplicates": keep_duplicates}
+    if policy is not None:
+        params.update(lookup=policy[1].lookup.tolist(), groups=policy[1].groups)
     runner = ThreadMap()
-    *_, distinct = run_cells(where, part, where.regions, params, runner, int(target))
+    *_, distinct = run_cells(where, part, where.regions, params, runner, target)
     record = None
     if max_gap is not None:
         from .gap import run_gap
 
-        record = run_gap(where, part, where.regions, params, runner)
+        record = run_gap(where, part, where.regions, {**params, "max_gap": float(max_gap)}, runner)
     return where.input_keep(), distinct, record
 
 
@@ -158,10 +178,6 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
-def _threads(task) -> int:
-    return int(task.params.get("threads") or 1)
-
-
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
     """A task: one cell's share (:func:`cell_share`) computed and stored in *where* (store or :class:`ArrayCells`).
 
@@ -173,22 +189,34 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
-    sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
-                                       task.margin, _threads(task), ladder=task.params["ladder"])
-    io.put_share(task, core, sizes, distinct, band)
-    return {"cell": task.cell, "n": len(core), "band": len(band), "share": np.r_[float(distinct), sizes],
-            "seconds": time.perf_counter() - t0}
+    if task.params.get("groups"):  # class policies: a share per group
+        from .class_cells import group_share
+
+        row, band, copies = group_share(io, task, core, dependents)
+    else:
+        sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
+                                           task.margin, task_threads(task), ladder=task.params["ladder"])
+        row, copies = np.r_[float(distinct), sizes], len(core) - distinct
+    io.put_share(task, core, row, band, copies)
+    return {"cell": task.cell, "n": len(core), "band": len(band), "share": row, "seconds": time.perf_counter() - t0}
 
 
-def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
+def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
     """A task: one cell of *where* eliminated to *count* points (:func:`cell_keep`), its keep mask stored.
 
     *colours*: int -> colour of the cell and its halo sources. Lower colours'
     final decisions are fixed, higher colours' points are halo, eliminated
-    along but not counted. Returns "cell", "n", "kept", "seconds"."""
+    along but not counted. With class policies *count* is a list, a count per
+    group (:func:`.class_cells.group_keep`). Returns "cell", "n", "kept", "seconds"."""
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
+    if task.params.get("groups"):
+        from .class_cells import group_keep
+
+        keep = group_keep(io, task, core, count, colours)
+        io.put_keep(task, keep)
+        return {"cell": task.cell, "n": len(core), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
     n, halo = len(core), None
     if 0 < count < n:  # else no elimination: no halo
         points, cells, pos = io.halo(task)
@@ -199,7 +227,7 @@ def apply_task(where, task, count: int, colours: dict) -> dict[str, Any]:
             src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
             halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
         halo = points, fixed, halo_keep
-    keep = cell_keep(core, count, float(task.params["r_max"]), halo, _threads(task), task.params.get("staged"),
+    keep = cell_keep(core, count, float(task.params["r_max"]), halo, task_threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
     io.put_keep(task, keep)
     return {"cell": task.cell, "n": n, "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
@@ -232,64 +260,19 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     share = np.zeros((part.n_cells, len(results[0]["share"]))) if fresh else where.shares()
     for r in results:
         share[r["cell"]] = r["share"]
-    distinct = share[:, 0].astype(np.int64)
-    q, params["staged"] = cell_counts(share[:, 1:], distinct, target, r_max)
+    if params.get("groups"):  # class policies: counts per cell and group, each group's summing to its target
+        from .class_cells import group_counts
+
+        q, params["staged"], distinct = group_counts(share, np.asarray(target), r_max)
+    else:
+        distinct = share[:, 0].astype(np.int64)
+        q, params["staged"] = cell_counts(share[:, 1:], distinct, int(target), r_max)
     colours = cell_colours(part.halo_ptr, part.halo_src)
     # a cell starts once the lower-colour cells of its halo are done
     ordered = apply_order(colours, part.cell_counts, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(where, part, regions, ordered, params, runner.task_threads, halo=True)
     at = {t.cell: i for i, t in enumerate(tasks)}
-    args = [(where, t, int(q[t.cell]), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
+    args = [(where, t, q[t.cell].tolist(), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
     after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
     runner(apply_task, args, "cells: apply", after=after)
     return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), int(distinct.sum())
-
-
-def cell_share(core: np.ndarray, r_max: float, centers, cell: int, dependents: dict, margin: float,
-               threads: int | None = None, ladder: bool = True) -> tuple[np.ndarray, int, np.ndarray]:
-    """Packing sizes (L,) of *core* (n, 3) along LADDER x *r_max*, its distinct points, and its band.
-
-    Sizes are zeros when r_max is infinite or not *ladder*. The band: rows of
-    *core* in the halo of a cell of *dependents* (int -> centre)."""
-    from ..core.duplicates import copy_rows
-    from ..core.packing import LADDER, packing_ladder
-    from ..core.relocate import numba_threads
-
-    n = len(core)
-    if n and math.isfinite(r_max) and ladder:
-        with numba_threads(threads):  # the task's share of the cores
-            sizes, distinct = packing_ladder(core, r_max)
-    else:
-        sizes, distinct = np.zeros(len(LADDER)), int(n - copy_rows(core).sum()) if n else 0
-    band = np.flatnonzero(band_mask(core, {**dependents, cell: centers[cell]}, cell, dependents, margin))
-    return sizes, int(distinct), band
-
-
-def cell_counts(sizes: np.ndarray, distinct: np.ndarray, target: int, r_max: float) -> tuple[np.ndarray, bool]:
-    """Each cell's kept count q (P,), summing to *target*, and whether every cell runs in stages."""
-    from ..core.packing import kept_counts, ladder_shares
-    from ..core.staged import small_share
-
-    expected = ladder_shares(sizes, int(target)) if math.isfinite(r_max) else distinct
-    return kept_counts(expected, distinct, int(target)), small_share(int(target), int(distinct.sum()))
-
-
-def cell_keep(core: np.ndarray, count: int, r_max: float, halo: tuple, threads: int | None, staged,
-              keep_duplicates) -> np.ndarray:
-    """The keep mask (n,) of *core* eliminated to *count* points (:func:`~cloudsieve.core.eliminate_cells.eliminate_cell`).
-
-    *halo*: (points (h, 3), decided (h,), kept (h,)); *keep_duplicates* keeps every copy of a kept point."""
-    from ..core.eliminate import CELL_POINTS
-    from ..core.eliminate_cells import eliminate_cell
-
-    n = len(core)
-    keep = np.full(n, count >= n)
-    if 0 < count < n:
-        points, fixed, halo_keep = halo
-        keep = eliminate_cell(core, int(count), r_max, halo=points, decided=fixed, halo_keep=halo_keep,
-                              threads=threads, cell_points=CELL_POINTS, staged=staged)
-    if keep_duplicates and n:
-        from ..core.duplicates import first_copies
-
-        keep = keep[first_copies(core)]
-    return keep

@@ -68,6 +68,10 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         raise DestinationExistsError(f"{dst} exists; pass overwrite=True to replace it", advice={"overwrite": True})
     for path in sources:
         check_readable(path)
+    if opts.get("keep_class") is not None or opts.get("class_ratio") is not None:
+        from .class_policy import check_classified
+
+        check_classified(sources, src_is_store)
     if not tiles:
         check_writable(dst, opts["format"], overwrite=overwrite)
     else:

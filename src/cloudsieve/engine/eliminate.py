@@ -39,15 +39,35 @@ class StoreCells:
 
         return read_cell(self.group, cell_runs(self.group, task.cell))  # finite float64 (checked at ingest)
 
-    def put_share(self, task, core, sizes, distinct, band) -> None:
+    def put_share(self, task, core, row, band, copies) -> None:
         from .runs import write_slices
 
         bands = [("simplify/band_xyz", task.region, core[band]),
                  ("simplify/band_pos", task.region, band.astype(np.int64))] if len(band) else []
         write_slices(self.group, [*bands, ("simplify/band_count", task.cell, np.array([len(band)], dtype=np.int64)),
-                                  ("simplify/duplicates", task.cell, np.array([len(core) - distinct], dtype=np.int64)),
-                                  ("simplify/share", task.cell, np.r_[float(distinct), sizes][None, :])])
+                                  ("simplify/duplicates", task.cell, np.array([copies], dtype=np.int64)),
+                                  ("simplify/share", task.cell, np.asarray(row, dtype=np.float64)[None, :])])
         self.group["simplify/scored"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)  # after them
+
+    def classes(self, task) -> np.ndarray:
+        """The cell's classification codes (n,) uint8 in core order, from ``partition/class``."""
+        from ..store.streaming import gathered
+        from .runs import cell_runs
+
+        arr = self.group["partition/class"].async_array
+        runs = cell_runs(self.group, task.cell)
+        parts = gathered(arr.getitem((int(r[0]), slice(int(r[1]), int(r[2])))) for r in runs if r[2] > r[1])
+        return np.concatenate([np.asarray(p) for p in parts]) if parts else np.zeros(0, dtype=np.uint8)
+
+    def put_groups(self, task, groups: np.ndarray) -> None:
+        """The cell's groups (class policies) in ``simplify/group_cells``, its region (before its share)."""
+        self.group["simplify/group_cells"][task.region : task.region + len(groups)] = groups
+
+    def groups(self, task, n: int) -> np.ndarray:
+        return np.asarray(self.group["simplify/group_cells"][task.region : task.region + n])
+
+    def groups_at(self, rows: np.ndarray) -> np.ndarray:
+        return np.asarray(self.group["simplify/group_cells"].get_orthogonal_selection((rows,)))
 
     def halo(self, task) -> tuple:
         """The cell's halo from the bands of its sources: points (h, 3), their cells and positions."""

@@ -23,6 +23,7 @@ from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks
 from .cell_scheme import run_cells
+from .class_policy import ClassPolicy, run_class_counts, run_class_rows
 from .eliminate import StoreCells
 from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner
@@ -85,11 +86,15 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.store = store_path
             summary.points_in = st.count
             summary.seconds["ingest"] = time.perf_counter() - t0
+            summary.stage_cpu["ingest"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
-            target = None
+            target, policy, classes = None, ClassPolicy.from_options(opts), None
             if ratio is not None or count is not None:
                 target = ratio_count(ratio, st.count) if ratio is not None else min(int(count), st.count)
+            if policy is not None:  # each group's target; r_max for all the points kept
+                classes = run_class_counts(st, runner)
+                target = policy.asked(classes)
             elim = target if get_rule(rule).engine == ELIMINATION else None
             halo = bool(context) or elim is not None
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
@@ -100,25 +105,31 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                     st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, run=runner, k0=k0, k_min=k_min,
                     halo=halo, eliminate_target=elim, sample=taken.sample(st.count) if taken else None,
                 )
+            if policy is not None:
+                run_class_rows(st, runner)
             progress(st.count)
             summary.cells = part.n_cells
             summary.seconds["partition"] = time.perf_counter() - t0
+            summary.stage_cpu["partition"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             block = workstore.region_block(cell_size, remote=local_path(st.path) is None)
             regions, total = workstore.regions(part.cell_counts, block)
-            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions, workstore.region_block(cell_size))
+            workstore.ensure_cell_arrays(st, part.n_cells, total, block, regions, workstore.region_block(cell_size),
+                                         groups=0 if policy is None else policy.groups)
             if target is None:
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
                 progress(points)
             elif elim is not None:
+                policy_params = {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
                 if params.get("max_gap") is not None:
                     workstore.ensure_fill_array(st)
-                computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, params, runner, target)
-                if params.get("max_gap") is not None:  # the gap bound's check, every cell final
+                computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, {**params, **policy_params},
+                                                        runner, target if policy is None else policy.targets(classes))
+                if params.get("max_gap") is not None:  # the gap bound: a fill, then its check, every cell final
                     from .gap import run_gap
 
-                    summary.gap = run_gap(StoreCells(st.path), part, regions, params, runner)
+                    summary.gap = run_gap(StoreCells(st.path), part, regions, {**params, **policy_params}, runner)
                 progress(points)
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
@@ -129,15 +140,19 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.cells_computed, summary.cells_reused = computed, reused
             summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
             summary.seconds["cells"] = time.perf_counter() - t0
+            summary.stage_cpu["cells"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
             kept_counts = merge.run_merge(st, runner, fill=summary.gap is not None)
             summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
+            if policy is not None:
+                summary.classes = policy.report(classes, run_class_counts(st, runner, "simplify/keep"))
             account(summary)
             progress(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0
+            summary.stage_cpu["merge"] = _cpu_lap(runner, summary)
 
             t0 = time.perf_counter()
             # tasks write the parts or tiles; other formats (PLY, XYZ) stream here
@@ -150,6 +165,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                        run=runner if tasks else None, counts=kept_counts if tasks else None, tile_size=tile_size)
             summary.seconds["export"] = time.perf_counter() - t0
             summary.cpu_seconds["workers"], retries = runner.worker_counts()
+            summary.stage_cpu["export"] = max(0.0, summary.cpu_seconds["workers"] - sum(summary.stage_cpu.values()))
             summary.storage = {"retries": retries}  # the driver's are added at the end
         except TargetNotMetError:
             if default_store:  # complete and would end the same
@@ -164,3 +180,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
         delete_store(store_path)
         summary.store = ""
     return summary
+
+
+def _cpu_lap(runner, summary) -> float:
+    """The workers' CPU seconds since the stages *summary* holds (one request to a cluster's workers)."""
+    return max(0.0, runner.worker_counts()[0] - sum(summary.stage_cpu.values()))

@@ -41,6 +41,8 @@ def simplify(
     threshold: float | None = None,
     ratio: float | None = None,
     count: int | None = None,
+    keep_class=None,
+    class_ratio=None,
     cluster_size: int = 400,
     cell_size: int = 200_000,
     scheduler: str | None = None,
@@ -61,7 +63,7 @@ def simplify(
     k_min: int = 4,
     drop_invalid: bool = False,
     keep_duplicates: bool = False,
-    strict: bool = False,
+    exact: bool = False,
     tile_size: float | None = None,
     storage_options: dict | None = None,
     max_gap: float | None = None,
@@ -91,7 +93,16 @@ def simplify(
         S, the entropy-change threshold of the threshold/iterative rules (default 1e-3).
     ratio, count : float in (0, 1] or int >= 1, optional
         Keep this share / number of the input points instead of using S;
-        the total lands within 1% of it (exactly with eliminate).
+        the total lands within 1% of it (exactly with eliminate). With
+        *keep_class* or *class_ratio*, of the points not kept whole and not
+        in *class_ratio*.
+    keep_class : str or list of int, optional
+        LAS classes kept whole ("2,9" or ``[2, 9]``), exact records; they
+        stay context for the others' crowding (rule eliminate only).
+    class_ratio : str or dict, optional
+        A ratio per LAS class ("5=0.1,2=1.0" or ``{5: 0.1}``; 1.0 keeps it
+        whole), each class's count exact (rule eliminate only). The summary's
+        ``classes`` states per class the points in and kept.
     cluster_size : int
         Points per small cluster (c = ceil(n / cluster_size) per cell), >= ``k_min + 2``.
     cell_size : int
@@ -136,7 +147,7 @@ def simplify(
     keep_duplicates : bool
         Keep every exact copy (same x, y, z) of a kept point; by default
         duplicates are scored and kept once (:attr:`Summary.duplicates`).
-    strict : bool
+    exact : bool
         Raise instead of logging when a ratio or count is not met exactly.
     tile_size : float, optional
         Write DST as a folder of square LAZ tiles plus ``DST/index.vpc``
@@ -173,16 +184,17 @@ def simplify(
     InvalidPointsError
         SRC has NaN or infinite coordinates and *drop_invalid* is False.
     TargetNotMetError
-        *strict* and the kept count differs from the ratio or count asked
+        *exact* and the kept count differs from the ratio or count asked
         (before DST is written).
     """
     t_start = time.perf_counter()
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
+        "keep_class": keep_class, "class_ratio": class_ratio,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "strict": strict, "tile_size": tile_size,
+        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "exact": exact, "tile_size": tile_size,
         "storage_options": storage_options, "max_gap": max_gap,
     })
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
@@ -199,8 +211,8 @@ def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, 
 
 def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_start) -> Summary:
     t_start, src, dst = time.perf_counter() if t_start is None else t_start, os.fspath(src), os.fspath(dst)
-    ratio, count, keep_duplicates, strict, tile_size = (
-        opts[name] for name in ("ratio", "count", "keep_duplicates", "strict", "tile_size"))
+    ratio, count, keep_duplicates, exact, tile_size = (
+        opts[name] for name in ("ratio", "count", "keep_duplicates", "exact", "tile_size"))
     if tile_size is not None and len(dst) > 1:
         dst = dst.rstrip("/")  # a folder given as "out/": the work store goes beside it, not inside
     params = {"version": ENGINE_VERSION, **run_record(opts)}
@@ -215,8 +227,9 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
                         "kept (keep_duplicates)" if keep_duplicates else "removed")
         filled = summary.gap["filled"] if summary.gap is not None else 0  # the gap bound's: "at least"
         missed = missed_target(src, ratio, count, summary.points_in, summary.kept - filled, summary.duplicates,
-                               keep_duplicates, exact=get_rule(rule).engine == ELIMINATION)
-        if missed and strict:
+                               keep_duplicates, exact=get_rule(rule).engine == ELIMINATION,
+                               asked=summary.classes["asked"] if summary.classes else None)
+        if missed and exact:
             raise TargetNotMetError(missed)
         if missed:
             logger.warning("%s", missed)

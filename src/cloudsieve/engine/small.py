@@ -87,6 +87,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     from ..io import detect_format, open_writer
     from ..io.whole import read_whole
     from .cell_scheme import eliminate_cells, partition
+    from .class_policy import ClassPolicy, class_codes
 
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # a second core compiles ahead
@@ -104,6 +105,11 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
             target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
+            policy = ClassPolicy.from_options(opts)
+            if policy is not None:  # each group's target; r_max for all the points kept
+                codes = class_codes(attrs["classification"], ", ".join(sources))
+                classes = np.bincount(codes, minlength=256)
+                target = policy.asked(classes)
             part, order = partition(xyz, bounds[0], opts, target)
             summary.cells = summary.cells_computed = part.n_cells
             logger.info("%d points in memory, %d cells: eliminate %d, r_max %.4g", n, part.n_cells, target,
@@ -111,8 +117,14 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             summary.seconds["partition"] = time.perf_counter() - t0
 
             t0 = time.perf_counter()
-            keep, distinct, summary.gap = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"],
-                                                          opts.get("max_gap"))
+            if policy is None:
+                keep, distinct, summary.gap = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"],
+                                                              max_gap=opts.get("max_gap"))
+            else:
+                keep, distinct, summary.gap = eliminate_cells(xyz, part, order, policy.targets(classes),
+                                                              opts["keep_duplicates"], policy=(codes, policy),
+                                                              max_gap=opts.get("max_gap"))
+                summary.classes = policy.report(classes, np.bincount(codes[keep], minlength=256))
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())
             summary.removed = n - summary.kept

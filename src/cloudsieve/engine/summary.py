@@ -12,16 +12,18 @@ __all__ = ["Summary", "missed_target"]
 
 
 def missed_target(src: str, ratio, count, n: int, kept: int, duplicates: int = 0,
-                  keep_duplicates: bool = False, exact: bool = False) -> str | None:
+                  keep_duplicates: bool = False, exact: bool = False, asked: int | None = None) -> str | None:
     """What to say when a ratio or count was asked and the kept count differs, else None.
 
     ``"SRC: asked to keep A points, kept K: why"``, logged as a warning or
-    raised with ``strict``. With *exact* (a rule keeping exactly the count,
+    raised with the option ``exact``. With *exact* (a rule keeping exactly the count,
     ``eliminate``) only the input's size and its duplicates explain a miss.
+    *asked*: the count of class policies (:meth:`.class_policy.ClassPolicy.asked`).
     """
     if ratio is None and count is None:
         return None
-    asked = ratio_count(ratio, n) if ratio is not None else int(count)
+    if asked is None:
+        asked = ratio_count(ratio, n) if ratio is not None else int(count)
     if kept == asked:
         return None
     if asked > n:
@@ -59,6 +61,9 @@ class Summary:
         Wall time per stage ("ingest", "partition", "cells", "merge", "export") and "total".
     cpu_seconds : dict str -> float
         ``{"driver": d, "workers": w}`` (:meth:`cloudsieve.engine.runner.Runner.worker_cpu`).
+    stage_cpu : dict str -> float
+        The workers' CPU seconds in each stage of a run through the work store (their sum is
+        ``cpu_seconds["workers"]``); empty for a small input run in memory.
     peak_memory, peak_memory_of : int, str
         Peak resident memory (bytes), sampled, and what it covers (:mod:`.memory`).
     storage : dict or None
@@ -67,6 +72,10 @@ class Summary:
     scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
+    classes : dict or None
+        With ``keep_class``/``class_ratio``: ``asked``, per policy and per class the
+        input and kept points (:meth:`cloudsieve.engine.class_policy.ClassPolicy.report`);
+        None, absent from :meth:`to_dict`, without them.
     gap : dict or None
         With ``max_gap``: ``{"bound": D, "filled": points added back after
         the elimination (in *kept*), "max": the largest distance from an input
@@ -85,6 +94,7 @@ class Summary:
     threshold: float | None = None
     seconds: dict[str, float] = field(default_factory=dict)
     cpu_seconds: dict[str, float] = field(default_factory=lambda: {"driver": 0.0, "workers": 0.0})
+    stage_cpu: dict[str, float] = field(default_factory=dict)
     peak_memory: int = 0
     peak_memory_of: str = "this process and its children"
     storage: dict[str, int] | None = None
@@ -92,11 +102,12 @@ class Summary:
     source: str = ""
     destination: str = ""
     store: str = ""
+    classes: dict | None = None
     gap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        for name in ("storage", "gap"):
+        for name in ("storage", "classes", "gap"):
             if record[name] is None:
                 del record[name]
         return record
@@ -118,11 +129,17 @@ class Summary:
                             f"back; largest gap {g['max']:.6g}, checked exactly)")
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
+        if s.classes is not None:
+            lines.append("classes       (--ratio/--count apply to the points not kept whole and not in --class-ratio)")
+            lines += [f"  class {c['class']:<5} {c['policy']:<18} in {c['points_in']:>12,}  kept {c['kept']:>12,}  "
+                      f"({100.0 * c['ratio']:.2f}%)" for c in s.classes["classes"]]
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
         cpu = s.cpu_seconds
         lines.append(f"cpu           {cpu['driver'] + cpu['workers']:>13.2f}s  (driver {cpu['driver']:.2f}s, "
                      f"workers {cpu['workers']:.2f}s)")
+        if s.stage_cpu:
+            lines.append("  workers     " + ", ".join(f"{k} {v:.2f}s" for k, v in s.stage_cpu.items()))
         lines.append(f"peak memory   {s.peak_memory / 2**20:>12.0f} MiB  ({s.peak_memory_of})")
         if s.storage is not None:
             lines.append(f"storage       {s.storage['retries']:>14,}  retries (requests sent again after a timeout, "

@@ -12,6 +12,8 @@ when the source and parameters match, both recorded in the attribute
     done, scored uint8   (P,)  one zarr chunk per cell
     duplicates   int64   (P,)  exact duplicates of each cell
     share        float64 (P, 1 + L) eliminate: distinct points, packing sizes
+                         (P, 1 + G (1 + L)) with class policies: points kept whole, then per group
+    group_cells  int8    (T,)  eliminate with class policies: each point's group, -1 kept whole
     regions      int64   (P,)  start of each cell's region, on a zarr-chunk boundary
     keep         bool    (N,)  keep mask in input order (merge)
 """
@@ -216,10 +218,14 @@ def regions(cell_counts: np.ndarray, block: int) -> tuple[np.ndarray, int]:
     return starts, max(total, block)
 
 
-def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray, band_block: int = 0) -> None:
+def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.ndarray, band_block: int = 0,
+                       groups: int = 0) -> None:
     """Create the cell-ordered ``simplify/*`` arrays unless they exist with this layout (resume); bands in
-    chunks of *band_block* (a divisor of *block*; default *block*)."""
+    chunks of *band_block* (a divisor of *block*; default *block*); with class policies of *groups* groups
+    (:mod:`.class_cells`), ``share`` holds the points kept whole and a share per group, and
+    ``group_cells`` (T,) int8 each point's group."""
     band_block = band_block or block
+    columns = 1 + groups * SHARE_COLUMNS if groups else SHARE_COLUMNS
     g = store.group
     # the same layout: length, chunk and regions (another layout starts again)
     same = ("simplify/keep_cells" in g and "simplify/regions" in g and g["simplify/keep_cells"].shape == (total,)
@@ -228,10 +234,12 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     if same:
         if "simplify/duplicates" not in g:  # an older store: its done cells count 0
             store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
-        if "simplify/share" not in g or g["simplify/share"].shape != (n_cells, SHARE_COLUMNS):
-            # an older store without shares or packings: its cells start again
+        if ("simplify/share" not in g or g["simplify/share"].shape != (n_cells, columns)
+                or groups and "simplify/group_cells" not in g):
+            # an older store without shares or packings, or other groups: its cells start again
             store.delete_array("simplify/share")
-            _share_array(store, n_cells)
+            _share_array(store, n_cells, columns)
+            _group_array(store, total, block, groups)
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         if "simplify/band_count" not in g:  # an older store without bands: its cells start again
@@ -239,15 +247,16 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
-    for name in ("keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
-                 "share", "band_xyz", "band_pos", "band_count"):
+    for name in ("keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions",
+                 "duplicates", "share", "band_xyz", "band_pos", "band_count", "group_cells"):
         store.delete_array(f"simplify/{name}")
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
     store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     store.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0)
     store.create_array("simplify/label_cells", shape=(total,), dtype="int32", chunks=(block,), fill_value=0)
     store.create_array("simplify/scored", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
-    _share_array(store, n_cells)
+    _share_array(store, n_cells, columns)
+    _group_array(store, total, block, groups)
     _band_arrays(store, n_cells, total, band_block)
     # exact duplicates of each cell (written with done)
     store.create_array("simplify/duplicates", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
@@ -257,10 +266,17 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
     )
 
 
-def _share_array(store, n_cells: int) -> None:
+def _share_array(store, n_cells: int, columns: int = SHARE_COLUMNS) -> None:
     """eliminate: each cell's distinct points and packing sizes (:func:`cloudsieve.core.packing.packing_ladder`)."""
-    store.create_array("simplify/share", shape=(n_cells, SHARE_COLUMNS), dtype="float64", chunks=(1, SHARE_COLUMNS),
+    store.create_array("simplify/share", shape=(n_cells, columns), dtype="float64", chunks=(1, columns),
                        fill_value=0.0)
+
+
+def _group_array(store, total: int, block: int, groups: int) -> None:
+    """eliminate with class policies: each point's group, cell-ordered (none without policies)."""
+    store.delete_array("simplify/group_cells")
+    if groups:
+        store.create_array("simplify/group_cells", shape=(total,), dtype="int8", chunks=(block,), fill_value=0)
 
 
 def _band_arrays(store, n_cells: int, total: int, block: int) -> None:
