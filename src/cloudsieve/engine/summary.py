@@ -125,8 +125,9 @@ class Summary:
         ]
         if s.gap is not None:
             g = s.gap
+            to = f"; filled to {g['fill_to']:.6g}, the halo's reach" if g["fill_to"] < g["bound"] else ""
             lines.insert(2, f"gap bound     {g['bound']:>14.6g}  (at least the count: {g['filled']:,} points added "
-                            f"back; largest gap {g['max']:.6g}, checked exactly)")
+                            f"back; largest gap {g['max']:.6g}, checked exactly{to})")
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         if s.classes is not None:
