@@ -211,6 +211,8 @@ def test_bad_lists_exit_2_before_any_work(capsys, tmp_path):
         (["--ratio", "0.5,0.2", "--keep-class", "2"], "cloudsieve simplify: error: a list of ratios (nested "
                                                       "outputs) does not take --keep-class: run one --ratio at a "
                                                       "time"),
+        (["--ratio", "0.5,0.2", "--max-gap", "3"], "cloudsieve simplify: error: a list of ratios (nested "
+                                                   "outputs) does not take --max-gap: run one --ratio at a time"),
         (["--ratio", "0.5", "--rank", "--rule", "target"], "cloudsieve simplify: error: --rank needs the rule "
                                                            "'eliminate', not 'target'"),
     ]

@@ -293,12 +293,15 @@ def _simplify(o: dict) -> None:
     if listed and rules.get(o["rule"]).engine != rules.ELIMINATION:
         raise named(InvalidParameterError(f"a list of {listed}s (nested outputs) needs the rule "
                                           f"{rules.DEFAULT_RULE!r}, not {o['rule']!r}"), listed)
-    policy = next((name for name in ("keep_class", "class_ratio") if o[name] is not None), None)
-    if listed and policy:  # each output's count would be of another set of points
+    policy = next((name for name in ("keep_class", "class_ratio", "max_gap") if o[name] is not None), None)
+    if listed and policy:  # a later output would count (or bound) against the output before, not the input
         raise named(InvalidParameterError(f"a list of {listed}s (nested outputs) does not take {policy}: run one "
                                           f"{listed} at a time"), listed, policy)
     if o["rank"] and rules.get(o["rule"]).engine != rules.ELIMINATION:
         raise named(InvalidParameterError(f"rank needs the rule {rules.DEFAULT_RULE!r}, not {o['rule']!r}"), "rank")
+    if o["max_gap"] is not None and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"max_gap needs the rule eliminate (the default), not rule "
+                                          f"{o['rule']!r}"), "max_gap")
     _cluster_size(o)
     _class_policy(o)
     if o["cell_size"] < o["cluster_size"]:
@@ -391,13 +394,15 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
 
 def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options that define a simplification, as its work store records them (resume compares them).
-    halo_context is recorded as ``"context"`` and keep_duplicates only when True, so version-1 work stores still
-    resume."""
+    halo_context is recorded as ``"context"``, keep_duplicates only when True and max_gap only when given, so
+    version-1 work stores still resume."""
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
     if options.get("keep_duplicates"):
         record["keep_duplicates"] = True
+    if options.get("max_gap") is not None:
+        record["max_gap"] = options["max_gap"]
     for name in ("keep_class", "class_ratio"):  # only when given: a run without them records what it did
         if options.get(name) is not None:
             record[name] = options[name]

@@ -128,6 +128,9 @@ _OPTIONS = [
            "(rule eliminate)", metavar="CODES"),
     Option("class_ratio", CLASS_RATIOS, None, "a ratio per LAS class, e.g. 5=0.1,2=1.0 (1.0: kept whole), each "
            "class's count exact; the classes not listed are thinned together to --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
+    Option("max_gap", FLOAT, None, "gap bound: no input point ends farther than D (CRS units, 3D) from the kept set; "
+           "points are added back after the elimination, so --ratio/--count become at least that many (rule "
+           "eliminate only)", low=0.0, low_open=True, metavar="D"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
@@ -245,9 +248,9 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "cluster_size", "cell_size",
-        "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
-        "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "rank", "storage_options",
+        "method", "rule", "threshold", "ratio", "count", "max_gap", "keep_class", "class_ratio", "cluster_size",
+        "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite",
+        "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "rank", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",

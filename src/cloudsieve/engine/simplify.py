@@ -68,6 +68,7 @@ def simplify(
     tile_size: float | None = None,
     rank: bool = False,
     storage_options: dict | None = None,
+    max_gap: float | None = None,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -162,6 +163,12 @@ def simplify(
     storage_options : dict, optional
         fsspec options for every URL of the run (e.g. s3fs's ``key``,
         ``secret``, ``endpoint_url``); never logged, recorded or printed.
+    max_gap : float, optional
+        Gap bound D > 0 (CRS units, Euclidean 3D; rule ``eliminate`` only):
+        after the elimination, points are added back until no input point is
+        farther than D from the kept set, so the ratio or count becomes "at
+        least" (:attr:`Summary.gap`: the points added, the largest gap
+        checked exactly; :mod:`cloudsieve.engine.gap`).
 
     Returns
     -------
@@ -196,7 +203,7 @@ def simplify(
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
         "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "exact": exact, "tile_size": tile_size,
-        "rank": rank, "storage_options": storage_options,
+        "rank": rank, "storage_options": storage_options, "max_gap": max_gap,
     })
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
 
@@ -232,7 +239,8 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
         if summary.duplicates:
             logger.info("%d exact duplicates %s", summary.duplicates,
                         "kept (keep_duplicates)" if keep_duplicates else "removed")
-        missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
+        filled = summary.gap["filled"] if summary.gap is not None else 0  # the gap bound's: "at least"
+        missed = missed_target(src, ratio, count, summary.points_in, summary.kept - filled, summary.duplicates,
                                keep_duplicates, exact=get_rule(rule).engine == ELIMINATION,
                                asked=summary.classes["asked"] if summary.classes else None)
         if missed and exact:

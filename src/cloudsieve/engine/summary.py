@@ -80,6 +80,11 @@ class Summary:
         With ``keep_class``/``class_ratio``: ``asked``, per policy and per class the
         input and kept points (:meth:`cloudsieve.engine.class_policy.ClassPolicy.report`);
         None, absent from :meth:`to_dict`, without them.
+    gap : dict or None
+        With ``max_gap``: ``{"bound": D, "filled": points added back after
+        the elimination (in *kept*), "max": the largest distance from an input
+        point to the kept set, checked exactly, "fill_to": the distance the
+        cells filled to}``; None, absent from :meth:`to_dict`, otherwise.
     """
 
     points_in: int = 0
@@ -103,10 +108,11 @@ class Summary:
     store: str = ""
     classes: dict | None = None
     outputs: list[dict[str, Any]] = field(default_factory=list)
+    gap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        for name in ("storage", "classes", "outputs"):
+        for name in ("storage", "classes", "outputs", "gap"):
             if record[name] in (None, []):
                 del record[name]
         return record
@@ -122,6 +128,11 @@ class Summary:
             f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
             f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
         ]
+        if s.gap is not None:
+            g = s.gap
+            to = f"; filled to {g['fill_to']:.6g}, the halo's reach" if g["fill_to"] < g["bound"] else ""
+            lines.insert(2, f"gap bound     {g['bound']:>14.6g}  (at least the count: {g['filled']:,} points added "
+                            f"back; largest gap {g['max']:.6g}, checked exactly{to})")
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         if s.classes is not None:
