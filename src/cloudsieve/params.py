@@ -33,8 +33,14 @@ from .params_spec import (BOOL, CHOICE, CHOICES, CLASS_RATIOS, CLASSES, COMMANDS
 from .params_spec import __all__ as _spec_all
 from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
+#: the side of the areas of the density option when density_cell is not given (CRS units)
+DENSITY_CELL = 10.0
+
 __all__ = [
     *_spec_all,
+    "DENSITY_CELL",
+    "density_side",
+    "density_floor",
     "DEFAULT_RULE",
     "Metavar",
     "check",
@@ -246,7 +252,8 @@ def _cluster_size(o: dict) -> None:
 
 def _rule_target(o: dict) -> None:
     """The rule's target: needed, or refused (the registry says which)."""
-    rule, has_target = rules.get(o["rule"]), o["ratio"] is not None or o["count"] is not None
+    rule = rules.get(o["rule"])
+    has_target = o["ratio"] is not None or o["count"] is not None or o.get("density") is not None
     if rule.needs_target and not has_target:
         raise InvalidParameterError(f"rule {rule.name!r} needs a ratio or a count")
     if not rule.takes_target and has_target:
@@ -272,7 +279,43 @@ def _class_policy(o: dict) -> None:
                                           f"class_ratio: give it in one of them"), "keep_class", "class_ratio")
 
 
+def _density(o: dict) -> None:
+    """density and density_cell: of the elimination rule only, instead of ratio/count and the class policies;
+    an area keeps at least one point."""
+    if o["density"] is None:
+        if o["density_cell"] is not None:
+            raise named(InvalidParameterError("density_cell is the side of the areas of density: give density "
+                                              f"too (got density_cell={o['density_cell']:g})"), "density_cell", "density")
+        return
+    rule = rules.get(o["rule"])
+    if rule.engine != rules.ELIMINATION:
+        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
+        raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
+                                          f"{rule.name!r}"), "density")
+    for name in ("ratio", "count", "keep_class", "class_ratio"):
+        if o[name] is not None:
+            raise named(InvalidParameterError(f"give density or {name}, not both (got density={o['density']:g}, "
+                                              f"{name}={o[name]})"), "density", name)
+    side = density_side(o)
+    if density_floor(o["density"], side) < 1:
+        raise named(InvalidParameterError(f"density * density_cell^2 must be at least 1 point per area, got "
+                                          f"{o['density']:g} * {side:g}^2 = {o['density'] * side * side:g}"),
+                    "density", "density_cell")
+
+
+def density_side(o: Mapping[str, Any]) -> float:
+    """The side R of the areas of the density option (``density_cell``, default 10)."""
+    return DENSITY_CELL if o.get("density_cell") is None else float(o["density_cell"])
+
+
+def density_floor(density: float, side: float) -> int:
+    """Points an area of side *side* keeps at most at *density*: floor(D R^2), D R^2 rounded to 9 decimals first
+    (0.29 * 10^2 is 29, not 28.999...)."""
+    return int(math.floor(round(float(density) * side * side, 9)))
+
+
 def _simplify(o: dict) -> None:
+    _density(o)
     _rule_target(o)
     _cluster_size(o)
     _class_policy(o)
@@ -369,7 +412,7 @@ def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
     if options.get("keep_duplicates"):
         record["keep_duplicates"] = True
-    for name in ("keep_class", "class_ratio"):  # only when given: a run without them records what it did
+    for name in ("keep_class", "class_ratio", "density", "density_cell"):  # only when given: a run without them records what it did
         if options.get(name) is not None:
             record[name] = options[name]
     return record

@@ -118,6 +118,11 @@ _OPTIONS = [
            "(rule eliminate)", metavar="CODES"),
     Option("class_ratio", CLASS_RATIOS, None, "a ratio per LAS class, e.g. 5=0.1,2=1.0 (1.0: kept whole), each "
            "class's count exact; the classes not listed are thinned together to --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
+    Option("density", FLOAT, None, "instead of --ratio/--count: at most D points per square unit of the horizontal "
+           "plane (LAS CRS units) in every --density-cell area; an area holding more keeps exactly floor(D*R^2), "
+           "the others stay whole (rule eliminate)", low=0.0, low_open=True, metavar="D"),
+    Option("density_cell", FLOAT, None, "the side R of the square areas of --density, in CRS units, on a grid "
+           "anchored at 0 (default 10)", low=0.0, low_open=True, metavar="R"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
@@ -235,8 +240,8 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "cluster_size", "cell_size",
-        "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
+        "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "density", "density_cell",
+        "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
         "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
