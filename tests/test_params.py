@@ -84,6 +84,10 @@ def context(command: str, name: str, value) -> dict:
         return {}
     if name in ("keep_class", "class_ratio"):  # options of the eliminate rule
         return {"ratio": 0.5}
+    if name == "density" and value is not None:  # instead of a ratio: the default rule
+        return {}
+    if name == "density_cell" and value is not None:  # the areas of density
+        return {"density": 100.0}
     return {"rule": "iterative"}
 
 
