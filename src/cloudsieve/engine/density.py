@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DensityTarget", "area_keys", "area_counts", "cell_areas", "area_quotas", "density_keep",
+__all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "cell_areas", "area_quotas", "density_keep",
            "area_counts_task", "run_area_counts"]
 
 #: an area's column index is shifted by this many bits in its key (rows below 2^31 in magnitude)
@@ -118,6 +118,24 @@ def area_quotas(per_cell: list, floor: int) -> list[np.ndarray]:
     return np.split(quota, np.cumsum(sizes)[:-1]) if per_cell else []
 
 
+class Sorted:
+    """Points by area key (:func:`area_keys`)."""
+
+    def __init__(self, keys: np.ndarray) -> None:
+        self.order = np.argsort(keys, kind="stable")
+        self.keys = keys[self.order]
+
+    def rows(self, key: int, reach: int) -> np.ndarray:
+        """The rows (ascending) of the points in the areas at most *reach* columns and rows from area *key*."""
+        col = int(key) >> _SHIFT
+        row = int(key) - (col << _SHIFT)
+        cols = np.arange(col - reach, col + reach + 1, dtype=np.int64) << _SHIFT
+        starts = np.searchsorted(self.keys, cols + row - reach, "left")
+        ends = np.searchsorted(self.keys, cols + row + reach, "right")
+        parts = [self.order[s:e] for s, e in zip(starts, ends) if e > s]
+        return np.sort(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
+
+
 def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarray:
     """The keep mask (n,) of a cell, each dense area eliminated to its quota (*quotas*, aligned with the
     cell's sorted areas) in key order, with the rest as context: the cell's other points (the areas already
@@ -145,19 +163,22 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
         hkeep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
     hkeys = area_keys(points, side) if len(points) else np.zeros(0, dtype=np.int64)
     margin = HALO_RADII * r_max if np.isfinite(r_max) else 0.0
+    reach = int(np.ceil(margin / side))  # areas of context on each side
+    cells_by_area, halo_by_area = Sorted(keys), Sorted(hkeys)
     for a in dense:
-        own = inv == a
+        own = cells_by_area.rows(uniq[a], 0)
         if quotas[a] == 0:
             keep[own] = False
             continue
         mine = core[own]
         lo, hi = mine[:, :2].min(axis=0) - margin, mine[:, :2].max(axis=0) + margin
-        near = ~own & np.all((core[:, :2] >= lo) & (core[:, :2] <= hi), axis=1)
-        hnear = np.all((points[:, :2] >= lo) & (points[:, :2] <= hi), axis=1) if len(points) else near[:0]
-        along = hnear & ~fixed & (hkeys == uniq[a])  # eliminated along
-        h = np.flatnonzero(hnear)
-        halo = (np.concatenate([core[near], points[h]]), np.r_[np.ones(int(near.sum()), dtype=bool), ~along[h]],
-                np.r_[keep[near], hkeep[h] & ~along[h]])
+        near = cells_by_area.rows(uniq[a], reach)
+        near = near[(keys[near] != uniq[a]) & np.all((core[near, :2] >= lo) & (core[near, :2] <= hi), axis=1)]
+        h = halo_by_area.rows(uniq[a], reach)
+        h = h[np.all((points[h, :2] >= lo) & (points[h, :2] <= hi), axis=1)]
+        along = ~fixed[h] & (hkeys[h] == uniq[a])  # eliminated along
+        halo = (np.concatenate([core[near], points[h]]), np.r_[np.ones(len(near), dtype=bool), ~along],
+                np.r_[keep[near], hkeep[h] & ~along])
         keep[own] = cell_keep(mine, int(quotas[a]), r_max, halo, task_threads(task), None,
                               task.params.get("keep_duplicates"))
     return keep
