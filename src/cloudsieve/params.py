@@ -39,7 +39,6 @@ DENSITY_CELL = 10.0
 __all__ = [
     *_spec_all,
     "DENSITY_CELL",
-    "density_side",
     "density_floor",
     "DEFAULT_RULE",
     "Metavar",
@@ -280,37 +279,29 @@ def _class_policy(o: dict) -> None:
 
 
 def _density(o: dict) -> None:
-    """density and density_cell: of the elimination rule only, instead of ratio/count and the class policies;
+    """density (with density_cell): of the elimination rule only, instead of ratio/count and the class policies;
     an area keeps at least one point."""
-    if o["density"] is None:
-        if o["density_cell"] is not None:
-            raise named(InvalidParameterError("density_cell is the side of the areas of density: give density "
-                                              f"too (got density_cell={o['density_cell']:g})"), "density_cell", "density")
-        return
+    d, side = o["density"], DENSITY_CELL if o["density_cell"] is None else o["density_cell"]
+    if d is None and o["density_cell"] is not None:
+        raise named(InvalidParameterError("density_cell is the side of the areas of density: give density too (got "
+                                          f"density_cell={side:g})"), "density_cell", "density")
     rule = rules.get(o["rule"])
-    if rule.engine != rules.ELIMINATION:
+    if d is not None and rule.engine != rules.ELIMINATION:
         elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
         raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
                                           f"{rule.name!r}"), "density")
     for name in ("ratio", "count", "keep_class", "class_ratio"):
-        if o[name] is not None:
-            raise named(InvalidParameterError(f"give density or {name}, not both (got density={o['density']:g}, "
+        if d is not None and o[name] is not None:
+            raise named(InvalidParameterError(f"give density or {name}, not both (got density={d:g}, "
                                               f"{name}={o[name]})"), "density", name)
-    side = density_side(o)
-    if density_floor(o["density"], side) < 1:
+    if d is not None and density_floor(d, side) < 1:
         raise named(InvalidParameterError(f"density * density_cell^2 must be at least 1 point per area, got "
-                                          f"{o['density']:g} * {side:g}^2 = {o['density'] * side * side:g}"),
-                    "density", "density_cell")
-
-
-def density_side(o: Mapping[str, Any]) -> float:
-    """The side R of the areas of the density option (``density_cell``, default 10)."""
-    return DENSITY_CELL if o.get("density_cell") is None else float(o["density_cell"])
+                                          f"{d:g} * {side:g}^2 = {d * side * side:g}"), "density", "density_cell")
 
 
 def density_floor(density: float, side: float) -> int:
-    """Points an area of side *side* keeps at most at *density*: floor(D R^2), D R^2 rounded to 9 decimals first
-    (0.29 * 10^2 is 29, not 28.999...)."""
+    """Points an area of side *side* keeps at most at *density*: floor(D R^2), D R^2 rounded to 9 decimals
+    first (0.29 * 10^2 is 29, not 28.999...)."""
     return int(math.floor(round(float(density) * side * side, 9)))
 
 

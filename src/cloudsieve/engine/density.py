@@ -58,9 +58,10 @@ class DensityTarget:
     @classmethod
     def from_options(cls, opts: dict) -> "DensityTarget | None":
         """The target of validated *opts*, None without ``density``."""
-        from ..params import density_side
+        from ..params import DENSITY_CELL
 
-        return None if opts.get("density") is None else cls(opts["density"], density_side(opts))
+        side = DENSITY_CELL if opts.get("density_cell") is None else opts["density_cell"]
+        return None if opts.get("density") is None else cls(opts["density"], side)
 
     def target(self, counts: np.ndarray) -> int:
         """Points kept in all from the areas' points: min(points, F) summed."""
