@@ -66,9 +66,21 @@ def test_autzen_every_dense_area_at_its_floor(tmp_path):
     assert (d["floor"], d["side"], d["areas"]) == (30, 10.0, len(before))
     assert d["thinned"] == sum(n > 30 for n in before.values()) > 0
     assert summary.kept == sum(min(n, 30) for n in before.values()) < summary.points_in
-    assert d["after"]["max"] == 0.3 and d["before"]["max"] == max(before.values()) / 100.0
-    assert d["before"]["min"] == d["after"]["min"] == min(before.values()) / 100.0
-    assert d["after"]["median"] == float(np.median(np.minimum(list(before.values()), 30))) / 100.0
+    assert d["after"]["max"] == 0.3 and d["before"]["max"] == pytest.approx(max(before.values()) / 100.0)
+    assert d["before"]["min"] == d["after"]["min"] == pytest.approx(min(before.values()) / 100.0)
+    assert d["after"]["median"] == pytest.approx(float(np.median(np.minimum(list(before.values()), 30))) / 100.0)
+
+
+@pytest.mark.parametrize("name", ["append-bug.laz", "vegetation_1_3.las"])
+def test_four_points_per_square_metre_in_10_m_areas(tmp_path, name):
+    """The issue's goal on the shared scans in metres: at most 4 pts/m^2 in every 10 m x 10 m area that had more
+    (exactly 400 points), the areas that had fewer untouched."""
+    src = shared_file(name)
+    dst = tmp_path / ("out" + (".las" if name.endswith(".las") else ".laz"))
+    summary = cloudsieve.simplify(src, dst, density=4)
+    before = check_density(src, [dst], 4.0, 10.0)
+    assert summary.density["thinned"] == sum(n > 400 for n in before.values()) > 0
+    assert summary.density["after"]["max"] == 4.0 < summary.density["before"]["max"]
 
 
 def test_synthetic_dense_and_sparse_halves(tmp_path):

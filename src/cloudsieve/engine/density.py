@@ -77,7 +77,7 @@ class DensityTarget:
         def stats(counts):
             d = np.asarray(counts, dtype=np.float64) / area
             q = np.percentile(d, [0, 50, 95, 100]) if len(d) else np.zeros(4)
-            return dict(zip(("min", "median", "p95", "max"), (float(v) for v in q)))
+            return dict(zip(("min", "median", "p95", "max"), (round(float(v), 9) for v in q)))
 
         return {"density": self.density, "side": self.side, "floor": self.floor, "areas": int(len(n0)),
                 "thinned": int((np.asarray(n0) > self.floor).sum()), "before": stats(n0), "after": stats(n1)}
