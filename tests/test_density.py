@@ -142,6 +142,31 @@ def test_cli_json_summary(tmp_path, capsys):
     assert got["density"]["after"]["max"] <= 2.0 and got["kept"] == sum(min(n, 50) for n in before.values())
 
 
+def test_density_3d_per_cube(tmp_path):
+    """--density-3d on bun_zipper: every cube of side 0.01 that held more than 20 points holds 20, the others all
+    theirs; the same points in memory and out of core (2 workers)."""
+    from cloudsieve import read_cloud
+
+    src = shared_file("bun_zipper.ply")
+    opts = {"density": 2e7, "density_cell": 0.01, "density_3d": True, "cell_size": 10_000}
+    summary = cloudsieve.simplify(src, tmp_path / "mem.ply", **opts)
+    again = cloudsieve.simplify(src, tmp_path / "st.ply", store=tmp_path / "w.zarr", workers=2, **opts)
+    assert (tmp_path / "mem.ply").read_bytes() == (tmp_path / "st.ply").read_bytes()
+    xyz, _ = read_cloud(str(src))
+    out, _ = read_cloud(str(tmp_path / "mem.ply"))
+
+    def cubes(p) -> dict:
+        ijk, n = np.unique(np.floor(np.asarray(p, dtype=np.float64) / 0.01).astype(np.int64), axis=0,
+                           return_counts=True)
+        return {tuple(k): int(m) for k, m in zip(ijk.tolist(), n.tolist())}
+
+    before, after = cubes(xyz), cubes(out)
+    assert after == {k: min(n, 20) for k, n in before.items() if min(n, 20)}
+    assert summary.density["dims"] == 3 and summary.density["thinned"] == sum(n > 20 for n in before.values()) > 0
+    assert summary.kept == again.kept == sum(min(n, 20) for n in before.values())
+    assert set(map(tuple, np.asarray(out).tolist())) <= set(map(tuple, np.asarray(xyz).tolist()))
+
+
 @pytest.mark.parametrize("args, message", [
     (["--density", "4", "--ratio", "0.5"], "give --density or --ratio, not both (got density=4, ratio=0.5)"),
     (["--density", "4", "--count", "10"], "give --density or --count, not both (got density=4, count=10)"),
@@ -155,6 +180,9 @@ def test_cli_json_summary(tmp_path, capsys):
     (["--density", "0.001"],
      "--density * --density-cell^2 must be at least 1 point per area, got 0.001 * 10^2 = 0.1"),
     (["--density", "0"], "--density must be a finite number > 0, got 0.0"),
+    (["--density-3d", "--ratio", "0.5"], "--density-3d counts --density per cubic unit: give --density too"),
+    (["--density", "0.0005", "--density-3d"],
+     "--density * --density-cell^3 must be at least 1 point per cube, got 0.0005 * 10^3 = 0.5"),
     (["--density", "4", "--density-cell", "-1"], "--density-cell must be a finite number > 0, got -1.0"),
 ])
 def test_bad_density_exit_2(tmp_path, capsys, args, message):

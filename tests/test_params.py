@@ -88,6 +88,8 @@ def context(command: str, name: str, value) -> dict:
         return {}
     if name == "density_cell" and value is not None:  # the areas of density
         return {"density": 100.0}
+    if name == "density_3d" and value:  # density per cubic unit
+        return {"density": 1.0}
     return {"rule": "iterative"}
 
 

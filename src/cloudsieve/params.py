@@ -294,15 +294,20 @@ def _density(o: dict) -> None:
         if d is not None and o[name] is not None:
             raise named(InvalidParameterError(f"give density or {name}, not both (got density={d:g}, "
                                               f"{name}={o[name]})"), "density", name)
-    if d is not None and density_floor(d, side) < 1:
-        raise named(InvalidParameterError(f"density * density_cell^2 must be at least 1 point per area, got "
-                                          f"{d:g} * {side:g}^2 = {d * side * side:g}"), "density", "density_cell")
+    dims = 3 if o["density_3d"] else 2
+    if d is None and o["density_3d"]:
+        raise named(InvalidParameterError("density_3d counts density per cubic unit: give density too"),
+                    "density_3d", "density")
+    if d is not None and density_floor(d, side, dims) < 1:
+        raise named(InvalidParameterError(f"density * density_cell^{dims} must be at least 1 point per "
+                                          f"{'cube' if dims == 3 else 'area'}, got {d:g} * {side:g}^{dims} = "
+                                          f"{d * side ** dims:g}"), "density", "density_cell")
 
 
-def density_floor(density: float, side: float) -> int:
-    """Points an area of side *side* keeps at most at *density*: floor(D R^2), D R^2 rounded to 9 decimals
-    first (0.29 * 10^2 is 29, not 28.999...)."""
-    return int(math.floor(round(float(density) * side * side, 9)))
+def density_floor(density: float, side: float, dims: int = 2) -> int:
+    """Points an area (*dims* 3: a cube) of side *side* keeps at most at *density*: floor(D R^dims), D R^dims
+    rounded to 9 decimals first (0.29 * 10^2 is 29, not 28.999...)."""
+    return int(math.floor(round(float(density) * float(side) ** dims, 9)))
 
 
 def _simplify(o: dict) -> None:
@@ -403,7 +408,8 @@ def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
     if options.get("keep_duplicates"):
         record["keep_duplicates"] = True
-    for name in ("keep_class", "class_ratio", "density", "density_cell"):  # only when given: a run without them records what it did
-        if options.get(name) is not None:
+    # only when given: a run without them records what it did
+    for name in ("keep_class", "class_ratio", "density", "density_cell", "density_3d"):
+        if options.get(name) not in (None, False):
             record[name] = options[name]
     return record

@@ -123,6 +123,8 @@ _OPTIONS = [
            "the others stay whole (rule eliminate)", low=0.0, low_open=True, metavar="D"),
     Option("density_cell", FLOAT, None, "the side R of the square areas of --density, in CRS units, on a grid "
            "anchored at 0 (default 10)", low=0.0, low_open=True, metavar="R"),
+    Option("density_3d", BOOL, False, "--density counts points per cubic unit in R x R x R cubes (objects), "
+           "an area being a cube: floor(D*R^3) points each"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
@@ -241,7 +243,7 @@ def _memory(*names: str) -> dict[str, Option]:
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "density", "density_cell",
-        "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
+        "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
         "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(

@@ -169,7 +169,7 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
 
 def density_params(density) -> dict:
     """The cells stage's parameters of a :class:`~.density.DensityTarget`: the areas' side and floor."""
-    return {"density_cell": density.side, "density_floor": density.floor}
+    return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
 
 
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
@@ -192,7 +192,7 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
         if task.params.get("density_cell"):  # the density target: the cell's points per area
             from .density import cell_areas
 
-            areas = cell_areas(core, float(task.params["density_cell"]))
+            areas = cell_areas(core, float(task.params["density_cell"]), int(task.params["density_dims"]))
         sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
                                            task.margin, task_threads(task), ladder=task.params["ladder"])
         row, copies = np.r_[float(distinct), sizes], len(core) - distinct

@@ -24,10 +24,24 @@ __all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "cell_areas", 
 _SHIFT = 32
 
 
-def area_keys(xyz: np.ndarray, side: float) -> np.ndarray:
-    """Each point's area (n,) int64: floor(x / side) * 2^32 + floor(y / side); keys sort as (column, row)."""
-    xy = np.floor(np.asarray(xyz)[:, :2] / float(side)).astype(np.int64)
-    return (xy[:, 0] << _SHIFT) + xy[:, 1]
+#: a cube's column, row and layer are shifted by 2^20 and packed in 21 bits each
+_BITS, _BIAS = 21, 1 << 20
+
+
+def area_keys(xyz: np.ndarray, side: float, dims: int = 2) -> np.ndarray:
+    """Each point's area (n,) int64: floor(x / side) * 2^32 + floor(y / side); keys sort as (column, row).
+    With *dims* 3 its cube: column, row and layer (floor(z / side)) + 2^20 in 21 bits each; InputFormatError
+    for a cube 2^20 or more from the origin on an axis."""
+    ij = np.floor(np.asarray(xyz)[:, :dims] / float(side)).astype(np.int64)
+    if dims == 2:
+        return (ij[:, 0] << _SHIFT) + ij[:, 1]
+    if len(ij) and (int(ij.min()) < -_BIAS or int(ij.max()) >= _BIAS):
+        from ..errors import InputFormatError
+
+        raise InputFormatError(f"density_3d: cubes of side {side:g} reach {int(np.abs(ij).max()):,} cubes from "
+                               f"the origin on an axis, more than {_BIAS:,}: use a larger density_cell")
+    ij += _BIAS
+    return (ij[:, 0] << 2 * _BITS) + (ij[:, 1] << _BITS) + ij[:, 2]
 
 
 def area_counts(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -47,13 +61,14 @@ def merge_counts(parts) -> tuple[np.ndarray, np.ndarray]:
 
 
 class DensityTarget:
-    """*density* D points per square unit in areas of side *side*: ``floor`` F = floor(D R^2) per area."""
+    """*density* D points per square unit in areas of side *side*: ``floor`` F = floor(D R^2) per area; with
+    *dims* 3 per cubic unit in cubes, F = floor(D R^3)."""
 
-    def __init__(self, density: float, side: float) -> None:
+    def __init__(self, density: float, side: float, dims: int = 2) -> None:
         from ..params import density_floor
 
-        self.density, self.side = float(density), float(side)
-        self.floor = density_floor(self.density, self.side)
+        self.density, self.side, self.dims = float(density), float(side), int(dims)
+        self.floor = density_floor(self.density, self.side, self.dims)
 
     @classmethod
     def from_options(cls, opts: dict) -> "DensityTarget | None":
@@ -61,7 +76,8 @@ class DensityTarget:
         from ..params import DENSITY_CELL
 
         side = DENSITY_CELL if opts.get("density_cell") is None else opts["density_cell"]
-        return None if opts.get("density") is None else cls(opts["density"], side)
+        dims = 3 if opts.get("density_3d") else 2
+        return None if opts.get("density") is None else cls(opts["density"], side, dims)
 
     def target(self, counts: np.ndarray) -> int:
         """Points kept in all from the areas' points: min(points, F) summed."""
@@ -70,7 +86,7 @@ class DensityTarget:
     def report(self, before: tuple, after: tuple) -> dict:
         """The summary's ``density``: the areas' points per square unit, min/median/p95/max over the areas holding
         points, before and after; areas and areas thinned; ``floor`` and ``side``."""
-        area = self.side * self.side
+        area = self.side ** self.dims
         _, n0 = before
         _, n1 = after
 
@@ -79,13 +95,14 @@ class DensityTarget:
             q = np.percentile(d, [0, 50, 95, 100]) if len(d) else np.zeros(4)
             return dict(zip(("min", "median", "p95", "max"), (round(float(v), 9) for v in q)))
 
-        return {"density": self.density, "side": self.side, "floor": self.floor, "areas": int(len(n0)),
+        return {"density": self.density, "side": self.side, "dims": self.dims, "floor": self.floor,
+                "areas": int(len(n0)),
                 "thinned": int((np.asarray(n0) > self.floor).sum()), "before": stats(n0), "after": stats(n1)}
 
 
-def cell_areas(core: np.ndarray, side: float) -> tuple[np.ndarray, np.ndarray]:
+def cell_areas(core: np.ndarray, side: float, dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
     """A cell's areas (sorted keys) and their points: what its share task returns."""
-    return area_counts(area_keys(core, side))
+    return area_counts(area_keys(core, side, dims))
 
 
 def area_quotas(per_cell: list, floor: int) -> list[np.ndarray]:
@@ -122,17 +139,23 @@ def area_quotas(per_cell: list, floor: int) -> list[np.ndarray]:
 class Sorted:
     """Points by area key (:func:`area_keys`)."""
 
-    def __init__(self, keys: np.ndarray) -> None:
+    def __init__(self, keys: np.ndarray, dims: int = 2) -> None:
         self.order = np.argsort(keys, kind="stable")
-        self.keys = keys[self.order]
+        self.keys, self.dims = keys[self.order], dims
 
     def rows(self, key: int, reach: int) -> np.ndarray:
-        """The rows (ascending) of the points in the areas at most *reach* columns and rows from area *key*."""
-        col = int(key) >> _SHIFT
-        row = int(key) - (col << _SHIFT)
-        cols = np.arange(col - reach, col + reach + 1, dtype=np.int64) << _SHIFT
-        starts = np.searchsorted(self.keys, cols + row - reach, "left")
-        ends = np.searchsorted(self.keys, cols + row + reach, "right")
+        """The rows (ascending) of the points in the areas (cubes) at most *reach* steps from area *key* on
+        each axis."""
+        steps = np.arange(-reach, reach + 1, dtype=np.int64)
+        if self.dims == 2:
+            col = int(key) >> _SHIFT
+            last = int(key) - (col << _SHIFT)
+            firsts = (col + steps) << _SHIFT
+        else:  # each (column, row) around: a range of layers
+            col, row, last = int(key) >> 2 * _BITS, (int(key) >> _BITS) & (_BIAS * 2 - 1), int(key) & (_BIAS * 2 - 1)
+            firsts = (((col + steps)[:, None] << 2 * _BITS) + ((row + steps)[None, :] << _BITS)).ravel()
+        starts = np.searchsorted(self.keys, firsts + last - reach, "left")
+        ends = np.searchsorted(self.keys, firsts + last + reach, "right")
         parts = [self.order[s:e] for s, e in zip(starts, ends) if e > s]
         return np.sort(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
 
@@ -147,7 +170,8 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     from .cell_work import task_threads, cell_keep
 
     side, r_max = float(task.params["density_cell"]), float(task.params["r_max"])
-    keys = area_keys(core, side)
+    dims = int(task.params.get("density_dims") or 2)
+    keys = area_keys(core, side, dims)
     uniq, inv = np.unique(keys, return_inverse=True)
     quotas = np.asarray(quotas, dtype=np.int64)
     sizes = np.bincount(inv, minlength=len(uniq))
@@ -162,21 +186,21 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
         src = np.array(sorted(task.halo), dtype=np.int64)
         start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
         hkeep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
-    hkeys = area_keys(points, side) if len(points) else np.zeros(0, dtype=np.int64)
+    hkeys = area_keys(points, side, dims) if len(points) else np.zeros(0, dtype=np.int64)
     margin = HALO_RADII * r_max if np.isfinite(r_max) else 0.0
     reach = int(np.ceil(margin / side))  # areas of context on each side
-    cells_by_area, halo_by_area = Sorted(keys), Sorted(hkeys)
+    cells_by_area, halo_by_area = Sorted(keys, dims), Sorted(hkeys, dims)
     for a in dense:
         own = cells_by_area.rows(uniq[a], 0)
         if quotas[a] == 0:
             keep[own] = False
             continue
         mine = core[own]
-        lo, hi = mine[:, :2].min(axis=0) - margin, mine[:, :2].max(axis=0) + margin
+        lo, hi = mine[:, :dims].min(axis=0) - margin, mine[:, :dims].max(axis=0) + margin
         near = cells_by_area.rows(uniq[a], reach)
-        near = near[(keys[near] != uniq[a]) & np.all((core[near, :2] >= lo) & (core[near, :2] <= hi), axis=1)]
+        near = near[(keys[near] != uniq[a]) & np.all((core[near, :dims] >= lo) & (core[near, :dims] <= hi), axis=1)]
         h = halo_by_area.rows(uniq[a], reach)
-        h = h[np.all((points[h, :2] >= lo) & (points[h, :2] <= hi), axis=1)]
+        h = h[np.all((points[h, :dims] >= lo) & (points[h, :dims] <= hi), axis=1)]
         along = ~fixed[h] & (hkeys[h] == uniq[a])  # eliminated along
         halo = (np.concatenate([core[near], points[h]]), np.r_[np.ones(len(near), dtype=bool), ~along],
                 np.r_[keep[near], hkeep[h] & ~along])
@@ -185,7 +209,7 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     return keep
 
 
-def area_counts_task(store_path: str, start: int, stop: int, side: float, mask: str | None) -> tuple:
+def area_counts_task(store_path: str, start: int, stop: int, side: float, dims: int, mask: str | None) -> tuple:
     """Task: the areas (sorted keys) of ``[start, stop)`` and their points, only those of *mask* when given."""
     from ..store import PointStore
 
@@ -193,11 +217,11 @@ def area_counts_task(store_path: str, start: int, stop: int, side: float, mask: 
     xyz = st.decode_xyz(np.asarray(st.array("xyz")[start:stop]))
     if mask is not None:
         xyz = xyz[np.asarray(st.group[mask][start:stop], dtype=bool)]
-    return area_counts(area_keys(xyz, side))
+    return area_counts(area_keys(xyz, side, dims))
 
 
-def run_area_counts(store, runner, side: float, mask: str | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The areas of *store* (of *mask*'s points when given) and their points, a task per chunk."""
+def run_area_counts(store, runner, density: DensityTarget, mask: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The areas of *density* in *store* (of *mask*'s points when given) and their points, a task per chunk."""
     n, step = store.count, store.chunk_size
-    args = [(store.path, s, min(s + step, n), float(side), mask) for s in range(0, n, step)]
+    args = [(store.path, s, min(s + step, n), density.side, density.dims, mask) for s in range(0, n, step)]
     return merge_counts(runner(area_counts_task, args, "density: areas"))

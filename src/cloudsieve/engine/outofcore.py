@@ -98,7 +98,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 target = policy.asked(classes)
             density = DensityTarget.from_options(opts)
             if density is not None:  # r_max for all the points kept
-                before = run_area_counts(st, runner, density.side)
+                before = run_area_counts(st, runner, density)
                 target = density.target(before[1])
             elim = target if get_rule(rule).engine == ELIMINATION else None
             halo = bool(context) or elim is not None
@@ -151,7 +151,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             if policy is not None:
                 summary.classes = policy.report(classes, run_class_counts(st, runner, "simplify/keep"))
             if density is not None:
-                summary.density = density.report(before, run_area_counts(st, runner, density.side, "simplify/keep"))
+                summary.density = density.report(before, run_area_counts(st, runner, density, "simplify/keep"))
             account(summary)
             progress(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0

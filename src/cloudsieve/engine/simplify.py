@@ -45,6 +45,7 @@ def simplify(
     class_ratio=None,
     density: float | None = None,
     density_cell: float | None = None,
+    density_3d: bool = False,
     cluster_size: int = 400,
     cell_size: int = 200_000,
     scheduler: str | None = None,
@@ -111,6 +112,9 @@ def simplify(
         holding more than floor(D R^2) points keeps exactly that many, the
         others keep all theirs. The summary's ``density`` states the points
         per square unit of the areas before and after.
+    density_3d : bool
+        *density* per cubic unit in cubes of side *density_cell* (objects):
+        floor(D R^3) points per cube.
     cluster_size : int
         Points per small cluster (c = ceil(n / cluster_size) per cell), >= ``k_min + 2``.
     cell_size : int
@@ -193,6 +197,7 @@ def simplify(
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
         "keep_class": keep_class, "class_ratio": class_ratio, "density": density, "density_cell": density_cell,
+        "density_3d": density_3d,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,

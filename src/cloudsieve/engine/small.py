@@ -109,7 +109,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             if density is None:
                 target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
             else:  # r_max for all the points kept
-                areas = area_keys(xyz, density.side)
+                areas = area_keys(xyz, density.side, density.dims)
                 before = area_counts(areas)
                 target = density.target(before[1])
             policy = ClassPolicy.from_options(opts)

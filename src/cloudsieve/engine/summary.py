@@ -131,10 +131,11 @@ class Summary:
                       f"({100.0 * c['ratio']:.2f}%)" for c in s.classes["classes"]]
         if s.density is not None:
             d = s.density
-            lines.append(f"density       {d['thinned']:>14,}  of {d['areas']:,} areas of {d['side']:g} x {d['side']:g} "
-                         f"thinned to {d['floor']:,} points (at most {d['density']:g} per square unit)")
+            cube, unit = ("cubes", "cubic") if d["dims"] == 3 else ("areas", "square")
+            lines.append(f"density       {d['thinned']:>14,}  of {d['areas']:,} {cube} of side {d['side']:g} "
+                         f"thinned to {d['floor']:,} points (at most {d['density']:g} per {unit} unit)")
             lines += [f"  {when:<11} min {d[when]['min']:.3g}, median {d[when]['median']:.3g}, 95th "
-                      f"{d[when]['p95']:.3g}, max {d[when]['max']:.3g} points per square unit"
+                      f"{d[when]['p95']:.3g}, max {d[when]['max']:.3g} points per {unit} unit"
                       for when in ("before", "after")]
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
