@@ -243,8 +243,8 @@ def _memory(*names: str) -> dict[str, Option]:
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
         "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "density", "density_cell",
-        "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite", "chunk_size",
-        "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
+        "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context",
+        "seed", "resume", "overwrite", "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",

@@ -243,8 +243,8 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     ``runner(func, args, stage, after=None)``, results in order, ``after[i]``
     the calls call i waits for, and ``runner.task_threads``; *target*: points
     kept in all. With ``params["density_cell"]`` (:mod:`.density`) every cell
-    is scored again (its areas are not stored) and gets a quota per area. Returns (cells applied, cells found done, points scored,
-    distinct points).
+    is scored again (its areas are not stored) and gets a quota per area.
+    Returns (cells applied, cells found done, points scored, distinct points).
     """
     from ..core.colours import apply_order, cell_colours, readers
     from .celltasks import cell_tasks, largest_first

@@ -157,7 +157,7 @@ class Sorted:
         starts = np.searchsorted(self.keys, firsts + last - reach, "left")
         ends = np.searchsorted(self.keys, firsts + last + reach, "right")
         parts = [self.order[s:e] for s, e in zip(starts, ends) if e > s]
-        return np.sort(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)
+        return np.unique(np.concatenate(parts)) if parts else np.zeros(0, dtype=np.int64)  # ranges may meet at an edge
 
 
 def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarray:
