@@ -16,7 +16,9 @@ one row per method), gathered into one table, one row per method (dB, peak
 neighbours, every point of these scans). ``eliminate``'s row also gives its
 ratios to the best baseline of its scan and share, each figure's best on
 its own: point max x (least max), RMS x (least RMS), D1 - best (dB, most
-D1). Default scans: every real scan of ../shared/data of at least 10,000
+D1), and the gap bound: the points ``--max-gap D`` adds back to the rule's
+count for D = the best baseline's point max (``cloudsieve.simplify(...,
+max_gap=D)``, in memory; the count becomes at least c). Default scans: every real scan of ../shared/data of at least 10,000
 points.
 
 For each real scan (default: bun_zipper.ply, maxplanck.ply, autzen_trim.laz in
@@ -147,6 +149,17 @@ def best_baseline(rows: dict) -> dict:
             "d1_psnr": max(r["d1_psnr"] for r in base)}
 
 
+def gap_bound_added(path: Path, ratio: float, gap: float) -> int:
+    """The points ``--max-gap gap`` adds back to ``eliminate`` at *ratio* on *path* (the summary's count)."""
+    import tempfile
+
+    import cloudsieve
+
+    ext = ".las" if path.suffix in (".las", ".laz") else ".ply"
+    with tempfile.TemporaryDirectory() as tmp:
+        return int(cloudsieve.simplify(path, Path(tmp) / f"out{ext}", ratio=ratio, max_gap=gap).gap["filled"])
+
+
 def psnr_table(files, ratios) -> str:
     """One row per scan, kept share and method: forward D1 / D2 PSNR, point RMS and max, eliminate's ratios."""
     import os
@@ -154,10 +167,12 @@ def psnr_table(files, ratios) -> str:
     from cloudsieve.evaluate import compare
 
     rows = ["| scan | points | kept | method | kept points | D1 PSNR | D2 PSNR | point RMS % | point max % | "
-            "max x best | RMS x best | D1 - best (dB) | load average |",
-            "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
+            "max x best | RMS x best | D1 - best (dB) | gap bound: added at best max | load average |",
+            "|---|---:|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|"]
     for name in files:
         path = Path(name) if Path(name).is_file() else DATA / name
+        pts = read_points(path)
+        diag = float(np.linalg.norm(pts.max(0) - pts.min(0)))
         for ratio in ratios:
             res = compare(str(path), methods=("km", "voxel", "poisson", "fps"), ratio=ratio, surface=False)
             by = {r["method"]: r for r in res["rows"]}
@@ -167,13 +182,14 @@ def psnr_table(files, ratios) -> str:
                 r = by.get(m)
                 head = f"| {path.name} | {res['points']:,} | {100 * ratio:.0f}% ({res['count']:,}) | {m} |"
                 if r is None or "error" in r:
-                    rows.append(head + f" - | {r['error'] if r else 'not run'} | | | | | | | {la} |")
+                    rows.append(head + f" - | {r['error'] if r else 'not run'} | | | | | | | | {la} |")
                     continue
-                vs = " | | |"
+                vs = " | | | |"
                 if m == "eliminate" and best:
+                    added = gap_bound_added(path, ratio, best["point_max_pct"] * diag / 100)
                     vs = (f" {r['point_max_pct'] / best['point_max_pct']:.3f} |"
                           f" {r['point_rms_pct'] / best['point_rms_pct']:.3f} |"
-                          f" {r['d1_psnr'] - best['d1_psnr']:+.2f} |")
+                          f" {r['d1_psnr'] - best['d1_psnr']:+.2f} | {added:,} ({100 * added / r['kept']:.2f}%) |")
                 rows.append(head + f" {r['kept']:,} | {r['d1_psnr']:.2f} | {r['d2_psnr']:.2f} | "
                             f"{r['point_rms_pct']:.4f} | {r['point_max_pct']:.3f} |" + vs + f" {la} |")
             print("\n".join(rows[-len(PSNR_METHODS):]), file=sys.stderr, flush=True)

@@ -172,6 +172,8 @@ def test_density_3d_per_cube(tmp_path):
     (["--density", "4", "--count", "10"], "give --density or --count, not both (got density=4, count=10)"),
     (["--density", "4", "--keep-class", "2"],
      "give --density or --keep-class, not both (got density=4, keep_class=[2])"),
+    (["--density", "4", "--max-gap", "2"], "give --density or --max-gap, not both (got density=4, max_gap=2.0)"),
+    (["--density", "4", "--rank"], "give --density or --rank, not both (got density=4, rank=True)"),
     (["--density", "4", "--rule", "iterative"],
      "--density is an option of rule 'eliminate' only, not of rule 'iterative'"),
     (["--density", "4", "--rule", "target"], "--density is an option of rule 'eliminate' only, not of rule 'target'"),

@@ -72,7 +72,8 @@ def context(command: str, name: str, value) -> dict:
 
     simplify and compare need a rule that can run: the default, eliminate,
     needs a ratio or a count, so the other options are walked with the
-    paper's rule iterative (which needs neither).
+    paper's rule iterative (which needs neither); rank and max_gap, eliminate's
+    only, with a ratio.
     """
     if command == "simplify" and name == "rule" and (value is None or value in params.TARGET_RULES):
         return {"ratio": 0.5}
@@ -82,7 +83,8 @@ def context(command: str, name: str, value) -> dict:
         return {}
     if name in ("ratio", "count", "threshold") and value is not None:
         return {}
-    if name in ("keep_class", "class_ratio"):  # options of the eliminate rule
+    if name in ("keep_class", "class_ratio") or (name == "rank" and value is True) or (
+            name == "max_gap" and value is not None):  # the eliminate rule's
         return {"ratio": 0.5}
     if name == "density" and value is not None:  # instead of a ratio: the default rule
         return {}

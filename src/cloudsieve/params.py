@@ -83,6 +83,21 @@ def _number(option: Option, value: Any) -> float | int:
     return value
 
 
+def _numbers(option: Option, value: Any) -> float | int | tuple:
+    """A number, or a list of them in decreasing order (a tuple of two or more; one value: that number)."""
+    if not isinstance(value, (list, tuple)):
+        return _number(option, value)
+    if not value:
+        raise _refuse(option, value)
+    values = [_number(option, v) for v in value]
+    twice = sorted({v for v in values if values.count(v) > 1})
+    if twice:
+        raise named(InvalidParameterError(f"{option.name} lists {twice[0]:g} more than once: each output needs its "
+                                          f"own {option.name}"), option.name)
+    values.sort(reverse=True)  # each output a subset of the one before
+    return values[0] if len(values) == 1 else tuple(values)
+
+
 def _scheduler(option: Option, value: Any) -> str:
     if not isinstance(value, str):
         raise _refuse(option, value)
@@ -202,7 +217,7 @@ def check(option: Option | str, value: Any) -> Any:
         return None
     kind = option.kind
     if kind in (INT, FLOAT):
-        return _number(option, value)
+        return _numbers(option, value) if option.many else _number(option, value)
     if kind == BOOL:
         if not isinstance(value, (bool, np.bool_)):
             raise _refuse(option, value)
@@ -279,8 +294,8 @@ def _class_policy(o: dict) -> None:
 
 
 def _density(o: dict) -> None:
-    """density (with density_cell): of the elimination rule only, instead of ratio/count and the class policies;
-    an area keeps at least one point."""
+    """density (with density_cell): of the elimination rule only, instead of ratio/count, the class policies, the
+    gap bound and the ranks; an area keeps at least one point."""
     d, side = o["density"], DENSITY_CELL if o["density_cell"] is None else o["density_cell"]
     if d is None and o["density_cell"] is not None:
         raise named(InvalidParameterError("density_cell is the side of the areas of density: give density too (got "
@@ -290,8 +305,8 @@ def _density(o: dict) -> None:
         elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
         raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
                                           f"{rule.name!r}"), "density")
-    for name in ("ratio", "count", "keep_class", "class_ratio"):
-        if d is not None and o[name] is not None:
+    for name in ("ratio", "count", "keep_class", "class_ratio", "max_gap", "rank"):
+        if d is not None and o[name] not in (None, False):
             raise named(InvalidParameterError(f"give density or {name}, not both (got density={d:g}, "
                                               f"{name}={o[name]})"), "density", name)
     dims = 3 if o["density_3d"] else 2
@@ -313,6 +328,19 @@ def density_floor(density: float, side: float, dims: int = 2) -> int:
 def _simplify(o: dict) -> None:
     _density(o)
     _rule_target(o)
+    listed = next((name for name in ("ratio", "count") if isinstance(o[name], tuple)), None)
+    if listed and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"a list of {listed}s (nested outputs) needs the rule "
+                                          f"{rules.DEFAULT_RULE!r}, not {o['rule']!r}"), listed)
+    policy = next((name for name in ("keep_class", "class_ratio", "max_gap") if o[name] is not None), None)
+    if listed and policy:  # a later output would count (or bound) against the output before, not the input
+        raise named(InvalidParameterError(f"a list of {listed}s (nested outputs) does not take {policy}: run one "
+                                          f"{listed} at a time"), listed, policy)
+    if o["rank"] and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"rank needs the rule {rules.DEFAULT_RULE!r}, not {o['rule']!r}"), "rank")
+    if o["max_gap"] is not None and rules.get(o["rule"]).engine != rules.ELIMINATION:
+        raise named(InvalidParameterError(f"max_gap needs the rule eliminate (the default), not rule "
+                                          f"{o['rule']!r}"), "max_gap")
     _cluster_size(o)
     _class_policy(o)
     if o["cell_size"] < o["cluster_size"]:
@@ -358,6 +386,10 @@ def validate(command: str, values: Mapping[str, Any], *, caller: str | None = No
     if unknown:
         raise InvalidParameterError(f"{command}: unknown option(s) {unknown}; accepted: {sorted(spec)}")
     out = {name: check(opt, values.get(name, opt.default)) for name, opt in spec.items()}
+    many = [name for name, opt in spec.items() if opt.many and isinstance(out[name], tuple)]
+    if many and command != "simplify":
+        raise named(InvalidParameterError(f"{many[0]} takes one value here, got {values[many[0]]!r} (a list writes "
+                                          f"nested outputs, in cloudsieve.simplify)"), many[0])
     if command in _CROSS:
         if "ratio" in out:
             _target(out)
@@ -401,13 +433,15 @@ def validate_params(command: str) -> Callable[[Callable], Callable]:
 
 def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
     """The options that define a simplification, as its work store records them (resume compares them).
-    halo_context is recorded as ``"context"`` and keep_duplicates only when True, so version-1 work stores still
-    resume."""
+    halo_context is recorded as ``"context"``, keep_duplicates only when True and max_gap only when given, so
+    version-1 work stores still resume."""
     keys = ("method", "rule", "threshold", "ratio", "count", "cluster_size", "cell_size", "seed")
     record = {k: options[k] for k in keys}
     record.update(context=options["halo_context"], k0=options["k0"], k_min=options["k_min"])
     if options.get("keep_duplicates"):
         record["keep_duplicates"] = True
+    if options.get("max_gap") is not None:
+        record["max_gap"] = options["max_gap"]
     # only when given: a run without them records what it did
     for name in ("keep_class", "class_ratio", "density", "density_cell", "density_3d"):
         if options.get(name) not in (None, False):

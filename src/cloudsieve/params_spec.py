@@ -57,7 +57,8 @@ class Option:
     (``int``, ``float``, ``bool``, ``choice``, ``choices`` (a list or comma-separated), ``format`` (any
     case, dot optional), ``text``, ``path``, ``size`` (bytes or "2GB"), ``scheduler``); ``default`` (None:
     optional); ``help`` (one ``--help`` line describing the flag: ``--no-NAME`` for a bool defaulting to
-    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (other flags); ``metavar``.
+    True); ``low``, ``high``, ``low_open`` (range); ``choices``; ``aliases`` (other flags); ``metavar``;
+    ``many`` (a number option that also takes a comma-separated list).
     """
 
     name: str
@@ -70,6 +71,7 @@ class Option:
     choices: tuple[str, ...] = ()
     aliases: tuple[str, ...] = ()
     metavar: str | None = None
+    many: bool = False  # a number or a comma-separated list of them (simplify's nested outputs)
 
     @property
     def flag(self) -> str:
@@ -110,14 +112,25 @@ _OPTIONS = [
            f"{rules.PAPER_THRESHOLD:g} with those rules); given alone, it selects the {rules.THRESHOLD_RULE} rule",
            low=0.0, metavar="S"),
     Option("ratio", FLOAT, None, "keep this share of the points, 0 < R <= 1, within 1% (exactly with --rule "
-           "eliminate)", low=0.0, low_open=True,
-           high=1.0, metavar="R"),
-    Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate)", low=1, metavar="N"),
+           "eliminate); simplify: a list 0.5,0.2,0.1 writes nested outputs DST-0.5, DST-0.2, DST-0.1 (or DST's "
+           "{ratio} replaced) in one run, each a subset of the one before", low=0.0, low_open=True, high=1.0,
+           metavar="R", many=True),
+    Option("count", INT, None, "keep this many points, within 1% (exactly with --rule eliminate); simplify: a list "
+           "writes nested outputs as a list of ratios does (DST-N, or DST's {count} replaced)", low=1, metavar="N",
+           many=True),
+    Option("rank", BOOL, False, "store each point's rank as the extra dimension cloudsieve_rank (uint64, 0 = the "
+           "most important): the first N ranks are the N points to keep, cut later by export's keep-rank option; "
+           "LAS/LAZ out, held in memory"),
+    Option("keep_rank", INT, None, "write only the points of rank < N of a LAS/LAZ file that simplify wrote with "
+           "its rank option (its cloudsieve_rank dimension)", low=0, metavar="N"),
     Option("keep_class", CLASSES, None, "keep every point of these LAS classes whole, e.g. 2,9 (exact records; "
            "they stay context for the others' crowding); --ratio/--count then apply to the points not kept whole "
            "(rule eliminate)", metavar="CODES"),
     Option("class_ratio", CLASS_RATIOS, None, "a ratio per LAS class, e.g. 5=0.1,2=1.0 (1.0: kept whole), each "
            "class's count exact; the classes not listed are thinned together to --ratio/--count (rule eliminate)", metavar="CODE=R,..."),
+    Option("max_gap", FLOAT, None, "gap bound: no input point ends farther than D (CRS units, 3D) from the kept set; "
+           "points are added back after the elimination, so --ratio/--count become at least that many (rule "
+           "eliminate only)", low=0.0, low_open=True, metavar="D"),
     Option("density", FLOAT, None, "instead of --ratio/--count: at most D points per square unit of the horizontal "
            "plane (LAS CRS units) in every --density-cell area; an area holding more keeps exactly floor(D*R^2), "
            "the others stay whole (rule eliminate)", low=0.0, low_open=True, metavar="D"),
@@ -242,9 +255,10 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "keep_class", "class_ratio", "density", "density_cell",
-        "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context",
-        "seed", "resume", "overwrite", "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "storage_options",
+        "method", "rule", "threshold", "ratio", "count", "max_gap", "keep_class", "class_ratio", "density",
+        "density_cell", "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store",
+        "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates",
+        "tile_size", "rank", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",
@@ -256,7 +270,7 @@ COMMANDS: dict[str, dict[str, Option]] = {
         "storage_options", extra=(_RULE_LIST,)),
     "ingest": _command("chunk_size", "delimiter", "columns", "drop_invalid", "overwrite", "storage_options",
                        extra=(_INPUT_FORMAT,)),
-    "export": _command("mask", "chunk_size", "overwrite", "tile_size", "storage_options",
+    "export": _command("mask", "keep_rank", "chunk_size", "overwrite", "tile_size", "storage_options",
                        extra=(_OUTPUT_FORMAT,)),
     "info": _command("storage_options"),
     "pipeline": _command("scheduler", "workers", "storage_options"),  # a pipeline's top-level keys

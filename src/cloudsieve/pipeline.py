@@ -136,6 +136,8 @@ def _run_pipeline(pipeline: Pipeline, *, client: Any, progress: Any, bars: Any) 
                 opts.update(format=out_format, overwrite=overwrite, drop_invalid=drop_invalid)
                 entry["summary"] = run_simplify(src, dst, opts, client=client, bars=bars)
                 points = entry["summary"].points_in
+                if entry["summary"].outputs:  # nested outputs (a list of ratios): later stages read the first
+                    dst = entry["summary"].outputs[0]["destination"]
             entry["output"] = dst
         for i, stage in enumerate(pipeline.stages):
             if stage["type"] == "evaluate":  # on the options validated at load, as filters.entropy

@@ -16,7 +16,7 @@ from typing import Any
 from .. import params
 from ..errors import CloudsieveError
 
-__all__ = ["add_options", "option_values", "parse_int", "parse_float", "positive_int", "flag_wording", "cli_message"]
+__all__ = ["add_options", "option_values", "parse_int", "parse_float", "parse_numbers", "positive_int", "flag_wording", "cli_message"]
 
 
 def parse_int(text: str) -> int | float:
@@ -39,6 +39,19 @@ def parse_float(text: str) -> float:
         return float(text.replace("_", ""))
     except ValueError:
         raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+
+
+def parse_numbers(parse: Callable[[str], Any]) -> Callable[[str], Any]:
+    """argparse type of a number option that takes a list: ``0.5`` or ``0.5,0.2,0.1`` (a list of two or more)."""
+
+    def numbers(text: str) -> Any:
+        try:
+            values = [parse(item.strip()) for item in text.split(",")]
+        except argparse.ArgumentTypeError:
+            raise argparse.ArgumentTypeError(f"not a number or a comma-separated list of numbers: {text!r}") from None
+        return values[0] if len(values) == 1 else values
+
+    return numbers
 
 
 def positive_int(text: str) -> int:
@@ -78,7 +91,8 @@ def add_options(parser: argparse.ArgumentParser, command: str, names: Iterable[s
         metavar = opt.metavar
         if metavar is None and opt.kind in (params.CHOICE, params.FORMAT):
             metavar = "{" + ",".join(opt.choices) + "}"
-        parser.add_argument(*flags, dest=name, type=_TYPES.get(opt.kind, str), default=default,
+        kind = _TYPES.get(opt.kind, str)
+        parser.add_argument(*flags, dest=name, type=parse_numbers(kind) if opt.many else kind, default=default,
                             metavar=metavar or name.upper(), help=text.replace("%", "%%"))
 
 

@@ -18,10 +18,12 @@ def add_parser(subparsers: argparse._SubParsersAction) -> None:
             "Write the points of STORE to DST (format by extension or --format) in chunks, with "
             "every attribute and, for LAS sources, the original header (counts and bounds "
             "updated). With --mask, only the points a bool array of the store keeps (e.g. "
-            "simplify/keep). Written under a temporary name and renamed when complete."
+            "simplify/keep). With --keep-rank N, STORE is a LAS/LAZ file that simplify wrote with its rank "
+            "option and DST gets its N highest-ranked points (rank < N). Written under a temporary name and "
+            "renamed when complete."
         ),
     )
-    p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL)")
+    p.add_argument("store", metavar="STORE", help="point store (folder or fsspec URL); with --keep-rank a LAS/LAZ file")
     p.add_argument("dst", metavar="DST", help="output file (.las, .laz, .copc.laz, .ply, .xyz/.txt/.csv/.pts; or "
                    "--format), or with --tile-size a folder of LAZ tiles and index.vpc")
     add_options(p, "export")
@@ -35,6 +37,8 @@ def run(args: argparse.Namespace) -> int:
     from ..store import PointStore
 
     option_values(args, "export", check=True)
+    if args.keep_rank is not None:
+        return _keep_rank(args)
     store = PointStore.open(args.store)
     if args.mask and args.mask not in store:
         raise ArrayNotFoundError(f"{args.store} has no array {args.mask!r}")
@@ -52,4 +56,21 @@ def run(args: argparse.Namespace) -> int:
             tile_size=args.tile_size,
         )
     print(f"exported {args.store} to {args.dst}", file=sys.stderr)
+    return 0
+
+
+def _keep_rank(args: argparse.Namespace) -> int:
+    """``export FILE DST --keep-rank N``: the points of rank < N of a file written by ``simplify --rank``."""
+    from ..errors import InvalidParameterError
+    from ..io.rank import cut_rank
+    from ..store import is_store
+
+    if args.mask is not None or args.tile_size is not None or args.format is not None:
+        raise InvalidParameterError("--keep-rank writes one LAS/LAZ file by DST's extension: give it without "
+                                    "--mask, --tile-size or --format")
+    if is_store(args.store):
+        raise InvalidParameterError(f"--keep-rank cuts a LAS/LAZ file written by cloudsieve simplify --rank, not "
+                                    f"the point store {args.store}")
+    written = cut_rank(args.store, args.dst, args.keep_rank, overwrite=args.overwrite, chunk_size=args.chunk_size)
+    print(f"exported {written:,} points of rank < {args.keep_rank:,} of {args.store} to {args.dst}", file=sys.stderr)
     return 0

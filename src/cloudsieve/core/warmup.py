@@ -70,6 +70,9 @@ def _eliminate() -> None:
     eliminate_cell(Q[:2_600], 1_300, elimination_radius(areas, 1_500, weight=weight), halo=Q[2_600:],
                    decided=np.ones(400, dtype=bool), halo_keep=np.arange(400) % 2 == 0, cell_points=1_000)
     eliminate(P, ratio=0.5)
+    from .gap import fill_cell  # --max-gap's fill (its greedy cover kernel)
+
+    fill_cell(P, np.arange(len(P)) % 7 == 0, np.zeros((0, 3)), float(r_max), False)
 
 
 def _partition() -> None:

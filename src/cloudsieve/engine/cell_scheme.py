@@ -78,6 +78,7 @@ class ArrayCells:
         p = part.n_cells
         self.share, self.bands = [None] * p, [None] * p
         self.keep = np.zeros(len(xyz), dtype=bool)
+        self.fill = np.zeros(len(xyz), dtype=bool)  # the gap bound's (max_gap)
         self.markers = np.zeros(p, dtype=bool), np.zeros(p, dtype=bool)  # done, scored: none
         # class policies (module .class_cells): the classes and groups in cell order
         self.codes = None if classes is None else np.asarray(classes)[order]
@@ -115,13 +116,19 @@ class ArrayCells:
     def keep_at(self, rows: np.ndarray) -> np.ndarray:
         return self.keep[rows]
 
+    def fill_at(self, rows: np.ndarray) -> np.ndarray:
+        return self.fill[rows]
+
     def put_keep(self, task, keep: np.ndarray) -> None:
         self.keep[task.region : task.region + len(keep)] = keep
 
+    def put_fill(self, task, fill: np.ndarray) -> None:
+        self.fill[task.region : task.region + len(fill)] = fill
+
     def input_keep(self) -> np.ndarray:
-        """The keep mask in input order."""
+        """The keep mask in input order (the gap bound's fill included)."""
         keep = np.empty_like(self.keep)
-        keep[self.order] = self.keep
+        keep[self.order] = self.keep | self.fill
         return keep
 
 
@@ -138,8 +145,10 @@ class ThreadMap:
 
 
 def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_duplicates: bool,
-                    policy: tuple | None = None, density=None) -> tuple[np.ndarray, int]:
-    """The keep mask (input order) and distinct points of :func:`run_cells` in memory.
+                    policy: tuple | None = None, max_gap: float | None = None,
+                    density=None) -> tuple[np.ndarray, int, dict | None]:
+    """The keep mask (input order) and distinct points of :func:`run_cells` in memory, and with *max_gap* the
+    gap bound's record (:func:`~.gap.run_gap`; else None).
 
     *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,);
     *density*: a :class:`~.density.DensityTarget`."""
@@ -149,8 +158,14 @@ def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_dupli
         params.update(lookup=policy[1].lookup.tolist(), groups=policy[1].groups)
     if density is not None:
         params.update(density_params(density))
-    *_, distinct = run_cells(where, part, where.regions, params, ThreadMap(), target)
-    return where.input_keep(), distinct
+    runner = ThreadMap()
+    *_, distinct = run_cells(where, part, where.regions, params, runner, target)
+    record = None
+    if max_gap is not None:
+        from .gap import run_gap
+
+        record = run_gap(where, part, where.regions, {**params, "max_gap": float(max_gap)}, runner)
+    return where.input_keep(), distinct, record
 
 
 def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: int, k0: float, k_min: int,

@@ -11,7 +11,8 @@ class StoreCells:
     """The stage's reads and writes on the work store at *path*; a task opens it (:meth:`open`).
 
     A share goes to ``simplify/share[cell]`` and ``simplify/band_*``, then
-    ``simplify/scored[cell]``; a keep mask to ``simplify/keep_cells``, then ``simplify/done[cell]``."""
+    ``simplify/scored[cell]``; a keep mask to ``simplify/keep_cells``, then
+    ``simplify/done[cell]``; the gap bound's fill to ``simplify/fill_cells``."""
 
     def __init__(self, path: str, group=None) -> None:
         self.path, self.group = path, group
@@ -78,7 +79,15 @@ class StoreCells:
         """The final keep decisions at *rows* of ``simplify/keep_cells`` (one call of zarr's event loop)."""
         return np.asarray(self.group["simplify/keep_cells"].get_orthogonal_selection((rows,)), dtype=bool)
 
+    def fill_at(self, rows: np.ndarray) -> np.ndarray:
+        """The gap bound's fill at *rows* of ``simplify/fill_cells``."""
+        return np.asarray(self.group["simplify/fill_cells"].get_orthogonal_selection((rows,)), dtype=bool)
+
     def put_keep(self, task, keep: np.ndarray) -> None:
         self.group["simplify/keep_cells"][task.region : task.region + len(keep)] = keep
         self.group["simplify/done"][task.cell : task.cell + 1] = np.ones(1, dtype=np.uint8)
+
+    def put_fill(self, task, fill: np.ndarray) -> None:
+        """The gap bound's fill of a cell, to ``simplify/fill_cells`` (every cell's again on a resume)."""
+        self.group["simplify/fill_cells"][task.region : task.region + len(fill)] = fill
 

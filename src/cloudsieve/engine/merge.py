@@ -16,8 +16,10 @@ from .runs import chunk_runs
 __all__ = ["merge_task", "run_merge"]
 
 
-def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
-    """Task: input chunk *chunk*'s keep mask in input order, points ``[start, stop)``; returns its kept count."""
+def merge_task(store_path: str, chunk: int, start: int, stop: int, fill: bool = False) -> int:
+    """Task: input chunk *chunk*'s keep mask in input order, points ``[start, stop)``; returns its kept count.
+
+    *fill*: the gap bound's fill (``simplify/fill_cells``) joins the keep mask."""
     from ..store import PointStore
 
     st = PointStore.open(store_path, "r+")
@@ -31,9 +33,10 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     first = np.asarray(regions.get_coordinate_selection(runs[:, 0])) if len(runs) else np.empty(0, np.int64)
     # each run's decisions are a slice of the cell-ordered array: read in one event-loop call, put back
     # in input order in one pass
-    kc = g["simplify/keep_cells"].async_array
-    parts = gathered(kc.getitem(slice(int(b), int(b) + int(c))) for b, c in zip(first + runs[:, 2], runs[:, 1]))
-    src = np.concatenate([np.asarray(p) for p in parts]) if parts else np.empty(0, bool)
+    spans = list(zip(first + runs[:, 2], runs[:, 1]))
+    src = _cells(g["simplify/keep_cells"], spans)
+    if fill:
+        src = src | _cells(g["simplify/fill_cells"], spans)
     offset = np.zeros(regions.shape[0], dtype=np.int64)
     offset[runs[:, 0]] = np.cumsum(runs[:, 1]) - runs[:, 1]
     keep = from_groups(labels, offset, src) if n else np.empty(0, bool)
@@ -41,8 +44,17 @@ def merge_task(store_path: str, chunk: int, start: int, stop: int) -> int:
     return int(keep.sum())
 
 
-def run_merge(store, runner) -> list[int]:
-    """The merge stage: a :func:`merge_task` per input chunk; kept points per chunk (the export's plan)."""
+def _cells(array, spans) -> np.ndarray:
+    """The runs' slices (start, count) of a cell-ordered bool array, concatenated (one event-loop call)."""
+    arr = array.async_array
+    parts = gathered(arr.getitem(slice(int(b), int(b) + int(c))) for b, c in spans)
+    return np.concatenate([np.asarray(p) for p in parts]) if parts else np.empty(0, bool)
+
+
+def run_merge(store, runner, fill: bool = False) -> list[int]:
+    """The merge stage: a :func:`merge_task` per input chunk; kept points per chunk (the export's plan).
+
+    *fill*: join the gap bound's fill."""
     n, step = store.count, store.chunk_size
-    args = [(store.path, c, s, min(s + step, n)) for c, s in enumerate(range(0, n, step))]
+    args = [(store.path, c, s, min(s + step, n), *((True,) if fill else ())) for c, s in enumerate(range(0, n, step))]
     return [int(k) for k in runner(merge_task, args, "merge")]

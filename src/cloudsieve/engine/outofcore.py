@@ -129,8 +129,14 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 policy_params = {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
                 if density is not None:
                     policy_params = density_params(density)
+                if params.get("max_gap") is not None:
+                    workstore.ensure_fill_array(st)
                 computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, {**params, **policy_params},
                                                         runner, target if policy is None else policy.targets(classes))
+                if params.get("max_gap") is not None:  # the gap bound: a fill, then its check, every cell final
+                    from .gap import run_gap
+
+                    summary.gap = run_gap(StoreCells(st.path), part, regions, {**params, **policy_params}, runner)
                 progress(points)
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
@@ -145,7 +151,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
 
             t0 = time.perf_counter()
             workstore.ensure_keep_array(st)
-            kept_counts = merge.run_merge(st, runner)
+            kept_counts = merge.run_merge(st, runner, fill=summary.gap is not None)
             summary.kept = sum(kept_counts)
             summary.removed = summary.points_in - summary.kept
             if policy is not None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
@@ -24,6 +24,7 @@ from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from .. import storage, storage_retries
 from .checks import check_run
+from .levels import listed, run_levels
 from .summary import Summary, missed_target
 from .workstore import ENGINE_VERSION
 
@@ -39,8 +40,8 @@ def simplify(
     method: str = "km",
     rule: str | None = None,
     threshold: float | None = None,
-    ratio: float | None = None,
-    count: int | None = None,
+    ratio: float | Sequence[float] | None = None,
+    count: int | Sequence[int] | None = None,
     keep_class=None,
     class_ratio=None,
     density: float | None = None,
@@ -68,7 +69,9 @@ def simplify(
     keep_duplicates: bool = False,
     exact: bool = False,
     tile_size: float | None = None,
+    rank: bool = False,
     storage_options: dict | None = None,
+    max_gap: float | None = None,
 ) -> Summary:
     """Simplify a point cloud of any size, out of core, on dask.
 
@@ -93,11 +96,13 @@ def simplify(
         *threshold*; none of the three is an InvalidParameterError.
     threshold : float, optional
         S, the entropy-change threshold of the threshold/iterative rules (default 1e-3).
-    ratio, count : float in (0, 1] or int >= 1, optional
+    ratio, count : float in (0, 1] or int >= 1, or a list of them, optional
         Keep this share / number of the input points instead of using S;
         the total lands within 1% of it (exactly with eliminate). With
         *keep_class* or *class_ratio*, of the points not kept whole and not
-        in *class_ratio*.
+        in *class_ratio*. A list (rule eliminate) writes nested outputs, one
+        per value, each a subset of the one before (:mod:`cloudsieve.engine.levels`):
+        DST's ``{ratio}`` or ``{count}`` replaced by the value, else ``DST-0.5.laz``....
     keep_class : str or list of int, optional
         LAS classes kept whole ("2,9" or ``[2, 9]``), exact records; they
         stay context for the others' crowding (rule eliminate only).
@@ -164,9 +169,19 @@ def simplify(
     tile_size : float, optional
         Write DST as a folder of square LAZ tiles plus ``DST/index.vpc``
         (:func:`cloudsieve.store.tiles.export_tiles`).
+    rank : bool
+        Store each point's rank in the extra dimension ``cloudsieve_rank``
+        (:mod:`cloudsieve.io.rank`): the first N ranks are the points to keep at
+        N, cut by ``cloudsieve export --keep-rank N``. Rule eliminate, LAS/LAZ out.
     storage_options : dict, optional
         fsspec options for every URL of the run (e.g. s3fs's ``key``,
         ``secret``, ``endpoint_url``); never logged, recorded or printed.
+    max_gap : float, optional
+        Gap bound D > 0 (CRS units, Euclidean 3D; rule ``eliminate`` only):
+        after the elimination, points are added back until no input point is
+        farther than D from the kept set, so the ratio or count becomes "at
+        least" (:attr:`Summary.gap`: the points added, the largest gap
+        checked exactly; :mod:`cloudsieve.engine.gap`).
 
     Returns
     -------
@@ -202,7 +217,7 @@ def simplify(
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
         "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "exact": exact, "tile_size": tile_size,
-        "storage_options": storage_options,
+        "rank": rank, "storage_options": storage_options, "max_gap": max_gap,
     })
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
 
@@ -210,6 +225,12 @@ def simplify(
 def run_simplify(src: str | os.PathLike, dst: str | os.PathLike, opts: dict, *, client=None, progress=None, bars=None,
                  notify=None, t_start: float | None = None) -> Summary:
     """:func:`simplify` with ``opts`` already validated by :func:`cloudsieve.params.validate`."""
+    if listed(opts) or opts.get("rank"):  # nested outputs, each run below on the one before
+        def one(source: str, destination: str, level: dict) -> Summary:
+            return run_simplify(source, destination, level, client=client, progress=progress, bars=bars,
+                                notify=notify)
+
+        return run_levels(os.fspath(src), os.fspath(dst), opts, one)
     # every URL of the run, here and in its tasks; SRC listed once
     with storage.using(opts.get("storage_options")), remembered():
         return _run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify,
@@ -232,7 +253,8 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
         if summary.duplicates:
             logger.info("%d exact duplicates %s", summary.duplicates,
                         "kept (keep_duplicates)" if keep_duplicates else "removed")
-        missed = missed_target(src, ratio, count, summary.points_in, summary.kept, summary.duplicates,
+        filled = summary.gap["filled"] if summary.gap is not None else 0  # the gap bound's: "at least"
+        missed = missed_target(src, ratio, count, summary.points_in, summary.kept - filled, summary.duplicates,
                                keep_duplicates, exact=get_rule(rule).engine == ELIMINATION,
                                asked=summary.classes["asked"] if summary.classes else None)
         if missed and exact:

@@ -125,12 +125,14 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
 
             t0 = time.perf_counter()
             if policy is None:
-                keep, distinct = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"], density=density)
+                keep, distinct, summary.gap = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"],
+                                                              max_gap=opts.get("max_gap"), density=density)
                 if density is not None:
                     summary.density = density.report(before, area_counts(areas[keep]))
             else:
-                keep, distinct = eliminate_cells(xyz, part, order, policy.targets(classes), opts["keep_duplicates"],
-                                                 policy=(codes, policy))
+                keep, distinct, summary.gap = eliminate_cells(xyz, part, order, policy.targets(classes),
+                                                              opts["keep_duplicates"], policy=(codes, policy),
+                                                              max_gap=opts.get("max_gap"))
                 summary.classes = policy.report(classes, np.bincount(codes[keep], minlength=256))
             summary.duplicates = n - distinct
             summary.kept = int(keep.sum())

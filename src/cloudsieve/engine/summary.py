@@ -72,6 +72,10 @@ class Summary:
     scheduler, source, destination : str
     store : str
         The work store, "" when it was removed (the default store, after success).
+    outputs : list of dict
+        Nested outputs (a list of ratios or counts, :mod:`.levels`): per output its
+        ``ratio`` or ``count``, ``destination``, ``kept`` and ``seconds``; the other
+        fields are the first output's. Empty, absent from :meth:`to_dict`, otherwise.
     classes : dict or None
         With ``keep_class``/``class_ratio``: ``asked``, per policy and per class the
         input and kept points (:meth:`cloudsieve.engine.class_policy.ClassPolicy.report`);
@@ -81,6 +85,11 @@ class Summary:
         ``p95`` and ``max`` over the ``areas`` holding points, ``before`` and ``after``, and the areas
         ``thinned`` to ``floor`` points (:meth:`cloudsieve.engine.density.DensityTarget.report`); None,
         absent from :meth:`to_dict`, without it.
+    gap : dict or None
+        With ``max_gap``: ``{"bound": D, "filled": points added back after
+        the elimination (in *kept*), "max": the largest distance from an input
+        point to the kept set, checked exactly, "fill_to": the distance the
+        cells filled to}``; None, absent from :meth:`to_dict`, otherwise.
     """
 
     points_in: int = 0
@@ -104,11 +113,13 @@ class Summary:
     store: str = ""
     classes: dict | None = None
     density: dict | None = None
+    outputs: list[dict[str, Any]] = field(default_factory=list)
+    gap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        for name in ("storage", "classes", "density"):
-            if record[name] is None:
+        for name in ("storage", "classes", "density", "outputs", "gap"):
+            if record[name] in (None, []):
                 del record[name]
         return record
 
@@ -123,6 +134,11 @@ class Summary:
             f"cells         {s.cells:>14,}  (computed {s.cells_computed}, reused {s.cells_reused})",
             f"duplicates    {s.duplicates:>14,}  (exact copies {'kept' if s.duplicates_kept else 'removed'})",
         ]
+        if s.gap is not None:
+            g = s.gap
+            to = f"; filled to {g['fill_to']:.6g}, the halo's reach" if g["fill_to"] < g["bound"] else ""
+            lines.insert(2, f"gap bound     {g['bound']:>14.6g}  (at least the count: {g['filled']:,} points added "
+                            f"back; largest gap {g['max']:.6g}, checked exactly{to})")
         if s.threshold is not None:
             lines.append(f"threshold     {s.threshold:>14.6g}  (global, on m*dH)")
         if s.classes is not None:
@@ -149,4 +165,8 @@ class Summary:
             lines.append(f"storage       {s.storage['retries']:>14,}  retries (requests sent again after a timeout, "
                          f"throttling or a 5xx)")
         lines.append(f"scheduler     {s.scheduler}")
+        for out in s.outputs:
+            key = "ratio" if "ratio" in out else "count"
+            lines.append(f"output        {out['kept']:>14,}  {key} {out[key]:g}: {out['destination']} "
+                         f"({out['seconds']:.2f}s)")
         return "\n".join(lines)

@@ -6,6 +6,7 @@ when the source and parameters match, both recorded in the attribute
 ``"cloudsieve_simplify"``. Derived arrays (``simplify/``)::
 
     keep_cells   bool    (T,)  keep mask, cell-ordered: cell j at regions[j]:regions[j] + n_j
+    fill_cells   bool    (T,)  the gap bound's fill (max_gap only), cell-ordered
     score_cells  float64 (T,)  pass-1 unit-free scores (ratio/count)
     label_cells  int32   (T,)  pass-1 small-cluster labels; -1: an exact copy
     done, scored uint8   (P,)  one zarr chunk per cell
@@ -44,6 +45,7 @@ __all__ = [
     "regions",
     "ensure_cell_arrays",
     "ensure_keep_array",
+    "ensure_fill_array",
     "record_summary",
 ]
 
@@ -167,7 +169,8 @@ def record_params(store, params: dict, overwrite: bool) -> None:
     old = rec.get("params")
     if old is not None and old != params:
         if not overwrite:
-            diff = {k: (old.get(k), params[k]) for k in params if old.get(k) != params[k]}
+            names = [*params, *(k for k in old if k not in params)]  # a recorded option this run lacks too
+            diff = {k: (old.get(k), params.get(k)) for k in names if old.get(k) != params.get(k)}
             raise ResumeMismatchError(
                 f"store {store.path} holds a run with other parameters "
                 + ", ".join(f"{k}: stored {a!r}, asked {b!r}" for k, (a, b) in diff.items())
@@ -244,8 +247,8 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
-    for name in ("keep_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
-                 "share", "band_xyz", "band_pos", "band_count", "group_cells"):
+    for name in ("keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions",
+                 "duplicates", "share", "band_xyz", "band_pos", "band_count", "group_cells"):
         store.delete_array(f"simplify/{name}")
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
     store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
@@ -281,6 +284,13 @@ def _band_arrays(store, n_cells: int, total: int, block: int) -> None:
     store.create_array("simplify/band_xyz", shape=(total, 3), dtype="float64", chunks=(block, 3), fill_value=0.0)
     store.create_array("simplify/band_pos", shape=(total,), dtype="int64", chunks=(block,), fill_value=0)
     store.create_array("simplify/band_count", shape=(n_cells,), dtype="int64", chunks=(1,), fill_value=0)
+
+
+def ensure_fill_array(store) -> None:
+    """Create ``simplify/fill_cells`` (the gap bound's fill, as ``keep_cells``) unless it exists."""
+    if "simplify/fill_cells" not in store:
+        kc = store.group["simplify/keep_cells"]
+        store.create_array("simplify/fill_cells", shape=kc.shape, dtype="bool", chunks=kc.chunks, fill_value=False)
 
 
 def ensure_keep_array(store) -> None:

@@ -1,0 +1,68 @@
+"""The gap bound (``max_gap``) on one cell: the fill after the elimination and the exact check.
+
+:func:`fill_cell` adds back the points of a cell that lie farther than D
+from every kept point it knows of (the cell's own and its halo's final
+ones): those points, farthest first (ties by row), each one not within D of
+a point added before it (:func:`~cloudsieve.core.kernels.gapfill.greedy_cover`).
+The kept set only grows afterwards, so every point of the cell ends within D
+of the kept set whatever its neighbours add. :func:`cell_gap` measures the
+largest distance from a cell's points to the kept points it is given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["fill_cell", "cell_gap"]
+
+
+def _nearest(kept: np.ndarray, points: np.ndarray, bound: float = np.inf) -> np.ndarray:
+    """Distance (n,) from each of *points* to the nearest of *kept* (inf beyond *bound* or with none)."""
+    from scipy.spatial import cKDTree
+
+    if not len(points):
+        return np.zeros(0)
+    if not len(kept):
+        return np.full(len(points), np.inf)
+    return cKDTree(kept).query(points, distance_upper_bound=bound)[0]
+
+
+def fill_cell(core: np.ndarray, keep: np.ndarray, known: np.ndarray, gap: float, keep_duplicates: bool) -> np.ndarray:
+    """The points of *core* (n, 3) to add to *keep* (n,) so that each lies within *gap* of the kept set: (n,) bool.
+
+    *known*: the other kept points (h, 3) the cell can see (its halo's final
+    ones). With *keep_duplicates*, every copy of an added point is added.
+    """
+    from .kernels.gapfill import greedy_cover
+
+    n = len(core)
+    fill = np.zeros(n, dtype=bool)
+    kept = np.concatenate([core[keep], known]) if len(known) else core[keep]
+    far = np.flatnonzero(_nearest(kept, core, gap) > gap)
+    if not len(far):
+        return fill
+    d = _nearest(kept, core[far])  # exact, for the order: farthest first, ties by row
+    far = far[np.lexsort((far, -d))]
+    pts = np.ascontiguousarray(core[far], dtype=np.float64)
+    q = np.floor((pts - pts.min(axis=0)) / gap).astype(np.int64)
+    u, cell = np.unique(q, axis=0, return_inverse=True)
+    fill[far[greedy_cover(pts, q, cell.reshape(-1).astype(np.int64), u, float(gap))]] = True
+    # the k-d tree's distances decide: a point it still finds farther than D is added too (rounding)
+    rest = far[~fill[far]]
+    if len(rest):
+        fill[rest[_nearest(np.concatenate([kept, core[fill]]), core[rest], gap) > gap]] = True
+    if keep_duplicates:
+        from .duplicates import first_copies
+
+        first = first_copies(core)
+        marked = np.zeros(n, dtype=bool)
+        marked[first[fill]] = True
+        fill = marked[first] & ~keep
+    return fill
+
+
+def cell_gap(core: np.ndarray, kept: np.ndarray, bound: float = np.inf) -> float:
+    """The largest distance from a point of *core* (n, 3) to the nearest of *kept* (k, 3); 0 for no point.
+
+    inf when a point has none within *bound* (a faster search)."""
+    return float(_nearest(kept, core, bound).max()) if len(core) else 0.0
