@@ -86,6 +86,12 @@ def context(command: str, name: str, value) -> dict:
     if name in ("keep_class", "class_ratio") or (name == "rank" and value is True) or (
             name == "max_gap" and value is not None):  # the eliminate rule's
         return {"ratio": 0.5}
+    if name == "density" and value is not None:  # instead of a ratio: the default rule
+        return {}
+    if name == "density_cell" and value is not None:  # the areas of density
+        return {"density": 100.0}
+    if name == "density_3d" and value:  # density per cubic unit
+        return {"density": 1.0}
     return {"rule": "iterative"}
 
 

@@ -33,8 +33,13 @@ from .params_spec import (BOOL, CHOICE, CHOICES, CLASS_RATIOS, CLASSES, COMMANDS
 from .params_spec import __all__ as _spec_all
 from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
+#: the side of the areas of the density option when density_cell is not given (CRS units)
+DENSITY_CELL = 10.0
+
 __all__ = [
     *_spec_all,
+    "DENSITY_CELL",
+    "density_floor",
     "DEFAULT_RULE",
     "Metavar",
     "check",
@@ -261,7 +266,8 @@ def _cluster_size(o: dict) -> None:
 
 def _rule_target(o: dict) -> None:
     """The rule's target: needed, or refused (the registry says which)."""
-    rule, has_target = rules.get(o["rule"]), o["ratio"] is not None or o["count"] is not None
+    rule = rules.get(o["rule"])
+    has_target = o["ratio"] is not None or o["count"] is not None or o.get("density") is not None
     if rule.needs_target and not has_target:
         raise InvalidParameterError(f"rule {rule.name!r} needs a ratio or a count")
     if not rule.takes_target and has_target:
@@ -287,7 +293,40 @@ def _class_policy(o: dict) -> None:
                                           f"class_ratio: give it in one of them"), "keep_class", "class_ratio")
 
 
+def _density(o: dict) -> None:
+    """density (with density_cell): of the elimination rule only, instead of ratio/count, the class policies, the
+    gap bound and the ranks; an area keeps at least one point."""
+    d, side = o["density"], DENSITY_CELL if o["density_cell"] is None else o["density_cell"]
+    if d is None and o["density_cell"] is not None:
+        raise named(InvalidParameterError("density_cell is the side of the areas of density: give density too (got "
+                                          f"density_cell={side:g})"), "density_cell", "density")
+    rule = rules.get(o["rule"])
+    if d is not None and rule.engine != rules.ELIMINATION:
+        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
+        raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
+                                          f"{rule.name!r}"), "density")
+    for name in ("ratio", "count", "keep_class", "class_ratio", "max_gap", "rank"):
+        if d is not None and o[name] not in (None, False):
+            raise named(InvalidParameterError(f"give density or {name}, not both (got density={d:g}, "
+                                              f"{name}={o[name]})"), "density", name)
+    dims = 3 if o["density_3d"] else 2
+    if d is None and o["density_3d"]:
+        raise named(InvalidParameterError("density_3d counts density per cubic unit: give density too"),
+                    "density_3d", "density")
+    if d is not None and density_floor(d, side, dims) < 1:
+        raise named(InvalidParameterError(f"density * density_cell^{dims} must be at least 1 point per "
+                                          f"{'cube' if dims == 3 else 'area'}, got {d:g} * {side:g}^{dims} = "
+                                          f"{d * side ** dims:g}"), "density", "density_cell")
+
+
+def density_floor(density: float, side: float, dims: int = 2) -> int:
+    """Points an area (*dims* 3: a cube) of side *side* keeps at most at *density*: floor(D R^dims), D R^dims
+    rounded to 9 decimals first (0.29 * 10^2 is 29, not 28.999...)."""
+    return int(math.floor(round(float(density) * float(side) ** dims, 9)))
+
+
 def _simplify(o: dict) -> None:
+    _density(o)
     _rule_target(o)
     listed = next((name for name in ("ratio", "count") if isinstance(o[name], tuple)), None)
     if listed and rules.get(o["rule"]).engine != rules.ELIMINATION:
@@ -403,7 +442,8 @@ def run_record(options: Mapping[str, Any]) -> dict[str, Any]:
         record["keep_duplicates"] = True
     if options.get("max_gap") is not None:
         record["max_gap"] = options["max_gap"]
-    for name in ("keep_class", "class_ratio"):  # only when given: a run without them records what it did
-        if options.get(name) is not None:
+    # only when given: a run without them records what it did
+    for name in ("keep_class", "class_ratio", "density", "density_cell", "density_3d"):
+        if options.get(name) not in (None, False):
             record[name] = options[name]
     return record

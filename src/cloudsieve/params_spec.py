@@ -131,6 +131,13 @@ _OPTIONS = [
     Option("max_gap", FLOAT, None, "gap bound: no input point ends farther than D (CRS units, 3D) from the kept set; "
            "points are added back after the elimination, so --ratio/--count become at least that many (rule "
            "eliminate only)", low=0.0, low_open=True, metavar="D"),
+    Option("density", FLOAT, None, "instead of --ratio/--count: at most D points per square unit of the horizontal "
+           "plane (LAS CRS units) in every --density-cell area; an area holding more keeps exactly floor(D*R^2), "
+           "the others stay whole (rule eliminate)", low=0.0, low_open=True, metavar="D"),
+    Option("density_cell", FLOAT, None, "the side R of the square areas of --density, in CRS units, on a grid "
+           "anchored at 0 (default 10)", low=0.0, low_open=True, metavar="R"),
+    Option("density_3d", BOOL, False, "--density counts points per cubic unit in R x R x R cubes (objects), "
+           "an area being a cube: floor(D*R^3) points each"),
     Option("cluster_size", INT, 400, "points per small cluster (at least k_min + 2)", low=1, metavar="M"),
     Option("cell_size", INT, 200_000, "points per cell, i.e. per task; bounds a task's memory", low=1,
            metavar="POINTS"),
@@ -248,9 +255,10 @@ def _memory(*names: str) -> dict[str, Option]:
 #: command -> its options, by name, in the order of ``--help``
 COMMANDS: dict[str, dict[str, Option]] = {
     "simplify": _command(
-        "method", "rule", "threshold", "ratio", "count", "max_gap", "keep_class", "class_ratio", "cluster_size",
-        "cell_size", "scheduler", "workers", "memory_limit", "store", "halo_context", "seed", "resume", "overwrite",
-        "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates", "tile_size", "rank", "storage_options",
+        "method", "rule", "threshold", "ratio", "count", "max_gap", "keep_class", "class_ratio", "density",
+        "density_cell", "density_3d", "cluster_size", "cell_size", "scheduler", "workers", "memory_limit", "store",
+        "halo_context", "seed", "resume", "overwrite", "chunk_size", "k0", "k_min", "drop_invalid", "keep_duplicates",
+        "tile_size", "rank", "storage_options",
         extra=(_OUTPUT_FORMAT, _EXACT)),
     "evaluate": _command(
         "sample", "tiles", "tile_points", "surface", "report_dir", "subset", "strict", "seed", "chunk_size",

@@ -143,7 +143,7 @@ def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]
     No rule: ``eliminate`` with a ratio or a count, ``threshold`` with a threshold alone, else
     InvalidParameterError (also for a threshold beside a ratio or count); the threshold defaults to
     :data:`PAPER_THRESHOLD`. *caller* names the call in the message; *metavars* the values left to the user."""
-    has_target = o["ratio"] is not None or o["count"] is not None
+    has_target = o["ratio"] is not None or o["count"] is not None or o.get("density") is not None
     given = o["threshold"] is not None
     entropy = command == "simplify" or any(m in METHODS for m in o["methods"])
     if o["rule"] is None and not entropy:  # compare's baselines alone: no rule runs (compare wants a count)
@@ -158,7 +158,7 @@ def resolve_rule(command: str, o: dict, caller: str, metavars: Mapping[str, str]
             exc.caller = caller  # the command line words the API's name as its own (cloudsieve simplify)
             raise exc
         if has_target and given:
-            name = "ratio" if o["ratio"] is not None else "count"
+            name = next(n for n in ("ratio", "count", "density") if o.get(n) is not None)
             raise InvalidParameterError(
                 f"threshold={o['threshold']!r} is the S of the paper's rules threshold and iterative, but with "
                 f"{name}={o[name]!r} the default rule is {DEFAULT_RULE}, which takes no threshold: add "

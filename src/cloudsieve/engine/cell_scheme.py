@@ -41,7 +41,7 @@ from .cell_work import task_threads, cell_counts, cell_keep, cell_share
 from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
-           "run_cells", "cell_share", "cell_counts", "cell_keep"]
+           "run_cells", "density_params", "cell_share", "cell_counts", "cell_keep"]
 
 
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> tuple:
@@ -145,15 +145,19 @@ class ThreadMap:
 
 
 def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_duplicates: bool,
-                    policy: tuple | None = None, max_gap: float | None = None) -> tuple[np.ndarray, int, dict | None]:
+                    policy: tuple | None = None, max_gap: float | None = None,
+                    density=None) -> tuple[np.ndarray, int, dict | None]:
     """The keep mask (input order) and distinct points of :func:`run_cells` in memory, and with *max_gap* the
     gap bound's record (:func:`~.gap.run_gap`; else None).
 
-    *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,)."""
+    *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,);
+    *density*: a :class:`~.density.DensityTarget`."""
     where = ArrayCells(xyz, part, order, None if policy is None else policy[0])
     params = {"keep_duplicates": keep_duplicates}
     if policy is not None:
         params.update(lookup=policy[1].lookup.tolist(), groups=policy[1].groups)
+    if density is not None:
+        params.update(density_params(density))
     runner = ThreadMap()
     *_, distinct = run_cells(where, part, where.regions, params, runner, target)
     record = None
@@ -178,6 +182,11 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
+def density_params(density) -> dict:
+    """The cells stage's parameters of a :class:`~.density.DensityTarget`: the areas' side and floor."""
+    return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
+
+
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
     """A task: one cell's share (:func:`cell_share`) computed and stored in *where* (store or :class:`ArrayCells`).
 
@@ -189,16 +198,22 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
+    areas = None
     if task.params.get("groups"):  # class policies: a share per group
         from .class_cells import group_share
 
         row, band, copies = group_share(io, task, core, dependents)
     else:
+        if task.params.get("density_cell"):  # the density target: the cell's points per area
+            from .density import cell_areas
+
+            areas = cell_areas(core, float(task.params["density_cell"]), int(task.params["density_dims"]))
         sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
                                            task.margin, task_threads(task), ladder=task.params["ladder"])
         row, copies = np.r_[float(distinct), sizes], len(core) - distinct
     io.put_share(task, core, row, band, copies)
-    return {"cell": task.cell, "n": len(core), "band": len(band), "share": row, "seconds": time.perf_counter() - t0}
+    return {"cell": task.cell, "n": len(core), "band": len(band), "share": row, "areas": areas,
+            "seconds": time.perf_counter() - t0}
 
 
 def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
@@ -211,10 +226,11 @@ def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
     t0 = time.perf_counter()
     io = where.open()
     core = io.core(task)
-    if task.params.get("groups"):
+    if task.params.get("groups") or task.params.get("density_cell"):
         from .class_cells import group_keep
+        from .density import density_keep
 
-        keep = group_keep(io, task, core, count, colours)
+        keep = (density_keep if task.params.get("density_cell") else group_keep)(io, task, core, count, colours)
         io.put_keep(task, keep)
         return {"cell": task.cell, "n": len(core), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
     n, halo = len(core), None
@@ -241,16 +257,18 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     for this target (``part.r_max`` set); *regions*: (P,) int64; *runner*:
     ``runner(func, args, stage, after=None)``, results in order, ``after[i]``
     the calls call i waits for, and ``runner.task_threads``; *target*: points
-    kept in all. Returns (cells applied, cells found done, points scored,
-    distinct points).
+    kept in all. With ``params["density_cell"]`` (:mod:`.density`) every cell
+    is scored again (its areas are not stored) and gets a quota per area.
+    Returns (cells applied, cells found done, points scored, distinct points).
     """
     from ..core.colours import apply_order, cell_colours, readers
     from .celltasks import cell_tasks, largest_first
 
     r_max = math.inf if part.r_max is None else float(part.r_max)
-    params = {**params, "r_max": r_max, "ladder": part.n_cells > 1}  # one cell's count is the target
+    density = params.get("density_cell")  # the density target: every cell's areas, no packings
+    params = {**params, "r_max": r_max, "ladder": part.n_cells > 1 and not density}  # one cell's count is the target
     done, scored = where.markers
-    todo = largest_first(part, [j for j in range(part.n_cells) if not scored[j]])
+    todo = largest_first(part, [j for j in range(part.n_cells) if density or not scored[j]])
     tasks = cell_tasks(where, part, regions, todo, params, runner.task_threads, halo=False)
     deps = readers(part.halo_ptr, part.halo_src)  # the cells that read each cell's band
     args = [(where, t, {int(i): part.centers[i] for i in deps[t.cell]}) for t in tasks]
@@ -264,6 +282,13 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
         from .class_cells import group_counts
 
         q, params["staged"], distinct = group_counts(share, np.asarray(target), r_max)
+    elif density:  # a quota per (cell, area), each dense area's summing to its floor
+        from .density import area_quotas
+
+        areas = [None] * part.n_cells
+        for r in results:
+            areas[r["cell"]] = r["areas"]
+        q, distinct = area_quotas(areas, int(params["density_floor"])), share[:, 0].astype(np.int64)
     else:
         distinct = share[:, 0].astype(np.int64)
         q, params["staged"] = cell_counts(share[:, 1:], distinct, int(target), r_max)

@@ -22,8 +22,9 @@ from ..rule_table import targets_of
 from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks
-from .cell_scheme import run_cells
+from .cell_scheme import density_params, run_cells
 from .class_policy import ClassPolicy, run_class_counts, run_class_rows
+from .density import DensityTarget, run_area_counts
 from .eliminate import StoreCells
 from .partition import build_partition, reusable_partition
 from .runner import PeakMemory, Runner
@@ -95,6 +96,10 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             if policy is not None:  # each group's target; r_max for all the points kept
                 classes = run_class_counts(st, runner)
                 target = policy.asked(classes)
+            density = DensityTarget.from_options(opts)
+            if density is not None:  # r_max for all the points kept
+                before = run_area_counts(st, runner, density)
+                target = density.target(before[1])
             elim = target if get_rule(rule).engine == ELIMINATION else None
             halo = bool(context) or elim is not None
             part = reusable_partition(st, cell_size=cell_size, cluster_size=cluster_size, seed=seed, halo=halo,
@@ -122,6 +127,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 progress(points)
             elif elim is not None:
                 policy_params = {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
+                if density is not None:
+                    policy_params = density_params(density)
                 if params.get("max_gap") is not None:
                     workstore.ensure_fill_array(st)
                 computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, {**params, **policy_params},
@@ -149,6 +156,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
             summary.removed = summary.points_in - summary.kept
             if policy is not None:
                 summary.classes = policy.report(classes, run_class_counts(st, runner, "simplify/keep"))
+            if density is not None:
+                summary.density = density.report(before, run_area_counts(st, runner, density, "simplify/keep"))
             account(summary)
             progress(st.count)
             summary.seconds["merge"] = time.perf_counter() - t0

@@ -44,6 +44,9 @@ def simplify(
     count: int | Sequence[int] | None = None,
     keep_class=None,
     class_ratio=None,
+    density: float | None = None,
+    density_cell: float | None = None,
+    density_3d: bool = False,
     cluster_size: int = 400,
     cell_size: int = 200_000,
     scheduler: str | None = None,
@@ -107,6 +110,16 @@ def simplify(
         A ratio per LAS class ("5=0.1,2=1.0" or ``{5: 0.1}``; 1.0 keeps it
         whole), each class's count exact (rule eliminate only). The summary's
         ``classes`` states per class the points in and kept.
+    density, density_cell : float, optional
+        Instead of *ratio*/*count* (rule eliminate only): at most *density*
+        points per square unit of the horizontal plane in every square area
+        of side *density_cell* (default 10; a grid anchored at 0). An area
+        holding more than floor(D R^2) points keeps exactly that many, the
+        others keep all theirs. The summary's ``density`` states the points
+        per square unit of the areas before and after.
+    density_3d : bool
+        *density* per cubic unit in cubes of side *density_cell* (objects):
+        floor(D R^3) points per cube.
     cluster_size : int
         Points per small cluster (c = ceil(n / cluster_size) per cell), >= ``k_min + 2``.
     cell_size : int
@@ -198,7 +211,8 @@ def simplify(
     t_start = time.perf_counter()
     opts = validate("simplify", {
         "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
-        "keep_class": keep_class, "class_ratio": class_ratio,
+        "keep_class": keep_class, "class_ratio": class_ratio, "density": density, "density_cell": density_cell,
+        "density_3d": density_3d,
         "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
         "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
         "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,

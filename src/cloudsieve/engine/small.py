@@ -88,6 +88,7 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
     from ..io.whole import read_whole
     from .cell_scheme import eliminate_cells, partition
     from .class_policy import ClassPolicy, class_codes
+    from .density import DensityTarget, area_counts, area_keys
 
     summary.scheduler = SCHEDULER
     proc = ahead.start(targets_of(opts["rule"]))  # a second core compiles ahead
@@ -104,7 +105,13 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
 
             t0 = time.perf_counter()
             ratio, count = opts["ratio"], opts["count"]
-            target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
+            density = DensityTarget.from_options(opts)
+            if density is None:
+                target = ratio_count(ratio, n) if ratio is not None else min(int(count), n)
+            else:  # r_max for all the points kept
+                areas = area_keys(xyz, density.side, density.dims)
+                before = area_counts(areas)
+                target = density.target(before[1])
             policy = ClassPolicy.from_options(opts)
             if policy is not None:  # each group's target; r_max for all the points kept
                 codes = class_codes(attrs["classification"], ", ".join(sources))
@@ -119,7 +126,9 @@ def run_small(sources: list[str], dst: str, opts: dict, summary: Summary, *, acc
             t0 = time.perf_counter()
             if policy is None:
                 keep, distinct, summary.gap = eliminate_cells(xyz, part, order, target, opts["keep_duplicates"],
-                                                              max_gap=opts.get("max_gap"))
+                                                              max_gap=opts.get("max_gap"), density=density)
+                if density is not None:
+                    summary.density = density.report(before, area_counts(areas[keep]))
             else:
                 keep, distinct, summary.gap = eliminate_cells(xyz, part, order, policy.targets(classes),
                                                               opts["keep_duplicates"], policy=(codes, policy),

@@ -80,6 +80,11 @@ class Summary:
         With ``keep_class``/``class_ratio``: ``asked``, per policy and per class the
         input and kept points (:meth:`cloudsieve.engine.class_policy.ClassPolicy.report`);
         None, absent from :meth:`to_dict`, without them.
+    density : dict or None
+        With ``density``: per area of side ``side`` the points per square unit, ``min``, ``median``,
+        ``p95`` and ``max`` over the ``areas`` holding points, ``before`` and ``after``, and the areas
+        ``thinned`` to ``floor`` points (:meth:`cloudsieve.engine.density.DensityTarget.report`); None,
+        absent from :meth:`to_dict`, without it.
     gap : dict or None
         With ``max_gap``: ``{"bound": D, "filled": points added back after
         the elimination (in *kept*), "max": the largest distance from an input
@@ -107,12 +112,13 @@ class Summary:
     destination: str = ""
     store: str = ""
     classes: dict | None = None
+    density: dict | None = None
     outputs: list[dict[str, Any]] = field(default_factory=list)
     gap: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         record = asdict(self)
-        for name in ("storage", "classes", "outputs", "gap"):
+        for name in ("storage", "classes", "density", "outputs", "gap"):
             if record[name] in (None, []):
                 del record[name]
         return record
@@ -139,6 +145,14 @@ class Summary:
             lines.append("classes       (--ratio/--count apply to the points not kept whole and not in --class-ratio)")
             lines += [f"  class {c['class']:<5} {c['policy']:<18} in {c['points_in']:>12,}  kept {c['kept']:>12,}  "
                       f"({100.0 * c['ratio']:.2f}%)" for c in s.classes["classes"]]
+        if s.density is not None:
+            d = s.density
+            cube, unit = ("cubes", "cubic") if d["dims"] == 3 else ("areas", "square")
+            lines.append(f"density       {d['thinned']:>14,}  of {d['areas']:,} {cube} of side {d['side']:g} "
+                         f"thinned to {d['floor']:,} points (at most {d['density']:g} per {unit} unit)")
+            lines += [f"  {when:<11} min {d[when]['min']:.3g}, median {d[when]['median']:.3g}, 95th "
+                      f"{d[when]['p95']:.3g}, max {d[when]['max']:.3g} points per {unit} unit"
+                      for when in ("before", "after")]
         stages = ", ".join(f"{k} {v:.2f}s" for k, v in s.seconds.items() if k != "total")
         lines.append(f"time          {s.seconds.get('total', 0.0):>13.2f}s  ({stages}); {rate:,.0f} points/s")
         cpu = s.cpu_seconds
