@@ -143,7 +143,8 @@ def test_params_is_a_leaf():
     loaded = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True,
                             env=env).stdout.split()
     assert sorted(loaded) == ["cloudsieve", "cloudsieve.address", "cloudsieve.errors", "cloudsieve.formats",
-                              "cloudsieve.lazy", "cloudsieve.params", "cloudsieve.params_spec", "cloudsieve.rule_table"]
+                              "cloudsieve.lazy", "cloudsieve.params", "cloudsieve.params_spec", "cloudsieve.params_values",
+                              "cloudsieve.rule_table"]
 
 
 def test_the_registry_refuses_a_rule_as_the_option_does():
