@@ -111,15 +111,15 @@ class DiskPeak:
 
 def cli(args: list[str], workdir: Path | None = None) -> dict:
     """One ``cloudsieve simplify ... --json`` run: its summary, wall time, tree and driver peak RSS, and the
-    peak disk it took on *workdir*'s file system (other writers on it count too)."""
+    peak disk it took on *workdir*'s file system when given (other writers on it count too)."""
     cmd = [PY, "-m", "cloudsieve", "simplify", *args, "--overwrite", "--json", "--no-progress"]
     t0 = time.perf_counter()
-    disk = DiskPeak(workdir or Path(args[1]).parent)
+    disk = DiskPeak(workdir) if workdir is not None else None
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     tree, alone = TreePeak(proc.pid), TreePeak(proc.pid, children=False)
     out, err = proc.communicate()
     wall = time.perf_counter() - t0
-    summary_disk = disk.stop()
+    summary_disk = disk.stop() if disk is not None else None
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{err[-3000:]}")
     summary = json.loads(out)
