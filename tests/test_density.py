@@ -21,6 +21,7 @@ from cloudsieve.cli import main
 from cloudsieve.engine.density import area_quotas
 from conftest import shared_file
 from engine_data import write_laz
+from resume_data import kill_then_resume
 from tiles_data import cut_tiles
 
 
@@ -221,41 +222,12 @@ def test_quotas_by_largest_remainder():
 def test_killed_then_resumed_gives_the_same_bytes(tmp_path):
     """A density run killed in its 4th elimination task resumes from its store: every cell's areas are counted
     again, only the missing cells are applied, the same bytes as a run in one go."""
-    import os
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    import zarr
-
-    from cloudsieve.engine.pause import PAUSE_ENV
-
     src = shared_file("autzen_trim.laz")
     ref = tmp_path / "ref.laz"
     cloudsieve.simplify(src, ref, density=0.3, cell_size=20_000)
     args = ["simplify", str(src), str(tmp_path / "out.laz"), "--density", "0.3", "--cell-size", "20000", "--store",
             str(tmp_path / "w.zarr"), "--scheduler", "threads", "--workers", "1", "--no-progress"]
-    marker = tmp_path / "paused"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    proc = subprocess.Popen([sys.executable, "-m", "cloudsieve", *args], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE, env=dict(env, **{PAUSE_ENV: f"task:cells: apply#4={marker}"}))
-    deadline = time.monotonic() + 600  # a guard against a hang only
-    try:
-        while proc.poll() is None and time.monotonic() < deadline and not marker.exists():
-            time.sleep(0.05)
-        assert marker.exists(), f"the run did not reach its pause ({proc.returncode})"
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(60)
-    finally:
-        if proc.poll() is None:  # pragma: no cover
-            proc.kill()
-    done = np.asarray(zarr.open_group(str(tmp_path / "w.zarr"), mode="r")["simplify/done"][:]).astype(bool)
-    assert int(done.sum()) == 3 < len(done) == 6
-    rc = subprocess.run([sys.executable, "-m", "cloudsieve", *args, "--resume", "--json"], capture_output=True,
-                        env=env)
-    assert rc.returncode == 0, rc.stderr.decode()
-    summary = json.loads(rc.stdout.decode())
+    summary = kill_then_resume(args, tmp_path / "w.zarr", tmp_path / "paused")
     assert (summary["cells_reused"], summary["cells_computed"]) == (3, 3)
     assert summary["density"]["thinned"] > 0
     assert (tmp_path / "out.laz").read_bytes() == ref.read_bytes()
