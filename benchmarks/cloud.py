@@ -18,6 +18,10 @@ server's own CPU (on this machine it takes the workers' cores; on a cluster it r
 process tree's peak RSS (the S3 server not included), requests and bytes per input point, and the bytes
 read over the input's LAZ bytes plus the work store's (both read once at best). The load average is printed
 before and after. Never run two benchmarks at once.
+
+``--server-cpus 1 --run-cpus 0 --workers 1`` puts the S3 server on CPUs of its own (``sched_setaffinity``, every
+thread of weed) and the runs, local and S3 alike, on the others: the object store off the compute cores, as on
+a cluster, where it runs on other machines.
 """
 
 from __future__ import annotations
@@ -48,14 +52,17 @@ def _free_port() -> int:
 
 
 class MeteredServer(S3Server):
-    """An S3Server whose Prometheus metrics (requests by type, bytes per bucket) are served on loopback."""
+    """An S3Server whose Prometheus metrics (requests by type, bytes per bucket) are served on loopback, on the
+    CPUs *cpus* when given (``taskset``: weed's threads inherit them)."""
 
     metrics_port = _free_port()
+    cpus: str | None = None
 
     def command(self) -> list[str]:
         args = super().command()
         i = args.index("mini") + 1
-        return args[:i] + [f"-metricsPort={self.metrics_port}", "-metricsIp=127.0.0.1"] + args[i:]
+        args = args[:i] + [f"-metricsPort={self.metrics_port}", "-metricsIp=127.0.0.1"] + args[i:]
+        return (["taskset", "-c", self.cpus] if self.cpus else []) + args
 
     def counters(self, bucket: str) -> dict:
         """``{"GET": n, "PUT": n, ..., "sent": bytes, "received": bytes}`` of *bucket* so far."""
@@ -90,7 +97,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--tile-size", type=float, default=2000.0, help="edge of the output tiles (default 2000)")
     p.add_argument("--workdir", default="/tmp/cloudsieve-bench-cloud", help="scans are cached here")
     p.add_argument("--outputs", default="tiles,laz", help="outputs: tiles, laz, copc (default tiles,laz)")
+    p.add_argument("--workers", type=int, default=2, help="workers of each run (default 2)")
+    p.add_argument("--server-cpus", default=None, help="CPU list of the S3 server (taskset -c), e.g. 1")
+    p.add_argument("--run-cpus", default=None, help="CPU list of the runs (taskset -c), e.g. 0")
     args = p.parse_args(argv)
+    MeteredServer.cpus = args.server_cpus
+    pin = ["taskset", "-c", args.run_cpus] if args.run_cpus else None
     n = int(args.size)
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)
@@ -120,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
             for where, (paths, store) in runs.items():
                 before = server.counters(bucket)
                 t0, weed0 = load(), server_cpu(server)
-                s = cli([*paths, "--ratio", "0.5", "--workers", "2", *store, *extra])
+                s = cli([*paths, "--ratio", "0.5", "--workers", str(args.workers), *store, *extra], prefix=pin)
                 moved = delta(server.counters(bucket), before)
                 weed = server_cpu(server) - weed0
                 if where == "s3":
@@ -138,7 +150,10 @@ def main(argv: list[str] | None = None) -> int:
                              {k: int(v) for k, v in sorted(moved.items()) if k not in ("sent", "received") and v},
                              f"{t0} -> {load()}", weed))
                 subprocess.run(["rm", "-rf", str(local_store)], check=False)
-    print(f"\n## {n:,} points in {args.files} LAZ tiles ({mib(in_bytes)}), `--ratio 0.5 --workers 2`\n")
+    where_cpus = (f"; runs on CPUs {args.run_cpus}, the S3 server on CPUs {args.server_cpus}"
+                  if args.run_cpus or args.server_cpus else "")
+    print(f"\n## {n:,} points in {args.files} LAZ tiles ({mib(in_bytes)}), `--ratio 0.5 --workers {args.workers}`"
+          f"{where_cpus}\n")
     print("| output | where | wall | points/s | × local | driver CPU | workers CPU | driver share | S3 server CPU | "
           "tree peak | requests/point | bytes read/point | bytes written/point | read / (input + store) | store | "
           "requests | load |")

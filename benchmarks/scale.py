@@ -109,10 +109,11 @@ class DiskPeak:
         return self.start - min(self.low, shutil.disk_usage(self.path).free)
 
 
-def cli(args: list[str], workdir: Path | None = None) -> dict:
+def cli(args: list[str], workdir: Path | None = None, prefix: list[str] | None = None) -> dict:
     """One ``cloudsieve simplify ... --json`` run: its summary, wall time, tree and driver peak RSS, and the
-    peak disk it took on *workdir*'s file system when given (other writers on it count too)."""
-    cmd = [PY, "-m", "cloudsieve", "simplify", *args, "--overwrite", "--json", "--no-progress"]
+    peak disk it took on *workdir*'s file system when given (other writers on it count too); *prefix* runs it
+    under a wrapper such as ``taskset -c 0``."""
+    cmd = [*(prefix or []), PY, "-m", "cloudsieve", "simplify", *args, "--overwrite", "--json", "--no-progress"]
     t0 = time.perf_counter()
     disk = DiskPeak(workdir) if workdir is not None else None
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
