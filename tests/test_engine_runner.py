@@ -159,6 +159,28 @@ def test_process_tree_rss_from_proc_is_psutils_sum():
         child.communicate(b"")
 
 
+def test_peak_memory_counts_a_child_started_after_it_began():
+    """PeakMemory searches /proc for children every TREE_EVERY samples and reads only their statm in between:
+    a child started while it samples, holding 80 MiB it has touched, is in its peak."""
+    import subprocess
+    import sys
+    import time
+
+    from cloudsieve.engine.memory import TREE_EVERY, PeakMemory, process_tree_rss
+
+    code = "import sys; x = bytearray(80 << 20); x[::4096] = bytes(len(x[::4096])); print(1, flush=True); " \
+           "sys.stdin.read()"
+    with PeakMemory(interval=0.01) as peak:
+        base = process_tree_rss()
+        child = subprocess.Popen([sys.executable, "-c", code], stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        try:
+            assert child.stdout.readline() == b"1\n"
+            time.sleep(3 * TREE_EVERY * 0.01 + 0.2)  # a search of /proc and samples after it
+        finally:
+            child.communicate(b"")
+    assert peak.peak >= base + (70 << 20)
+
+
 def test_small_pages_turns_numpys_huge_pages_off_inside_and_obeys_the_variable(monkeypatch):
     """engine.memory.small_pages: numpy's huge-page advice off inside, as it was after (on or off); with
     NUMPY_MADVISE_HUGEPAGE set, numpy's switch is left alone."""

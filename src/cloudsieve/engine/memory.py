@@ -23,6 +23,9 @@ logger = logging.getLogger(__name__)
 
 #: what a local measure covers
 LOCAL_SCOPE = "this process and its children"
+#: samples between two searches of /proc for this process's children (a search reads every process's
+#: ``stat``; a sample reads the ``statm`` of the processes found)
+TREE_EVERY = 10
 #: how long stopping waits for a sample in flight
 JOIN_SECONDS = 60
 #: numpy's own switch of its huge-page advice, read when numpy is imported
@@ -69,12 +72,12 @@ def small_pages_from_here() -> None:
         set_huge_pages(False)
 
 
-def _proc_tree_rss() -> int | None:
-    """:func:`process_tree_rss` from Linux's /proc (None elsewhere), read as psutil does, without its import."""
+def _proc_tree() -> list[int] | None:
+    """This process and its descendants from Linux's /proc (None elsewhere), found as psutil does, without its
+    import: every process's parent read from its ``stat``."""
     try:
         names = os.listdir("/proc")
-        page = os.sysconf("SC_PAGE_SIZE")
-    except (OSError, ValueError, AttributeError):
+    except OSError:
         return None
     children: dict[int, list[int]] = {}
     for name in names:
@@ -86,16 +89,30 @@ def _proc_tree_rss() -> int | None:
                 continue
             ppid = int(stat[stat.rindex(b")") + 2 :].split(maxsplit=2)[1])  # after "pid (name) state"
             children.setdefault(ppid, []).append(int(name))
-    total, todo = 0, [os.getpid()]
+    tree, todo = [], [os.getpid()]
     while todo:
         pid = todo.pop()
+        tree.append(pid)
         todo += children.get(pid, [])
+    return tree
+
+
+def _proc_rss(pids: list[int]) -> int:
+    """Resident memory of the processes *pids* (bytes) from their ``statm``; a process gone counts 0."""
+    page, total = os.sysconf("SC_PAGE_SIZE"), 0
+    for pid in pids:
         try:
             with open(f"/proc/{pid}/statm", "rb") as f:
                 total += int(f.read().split()[1]) * page
         except (OSError, IndexError, ValueError):
             continue
     return total
+
+
+def _proc_tree_rss() -> int | None:
+    """:func:`process_tree_rss` from Linux's /proc (None elsewhere)."""
+    tree = _proc_tree()
+    return None if tree is None else _proc_rss(tree)
 
 
 def process_tree_rss() -> int:
@@ -139,6 +156,8 @@ class PeakMemory:
 
     def __init__(self, interval: float = 0.1, worker_interval: float = 1.0) -> None:
         self.interval = interval
+        self._tree: list[int] | None = None  # the processes sampled (/proc), found again every TREE_EVERY samples
+        self._samples = 0
         self.worker_interval = worker_interval
         self.peak = 0
         self.workers = 0
@@ -161,7 +180,10 @@ class PeakMemory:
     def sample(self) -> int:
         """Resident memory now (bytes): of this process and its children, or the workers' sum."""
         if self._client is None:
-            return process_tree_rss()
+            if self._tree is None or self._samples % TREE_EVERY == 0:
+                self._tree = _proc_tree()
+            self._samples += 1
+            return process_tree_rss() if self._tree is None else _proc_rss(self._tree)
         try:
             per_worker = self._client.run(worker_rss)
         except Exception as exc:  # a worker leaving mid-run must not fail the run
