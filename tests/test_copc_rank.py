@@ -11,6 +11,7 @@ as before the rank existed.
 from __future__ import annotations
 
 import hashlib
+import os
 import struct
 from collections import defaultdict
 
@@ -84,9 +85,9 @@ def oracle(xyz: np.ndarray, bounds: np.ndarray, rank: np.ndarray, leaf: int) -> 
     return kept
 
 
-def written_nodes(path: str) -> dict[tuple, set[int]]:
-    """The rows (gps_time) of each node of a COPC file: its hierarchy's chunks, in file order, cut from the points
-    laspy reads through the chunk table."""
+def written_nodes(path: str, field: str = "gps_time") -> dict[tuple, set[int]]:
+    """The rows (*field*, an integer per point) of each node of a COPC file: its hierarchy's chunks, in file order,
+    cut from the points laspy reads through the chunk table."""
     with open(path, "rb") as f:
         f.seek(375 + 54 + 40)  # the info VLR's root hierarchy page: offset, size
         offset, size = struct.unpack("<2Q", f.read(16))
@@ -94,7 +95,7 @@ def written_nodes(path: str) -> dict[tuple, set[int]]:
         table = np.frombuffer(f.read(size), dtype=[("d", "<i4"), ("x", "<i4"), ("y", "<i4"), ("z", "<i4"),
                                                    ("offset", "<u8"), ("nbytes", "<i4"), ("count", "<i4")])
     table = table[np.argsort(table["offset"])]
-    rows = laspy.read(path).gps_time.astype(np.int64)
+    rows = np.asarray(laspy.read(path)[field]).astype(np.int64)
     ends = np.cumsum(table["count"].astype(np.int64))
     return {(int(e["d"]), int(e["x"]), int(e["y"]), int(e["z"])): set(rows[end - int(e["count"]):end].tolist())
             for e, end in zip(table, ends)}
@@ -173,3 +174,44 @@ def test_rank_asked_without_one(tmp_path):
     with pytest.raises(InvalidParameterError, match="rank must be None, True or False, got 'yes'"):
         export_copc(plain, str(tmp_path / "x.copc.laz"), rank="yes")
     assert not (tmp_path / "x.copc.laz").exists()
+
+
+def test_simplify_rank_writes_ranked_copc(capsys, tmp_path):
+    """``simplify SRC lod.copc.laz --ratio 0.5,0.2 --rank``: COPC files holding the points and ranks of the LAZ
+    run, each the COPC of its ranked LAZ (lowest rank per voxel, against the oracle), no temporary left."""
+    from cloudsieve.cli import main
+
+    src = str(shared_file("autzen_trim.laz"))
+    assert main(["simplify", src, str(tmp_path / "lod.laz"), "--ratio", "0.5,0.2", "--rank", "--no-progress"]) == 0
+    assert main(["simplify", src, str(tmp_path / "lod.copc.laz"), "--ratio", "0.5,0.2", "--rank",
+                 "--no-progress"]) == 0
+    assert "ratio 0.2: " + str(tmp_path / "lod-0.2.copc.laz") in capsys.readouterr().out
+    assert sorted(os.listdir(tmp_path)) == ["lod-0.2.copc.laz", "lod-0.2.laz", "lod-0.5.copc.laz", "lod-0.5.laz"]
+    for ratio in ("0.5", "0.2"):
+        laz = laspy.read(tmp_path / f"lod-{ratio}.laz")
+        with laspy.CopcReader.open(tmp_path / f"lod-{ratio}.copc.laz") as reader:
+            copc = reader.query()
+        key = ("X", "Y", "Z", "gps_time", "intensity", RANK_DIM)
+        assert sorted(zip(*(np.asarray(laz[k]).tolist() for k in key))) == sorted(
+            zip(*(np.asarray(copc[k]).tolist() for k in key)))
+    # 55,000 points, 50,000-point leaves: a root sampled by rank, its children leaves
+    laz = laspy.read(tmp_path / "lod-0.5.laz")
+    written = written_nodes(str(tmp_path / "lod-0.5.copc.laz"), RANK_DIM)
+    rows = {int(r): i for i, r in enumerate(laz[RANK_DIM])}
+    assert len(rows) == len(laz.points)  # the rank identifies a point
+    xyz = np.column_stack([laz.x, laz.y, laz.z])
+    bounds = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
+    got = {node: {rows[t] for t in kept} for node, kept in written.items()}
+    assert len(got) > 1 and got == oracle(xyz, bounds, np.asarray(laz[RANK_DIM]), 50_000)
+
+
+def test_ranked_copc_refusals_before_any_work(capsys, tmp_path):
+    from cloudsieve.cli import main
+
+    src = str(shared_file("autzen_trim.laz"))
+    (tmp_path / "o-0.5.copc.laz").write_bytes(b"mine")  # the first output exists: nothing is written
+    capsys.readouterr()
+    assert main(["simplify", src, str(tmp_path / "o.copc.laz"), "--ratio", "0.5,0.2", "--rank"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1].startswith(
+        f"cloudsieve simplify: error: {tmp_path / 'o-0.5.copc.laz'} exists")
+    assert os.listdir(tmp_path) == ["o-0.5.copc.laz"] and (tmp_path / "o-0.5.copc.laz").read_bytes() == b"mine"
