@@ -4,8 +4,8 @@ Against a slow oracle (node by node, voxel by voxel, in Python) on a small
 clustered cloud, read back from the written file: its hierarchy and the chunk
 of every node. The file is valid (laspy's CopcReader reads every point once,
 records exact), the same bytes on 1 or 2 workers and any task size, and a
-cloud without the rank keeps the first point of each voxel, the same bytes
-as before the rank existed.
+cloud without the rank keeps the first point of each voxel (PDAL's layout),
+its bytes pinned.
 """
 
 from __future__ import annotations
@@ -156,9 +156,9 @@ def test_rank_false_and_unranked_keep_the_first_point(tmp_path):
     assert written_nodes(dst) == first
 
 
-def test_unranked_scan_same_bytes_as_before(tmp_path):
-    """autzen_trim (no rank) in 16,000-point chunks, 12,000-point tasks, 3,000-point leaves: the bytes written
-    before ranked COPC existed."""
+def test_unranked_scan_pinned_bytes(tmp_path):
+    """autzen_trim (no rank) in 16,000-point chunks, 12,000-point tasks, 3,000-point leaves: pinned bytes
+    (first point per voxel, PDAL's layout)."""
     store = ingest(shared_file("autzen_trim.laz"), tmp_path / "a.zarr", chunk_size=16_000)
     dst = tmp_path / "a.copc.laz"
     export_copc(store, str(dst), task_points=12_000, leaf_points=3_000)

@@ -79,7 +79,7 @@ def _check_rank_size(src: str, opts: dict, key: str) -> None:
 
 
 def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
-    """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ,
+    """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ/COPC,
     an existing or unwritable destination after the first (the first run checks its own)."""
     from ..atomic import check_destination
     from ..io import check_writable, detect_format
