@@ -178,7 +178,8 @@ def test_rank_asked_without_one(tmp_path):
 
 def test_simplify_rank_writes_ranked_copc(capsys, tmp_path):
     """``simplify SRC lod.copc.laz --ratio 0.5,0.2 --rank``: COPC files holding the points and ranks of the LAZ
-    run, each the COPC of its ranked LAZ (lowest rank per voxel, against the oracle), no temporary left."""
+    run, each the COPC of its ranked LAZ (lowest rank per voxel, against the oracle; ``export lod-0.5.laz
+    e.copc.laz`` the same bytes), no temporary left."""
     from cloudsieve.cli import main
 
     src = str(shared_file("autzen_trim.laz"))
@@ -203,6 +204,14 @@ def test_simplify_rank_writes_ranked_copc(capsys, tmp_path):
     bounds = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
     got = {node: {rows[t] for t in kept} for node, kept in written.items()}
     assert len(got) > 1 and got == oracle(xyz, bounds, np.asarray(laz[RANK_DIM]), 50_000)
+    # export FILE DST.copc.laz: the ranked file through a temporary store, the same bytes
+    assert main(["export", str(tmp_path / "lod-0.5.laz"), str(tmp_path / "e.copc.laz"), "--no-progress"]) == 0
+    assert "(each voxel's lowest cloudsieve_rank first)" in capsys.readouterr().err
+    assert (tmp_path / "e.copc.laz").read_bytes() == (tmp_path / "lod-0.5.copc.laz").read_bytes()
+    assert main(["export", str(tmp_path / "lod-0.5.laz"), str(tmp_path / "m.copc.laz"), "--mask", "k"]) == 2
+    assert capsys.readouterr().err.strip().splitlines()[-1] == (
+        f"cloudsieve export: error: --mask names a bool array of a point store; {tmp_path / 'lod-0.5.laz'} is a file")
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".")]  # no temporary left
 
 
 def test_ranked_copc_refusals_before_any_work(capsys, tmp_path):

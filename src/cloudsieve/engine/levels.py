@@ -119,20 +119,6 @@ def _ranked_copc(paths: list[str], opts: dict) -> bool:
     return bool(opts["rank"]) and opts["tile_size"] is None and detect_format(paths[0], opts["format"]) == "copc"
 
 
-def _to_copc(laz: list[str], paths: list[str], folder: str, overwrite: bool) -> None:
-    """Each ranked LAZ file of *laz* as the COPC file of *paths*, through a point store in *folder*."""
-    from ..atomic import remove
-    from ..store import ingest
-    from ..store.copc import export_copc
-
-    for i, (src, dst) in enumerate(zip(laz, paths)):
-        store = os.path.join(folder, f"level-{i}.zarr")
-        try:
-            export_copc(ingest(src, store), dst, overwrite=overwrite, rank=True)
-        finally:
-            remove(store)
-
-
 def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict], Summary]) -> Summary:
     """The nested outputs of ``opts[listed(opts)]`` (or one output with ``rank``); *run_one(src, dst, opts)* is one run.
 
@@ -151,7 +137,10 @@ def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict
         laz = [os.path.join(folder, f"level-{i}.laz") for i in range(len(paths))]
         first = _run_levels(src, laz, {**opts, "format": None}, key, run_one, t0)
         t1 = time.perf_counter()
-        _to_copc(laz, paths, folder, opts["overwrite"])
+        from ..store.copc import file_to_copc
+
+        for level, path in zip(laz, paths):
+            file_to_copc(level, path, overwrite=opts["overwrite"])
         first.seconds["copc"] = time.perf_counter() - t1
     finally:
         remove(folder)

@@ -40,7 +40,7 @@ from .copc_scratch import make_scratch, read_records, remove_scratch, scratch_ou
 from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
 from .pointstore import PointStore, source_and_destination
 
-__all__ = ["export_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
+__all__ = ["export_copc", "file_to_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
 
 logger = logging.getLogger(__name__)
 
@@ -363,3 +363,23 @@ def _node_table(results: list[dict], anc: np.ndarray, anc_counts: np.ndarray, ba
     xyz = demorton(nodes["key"])
     nodes["x"], nodes["y"], nodes["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     return nodes, sources
+
+
+def file_to_copc(src: str, dst: str, *, overwrite: bool = False, run=None, progress=None) -> dict:
+    """Write the cloud file *src* (e.g. a ranked output of ``simplify --rank``) as the COPC file *dst*, through a
+    temporary point store beside a local *dst* (else in the system's temporary folder), removed at the end.
+
+    A ``cloudsieve_rank`` dimension orders the voxels (:func:`export_copc`, which gives the result).
+    """
+    import os
+    import tempfile
+
+    from .ingest import ingest
+
+    check_destination(dst, overwrite)  # before the ingest's work
+    folder = tempfile.mkdtemp(prefix="cloudsieve-copc-") if storage.is_url(dst) else make_temp_path(dst, directory=True)
+    try:
+        store = ingest(src, os.path.join(folder, "store.zarr"), run=run)
+        return export_copc(store, dst, run=run, overwrite=overwrite, progress=progress)
+    finally:
+        remove(folder)
