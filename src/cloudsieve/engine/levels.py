@@ -80,7 +80,7 @@ def _check_rank_size(src: str, opts: dict, key: str) -> None:
 
 def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
     """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ/COPC,
-    an existing or unwritable destination after the first (the first run checks its own)."""
+    an existing or unwritable destination after the first (the first run checks its own; ranked COPC: each)."""
     from ..atomic import check_destination
     from ..io import check_writable, detect_format
     from ..paths import local_path
@@ -124,6 +124,7 @@ def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict
 
     Returns the first level's summary, with ``outputs`` (one record per level) and the whole run's time."""
     from ..atomic import make_temp_path, remove
+    from ..store.copc import file_to_copc
 
     t0 = time.perf_counter()
     key = listed(opts) or ("ratio" if opts["ratio"] is not None else "count")
@@ -137,8 +138,6 @@ def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict
         laz = [os.path.join(folder, f"level-{i}.laz") for i in range(len(paths))]
         first = _run_levels(src, laz, {**opts, "format": None}, key, run_one, t0)
         t1 = time.perf_counter()
-        from ..store.copc import file_to_copc
-
         for level, path in zip(laz, paths):
             file_to_copc(level, path, overwrite=opts["overwrite"])
         first.seconds["copc"] = time.perf_counter() - t1
