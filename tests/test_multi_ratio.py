@@ -223,12 +223,10 @@ def test_bad_lists_exit_2_before_any_work(capsys, tmp_path):
         f"cloudsieve simplify: error: a list of ratios writes LAS, LAZ, COPC, PLY or tiles (each output is the next "
         f"one's source), not xyz: {tmp_path / 'o-0.5.xyz'}")
     assert _fails(["simplify", src, xyz, "--ratio", "0.5", "--rank"], capsys, tmp_path) == (
-        f"cloudsieve simplify: error: rank writes local LAS or LAZ files (tiles and COPC reorder the points), not "
-        f"xyz: {xyz}")
-    copc = str(tmp_path / "o.copc.laz")
-    assert _fails(["simplify", src, copc, "--ratio", "0.5,0.2", "--rank"], capsys, tmp_path) == (
-        f"cloudsieve simplify: error: rank writes local LAS or LAZ files (tiles and COPC reorder the points), not "
-        f"copc: {tmp_path / 'o-0.5.copc.laz'}")
+        f"cloudsieve simplify: error: rank writes local LAS, LAZ or COPC files, not xyz: {xyz}")
+    tiles = str(tmp_path / "t")
+    assert _fails(["simplify", src, tiles, "--ratio", "0.5,0.2", "--rank", "--tile-size", "500"], capsys, tmp_path) == (
+        f"cloudsieve simplify: error: rank writes local LAS, LAZ or COPC files, not tiles: {tiles}-0.5")
     assert _fails(["compare", src, "--ratio", "0.5,0.2"], capsys, tmp_path) == (
         "cloudsieve compare: error: --ratio takes one value here, got [0.5, 0.2] (a list writes nested outputs, "
         "in cloudsieve.simplify)")

@@ -120,7 +120,7 @@ _OPTIONS = [
            many=True),
     Option("rank", BOOL, False, "store each point's rank as the extra dimension cloudsieve_rank (uint64, 0 = the "
            "most important): the first N ranks are the N points to keep, cut later by export's keep-rank option; "
-           "LAS/LAZ out, held in memory"),
+           "LAS/LAZ/COPC out (a COPC's coarse octree levels then hold the lowest ranks), held in memory"),
     Option("keep_rank", INT, None, "write only the points of rank < N of a LAS/LAZ file that simplify wrote with "
            "its rank option (its cloudsieve_rank dimension)", low=0, metavar="N"),
     Option("keep_class", CLASSES, None, "keep every point of these LAS classes whole, e.g. 2,9 (exact records; "

@@ -13,7 +13,10 @@ the original: the radius, the cells' counts and the relocation of an elimination
 depend on its count (docs/architecture.md, "Nested outputs").
 
 With ``rank``, :func:`cloudsieve.io.rank.write_ranks` then stores the rank of
-every point in every output (extra dimension ``cloudsieve_rank``).
+every point in every output (extra dimension ``cloudsieve_rank``). COPC outputs
+with ``rank`` are written as LAZ in a temporary folder beside the first, ranked,
+then each made a COPC file (:func:`cloudsieve.store.copc.export_copc`: each voxel
+of a node keeps its point of lowest rank).
 """
 
 from __future__ import annotations
@@ -76,8 +79,8 @@ def _check_rank_size(src: str, opts: dict, key: str) -> None:
 
 
 def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
-    """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ,
-    an existing or unwritable destination after the first (the first run checks its own)."""
+    """Refuse what nested outputs cannot write, before any work: formats not read back, a rank out of LAS/LAZ/COPC,
+    an existing or unwritable destination after the first (the first run checks its own; ranked COPC: each)."""
     from ..atomic import check_destination
     from ..io import check_writable, detect_format
     from ..paths import local_path
@@ -87,14 +90,14 @@ def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
     if len(paths) > 1 and fmt not in _READ_BACK:
         raise InvalidParameterError(f"a list of {key}s writes LAS, LAZ, COPC, PLY or tiles (each output is the next "
                                     f"one's source), not {fmt}: {paths[0]}")
-    if opts["rank"] and (tiles or fmt not in ("las", "laz") or any(local_path(p) is None for p in paths)):
-        raise InvalidParameterError(f"rank writes local LAS or LAZ files (tiles and COPC reorder the points), not "
-                                    f"{'tiles' if tiles else fmt}: {paths[0]}")
+    if opts["rank"] and (tiles or fmt not in ("las", "laz", "copc") or any(local_path(p) is None for p in paths)):
+        raise InvalidParameterError(f"rank writes local LAS, LAZ or COPC files, not "
+                                    f"{'tiles' if tiles else fmt if local_path(paths[0]) else 'URLs'}: {paths[0]}")
     if opts["rank"]:
         _check_rank_size(src, opts, key)
     if len(set(paths)) < len(paths):
         raise InvalidParameterError(f"the outputs of {key} {opts[key]} need distinct paths, got {paths}")
-    for path in paths[1:]:
+    for path in paths if opts["rank"] and fmt == "copc" else paths[1:]:  # ranked COPC: the runs write elsewhere
         if tiles:
             check_destination(path, opts["overwrite"], folder=True)
         else:
@@ -109,15 +112,48 @@ def _level_store(store: str | None, label: str) -> str | None:
     return store[: -len(".zarr")] + f"-{label}.zarr" if store.endswith(".zarr") else f"{store}-{label}"
 
 
+def _ranked_copc(paths: list[str], opts: dict) -> bool:
+    """True when the outputs are COPC files to rank: their levels are written as LAZ first."""
+    from ..io import detect_format
+
+    return bool(opts["rank"]) and opts["tile_size"] is None and detect_format(paths[0], opts["format"]) == "copc"
+
+
 def run_levels(src: str, dst: str, opts: dict, run_one: Callable[[str, str, dict], Summary]) -> Summary:
     """The nested outputs of ``opts[listed(opts)]`` (or one output with ``rank``); *run_one(src, dst, opts)* is one run.
 
     Returns the first level's summary, with ``outputs`` (one record per level) and the whole run's time."""
+    from ..atomic import make_temp_path, remove
+    from ..store.copc import file_to_copc
+
     t0 = time.perf_counter()
     key = listed(opts) or ("ratio" if opts["ratio"] is not None else "count")
     values = opts[key] if isinstance(opts[key], tuple) else (opts[key],)  # one value: rank alone, DST as given
     paths = level_paths(dst, key, values, opts["tile_size"] is not None) if len(values) > 1 else [dst]
     _check_levels(src, paths, opts, key)
+    if not _ranked_copc(paths, opts):
+        return _run_levels(src, paths, opts, key, run_one, t0)
+    folder = make_temp_path(paths[0], directory=True)
+    try:
+        laz = [os.path.join(folder, f"level-{i}.laz") for i in range(len(paths))]
+        first = _run_levels(src, laz, {**opts, "format": None}, key, run_one, t0)
+        t1 = time.perf_counter()
+        for level, path in zip(laz, paths):
+            file_to_copc(level, path, overwrite=opts["overwrite"])
+        first.seconds["copc"] = time.perf_counter() - t1
+    finally:
+        remove(folder)
+    first.destination = paths[0]
+    for record, path in zip(first.outputs, paths):
+        record["destination"] = path
+    first.seconds["total"] = time.perf_counter() - t0
+    return first
+
+
+def _run_levels(src: str, paths: list[str], opts: dict, key: str, run_one: Callable[[str, str, dict], Summary],
+                t0: float) -> Summary:
+    """The runs of :func:`run_levels` to *paths*, then the rank."""
+    values = opts[key] if isinstance(opts[key], tuple) else (opts[key],)
     summaries, n = [], 0
     for i, (value, path) in enumerate(zip(values, paths)):
         if i == 0:

@@ -5,7 +5,8 @@
    at which a surface of the cloud's size puts about *task_points* / 4 in a node.
 2. **Plan** (driver): a task per top-most node holding <= *task_points* points.
 3. **Subtrees**: a task per such node T assigns levels (:func:`.octree.assign_levels`,
-   points by cell at depth 7, input order within), writes a LAZ chunk per
+   points by cell at depth 7, input order within; a voxel keeps its first point, or
+   its point of lowest ``cloudsieve_rank`` when the store has one), writes a LAZ chunk per
    node of T's subtree and T's ancestors' records to scratch files, and
    returns sizes and counts only.
 4. **Ancestors**: tasks gather and compress each ancestor's records.
@@ -32,13 +33,14 @@ from .. import storage
 from ..errors import InvalidParameterError
 from ..atomic import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
+from ..io.rank import RANK_DIM
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
 from .copc_scratch import make_scratch, read_records, remove_scratch, scratch_output
 from .octree import GRID_BITS, KEY_DEPTH, assign_levels, demorton, group_nodes, node_keys, point_keys, root_cube
 from .pointstore import PointStore, source_and_destination
 
-__all__ = ["export_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
+__all__ = ["export_copc", "file_to_copc", "DEFAULT_TASK_POINTS", "DEFAULT_LEAF_POINTS"]
 
 logger = logging.getLogger(__name__)
 
@@ -88,7 +90,8 @@ def _chunk(records: np.ndarray, vlr) -> bytes:
 @dataclass(frozen=True)
 class _Build:
     """What every subtree task of one export shares: the bucketed points, the octree's cube, *leaf_points*,
-    the output's *header* and record *mapping*, the *scratch* folder."""
+    the output's *header* and record *mapping*, the *scratch* folder, and the store attribute whose lowest
+    value a voxel keeps (*rank*; None: its first point)."""
 
     store_path: str
     name: str
@@ -98,6 +101,7 @@ class _Build:
     header: dict
     mapping: list
     scratch: str
+    rank: str | None = None
 
 
 def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> dict:
@@ -109,21 +113,26 @@ def _subtree_task(build: _Build, runs: np.ndarray, depth: int, index: int) -> di
     """
     scratch, mapping = build.scratch, build.mapping
     hdr, _ = header_from_dict(build.header)
-    xyz_parts, record_parts = [], []
-    # block by block: packed records and coordinates only
+    xyz_parts, record_parts, rank_parts = [], [], []
+    # block by block: packed records and coordinates only (and the rank)
     for part in iter_runs(build.store_path, build.name, runs, _READ_BLOCK):
         xyz_parts.append(part["xyz"])
         record_parts.append(point_records(part, hdr, mapping))
+        if build.rank is not None:
+            rank_parts.append(part[build.rank])
         del part
     xyz, records = np.concatenate(xyz_parts), np.concatenate(record_parts)
-    del xyz_parts, record_parts
+    rank = np.concatenate(rank_parts) if build.rank is not None else None
+    del xyz_parts, record_parts, rank_parts
     stats = record_stats(records, hdr.point_format)
     keys = point_keys(xyz, build.origin, build.size)
     del xyz
     # by cell at depth GRID_BITS, then input order (whatever the bucket depth)
     order = np.argsort(keys >> (3 * (KEY_DEPTH - GRID_BITS)), kind="stable")
     keys, records = keys[order], records.take(order)
-    level = assign_levels(keys, base_depth=depth, leaf_points=build.leaf_points)
+    rank = None if rank is None else rank[order]
+    level = assign_levels(keys, base_depth=depth, leaf_points=build.leaf_points, rank=rank)
+    del rank
     order, depths, nkeys, counts = group_nodes(keys, level)
     del keys, level
     records = records.take(order)
@@ -234,7 +243,7 @@ def _ancestors(results: list[dict], task_points: int) -> tuple[np.ndarray, np.nd
 
 def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, run=None, overwrite: bool = False,
                 progress=None, task_points: int = DEFAULT_TASK_POINTS,
-                leaf_points: int = DEFAULT_LEAF_POINTS) -> dict:
+                leaf_points: int = DEFAULT_LEAF_POINTS, rank: bool | None = None) -> dict:
     """Write the points of *store* (all, or those of the bool store array *mask*) to the COPC file *dst*.
 
     Every point is an exact copy of its input record (formats 6/7/8; see
@@ -249,11 +258,17 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
         Points per subtree task (bounds a task's memory).
     leaf_points : int
         A node holding at most this many points is a leaf; at most *task_points*.
+    rank : bool, optional
+        Each voxel of a node keeps its point of lowest ``cloudsieve_rank``
+        (``simplify --rank``; ties by row), so the coarse levels hold the
+        highest-ranked points. None (default): when the store has that
+        attribute; False: the first point, as PDAL and Untwine.
 
     Returns
     -------
     dict
-        ``{"path", "points", "nodes", "depth" (deepest node), "tasks", "bytes"}``.
+        ``{"path", "points", "nodes", "depth" (deepest node), "tasks", "bytes", "ranked"}`` (ranked: the
+        voxels kept their lowest rank).
 
     Raises
     ------
@@ -265,6 +280,15 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
             and 1 <= leaf_points <= task_points):
         raise InvalidParameterError(f"need 1 <= leaf_points <= task_points, got leaf_points={leaf_points!r}, "
                                     f"task_points={task_points!r}")
+    if rank not in (None, True, False):
+        raise InvalidParameterError(f"rank must be None, True or False, got {rank!r}")
+    if rank and RANK_DIM not in store.dtypes:
+        raise InvalidParameterError(f"{store.path} has no {RANK_DIM} attribute to order the octree by: write one "
+                                    f"with cloudsieve simplify --rank")
+    ranked = RANK_DIM if (rank is None and RANK_DIM in store.dtypes) or rank else None
+    if ranked and not (np.dtype(store.dtypes[RANK_DIM][0]).kind in "ui" and store.dtypes[RANK_DIM][1] == ()):
+        raise InvalidParameterError(f"{store.path}: {RANK_DIM} must be one integer a point, got "
+                                    f"{store.dtypes[RANK_DIM][0]} {store.dtypes[RANK_DIM][1]}")
     check_destination(dst, overwrite)
     run = _sequential if run is None else run
     update = _progress.callback(progress)
@@ -284,7 +308,7 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
         if biggest > task_points:
             logger.warning("%s: a node at depth %d holds %d points, more than task_points=%d: its task holds them "
                            "all (about 165 bytes a point)", dst, depth, biggest, task_points)
-        build = _Build(store.path, name, origin, size, leaf_points, header, mapping, scratch)
+        build = _Build(store.path, name, origin, size, leaf_points, header, mapping, scratch, ranked)
         args = [(build, np.concatenate([buckets.runs(int(k)) for k in buckets.keys[s:e]]), d, i)
                 for i, (d, _, s, e) in enumerate(plan)]
         results = run(_subtree_task, args, "export: copc subtrees")
@@ -306,7 +330,8 @@ def export_copc(store: PointStore | str, dst: str, *, mask: str | None = None, r
         if buckets is not None:
             buckets.delete()
     out = {"path": dst, "points": int(stats["count"]), "nodes": len(nodes["depth"]),
-           "depth": int(nodes["depth"].max()) if len(nodes["depth"]) else 0, "tasks": len(plan), "bytes": int(written)}
+           "depth": int(nodes["depth"].max()) if len(nodes["depth"]) else 0, "tasks": len(plan), "bytes": int(written),
+           "ranked": ranked is not None}
     logger.info("wrote COPC %s: %d points in %d nodes (deepest %d), %d subtree tasks", dst, out["points"],
                 out["nodes"], out["depth"], out["tasks"])
     return out
@@ -338,3 +363,23 @@ def _node_table(results: list[dict], anc: np.ndarray, anc_counts: np.ndarray, ba
     xyz = demorton(nodes["key"])
     nodes["x"], nodes["y"], nodes["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
     return nodes, sources
+
+
+def file_to_copc(src: str, dst: str, *, overwrite: bool = False, run=None, progress=None) -> dict:
+    """Write the cloud file *src* (e.g. a ranked output of ``simplify --rank``) as the COPC file *dst*, through a
+    temporary point store beside a local *dst* (else in the system's temporary folder), removed at the end.
+
+    A ``cloudsieve_rank`` dimension orders the voxels (:func:`export_copc`, which gives the result).
+    """
+    import os
+    import tempfile
+
+    from .ingest import ingest
+
+    check_destination(dst, overwrite)  # before the ingest's work
+    folder = tempfile.mkdtemp(prefix="cloudsieve-copc-") if storage.is_url(dst) else make_temp_path(dst, directory=True)
+    try:
+        store = ingest(src, os.path.join(folder, "store.zarr"), run=run)
+        return export_copc(store, dst, run=run, overwrite=overwrite, progress=progress)
+    finally:
+        remove(folder)

@@ -6,7 +6,10 @@ right, so one Morton key per point (:func:`point_keys`) gives its node and
 voxel at every depth. :func:`assign_levels` follows Untwine and PDAL's
 ``writers.copc``: a node of at most *leaf_points* points keeps them all;
 another keeps the first point of each voxel of its ``2^GRID_BITS``-per-axis
-grid and passes the rest down. A subtree depends on its own points only
+grid and passes the rest down. Given a rank per point (``cloudsieve_rank``,
+0 the most important), a voxel keeps its point of lowest rank instead (ties
+by position), so the coarse levels hold the points an elimination kept
+longest. A subtree depends on its own points only
 (:func:`cloudsieve.store.copc.export_copc` relies on it).
 """
 
@@ -95,23 +98,30 @@ def node_keys(xyz: np.ndarray, origin: np.ndarray, size: float, depth: int) -> n
     return morton(cells(xyz, origin, size, depth))
 
 
-def _first_of_each(keys: np.ndarray) -> np.ndarray:
-    """Positions (increasing) of the first occurrence of each distinct value of *keys*."""
-    order = np.argsort(keys, kind="stable")
+def _first_of_each(keys: np.ndarray, rank: np.ndarray | None = None) -> np.ndarray:
+    """Positions (increasing) of the first occurrence of each distinct value of *keys*; with *rank* (same
+    length), of the occurrence of lowest rank (the first of equal ranks)."""
+    order = np.argsort(keys, kind="stable") if rank is None else np.lexsort((rank, keys))
     sk = keys[order]
     head = np.ones(len(sk), dtype=bool)
     head[1:] = sk[1:] != sk[:-1]
     return np.sort(order[head])
 
 
-def assign_levels(keys: np.ndarray, *, base_depth: int = 0, leaf_points: int = 50_000) -> np.ndarray:
+def assign_levels(keys: np.ndarray, *, base_depth: int = 0, leaf_points: int = 50_000,
+                  rank: np.ndarray | None = None) -> np.ndarray:
     """The depth (n,) int8 of the node keeping each point (see the module docstring).
 
     *keys*: :func:`point_keys` of all points of one node at *base_depth*
     (<= :data:`GRID_BITS`, whose ancestors all sample their grids), in order.
-    A node holding at most *leaf_points* points is a leaf.
+    A node holding at most *leaf_points* points is a leaf. *rank* (n,), when
+    given: a voxel keeps its point of lowest rank, not its first.
     """
     keys = np.asarray(keys, dtype=np.int64)
+    if rank is not None:
+        rank = np.asarray(rank)
+        if rank.shape != keys.shape:
+            raise ValueError(f"rank needs one value per key: {rank.shape} for {keys.shape}")
     level = np.full(len(keys), -1, dtype=np.int8)
     rest = np.arange(len(keys))
     for depth in range(MAX_DEPTH + 1):
@@ -129,7 +139,8 @@ def assign_levels(keys: np.ndarray, *, base_depth: int = 0, leaf_points: int = 5
             rest = rest[~small]
             if len(rest) == 0:
                 break
-        first = _first_of_each(keys[rest] >> (3 * (KEY_DEPTH - depth - GRID_BITS)))  # the voxels
+        first = _first_of_each(keys[rest] >> (3 * (KEY_DEPTH - depth - GRID_BITS)),  # the voxels
+                               None if rank is None else rank[rest])
         level[rest[first]] = depth
         rest = np.delete(rest, first)
     return level
