@@ -131,13 +131,15 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                     policy_params = density_params(density)
                 if params.get("max_gap") is not None:
                     workstore.ensure_fill_array(st)
-                computed, reused, points, _ = run_cells(StoreCells(st.path), part, regions, {**params, **policy_params},
-                                                        runner, target if policy is None else policy.targets(classes))
+                computed, reused, points, distinct = run_cells(StoreCells(st.path), part, regions,
+                                                               {**params, **policy_params}, runner,
+                                                               target if policy is None else policy.targets(classes))
                 if params.get("max_gap") is not None:  # the gap bound: a fill, then its check, every cell final
                     from .gap import run_gap
 
                     summary.gap = run_gap(StoreCells(st.path), part, regions, {**params, **policy_params}, runner)
                 progress(points)
+                summary.duplicates = summary.points_in - distinct  # from the shares: no read per cell
             else:
                 reused, points = cells.run_score(st, part, regions, params, runner)
                 progress(points)
@@ -145,7 +147,8 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                     summary.threshold = thresholds.global_threshold(st, part, regions, runner, st.count - target)
                 computed = cells.run_apply(st, part, regions, params, runner, summary.threshold)
             summary.cells_computed, summary.cells_reused = computed, reused
-            summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
+            if target is None or elim is None:
+                summary.duplicates = int(st.group["simplify/duplicates"][:].sum())
             summary.seconds["cells"] = time.perf_counter() - t0
             summary.stage_cpu["cells"] = _cpu_lap(runner, summary)
 
