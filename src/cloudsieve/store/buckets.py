@@ -105,12 +105,12 @@ def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, 
     sk = k[order]
     heads = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if n else _EMPTY
     if n:
-        rec = np.empty(len(xyz), dtype=record)  # the chunk packed, then its selected points taken in key order
-        rec["xyz"] = xyz
+        take = order if rows is None else rows[order]  # the selected points in key order, packed
+        rec = np.empty(n, dtype=record)
+        rec["xyz"] = xyz[take]
         for d, v in zip(others, got):
-            rec[d] = np.asarray(v)
-        taken = rec.take(order if rows is None else rows[order])
-        out[chunk, :n] = taken.view(np.uint8).reshape(n, record.itemsize)
+            rec[d] = np.asarray(v)[take]
+        out[chunk, :n] = rec.view(np.uint8).reshape(n, record.itemsize)
     return sk[heads], np.diff(np.r_[heads, n]).astype(np.int64)
 
 
