@@ -7,7 +7,9 @@ blocks; keep-alive on both sides; interim 1xx answers of the upstream skipped). 
 :class:`Rule` turns the *first*..*last* requests matching a method, a path pattern and a query pattern into
 an error answer of its own, an S3 ``<Error>`` document (``503 SlowDown``, ``500 InternalError``,
 ``403 AccessDenied``), after reading the request's body. ``forwarded`` and ``injected`` count what it did;
-``log`` lists ``(method, path?query, status)``. Standard library only::
+``log`` lists ``(method, path?query, status)``. What s3fs/aiobotocore send: bodies with a Content-Length (PUTs
+with ``Expect: 100-continue``, answered here and not forwarded: SigV4 does not sign it), ranged GETs, path-style
+keys; a chunked body is relayed as framed. Standard library only::
 
     with FaultProxy(s3.endpoint_url, [Rule("PUT", r"/out\\.laz$", first=1, last=2)]) as proxy:
         env = {**s3.env(), "AWS_ENDPOINT_URL": proxy.url, "AWS_ENDPOINT_URL_S3": proxy.url}
