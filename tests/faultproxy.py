@@ -88,6 +88,9 @@ class _Handler(BaseHTTPRequestHandler):
             self._relay()
         except OSError:  # the client or the upstream went away (a time-out, the proxy closing)
             self.close_connection = True
+            if self.upstream is not None:
+                self.upstream.close()
+                self.upstream = None
 
     def _relay(self) -> None:
         split = urlsplit(self.path)
@@ -104,6 +107,8 @@ class _Handler(BaseHTTPRequestHandler):
         self._body(self.upstream)
         while True:  # the answer's head; 1xx heads are skipped
             status_line = self.up_in.readline(65537)
+            if not status_line:  # the upstream closed the kept connection: the client's to send again
+                raise ConnectionError("the upstream closed the connection")
             lines = [status_line]
             while lines[-1] not in (b"\r\n", b"\n", b""):
                 lines.append(self.up_in.readline(65537))
