@@ -131,7 +131,7 @@ def test_a_multipart_upload_s_failed_part_and_completion_are_retried(bucket, s3,
 def test_a_write_answered_503_every_time_fails_with_one_line_and_leaves_nothing(cloud, bucket, s3, proxy):
     """Every PUT of the output answered 503 SlowDown: the run's parts are written, the output's upload is sent
     again and again, then the run stops: exit 2, the URL and the answer named, nothing under out/ (neither the
-    file nor its parts nor a write probe)."""
+    file nor its parts nor a write probe). The same with every request to the key answered 503."""
     rule = Rule("PUT", r"/out/o\.laz$")
     faulty = proxy(rule)
     dst = f"{bucket}/out/o.laz"
@@ -141,6 +141,11 @@ def test_a_write_answered_503_every_time_fails_with_one_line_and_leaves_nothing(
                     "retries exhausted")
     assert rule.injected >= 2  # sent again before giving up
     assert any(".o.laz.parts-" in path for _, path, _ in faulty.log)  # there were parts to clean
+    assert _under(s3, f"{bucket}/out") == []
+    # every request to the key, the destination's check (a HEAD: an answer with no body) first
+    proc = _simplify(s3, proxy(Rule(None, r"/out/o\.laz$")), cloud, dst, options=FEW_ATTEMPTS)
+    assert _failed(proc, s3) == (f"cloudsieve simplify: error: {dst}: the object store answered 503 (Service "
+                                 "Unavailable) to every attempt: retries exhausted")
     assert _under(s3, f"{bucket}/out") == []
 
 
