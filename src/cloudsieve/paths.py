@@ -6,6 +6,7 @@ A leaf (imports :mod:`cloudsieve.errors`, :mod:`cloudsieve.storage`, :mod:`cloud
 
 from __future__ import annotations
 
+import functools
 import os
 import posixpath
 from typing import TYPE_CHECKING
@@ -97,8 +98,42 @@ def zarr_store(path: str, read_only: bool):
     # zarr reads whole objects: one GET each, not s3fs's HEAD for the size first
         options.setdefault("max_concurrency", 1)
     # in a stage's task: a store that reads each shard's index once (handles.py)
-    return handles.remote_store(lambda: zarr.storage.FsspecStore.from_url(path, read_only=read_only,
-                                                                          storage_options=options))
+    return handles.remote_store(lambda: _mapped(zarr.storage.FsspecStore.from_url(
+        path, read_only=read_only, storage_options=options), path))
+
+
+def _mapped(store, path: str):
+    """The zarr *store* of the URL *path*, its reads' and writes' errors cloudsieve's (one line naming *path*,
+    :func:`cloudsieve.storage.remote_errors`), as the errors of every other request of a run."""
+    store.__class__ = _mapped_store_class(type(store))
+    object.__setattr__(store, "_url", path)
+    return store
+
+
+@functools.cache
+def _mapped_store_class(base: type) -> type:
+    class MappedStore(base):  # type: ignore[valid-type, misc]
+        async def get(self, *args, **kwargs):
+            with storage.remote_errors(self._url):
+                return await super().get(*args, **kwargs)
+
+        async def get_partial_values(self, *args, **kwargs):
+            with storage.remote_errors(self._url):
+                return await super().get_partial_values(*args, **kwargs)
+
+        async def exists(self, *args, **kwargs):
+            with storage.remote_errors(self._url):
+                return await super().exists(*args, **kwargs)
+
+        async def set(self, *args, **kwargs):
+            with storage.remote_errors(self._url, writing=True):
+                return await super().set(*args, **kwargs)
+
+        async def delete(self, *args, **kwargs):
+            with storage.remote_errors(self._url, writing=True):
+                return await super().delete(*args, **kwargs)
+
+    return MappedStore
 
 
 def path_exists(path: str) -> bool:

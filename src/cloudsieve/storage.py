@@ -151,7 +151,15 @@ def open_input(path: str | os.PathLike, block_size: int = READ_BLOCK):
         return open(local(path), "rb")
     fs, p = filesystem(path)
     with remote_errors(path):
-        return fs.open(p, "rb", block_size=block_size, cache_type="readahead")
+        fh = fs.open(p, "rb", block_size=block_size, cache_type="readahead")
+    fetch = getattr(fh.cache, "fetcher", None)
+    if fetch is not None:  # each ranged request of a read: its errors are cloudsieve's too
+        def mapped_fetch(start: int, end: int) -> bytes:
+            with remote_errors(path):
+                return fetch(start, end)
+
+        fh.cache.fetcher = mapped_fetch
+    return fh
 
 
 def widen(fh, block_size: int = READ_BLOCK) -> None:

@@ -30,6 +30,19 @@ def _reason(exc: BaseException, secrets: list[str]) -> str:
     return redact(text.splitlines()[0], secrets)
 
 
+def _answer(exc: BaseException) -> tuple[int, str, str] | None:
+    """``(HTTP status, S3 error code, its message)`` of the store's answer behind *exc* (s3fs keeps botocore's
+    error as the cause), or None for an error that is no answer; a code or message the answer lacks is ""."""
+    for err in (exc, exc.__cause__, exc.__context__):
+        meta = getattr(err, "response", None)
+        if isinstance(meta, dict) and "ResponseMetadata" in meta:
+            status = meta["ResponseMetadata"].get("HTTPStatusCode")
+            error = meta.get("Error", {})
+            code, message = str(error.get("Code") or ""), str(error.get("Message") or "")
+            return (int(status), "" if code == str(status) else code, message) if status else None
+    return None
+
+
 #: the exceptions' names (botocore, aiohttp, requests) that say the store cannot be reached
 _UNREACHABLE = ("EndpointConnectionError", "ConnectTimeoutError", "ConnectionError", "ClientConnectorError",
                 "ConnectTimeout", "ReadTimeoutError")
@@ -59,6 +72,11 @@ def mapped(path: str, remote: bool, writing: bool, endpoint: str | None, secrets
         if kind in _UNREACHABLE or "Could not connect" in str(exc):
             raise failed(f"{path}: cannot reach the object store at {endpoint or 'the default endpoint'} "
                          f"({_reason(exc, secrets)})") from None
+        answer = _answer(exc)
+        if answer is not None and (answer[0] >= 500 or answer[0] == 429):  # retried by the client, in vain
+            status, code, message = answer
+            said = f"{status} {code}".strip() + (f" ({redact(message, secrets)})" if message else "")
+            raise failed(f"{path}: the object store answered {said} to every attempt: retries exhausted") from None
         if isinstance(exc, (OSError, ValueError)):
             raise failed(f"{path}: {_reason(exc, secrets)}") from None
         raise
