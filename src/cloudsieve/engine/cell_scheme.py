@@ -37,7 +37,7 @@ import numpy as np
 
 from ..chunk import take_rows
 from ..core.kernels.scatter import group_rows
-from .cell_work import task_threads, cell_counts, cell_keep, cell_share
+from .cell_work import task_threads, cell_counts, cell_keep, cell_share, colour_order, halo_rows
 from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
@@ -235,13 +235,10 @@ def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
         return {"cell": task.cell, "n": len(core), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
     n, halo = len(core), None
     if 0 < count < n:  # else no elimination: no halo
-        points, cells, pos = io.halo(task)
-        earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
-        fixed = np.isin(cells, earlier)
+        points, rows, fixed = halo_rows(io, task, colours)
         halo_keep = np.zeros(len(points), dtype=bool)
-        if fixed.any():  # their final decisions, at their regions' positions
-            src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-            halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
+        if fixed.any():  # their final decisions
+            halo_keep[fixed] = io.keep_at(rows[fixed])
         halo = points, fixed, halo_keep
     keep = cell_keep(core, count, float(task.params["r_max"]), halo, task_threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
@@ -296,8 +293,7 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     # a cell starts once the lower-colour cells of its halo are done
     ordered = apply_order(colours, part.cell_counts, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(where, part, regions, ordered, params, runner.task_threads, halo=True)
-    at = {t.cell: i for i, t in enumerate(tasks)}
-    args = [(where, t, q[t.cell].tolist(), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
-    after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
+    cols, after = colour_order(tasks, colours)
+    args = [(where, t, q[t.cell].tolist(), c) for t, c in zip(tasks, cols)]
     runner(apply_task, args, "cells: apply", after=after)
     return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), int(distinct.sum())

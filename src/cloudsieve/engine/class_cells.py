@@ -66,7 +66,7 @@ def group_counts(share: np.ndarray, targets: np.ndarray, r_max: float) -> tuple[
 
 def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.ndarray:
     """The keep mask (n,) of a cell, its groups eliminated in order to *counts* (G,), the whole ones kept."""
-    from .cell_work import task_threads, cell_keep
+    from .cell_work import task_threads, cell_keep, halo_rows
 
     groups = np.asarray(io.groups(task, len(core)))
     keep = groups == WHOLE
@@ -75,11 +75,7 @@ def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.nd
         for g, q in enumerate(counts):
             keep[groups == g] = q >= sizes[g]
         return keep
-    points, cells, pos = io.halo(task)
-    src = np.array(sorted(task.halo), dtype=np.int64)
-    start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
-    rows = start[np.searchsorted(src, cells)] + pos if len(cells) else np.zeros(0, dtype=np.int64)
-    fixed = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
+    points, rows, fixed = halo_rows(io, task, colours)
     hgroup = np.asarray(io.groups_at(rows)) if len(rows) else np.zeros(0, dtype=np.int8)
     hkeep = np.zeros(len(points), dtype=bool)
     if fixed.any():  # their final decisions

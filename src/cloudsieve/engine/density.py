@@ -167,7 +167,7 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     fixed, the area's own points of higher-colour cells eliminated along; each point within 2.2 r_max of the
     area's points."""
     from ..core.eliminate_cells import HALO_RADII
-    from .cell_work import task_threads, cell_keep
+    from .cell_work import task_threads, cell_keep, halo_rows
 
     side, r_max = float(task.params["density_cell"]), float(task.params["r_max"])
     dims = int(task.params.get("density_dims") or 2)
@@ -179,13 +179,10 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     dense = np.flatnonzero(quotas < sizes)
     if not len(dense):
         return keep
-    points, cells, pos = io.halo(task)
-    fixed = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
+    points, rows, fixed = halo_rows(io, task, colours)
     hkeep = np.ones(len(points), dtype=bool)  # the higher colours' points weigh as kept
     if fixed.any():  # the lower colours' final decisions
-        src = np.array(sorted(task.halo), dtype=np.int64)
-        start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
-        hkeep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
+        hkeep[fixed] = io.keep_at(rows[fixed])
     hkeys = area_keys(points, side, dims) if len(points) else np.zeros(0, dtype=np.int64)
     margin = HALO_RADII * r_max if np.isfinite(r_max) else 0.0
     reach = int(np.ceil(margin / side))  # areas of context on each side
