@@ -41,7 +41,7 @@ from .cell_work import task_threads, cell_counts, cell_keep, cell_share, colour_
 from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
-           "run_cells", "density_params", "cell_share", "cell_counts", "cell_keep"]
+           "run_cells", "stage_params", "cell_share", "cell_counts", "cell_keep"]
 
 
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> tuple:
@@ -153,11 +153,7 @@ def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_dupli
     *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,);
     *density*: a :class:`~.density.DensityTarget`."""
     where = ArrayCells(xyz, part, order, None if policy is None else policy[0])
-    params = {"keep_duplicates": keep_duplicates}
-    if policy is not None:
-        params.update(lookup=policy[1].lookup.tolist(), groups=policy[1].groups)
-    if density is not None:
-        params.update(density_params(density))
+    params = {"keep_duplicates": keep_duplicates, **stage_params(None if policy is None else policy[1], density)}
     runner = ThreadMap()
     *_, distinct = run_cells(where, part, where.regions, params, runner, target)
     record = None
@@ -182,9 +178,12 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
-def density_params(density) -> dict:
-    """The cells stage's parameters of a :class:`~.density.DensityTarget`: the areas' side and floor."""
-    return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
+def stage_params(policy, density) -> dict:
+    """The cells stage's parameters of a :class:`~.class_policy.ClassPolicy` (its groups) or a
+    :class:`~.density.DensityTarget` (the areas' side and floor); empty for neither."""
+    if density is not None:
+        return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
+    return {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
 
 
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
