@@ -4,22 +4,9 @@ The store's run (:class:`~.eliminate.StoreCells`, resumable), a small input
 (:mod:`.small`) and the in-memory API (:func:`eliminate_points`) run the same
 functions on the same cells (:class:`ArrayCells` and :class:`ThreadMap`
 stand in for the store and the runner), so the kept set does not depend on
-where it runs. With r_max, the global elimination radius solved on the
-partition's sample (:func:`cloudsieve.core.radius.global_radius`):
-
-1. **shares** (:func:`share_task`, a task per cell): packing sizes at radii
-   :data:`~cloudsieve.core.packing.LADDER` x r_max and distinct points into
-   ``simplify/share``, the band into ``simplify/band_*``, then
-   ``simplify/scored[cell]``; the driver turns them into counts q_j summing
-   exactly to the target (:func:`cell_counts`).
-2. **elimination** (:func:`apply_task`), colour by colour
-   (:func:`~cloudsieve.core.colours.cell_colours`, a cell waiting only for
-   the lower-colour cells of its halo): :func:`~cloudsieve.core.eliminate_cells.eliminate_cell`
-   keeps q_j points with the lower colours' final decisions fixed (else
-   both sides of a border remove their border points: holes) and the higher
-   colours' points as halo, then one relocation step. Writes
-   ``simplify/keep_cells``, then ``simplify/done[cell]``.
-
+where it runs. A task per cell stores its share (:func:`share_task`), the
+driver makes exact counts, then the cells are eliminated colour by colour
+(:func:`apply_task`; docs/architecture.md, "The default rule `eliminate`").
 A crash resumes from the markers: scored cells are not read again and only
 cells not done are applied. ``method``, ``cluster_size`` and
 ``halo_context`` are unused.

@@ -1,16 +1,10 @@
 """The eliminate cells stage (:mod:`.cell_scheme`) with class policies (:mod:`.class_policy`): a group at a time.
 
-A cell's points fall in groups by class (``params["lookup"]``: -1 kept
-whole, 0 .. G-1 eliminated). Shares are per group (:func:`group_share`),
-so each group's counts per cell sum exactly to its target
-(:func:`group_counts`). A cell then eliminates its groups in order
-(:func:`group_keep`), each with the rest as fixed context: the points kept
-whole, the groups not yet run and the other groups of the higher-colour
-halo cells weigh as kept and are never removed; the groups already run and
-the lower-colour halo cells weigh by their final decisions; the group's own
-points of higher-colour halo cells are eliminated along, as without
-policies. Nothing depends on the worker count: a cell reads only its own
-points and the final decisions of lower colours.
+Shares and counts are per group, each group's counts summing exactly to its
+target; a cell eliminates its groups in order, each with the rest as fixed
+context (docs/architecture.md, "Class policies"). A cell reads only its own
+points and the final decisions of lower colours: nothing depends on the
+worker count.
 """
 
 from __future__ import annotations

@@ -1,16 +1,10 @@
 """The density target of the eliminate rule (``density``, ``density_cell``): :class:`DensityTarget`.
 
-The horizontal plane is cut into square *areas* of side R (``density_cell``,
-a grid anchored at 0: area (floor(x / R), floor(y / R))). An area holding
-more than F = floor(D R^2) points keeps exactly F, the others keep all
-theirs. An area spans several engine cells, so each (area, cell) pair gets an
-exact quota: the share tasks return each cell's points per area
-(:func:`cell_areas`), the driver splits each dense area's F among the cells
-holding it, in proportion to their points, by largest remainder (ties to the
-lower cell; :func:`area_quotas`), and a cell eliminates its dense areas one
-after the other (:func:`density_keep`), each to its quota with the rest as
-context, as :mod:`.class_cells` does with a group. A cell's count is the sum
-of its quotas. Nothing depends on the worker count.
+An area of side R holding more than F = floor(D R^2) points keeps exactly F,
+the others all theirs. Each (area, cell) pair gets an exact quota by largest
+remainder (:func:`area_quotas`) and a cell eliminates its dense areas in turn
+(:func:`density_keep`), as :mod:`.class_cells` a group (docs/architecture.md,
+"Density target"). Nothing depends on the worker count.
 """
 
 from __future__ import annotations

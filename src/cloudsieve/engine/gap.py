@@ -1,22 +1,12 @@
 """The gap bound (``max_gap``) across the cells of the ``eliminate`` rule: the fill and its exact check.
 
-Two passes after the cells' eliminations (:func:`~.cell_scheme.run_cells`), run by :func:`run_gap`:
-
-1. **fill** (:func:`fill_task`), colour by colour as the elimination: a cell
-   adds its points that lie farther than D from every kept point it knows
-   (:func:`~cloudsieve.core.gap.fill_cell`): the final elimination of its
-   cell and halo, and the fill of its lower-colour halo cells. The
-   higher-colour cells' fill is not decided yet and counts for nothing: a
-   conservative fill, exact since the kept set only grows. The eliminations
-   are those of the run without the bound, so that run keeps a subset of
-   this one's points. The fill is kept apart (``simplify/fill_cells``,
-   :attr:`~.cell_scheme.ArrayCells.fill`) and joined to the keep mask by the
-   merge; a resume fills every cell again (the same bytes).
-2. **check** (:func:`gap_task`), once every cell is final: each point's
-   distance to the nearest kept point of its cell and halo. A kept point
-   outside the halo is farther than the halo's margin, so with the fill
-   bound at most the margin (:func:`fill_bound`) the largest distance found
-   is the cloud's, exactly.
+Two passes once every cell's elimination is final (:func:`run_gap`;
+docs/architecture.md, "The gap bound"): a **fill** (:func:`fill_task`),
+colour by colour, each cell adding its points farther than D from every
+kept point it knows (conservative and exact: the kept set only grows), kept
+apart in ``simplify/fill_cells`` and joined by the merge; then a **check**
+(:func:`gap_task`): with the fill bound at most the halo's margin
+(:func:`fill_bound`), the largest distance found is the cloud's, exactly.
 """
 
 from __future__ import annotations
