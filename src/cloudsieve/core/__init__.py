@@ -1,16 +1,5 @@
-"""The method in memory, on numpy arrays (no dask, no zarr); one module per stage.
-
-- :mod:`._validation`: input checks and the k formula (:func:`neighbour_count`);
-- :mod:`.knn`: point orders, grouping by cluster, k nearest inside clusters;
-- :mod:`.duplicates`: exact copies (:func:`exact_copies`);
-- :mod:`.cluster`, :mod:`.kmeans` (:class:`KMeans`), :mod:`.fcm` (:class:`FuzzyCMeans`),
-  :mod:`.centres`: clustering and nearest-centre queries;
-- :mod:`.refine`: :func:`refine_labels`;
-- :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
-- :mod:`.rules`: one module per rule and :func:`prune` (table: :mod:`cloudsieve.rule_table`);
-  rounds in :mod:`.rounds`, :mod:`.selection`, :mod:`.incremental`, :mod:`.chunks`;
-- :mod:`.kernels`: the compiled (numba) kernels;
-- :mod:`.simplify`: :func:`simplify_points`.
+"""The method in memory, on numpy arrays (no dask, no zarr); one module per stage (docs/architecture.md,
+"Modules").
 
 Public functions validate input once and call kernels that assume it valid.
 Names are imported at first use, so no module loads numba or scipy it does not need.
