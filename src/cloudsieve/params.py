@@ -29,6 +29,8 @@ from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
 #: the side of the areas of the density option when density_cell is not given (CRS units)
 DENSITY_CELL = 10.0
+#: the rule of the elimination engine, named in the messages of its own options
+_ELIMINATION = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
 
 __all__ = [
     *_spec_all,
@@ -78,8 +80,7 @@ def _class_policy(o: dict) -> None:
         return
     rule = rules.get(o["rule"])
     if rule.engine != rules.ELIMINATION:
-        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-        raise named(InvalidParameterError(f"{given[0]} is an option of rule {elimination!r} only, not of rule "
+        raise named(InvalidParameterError(f"{given[0]} is an option of rule {_ELIMINATION!r} only, not of rule "
                                           f"{rule.name!r}"), *given)
     both = sorted(set(o["keep_class"] or ()) & {code for code, ratio in o["class_ratio"] or () if ratio < 1})
     if both:
@@ -96,8 +97,7 @@ def _density(o: dict) -> None:
                                           f"density_cell={side:g})"), "density_cell", "density")
     rule = rules.get(o["rule"])
     if d is not None and rule.engine != rules.ELIMINATION:
-        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-        raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
+        raise named(InvalidParameterError(f"density is an option of rule {_ELIMINATION!r} only, not of rule "
                                           f"{rule.name!r}"), "density")
     for name in ("ratio", "count", "keep_class", "class_ratio", "max_gap", "rank"):
         if d is not None and o[name] not in (None, False):
@@ -161,8 +161,7 @@ def _simplify_points(o: dict) -> None:
 
 
 def _eliminate(o: dict) -> None:
-    elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-    _rule_target({**o, "rule": elimination})  # the eliminate rule's target: needed
+    _rule_target({**o, "rule": _ELIMINATION})  # the eliminate rule's target: needed
 
 
 _CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target,
