@@ -22,7 +22,7 @@ from ..core.rules import CELL_COUNT, PAPER_THRESHOLD
 from ..core.rules import get as get_rule
 from .celltasks import CellTask, cell_tasks, largest_first
 from .halo import read_halo
-from .runs import cell_runs, read_cell
+from .runs import cell_runs, read_runs
 
 __all__ = [
     "CellTask",
@@ -54,7 +54,7 @@ def _open_cell(task: CellTask):
     from ..store import PointStore
 
     g = PointStore.open(task.store_path, "r+").group
-    core = read_cell(g, cell_runs(g, task.cell))
+    core = read_runs(g, cell_runs(g, task.cell))
     sources = _halo_runs(g, task.halo)
     halo = read_halo(g, sources, task.centers, task.cell, task.margin)
     return g, core, halo
@@ -197,7 +197,7 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     keep = (s > threshold) & ~copy
     by_count = get_rule(params["rule"]).engine == CELL_COUNT  # else: the global threshold decides
     need_points = by_count or (copy.any() and _keep_duplicates(params))
-    core = read_cell(g, runs) if n and need_points else None
+    core = read_runs(g, runs) if n and need_points else None
     if not by_count and core is not None:  # copies follow their first point
         keep = keep[first_copies(core)]
     elif by_count and n:
