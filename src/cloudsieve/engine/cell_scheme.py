@@ -191,9 +191,9 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
         row, band, copies = group_share(io, task, core, dependents)
     else:
         if task.params.get("density_cell"):  # the density target: the cell's points per area
-            from .density import cell_areas
+            from .density import area_counts, area_keys
 
-            areas = cell_areas(core, float(task.params["density_cell"]), int(task.params["density_dims"]))
+            areas = area_counts(area_keys(core, float(task.params["density_cell"]), int(task.params["density_dims"])))
         sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
                                            task.margin, task_threads(task), ladder=task.params["ladder"])
         row, copies = np.r_[float(distinct), sizes], len(core) - distinct

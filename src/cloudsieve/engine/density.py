@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "cell_areas", "area_quotas", "density_keep",
+__all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "area_quotas", "density_keep",
            "area_counts_task", "run_area_counts"]
 
 #: an area's column index is shifted by this many bits in its key (rows below 2^31 in magnitude)
@@ -92,11 +92,6 @@ class DensityTarget:
         return {"density": self.density, "side": self.side, "dims": self.dims, "floor": self.floor,
                 "areas": int(len(n0)),
                 "thinned": int((np.asarray(n0) > self.floor).sum()), "before": stats(n0), "after": stats(n1)}
-
-
-def cell_areas(core: np.ndarray, side: float, dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """A cell's areas (sorted keys) and their points: what its share task returns."""
-    return area_counts(area_keys(core, side, dims))
 
 
 def area_quotas(per_cell: list, floor: int) -> list[np.ndarray]:
