@@ -145,10 +145,6 @@ def _simplify(o: dict) -> None:
             f"'processes', not {o['scheduler']!r}")
 
 
-def _compare(o: dict) -> None:
-    _cluster_size(o)
-
-
 def _evaluate(o: dict) -> None:
     if o["reference_mesh"] is not None and not o["surface"]:
         raise InvalidParameterError(f"reference_mesh ({o['reference_mesh']}) needs the surface level, which "
@@ -164,7 +160,7 @@ def _eliminate(o: dict) -> None:
     _rule_target({**o, "rule": _ELIMINATION})  # the eliminate rule's target: needed
 
 
-_CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target,
+_CROSS = {"simplify": _simplify, "compare": _cluster_size, "simplify_points": _simplify_points, "prune": _rule_target,
           "refine": _cluster_size, "evaluate": _evaluate, "eliminate": _eliminate}
 
 
