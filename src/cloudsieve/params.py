@@ -40,6 +40,7 @@ __all__ = [
     "Metavar",
     "check",
     "validate",
+    "given",
     "options",
     "validate_params",
     "run_record",
@@ -196,6 +197,12 @@ def options(command: str, values: Mapping[str, Any], *, caller: str | None = Non
     1000
     """
     return OPTION_CLASSES[command](**validate(command, values, caller=caller))
+
+
+def given(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
+    """The options of *command* among *values* (a public function's ``locals()`` on entry: its arguments), for
+    :func:`validate` or :func:`options`."""
+    return {name: value for name, value in values.items() if name in COMMANDS[command]}
 
 
 def validate_params(command: str) -> Callable[[Callable], Callable]:

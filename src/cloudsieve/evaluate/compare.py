@@ -21,7 +21,7 @@ from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
-from ..params import COMPARE_METHODS, OPTION_CLASSES, options
+from ..params import COMPARE_METHODS, OPTION_CLASSES, given, options
 from ._source import load_points
 from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
@@ -185,12 +185,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         table, or ``error``), ``original_compact_share``, ``original_mesh``,
         ``reports`` (each method's evaluation) and ``markdown``.
     """
-    opts = options("compare", {
-        "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
-        "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid,
-        "storage_options": storage_options, **entropy_options,
-    })
+    opts = options("compare", {**given("compare", locals()), **entropy_options})  # an unknown one is refused
     return run_compare(source, opts, progress=progress)
 
 
