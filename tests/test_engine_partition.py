@@ -70,7 +70,7 @@ def test_cells_hold_every_point_exactly_once(built):
     # each cell in increasing input index
     seen = []
     for j in range(part.n_cells):
-        core = R.read_cell(st.group, part.runs(j))
+        core = R.read_runs(st.group, part.runs(j))
         idx = np.nonzero(labels == j)[0]
         assert np.array_equal(core, xyz[idx])
         seen.append(idx)
@@ -178,7 +178,7 @@ def test_partition_does_not_depend_on_the_store_chunking(tmp_path):
     assert np.array_equal(pa.centers, pb.centers)
     assert np.array_equal(pa.cell_counts, pb.cell_counts)
     for j in range(pa.n_cells):
-        assert np.array_equal(R.read_cell(a.group, pa.runs(j)), R.read_cell(b.group, pb.runs(j)))
+        assert np.array_equal(R.read_runs(a.group, pa.runs(j)), R.read_runs(b.group, pb.runs(j)))
 
 
 def test_bucketing_writes_each_row_sorted_by_cell(built):
@@ -276,7 +276,7 @@ def test_shuffled_input_still_partitions_exactly(tmp_path):
     labels = np.asarray(st.group["partition/cell"][:])
     check_run_tables(st, part, labels, 500)
     for j in range(part.n_cells):
-        assert np.array_equal(R.read_cell(st.group, part.runs(j)), xyz[labels == j])
+        assert np.array_equal(R.read_runs(st.group, part.runs(j)), xyz[labels == j])
 
 
 def test_an_older_partition_layout_is_refused_with_a_clear_message(built):
@@ -305,7 +305,7 @@ def test_single_cell(tmp_path):
     st = make_store(tmp_path / "s.zarr", xyz, chunk_size=1_000)
     part = P.build_partition(st, cell_size=10_000, cluster_size=100, seed=0, run=run_sync)
     assert part.n_cells == 1
-    assert np.array_equal(R.read_cell(st.group, part.runs(0)), xyz)
+    assert np.array_equal(R.read_runs(st.group, part.runs(0)), xyz)
     assert len(part.halo_sources(0)) == 0
 
 

@@ -131,7 +131,7 @@ def test_conservation_per_cell_and_exactly_once(real_laz, tmp_path):
     labels = np.asarray(g["partition/cell"][:])
     assert np.array_equal(np.bincount(labels, minlength=part.n_cells), part.cell_counts)
     xyz = st.read("xyz")
-    cores = [R.read_cell(g, part.runs(j)) for j in range(part.n_cells)]
+    cores = [R.read_runs(g, part.runs(j)) for j in range(part.n_cells)]
     allpts = np.concatenate(cores)
     assert len(allpts) == n
     key = lambda a: a[np.lexsort(a.T[::-1])]  # noqa: E731

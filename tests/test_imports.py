@@ -45,7 +45,6 @@ DYNAMIC = {
     "cloudsieve.lazy": "a package's names at first use (lazy_names)",
     "cloudsieve.cli": "the subcommands' modules, found by listing the package",
     "cloudsieve.io": "the format modules of the formats table",
-    "cloudsieve.core": "the public names of its lazy table (_LAZY)",
     "cloudsieve.core.warmup": "the kernel modules of each warm-up target",
     "cloudsieve.core.rules.dispatch": "each rule's module, named by the rule table (Rule.module)",
     "cloudsieve.engine.small": "the modules a small run preloads",

@@ -43,32 +43,7 @@ __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
-__all__ = [
-    "__version__",
-    "simplify",
-    "Summary",
-    "evaluate",
-    "compare",
-    "PointStore",
-    "ingest",
-    "export",
-    "open_reader",
-    "open_writer",
-    "read_cloud",
-    "KMeans",
-    "FuzzyCMeans",
-    "entropy_scores",
-    "score_points",
-    "Scores",
-    "simplify_points",
-    "refine_labels",
-    "prune",
-    "unit_free_scores",
-    "threshold_for_count",
-    "load_pipeline",
-    "run_pipeline",
-    *_errors.__all__,
-]
+__all__ = ["__version__", *(name.lstrip("_") for name in _LAZY), *_errors.__all__]
 
 
 def __getattr__(name: str):

@@ -20,12 +20,13 @@ import os
 import shutil
 import tempfile
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 
 from .errors import DestinationExistsError, DestinationNotWritableError
 from .storage import is_url
 
-__all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove", "write_text"]
+__all__ = ["check_destination", "make_temp_path", "current_umask", "replace", "remove", "replacing", "write_text"]
 
 logger = logging.getLogger(__name__)
 
@@ -149,15 +150,21 @@ def remove(path: str) -> None:
         logger.warning("could not remove temporary %s", path)
 
 
-def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
-    """Write *text* to *path* atomically (a temporary file renamed); DestinationNotWritableError if the folder is not
-    writable."""
-    path = os.fspath(path)
-    tmp = make_temp_path(path)
+@contextmanager
+def replacing(path: str, *, directory: bool = False) -> Iterator[str]:
+    """A temporary name beside *path* to write (:func:`make_temp_path`), renamed to *path* when the block ends
+    without error, removed on an error."""
+    tmp = make_temp_path(path, directory=directory)
     try:
-        with open(tmp, "w", encoding=encoding) as fh:
-            fh.write(text)
+        yield tmp
         replace(tmp, path)
     except BaseException:
         remove(tmp)
         raise
+
+
+def write_text(path: str | os.PathLike, text: str, encoding: str = "utf-8") -> None:
+    """Write *text* to *path* atomically (a temporary file renamed); DestinationNotWritableError if the folder is not
+    writable."""
+    with replacing(os.fspath(path)) as tmp, open(tmp, "w", encoding=encoding) as fh:
+        fh.write(text)

@@ -29,6 +29,8 @@ from .rule_table import DEFAULT_RULE, Metavar, resolve_rule
 
 #: the side of the areas of the density option when density_cell is not given (CRS units)
 DENSITY_CELL = 10.0
+#: the rule of the elimination engine, named in the messages of its own options
+_ELIMINATION = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
 
 __all__ = [
     *_spec_all,
@@ -38,6 +40,7 @@ __all__ = [
     "Metavar",
     "check",
     "validate",
+    "given",
     "options",
     "validate_params",
     "run_record",
@@ -78,8 +81,7 @@ def _class_policy(o: dict) -> None:
         return
     rule = rules.get(o["rule"])
     if rule.engine != rules.ELIMINATION:
-        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-        raise named(InvalidParameterError(f"{given[0]} is an option of rule {elimination!r} only, not of rule "
+        raise named(InvalidParameterError(f"{given[0]} is an option of rule {_ELIMINATION!r} only, not of rule "
                                           f"{rule.name!r}"), *given)
     both = sorted(set(o["keep_class"] or ()) & {code for code, ratio in o["class_ratio"] or () if ratio < 1})
     if both:
@@ -96,8 +98,7 @@ def _density(o: dict) -> None:
                                           f"density_cell={side:g})"), "density_cell", "density")
     rule = rules.get(o["rule"])
     if d is not None and rule.engine != rules.ELIMINATION:
-        elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-        raise named(InvalidParameterError(f"density is an option of rule {elimination!r} only, not of rule "
+        raise named(InvalidParameterError(f"density is an option of rule {_ELIMINATION!r} only, not of rule "
                                           f"{rule.name!r}"), "density")
     for name in ("ratio", "count", "keep_class", "class_ratio", "max_gap", "rank"):
         if d is not None and o[name] not in (None, False):
@@ -145,10 +146,6 @@ def _simplify(o: dict) -> None:
             f"'processes', not {o['scheduler']!r}")
 
 
-def _compare(o: dict) -> None:
-    _cluster_size(o)
-
-
 def _evaluate(o: dict) -> None:
     if o["reference_mesh"] is not None and not o["surface"]:
         raise InvalidParameterError(f"reference_mesh ({o['reference_mesh']}) needs the surface level, which "
@@ -161,11 +158,10 @@ def _simplify_points(o: dict) -> None:
 
 
 def _eliminate(o: dict) -> None:
-    elimination = next(r.name for r in rules.RULES.values() if r.engine == rules.ELIMINATION)
-    _rule_target({**o, "rule": elimination})  # the eliminate rule's target: needed
+    _rule_target({**o, "rule": _ELIMINATION})  # the eliminate rule's target: needed
 
 
-_CROSS = {"simplify": _simplify, "compare": _compare, "simplify_points": _simplify_points, "prune": _rule_target,
+_CROSS = {"simplify": _simplify, "compare": _cluster_size, "simplify_points": _simplify_points, "prune": _rule_target,
           "refine": _cluster_size, "evaluate": _evaluate, "eliminate": _eliminate}
 
 
@@ -201,6 +197,12 @@ def options(command: str, values: Mapping[str, Any], *, caller: str | None = Non
     1000
     """
     return OPTION_CLASSES[command](**validate(command, values, caller=caller))
+
+
+def given(command: str, values: Mapping[str, Any]) -> dict[str, Any]:
+    """The options of *command* among *values* (a public function's ``locals()`` on entry: its arguments), for
+    :func:`validate` or :func:`options`."""
+    return {name: value for name, value in values.items() if name in COMMANDS[command]}
 
 
 def validate_params(command: str) -> Callable[[Callable], Callable]:

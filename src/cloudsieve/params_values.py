@@ -176,6 +176,10 @@ def _class_ratios(option: Option, value: Any) -> list[list]:
     return [[code, out[code]] for code in sorted(out)]
 
 
+#: the kinds whose values a function of their own checks
+_PARSERS = {CHOICES: _choices, SIZE: _size, JSON: _json, CLASSES: _classes, CLASS_RATIOS: _class_ratios}
+
+
 def check(option: Option | str, value: Any) -> Any:
     """Validate one value of *option*; returns it normalised (None where the default is None).
     Raises InvalidParameterError ``"<name> must be <what>, got <value>"``."""
@@ -190,28 +194,16 @@ def check(option: Option | str, value: Any) -> Any:
         if not isinstance(value, (bool, np.bool_)):
             raise _refuse(option, value)
         return bool(value)
-    if kind == CHOICE:
-        if not isinstance(value, str) or value not in option.choices:
+    if kind in (CHOICE, FORMAT):
+        if not isinstance(value, str) or (value.lower().lstrip(".") if kind == FORMAT else value) not in option.choices:
             raise _refuse(option, value)
         return value
-    if kind == FORMAT:
-        if not isinstance(value, str) or value.lower().lstrip(".") not in option.choices:
-            raise _refuse(option, value)
-        return value
-    if kind == CHOICES:
-        return _choices(option, value)
+    if kind in _PARSERS:
+        return _PARSERS[kind](option, value)
     if kind == PATH and isinstance(value, os.PathLike):
         return os.fspath(value)
     if kind in (TEXT, PATH):
         if not isinstance(value, str) or not value:
             raise _refuse(option, value)
         return value
-    if kind == SIZE:
-        return _size(option, value)
-    if kind == JSON:
-        return _json(option, value)
-    if kind == CLASSES:
-        return _classes(option, value)
-    if kind == CLASS_RATIOS:
-        return _class_ratios(option, value)
     return _scheduler(option, value)

@@ -15,7 +15,7 @@ from . import handles, storage
 from .errors import CloudsieveError, StoreNotFoundError
 from .storage import local as local_path
 
-__all__ = ["local_path", "same_path", "holds", "store_foreign", "path_exists", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
+__all__ = ["local_path", "same_path", "holds", "store_foreign", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
 
 STORE_ATTR = "cloudsieve"
 
@@ -136,11 +136,6 @@ def _mapped_store_class(base: type) -> type:
     return MappedStore
 
 
-def path_exists(path: str) -> bool:
-    """True when something (file or folder) is at *path*, a local path or an fsspec URL."""
-    return storage.exists(path)
-
-
 def delete_store(path: str | os.PathLike) -> None:
     """Delete the store (or any folder) at *path*, local or remote; a missing path is ignored."""
     storage.remove(os.fspath(path), recursive=True)
@@ -152,7 +147,7 @@ def store_group(path: str | os.PathLike, mode: str = "r") -> tuple[zarr.Group, d
     store."""
     path = os.fspath(path)
     # a URL: opening the group finds out (a prefix's existence would take a listing)
-    if not storage.is_url(path) and not path_exists(path):
+    if not storage.is_url(path) and not storage.exists(path):
         raise StoreNotFoundError(f"{path}: no such point store")
     local = local_path(path)
     if local is not None and os.path.isfile(local):

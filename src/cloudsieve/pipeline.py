@@ -1,19 +1,5 @@
-"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines (README, "Pipelines")::
-
-    {"pipeline": [
-        {"type": "readers.las", "filename": "scans/*.laz"},
-        {"type": "filters.entropy", "method": "fcm", "rule": "iterative", "threshold": 0.001},
-        {"type": "writers.las", "filename": "out/{stem}.laz"},
-        {"type": "evaluate", "report_dir": "out/{stem}-report"}]}
-
-Stages, in order: one ``readers.*`` (``las``, ``copc``, ``ply``, ``e57``,
-``text``, ``store``; ``filename`` may be a glob, run once per file, or with
-``merge`` one cloud; ``drop_invalid``); at most one ``filters.entropy``
-(:func:`cloudsieve.simplify`'s options but the writer's ``format``,
-``overwrite`` and the reader's ``drop_invalid``); a ``writers.*`` after it
-(``filename`` with ``{stem}`` / ``{name}``, ``overwrite``); ``evaluate``
-after the writer, or ``compare`` instead of filter and writer. Top-level
-``scheduler``, ``workers`` and ``storage_options`` apply to every stage.
+"""Declarative pipelines: an ordered list of stages, like PDAL's JSON pipelines (the stages, their order
+and options: README, "Pipelines").
 
 Options are validated at load (:mod:`cloudsieve.pipeline_load`), naming the
 stage, and the stages run on them. ``$VAR`` in paths is expanded (unset: an

@@ -23,7 +23,7 @@ from urllib.parse import unquote, urlparse
 from . import storage_errors, storage_retries
 from .errors import InvalidParameterError
 
-__all__ = ["is_url", "local", "protocol", "current", "using", "takes_options", "bound", "filesystem", "open_input",
+__all__ = ["is_url", "local", "protocol", "current", "using", "bound", "filesystem", "open_input",
            "widen", "open_output", "fs_options", "exists", "isfile", "isdir", "listdir", "glob", "join", "parent",
            "name", "identity", "size", "read_range", "write_bytes", "upload", "discard", "remove", "redact", "remote_errors", "READ_BLOCK", "HEADER_BLOCK", "COPY_BLOCK"]
 
@@ -88,17 +88,6 @@ def using(options: dict | None) -> Iterator[None]:
         yield
     finally:
         _OPTIONS = saved
-
-
-def takes_options(func: Callable) -> Callable:
-    """Decorate *func* with a keyword ``storage_options``: the call runs :func:`using` them."""
-
-    @functools.wraps(func)
-    def wrapper(*args, storage_options: dict | None = None, **kwargs):
-        with using(storage_options):
-            return func(*args, **kwargs)
-
-    return wrapper
 
 
 def _call_with(options: dict, func: Callable, *args):

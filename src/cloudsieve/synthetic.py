@@ -78,14 +78,13 @@ def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAU
     """Write the example scene as a LAS 1.4 point format 7 file (LAZ by ``.laz``), atomically; returns *path*."""
     import laspy
 
-    from .atomic import make_temp_path, remove, replace
+    from .atomic import replacing
 
     header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales = np.array([0.001, 0.001, 0.001])
     header.offsets = np.array([0.0, 0.0, -10.0])
     header.generating_software = "cloudsieve synthetic scene"
-    tmp = make_temp_path(path)  # the umask's mode, as every output
-    try:
+    with replacing(path) as tmp:  # the umask's mode, as every output
         with laspy.open(tmp, mode="w", header=header, do_compress=path.lower().endswith(".laz")) as writer:
             for chunk in scene_chunks(n, seed=seed, chunk_size=chunk_size):
                 record = laspy.ScaleAwarePointRecord.zeros(len(chunk["xyz"]), header=header)
@@ -94,8 +93,4 @@ def write_scene_laz(path: str, n: int, *, seed: int = 0, chunk_size: int = DEFAU
                     if name != "xyz":
                         record[name] = values
                 writer.write_points(record)
-        replace(tmp, path)
-    except BaseException:
-        remove(tmp)
-        raise
     return path

@@ -4,6 +4,7 @@ over :func:`cloudsieve.evaluate.evaluate`)."""
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 
 from ._common import add_options, option_values
@@ -39,9 +40,7 @@ def run(args: argparse.Namespace) -> int:
     from ..evaluate import evaluate
     from ..evaluate.report import border_per_face, db, fmt, json_ready
 
-    def bars(stage, total, unit):
-        return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
-
+    bars = functools.partial(progress.bar, enabled=not args.no_progress)  # bars(stage, total, unit)
     report = evaluate(args.original, args.simplified, **option_values(args, "evaluate"), bars=bars)
     if args.json:
         print(json.dumps(json_ready(report), indent=1))

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import sys
 
@@ -59,9 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from .. import progress
     from ..engine import simplify
 
-    def bars(stage, total, unit):
-        return progress.bar(stage, total, unit=unit, enabled=not args.no_progress)
-
+    bars = functools.partial(progress.bar, enabled=not args.no_progress)  # bars(stage, total, unit)
     def notify(message: str) -> None:
         print(message, file=sys.stderr)
 

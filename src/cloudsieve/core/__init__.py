@@ -1,22 +1,11 @@
-"""The method in memory, on numpy arrays (no dask, no zarr); one module per stage.
-
-- :mod:`._validation`: input checks and the k formula (:func:`neighbour_count`);
-- :mod:`.knn`: point orders, grouping by cluster, k nearest inside clusters;
-- :mod:`.duplicates`: exact copies (:func:`exact_copies`);
-- :mod:`.cluster`, :mod:`.kmeans` (:class:`KMeans`), :mod:`.fcm` (:class:`FuzzyCMeans`),
-  :mod:`.centres`: clustering and nearest-centre queries;
-- :mod:`.refine`: :func:`refine_labels`;
-- :mod:`.entropy`: :func:`score_points`, :func:`entropy_scores`, the leave-one-out ΔH;
-- :mod:`.rules`: one module per rule and :func:`prune` (table: :mod:`cloudsieve.rule_table`);
-  rounds in :mod:`.rounds`, :mod:`.selection`, :mod:`.incremental`, :mod:`.chunks`;
-- :mod:`.kernels`: the compiled (numba) kernels;
-- :mod:`.simplify`: :func:`simplify_points`.
+"""The method in memory, on numpy arrays (no dask, no zarr); one module per stage (docs/architecture.md,
+"Modules").
 
 Public functions validate input once and call kernels that assume it valid.
 Names are imported at first use, so no module loads numba or scipy it does not need.
 """
 
-from importlib import import_module
+from ..lazy import lazy_names
 
 #: where each public name lives; imported at first use (PEP 562)
 _LAZY = {
@@ -27,35 +16,5 @@ _LAZY = {
     "simplify_points": ".simplify", "ConvergenceWarning": "..errors",
 }
 
-
-def __getattr__(name: str):
-    if name in _LAZY:
-        value = getattr(import_module(_LAZY[name], __name__), name)
-        globals()[name] = value
-        return value
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted({*globals(), *_LAZY})
-
-
-__all__ = [
-    "KMeans",
-    "FuzzyCMeans",
-    "ConvergenceWarning",
-    "Scores",
-    "entropy_scores",
-    "exact_copies",
-    "first_copies",
-    "neighbour_count",
-    "score_points",
-    "METHODS",
-    "RULES",
-    "PAPER_THRESHOLD",
-    "prune",
-    "refine_labels",
-    "simplify_points",
-    "threshold_for_count",
-    "unit_free_scores",
-]
+__getattr__, __dir__ = lazy_names(__name__, _LAZY)
+__all__ = list(_LAZY)

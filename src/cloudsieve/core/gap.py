@@ -1,12 +1,8 @@
-"""The gap bound (``max_gap``) on one cell: the fill after the elimination and the exact check.
+"""The gap bound (``max_gap``) on one cell: the fill after the elimination (:func:`fill_cell`) and the
+exact check (:func:`cell_gap`); docs/architecture.md, "The gap bound".
 
-:func:`fill_cell` adds back the points of a cell that lie farther than D
-from every kept point it knows of (the cell's own and its halo's final
-ones): those points, farthest first (ties by row), each one not within D of
-a point added before it (:func:`~cloudsieve.core.kernels.gapfill.greedy_cover`).
-The kept set only grows afterwards, so every point of the cell ends within D
-of the kept set whatever its neighbours add. :func:`cell_gap` measures the
-largest distance from a cell's points to the kept points it is given.
+The kept set only grows after a cell's fill, so every point of the cell ends
+within D of the kept set whatever its neighbours add.
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ from ..lazy import keep_functions, lazy_names
 _LAZY = {"simplify": ".simplify", "Summary": ".summary", "DEFAULT_SCHEDULER": ".runner", "SIMPLIFY_ATTR": ".workstore",
          "cell_seed": ".cells"}
 
-__all__ = ["simplify", "Summary", "DEFAULT_SCHEDULER", "SIMPLIFY_ATTR", "cell_seed"]
+__all__ = list(_LAZY)
 
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)

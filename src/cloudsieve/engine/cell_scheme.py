@@ -4,22 +4,9 @@ The store's run (:class:`~.eliminate.StoreCells`, resumable), a small input
 (:mod:`.small`) and the in-memory API (:func:`eliminate_points`) run the same
 functions on the same cells (:class:`ArrayCells` and :class:`ThreadMap`
 stand in for the store and the runner), so the kept set does not depend on
-where it runs. With r_max, the global elimination radius solved on the
-partition's sample (:func:`cloudsieve.core.radius.global_radius`):
-
-1. **shares** (:func:`share_task`, a task per cell): packing sizes at radii
-   :data:`~cloudsieve.core.packing.LADDER` x r_max and distinct points into
-   ``simplify/share``, the band into ``simplify/band_*``, then
-   ``simplify/scored[cell]``; the driver turns them into counts q_j summing
-   exactly to the target (:func:`cell_counts`).
-2. **elimination** (:func:`apply_task`), colour by colour
-   (:func:`~cloudsieve.core.colours.cell_colours`, a cell waiting only for
-   the lower-colour cells of its halo): :func:`~cloudsieve.core.eliminate_cells.eliminate_cell`
-   keeps q_j points with the lower colours' final decisions fixed (else
-   both sides of a border remove their border points: holes) and the higher
-   colours' points as halo, then one relocation step. Writes
-   ``simplify/keep_cells``, then ``simplify/done[cell]``.
-
+where it runs. A task per cell stores its share (:func:`share_task`), the
+driver makes exact counts, then the cells are eliminated colour by colour
+(:func:`apply_task`; docs/architecture.md, "The default rule `eliminate`").
 A crash resumes from the markers: scored cells are not read again and only
 cells not done are applied. ``method``, ``cluster_size`` and
 ``halo_context`` are unused.
@@ -37,11 +24,11 @@ import numpy as np
 
 from ..chunk import take_rows
 from ..core.kernels.scatter import group_rows
-from .cell_work import task_threads, cell_counts, cell_keep, cell_share
+from .cell_work import task_threads, cell_counts, cell_keep, cell_share, colour_order, halo_rows
 from .halo import band_halo
 
 __all__ = ["partition", "ArrayCells", "ThreadMap", "eliminate_cells", "eliminate_points", "share_task", "apply_task",
-           "run_cells", "density_params", "cell_share", "cell_counts", "cell_keep"]
+           "run_cells", "stage_params", "cell_share", "cell_counts", "cell_keep"]
 
 
 def partition(xyz: np.ndarray, origin: np.ndarray, opts: dict, target: int) -> tuple:
@@ -153,11 +140,7 @@ def eliminate_cells(xyz: np.ndarray, part, order: np.ndarray, target, keep_dupli
     *policy*: (classes (n,), :class:`~.class_policy.ClassPolicy`) with *target* its groups' targets (G,);
     *density*: a :class:`~.density.DensityTarget`."""
     where = ArrayCells(xyz, part, order, None if policy is None else policy[0])
-    params = {"keep_duplicates": keep_duplicates}
-    if policy is not None:
-        params.update(lookup=policy[1].lookup.tolist(), groups=policy[1].groups)
-    if density is not None:
-        params.update(density_params(density))
+    params = {"keep_duplicates": keep_duplicates, **stage_params(None if policy is None else policy[1], density)}
     runner = ThreadMap()
     *_, distinct = run_cells(where, part, where.regions, params, runner, target)
     record = None
@@ -182,9 +165,12 @@ def eliminate_points(xyz: np.ndarray, target: int, *, seed: int, cluster_size: i
     return eliminate_cells(xyz, part, order, int(target), keep_duplicates)[0]
 
 
-def density_params(density) -> dict:
-    """The cells stage's parameters of a :class:`~.density.DensityTarget`: the areas' side and floor."""
-    return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
+def stage_params(policy, density) -> dict:
+    """The cells stage's parameters of a :class:`~.class_policy.ClassPolicy` (its groups) or a
+    :class:`~.density.DensityTarget` (the areas' side and floor); empty for neither."""
+    if density is not None:
+        return {"density_cell": density.side, "density_floor": density.floor, "density_dims": density.dims}
+    return {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
 
 
 def share_task(where, task, dependents: dict) -> dict[str, Any]:
@@ -205,9 +191,9 @@ def share_task(where, task, dependents: dict) -> dict[str, Any]:
         row, band, copies = group_share(io, task, core, dependents)
     else:
         if task.params.get("density_cell"):  # the density target: the cell's points per area
-            from .density import cell_areas
+            from .density import area_counts, area_keys
 
-            areas = cell_areas(core, float(task.params["density_cell"]), int(task.params["density_dims"]))
+            areas = area_counts(area_keys(core, float(task.params["density_cell"]), int(task.params["density_dims"])))
         sizes, distinct, band = cell_share(core, float(task.params["r_max"]), task.centers, task.cell, dependents,
                                            task.margin, task_threads(task), ladder=task.params["ladder"])
         row, copies = np.r_[float(distinct), sizes], len(core) - distinct
@@ -235,13 +221,10 @@ def apply_task(where, task, count, colours: dict) -> dict[str, Any]:
         return {"cell": task.cell, "n": len(core), "kept": int(keep.sum()), "seconds": time.perf_counter() - t0}
     n, halo = len(core), None
     if 0 < count < n:  # else no elimination: no halo
-        points, cells, pos = io.halo(task)
-        earlier = [s for s in task.halo if colours[s] < colours[task.cell]]
-        fixed = np.isin(cells, earlier)
+        points, rows, fixed = halo_rows(io, task, colours)
         halo_keep = np.zeros(len(points), dtype=bool)
-        if fixed.any():  # their final decisions, at their regions' positions
-            src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-            halo_keep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
+        if fixed.any():  # their final decisions
+            halo_keep[fixed] = io.keep_at(rows[fixed])
         halo = points, fixed, halo_keep
     keep = cell_keep(core, count, float(task.params["r_max"]), halo, task_threads(task), task.params.get("staged"),
                      task.params.get("keep_duplicates"))
@@ -296,8 +279,7 @@ def run_cells(where, part, regions: np.ndarray, params: dict, runner, target: in
     # a cell starts once the lower-colour cells of its halo are done
     ordered = apply_order(colours, part.cell_counts, [j for j in range(part.n_cells) if not done[j]])
     tasks = cell_tasks(where, part, regions, ordered, params, runner.task_threads, halo=True)
-    at = {t.cell: i for i, t in enumerate(tasks)}
-    args = [(where, t, q[t.cell].tolist(), {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks]
-    after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
+    cols, after = colour_order(tasks, colours)
+    args = [(where, t, q[t.cell].tolist(), c) for t, c in zip(tasks, cols)]
     runner(apply_task, args, "cells: apply", after=after)
     return len(ordered), int(done.sum()), int(sum(r["n"] for r in results)), int(distinct.sum())

@@ -9,12 +9,33 @@ import numpy as np
 
 from .halo import band_mask
 
-__all__ = ["task_threads", "cell_share", "cell_counts", "cell_keep"]
+__all__ = ["task_threads", "halo_rows", "colour_order", "cell_share", "cell_counts", "cell_keep"]
 
 
 def task_threads(task) -> int:
     """A cell task's threads (``params["threads"]``, default 1); results do not depend on it."""
     return int(task.params.get("threads") or 1)
+
+
+def halo_rows(io, task, colours: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The cell's halo: points (h, 3), their rows in *io*'s cell-ordered arrays, and which come from cells of a
+    lower colour (*colours*: int -> colour of the cell and its sources; their decisions are final)."""
+    if not task.halo:
+        return np.empty((0, 3)), np.empty(0, np.int64), np.zeros(0, dtype=bool)
+    points, cells, pos = io.halo(task)
+    src = np.array(sorted(task.halo), dtype=np.int64)
+    start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
+    rows = start[np.searchsorted(src, cells)] + pos if len(cells) else np.zeros(0, dtype=np.int64)
+    lower = [s for s in task.halo if colours[s] < colours[task.cell]] if colours else []
+    return points, rows, np.isin(cells, lower)
+
+
+def colour_order(tasks: list, colours: np.ndarray) -> tuple[list, list]:
+    """Each task's colours (int -> colour of its cell and halo sources) and the tasks it waits for (``after``):
+    those of the lower-colour cells of its halo."""
+    at = {t.cell: i for i, t in enumerate(tasks)}
+    after = [sorted(at[s] for s in t.halo if s in at and colours[s] < colours[t.cell]) for t in tasks]
+    return [{int(s): int(colours[s]) for s in (t.cell, *t.halo)} for t in tasks], after
 
 
 def cell_share(core: np.ndarray, r_max: float, centers, cell: int, dependents: dict, margin: float,

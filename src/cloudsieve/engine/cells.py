@@ -22,7 +22,7 @@ from ..core.rules import CELL_COUNT, PAPER_THRESHOLD
 from ..core.rules import get as get_rule
 from .celltasks import CellTask, cell_tasks, largest_first
 from .halo import read_halo
-from .runs import cell_runs, read_cell
+from .runs import cell_runs, read_runs
 
 __all__ = [
     "CellTask",
@@ -54,7 +54,7 @@ def _open_cell(task: CellTask):
     from ..store import PointStore
 
     g = PointStore.open(task.store_path, "r+").group
-    core = read_cell(g, cell_runs(g, task.cell))
+    core = read_runs(g, cell_runs(g, task.cell))
     sources = _halo_runs(g, task.halo)
     halo = read_halo(g, sources, task.centers, task.cell, task.margin)
     return g, core, halo
@@ -90,10 +90,6 @@ def _threads(params: dict) -> int:
     return int(params.get("threads") or 1)
 
 
-def _core_kwargs(params: dict) -> dict:
-    return {"k0": params["k0"], "k_min": params["k_min"], "threads": _threads(params)}
-
-
 def _simplify(core, params: dict, cell: int, *, threshold, target, labels, context) -> np.ndarray:
     """The kept indices of the in-memory method on one cell (options already validated, so unchecked)."""
     from ..core.simplify import simplify_unchecked
@@ -103,7 +99,7 @@ def _simplify(core, params: dict, cell: int, *, threshold, target, labels, conte
     options = OPTION_CLASSES["simplify_points"](
         method=params["method"], rule=params["rule"], threshold=threshold, cluster_size=params["cluster_size"],
         seed=cell_seed(params["seed"], cell), k0=params["k0"], k_min=params["k_min"], score="delta_h",
-        threads=_threads(params), keep_duplicates=_keep_duplicates(params))
+        threads=_threads(params), keep_duplicates=bool(params.get("keep_duplicates")))
     return simplify_unchecked(np.ascontiguousarray(core, dtype=np.float64), options, target=target, ctx=ctx,
                               labels=labels)
 
@@ -115,10 +111,6 @@ def _mark_done(g, name: str, cell: int) -> None:
 def _record_duplicates(g, cell: int, n_copies: int) -> None:
     """The cell's count of exact duplicates, in ``simplify/duplicates``."""
     g["simplify/duplicates"][cell : cell + 1] = np.full(1, n_copies, dtype=np.int64)
-
-
-def _keep_duplicates(params: dict) -> bool:
-    return bool(params.get("keep_duplicates", False))
 
 
 def cell_task(task: CellTask) -> dict[str, Any]:
@@ -166,7 +158,8 @@ def score_task(task: CellTask) -> dict[str, Any]:
             threads=_threads(params),
         )
         scores = np.asarray(
-            score_points.unchecked(core, labels, context=_context(params, halo), **_core_kwargs(params)).unit_free,
+            score_points.unchecked(core, labels, context=_context(params, halo), k0=params["k0"], k_min=params["k_min"],
+                                   threads=_threads(params)).unit_free,
             dtype=np.float64,
         )
         labels[exact_copies(core)] = -1  # pass 2 drops them (or keeps them with their first copy)
@@ -196,8 +189,8 @@ def apply_task(task: CellTask, threshold: float) -> dict[str, Any]:
     copy = labels < 0  # exact copies (pass 1)
     keep = (s > threshold) & ~copy
     by_count = get_rule(params["rule"]).engine == CELL_COUNT  # else: the global threshold decides
-    need_points = by_count or (copy.any() and _keep_duplicates(params))
-    core = read_cell(g, runs) if n and need_points else None
+    need_points = by_count or (copy.any() and bool(params.get("keep_duplicates")))
+    core = read_runs(g, runs) if n and need_points else None
     if not by_count and core is not None:  # copies follow their first point
         keep = keep[first_copies(core)]
     elif by_count and n:

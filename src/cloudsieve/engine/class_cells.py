@@ -1,16 +1,10 @@
 """The eliminate cells stage (:mod:`.cell_scheme`) with class policies (:mod:`.class_policy`): a group at a time.
 
-A cell's points fall in groups by class (``params["lookup"]``: -1 kept
-whole, 0 .. G-1 eliminated). Shares are per group (:func:`group_share`),
-so each group's counts per cell sum exactly to its target
-(:func:`group_counts`). A cell then eliminates its groups in order
-(:func:`group_keep`), each with the rest as fixed context: the points kept
-whole, the groups not yet run and the other groups of the higher-colour
-halo cells weigh as kept and are never removed; the groups already run and
-the lower-colour halo cells weigh by their final decisions; the group's own
-points of higher-colour halo cells are eliminated along, as without
-policies. Nothing depends on the worker count: a cell reads only its own
-points and the final decisions of lower colours.
+Shares and counts are per group, each group's counts summing exactly to its
+target; a cell eliminates its groups in order, each with the rest as fixed
+context (docs/architecture.md, "Class policies"). A cell reads only its own
+points and the final decisions of lower colours: nothing depends on the
+worker count.
 """
 
 from __future__ import annotations
@@ -66,7 +60,7 @@ def group_counts(share: np.ndarray, targets: np.ndarray, r_max: float) -> tuple[
 
 def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.ndarray:
     """The keep mask (n,) of a cell, its groups eliminated in order to *counts* (G,), the whole ones kept."""
-    from .cell_work import task_threads, cell_keep
+    from .cell_work import task_threads, cell_keep, halo_rows
 
     groups = np.asarray(io.groups(task, len(core)))
     keep = groups == WHOLE
@@ -75,11 +69,7 @@ def group_keep(io, task, core: np.ndarray, counts: list, colours: dict) -> np.nd
         for g, q in enumerate(counts):
             keep[groups == g] = q >= sizes[g]
         return keep
-    points, cells, pos = io.halo(task)
-    src = np.array(sorted(task.halo), dtype=np.int64)
-    start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
-    rows = start[np.searchsorted(src, cells)] + pos if len(cells) else np.zeros(0, dtype=np.int64)
-    fixed = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
+    points, rows, fixed = halo_rows(io, task, colours)
     hgroup = np.asarray(io.groups_at(rows)) if len(rows) else np.zeros(0, dtype=np.int8)
     hkeep = np.zeros(len(points), dtype=bool)
     if fixed.any():  # their final decisions

@@ -1,13 +1,9 @@
 """Class policies of the eliminate rule (``keep_class``, ``class_ratio``): :class:`ClassPolicy`.
 
-Each point falls in one *group* by its LAS classification: -1 for the
-classes kept whole, 0 for the classes that follow ``ratio``/``count``, and
-one group per class of ``class_ratio`` below 1. Each group has its exact
-target (``ratio`` and ``count`` apply to group 0's points, the points not
-kept whole and not listed); the cells stage (:mod:`.class_cells`) keeps it
-exactly. The class counts come from chunk tasks (:func:`class_counts_task`),
-and the rows of ``partition/class`` (each chunk's classes in the order of
-its ``partition/xyz`` row) from :func:`class_rows_task`.
+Each point falls in one *group* by its LAS classification: -1 kept whole, 0
+following ``ratio``/``count``, one per class of ``class_ratio`` below 1;
+each group's target is exact (docs/architecture.md, "Class policies"). The
+class counts and the rows of ``partition/class`` come from a task per chunk.
 """
 
 from __future__ import annotations

@@ -1,23 +1,17 @@
 """The density target of the eliminate rule (``density``, ``density_cell``): :class:`DensityTarget`.
 
-The horizontal plane is cut into square *areas* of side R (``density_cell``,
-a grid anchored at 0: area (floor(x / R), floor(y / R))). An area holding
-more than F = floor(D R^2) points keeps exactly F, the others keep all
-theirs. An area spans several engine cells, so each (area, cell) pair gets an
-exact quota: the share tasks return each cell's points per area
-(:func:`cell_areas`), the driver splits each dense area's F among the cells
-holding it, in proportion to their points, by largest remainder (ties to the
-lower cell; :func:`area_quotas`), and a cell eliminates its dense areas one
-after the other (:func:`density_keep`), each to its quota with the rest as
-context, as :mod:`.class_cells` does with a group. A cell's count is the sum
-of its quotas. Nothing depends on the worker count.
+An area of side R holding more than F = floor(D R^2) points keeps exactly F,
+the others all theirs. Each (area, cell) pair gets an exact quota by largest
+remainder (:func:`area_quotas`) and a cell eliminates its dense areas in turn
+(:func:`density_keep`), as :mod:`.class_cells` a group (docs/architecture.md,
+"Density target"). Nothing depends on the worker count.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "cell_areas", "area_quotas", "density_keep",
+__all__ = ["DensityTarget", "Sorted", "area_keys", "area_counts", "area_quotas", "density_keep",
            "area_counts_task", "run_area_counts"]
 
 #: an area's column index is shifted by this many bits in its key (rows below 2^31 in magnitude)
@@ -100,11 +94,6 @@ class DensityTarget:
                 "thinned": int((np.asarray(n0) > self.floor).sum()), "before": stats(n0), "after": stats(n1)}
 
 
-def cell_areas(core: np.ndarray, side: float, dims: int = 2) -> tuple[np.ndarray, np.ndarray]:
-    """A cell's areas (sorted keys) and their points: what its share task returns."""
-    return area_counts(area_keys(core, side, dims))
-
-
 def area_quotas(per_cell: list, floor: int) -> list[np.ndarray]:
     """Each cell's quota per area (aligned with its keys) from *per_cell* [(keys, counts)] of every cell.
 
@@ -167,7 +156,7 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     fixed, the area's own points of higher-colour cells eliminated along; each point within 2.2 r_max of the
     area's points."""
     from ..core.eliminate_cells import HALO_RADII
-    from .cell_work import task_threads, cell_keep
+    from .cell_work import task_threads, cell_keep, halo_rows
 
     side, r_max = float(task.params["density_cell"]), float(task.params["r_max"])
     dims = int(task.params.get("density_dims") or 2)
@@ -179,13 +168,10 @@ def density_keep(io, task, core: np.ndarray, quotas, colours: dict) -> np.ndarra
     dense = np.flatnonzero(quotas < sizes)
     if not len(dense):
         return keep
-    points, cells, pos = io.halo(task)
-    fixed = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
+    points, rows, fixed = halo_rows(io, task, colours)
     hkeep = np.ones(len(points), dtype=bool)  # the higher colours' points weigh as kept
     if fixed.any():  # the lower colours' final decisions
-        src = np.array(sorted(task.halo), dtype=np.int64)
-        start = np.array([task.halo[s] for s in sorted(task.halo)], dtype=np.int64)
-        hkeep[fixed] = io.keep_at(start[np.searchsorted(src, cells[fixed])] + pos[fixed])
+        hkeep[fixed] = io.keep_at(rows[fixed])
     hkeys = area_keys(points, side, dims) if len(points) else np.zeros(0, dtype=np.int64)
     margin = HALO_RADII * r_max if np.isfinite(r_max) else 0.0
     reach = int(np.ceil(margin / side))  # areas of context on each side

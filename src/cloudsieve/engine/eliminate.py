@@ -35,9 +35,9 @@ class StoreCells:
         return np.asarray(self.open().group["simplify/share"][:])
 
     def core(self, task) -> np.ndarray:
-        from .runs import cell_runs, read_cell
+        from .runs import cell_runs, read_runs
 
-        return read_cell(self.group, cell_runs(self.group, task.cell))  # finite float64 (checked at ingest)
+        return read_runs(self.group, cell_runs(self.group, task.cell))  # finite float64 (checked at ingest)
 
     def put_share(self, task, core, row, band, copies) -> None:
         from .runs import write_slices

@@ -1,22 +1,12 @@
 """The gap bound (``max_gap``) across the cells of the ``eliminate`` rule: the fill and its exact check.
 
-Two passes after the cells' eliminations (:func:`~.cell_scheme.run_cells`), run by :func:`run_gap`:
-
-1. **fill** (:func:`fill_task`), colour by colour as the elimination: a cell
-   adds its points that lie farther than D from every kept point it knows
-   (:func:`~cloudsieve.core.gap.fill_cell`): the final elimination of its
-   cell and halo, and the fill of its lower-colour halo cells. The
-   higher-colour cells' fill is not decided yet and counts for nothing: a
-   conservative fill, exact since the kept set only grows. The eliminations
-   are those of the run without the bound, so that run keeps a subset of
-   this one's points. The fill is kept apart (``simplify/fill_cells``,
-   :attr:`~.cell_scheme.ArrayCells.fill`) and joined to the keep mask by the
-   merge; a resume fills every cell again (the same bytes).
-2. **check** (:func:`gap_task`), once every cell is final: each point's
-   distance to the nearest kept point of its cell and halo. A kept point
-   outside the halo is farther than the halo's margin, so with the fill
-   bound at most the margin (:func:`fill_bound`) the largest distance found
-   is the cloud's, exactly.
+Two passes once every cell's elimination is final (:func:`run_gap`;
+docs/architecture.md, "The gap bound"): a **fill** (:func:`fill_task`),
+colour by colour, each cell adding its points farther than D from every
+kept point it knows (conservative and exact: the kept set only grows), kept
+apart in ``simplify/fill_cells`` and joined by the merge; then a **check**
+(:func:`gap_task`): with the fill bound at most the halo's margin
+(:func:`fill_bound`), the largest distance found is the cloud's, exactly.
 """
 
 from __future__ import annotations
@@ -24,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import CloudsieveError
+from .cell_work import colour_order, halo_rows
 
 __all__ = ["fill_bound", "fill_task", "gap_task", "run_gap"]
 
@@ -34,16 +25,6 @@ def fill_bound(gap: float, part) -> float:
     if part.n_cells > 1 and 0 < part.margin < gap:
         return float(part.margin)
     return float(gap)
-
-
-def _halo_rows(io, task) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The cell's halo: points (h, 3), their cells, and their rows in the cell-ordered arrays of *io*."""
-    if not task.halo:
-        return np.empty((0, 3)), np.empty(0, np.int64), np.empty(0, np.int64)
-    points, cells, pos = io.halo(task)
-    src, start = np.array(sorted(task.halo)), np.array([task.halo[s] for s in sorted(task.halo)])
-    rows = start[np.searchsorted(src, cells)] + pos if len(points) else np.empty(0, np.int64)
-    return points, cells, rows
 
 
 def fill_task(where, task, colours: dict) -> dict:
@@ -57,9 +38,8 @@ def fill_task(where, task, colours: dict) -> dict:
     keep = io.keep_at(np.arange(task.region, task.region + n, dtype=np.int64))
     fill = np.zeros(n, dtype=bool)
     if n and not keep.all():
-        points, cells, rows = _halo_rows(io, task)
+        points, rows, lower = halo_rows(io, task, colours)
         known = io.keep_at(rows) if len(rows) else np.zeros(0, dtype=bool)
-        lower = np.isin(cells, [s for s in task.halo if colours[s] < colours[task.cell]])
         if lower.any():  # their fill is final
             known[lower] |= io.fill_at(rows[lower])
         fill = fill_cell(core, keep, points[known], float(task.params["max_gap"]),
@@ -79,7 +59,7 @@ def gap_task(where, task) -> dict:
     own = np.arange(task.region, task.region + len(core), dtype=np.int64)
     fill = io.fill_at(own)
     kept = io.keep_at(own) | fill
-    points, _, rows = _halo_rows(io, task) if len(core) else (np.empty((0, 3)), None, np.empty(0, np.int64))
+    points, rows, _ = halo_rows(io, task)
     known = points[io.keep_at(rows) | io.fill_at(rows)] if len(rows) else np.empty((0, 3))
     # every point is within max_gap once filled: a search bounded just above it finds each nearest kept point
     bound = float(task.params["max_gap"]) * (1 + 1e-9)
@@ -106,10 +86,8 @@ def run_gap(where, part, regions: np.ndarray, params: dict, runner) -> dict:
     colours = cell_colours(part.halo_ptr, part.halo_src)
     ordered = apply_order(colours, part.cell_counts, range(part.n_cells))
     tasks = cell_tasks(where, part, regions, ordered, {**params, "max_gap": fill_to}, runner.task_threads, halo=True)
-    at = {t.cell: i for i, t in enumerate(tasks)}
-    after = [sorted(at[s] for s in t.halo if colours[s] < colours[t.cell]) for t in tasks]
-    runner(fill_task, [(where, t, {int(s): int(colours[s]) for s in (t.cell, *t.halo)}) for t in tasks],
-           "cells: fill", after=after)
+    cols, after = colour_order(tasks, colours)
+    runner(fill_task, [(where, t, c) for t, c in zip(tasks, cols)], "cells: fill", after=after)
     tasks = cell_tasks(where, part, regions, largest_first(part, range(part.n_cells)), params, runner.task_threads,
                        halo=True)
     results = runner(gap_task, [(where, t) for t in tasks], "cells: gap")

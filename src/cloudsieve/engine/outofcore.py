@@ -22,7 +22,7 @@ from ..rule_table import targets_of
 from . import cells, merge, workstore
 from . import threshold as thresholds
 from .checks import RunChecks
-from .cell_scheme import density_params, run_cells
+from .cell_scheme import run_cells, stage_params
 from .class_policy import ClassPolicy, run_class_counts, run_class_rows
 from .density import DensityTarget, run_area_counts
 from .eliminate import StoreCells
@@ -126,9 +126,7 @@ def run_store(checked: RunChecks, src: str, dst: str, opts: dict, params: dict, 
                 computed, reused, points = cells.run_keep(st, part, regions, params, runner)
                 progress(points)
             elif elim is not None:
-                policy_params = {} if policy is None else {"lookup": policy.lookup.tolist(), "groups": policy.groups}
-                if density is not None:
-                    policy_params = density_params(density)
+                policy_params = stage_params(policy, density)
                 if params.get("max_gap") is not None:
                     workstore.ensure_fill_array(st)
                 computed, reused, points, distinct = run_cells(StoreCells(st.path), part, regions,

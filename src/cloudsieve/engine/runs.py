@@ -20,7 +20,7 @@ from ..paths import STORE_ATTR
 from ..io.las_records import decode_xyz
 from ..store.streaming import gathered
 
-__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "read_cell", "decode_rows", "write_slices"]
+__all__ = ["index_runs", "cell_runs", "chunk_runs", "read_runs", "decode_rows", "write_slices"]
 
 #: zarr chunk of the run tables (runs)
 _RUN_CHUNK = 65536
@@ -159,11 +159,6 @@ def decode_rows(group, raw: np.ndarray) -> np.ndarray:
         return raw
     enc = group.attrs[STORE_ATTR]["xyz_encoding"]
     return decode_xyz(raw, np.asarray(enc["scale"], dtype=np.float64), np.asarray(enc["offset"], dtype=np.float64))
-
-
-def read_cell(group, runs: np.ndarray) -> np.ndarray:
-    """Core points (n, 3) float64 of a cell, in input order, from its runs."""
-    return read_runs(group, runs)
 
 
 def write_slices(group, items) -> None:

@@ -19,7 +19,7 @@ from ..core.rules import ELIMINATION
 from ..core.rules import get as get_rule
 from ..errors import TargetNotMetError
 from ..io.sources import remembered
-from ..params import run_record, validate
+from ..params import given, run_record, validate
 from ..progress import callback
 from ..store import DEFAULT_CHUNK_SIZE
 from .. import storage, storage_retries
@@ -209,16 +209,7 @@ def simplify(
         (before DST is written).
     """
     t_start = time.perf_counter()
-    opts = validate("simplify", {
-        "method": method, "rule": rule, "threshold": threshold, "ratio": ratio, "count": count,
-        "keep_class": keep_class, "class_ratio": class_ratio, "density": density, "density_cell": density_cell,
-        "density_3d": density_3d,
-        "cluster_size": cluster_size, "cell_size": cell_size, "scheduler": scheduler, "workers": workers,
-        "memory_limit": memory_limit, "store": store, "halo_context": halo_context, "seed": seed, "resume": resume,
-        "overwrite": overwrite, "chunk_size": chunk_size, "k0": k0, "k_min": k_min, "format": format,
-        "drop_invalid": drop_invalid, "keep_duplicates": keep_duplicates, "exact": exact, "tile_size": tile_size,
-        "rank": rank, "storage_options": storage_options, "max_gap": max_gap,
-    })
+    opts = validate("simplify", given("simplify", locals()))
     return run_simplify(src, dst, opts, client=client, progress=progress, bars=bars, notify=notify, t_start=t_start)
 
 

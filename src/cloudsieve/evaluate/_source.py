@@ -42,6 +42,11 @@ class Source:
         self._path = None
         self.header: dict = {}
         self.has_normals = False
+        if not isinstance(obj, (np.ndarray, PointStore)):
+            path = os.fspath(obj)  # a path or a URL (a Path would fold a URL's "//")
+            if not storage.exists(path):
+                raise InputNotFoundError(f"input not found: {path}")
+            obj = PointStore.open(path) if is_store(path) else path
         if isinstance(obj, np.ndarray):
             arr = np.asarray(obj, dtype=np.float64)
             if arr.ndim != 2 or arr.shape[1] != 3:
@@ -58,25 +63,14 @@ class Source:
             self.header = dict(getattr(obj, "header", {}) or {})
             self.has_normals = all(n in obj.dimensions for n in _NORMALS)
         else:
-            path = os.fspath(obj)  # a path or a URL (a Path would fold a URL's "//")
-            if not storage.exists(path):
-                raise InputNotFoundError(f"input not found: {path}")
-            self.name = path
-            if is_store(path):
-                self._store = PointStore.open(str(path))
-                self.format = "store"
-                self.count = int(self._store.count)
-                self.header = dict(self._store.header or {})
-                self.has_normals = all(n in self._store.dimensions for n in _NORMALS)
-            else:
-                from ..io import open_reader
+            from ..io import open_reader
 
-                self._path = str(path)
-                with open_reader(self._path, chunk_size=self.chunk_size) as reader:
-                    self.format = reader.format
-                    self.count = None if self.drop_invalid else reader.count
-                    self.header = dict(reader.header or {})
-                    self.has_normals = all(n in reader.dtypes for n in _NORMALS)
+            self.name = self._path = obj
+            with open_reader(self._path, chunk_size=self.chunk_size) as reader:
+                self.format = reader.format
+                self.count = None if self.drop_invalid else reader.count
+                self.header = dict(reader.header or {})
+                self.has_normals = all(n in reader.dtypes for n in _NORMALS)
 
     @property
     def store_path(self) -> str | None:

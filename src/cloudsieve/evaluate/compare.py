@@ -21,11 +21,11 @@ from ..errors import CloudsieveError, EmptyInputError, InvalidParameterError
 from ..io import check_folder
 from ..core.rules import MEMORY_RULE
 from ..core.rules import get as get_rule
-from ..params import COMPARE_METHODS, OPTION_CLASSES, options
+from ..params import COMPARE_METHODS, OPTION_CLASSES, given, options
 from ._source import load_points
 from .baselines import BASELINES, run_method
 from .evaluation import run_evaluation
-from .report import border_per_face, db, fmt, holes_note, plot_compactness, plot_point_errors, write_json
+from .report import border_per_face, db, fmt, holes_note, pct, plot_compactness, plot_point_errors, write_json
 
 logger = logging.getLogger(__name__)
 
@@ -81,7 +81,7 @@ def compare_markdown(result: dict) -> str:
              "Point errors: original → simplified, exact, % of the bbox diagonal. Metro: ball-pivoting meshes, "
              "the larger of both directions, % of the diagonal; on surface: leaving out the samples that face a hole "
              "of the original's mesh. c ≥ 0.6: share of the simplified mesh's triangles "
-             f"(original mesh: {_share(result.get('original_compact_share'))}; border edges per face: "
+             f"(original mesh: {pct(result.get('original_compact_share'))}; border edges per face: "
              f"{border_per_face(result.get('original_mesh') or {})}).", "",
              f"D1/D2 PSNR: MPEG pc_error's, original → simplified, dB, peak {fmt(result.get('psnr_peak'))} "
              f"({'the bbox diagonal' if result.get('psnr_peak_from') == 'diagonal' else 'given'}). Chamfer: mean "
@@ -96,7 +96,7 @@ def compare_markdown(result: dict) -> str:
         lines.append(f"| {r['method']} | {fmt(r['kept'])} | {r['time']:.2f} | {fmt(r['point_mean_pct'])} | "
                      f"{fmt(r['point_rms_pct'])} | {fmt(r['point_max_pct'])} | {db(r['d1_psnr'])} | "
                      f"{db(r['d2_psnr'])} | {fmt(r['chamfer'])} | {fmt(r.get('metro_mean_pct'))} | "
-                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {fmt(r.get('metro_surface_mean_pct'))} | {_share(r.get('compact_share'))} |")
+                     f"{fmt(r.get('metro_max_pct'))} | {fmt(r.get('metro_rms_pct'))} | {fmt(r.get('metro_surface_mean_pct'))} | {pct(r.get('compact_share'))} |")
     lines += _margin_lines(result["rows"])
     note = holes_note(result.get("original_mesh") or {})
     lines += ["", f"> {note}", ""] if note else [""]
@@ -120,10 +120,6 @@ def _write_html(path: Path, xyz: np.ndarray, kept: dict[str, np.ndarray], md: st
     bounds = np.stack([xyz.min(axis=0), xyz.max(axis=0)])
     return write_html(path, "cloudsieve compare", md, images=images, original=shown, errors=errors, kept=points,
                       bounds=bounds)
-
-
-def _share(v: Any) -> str:
-    return "-" if v is None else f"{100.0 * float(v):.2f}%"
 
 
 def compare_runs(methods, rules) -> list[tuple[str, str, str | None]]:
@@ -189,12 +185,7 @@ def compare(source: Any, *, methods: tuple[str, ...] | list[str] = METHODS, rule
         table, or ``error``), ``original_compact_share``, ``original_mesh``,
         ``reports`` (each method's evaluation) and ``markdown``.
     """
-    opts = options("compare", {
-        "methods": methods, "rule": rule, "ratio": ratio, "count": count, "report_dir": report_dir,
-        "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "metro_samples": metro_samples, "psnr_peak": psnr_peak, "drop_invalid": drop_invalid,
-        "storage_options": storage_options, **entropy_options,
-    })
+    opts = options("compare", {**given("compare", locals()), **entropy_options})  # an unknown one is refused
     return run_compare(source, opts, progress=progress)
 
 

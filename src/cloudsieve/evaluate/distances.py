@@ -211,6 +211,10 @@ def forward_chunk(xyz: np.ndarray, target: Target, *, select: np.ndarray | None 
     return p, ply
 
 
+#: the partial results' fields that add up
+_SUMMED = ("count", "sum", "sumsq", "sum4", "d2sq", "d2sq2", "d2_count", "zeros", "seen", "hist")
+
+
 def combine(partials: list[dict]) -> dict:
     """Merge partial results (any grouping, any order) into one partial."""
     partials = list(partials)
@@ -218,16 +222,8 @@ def combine(partials: list[dict]) -> dict:
     out["hist"] = out["hist"].copy()
     out["matched"] = out["matched"].copy()
     for p in partials[1:]:
-        out["count"] += p["count"]
-        out["sum"] += p["sum"]
-        out["sumsq"] += p["sumsq"]
-        out["sum4"] += p["sum4"]
-        out["d2sq"] += p["d2sq"]
-        out["d2sq2"] += p["d2sq2"]
-        out["d2_count"] += p["d2_count"]
-        out["zeros"] += p["zeros"]
-        out["seen"] += p["seen"]
-        out["hist"] += p["hist"]
+        for key in _SUMMED:
+            out[key] += p[key]
         np.bitwise_or(out["matched"], p["matched"], out=out["matched"])
         if p["count"] and (out["argmax"] is None or p["max"] > out["max"]):
             out["max"], out["argmax"] = p["max"], p["argmax"]

@@ -32,7 +32,7 @@ import numpy as np
 from .. import staging, storage
 from ..errors import IncompatibleCloudsError, IncompatibleCloudsWarning
 from ..io import check_folder
-from ..params import options
+from ..params import given, options
 from ..progress import both, stage_bar
 from ..store import DEFAULT_CHUNK_SIZE
 from ._source import load_points, open_source
@@ -184,13 +184,7 @@ def evaluate(original: Any, simplified: Any, *, sample: int | None = None, surfa
     InvalidPointsError
         NaN or infinite coordinates and not *drop_invalid*.
     """
-    o = options("evaluate", {
-        "sample": sample, "surface": surface, "tiles": tiles, "tile_points": tile_points, "seed": seed,
-        "subset": subset, "strict": strict, "report_dir": report_dir, "error_points": error_points,
-        "chunk_size": chunk_size, "metro_samples": metro_samples, "drop_invalid": drop_invalid,
-        "psnr_peak": psnr_peak, "reference_mesh": reference_mesh, "surface_full": surface_full,
-        "surface_budget": surface_budget, "d2_sample": d2_sample, "storage_options": storage_options,
-    })
+    o = options("evaluate", given("evaluate", locals()))
     if o.report_dir is not None:
         check_folder(o.report_dir)
     return run_evaluation(original, simplified, o, client=client, progress=progress, bars=bars)

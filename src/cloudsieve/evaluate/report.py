@@ -23,7 +23,7 @@ import numpy as np
 from ..atomic import write_text
 
 __all__ = ["write_report", "write_json", "json_ready", "markdown", "field_lines", "db", "border_per_face", "holes_note",
-           "plot_compactness", "plot_point_errors", "write_error_ply", "fmt"]
+           "pct", "plot_compactness", "plot_point_errors", "write_error_ply", "fmt"]
 
 
 def json_ready(obj: Any) -> Any:
@@ -88,7 +88,8 @@ def holes_note(m: dict) -> str:
             "large wherever the simplified mesh covers one of them, whatever the sampling.")
 
 
-def _pct(v: Any) -> str:
+def pct(v: Any) -> str:
+    """A share as a percentage with two decimals, "-" for None."""
     return "-" if v is None else f"{100.0 * float(v):.2f}%"
 
 
@@ -141,7 +142,7 @@ def markdown(report: dict) -> str:
             lines.append(f"| simplified | simplified mesh → original mesh, where the original has surface | "
                          f"{fmt(m['vertices'])} | {fmt(m['faces'])} | {fmt(d['mean_pct'])} | {fmt(d['max_pct'])} | "
                          f"{fmt(d['rms_pct'])} |")
-            lines += ["", f"Where the original has surface: {_pct(on['excluded_share'])} of the backward samples "
+            lines += ["", f"Where the original has surface: {pct(on['excluded_share'])} of the backward samples "
                       "left out (their closest point on the original's mesh lies on its border: a hole, or the "
                       f"tile's rim); Metro there (the larger direction): mean {fmt(on['mean_pct'])}%, max "
                       f"{fmt(on['max_pct'])}%, RMS {fmt(on['rms_pct'])}%."]
@@ -150,7 +151,7 @@ def markdown(report: dict) -> str:
         for mesh in ("original", "simplified"):
             m = sf[mesh]
             lines.append(f"| {mesh} | {fmt(m['vertices'])} | {fmt(m['faces'])} | {border_per_face(m)} | "
-                         f"{_pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
+                         f"{pct(m['compact_share'])} | {fmt(m['compactness_mean'])} | {fmt(m['compact'])} |")
         ref = sf.get("reference")
         if ref:
             lines += ["", f"Against the reference mesh ({fmt(ref['faces'])} faces; Metro, % of the diagonal, the "
@@ -172,7 +173,7 @@ def markdown(report: dict) -> str:
                 f = t.get("forward") or {}
                 lines.append(f"| {i} | {fmt(t['points_original'])} | {fmt(t['points_simplified'])} | "
                              f"{fmt(f.get('mean_pct'))} | {fmt(f.get('max_pct'))} | {fmt(f.get('rms_pct'))} | "
-                             f"{_pct(t['original']['compact_share'])} | {_pct(t['simplified']['compact_share'])} |")
+                             f"{pct(t['original']['compact_share'])} | {pct(t['simplified']['compact_share'])} |")
         errs = [t["error"] for t in sf["tiles"] if "error" in t]
         for e in errs:
             lines += ["", f"> tile error: {e}"]
@@ -208,7 +209,7 @@ def sampling_line(sf: dict) -> str:
             if sp.get(k) and sf.get(k)]
     if errs:
         text += (f" Spread over the {n} tiles (standard error of the samples-weighted mean, % of the diagonal): "
-                 + "; ".join(errs) + f"; simplified mesh c ≥ 0.6 share ± {_pct(sp.get('compact_share_se'))}.")
+                 + "; ".join(errs) + f"; simplified mesh c ≥ 0.6 share ± {pct(sp.get('compact_share_se'))}.")
     return text
 
 

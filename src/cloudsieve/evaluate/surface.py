@@ -91,18 +91,11 @@ def _on_surface(recs: list[dict], forward: dict | None, diagonal: float) -> dict
     rs = [r["backward"]["on_surface"] for r in recs if "on_surface" in r.get("backward", {})]
     if not rs:
         return None
-    n = np.array([r["samples"] for r in rs], dtype=np.float64)
     excluded = int(sum(r["excluded"] for r in rs))
-    scale = 100.0 / diagonal if diagonal > 0 else float("nan")
-    out: dict[str, Any] = {"excluded": excluded, "excluded_share": excluded / max(n.sum() + excluded, 1.0),
-                           "backward": None}
-    if n.sum() > 0:
-        keep = n > 0
-        mean = float((n[keep] * [r["mean"] for r, k in zip(rs, keep) if k]).sum() / n.sum())
-        rms = float(math.sqrt((n[keep] * np.square([r["rms"] for r, k in zip(rs, keep) if k])).sum() / n.sum()))
-        mx = float(max(r["max"] for r, k in zip(rs, keep) if k))
-        out["backward"] = {"mean": mean, "rms": rms, "max": mx, "mean_pct": mean * scale, "rms_pct": rms * scale,
-                           "max_pct": mx * scale, "samples": int(n.sum())}
+    sampled = [r for r in rs if r["samples"] > 0]
+    out: dict[str, Any] = {"excluded": excluded,
+                           "excluded_share": excluded / max(sum(float(r["samples"]) for r in rs) + excluded, 1.0),
+                           "backward": _pooled(sampled, diagonal) if sampled else None}
     for key in ("mean", "rms", "max", "mean_pct", "rms_pct", "max_pct"):
         vals = [d[key] for d in (forward, out["backward"]) if d is not None]
         out[key] = max(vals) if vals else float("nan")
@@ -111,8 +104,11 @@ def _on_surface(recs: list[dict], forward: dict | None, diagonal: float) -> dict
 
 def _combine_dirs(recs: list[dict], name: str, diagonal: float) -> dict | None:
     rs = [r[name] for r in recs if name in r]
-    if not rs:
-        return None
+    return _pooled(rs, diagonal) if rs else None
+
+
+def _pooled(rs: list[dict], diagonal: float) -> dict:
+    """Metro records (``samples``, ``mean``, ``rms``, ``max``) of several tiles as one, weighted by samples."""
     n = np.array([r["samples"] for r in rs], dtype=np.float64)
     mean = float((n * [r["mean"] for r in rs]).sum() / n.sum())
     rms = float(math.sqrt((n * np.square([r["rms"] for r in rs])).sum() / n.sum()))

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import functools
 import re
 
 import numpy as np
 
 from ..errors import CorruptInputError
 
-__all__ = ["parse_rows", "parse_typed_rows", "is_integer"]
+__all__ = ["parse_rows", "parse_typed_rows", "is_integer", "split_row"]
 
 _INTEGER = re.compile(r"[+-]?\d{1,18}")  # 18 digits: within int64
 
@@ -34,12 +35,15 @@ def _bad_row(lines: list[tuple[int, str]], ncols: int, path: str, split) -> Corr
     return CorruptInputError(f"{path}: cannot parse rows {lines[0][0]}-{lines[-1][0]}")  # pragma: no cover
 
 
-def _tokens(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: str | None) -> tuple[list[str], object]:
-    def split(line: str) -> list[str]:
-        if delimiter is None:
-            return line.split()
-        return [t.strip() for t in line.strip().split(delimiter)]
+def split_row(line: str, delimiter: str | None) -> list[str]:
+    """The values of one text row: split on whitespace (*delimiter* None) or on *delimiter*, each stripped."""
+    if delimiter is None:
+        return line.split()
+    return [t.strip() for t in line.strip().split(delimiter)]
 
+
+def _tokens(lines: list[tuple[int, str]], ncols: int, path: str, delimiter: str | None) -> tuple[list[str], object]:
+    split = functools.partial(split_row, delimiter=delimiter)
     if delimiter is None:
         tokens = " ".join(text for _, text in lines).split()
     else:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import storage
 from ..errors import EmptyInputError, InputFormatError, InputNotFoundError, InvalidParameterError
-from ..atomic import check_destination, make_temp_path, remove, replace
+from ..atomic import check_destination, write_text
 
 __all__ = ["read_vpc", "read_vpc_items", "write_vpc", "describe_tile", "STAC_EXTENSIONS"]
 
@@ -255,14 +255,7 @@ def write_vpc(path: str | os.PathLike, tiles: list[dict], *, overwrite: bool = F
     if storage.is_url(path):  # one request: the object appears whole or not at all
         storage.write_bytes(path, text.encode("utf-8"))
     else:
-        tmp = make_temp_path(path)
-        try:
-            with open(tmp, "w", encoding="utf-8") as fh:
-                fh.write(text)
-            replace(tmp, path)
-        except BaseException:
-            remove(tmp)
-            raise
+        write_text(path, text)
     for wkt, reason in unprojected.items():
         logger.warning("%s: the CRS %.60s... does not reproject to WGS 84 (%s): bbox and geometry are in the "
                        "files' own coordinates", path, wkt, reason)

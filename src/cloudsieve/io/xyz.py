@@ -24,7 +24,7 @@ import numpy as np
 from ..errors import InputFormatError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer
-from ._text import is_integer, parse_typed_rows
+from ._text import is_integer, parse_typed_rows, split_row
 
 __all__ = ["XyzReader", "XyzWriter", "TYPED_ROWS"]
 
@@ -52,12 +52,6 @@ def _is_number(tok: str) -> bool:
 def _is_comment(line: str) -> bool:
     s = line.lstrip()
     return not s or s.startswith("#") or s.startswith("//")
-
-
-def _split(line: str, delimiter: str | None) -> list[str]:
-    if delimiter is None:
-        return line.split()
-    return [t.strip() for t in line.strip().split(delimiter)]
 
 
 class XyzReader(Reader):
@@ -89,7 +83,7 @@ class XyzReader(Reader):
                     continue
                 if self._delimiter is None:
                     self._delimiter = "," if "," in stripped else (";" if ";" in stripped else None)
-                tokens = _split(stripped, self._delimiter)
+                tokens = split_row(stripped, self._delimiter)
                 if not all(_is_number(t) for t in tokens) and (header_line is None or header_comment):
                     header_line = (lineno, stripped)  # a header row of column names
                     header_comment = False
@@ -103,11 +97,11 @@ class XyzReader(Reader):
             self._names = columns or ["x", "y", "z"]
             self._start = lineno + 1
         else:
-            ncols = len(_split(first_data[1], self._delimiter)) if first_data else None
-            if header_comment and ncols is not None and len(_split(header_line[1], self._delimiter)) != ncols:
+            ncols = len(split_row(first_data[1], self._delimiter)) if first_data else None
+            if header_comment and ncols is not None and len(split_row(header_line[1], self._delimiter)) != ncols:
                 header_line = None  # a comment, not column names
             if columns is None and header_line is not None:
-                columns = [c for c in _split(header_line[1], self._delimiter) if c]
+                columns = [c for c in split_row(header_line[1], self._delimiter) if c]
             if columns is None:
                 columns = _DEFAULT_COLUMNS.get(ncols) or ["x", "y", "z"] + [f"col{i}" for i in range(3, ncols or 3)]
             if ncols is not None and len(columns) != ncols:
@@ -141,7 +135,7 @@ class XyzReader(Reader):
         candidates, seen = dict(self._attr), False
         for _, line in itertools.islice(self._data_rows(), TYPED_ROWS):
             seen = True
-            tokens = _split(line, self._delimiter)
+            tokens = split_row(line, self._delimiter)
             if len(tokens) != len(self._names):
                 continue  # a bad row: the read names it
             for i in [i for i in candidates if not is_integer(tokens[i])]:

@@ -14,21 +14,7 @@ _LAZY = {
     "ingest": ".ingest", "export": ".export", "read_cloud": ".read",
 }
 
-__all__ = [
-    "PointStore",
-    "Chunk",
-    "STORE_ATTR",
-    "STORE_VERSION",
-    "DEFAULT_CHUNK_SIZE",
-    "compressors",
-    "is_store",
-    "delete_store",
-    "local_path",
-    "same_path",
-    "ingest",
-    "export",
-    "read_cloud",
-]
+__all__ = list(_LAZY)
 
 
 __getattr__, __dir__ = lazy_names(__name__, _LAZY)

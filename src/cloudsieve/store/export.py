@@ -41,14 +41,13 @@ def _mask_source(store: PointStore, mask: Any):
 
 
 def _selected(store: PointStore, take, chunk_size: int):
-    """(points read, the chunk's kept points) for every chunk of *store*, in point order."""
+    """The kept points of every chunk of *store*, in point order."""
     for start, chunk in store.chunks(chunk_size=chunk_size):
-        n = len(chunk["xyz"])
         if take is not None:
             # row indices once, then take(): faster than a boolean index per array
-            rows = np.flatnonzero(take(start, start + n))
+            rows = np.flatnonzero(take(start, start + len(chunk["xyz"])))
             chunk = {k: v.take(rows, axis=0) for k, v in chunk.items()}
-        yield n, chunk
+        yield chunk
 
 
 def export(
@@ -117,29 +116,24 @@ def export(
     update = _progress.callback(progress)
     from ..io import detect_format
 
-    if tile_size is not None:
-        if not (mask is None or isinstance(mask, str)):
-            raise InvalidParameterError("a tiled export takes its mask as the name of a bool array of the store")
-        from .tiles import export_tiles
+    named = mask is None or isinstance(mask, str)
+    fmt = "tiles" if tile_size is not None else detect_format(dst, format)
+    if fmt in ("tiles", "copc") and not named:
+        raise InvalidParameterError(f"a {'tiled' if fmt == 'tiles' else 'COPC'} export takes its mask as the name of "
+                                    "a bool array of the store")
+    if fmt in ("tiles", "copc") or fmt in ("las", "laz") and named:  # as tasks
+        if fmt == "tiles":
+            from .tiles import export_tiles
 
-        kept = export_tiles(store, dst, tile_size=tile_size, mask=mask, run=run, overwrite=overwrite)["points"]
-        update(kept)
-        _log(kept, store, dst)
-        return dst
-    fmt = detect_format(dst, format)
-    if fmt == "copc":
-        if not (mask is None or isinstance(mask, str)):
-            raise InvalidParameterError("a COPC export takes its mask as the name of a bool array of the store")
-        from .copc import export_copc
+            kept = export_tiles(store, dst, tile_size=tile_size, mask=mask, run=run, overwrite=overwrite)["points"]
+        elif fmt == "copc":
+            from .copc import export_copc
 
-        kept = export_copc(store, dst, mask=mask, run=run, overwrite=overwrite)["points"]
-        update(kept)
-        _log(kept, store, dst)
-        return dst
-    if fmt in ("las", "laz") and (mask is None or isinstance(mask, str)):
-        from .export_las import export_las
+            kept = export_copc(store, dst, mask=mask, run=run, overwrite=overwrite)["points"]
+        else:
+            from .export_las import export_las
 
-        kept = export_las(store, dst, fmt=fmt, mask=mask, run=run, counts=counts, overwrite=overwrite)
+            kept = export_las(store, dst, fmt=fmt, mask=mask, run=run, counts=counts, overwrite=overwrite)
         update(kept)
         _log(kept, store, dst)
         return dst
@@ -155,7 +149,7 @@ def export(
     ) as writer:
         # the next chunk is read in a thread while this one is encoded
         with closing(prefetch(_selected(store, take, chunk_size))) as chunks:
-            for _, chunk in chunks:
+            for chunk in chunks:
                 writer.write(chunk)
                 kept += len(chunk["xyz"])
                 update(len(chunk["xyz"]))  # written, not read: a bar's total is the kept count

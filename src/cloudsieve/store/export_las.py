@@ -124,7 +124,7 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
     *part_size*: points per task, a multiple of :data:`LAZ_CHUNK` (default
     about a store chunk). Returns the points written.
     """
-    from ..atomic import check_destination, make_temp_path, remove, replace
+    from ..atomic import check_destination, make_temp_path, remove, replacing
 
     check_destination(dst, overwrite)
     if storage.is_url(dst):
@@ -136,16 +136,11 @@ def export_las(store: PointStore, dst: str, *, fmt: str, mask: str | None = None
         args = [(store.path, os.path.join(tmp, f"part-{i:06d}{suffix}"), fmt, mask, items, dst, i == 0)
                 for i, items in enumerate(plan)]
         written = run_tasks(run, part_task, args, "export: write")
-        final = make_temp_path(dst)
-        try:
+        with replacing(dst) as final:
             if len(args) == 1:
                 os.replace(args[0][1], final)
             else:
                 splice([a[1] for a in args], final, compressed=(fmt == "laz"))
-            replace(final, dst)
-        except BaseException:
-            remove(final)
-            raise
     finally:
         remove(tmp)
     return int(sum(written))

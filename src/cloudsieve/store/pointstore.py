@@ -33,8 +33,8 @@ from ..errors import (
 from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from ..io.las_records import decode_xyz
-from ..paths import STORE_ATTR, delete_store, holds, is_store, path_exists, same_path, store_group, zarr_store
-from .. import handles
+from ..paths import STORE_ATTR, delete_store, holds, is_store, same_path, store_group, zarr_store
+from .. import handles, storage
 from .codecs import compressors, filters
 from .streaming import gathered
 
@@ -145,7 +145,7 @@ class PointStore:
         ``{"scale": [3], "offset": [3]}`` stores "xyz" as LAS integers (int32, exact).
         """
         path = os.fspath(path)
-        if not overwrite and path_exists(path):
+        if not overwrite and storage.exists(path):
             raise DestinationExistsError(f"{path} exists; pass overwrite=True to replace it", advice={"overwrite": True})
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
         # marked (incomplete) before any array: a crash in between leaves no foreign-looking content

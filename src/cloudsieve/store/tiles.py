@@ -199,7 +199,7 @@ def export_tiles(
     DestinationExistsError, DestinationNotWritableError, SameSourceDestinationError
         (the last one also when *dst_dir* holds the store).
     """
-    from ..atomic import make_temp_path, remove, replace
+    from ..atomic import replacing
     from ..io.vpc import write_vpc
 
     if not isinstance(store, PointStore):
@@ -210,19 +210,15 @@ def export_tiles(
     update = _progress.callback(progress)
     if storage.is_url(dst):
         return _export_remote(store, dst, stem, size, mask, run, update)
-    tmp = make_temp_path(dst, directory=True)
     try:
-        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
-        names = [tile_name(stem, int(k)) for k in buckets.keys]
-        args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
-        entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
-        for n in buckets.counts:
-            update(int(n))
-        write_vpc(os.path.join(tmp, VPC_NAME), entries)
-        replace(tmp, dst)
-    except BaseException:
-        remove(tmp)
-        raise
+        with replacing(dst, directory=True) as tmp:
+            buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+            names = [tile_name(stem, int(k)) for k in buckets.keys]
+            args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
+            entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
+            for n in buckets.counts:
+                update(int(n))
+            write_vpc(os.path.join(tmp, VPC_NAME), entries)
     finally:
         store.delete_array(f"export/{_SCRATCH}")
     points = int(buckets.counts.sum())

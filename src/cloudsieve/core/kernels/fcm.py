@@ -127,7 +127,7 @@ def _finish(i, X, Ib, D2, idx, U, hard, have, e, ub, r):
 
 @njit(cache=True, nogil=True, _nrt=False)
 def _sort_small(keys, vals, n):
-    """Stable insertion sort of keys[:n] (float64) carrying vals[:n] (int64)."""
+    """Stable insertion sort of keys[:n] carrying vals[:n] (n is small)."""
     for a in range(1, n):
         k = keys[a]
         v = vals[a]
@@ -138,21 +138,6 @@ def _sort_small(keys, vals, n):
             b -= 1
         keys[b] = k
         vals[b] = v
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _sort_by_index(Ib, D2, L):
-    """Ib[:L] ascending (distinct indices), D2 carried along (insertion sort: L is small)."""
-    for a in range(1, L):
-        k = Ib[a]
-        v = D2[a]
-        b = a
-        while b > 0 and Ib[b - 1] > k:
-            Ib[b] = Ib[b - 1]
-            D2[b] = D2[b - 1]
-            b -= 1
-        Ib[b] = k
-        D2[b] = v
 
 
 @njit(cache=True, nogil=True)
@@ -205,7 +190,7 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
                     for q in range(L):
                         Ib[q] = cand[q]
                         D2[q] = dc[q]
-                    _sort_by_index(Ib, D2, L)
+                    _sort_small(Ib, D2, L)  # by index
                     for q in range(E):
                         ring[i, q] = cand[L + q]
                     top = dc[L - 1]
@@ -219,7 +204,7 @@ def update_rows(X, C, idx, ring, U, reach, hard, have, e, s, e_row, K, grid, lis
                 reach[i] = math.sqrt(qd[L + E])
             for q in range(L):
                 Ib[q] = qi[q]
-            _sort_by_index(Ib, D2, L)
+            _sort_small(Ib, D2, L)  # by index
             for q in range(E):
                 ring[i, q] = qi[L + q]
             for q in range(L):
@@ -249,7 +234,7 @@ def finish_rows(X, C, rows, qd, qi, idx, ring, U, reach, hard, have, e):
             reach[i] = qd[t, L + E]
         for q in range(L):
             Ib[q] = qi[t, q]
-        _sort_by_index(Ib, D2, L)
+        _sort_small(Ib, D2, L)  # by index
         for q in range(E):
             ring[i, q] = qi[t, L + q]
         for q in range(L):
