@@ -12,10 +12,10 @@ import posixpath
 from typing import TYPE_CHECKING
 
 from . import handles, storage
-from .errors import CloudsieveError, StoreNotFoundError
+from .errors import CloudsieveError, SameSourceDestinationError, StoreNotFoundError
 from .storage import local as local_path
 
-__all__ = ["local_path", "same_path", "holds", "store_foreign", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
+__all__ = ["local_path", "same_path", "holds", "refuse_source", "store_foreign", "zarr_store", "delete_store", "STORE_ATTR", "store_group", "is_store"]
 
 STORE_ATTR = "cloudsieve"
 
@@ -57,6 +57,16 @@ def holds(folder: str | os.PathLike, path: str | os.PathLike) -> bool:
         return p == f or p.startswith(f.rstrip("/") + "/")
     f, p = os.path.realpath(lf), os.path.realpath(lp)
     return os.path.commonpath([f, p]) == f
+
+
+def refuse_source(source: str, dst: str) -> None:
+    """Refuse *dst* when it is *source* or a folder holding it (SameSourceDestinationError): writing it would
+    replace the input."""
+    if same_path(source, dst):
+        raise SameSourceDestinationError(f"destination {dst} is the source {source}: cloudsieve never overwrites its input")
+    if holds(dst, source):
+        raise SameSourceDestinationError(
+            f"destination {dst} holds the source {source}: cloudsieve never overwrites its input")
 
 
 def store_foreign(path: str | os.PathLike) -> str | None:

@@ -19,7 +19,7 @@ from . import workstore
 from .inprocess import scheduler_for, source_points
 from .small import fits_in_memory
 
-__all__ = ["RunChecks", "check_run"]
+__all__ = ["RunChecks", "check_run", "refuse_inputs"]
 
 #: SRC files that name others (a list, a VPC)
 _LISTINGS = (".lst", ".txt", ".vpc")
@@ -55,11 +55,7 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
         dst = dst.rstrip("/") or dst
     dst_local = local_path(dst)
     sources = expand_sources(src)
-    # a list or VPC is an input too
-    inputs = sources + ([src] if src.lower().endswith(_LISTINGS) and not any(same_path(s, src) for s in sources)
-                        else [])
-    # first: overwriting would not help
-    _refuse_inputs_inside(dst, inputs, "destination")
+    inputs = refuse_inputs(src, dst, sources)  # first: overwriting would not help
     src_is_store = is_store(src)
     if src_is_store and holds(src, dst):
         raise SameSourceDestinationError(
@@ -101,6 +97,17 @@ def check_run(src: str, dst: str, opts: dict, params: dict, *, client=None) -> R
     return RunChecks(sources=sources, dst_local=dst_local, src_is_store=src_is_store, scheduler=scheduler,
                      store_path=store_path, default_store=store is None and not src_is_store, store=st,
                      in_memory=in_memory, points=points)
+
+
+def refuse_inputs(src: str, dst: str, sources: list[str] | None = None) -> list[str]:
+    """Refuse *dst* when it is an input of SRC *src* (a file of it, or its list or VPC) or a folder holding one;
+    *sources*: ``expand_sources(src)`` when known. Returns the inputs."""
+    sources = expand_sources(src) if sources is None else sources
+    # a list or VPC is an input too
+    inputs = sources + ([src] if src.lower().endswith(_LISTINGS) and not any(same_path(s, src) for s in sources)
+                        else [])
+    _refuse_inputs_inside(dst, inputs, "destination")
+    return inputs
 
 
 def _refuse_inputs_inside(path: str, sources: list[str], what: str) -> None:

@@ -84,8 +84,11 @@ def _check_levels(src: str, paths: list[str], opts: dict, key: str) -> None:
     from ..atomic import check_destination
     from ..io import check_writable, detect_format
     from ..paths import local_path
+    from .checks import refuse_inputs
 
     tiles = opts["tile_size"] is not None
+    for path in paths:  # first; each run sees only its own source, and ranked COPC runs write elsewhere
+        refuse_inputs(src, path.rstrip("/") if tiles else path)
     fmt = "laz" if tiles else detect_format(paths[0], opts["format"])
     if len(paths) > 1 and fmt not in _READ_BACK:
         raise InvalidParameterError(f"a list of {key}s writes LAS, LAZ, COPC, PLY or tiles (each output is the next "

@@ -23,8 +23,9 @@ import os
 
 import numpy as np
 
-from ..atomic import make_temp_path, remove, replace
+from ..atomic import replacing
 from ..errors import InputFormatError, NotASubsetError
+from ..paths import refuse_source
 
 __all__ = ["RANK_DIM", "morton", "octree_levels", "rank_order", "nested_rows", "write_ranks", "cut_rank"]
 
@@ -149,12 +150,8 @@ def write_ranks(paths: list[str]) -> None:
         if RANK_DIM not in cloud.point_format.dimension_names:
             cloud.add_extra_dim(laspy.ExtraBytesParams(RANK_DIM, "uint64", description="cloudsieve keep order"))
         cloud[RANK_DIM] = rank[rows]
-        tmp = make_temp_path(path)
-        try:
+        with replacing(path) as tmp:
             cloud.write(tmp, do_compress=path.lower().endswith(".laz"))
-            replace(tmp, path)
-        finally:
-            remove(tmp)
 
 
 def cut_rank(src: str, dst: str, keep: int, *, overwrite: bool = False, chunk_size: int = 1_000_000) -> int:
@@ -164,6 +161,7 @@ def cut_rank(src: str, dst: str, keep: int, *, overwrite: bool = False, chunk_si
     from . import check_readable, check_writable
 
     check_readable(src)
+    refuse_source(os.fspath(src), os.fspath(dst))
     fmt = check_writable(dst, None, overwrite=overwrite)
     if fmt not in ("las", "laz"):
         raise InputFormatError(f"{dst}: keep_rank writes LAS or LAZ, not {fmt}")
@@ -171,14 +169,10 @@ def cut_rank(src: str, dst: str, keep: int, *, overwrite: bool = False, chunk_si
     with laspy.open(src) as reader:
         if RANK_DIM not in reader.header.point_format.dimension_names:
             raise InputFormatError(f"{src} has no {RANK_DIM} dimension: write one with cloudsieve simplify --rank")
-        tmp = make_temp_path(dst)
-        try:
-            with laspy.open(tmp, mode="w", header=reader.header, do_compress=fmt == "laz") as writer:
-                for points in reader.chunk_iterator(chunk_size):
-                    chosen = points[points[RANK_DIM] < np.uint64(keep)]
-                    writer.write_points(chosen)
-                    written += len(chosen)
-            replace(tmp, os.fspath(dst))
-        finally:
-            remove(tmp)
+        with replacing(os.fspath(dst)) as tmp, laspy.open(tmp, mode="w", header=reader.header,
+                                                           do_compress=fmt == "laz") as writer:
+            for points in reader.chunk_iterator(chunk_size):
+                chosen = points[points[RANK_DIM] < np.uint64(keep)]
+                writer.write_points(chosen)
+                written += len(chosen)
     return written

@@ -34,6 +34,7 @@ from ..errors import InvalidParameterError
 from ..atomic import check_destination, make_temp_path, remove, replace
 from ..io.las_header import header_from_dict
 from ..io.rank import RANK_DIM
+from ..paths import refuse_source
 from .buckets import bucket, iter_runs
 from .copc_file import compress, copc_header, laz_vlr, merge_stats, point_records, record_stats, write_copc
 from .copc_scratch import make_scratch, read_records, remove_scratch, scratch_output
@@ -376,6 +377,7 @@ def file_to_copc(src: str, dst: str, *, overwrite: bool = False, run=None, progr
 
     from .ingest import ingest
 
+    refuse_source(os.fspath(src), dst)
     check_destination(dst, overwrite)  # before the ingest's work
     folder = tempfile.mkdtemp(prefix="cloudsieve-copc-") if storage.is_url(dst) else make_temp_path(dst, directory=True)
     try:

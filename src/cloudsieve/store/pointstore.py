@@ -33,7 +33,7 @@ from ..errors import (
 from ..params import check
 from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from ..io.las_records import decode_xyz
-from ..paths import STORE_ATTR, delete_store, holds, is_store, same_path, store_group, zarr_store
+from ..paths import STORE_ATTR, delete_store, holds, is_store, refuse_source, store_group, zarr_store
 from .. import handles, storage
 from .codecs import compressors, filters
 from .streaming import gathered
@@ -51,11 +51,7 @@ def source_and_destination(store: PointStore | str | os.PathLike, dst: str | os.
     dst = os.fspath(dst)
     if not isinstance(store, PointStore):
         store = PointStore.open(os.fspath(store))
-    if same_path(store.path, dst):
-        raise SameSourceDestinationError(f"destination {dst} is the source {store.path}: cloudsieve never overwrites its input")
-    if holds(dst, store.path):
-        raise SameSourceDestinationError(
-            f"destination {dst} holds the source {store.path}: cloudsieve never overwrites its input")
+    refuse_source(store.path, dst)
     if holds(store.path, dst):
         raise SameSourceDestinationError(
             f"destination {dst} lies inside the source store {store.path}: cloudsieve never writes into its input")
