@@ -25,6 +25,7 @@ import pytest
 import zarr
 from conftest import shared_file
 from engine_data import plane, write_laz
+from resume_data import kill_at
 
 from cloudsieve.engine import halo as H
 from cloudsieve.engine import partition as P
@@ -275,20 +276,8 @@ def test_driver_killed_then_resume_recomputes_only_missing_cells(tmp_path):
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     # the run stops in its 4th cell task (one thread: 3 cells done; the test hook of engine/pause.py)
     marker = tmp_path / "paused"
-    pause = dict(env, **{PAUSE_ENV: f"task:cells#4={marker}"})
-    proc = subprocess.Popen([sys.executable, "-m", "cloudsieve", *args], env=pause, stdout=subprocess.DEVNULL,
-                            stderr=subprocess.PIPE)
+    proc = kill_at(args, "task:cells#4", marker, env)
     done_path = tmp_path / "w.zarr"
-    deadline = time.monotonic() + 600  # a guard against a hang only: the run stops there whatever its speed
-    try:
-        while proc.poll() is None and time.monotonic() < deadline and not marker.exists():
-            time.sleep(0.05)
-        assert marker.exists(), f"the run did not reach its pause ({proc.returncode})"
-        os.kill(proc.pid, signal.SIGKILL)
-        proc.wait(60)
-    finally:
-        if proc.poll() is None:  # pragma: no cover
-            proc.kill()
     assert proc.returncode == -signal.SIGKILL, proc.stderr.read().decode()
     assert not (tmp_path / "out.laz").exists()
     done = np.asarray(zarr.open_group(str(done_path), mode="r")["simplify/done"][:]).astype(bool)
