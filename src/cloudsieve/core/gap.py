@@ -12,15 +12,24 @@ import numpy as np
 __all__ = ["fill_cell", "cell_gap"]
 
 
-def _nearest(kept: np.ndarray, points: np.ndarray, bound: float = np.inf) -> np.ndarray:
-    """Distance (n,) from each of *points* to the nearest of *kept* (inf beyond *bound* or with none)."""
-    from scipy.spatial import cKDTree
-
+def _nearest(kept, points: np.ndarray, bound: float = np.inf) -> np.ndarray:
+    """Distance (n,) from each of *points* to the nearest of *kept* ((k, 3), or :func:`_tree`'s; inf beyond
+    *bound* or with none)."""
     if not len(points):
         return np.zeros(0)
-    if not len(kept):
+    tree = _tree(kept)
+    if tree is None:
         return np.full(len(points), np.inf)
-    return cKDTree(kept).query(points, distance_upper_bound=bound)[0]
+    return tree.query(points, distance_upper_bound=bound)[0]
+
+
+def _tree(kept):
+    """A k-d tree of the points *kept* (k, 3), None for none; a tree (or None) is returned as it is."""
+    from scipy.spatial import cKDTree
+
+    if kept is None or isinstance(kept, cKDTree):
+        return kept
+    return cKDTree(kept) if len(kept) else None
 
 
 def fill_cell(core: np.ndarray, keep: np.ndarray, known: np.ndarray, gap: float, keep_duplicates: bool) -> np.ndarray:
@@ -34,10 +43,11 @@ def fill_cell(core: np.ndarray, keep: np.ndarray, known: np.ndarray, gap: float,
     n = len(core)
     fill = np.zeros(n, dtype=bool)
     kept = np.concatenate([core[keep], known]) if len(known) else core[keep]
-    far = np.flatnonzero(_nearest(kept, core, gap) > gap)
+    tree = _tree(kept)  # built once for both queries
+    far = np.flatnonzero(_nearest(tree, core, gap) > gap)
     if not len(far):
         return fill
-    d = _nearest(kept, core[far])  # exact, for the order: farthest first, ties by row
+    d = _nearest(tree, core[far])  # exact, for the order: farthest first, ties by row
     far = far[np.lexsort((far, -d))]
     pts = np.ascontiguousarray(core[far], dtype=np.float64)
     q = np.floor((pts - pts.min(axis=0)) / gap).astype(np.int64)
