@@ -172,7 +172,7 @@ def simplify(
     rank : bool
         Store each point's rank in the extra dimension ``cloudsieve_rank``
         (:mod:`cloudsieve.io.rank`): the first N ranks are the points to keep at
-        N, cut by ``cloudsieve export --keep-rank N``. Rule eliminate, LAS/LAZ out.
+        N, cut by ``cloudsieve export --keep-rank N``. Rule eliminate, LAS/LAZ/COPC out.
     storage_options : dict, optional
         fsspec options for every URL of the run (e.g. s3fs's ``key``,
         ``secret``, ``endpoint_url``); never logged, recorded or printed.
