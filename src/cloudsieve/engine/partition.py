@@ -247,9 +247,8 @@ def build_partition(
                     margin)
     logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)
 
-    for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src", "label_runs",
-                 "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
-        store.delete_array(f"partition/{name}")
+    store.delete_arrays([f"partition/{name}" for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src",
+                         "label_runs", "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count")])
     store.create_array("partition/centers", data=centers, chunks=centers.shape)
     store.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), fill_value=-1)
     r_len, inner = row_layout(chunk, local_path(path) is None)
