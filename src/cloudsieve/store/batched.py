@@ -33,9 +33,9 @@ def laid_out(name: str, options: dict[str, Any]) -> tuple[dict[str, Any], AsyncA
     """The objects (key -> zarr buffer) and the array zarr writes for ``create_array(name=name, **options)``
     in an empty zarr v3 group: the array's ``zarr.json``, its parent groups' (the root's too) and the chunks of
     ``data``."""
-    memory = MemoryStore()
-    arr = zarr.create_array(memory, name=name, zarr_format=3, **options)
-    return dict(memory._store_dict), arr.async_array
+    objects: dict[str, Any] = {}
+    arr = zarr.create_array(MemoryStore(objects), name=name, zarr_format=3, **options)
+    return objects, arr.async_array
 
 
 def _parents(name: str) -> list[str]:
