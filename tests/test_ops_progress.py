@@ -47,7 +47,8 @@ def assert_stages(stderr: str, stages: list[tuple[str, str]]) -> None:
 
 
 # a LAS source is ingested by tasks, and the partition reads its sample from the store ("partition: sample")
-SIMPLIFY_STAGES = [("ingest", "points"), ("partition: sample", "tasks?"), ("partition: label", "tasks?"),
+SIMPLIFY_STAGES = [("ingest", "points"), ("partition: sample", "tasks?"), ("partition: fit", "tasks?"),
+                   ("partition: label", "tasks?"),
                    ("cells: score", "tasks?"), ("cells: threshold", "tasks?"), ("cells: apply", "tasks?"),
                    ("merge", "tasks?"), ("export", "points")]
 
@@ -61,7 +62,7 @@ def test_simplify_without_a_terminal_logs_one_line_per_stage(tmp_path):
     proc = cloudsieve(["simplify", "--rule", "iterative", shared_file("simple.las"), tmp_path / "p.las", "--scheduler",
                        "sync"], tmp_path)
     assert_stages(proc.stderr, [s for s in SIMPLIFY_STAGES if s[0] not in ("cells: score", "cells: threshold",
-                                                                          "cells: apply")][:3]
+                                                                          "cells: apply")][:4]
                   + [("cells", "tasks?"), ("merge", "tasks?"), ("export", "points")])
     proc = cloudsieve(["simplify", "--rule", "iterative", shared_file("simple.las"), tmp_path / "q.las",
                        "--no-progress", "--scheduler", "sync"], tmp_path)

@@ -241,15 +241,16 @@ def build_partition(
         sample = np.concatenate(parts, axis=0) if parts else np.empty((0, 3))
     origin = np.asarray(store.bounds[0], dtype=np.float64)
     k = int(neighbour_count(cluster_size, k0, k_min))  # the core's one k formula
-    centers, (r_k, dim, margin), r_max = fit_sample(sample, n, p, seed, origin, k, eliminate_target)
+    # a task: the K-means, the margin and r_max (their imports and compiled kernels) are no driver work
+    fitted = run(fit_sample, [(sample, n, p, seed, origin, k, eliminate_target)], "partition: fit")
+    centers, (r_k, dim, margin), r_max = fitted[0]
     if r_max is not None:
         logger.info("partition: eliminate %d of %d points, r_max %.4g, margin %.4g", eliminate_target, n, r_max,
                     margin)
     logger.info("partition: %d points -> %d cells, sample %d, r_%d=%.4g (d=%.2f), margin %.4g", n, p, len(sample), k, r_k, dim, margin)
 
-    for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src", "label_runs",
-                 "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
-        store.delete_array(f"partition/{name}")
+    store.delete_arrays([f"partition/{name}" for name in ("cell", "counts", "xyz", "centers", "halo_ptr", "halo_src",
+                         "label_runs", "chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count")])
     store.create_array("partition/centers", data=centers, chunks=centers.shape)
     store.create_array("partition/cell", shape=(n,), dtype="int32", chunks=(chunk,), fill_value=-1)
     r_len, inner = row_layout(chunk, local_path(path) is None)

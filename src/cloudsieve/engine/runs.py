@@ -48,8 +48,8 @@ def index_runs(store, nnz: np.ndarray, n_cells: int, chunk_size: int, flush: int
     np.cumsum(nnz, out=chunk_ptr[1:])
     total = int(chunk_ptr[-1])
     rc = _chunks_1d(total)
-    for name in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count"):
-        store.delete_array(f"partition/{name}")
+    store.delete_arrays([f"partition/{name}"
+                         for name in ("chunk_ptr", "chunk_runs", "cell_ptr", "cell_runs", "cell_count")])
     by_chunk = store.create_array("partition/chunk_runs", shape=(total, 3), dtype="int64", chunks=(rc, 3))
     tmp = store.group["partition/label_runs"]
     acc = np.zeros(p, dtype=np.int64)

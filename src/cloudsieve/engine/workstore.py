@@ -247,9 +247,9 @@ def ensure_cell_arrays(store, n_cells: int, total: int, block: int, starts: np.n
             g["simplify/scored"][:] = np.zeros(n_cells, dtype=np.uint8)
             g["simplify/done"][:] = np.zeros(n_cells, dtype=np.uint8)
         return
-    for name in ("keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions",
-                 "duplicates", "share", "band_xyz", "band_pos", "band_count", "group_cells"):
-        store.delete_array(f"simplify/{name}")
+    store.delete_arrays([f"simplify/{name}" for name in (
+        "keep_cells", "fill_cells", "score_cells", "label_cells", "done", "scored", "keep", "regions", "duplicates",
+        "share", "band_xyz", "band_pos", "band_count", "group_cells")])
     store.create_array("simplify/keep_cells", shape=(total,), dtype="bool", chunks=(block,), fill_value=False)
     store.create_array("simplify/done", shape=(n_cells,), dtype="uint8", chunks=(1,), fill_value=0)
     store.create_array("simplify/score_cells", shape=(total,), dtype="float64", chunks=(block,), fill_value=0.0)

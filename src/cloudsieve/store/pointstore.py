@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 import zarr
+from zarr.core.sync import sync
 
 from ..errors import (
     ArrayNotFoundError,
@@ -35,6 +36,7 @@ from .chunk import DEFAULT_CHUNK_SIZE, Chunk
 from ..io.las_records import decode_xyz
 from ..paths import STORE_ATTR, delete_store, holds, is_store, refuse_source, store_group, zarr_store
 from .. import handles, storage
+from . import batched
 from .codecs import compressors, filters
 from .streaming import gathered
 
@@ -79,6 +81,8 @@ class PointStore:
         self.path = str(path)
         self.mode = mode
         self._writable: zarr.Group | None = group if mode != "r" else None
+        self._groups = {""}  # the groups known to exist ("" the root): arrays under them need no check
+        self._absent: set[str] = set()  # derived names this handle deleted: creating one there needs no check
         #: input arrays opened so far (written once, so their metadata is read once)
         self._inputs: dict[str, zarr.Array] = {}
         self._use(meta)
@@ -146,11 +150,11 @@ class PointStore:
         group = zarr.open_group(zarr_store(path, read_only=False), mode="w")
         # marked (incomplete) before any array: a crash in between leaves no foreign-looking content
         group.attrs.update({STORE_ATTR: {"complete": False}})
+        laid: dict[str, Any] = {}  # on object storage: every array's zarr.json at once (the group is new and empty)
         for name, (dtype, shape) in dtypes.items():
             if name == "xyz" and xyz_encoding is not None:
                 dtype = np.int32
-            group.create_array(
-                name,
+            options = dict(
                 shape=(count, *shape),
                 dtype=np.dtype(dtype),
                 chunks=(chunk_size, *shape),
@@ -159,6 +163,11 @@ class PointStore:
                 filters=filters(len(shape)),
                 config={"write_empty_chunks": True},  # skip the all-fill-value scan of every chunk
             )
+            if batched.remote(group):
+                laid.update({k: v for k, v in batched.laid_out(name, options)[0].items() if k != "zarr.json"})
+            else:
+                group.create_array(name, **options)
+        batched.write_all(group, laid)
         meta = {
             "count": int(count),
             "bounds": np.full((2, 3), np.nan),
@@ -296,10 +305,15 @@ class PointStore:
         options: dict[str, Any] = {"shape": shape, "dtype": dtype} if data is None else {"data": data}
         if shards is not None:
             options["shards"] = tuple(shards)
-        arr = self._writable_group().create_array(
-            name, chunks=tuple(chunks), fill_value=fill_value, compressors=codecs or compressors(), overwrite=overwrite,
-            **options
-        )
+        options.update(chunks=tuple(chunks), fill_value=fill_value, compressors=codecs or compressors())
+        group = self._writable_group()
+        if batched.remote(group):
+            arr = batched.create(group, name, options, overwrite=overwrite, groups=self._groups,
+                                 check=not self._known_absent(name))
+            parts = name.strip("/").split("/")
+            self._absent -= {"/".join(parts[: i + 1]) for i in range(len(parts))}
+        else:
+            arr = group.create_array(name, overwrite=overwrite, **options)
         self._refresh()
         return arr
 
@@ -323,11 +337,44 @@ class PointStore:
         """
         self._check_derived(name)
         group = self._writable_group()
-        if name not in group:
+        if self._known_absent(name) or name not in group:
             return False
-        del group[name]
+        if batched.remote(group):  # one listing and one batch of deletes
+            sync(batched.delete(group.store, name))
+            self._gone([name])
+        else:
+            del group[name]
         self._refresh()
         return True
+
+    def delete_arrays(self, names: Sequence[str]) -> list[str]:
+        """Delete the derived arrays or groups *names*; returns those there were. On object storage one listing of
+        their common group finds them all, and one batch deletes them.
+
+        Raises
+        ------
+        InvalidParameterError
+            One of *names* is an input array.
+        """
+        for name in names:
+            self._check_derived(name)
+        group = self._writable_group()
+        if not batched.remote(group):
+            return [name for name in names if self.delete_array(name)]
+        found = sync(batched.delete_all(group.store, [n.strip("/") for n in names]))
+        self._gone(names)
+        if found:
+            self._refresh()
+        return found
+
+    def _gone(self, names: Sequence[str]) -> None:  # *names* deleted: neither they nor groups under them exist
+        under = tuple(n.strip("/") + "/" for n in names)
+        self._groups = {g for g in self._groups if not (g + "/").startswith(under)}
+        self._absent.update(n.strip("/") for n in names)
+
+    def _known_absent(self, name: str) -> bool:  # deleted by this handle, nothing created under it since
+        parts = name.strip("/").split("/")
+        return any("/".join(parts[: i + 1]) in self._absent for i in range(len(parts)))
 
     def __repr__(self) -> str:
         return f"PointStore({self.path!r}, count={self.count}, format={self.source_format!r}, dimensions={self.dimensions})"
