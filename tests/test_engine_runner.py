@@ -255,3 +255,59 @@ def test_prestart_is_a_no_op_without_a_local_pool():
         assert r(_pid, [(0,)], "test") == [os.getpid()]
     finally:
         r.close()
+
+
+BOOT = """
+import sys
+from multiprocessing import forkserver
+from cloudsieve.engine.runner import boot
+scheduler, limit = sys.argv[1] or None, sys.argv[2] or None
+if __name__ == "__main__":
+    boot(scheduler, limit, ("common",))
+    print(forkserver._forkserver._forkserver_pid is not None)
+"""
+
+
+@pytest.mark.parametrize("scheduler, limit, started", [("", "", True), ("processes", "", True),
+                                                       ("sync", "", False), ("threads", "", False),
+                                                       ("processes", "1GB", False),
+                                                       ("tcp://127.0.0.1:1", "", False)])
+def test_boot_starts_the_fork_server_only_for_the_local_pool(tmp_path, scheduler, limit, started):
+    """boot() starts now the fork server a Runner of the same options would start (the default and "processes"
+    without a memory limit), and nothing for the other schedulers; in a fresh process, where none runs yet."""
+    import subprocess
+    import sys
+
+    script = tmp_path / "boot.py"
+    script.write_text(BOOT)
+    out = subprocess.run([sys.executable, str(script), scheduler, limit], capture_output=True, text=True,
+                         timeout=120, env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == str(started)
+
+
+def _checksum(a, b, scale):
+    return float(a.sum() + b.sum()) * scale
+
+
+def test_a_large_array_argument_is_scattered_not_sent_in_the_graph():
+    """On a dask.distributed cluster an array argument above SCATTER_BYTES (the partition's sample: up to 24 MB)
+    goes to the workers ahead of its task: the same results, and no "Sending large graph" warning from dask."""
+    import warnings
+
+    from distributed import Client, LocalCluster
+
+    from cloudsieve.engine.runner import NO_HTTP_PORT, SCATTER_BYTES
+
+    big = np.arange(3 * (SCATTER_BYTES // 8 + 1), dtype=np.float64).reshape(-1, 3)  # 24 MB
+    big = np.repeat(big, 8, axis=0)
+    small = np.ones(10)
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None, scheduler_kwargs=NO_HTTP_PORT) as cluster, Client(cluster) as client:
+        run = Runner(client=client)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            out = run(_checksum, [(big, small, 1.0), (big, small, 2.0)], "test")
+    assert big.nbytes > 10 * 2**20
+    assert out == [float(big.sum() + 10) * s for s in (1.0, 2.0)]
+    assert not [w for w in caught if "large graph" in str(w.message)]

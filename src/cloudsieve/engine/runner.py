@@ -36,6 +36,18 @@ DEFAULT_SCHEDULER = "processes"
 NO_HTTP_PORT = {"dashboard_address": ":0"}
 
 
+def boot(scheduler, memory_limit, warm: tuple[str, ...]) -> None:
+    """Start the fork server a :class:`Runner` of these options will use, now; nothing for other schedulers.
+
+    For a caller that knows a run needs the local pool before it imports the
+    stages: the fork server's imports and warm-up then overlap the caller's.
+    The Runner keeps the running fork server (:func:`.pool.start_forkserver`).
+    """
+    if memory_limit is not None or (scheduler or DEFAULT_SCHEDULER) != "processes":
+        return
+    start_forkserver(worker_context(), warm)
+
+
 class Runner:
     """Runs batches of independent tasks on the chosen dask scheduler.
 
@@ -256,6 +268,7 @@ class Runner:
         token = uuid.uuid4().hex[:8]
         tag = stage.replace(" ", "").replace(":", "-")
         futures: list = []
+        args = [tuple(_scattered(self.client, x) for x in a) for a in args]
         for i, a in enumerate(args):
             key = f"cloudsieve-{tag}-{i}-{token}"
             if deps[i]:  # futures as arguments: started once they are done
@@ -315,6 +328,20 @@ class Runner:
             self.task_retries += sum(retries for _, _, retries in results)
             results = [r for r, _, _ in results]
         return results
+
+
+#: an array argument larger than this goes to the workers ahead of its task (below dask's 10 MiB graph warning)
+SCATTER_BYTES = 1 << 20
+
+
+def _scattered(client, value):
+    """*value*, or a future of it on the workers when it is an array above ``SCATTER_BYTES`` (the partition's
+    sample: up to 24 MB): dask.distributed sends a task's arguments with the graph and warns above 10 MiB."""
+    import numpy as np
+
+    if isinstance(value, np.ndarray) and value.nbytes > SCATTER_BYTES:
+        return client.scatter(value, hash=False)
+    return value
 
 
 def _timed(func: Callable, *args):

@@ -21,6 +21,7 @@ from ..errors import TargetNotMetError
 from ..io.sources import remembered
 from ..params import given, run_record, validate
 from ..progress import callback
+from ..rule_table import targets_of
 from ..store import DEFAULT_CHUNK_SIZE
 from .. import storage, storage_retries
 from .checks import check_run
@@ -259,6 +260,10 @@ def _run_simplify(src, dst, opts: dict, *, client, progress, bars, notify, t_sta
         run_small(checked.sources, dst, opts, summary, account=account, progress=update, bars=bars,
                   points=checked.points)
         return _finished(summary, t_start, cpu0)
+    if client is None:  # the local workers start while the stages import
+        from .runner import boot
+
+        boot(checked.scheduler, opts["memory_limit"], targets_of(rule))
     from .outofcore import RunHooks, run_store  # the work store, dask and the stages: only for a run that needs them
 
     hooks = RunHooks(account=account, progress=update, finished=lambda s: _finished(s, t_start, cpu0), bars=bars,
