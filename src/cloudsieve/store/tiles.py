@@ -78,11 +78,13 @@ def tile_name(stem: str, key: int) -> str:
     return f"{stem}_{int(ix[0])}_{int(iy[0])}.laz"
 
 
-def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False) -> dict:
+def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False,
+               records: bool = False) -> dict:
     """Task of :func:`export_tiles`: write a tile's points (its *runs* in buckets *name*) to the LAZ *path*.
 
-    Reads blocks of at most a store chunk; returns the tile's VPC entry
-    (:func:`cloudsieve.io.vpc.describe_tile`).
+    Reads blocks of at most a store chunk; *records*: the buckets hold the
+    tile's LAS point records (:func:`_packing`), written as they are.
+    Returns the tile's VPC entry (:func:`cloudsieve.io.vpc.describe_tile`).
     """
     from ..io import open_writer
     from ..io.vpc import describe_tile
@@ -90,12 +92,23 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace:
     store = PointStore.open(store_path, "r")
     scratch = open_runs(store_path, name)
     record = scratch[1]
-    dtypes = {d: (record[d].base, record[d].shape) for d in record.names}  # as the buckets hold them
+    # as the buckets hold them; LAS records: the store's own
+    dtypes = store.dtypes if records else {d: (record[d].base, record[d].shape) for d in record.names}
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
                      bounds=store.bounds, overwrite=replace) as writer:
-        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch):
-            writer.write(block)
+        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch, records):
+            if records:
+                writer.write_records(block)
+            else:
+                writer.write(block)
     return describe_tile(path)
+
+
+def _packing(store: PointStore, dst: str):
+    """The tiles' LAS point records, built once by the bucketing tasks (a LAS-sourced store), else None."""
+    from ..io.las import LasPacking, las_sourced
+
+    return LasPacking(store.header, store.dimensions, dst) if las_sourced(store.source_format, store.header) else None
 
 
 def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
@@ -212,9 +225,11 @@ def export_tiles(
         return _export_remote(store, dst, stem, size, mask, run, update)
     try:
         with replacing(dst, directory=True) as tmp:
-            buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+            packing = _packing(store, dst)
+            buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run, packing=packing)
             names = [tile_name(stem, int(k)) for k in buckets.keys]
-            args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
+            args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f), False, packing is not None)
+                    for k, f in zip(buckets.keys, names)]
             entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
             for n in buckets.counts:
                 update(int(n))
@@ -241,9 +256,10 @@ def _export_remote(store: PointStore, dst: str, stem: str, size: float, mask, ru
     storage.remove(vpc)
     names: list[str] = []
     try:
-        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+        packing = _packing(store, dst)
+        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run, packing=packing)
         names = [tile_name(stem, int(k)) for k in buckets.keys]
-        args = [(store.path, _SCRATCH, buckets.runs(k), storage.join(dst, f), f in before)
+        args = [(store.path, _SCRATCH, buckets.runs(k), storage.join(dst, f), f in before, packing is not None)
                 for k, f in zip(buckets.keys, names)]
         entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
         for n in buckets.counts:
