@@ -28,8 +28,12 @@ __all__ = ["LasReader", "LasWriter", "LasRecords", "LasPacking", "las_sourced", 
 _XYZ = ("X", "Y", "Z")
 
 
-def laz_backend():
+def laz_backend(parallel: bool = True):
+    """laspy's LAZ backends, best first; *parallel* False: lazrs on one thread first (a task that owns a core;
+    the same bytes)."""
     backends = laspy.LazBackend.detect_available()
+    if not parallel:
+        backends = tuple(b for b in backends if b != laspy.LazBackend.LazrsParallel)
     return backends if backends else None
 
 
@@ -222,8 +226,47 @@ class LasPacking:
         """The records' numpy dtype (the point format's)."""
         return self._built().header.point_format.dtype()
 
-    def __call__(self, arrays: dict[str, np.ndarray]) -> np.ndarray:
-        return self._built().build(arrays).array
+    def __call__(self, xyz: np.ndarray, arrays: dict[str, np.ndarray], take: np.ndarray,
+                 order: np.ndarray) -> np.ndarray:
+        """The records of the points ``arrays[name][take]``, their coordinates ``xyz[order]`` (*xyz*: (m, 3)
+        float64, *take*, *order*: (n,) int64): :meth:`LasRecords.build`'s bytes for those points, each packed
+        field written once (the bit fields composed aside); values that do not fit are left to
+        :meth:`LasRecords.build`, which raises."""
+        built = self._built()
+        points = {"xyz": xyz.take(order, axis=0), **{d: np.asarray(v).take(take, axis=0) for d, v in arrays.items()}}
+        xyz = points["xyz"]
+        n = len(xyz)
+        rec = np.zeros(n, dtype=built.header.point_format.dtype())
+        for i, dim in enumerate(_XYZ):
+            raw = np.round((xyz[:, i] - built.offsets[i]) / built.scales[i])
+            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+                return built.build(points).array
+            rec[dim] = raw.astype(np.int32)
+        subfields = _sub_fields(built.header.point_format.id)
+        bits: dict[str, np.ndarray] = {}
+        for name, _, _ in built.mapping:
+            if name not in points:
+                continue
+            values = points[name]
+            if name in rec.dtype.names:
+                rec[name] = values
+            elif name in subfields:
+                parent, field = subfields[name]
+                lsb = (field.mask & -field.mask).bit_length() - 1
+                if n and (values.dtype.kind not in "ub" or int(values.max()) > field.mask >> lsb):
+                    return built.build(points).array
+                acc = bits.setdefault(parent, np.zeros(n, dtype=rec.dtype[parent]))
+                acc |= values.astype(acc.dtype) << acc.dtype.type(lsb)
+        for parent, acc in bits.items():
+            rec[parent] = acc
+        return rec
+
+
+def _sub_fields(point_format_id: int) -> dict:
+    """laspy's bit fields of a point format: name -> (packed field, SubField(mask))."""
+    from laspy.point.dims import get_sub_fields_dict
+
+    return get_sub_fields_dict(point_format_id)
 
 
 # --------------------------------------------------------------------- writer
@@ -250,7 +293,7 @@ class LasWriter(Writer):
                 mode="w",
                 header=header,
                 do_compress=compress,
-                laz_backend=laz_backend() if compress else None,
+                laz_backend=self.options.get("laz_backend", laz_backend()) if compress else None,
                 closefd=False,
             )
         except laspy.LaspyException as exc:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable, Iterator
+from functools import partial
 
 import numpy as np
 
@@ -108,17 +109,18 @@ def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, 
     heads = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if n else _EMPTY
     if n:
         take = order if rows is None else rows[order]  # the selected points in key order, packed
-        points = {"xyz": sel.take(order, axis=0), **{d: v.take(take, axis=0) for d, v in zip(names[1:], got[1:])}}
-        rec = packing(points) if packing is not None else _pack(points, record)
+        rec = (packing or partial(_pack, record))(sel, dict(zip(names[1:], got[1:])), take, order)
         out[chunk, :n] = rec.view(np.uint8).reshape(n, record.itemsize)
     return sk[heads], np.diff(np.r_[heads, n]).astype(np.int64)
 
 
-def _pack(points: dict[str, np.ndarray], record: np.dtype) -> np.ndarray:
-    """*points*' attributes as packed records of *record*."""
-    rec = np.empty(len(points["xyz"]), dtype=record)
-    for d in record.names:
-        rec[d] = points[d]
+def _pack(record: np.dtype, xyz: np.ndarray, arrays: dict[str, np.ndarray], take: np.ndarray,
+          order: np.ndarray) -> np.ndarray:
+    """Packed records of *record* of the points ``arrays[name][take]``, their coordinates ``xyz[order]``."""
+    rec = np.empty(len(take), dtype=record)
+    rec["xyz"] = xyz.take(order, axis=0)
+    for d in record.names[1:]:
+        rec[d] = arrays[d].take(take, axis=0)
     return rec
 
 
@@ -141,9 +143,10 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
         ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
         None runs the tasks here in turn.
     packing : callable, optional
-        ``packing(points) -> records``: the records written in place of the
-        default ones, from every attribute of the points (a dict, "xyz" float64
-        first), with a ``dtype()`` method (e.g. :class:`cloudsieve.io.las.LasPacking`:
+        ``packing(xyz, arrays, take, order) -> records``: the records written
+        in place of the default ones, of the points ``arrays[name][take]``
+        (a store chunk's attributes) whose coordinates are ``xyz[order]``
+        (the selected points' float64), with a ``dtype()`` method (e.g. :class:`cloudsieve.io.las.LasPacking`:
         the output's LAS records); pickled into the tasks. :func:`read_runs`
         then gives the records' fields, :func:`iter_runs` with ``records=True`` the records.
 

@@ -87,6 +87,7 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace:
     Returns the tile's VPC entry (:func:`cloudsieve.io.vpc.describe_tile`).
     """
     from ..io import open_writer
+    from ..io.las import laz_backend
     from ..io.vpc import describe_tile
 
     store = PointStore.open(store_path, "r")
@@ -95,7 +96,7 @@ def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace:
     # as the buckets hold them; LAS records: the store's own
     dtypes = store.dtypes if records else {d: (record[d].base, record[d].shape) for d in record.names}
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
-                     bounds=store.bounds, overwrite=replace) as writer:
+                     bounds=store.bounds, overwrite=replace, laz_backend=laz_backend(parallel=False)) as writer:
         for block in iter_runs(store_path, name, runs, store.chunk_size, scratch, records):
             if records:
                 writer.write_records(block)
