@@ -14,7 +14,7 @@
   coordinates, read before the clock: the engine's partition + cells against it.
 
 A floor is the work of the library that does the stage's I/O, split evenly over the workers; the ratio is the
-stage's wall time over it. The table has the run's points/s, CPU per point (driver + workers), the partition's
+stage's wall time over it (for export also its workers' CPU over the encode tasks' time summed). The table has the run's points/s, CPU per point (driver + workers), the partition's
 share of the run, and the load average before and after. Never run two benchmarks at once.
 """
 
@@ -125,6 +125,9 @@ def main(argv: list[str] | None = None) -> int:
           f"({mem['kept']:,} kept, CPU {mem['cpu']:.1f} s) |")
     print(f"| export | {sec['export']:.1f} | {encode:.1f} | {sec['export'] / encode:.2f} | laspy + lazrs encode, "
           f"{sum(k for _, k in enc):,} points, {w} processes |")
+    cpu_export, cpu_encode = s["stage_cpu"]["export"], sum(t for t, _ in enc)
+    print(f"| export, workers' CPU | {cpu_export:.1f} | {cpu_encode:.1f} | {cpu_export / cpu_encode:.2f} | the encode "
+          f"tasks' time summed (one thread each) |")
     print(f"| merge | {sec['merge']:.1f} | | | |")
     print(f"| run | {s['wall']:.1f} | | | stages {', '.join(f'{k} {v:.1f}' for k, v in sec.items())} |")
     shutil.rmtree(out, ignore_errors=True)

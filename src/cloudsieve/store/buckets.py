@@ -172,10 +172,11 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     store.delete_array(prefix)
     record = _record_dtype(store) if packing is None else np.dtype(packing.dtype())
     b = record.itemsize
-    inner = min(INNER_CHUNK if local_path(store.path) else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
+    local = local_path(store.path) is not None
+    inner = min(INNER_CHUNK if local else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
     arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
                              chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b),
-                             codecs=record_compressors(b))
+                             codecs=record_compressors(b, local))
     arr.attrs.update({"fields": _fields(record)})
     args = [(store.path, name, c, s, min(s + chunk, n), keys, mask, packing) for c, s in enumerate(starts)]
     try:
