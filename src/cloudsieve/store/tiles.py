@@ -41,10 +41,13 @@ _HALF = np.int64(1 << 31)
 
 
 def _cells(v: np.ndarray, size: float) -> np.ndarray:
-    """floor(v / size), corrected so that ``i * size <= v < (i + 1) * size`` holds in float64."""
+    """floor(v / size), corrected so that ``i * size <= v < (i + 1) * size`` holds in float64 (*v* contiguous)."""
     i = np.floor(v / size)
-    i -= v < i * size
-    i += v >= (i + 1) * size
+    t = i * size
+    i -= v < t
+    np.add(i, 1, out=t)
+    t *= size
+    i += v >= t
     return i
 
 
@@ -57,13 +60,15 @@ def tile_keys(xyz: np.ndarray, tile_size: float) -> np.ndarray:
         A tile index outside the signed 32-bit range (S too small for the coordinates).
     """
     xy = np.asarray(xyz, dtype=np.float64)[:, :2]
-    ij = np.stack([_cells(xy[:, 0], tile_size), _cells(xy[:, 1], tile_size)], axis=1)
-    if len(ij) and (ij.min() < -_HALF or ij.max() >= _HALF):
+    ix, iy = (_cells(np.ascontiguousarray(xy[:, a]), tile_size) for a in (0, 1))
+    if len(ix) and (min(ix.min(), iy.min()) < -_HALF or max(ix.max(), iy.max()) >= _HALF):
         raise InvalidParameterError(
             f"tile_size {tile_size} is too small for coordinates up to {np.abs(xy).max():.6g}: tile indices "
             f"must fit 32 bits")
-    ij = ij.astype(np.int64)
-    return (ij[:, 0] << np.int64(32)) + (ij[:, 1] + _HALF)
+    keys = ix.astype(np.int64) << np.int64(32)
+    keys += iy.astype(np.int64)
+    keys += _HALF
+    return keys
 
 
 def tile_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
