@@ -30,7 +30,7 @@ _XYZ = ("X", "Y", "Z")
 
 def laz_backend(parallel: bool = True):
     """laspy's LAZ backends, best first; *parallel* False: lazrs on one thread first (a task that owns a core;
-    the same bytes)."""
+    the same bytes for a file of one point or more, not for an empty one)."""
     backends = laspy.LazBackend.detect_available()
     if not parallel:
         backends = tuple(b for b in backends if b != laspy.LazBackend.LazrsParallel)
