@@ -14,7 +14,7 @@
   coordinates, read before the clock: the engine's partition + cells against it.
 
 A floor is the work of the library that does the stage's I/O, split evenly over the workers; the ratio is the
-stage's wall time over it. The table has the run's points/s, CPU per point (driver + workers), the partition's
+stage's wall time over it (for export also its workers' CPU over the encode tasks' CPU summed). The table has the run's points/s, CPU per point (driver + workers), the partition's
 share of the run, and the load average before and after. Never run two benchmarks at once.
 """
 
@@ -55,18 +55,19 @@ def decode_seconds(path: str) -> tuple[float, int]:
     return time.perf_counter() - t0, n
 
 
-def encode_seconds(path: str) -> tuple[float, int]:
-    """(seconds, points) of laspy + lazrs encoding the points of *path* (read first, not timed) to LAZ in memory."""
+def encode_seconds(path: str) -> tuple[float, int, float]:
+    """(seconds, points, CPU seconds) of laspy + lazrs encoding the points of *path* (read first, not timed) to LAZ
+    in memory."""
     import laspy
 
     las = laspy.read(path)
     out = io.BytesIO()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     with laspy.open(out, mode="w", header=las.header, do_compress=True, laz_backend=laspy.LazBackend.Lazrs,
                     closefd=False) as writer:
         for start in range(0, len(las.points), CHUNK):
             writer.write_points(las.points[start : start + CHUNK])
-    return time.perf_counter() - t0, len(las.points)
+    return time.perf_counter() - t0, len(las.points), time.process_time() - c0
 
 
 IN_MEMORY = r"""
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     after = load()
     sec = s["seconds"]
     decode = sum(t for t, _ in dec) / w
-    encode = sum(t for t, _ in enc) / w
+    encode = sum(t for t, _, _ in enc) / w
     cpu = s["cpu_seconds"]["driver"] + s["cpu_seconds"]["workers"]
     print(f"\n## {n:,} points in {args.files} LAZ tiles -> tiles of {args.tile_size:g} + index.vpc, "
           f"`--ratio 0.5 --workers {w}` (load {before} -> {after})\n")
@@ -124,7 +125,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{(sec['partition'] + sec['cells']) / mem['seconds']:.2f} | `simplify_points` in memory, same points "
           f"({mem['kept']:,} kept, CPU {mem['cpu']:.1f} s) |")
     print(f"| export | {sec['export']:.1f} | {encode:.1f} | {sec['export'] / encode:.2f} | laspy + lazrs encode, "
-          f"{sum(k for _, k in enc):,} points, {w} processes |")
+          f"{sum(k for _, k, _ in enc):,} points, {w} processes |")
+    cpu_export, cpu_encode = s["stage_cpu"]["export"], sum(c for _, _, c in enc)
+    print(f"| export, workers' CPU | {cpu_export:.1f} | {cpu_encode:.1f} | {cpu_export / cpu_encode:.2f} | the encode "
+          f"tasks' CPU summed |")
     print(f"| merge | {sec['merge']:.1f} | | | |")
     print(f"| run | {s['wall']:.1f} | | | stages {', '.join(f'{k} {v:.1f}' for k, v in sec.items())} |")
     shutil.rmtree(out, ignore_errors=True)

@@ -16,20 +16,24 @@ import numpy as np
 from laspy.vlrs.vlrlist import VLRList
 
 from .. import storage
-from ..errors import CorruptInputError, InputFormatError
+from ..errors import CorruptInputError, InputFormatError, InvalidParameterError
 from ..chunk import DEFAULT_CHUNK_SIZE
 from ._base import Reader, Writer, logger  # the writers' logger: conversion warnings come from there
 from .las_checks import QUIET_READS, check_layout, decode_error
 from .las_header import build_header, clip_to_dimension, header_from_dict, header_to_dict, vlr_from_dict
 from .las_records import decode_xyz, raw_values, record_arrays
 
-__all__ = ["LasReader", "LasWriter", "laz_backend"]
+__all__ = ["LasReader", "LasWriter", "LasRecords", "LasPacking", "las_sourced", "laz_backend"]
 
 _XYZ = ("X", "Y", "Z")
 
 
-def laz_backend():
+def laz_backend(parallel: bool = True):
+    """laspy's LAZ backends, best first; *parallel* False: lazrs on one thread first (a task that owns a core;
+    the same bytes for a file of one point or more, not for an empty one)."""
     backends = laspy.LazBackend.detect_available()
+    if not parallel:
+        backends = tuple(b for b in backends if b != laspy.LazBackend.LazrsParallel)
     return backends if backends else None
 
 
@@ -136,6 +140,135 @@ class LasReader(Reader):
             self._las = None
 
 
+# --------------------------------------------------------------------- records
+def las_sourced(source_format: str | None, header: dict) -> bool:
+    """Whether a cloud of *source_format* and *header* keeps its LAS header on LAS/LAZ output (every attribute
+    copied as it is)."""
+    return source_format in ("las", "laz", "copc") or (source_format is None and "point_format" in header)
+
+
+class LasRecords:
+    """Attributes -> the packed point records of *header*'s point format (``laspy.LasHeader``), as the LAS/LAZ
+    writer writes them: X/Y/Z ``round((xyz - offset) / scale)``, each attribute by its *mapping* entry
+    ``(name, LAS name, how)``; *label* names the file in messages."""
+
+    def __init__(self, header: laspy.LasHeader, mapping: list, label: str) -> None:
+        self.header, self.mapping, self.label = header, mapping, label
+        self.scales = np.asarray(header.scales, dtype=np.float64)
+        self.offsets = np.asarray(header.offsets, dtype=np.float64)
+        rec = laspy.ScaleAwarePointRecord.zeros(0, header=header)
+        self.packed = set(rec.array.dtype.names)
+        self.las_names = set(header.point_format.dimension_names)
+        self.said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
+
+    def build(self, chunk: dict[str, np.ndarray]) -> laspy.ScaleAwarePointRecord:
+        """The records of the points *chunk* ``{"xyz": (n, 3), name: (n,) ...}``."""
+        xyz = np.asarray(chunk["xyz"], dtype=np.float64)
+        n = len(xyz)
+        rec = laspy.ScaleAwarePointRecord.zeros(n, header=self.header)
+        for i, dim in enumerate(_XYZ):
+            raw = np.round((xyz[:, i] - self.offsets[i]) / self.scales[i])
+            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+                raise InputFormatError(
+                    f"cannot write {self.label}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
+                    f"LAS int32 with scale {self.scales[i]} and offset {self.offsets[i]}"
+                )
+            rec.array[dim] = raw.astype(np.int32)
+        for name, las_name, how in self.mapping:
+            if name not in chunk or las_name not in self.las_names:
+                continue
+            values = np.asarray(chunk[name])
+            if how == "color8":
+                values = values.astype(np.uint16) * np.uint16(257)
+            elif how == "unit16":
+                values = np.nan_to_num(values.astype(np.float64))
+                if name not in self.said and len(values) and (values.min() < 0 or values.max() > 1):  # once a file
+                    self.said.add(name)
+                    logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self.label,
+                                   name, values.min(), values.max(), las_name)
+                values = np.clip(np.round(values * 65535.0), 0, 65535).astype(np.uint16)
+            elif how == "int":
+                dim = self.header.point_format.dimension_by_name(las_name)
+                values, outside = clip_to_dimension(values, dim)
+                if outside and name not in self.said:  # once a file
+                    self.said.add(name)
+                    logger.warning("%s: %s has values outside LAS %s's %d..%d (%d..%d): clipped", self.label, name,
+                                   las_name, dim.min, dim.max, *outside)
+            try:
+                if las_name in self.packed:
+                    rec.array[las_name] = values
+                else:
+                    rec[las_name] = values
+            except (ValueError, OverflowError, laspy.LaspyException) as exc:
+                raise InputFormatError(f"cannot write {self.label}: dimension {las_name!r}: {exc}") from exc
+        return rec
+
+
+class LasPacking:
+    """A LAS-sourced store's packed point records, built in tasks (pickles small): :meth:`dtype` and
+    ``packing(arrays) -> records`` as :class:`LasRecords` builds them for the store's *header* dict (every
+    attribute of *names* copied); *label* names the output in messages."""
+
+    def __init__(self, header: dict, names: list[str], label: str) -> None:
+        self.header, self.names, self.label = header, list(names), label
+        self._records: LasRecords | None = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_records": None}
+
+    def _built(self) -> LasRecords:
+        if self._records is None:
+            header, _ = header_from_dict(self.header, self.label)
+            self._records = LasRecords(header, [(n, n, "copy") for n in self.names if n != "xyz"], self.label)
+        return self._records
+
+    def dtype(self) -> np.dtype:
+        """The records' numpy dtype (the point format's)."""
+        return self._built().header.point_format.dtype()
+
+    def __call__(self, xyz: np.ndarray, arrays: dict[str, np.ndarray], take: np.ndarray,
+                 order: np.ndarray) -> np.ndarray:
+        """The records of the points ``arrays[name][take]``, their coordinates ``xyz[order]`` (*xyz*: (m, 3)
+        float64, *take*, *order*: (n,) int64): :meth:`LasRecords.build`'s bytes for those points, each packed
+        field written once (the bit fields composed aside); values that do not fit are left to
+        :meth:`LasRecords.build`, which raises."""
+        built = self._built()
+        points = {"xyz": xyz.take(order, axis=0), **{d: np.asarray(v).take(take, axis=0) for d, v in arrays.items()}}
+        xyz = points["xyz"]
+        n = len(xyz)
+        rec = np.zeros(n, dtype=built.header.point_format.dtype())
+        for i, dim in enumerate(_XYZ):
+            raw = np.round((xyz[:, i] - built.offsets[i]) / built.scales[i])
+            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+                return built.build(points).array
+            rec[dim] = raw.astype(np.int32)
+        subfields = _sub_fields(built.header.point_format.id)
+        bits: dict[str, np.ndarray] = {}
+        for name, _, _ in built.mapping:
+            if name not in points:
+                continue
+            values = points[name]
+            if name in rec.dtype.names:
+                rec[name] = values
+            elif name in subfields:
+                parent, field = subfields[name]
+                lsb = (field.mask & -field.mask).bit_length() - 1
+                if n and (values.dtype.kind not in "ub" or int(values.max()) > field.mask >> lsb):
+                    return built.build(points).array
+                acc = bits.setdefault(parent, np.zeros(n, dtype=rec.dtype[parent]))
+                acc |= values.astype(acc.dtype) << acc.dtype.type(lsb)
+        for parent, acc in bits.items():
+            rec[parent] = acc
+        return rec
+
+
+def _sub_fields(point_format_id: int) -> dict:
+    """laspy's bit fields of a point format: name -> (packed field, SubField(mask))."""
+    from laspy.point.dims import get_sub_fields_dict
+
+    return get_sub_fields_dict(point_format_id)
+
+
 # --------------------------------------------------------------------- writer
 class LasWriter(Writer):
     """Chunked LAS/LAZ writer.
@@ -145,10 +278,7 @@ class LasWriter(Writer):
 
     def _open(self) -> None:
         self._label = self.options.get("label", self.path)  # the file named in messages (a part: its whole file)
-        las_source = self.source_format in ("las", "laz", "copc") or (
-            self.source_format is None and "point_format" in self.header
-        )
-        if las_source:
+        if las_sourced(self.source_format, self.header):
             self._header_dict = self.header
             self._mapping = [(n, n, "copy") for n in self.dtypes if n != "xyz"]
         else:
@@ -156,8 +286,6 @@ class LasWriter(Writer):
         header, self._evlrs = header_from_dict(self._header_dict, self._label)
         if self._evlrs and header.version.minor < 4:  # pragma: no cover - EVLRs imply 1.4
             self._evlrs = []
-        self._scales = np.asarray(header.scales, dtype=np.float64)
-        self._offsets = np.asarray(header.offsets, dtype=np.float64)
         compress = self.format == "laz"
         try:
             self._writer = laspy.open(
@@ -165,7 +293,7 @@ class LasWriter(Writer):
                 mode="w",
                 header=header,
                 do_compress=compress,
-                laz_backend=laz_backend() if compress else None,
+                laz_backend=self.options.get("laz_backend", laz_backend()) if compress else None,
                 closefd=False,
             )
         except laspy.LaspyException as exc:
@@ -173,10 +301,7 @@ class LasWriter(Writer):
         self._keep_extra_bytes_vlrs()
         self._pf = header.point_format
         self._header = header
-        rec = laspy.ScaleAwarePointRecord.zeros(0, header=header)
-        self._packed = set(rec.array.dtype.names)
-        self._las_names = set(header.point_format.dimension_names)
-        self._said: set[str] = set()  # the attributes whose values did not fit a conversion (said once)
+        self._records = LasRecords(header, self._mapping, self._label)
 
     def _keep_extra_bytes_vlrs(self) -> None:
         """Write the source's extra-bytes VLRs verbatim (laspy regrows their min/max statistics), for a byte-exact
@@ -193,45 +318,17 @@ class LasWriter(Writer):
             vlrs[i] = vlr
 
     def _write(self, chunk: dict[str, np.ndarray]) -> None:
-        xyz = np.asarray(chunk["xyz"], dtype=np.float64)
-        n = len(xyz)
-        rec = laspy.ScaleAwarePointRecord.zeros(n, header=self._header)
-        for i, dim in enumerate(_XYZ):
-            raw = np.round((xyz[:, i] - self._offsets[i]) / self._scales[i])
-            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
-                raise InputFormatError(
-                    f"cannot write {self._label}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
-                    f"LAS int32 with scale {self._scales[i]} and offset {self._offsets[i]}"
-                )
-            rec.array[dim] = raw.astype(np.int32)
-        for name, las_name, how in self._mapping:
-            if name not in chunk or las_name not in self._las_names:
-                continue
-            values = np.asarray(chunk[name])
-            if how == "color8":
-                values = values.astype(np.uint16) * np.uint16(257)
-            elif how == "unit16":
-                values = np.nan_to_num(values.astype(np.float64))
-                if name not in self._said and len(values) and (values.min() < 0 or values.max() > 1):  # once a file
-                    self._said.add(name)
-                    logger.warning("%s: %s has values outside 0..1 (%g..%g): LAS %s clipped to 0..65535", self._label,
-                                   name, values.min(), values.max(), las_name)
-                values = np.clip(np.round(values * 65535.0), 0, 65535).astype(np.uint16)
-            elif how == "int":
-                dim = self._pf.dimension_by_name(las_name)
-                values, outside = clip_to_dimension(values, dim)
-                if outside and name not in self._said:  # once a file
-                    self._said.add(name)
-                    logger.warning("%s: %s has values outside LAS %s's %d..%d (%d..%d): clipped", self._label, name,
-                                   las_name, dim.min, dim.max, *outside)
-            try:
-                if las_name in self._packed:
-                    rec.array[las_name] = values
-                else:
-                    rec[las_name] = values
-            except (ValueError, OverflowError, laspy.LaspyException) as exc:
-                raise InputFormatError(f"cannot write {self._label}: dimension {las_name!r}: {exc}") from exc
-        self._writer.write_points(rec)
+        self._writer.write_points(self._records.build(chunk))
+
+    def write_records(self, records: np.ndarray) -> None:
+        """Append packed point records of this file's point format (as :meth:`LasRecords.build` makes them):
+        the bytes :meth:`write` writes for the same points, with no assembly here."""
+        if records.dtype != self._pf.dtype():
+            raise InvalidParameterError(f"cannot write {self._label}: records of dtype {records.dtype}, not point "
+                                        f"format {self._pf.id}'s {self._pf.dtype()}")
+        if len(records):
+            self._writer.write_points(laspy.PackedPointRecord(records, self._pf))
+            self.count += len(records)
 
     def _close(self) -> None:
         if self._evlrs:

@@ -28,6 +28,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Callable, Iterator
+from functools import partial
 
 import numpy as np
 
@@ -82,19 +83,21 @@ def _check_mask(store: PointStore, mask: str) -> None:
 
 
 def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, keys: Callable,
-                 mask: str | None) -> tuple[np.ndarray, np.ndarray]:
+                 mask: str | None, packing: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Map task of :func:`bucket`: key, sort (stable) and write chunk *chunk*'s selected points.
 
-    Returns the chunk's distinct keys, increasing, and their counts: (r,) int64 each.
+    Reads every array once, in one event-loop call, and decodes only the
+    selected points' coordinates. Returns the chunk's distinct keys,
+    increasing, and their counts: (r,) int64 each.
     """
     store = PointStore.open(store_path, "r+")
-    out = store.group[f"{_prefix(name)}/records"]
+    out = store.group[f"{_prefix(name)}/records"].with_config({"write_empty_chunks": True})  # no scan for zeros
     record = _record(out)
-    xyz = store.read("xyz", start, stop)
-    others = record.names[1:]
-    got = gathered(store.array(d).async_array.getitem(slice(start, stop)) for d in others)
-    rows = np.flatnonzero(store.read(mask, start, stop)) if mask is not None else None
-    sel = xyz if rows is None else xyz[rows]
+    names = _names(store)
+    arrays = [store.array(d) for d in names] + ([store.array(mask)] if mask is not None else [])
+    got = [np.asarray(v) for v in gathered(a.async_array.getitem(slice(start, stop)) for a in arrays)]
+    rows = np.flatnonzero(got.pop()) if mask is not None else None
+    sel = store.decode_xyz(got[0] if rows is None else got[0].take(rows, axis=0))
     n = len(sel)
     k = np.asarray(keys(sel))
     if k.shape != (n,) or not np.issubdtype(k.dtype, np.integer):
@@ -106,16 +109,23 @@ def bucket_chunk(store_path: str, name: str, chunk: int, start: int, stop: int, 
     heads = np.flatnonzero(np.r_[True, sk[1:] != sk[:-1]]) if n else _EMPTY
     if n:
         take = order if rows is None else rows[order]  # the selected points in key order, packed
-        rec = np.empty(n, dtype=record)
-        rec["xyz"] = xyz[take]
-        for d, v in zip(others, got):
-            rec[d] = np.asarray(v)[take]
+        rec = (packing or partial(_pack, record))(sel, dict(zip(names[1:], got[1:])), take, order)
         out[chunk, :n] = rec.view(np.uint8).reshape(n, record.itemsize)
     return sk[heads], np.diff(np.r_[heads, n]).astype(np.int64)
 
 
+def _pack(record: np.dtype, xyz: np.ndarray, arrays: dict[str, np.ndarray], take: np.ndarray,
+          order: np.ndarray) -> np.ndarray:
+    """Packed records of *record* of the points ``arrays[name][take]``, their coordinates ``xyz[order]``."""
+    rec = np.empty(len(take), dtype=record)
+    rec["xyz"] = xyz.take(order, axis=0)
+    for d in record.names[1:]:
+        rec[d] = arrays[d].take(take, axis=0)
+    return rec
+
+
 def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], np.ndarray], name: str, *,
-           mask: str | None = None, run=None) -> Buckets:
+           mask: str | None = None, run=None, packing: Callable | None = None) -> Buckets:
     """Group the points of *store* (all, or those of *mask*) by ``keys(xyz)``, out of core.
 
     Parameters
@@ -132,6 +142,13 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     run : callable, optional
         ``run(func, argument_tuples, stage)`` (a :class:`cloudsieve.engine.runner.Runner`);
         None runs the tasks here in turn.
+    packing : callable, optional
+        ``packing(xyz, arrays, take, order) -> records``: the records written
+        in place of the default ones, of the points ``arrays[name][take]``
+        (a store chunk's attributes) whose coordinates are ``xyz[order]``
+        (the selected points' float64), with a ``dtype()`` method (e.g. :class:`cloudsieve.io.las.LasPacking`:
+        the output's LAS records); pickled into the tasks. :func:`read_runs`
+        then gives the records' fields, :func:`iter_runs` with ``records=True`` the records.
 
     Returns
     -------
@@ -153,14 +170,15 @@ def bucket(store: PointStore | str | os.PathLike, keys: Callable[[np.ndarray], n
     n, chunk = store.count, store.chunk_size
     starts = list(range(0, n, chunk))
     store.delete_array(prefix)
-    record = _record_dtype(store)
+    record = _record_dtype(store) if packing is None else np.dtype(packing.dtype())
     b = record.itemsize
-    inner = min(INNER_CHUNK if local_path(store.path) else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
+    local = local_path(store.path) is not None
+    inner = min(INNER_CHUNK if local else REMOTE_INNER_CHUNK, chunk)  # a row: one object (shard)
     arr = store.create_array(f"{prefix}/records", shape=(len(starts), -(-chunk // inner) * inner, b), dtype="uint8",
                              chunks=(1, inner, b), shards=(1, -(-chunk // inner) * inner, b),
-                             codecs=record_compressors(b))
+                             codecs=record_compressors(b, local))
     arr.attrs.update({"fields": _fields(record)})
-    args = [(store.path, name, c, s, min(s + chunk, n), keys, mask) for c, s in enumerate(starts)]
+    args = [(store.path, name, c, s, min(s + chunk, n), keys, mask, packing) for c, s in enumerate(starts)]
     try:
         results = [bucket_chunk(*a) for a in args] if run is None else run(bucket_chunk, args, f"bucket {name}")
         keys_, counts, ptr, runs = _run_table(results)
@@ -211,26 +229,35 @@ def open_runs(store_path: str, name: str) -> tuple:
     return handles.once((str(store_path), "records", name), make)  # once per stage in a task's process
 
 
+def _read_records(store_path: str, name: str, runs: np.ndarray, scratch: tuple | None) -> np.ndarray:
+    """The packed records (n,) of the points of *runs*, runs in order."""
+    arr, record = open_runs(store_path, name) if scratch is None else scratch
+    runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
+    # every run in one event-loop call (the codecs run concurrently)
+    got = gathered(arr.async_array.getitem((int(c), slice(int(s), int(s + k)))) for c, s, k in runs)
+    if not got:
+        raw = np.empty((0, record.itemsize), np.uint8)
+    else:
+        raw = np.concatenate([np.asarray(g) for g in got]) if len(got) > 1 else np.asarray(got[0])
+    return np.ascontiguousarray(raw).view(record).reshape(-1)
+
+
 def read_runs(store_path: str, name: str, runs: np.ndarray, scratch: tuple | None = None) -> dict[str, np.ndarray]:
     """Every attribute of the points of *runs* (rows (chunk, start, count)), runs in order.
 
     The task-side read; needs no index. *scratch*: :func:`open_runs`'s, else opened here.
     Returns ``{"xyz": (n, 3) float64, attribute: (n,) or (n, k), ...}``.
     """
-    arr, record = open_runs(store_path, name) if scratch is None else scratch
-    runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
-    # every run in one event-loop call (the codecs run concurrently)
-    got = gathered(arr.async_array.getitem((int(c), slice(int(s), int(s + k)))) for c, s, k in runs)
-    raw = np.concatenate([np.asarray(g) for g in got]) if got else np.empty((0, record.itemsize), np.uint8)
-    rec = np.ascontiguousarray(raw).view(record).reshape(-1)
-    return {d: np.ascontiguousarray(rec[d]) for d in record.names}
+    rec = _read_records(store_path, name, runs, scratch)
+    return {d: np.ascontiguousarray(rec[d]) for d in rec.dtype.names}
 
 
 def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
-              scratch: tuple | None = None) -> Iterator[dict[str, np.ndarray]]:
+              scratch: tuple | None = None, records: bool = False) -> Iterator:
     """:func:`read_runs` in blocks of whole runs of at most *max_points* points (or one larger run).
 
     A run is at most one store chunk, so memory stays bounded by the chunk size.
+    *records*: each block as its packed records (n,) instead of a dict of fields.
     """
     scratch = open_runs(store_path, name) if scratch is None else scratch
     runs = np.asarray(runs, dtype=np.int64).reshape(-1, 3)
@@ -239,7 +266,10 @@ def iter_runs(store_path: str, name: str, runs: np.ndarray, max_points: int,
     while a < len(runs):
         base = ends[a] - runs[a, 2]
         b = max(a + 1, int(np.searchsorted(ends, base + int(max_points), side="right")))
-        yield read_runs(store_path, name, runs[a:b], scratch)
+        if records:
+            yield _read_records(store_path, name, runs[a:b], scratch)
+        else:
+            yield read_runs(store_path, name, runs[a:b], scratch)
         a = b
 
 

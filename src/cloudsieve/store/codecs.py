@@ -28,7 +28,11 @@ def filters(per_point_dims: int) -> tuple:
     return (zarr.codecs.TransposeCodec(order=(1, 0)),) if per_point_dims == 1 else ()
 
 
-def record_compressors(itemsize: int) -> tuple:
+def record_compressors(itemsize: int, local: bool = False) -> tuple:
     """The codecs of a work array of packed records (uint8 rows of *itemsize* bytes): lz4 with a bit shuffle
-    over whole records, so each field's bytes compress together (a byte shuffle of single bytes does nothing)."""
+    over whole records, so each field's bytes compress together (a byte shuffle of single bytes does nothing).
+    *local*: a scratch on a local disk, written and read once: stored as it is (blosc level 0, a copy), the
+    codecs' CPU saved where the bytes cost no request."""
+    if local:
+        return (zarr.codecs.BloscCodec(cname="lz4", clevel=0, shuffle="noshuffle", typesize=1),)
     return (zarr.codecs.BloscCodec(cname="lz4", clevel=5, shuffle="bitshuffle", typesize=int(itemsize)),)

@@ -64,18 +64,27 @@ def part_task(store_path: str, part_path: str, fmt: str, mask: str | None, chunk
 
 
 def _write_part(st: PointStore, part_path: str, fmt: str, mask: str | None, chunks, label: str) -> int:
+    """One part; from a LAS source its records are packed at once (:class:`cloudsieve.io.las.LasPacking`) and
+    written as they are, LAZ on one thread (a task owns a core): the bytes of the writer's own assembly. An empty
+    part keeps the default backend: lazrs' two compressors end a file of no point differently."""
     from ..io import open_writer
+    from ..io.las import LasPacking, las_sourced, laz_backend
 
+    packing = LasPacking(st.header, st.dimensions, label) if las_sourced(st.source_format, st.header) else None
+    backend = laz_backend(parallel=not any(hi > lo for _, _, lo, hi in chunks))
     written = 0
     with open_writer(part_path, header=st.header, dtypes=st.dtypes, format=fmt, source_format=st.source_format,
-                     overwrite=True, bounds=st.bounds, label=label) as writer:
+                     overwrite=True, bounds=st.bounds, label=label, laz_backend=backend) as writer:
         for start, stop, lo, hi in chunks:
             chunk = st.rows(start, stop)
             rows = _kept_rows(st, mask, start, stop)
             if rows is None:
                 rows = np.arange(stop - start)
             rows = rows[lo:hi]
-            writer.write({k: v.take(rows, axis=0) for k, v in chunk.items()})
+            if packing is None:
+                writer.write({k: v.take(rows, axis=0) for k, v in chunk.items()})
+            elif len(rows):
+                writer.write_records(packing(chunk.pop("xyz"), chunk, rows, rows))
             written += len(rows)
     return written
 

@@ -41,10 +41,13 @@ _HALF = np.int64(1 << 31)
 
 
 def _cells(v: np.ndarray, size: float) -> np.ndarray:
-    """floor(v / size), corrected so that ``i * size <= v < (i + 1) * size`` holds in float64."""
+    """floor(v / size), corrected so that ``i * size <= v < (i + 1) * size`` holds in float64 (*v* contiguous)."""
     i = np.floor(v / size)
-    i -= v < i * size
-    i += v >= (i + 1) * size
+    t = i * size
+    i -= v < t
+    np.add(i, 1, out=t)
+    t *= size
+    i += v >= t
     return i
 
 
@@ -57,13 +60,15 @@ def tile_keys(xyz: np.ndarray, tile_size: float) -> np.ndarray:
         A tile index outside the signed 32-bit range (S too small for the coordinates).
     """
     xy = np.asarray(xyz, dtype=np.float64)[:, :2]
-    ij = np.stack([_cells(xy[:, 0], tile_size), _cells(xy[:, 1], tile_size)], axis=1)
-    if len(ij) and (ij.min() < -_HALF or ij.max() >= _HALF):
+    ix, iy = (_cells(np.ascontiguousarray(xy[:, a]), tile_size) for a in (0, 1))
+    if len(ix) and (min(ix.min(), iy.min()) < -_HALF or max(ix.max(), iy.max()) >= _HALF):
         raise InvalidParameterError(
             f"tile_size {tile_size} is too small for coordinates up to {np.abs(xy).max():.6g}: tile indices "
             f"must fit 32 bits")
-    ij = ij.astype(np.int64)
-    return (ij[:, 0] << np.int64(32)) + (ij[:, 1] + _HALF)
+    keys = ix.astype(np.int64) << np.int64(32)
+    keys += iy.astype(np.int64)
+    keys += _HALF
+    return keys
 
 
 def tile_index(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -78,24 +83,38 @@ def tile_name(stem: str, key: int) -> str:
     return f"{stem}_{int(ix[0])}_{int(iy[0])}.laz"
 
 
-def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False) -> dict:
+def write_tile(store_path: str, name: str, runs: np.ndarray, path: str, replace: bool = False,
+               records: bool = False) -> dict:
     """Task of :func:`export_tiles`: write a tile's points (its *runs* in buckets *name*) to the LAZ *path*.
 
-    Reads blocks of at most a store chunk; returns the tile's VPC entry
-    (:func:`cloudsieve.io.vpc.describe_tile`).
+    Reads blocks of at most a store chunk; *records*: the buckets hold the
+    tile's LAS point records (:func:`_packing`), written as they are.
+    Returns the tile's VPC entry (:func:`cloudsieve.io.vpc.describe_tile`).
     """
     from ..io import open_writer
+    from ..io.las import laz_backend
     from ..io.vpc import describe_tile
 
     store = PointStore.open(store_path, "r")
     scratch = open_runs(store_path, name)
     record = scratch[1]
-    dtypes = {d: (record[d].base, record[d].shape) for d in record.names}  # as the buckets hold them
+    # as the buckets hold them; LAS records: the store's own
+    dtypes = store.dtypes if records else {d: (record[d].base, record[d].shape) for d in record.names}
     with open_writer(path, header=store.header, dtypes=dtypes, source_format=store.source_format,
-                     bounds=store.bounds, overwrite=replace) as writer:
-        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch):
-            writer.write(block)
+                     bounds=store.bounds, overwrite=replace, laz_backend=laz_backend(parallel=False)) as writer:
+        for block in iter_runs(store_path, name, runs, store.chunk_size, scratch, records):
+            if records:
+                writer.write_records(block)
+            else:
+                writer.write(block)
     return describe_tile(path)
+
+
+def _packing(store: PointStore, dst: str):
+    """The tiles' LAS point records, built once by the bucketing tasks (a LAS-sourced store), else None."""
+    from ..io.las import LasPacking, las_sourced
+
+    return LasPacking(store.header, store.dimensions, dst) if las_sourced(store.source_format, store.header) else None
 
 
 def check_grid(bounds: np.ndarray, tile_size: Any, what: str) -> float:
@@ -212,9 +231,11 @@ def export_tiles(
         return _export_remote(store, dst, stem, size, mask, run, update)
     try:
         with replacing(dst, directory=True) as tmp:
-            buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+            packing = _packing(store, dst)
+            buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run, packing=packing)
             names = [tile_name(stem, int(k)) for k in buckets.keys]
-            args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f)) for k, f in zip(buckets.keys, names)]
+            args = [(store.path, _SCRATCH, buckets.runs(k), os.path.join(tmp, f), False, packing is not None)
+                    for k, f in zip(buckets.keys, names)]
             entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
             for n in buckets.counts:
                 update(int(n))
@@ -241,9 +262,10 @@ def _export_remote(store: PointStore, dst: str, stem: str, size: float, mask, ru
     storage.remove(vpc)
     names: list[str] = []
     try:
-        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run)
+        packing = _packing(store, dst)
+        buckets = bucket(store, partial(tile_keys, tile_size=size), _SCRATCH, mask=mask, run=run, packing=packing)
         names = [tile_name(stem, int(k)) for k in buckets.keys]
-        args = [(store.path, _SCRATCH, buckets.runs(k), storage.join(dst, f), f in before)
+        args = [(store.path, _SCRATCH, buckets.runs(k), storage.join(dst, f), f in before, packing is not None)
                 for k, f in zip(buckets.keys, names)]
         entries = [write_tile(*a) for a in args] if run is None else run(write_tile, args, "export: tiles")
         for n in buckets.counts:
