@@ -137,3 +137,33 @@ def test_creating_where_an_array_is_raises_as_zarr_does(server):
         assert store.delete_arrays(["partition/a"]) == ["partition/a"]
         store.create_array("partition/a", data=np.arange(5))
         assert store.read("partition/a").tolist() == [0, 1, 2, 3, 4]
+
+
+@pytest.mark.parametrize("bad", ["", "/", "partition/", "/partition/cell", "partition//cell", "partition/../xyz",
+                                 "..", ".", "xyz", "intensity/x"])
+def test_deleting_derived_arrays_never_reaches_inputs_the_root_or_outside(server, tmp_path, bad):
+    """The batched deletion lists and removes everything under each name: the root, a path that climbs out, an
+    empty segment or an input array is refused before any request, on S3 and on disk, and a deletion removes its
+    array alone (not a neighbour whose name it prefixes, nor any object beside the store)."""
+    bucket = server.make_bucket(f"reach-{abs(hash(bad)) % 10**8}")
+    dtypes = {"xyz": (np.float64, (3,)), "intensity": (np.uint16, ())}
+    fs = server.filesystem()
+    fs.pipe_file(f"{bucket[5:]}/beside/keep.bin", b"kept")  # another object in the bucket
+    for path in (f"{bucket}/s.zarr", str(tmp_path / "s.zarr")):
+        with storage.using(server.storage_options()):
+            store = PointStore.create(path, dtypes=dtypes, count=10)
+            store.finish({"count": 10, "bounds": [[0, 0, 0], [1, 1, 1]], "format": "las", "header": {},
+                          "dimensions": list(dtypes), "chunk_size": 10})
+            store = PointStore.open(path, "r+")
+            store.create_array("partition/cell", data=np.arange(10))
+            store.create_array("partition/cells", data=np.arange(10) + 1)
+            with pytest.raises(InvalidParameterError):
+                store.delete_arrays(["partition/counts", bad])
+            with pytest.raises(InvalidParameterError):
+                store.delete_array(bad)
+            assert store.delete_arrays(["partition/cell"]) == ["partition/cell"]
+            again = PointStore.open(path, "r")
+            assert "partition/cell" not in again and again.read("partition/cells").tolist() == list(range(1, 11))
+            assert again.read("intensity").shape == (10,) and again.array("xyz").shape == (10, 3)
+    fs.invalidate_cache()
+    assert fs.cat_file(f"{bucket[5:]}/beside/keep.bin") == b"kept"

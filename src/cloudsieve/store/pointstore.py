@@ -268,6 +268,10 @@ class PointStore:
                                          use_consolidated=False)
 
     def _check_derived(self, name: str) -> None:
+        parts = str(name).split("/")
+        # a deletion lists and removes everything under the name: never the root nor a path out of the store
+        if not str(name).strip("/") or any(p in ("", ".", "..") for p in parts):
+            raise InvalidParameterError(f"{self.path}: {name!r} is not a derived array's path (such as 'simplify/keep')")
         if name in self.dimensions or name.split("/")[0] in self.dimensions:
             raise InvalidParameterError(
                 f"{self.path}: {name!r} is an input array; derived arrays go under a path such as 'simplify/{name}'"
