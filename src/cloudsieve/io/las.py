@@ -167,13 +167,13 @@ class LasRecords:
         n = len(xyz)
         rec = laspy.ScaleAwarePointRecord.zeros(n, header=self.header)
         for i, dim in enumerate(_XYZ):
-            raw = np.round((xyz[:, i] - self.offsets[i]) / self.scales[i])
-            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+            raw = _las_ints(xyz[:, i], self.offsets[i], self.scales[i])
+            if raw is None:
                 raise InputFormatError(
                     f"cannot write {self.label}: {'xyz'[i]} values {xyz[:, i].min()}..{xyz[:, i].max()} do not fit "
                     f"LAS int32 with scale {self.scales[i]} and offset {self.offsets[i]}"
                 )
-            rec.array[dim] = raw.astype(np.int32)
+            rec.array[dim] = raw
         for name, las_name, how in self.mapping:
             if name not in chunk or las_name not in self.las_names:
                 continue
@@ -238,10 +238,10 @@ class LasPacking:
         n = len(xyz)
         rec = np.zeros(n, dtype=built.header.point_format.dtype())
         for i, dim in enumerate(_XYZ):
-            raw = np.round((xyz[:, i] - built.offsets[i]) / built.scales[i])
-            if n and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
-                return built.build(points).array
-            rec[dim] = raw.astype(np.int32)
+            raw = _las_ints(xyz[:, i], built.offsets[i], built.scales[i])
+            if raw is None:
+                return built.build(points).array  # which raises, naming the file
+            rec[dim] = raw
         subfields = _sub_fields(built.header.point_format.id)
         bits: dict[str, np.ndarray] = {}
         for name, _, _ in built.mapping:
@@ -260,6 +260,14 @@ class LasPacking:
         for parent, acc in bits.items():
             rec[parent] = acc
         return rec
+
+
+def _las_ints(values: np.ndarray, offset: float, scale: float) -> np.ndarray | None:
+    """LAS integers (int32) ``round((values - offset) / scale)``, or None where one is not finite or not in int32."""
+    raw = np.round((values - offset) / scale)
+    if len(raw) and (raw.min() < -(2**31) or raw.max() > 2**31 - 1 or not np.all(np.isfinite(raw))):
+        return None
+    return raw.astype(np.int32)
 
 
 def _sub_fields(point_format_id: int) -> dict:
